@@ -1,0 +1,31 @@
+# teamslam: two commands do everything on a fresh machine.
+#   make run   create .venv, install teamslam, run the default job
+#   make test  create .venv, install teamslam with its test extras, lint, run the test suite
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test lint bench clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(STAMP): $(BIN)/python pyproject.toml
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+run: $(STAMP)
+	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam dvi-demo --agents 5 --graph ring --loss 0.2 --steps 60 --seed 0 --out results/dvi-demo
+
+lint: $(STAMP)
+	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff format --check src tests benchmarks
+
+test: lint
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q
+
+clean:
+	rm -rf $(VENV) results build src/*.egg-info .pytest_cache .ruff_cache

@@ -1,0 +1,3 @@
+from teamslam.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,212 @@
+"""The recursive distributed Kalman filter and its centralised reference.
+
+Distributed-MSCKF paper, end of §IV-C: taking two consecutive time steps of the lifted form
+(Prop. 3 with α = 1) gives a Kalman filter, and the averaging step (15) makes it distributed.
+Each agent ``i`` keeps ``N(μ_i, Σ_i)`` over ``s_i = [x_i; y]`` and at every step
+
+1. **consensus averaging** — it receives its neighbours' marginals of the common block ``y``,
+   forms the weighted geometric average (eq. 15 / 19) with the row ``A_i·`` of the
+   doubly-stochastic weights, and replaces its own ``y`` marginal by it keeping
+   ``p(x_i | y)`` (Prop. 2);
+2. **prediction** with its motion model;
+3. **update** with its own observations (eqs. 65–67; ``S = 0`` unless given).
+
+The agent's view of its neighbours is only the messages it is handed — a
+:class:`CommonMarginalMessage` per neighbour — never the neighbours' filters.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from teamslam.dvi.kalman import kalman_predict, kalman_update
+from teamslam.dvi.models import LinearGaussianModel, TeamProblem
+from teamslam.gaussian import geometric_average_arrays, replace_marginal_arrays
+from teamslam.graph import EdgeLoss
+
+__all__ = [
+    "CentralizedKalmanFilter",
+    "CommonMarginalMessage",
+    "DistributedKalmanFilter",
+    "DistributedRun",
+    "consensus_average",
+    "run_centralized",
+    "run_distributed",
+]
+
+
+@dataclass(frozen=True)
+class CommonMarginalMessage:
+    """What one agent tells a neighbour: the marginal ``N(mean, cov)`` of the common block."""
+
+    sender: int
+    mean: np.ndarray
+    cov: np.ndarray
+
+
+def consensus_average(
+    mean: np.ndarray,
+    cov: np.ndarray,
+    common_index: np.ndarray,
+    self_weight: float,
+    messages: Sequence[tuple[float, CommonMarginalMessage]],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 19 then Prop. 2: average the common marginal with the neighbours', rebuild the joint.
+
+    Parameters
+    ----------
+    mean, cov
+        The agent's joint over ``[x; y]``.
+    common_index
+        Indices of ``y``.
+    self_weight
+        ``A_ii``.
+    messages
+        ``(A_ij, message_j)`` for each neighbour ``j`` heard this step.
+
+    Returns
+    -------
+    mean, cov
+        The joint with ``y``'s marginal replaced by the weighted geometric average.
+        Without messages the input comes back unchanged.
+    """
+    if not messages:
+        return mean, cov
+    own_mean = mean[common_index]
+    own_cov = cov[np.ix_(common_index, common_index)]
+    weights = np.array([self_weight] + [w for w, _ in messages])
+    means = np.stack([own_mean] + [m.mean for _, m in messages])
+    covs = np.stack([own_cov] + [m.cov for _, m in messages])
+    avg_mean, avg_cov = geometric_average_arrays(means, covs, weights / weights.sum())
+    return replace_marginal_arrays(mean, cov, common_index, avg_mean, avg_cov)
+
+
+class CentralizedKalmanFilter:
+    """A Kalman filter over the whole team's state with every agent's data."""
+
+    def __init__(self, model: LinearGaussianModel) -> None:
+        self.model = model
+        self.mean = model.prior_mean.copy()
+        self.cov = model.prior_cov.copy()
+
+    def predict(self, control: np.ndarray) -> None:
+        """Propagate one step."""
+        m = self.model
+        self.mean, self.cov = kalman_predict(
+            self.mean, self.cov, m.transition, m.process_cov, control, m.control_matrix
+        )
+
+    def update(self, observation: np.ndarray, correlation: np.ndarray | None = None) -> None:
+        """Condition on one step's observation."""
+        m = self.model
+        self.mean, self.cov = kalman_update(
+            self.mean, self.cov, m.observation_matrix, observation, m.observation_cov, correlation
+        )
+
+
+class DistributedKalmanFilter:
+    """One agent's distributed Kalman filter: consensus averaging, prediction, update."""
+
+    def __init__(self, agent: int, model: LinearGaussianModel) -> None:
+        self.agent = agent
+        self.model = model
+        self.mean = model.prior_mean.copy()
+        self.cov = model.prior_cov.copy()
+
+    def message(self) -> CommonMarginalMessage:
+        """This agent's common-block marginal, as sent to its neighbours."""
+        iy = self.model.common_index
+        return CommonMarginalMessage(self.agent, self.mean[iy].copy(), self.cov[np.ix_(iy, iy)])
+
+    def consensus(
+        self, self_weight: float, messages: Sequence[tuple[float, CommonMarginalMessage]]
+    ) -> None:
+        """Average the common marginal with the received ones (eq. 19, Prop. 2)."""
+        self.mean, self.cov = consensus_average(
+            self.mean, self.cov, self.model.common_index, self_weight, messages
+        )
+
+    def predict(self, control: np.ndarray) -> None:
+        """Propagate one step with the agent's motion model."""
+        m = self.model
+        self.mean, self.cov = kalman_predict(
+            self.mean, self.cov, m.transition, m.process_cov, control, m.control_matrix
+        )
+
+    def update(self, observation: np.ndarray, correlation: np.ndarray | None = None) -> None:
+        """Condition on the agent's own observation."""
+        m = self.model
+        self.mean, self.cov = kalman_update(
+            self.mean, self.cov, m.observation_matrix, observation, m.observation_cov, correlation
+        )
+
+
+@dataclass
+class DistributedRun:
+    """Per-step estimates of a distributed run.
+
+    Attributes
+    ----------
+    means
+        ``means[i]`` is ``(T + 1, n_i)``: agent ``i``'s posterior mean after each step.
+    covs
+        ``covs[i]`` is ``(T + 1, n_i, n_i)``.
+    messages
+        Number of messages delivered at each step ``(T + 1,)``.
+    """
+
+    means: list[np.ndarray]
+    covs: list[np.ndarray]
+    messages: np.ndarray
+
+
+def run_centralized(problem: TeamProblem) -> tuple[np.ndarray, np.ndarray]:
+    """Centralised Kalman filter over a team problem: means ``(T+1, n)``, covs ``(T+1, n, n)``."""
+    kf = CentralizedKalmanFilter(problem.centralized)
+    z = problem.centralized_observations()
+    u = problem.centralized_controls()
+    means, covs = [], []
+    for t in range(problem.steps + 1):
+        if t > 0:
+            kf.predict(u[t - 1])
+        kf.update(z[t])
+        means.append(kf.mean)
+        covs.append(kf.cov)
+    return np.stack(means), np.stack(covs)
+
+
+def run_distributed(
+    problem: TeamProblem, edge_loss: EdgeLoss, consensus: bool = True
+) -> DistributedRun:
+    """Run every agent's distributed Kalman filter in lock-step over a team problem.
+
+    At each step ``t ≥ 1`` the surviving edges and their weights come from ``edge_loss``;
+    every agent publishes its common marginal, then averages those of the neighbours it can
+    hear (step 1), predicts (2) and updates (3). At ``t = 0`` agents only update.
+    """
+    n = problem.n_agents
+    if edge_loss.graph.n != n:
+        raise ValueError(f"graph has {edge_loss.graph.n} robots, problem has {n} agents")
+    filters = [DistributedKalmanFilter(i, m) for i, m in enumerate(problem.agents)]
+    means = [np.empty((problem.steps + 1, m.dim)) for m in problem.agents]
+    covs = [np.empty((problem.steps + 1, m.dim, m.dim)) for m in problem.agents]
+    delivered = np.zeros(problem.steps + 1, dtype=int)
+    for t in range(problem.steps + 1):
+        if t > 0:
+            active, weights = edge_loss.step()
+            if consensus:
+                outbox = [f.message() for f in filters]
+                for i, f in enumerate(filters):
+                    heard = [(weights[i, j], outbox[j]) for j in np.flatnonzero(active[i])]
+                    delivered[t] += len(heard)
+                    f.consensus(weights[i, i], heard)
+            for i, f in enumerate(filters):
+                f.predict(problem.controls[i][t - 1])
+        for i, f in enumerate(filters):
+            f.update(problem.observations[i][t])
+            means[i][t] = f.mean
+            covs[i][t] = f.cov
+    return DistributedRun(means, covs, delivered)
