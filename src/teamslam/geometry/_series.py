@@ -20,9 +20,9 @@ def _blend(theta: np.ndarray, series, direct) -> np.ndarray:
     """Evaluate ``series(θ²)`` where θ is small and ``direct(θ)`` elsewhere, without warnings."""
     theta = np.asarray(theta, dtype=float)
     small = theta < SERIES_THRESHOLD
-    safe = np.where(small, 1.0, theta)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        far = direct(safe)
+    if not np.any(small):
+        return direct(theta)
+    far = direct(np.where(small, 1.0, theta))  # the placeholder 1.0 keeps it finite
     return np.where(small, series(theta * theta), far)
 
 

@@ -61,7 +61,12 @@ def vee(omega: np.ndarray) -> np.ndarray:
 
 
 def _angle(phi: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(phi, axis=-1)
+    return np.sqrt(np.einsum("...i,...i->...", phi, phi))
+
+
+def _hat_squared(phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """``φ^ φ^ = φ φᵀ - θ² I`` without a matrix product."""
+    return phi[..., :, None] * phi[..., None, :] - (theta * theta)[..., None, None] * np.eye(3)
 
 
 def _eye_like(phi: np.ndarray) -> np.ndarray:
@@ -71,12 +76,12 @@ def _eye_like(phi: np.ndarray) -> np.ndarray:
 def exp(phi: np.ndarray) -> np.ndarray:
     """Rotation matrix of the rotation vector ``phi`` (Rodrigues' formula)."""
     phi = np.asarray(phi, dtype=float)
-    theta = _angle(phi)[..., None, None]
-    phi_hat = hat(phi)
+    angle = _angle(phi)
+    theta = angle[..., None, None]
     return (
         _eye_like(phi)
-        + _series.sinc(theta) * phi_hat
-        + _series.one_minus_cos_over_sq(theta) * (phi_hat @ phi_hat)
+        + _series.sinc(theta) * hat(phi)
+        + _series.one_minus_cos_over_sq(theta) * _hat_squared(phi, angle)
     )
 
 
@@ -131,24 +136,24 @@ def adjoint(rotation: np.ndarray) -> np.ndarray:
 def left_jacobian(phi: np.ndarray) -> np.ndarray:
     """``J_l(φ) = I + (1 - cos θ)/θ² φ^ + (θ - sin θ)/θ³ φ^²``."""
     phi = np.asarray(phi, dtype=float)
-    theta = _angle(phi)[..., None, None]
-    phi_hat = hat(phi)
+    angle = _angle(phi)
+    theta = angle[..., None, None]
     return (
         _eye_like(phi)
-        + _series.one_minus_cos_over_sq(theta) * phi_hat
-        + _series.theta_minus_sin_over_cube(theta) * (phi_hat @ phi_hat)
+        + _series.one_minus_cos_over_sq(theta) * hat(phi)
+        + _series.theta_minus_sin_over_cube(theta) * _hat_squared(phi, angle)
     )
 
 
 def left_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
     """``J_l(φ)⁻¹ = I - φ^/2 + (1 - θ sin θ / (2(1 - cos θ)))/θ² φ^²`` (singular at θ = 2π)."""
     phi = np.asarray(phi, dtype=float)
-    theta = _angle(phi)[..., None, None]
-    phi_hat = hat(phi)
+    angle = _angle(phi)
+    theta = angle[..., None, None]
     return (
         _eye_like(phi)
-        - 0.5 * phi_hat
-        + _series.inverse_jacobian_coefficient(theta) * (phi_hat @ phi_hat)
+        - 0.5 * hat(phi)
+        + _series.inverse_jacobian_coefficient(theta) * _hat_squared(phi, angle)
     )
 
 

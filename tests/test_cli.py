@@ -1,0 +1,75 @@
+"""The ``teamslam`` command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from teamslam import __version__
+from teamslam.cli import main
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert __version__ in capsys.readouterr().out
+
+
+def test_dvi_demo_writes_metrics(tmp_path, capsys):
+    assert (
+        main(
+            [
+                "dvi-demo",
+                "--agents",
+                "4",
+                "--graph",
+                "ring",
+                "--loss",
+                "0.2",
+                "--steps",
+                "25",
+                "--seed",
+                "3",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert "centralized" in out and "distributed" in out and "separate" in out
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["agents"] == 4
+    # consensus brings the agents' maps together; separate filters stay apart
+    assert metrics["final_disagreement"] < 0.2 * metrics["final_disagreement_separate"]
+    assert metrics["max_error_vs_centralized"] > 0
+    assert (
+        metrics["landmark_rmse_final"]["distributed"] < metrics["landmark_rmse_final"]["separate"]
+    )
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["dvi-demo", "--agents", "zero"],
+        ["dvi-demo", "--agents", "1"],
+        ["dvi-demo", "--loss", "1.5"],
+        ["dvi-demo", "--graph", "mesh"],
+        ["dvi-demo", "--steps", "-3"],
+        ["no-such-command"],
+        ["dvi-demo", "--unknown-flag"],
+    ],
+)
+def test_bad_arguments_give_one_line_and_exit_2(argv):
+    proc = subprocess.run(
+        [sys.executable, "-m", "teamslam", *argv], capture_output=True, text=True, check=False
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert "error" in lines[0]
+    assert "Traceback" not in proc.stderr
