@@ -73,3 +73,37 @@ def test_bad_arguments_give_one_line_and_exit_2(argv):
     assert len(lines) == 1, proc.stderr
     assert "error" in lines[0]
     assert "Traceback" not in proc.stderr
+
+
+def test_simulate_and_info(tmp_path, capsys):
+    out = tmp_path / "team"
+    assert (
+        main(["simulate", "--robots", "3", "--steps", "30", "--seed", "1", "--out", str(out)]) == 0
+    )
+    capsys.readouterr()
+    assert main(["data", "info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["robots"] == 3
+    assert info["frames_per_robot"] == [31, 31, 31]
+    assert info["objects_observed"] >= info["objects_shared"] > 0
+
+
+def test_import_reference_cli(kitti00_dir, tmp_path, capsys):
+    assert main(["data", "import-reference", str(kitti00_dir), str(tmp_path / "k")]) == 0
+    capsys.readouterr()
+    assert main(["data", "info", str(tmp_path / "k"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["frames_per_robot"] == [2001, 2001, 2041]
+    assert info["objects_observed"] == 405
+
+
+def test_data_errors_are_one_line(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "teamslam", "data", "info", str(tmp_path / "missing")],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert proc.returncode == 2
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert "no manifest.json" in proc.stderr

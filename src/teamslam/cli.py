@@ -82,6 +82,41 @@ def _cmd_dvi_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from teamslam.datasets import dataset_info, format_info, save_dataset
+    from teamslam.sim import lissajous_team
+
+    dataset = lissajous_team(
+        robots=args.robots,
+        steps=args.steps,
+        objects=args.objects,
+        seed=args.seed,
+        noise_free=args.noise_free,
+    )
+    path = save_dataset(dataset, args.out)
+    print(format_info(dataset_info(dataset)))
+    print(f"\nwrote {path}")
+    return 0
+
+
+def _cmd_data_info(args: argparse.Namespace) -> int:
+    from teamslam.datasets import dataset_info, format_info, load_dataset
+
+    info = dataset_info(load_dataset(args.dataset))
+    print(json.dumps(info, indent=2) if args.json else format_info(info))
+    return 0
+
+
+def _cmd_data_import_reference(args: argparse.Namespace) -> int:
+    from teamslam.datasets import dataset_info, format_info, import_reference, save_dataset
+
+    dataset = import_reference(args.source, inverted_odometry=args.inverted_odometry)
+    path = save_dataset(dataset, args.out)
+    print(format_info(dataset_info(dataset)))
+    print(f"\nwrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full ``teamslam`` argument parser."""
     from teamslam.graph import GRAPH_KINDS
@@ -107,6 +142,41 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=_non_negative_int, default=0, help="random seed")
     demo.add_argument("--out", type=Path, default=None, help="directory for metrics.json")
     demo.set_defaults(handler=_cmd_dvi_demo)
+
+    sim = sub.add_parser(
+        "simulate",
+        help="simulate a stereo robot team on Lissajous curves and write a dataset",
+        description="Simulate a team of stereo robots flying 3D Lissajous curves through one "
+        "arena (objects, geometric feature tracks, noisy odometry) and write it in teamslam's "
+        "dataset format.",
+    )
+    sim.add_argument("--robots", type=_positive_int, default=5, help="number of robots")
+    sim.add_argument("--steps", type=_positive_int, default=300, help="motion steps per robot")
+    sim.add_argument("--objects", type=_non_negative_int, default=210, help="objects in the map")
+    sim.add_argument("--seed", type=_non_negative_int, default=0, help="random seed")
+    sim.add_argument("--noise-free", action="store_true", help="exact measurements and odometry")
+    sim.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    sim.set_defaults(handler=_cmd_simulate)
+
+    data = sub.add_parser("data", help="inspect and import team datasets")
+    data_sub = data.add_subparsers(dest="data_command", metavar="ACTION", parser_class=_Parser)
+    data_sub.required = True
+    info = data_sub.add_parser("info", help="summary of a dataset")
+    info.add_argument("dataset", type=Path, help="dataset directory")
+    info.add_argument("--json", action="store_true", help="print one JSON object")
+    info.set_defaults(handler=_cmd_data_info)
+    imp = data_sub.add_parser(
+        "import-reference",
+        help="convert the distributed-MSCKF paper's published data to teamslam's format",
+    )
+    imp.add_argument("source", type=Path, help="directory of the published files")
+    imp.add_argument("out", type=Path, help="dataset directory to write")
+    imp.add_argument(
+        "--inverted-odometry",
+        action="store_true",
+        help="the source stores inverse relative poses (the published simulated teams)",
+    )
+    imp.set_defaults(handler=_cmd_data_import_reference)
     return parser
 
 

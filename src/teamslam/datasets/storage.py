@@ -1,0 +1,289 @@
+"""teamslam's own on-disk team-dataset format (no pickle anywhere).
+
+A dataset is a directory::
+
+    manifest.json        format name, version, calibration, robots, metadata
+    robot_000.npz        T_world_body, odometry, feature_{offsets,ids,measurements},
+    robot_001.npz        object_{offsets,ids,measurements}, [timestamps]
+    ...
+    map.npz              object_ids, object_positions, landmark_ids, landmark_positions,
+                         track_landmarks
+
+Arrays are compressed numpy ``.npz`` files read with ``allow_pickle=False``; ragged per-frame
+observations are flat arrays plus offsets. Floats in the manifest are written with Python's
+shortest round-trip representation, so a save/load round trip is bit-exact. Loading validates
+every field and names the file and field of the first problem; writing is atomic (a reader never
+sees half a dataset).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from teamslam.datasets.model import (
+    Calibration,
+    DatasetError,
+    FrameObservations,
+    RobotSequence,
+    TeamDataset,
+)
+from teamslam.geometry.camera import StereoCamera
+
+__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "load_dataset", "save_dataset"]
+
+FORMAT_NAME = "teamslam-team-dataset"
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+
+
+def _robot_file(i: int) -> str:
+    return f"robot_{i:03d}.npz"
+
+
+def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
+    """Write ``dataset`` to ``directory`` atomically (replacing a previous dataset there).
+
+    Returns
+    -------
+    pathlib.Path
+        The dataset directory.
+    """
+    dataset.validate()
+    directory = Path(directory)
+    if directory.exists() and not (directory / MANIFEST).exists() and any(directory.iterdir()):
+        raise DatasetError(
+            f"{directory} exists and is not a teamslam dataset; refusing to replace it"
+        )
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+    try:
+        cal = dataset.calibration
+        manifest = {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "name": dataset.name,
+            "calibration": {
+                "K": cal.camera.intrinsics.tolist(),
+                "T_left_right": cal.camera.T_left_right.tolist(),
+                "T_cam_body": cal.T_cam_body.tolist(),
+                "image_size": list(cal.image_size) if cal.image_size else None,
+            },
+            "robots": [],
+            "map": "map.npz",
+            "metadata": dataset.metadata,
+        }
+        for i, robot in enumerate(dataset.robots):
+            arrays = {
+                "T_world_body": robot.T_world_body,
+                "odometry": robot.odometry,
+                "feature_offsets": robot.features.offsets,
+                "feature_ids": robot.features.ids,
+                "feature_measurements": robot.features.measurements,
+                "object_offsets": robot.objects.offsets,
+                "object_ids": robot.objects.ids,
+                "object_measurements": robot.objects.measurements,
+            }
+            if robot.timestamps is not None:
+                arrays["timestamps"] = robot.timestamps
+            np.savez_compressed(staging / _robot_file(i), **arrays)
+            manifest["robots"].append(
+                {
+                    "file": _robot_file(i),
+                    "frames": robot.frames,
+                    "timestamps": robot.timestamps is not None,
+                }
+            )
+        np.savez_compressed(
+            staging / "map.npz",
+            object_ids=dataset.object_ids,
+            object_positions=dataset.object_positions,
+            landmark_ids=dataset.landmark_ids,
+            landmark_positions=dataset.landmark_positions,
+            track_landmarks=dataset.track_landmarks,
+        )
+        (staging / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
+        if directory.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{directory.name}.old.", dir=directory.parent))
+            old.rmdir()
+            directory.replace(old)
+            staging.replace(directory)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            staging.replace(directory)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return directory
+
+
+def _matrix(value, shape: tuple[int, ...], where: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where} is not a numeric matrix") from None
+    if arr.shape != shape or not np.all(np.isfinite(arr)):
+        raise DatasetError(f"{where} must be a finite {shape} matrix")
+    return arr
+
+
+def _load_npz(path: Path, fields: dict[str, str], optional: tuple[str, ...] = ()) -> dict:
+    """Read ``path`` with pickle disabled and check each field's dtype kind ('f' or 'i')."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: file is missing")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            present = set(npz.files)
+            out = {}
+            for name, kind in fields.items():
+                if name not in present:
+                    if name in optional:
+                        continue
+                    raise DatasetError(f"{path}: field {name!r} is missing")
+                arr = npz[name]
+                if arr.dtype.kind not in (kind, "u" if kind == "i" else kind):
+                    raise DatasetError(
+                        f"{path}: field {name!r} has dtype {arr.dtype}, expected "
+                        f"{'floating point' if kind == 'f' else 'integer'}"
+                    )
+                out[name] = arr
+    except DatasetError:
+        raise
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, KeyError) as exc:
+        raise DatasetError(f"{path}: cannot read ({type(exc).__name__}: {exc})") from None
+    return out
+
+
+def _observations(arrays: dict, prefix: str) -> FrameObservations:
+    try:
+        return FrameObservations(
+            arrays[f"{prefix}_offsets"], arrays[f"{prefix}_ids"], arrays[f"{prefix}_measurements"]
+        )
+    except DatasetError as exc:
+        raise DatasetError(f"{prefix}_*: {exc}") from None
+    except ValueError as exc:  # measurements that cannot be reshaped to (M, 4)
+        raise DatasetError(f"{prefix}_measurements: {exc}") from None
+
+
+def load_dataset(directory: str | Path) -> TeamDataset:
+    """Read and validate a dataset written by :func:`save_dataset`.
+
+    Raises
+    ------
+    DatasetError
+        Naming the file and field of the first problem: unknown format or version, a missing
+        or truncated file, wrong dtype or shape, non-finite values, ids repeated in a frame,
+        non-monotone offsets, frame counts that disagree.
+    """
+    directory = Path(directory)
+    manifest_path = directory / MANIFEST
+    if not manifest_path.is_file():
+        raise DatasetError(f"{directory}: no {MANIFEST}; not a teamslam dataset")
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{manifest_path}: not valid JSON ({exc})") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT_NAME:
+        raise DatasetError(f"{manifest_path}: format is not {FORMAT_NAME!r}")
+    version = manifest.get("version")
+    if version != FORMAT_VERSION:
+        raise DatasetError(
+            f"{manifest_path}: unsupported format version {version!r} "
+            f"(this teamslam reads version {FORMAT_VERSION})"
+        )
+    try:
+        cal = manifest["calibration"]
+        robots_meta = manifest["robots"]
+        map_file = manifest["map"]
+    except (KeyError, TypeError) as exc:
+        raise DatasetError(f"{manifest_path}: missing field {exc}") from None
+    if not isinstance(robots_meta, list) or not robots_meta:
+        raise DatasetError(f"{manifest_path}: 'robots' must be a non-empty list")
+    image_size = cal.get("image_size")
+    if image_size is not None and (
+        not isinstance(image_size, list) or len(image_size) != 2 or min(image_size) <= 0
+    ):
+        raise DatasetError(f"{manifest_path}: calibration.image_size must be [width, height]")
+    try:
+        calibration = Calibration(
+            StereoCamera(
+                _matrix(cal["K"], (3, 3), f"{manifest_path}: calibration.K"),
+                _matrix(cal["T_left_right"], (4, 4), f"{manifest_path}: calibration.T_left_right"),
+            ),
+            _matrix(cal["T_cam_body"], (4, 4), f"{manifest_path}: calibration.T_cam_body"),
+            tuple(int(v) for v in image_size) if image_size else None,
+        )
+    except KeyError as exc:
+        raise DatasetError(f"{manifest_path}: calibration field {exc} is missing") from None
+    except ValueError as exc:
+        raise DatasetError(f"{manifest_path}: {exc}") from None
+
+    robot_fields = {
+        "T_world_body": "f",
+        "odometry": "f",
+        "feature_offsets": "i",
+        "feature_ids": "i",
+        "feature_measurements": "f",
+        "object_offsets": "i",
+        "object_ids": "i",
+        "object_measurements": "f",
+        "timestamps": "f",
+    }
+    robots = []
+    for i, meta in enumerate(robots_meta):
+        if not isinstance(meta, dict) or not isinstance(meta.get("file"), str):
+            raise DatasetError(f"{manifest_path}: robots[{i}] must name its file")
+        name = meta["file"]
+        if "/" in name or "\\" in name or name.startswith("."):
+            raise DatasetError(
+                f"{manifest_path}: robots[{i}].file {name!r} is not a plain file name"
+            )
+        path = directory / name
+        arrays = _load_npz(path, robot_fields, optional=("timestamps",))
+        try:
+            robot = RobotSequence(
+                T_world_body=arrays["T_world_body"],
+                odometry=arrays["odometry"],
+                features=_observations(arrays, "feature"),
+                objects=_observations(arrays, "object"),
+                timestamps=arrays.get("timestamps"),
+            )
+            robot.validate(f"robot {i}")
+        except DatasetError as exc:
+            raise DatasetError(f"{path}: {exc}") from None
+        if meta.get("frames") != robot.frames:
+            raise DatasetError(
+                f"{path}: manifest says {meta.get('frames')} frames, file holds {robot.frames}"
+            )
+        robots.append(robot)
+
+    map_path = directory / str(map_file)
+    m = _load_npz(
+        map_path,
+        {
+            "object_ids": "i",
+            "object_positions": "f",
+            "landmark_ids": "i",
+            "landmark_positions": "f",
+            "track_landmarks": "i",
+        },
+    )
+    try:
+        return TeamDataset(
+            name=str(manifest.get("name", directory.name)),
+            calibration=calibration,
+            robots=robots,
+            object_ids=m["object_ids"],
+            object_positions=m["object_positions"],
+            landmark_ids=m["landmark_ids"],
+            landmark_positions=m["landmark_positions"],
+            track_landmarks=m["track_landmarks"],
+            metadata=manifest.get("metadata") or {},
+        )
+    except DatasetError as exc:
+        raise DatasetError(f"{map_path}: {exc}") from None
