@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from teamslam import __version__
@@ -107,3 +108,61 @@ def test_data_errors_are_one_line(tmp_path):
     assert proc.returncode == 2
     assert len(proc.stderr.strip().splitlines()) == 1
     assert "no manifest.json" in proc.stderr
+
+
+def test_fej_table_json(capsys, tmp_path):
+    argv = [
+        "fej",
+        "table",
+        "--env",
+        "2",
+        "--features",
+        "20",
+        "--runs",
+        "4",
+        "--workers",
+        "1",
+        "--json",
+        "--out",
+        str(tmp_path),
+    ]
+    assert main(argv) == 0
+    table = json.loads(capsys.readouterr().out)
+    for name in ("std", "ideal", "fej"):
+        for key in (
+            "r1_pose_nees",
+            "r1_position_rmse",
+            "r1_heading_rmse",
+            "r2_pose_nees",
+            "r2_position_rmse",
+            "r2_heading_rmse",
+            "feature_nees",
+            "feature_rmse",
+        ):
+            assert np.isfinite(table[name][key])
+    assert (tmp_path / "nees_rmse.png").stat().st_size > 10_000
+    assert (tmp_path / "sigma_bounds.png").stat().st_size > 10_000
+
+
+def test_fej_table_bad_environment_file(tmp_path):
+    bad = tmp_path / "env.json"
+    bad.write_text("[]")
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "teamslam",
+            "fej",
+            "table",
+            "--runs",
+            "2",
+            "--environment",
+            str(bad),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert proc.returncode == 2
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert "env.json" in proc.stderr

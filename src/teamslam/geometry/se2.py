@@ -63,7 +63,12 @@ def rotation(theta: np.ndarray) -> np.ndarray:
     """Planar rotation matrices ``R(θ)``, ``(...) -> (..., 2, 2)``."""
     theta = np.asarray(theta, dtype=float)
     c, s = np.cos(theta), np.sin(theta)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    out = np.empty((*theta.shape, 2, 2))
+    out[..., 0, 0] = c
+    out[..., 0, 1] = -s
+    out[..., 1, 0] = s
+    out[..., 1, 1] = c
+    return out
 
 
 def from_xytheta(pose: np.ndarray) -> np.ndarray:

@@ -1,0 +1,26 @@
+"""Consistent planar multi-robot EKF SLAM (the FEJ multi-robot EKF paper).
+
+* :mod:`~teamslam.ekf2d.models` — motion (eqs. 2–6) and observation (eqs. 7–11) models;
+* :mod:`~teamslam.ekf2d.linearization` — standard / first-estimate / ideal Jacobian policies;
+* :mod:`~teamslam.ekf2d.filter` — the EKF over ``[robot poses, features]`` (eq. 1);
+* :mod:`~teamslam.ekf2d.start` — step-0 Gauss–Newton start (eq. 12);
+* :mod:`~teamslam.ekf2d.observability` — local observability matrix and rank (eq. 13, Lemma 1);
+* :mod:`~teamslam.ekf2d.environments`, :mod:`~teamslam.ekf2d.simulate` — environments 1 and 2
+  and Monte Carlo data; :mod:`~teamslam.ekf2d.experiments` — Tables 1–2;
+* :mod:`~teamslam.ekf2d.victoria_park` — the two-robot Victoria Park split (Fig. 6).
+"""
+
+from teamslam.ekf2d.filter import MultiRobotEKF, StepObservations
+from teamslam.ekf2d.linearization import FirstEstimate, Ideal, Standard, policy
+from teamslam.ekf2d.start import StartError, gauss_newton_start
+
+__all__ = [
+    "FirstEstimate",
+    "Ideal",
+    "MultiRobotEKF",
+    "Standard",
+    "StartError",
+    "StepObservations",
+    "gauss_newton_start",
+    "policy",
+]

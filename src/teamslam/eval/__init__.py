@@ -1,0 +1,1 @@
+"""Evaluation: Monte Carlo driver, consistency statistics and figures."""
