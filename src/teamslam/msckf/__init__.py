@@ -1,0 +1,17 @@
+"""The distributed multi-state constraint Kalman filter (distributed MSCKF paper, §V).
+
+* :mod:`~teamslam.msckf.state` — window of poses + objects and every covariance edit
+  (eqs. 18–23, 28, 30);
+* :mod:`~teamslam.msckf.models` — stereo observation model and Jacobians;
+* :mod:`~teamslam.msckf.update` — triangulation, null-space rows (24), gating, compression;
+* :mod:`~teamslam.msckf.agent` — Algorithm 1 for one robot;
+* :mod:`~teamslam.msckf.consensus` — averaging of the common objects (19–21);
+* :mod:`~teamslam.msckf.team` — the lock-step team runner.
+"""
+
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.state import MsckfState
+from teamslam.msckf.team import TeamResult, run_team
+
+__all__ = ["MsckfAgent", "MsckfConfig", "MsckfState", "TeamResult", "run_team"]

@@ -1,0 +1,291 @@
+"""One robot running the distributed MSCKF (Algorithm 1 of the distributed MSCKF paper).
+
+At every frame ``t`` the team runner first lets the agent average the common objects with its
+neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.step`
+
+2. propagates with the odometry ``t − 1 → t`` (eqs. 22–23);
+3. updates with the geometric features whose tracks ended (or span the pose about to leave the
+   window) — MSCKF null-space rows (eq. 24) — and with the objects already in the map, in one
+   stacked Kalman update (eqs. 26–28), each feature or object chi-square gated;
+4. initialises objects seen often enough inside the window by QR (eqs. 29–30), then uses the
+   rest of their rows to update the poses;
+
+and finally slides the window. Bad inputs (non-finite odometry or measurements) are rejected
+and counted; the estimate is left as it was.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import defaultdict
+
+import numpy as np
+
+from teamslam.datasets.model import Calibration, RobotSequence
+from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.models import observe_jacobians
+from teamslam.msckf.state import MsckfState
+from teamslam.msckf.update import MeasurementRows, compress, null_space_rows, triangulate
+
+__all__ = ["MsckfAgent"]
+
+log = logging.getLogger(__name__)
+
+
+class MsckfAgent:
+    """One robot's filter over its own sequence.
+
+    Parameters
+    ----------
+    robot
+        Robot index in the team.
+    calibration
+        Stereo rig and body-to-camera transform.
+    sequence
+        The robot's recorded data (its first ground-truth pose is the known start).
+    config
+        Filter settings.
+    """
+
+    def __init__(
+        self, robot: int, calibration: Calibration, sequence: RobotSequence, config: MsckfConfig
+    ) -> None:
+        self.robot = robot
+        self.camera = calibration.camera
+        self.T_cam_body = calibration.T_cam_body
+        self.sequence = sequence
+        self.config = config
+        self.state = MsckfState(
+            sequence.T_world_body[0], 0, np.eye(6) * config.initial_pose_std**2, config.debug
+        )
+        self.tracks: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
+        self.object_history: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
+        self.counters: dict[str, int] = defaultdict(int)
+        self.timings: dict[str, float] = defaultdict(float)
+        self._warned: set[str] = set()
+        self.frame = -1
+
+    # ------------------------------------------------------------------ bookkeeping
+    def _reject(self, what: str, count: int = 1, reason: str = "") -> None:
+        self.counters[f"rejected_{what}"] += count
+        if what not in self._warned:
+            self._warned.add(what)
+            log.warning(
+                "robot %d: rejecting %s (%s); further ones are only counted",
+                self.robot,
+                what,
+                reason or "invalid",
+            )
+
+    @property
+    def frames(self) -> int:
+        """Frames in the robot's sequence."""
+        return self.sequence.frames
+
+    # ------------------------------------------------------------------ Algorithm 1, steps 2-4
+    def step(self, t: int) -> None:
+        """Process frame ``t``: propagate (``t > 0``), update, initialise objects, slide."""
+        if t != self.frame + 1:
+            raise ValueError(f"robot {self.robot}: frames must be processed in order (got {t})")
+        begin = time.perf_counter()
+        if t > 0:
+            self._propagate(t)
+        after_propagation = time.perf_counter()
+        rows = MeasurementRows.empty(self.state.dim)
+        if self.config.use_geometric_features:
+            rows = rows.extend(self._feature_rows(t))
+        if self.config.use_objects:
+            rows = rows.extend(self._object_rows(t))
+        if rows.rows:
+            rows = compress(rows)
+            self.state.update(rows.jacobian, rows.residual, np.diag(rows.variance))
+            self.counters["updates"] += 1
+        after_update = time.perf_counter()
+        if self.config.use_objects:
+            self._initialise_objects(t)
+        while self.state.n_poses > self.config.window:
+            self.state.marginalize_oldest()
+        self._prune_histories()
+        end = time.perf_counter()
+        self.timings["propagation"] += after_propagation - begin
+        self.timings["update"] += after_update - after_propagation
+        self.timings["initialisation"] += end - after_update
+        self.frame = t
+
+    def _propagate(self, t: int) -> None:
+        odometry = self.sequence.odometry[t - 1]
+        cov = self.config.odometry_cov()
+        if not np.all(np.isfinite(odometry)):
+            self._reject("odometry", reason="non-finite relative pose")
+            odometry = np.eye(4)
+            cov = cov * 1e4  # no motion information at all for this step
+        self.state.augment(odometry, t, cov)
+
+    # ------------------------------------------------------------------ geometric features
+    def _feature_rows(self, t: int) -> MeasurementRows:
+        ids, z = self.sequence.features.frame(t)
+        finite = np.all(np.isfinite(z), axis=1)
+        if not finite.all():
+            self._reject("feature_measurements", int((~finite).sum()), "non-finite")
+            ids, z = ids[finite], z[finite]
+        seen = set(ids.tolist())
+        for i, row in zip(ids.tolist(), z, strict=True):
+            self.tracks[i].append((t, row))
+        ready = [i for i in self.tracks if i not in seen]
+        window_full = self.state.n_poses > self.config.window
+        if window_full:
+            oldest = self.state.frames[0]
+            ready += [i for i in seen if self.tracks[i][0][0] == oldest]
+        groups: dict[int, list[tuple[np.ndarray, np.ndarray]]] = defaultdict(list)
+        for i in ready:
+            obs = self.tracks.pop(i)
+            frames = np.array([f for f, _ in obs])
+            widx = self.state.window_index(frames)
+            keep = widx >= 0
+            if keep.sum() >= self.config.min_track_length:
+                groups[int(keep.sum())].append(
+                    (widx[keep], np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k]))
+                )
+        rows = MeasurementRows.empty(self.state.dim)
+        variance = self.config.feature_pixel_std**2
+        for n, members in groups.items():
+            widx = np.stack([w for w, _ in members])
+            zs = np.stack([zz for _, zz in members])
+            poses = self.state.poses[widx]
+            points, ok, _ = triangulate(self.camera, self.T_cam_body, poses, zs)
+            self.counters["features_used"] += int(ok.sum())
+            if not ok.all():
+                self.counters["rejected_triangulation"] += int((~ok).sum())
+            if not ok.any():
+                continue
+            pred, d_pose, d_point = observe_jacobians(
+                self.camera, self.T_cam_body, poses[ok], points[ok][:, None, :]
+            )
+            group_rows, accepted = null_space_rows(
+                self.state.cov,
+                self.state.pose_columns(widx[ok]),
+                self.state.dim,
+                pred,
+                d_pose,
+                d_point,
+                zs[ok],
+                variance,
+                float(self.config.gate(4 * n - 3)),
+            )
+            self.counters["rejected_features_gate"] += int((~accepted).sum())
+            rows = rows.extend(group_rows)
+        return rows
+
+    # ------------------------------------------------------------------ objects
+    def _object_rows(self, t: int) -> MeasurementRows:
+        ids, z = self.sequence.objects.frame(t)
+        finite = np.all(np.isfinite(z), axis=1)
+        if not finite.all():
+            self._reject("object_measurements", int((~finite).sum()), "non-finite")
+            ids, z = ids[finite], z[finite]
+        for i, row in zip(ids.tolist(), z, strict=True):
+            self.object_history[i].append((t, row))
+        slots = self.state.object_slots(ids)
+        known = slots >= 0
+        if not known.any():
+            return MeasurementRows.empty(self.state.dim)
+        slots, zk = slots[known], z[known]
+        k = slots.size
+        pose = self.state.current_pose
+        pred, d_pose, d_point = observe_jacobians(
+            self.camera, self.T_cam_body, pose, self.state.objects[slots]
+        )
+        dim = self.state.dim
+        h = np.zeros((k, 4, dim))
+        h[:, :, self.state.pose_columns(self.state.n_poses - 1)] = d_pose
+        obj_cols = self.state.object_columns(slots)  # (k, 3)
+        h[np.arange(k)[:, None, None], np.arange(4)[None, :, None], obj_cols[:, None, :]] = d_point
+        r = zk - pred
+        variance = self.config.object_pixel_std**2
+        s = h @ self.state.cov @ np.swapaxes(h, 1, 2) + variance * np.eye(4)
+        chi2 = np.einsum("ki,ki->k", r, np.linalg.solve(s, r[..., None])[..., 0])
+        accepted = chi2 < self.config.gate(4)
+        self.counters["rejected_objects_gate"] += int((~accepted).sum())
+        self.counters["object_updates"] += int(accepted.sum())
+        return MeasurementRows(
+            h[accepted].reshape(-1, dim),
+            r[accepted].ravel(),
+            np.full(4 * int(accepted.sum()), variance),
+        )
+
+    def _initialise_objects(self, t: int) -> None:
+        cfg = self.config
+        candidates = []
+        for oid, obs in self.object_history.items():
+            if self.state.object_slots(np.array([oid]))[0] >= 0:
+                continue
+            frames = np.array([f for f, _ in obs])
+            widx = self.state.window_index(frames)
+            keep = widx >= 0
+            if keep.sum() >= cfg.object_init_observations and obs[-1][0] == t:
+                zs = np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k])
+                candidates.append((oid, widx[keep], zs))
+        if not candidates:
+            return
+        by_length: dict[int, list] = defaultdict(list)
+        for c in candidates:
+            by_length[c[1].size].append(c)
+        variance = cfg.object_pixel_std**2
+        for n, members in by_length.items():
+            widx = np.stack([m[1] for m in members])
+            zs = np.stack([m[2] for m in members])
+            points, ok, rms = triangulate(self.camera, self.T_cam_body, self.state.poses[widx], zs)
+            depth = np.linalg.norm(points - self.state.current_pose[:3, 3], axis=1)
+            ok &= (depth > cfg.object_min_depth) & (depth < cfg.object_max_depth)
+            ok &= rms < 3.0 * cfg.object_pixel_std
+            self.counters["rejected_object_init"] += int((~ok).sum())
+            for j in np.flatnonzero(ok):
+                self._add_object(members[j][0], points[j], widx[j], zs[j], variance, n)
+
+    def _add_object(
+        self, oid: int, point: np.ndarray, widx: np.ndarray, zs: np.ndarray, variance: float, n: int
+    ) -> None:
+        """QR initialisation (eqs. 29–30), then an update with the landmark-free rows."""
+        state = self.state
+        poses = state.poses[widx]
+        pred, d_pose, d_point = observe_jacobians(self.camera, self.T_cam_body, poses, point[None])
+        dim = state.dim
+        h_s = np.zeros((n, 4, dim))
+        h_s[
+            np.arange(n)[:, None, None],
+            np.arange(4)[None, :, None],
+            state.pose_columns(widx)[:, None, :],
+        ] = d_pose
+        h_s = h_s.reshape(4 * n, dim)
+        h_p = d_point.reshape(4 * n, 3)
+        r = (zs - pred).ravel()
+        q, upper = np.linalg.qr(h_p, mode="complete")
+        r_p = upper[:3]
+        h_s1, h_s2 = q[:, :3].T @ h_s, q[:, 3:].T @ h_s
+        z1, z2 = q[:, :3].T @ r, q[:, 3:].T @ r
+        # gate the landmark-free part before touching the state
+        s2 = h_s2 @ state.cov @ h_s2.T + variance * np.eye(4 * n - 3)
+        if z2 @ np.linalg.solve(s2, z2) > self.config.gate(4 * n - 3):
+            self.counters["rejected_object_init"] += 1
+            return
+        r_p_inv = np.linalg.inv(r_p)
+        position = point + r_p_inv @ z1
+        cov_ps = -(r_p_inv @ h_s1) @ state.cov  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
+        cov_pp = r_p_inv @ (h_s1 @ state.cov @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
+        state.add_object(oid, position, cov_pp, cov_ps)
+        self.counters["objects_initialised"] += 1
+        jac = np.hstack([h_s2, np.zeros((4 * n - 3, 3))])
+        state.update(jac, z2, variance * np.eye(4 * n - 3))
+
+    def _prune_histories(self) -> None:
+        first = self.state.frames[0]
+        for store in (self.object_history, self.tracks):
+            stale = []
+            for key, obs in store.items():
+                while obs and obs[0][0] < first:
+                    obs.pop(0)
+                if not obs:
+                    stale.append(key)
+            for key in stale:
+                del store[key]

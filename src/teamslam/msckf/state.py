@@ -1,0 +1,202 @@
+"""One robot's MSCKF state: a sliding window of body poses plus object landmarks (eq. 18).
+
+The error state is ``[ε_1, …, ε_c, p̃_1, …, p̃_m]``: a 6-vector right perturbation
+``(ρ, φ)`` per window pose (``T = T̂ · exp(ε^)``, eq. 20), oldest first, then a 3-vector per
+object landmark. One joint covariance covers it all, and **every covariance edit goes through
+this class**: :meth:`augment` (propagation, eqs. 22–23), :meth:`marginalize_oldest`,
+:meth:`add_object` (initialisation, eq. 30), :meth:`update` (eqs. 26–28) and
+:meth:`replace_marginal` (consensus, Prop. 2 / eq. 21). With ``debug=True`` each edit checks
+that the covariance stays symmetric positive definite.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+
+from teamslam.gaussian import NotPositiveDefiniteError, replace_marginal_arrays
+from teamslam.geometry import se3
+
+__all__ = ["MsckfState"]
+
+
+class MsckfState:
+    """Window poses (``T_world_body``), object landmarks and their joint covariance.
+
+    Parameters
+    ----------
+    T_world_body
+        The first pose.
+    frame
+        Its frame index.
+    pose_cov
+        Its 6×6 covariance.
+    debug
+        Check the covariance after every edit.
+    """
+
+    def __init__(
+        self, T_world_body: np.ndarray, frame: int, pose_cov: np.ndarray, debug: bool = False
+    ) -> None:
+        self.poses = np.asarray(T_world_body, dtype=float).reshape(1, 4, 4).copy()
+        self.frames = np.array([frame], dtype=np.int64)
+        self.object_ids = np.zeros(0, dtype=np.int64)
+        self.objects = np.zeros((0, 3))
+        self.cov = np.asarray(pose_cov, dtype=float).reshape(6, 6).copy()
+        self.debug = debug
+
+    # ------------------------------------------------------------------ layout
+    @property
+    def n_poses(self) -> int:
+        """Poses in the window."""
+        return self.frames.size
+
+    @property
+    def n_objects(self) -> int:
+        """Object landmarks in the map."""
+        return self.object_ids.size
+
+    @property
+    def dim(self) -> int:
+        """Error-state dimension ``6c + 3m``."""
+        return 6 * self.n_poses + 3 * self.n_objects
+
+    def pose_columns(self, window_index: np.ndarray) -> np.ndarray:
+        """Error-state columns ``(k, 6)`` of window poses."""
+        return 6 * np.asarray(window_index)[..., None] + np.arange(6)
+
+    def object_columns(self, slots: np.ndarray) -> np.ndarray:
+        """Error-state columns ``(k, 3)`` of object slots."""
+        return 6 * self.n_poses + 3 * np.asarray(slots)[..., None] + np.arange(3)
+
+    def object_slots(self, ids: np.ndarray) -> np.ndarray:
+        """Slots of object ids in the map (``-1`` where absent)."""
+        ids = np.asarray(ids, dtype=np.int64)
+        if self.n_objects == 0:
+            return np.full(ids.shape, -1, dtype=np.int64)
+        order = np.argsort(self.object_ids)
+        pos = np.clip(np.searchsorted(self.object_ids[order], ids), 0, self.n_objects - 1)
+        found = self.object_ids[order[pos]] == ids
+        return np.where(found, order[pos], -1)
+
+    def window_index(self, frames: np.ndarray) -> np.ndarray:
+        """Window positions of frame indices (``-1`` where not in the window)."""
+        frames = np.asarray(frames, dtype=np.int64)
+        pos = np.clip(np.searchsorted(self.frames, frames), 0, self.n_poses - 1)
+        return np.where(self.frames[pos] == frames, pos, -1)
+
+    @property
+    def current_pose(self) -> np.ndarray:
+        """Newest window pose."""
+        return self.poses[-1]
+
+    def current_pose_cov(self) -> np.ndarray:
+        """6×6 covariance of the newest pose."""
+        s = slice(6 * (self.n_poses - 1), 6 * self.n_poses)
+        return self.cov[s, s]
+
+    def _check(self, what: str) -> None:
+        if not self.debug:
+            return
+        if not np.allclose(self.cov, self.cov.T, atol=1e-9 * max(1.0, np.abs(self.cov).max())):
+            raise NotPositiveDefiniteError(f"covariance lost symmetry after {what}")
+        try:
+            np.linalg.cholesky(self.cov)
+        except np.linalg.LinAlgError:
+            raise NotPositiveDefiniteError(
+                f"covariance not positive definite after {what}"
+            ) from None
+
+    # ------------------------------------------------------------------ edits
+    def augment(self, odometry: np.ndarray, frame: int, odometry_cov: np.ndarray) -> None:
+        """Append ``T_new = T_last · δT`` (eq. 22) with ``ε_new = Ad(δT⁻¹) ε_last + w`` (eq. 23)."""
+        odometry = np.asarray(odometry, dtype=float)
+        new_pose = self.poses[-1] @ odometry
+        jac = se3.adjoint(se3.inverse(odometry))
+        last = slice(6 * (self.n_poses - 1), 6 * self.n_poses)
+        split = 6 * self.n_poses
+        cross = jac @ self.cov[last, :]  # (6, dim): new pose with everything
+        block = jac @ self.cov[last, last] @ jac.T + odometry_cov
+        n = self.dim
+        cov = np.empty((n + 6, n + 6))
+        # new pose goes after the existing poses, before the objects
+        keep = np.r_[0:split, split:n]
+        new_idx = np.arange(split, split + 6)
+        old_idx = np.r_[0:split, split + 6 : n + 6]
+        cov[np.ix_(old_idx, old_idx)] = self.cov[np.ix_(keep, keep)]
+        cov[np.ix_(new_idx, old_idx)] = cross
+        cov[np.ix_(old_idx, new_idx)] = cross.T
+        cov[np.ix_(new_idx, new_idx)] = 0.5 * (block + block.T)
+        self.cov = cov
+        self.poses = np.concatenate([self.poses, new_pose[None]])
+        self.frames = np.append(self.frames, frame)
+        self._check("augment")
+
+    def marginalize_oldest(self) -> None:
+        """Drop the oldest window pose (its rows and columns of the covariance)."""
+        self.cov = self.cov[6:, 6:].copy()
+        self.poses = self.poses[1:]
+        self.frames = self.frames[1:]
+        self._check("marginalisation")
+
+    def add_object(
+        self, object_id: int, position: np.ndarray, cov_pp: np.ndarray, cov_ps: np.ndarray
+    ) -> None:
+        """Append an object with its covariance and cross-covariance with the state (eq. 30)."""
+        n = self.dim
+        cov = np.empty((n + 3, n + 3))
+        cov[:n, :n] = self.cov
+        cov[n:, :n] = cov_ps
+        cov[:n, n:] = cov_ps.T
+        cov[n:, n:] = 0.5 * (cov_pp + cov_pp.T)
+        self.cov = cov
+        self.object_ids = np.append(self.object_ids, int(object_id))
+        self.objects = np.vstack([self.objects, np.asarray(position, dtype=float)])
+        self._check("object initialisation")
+
+    def correct(self, delta: np.ndarray) -> None:
+        """Apply an error-state correction: ``T ← T · exp(δ_T)``, ``p ← p + δ_p`` (eqs. 21, 28)."""
+        c = self.n_poses
+        self.poses = self.poses @ se3.exp(delta[: 6 * c].reshape(c, 6))
+        self.objects = self.objects + delta[6 * c :].reshape(-1, 3)
+
+    def update(
+        self, jacobian: np.ndarray, residual: np.ndarray, noise_cov: np.ndarray
+    ) -> np.ndarray:
+        """Kalman update (eqs. 26–28, ``S = 0``) with a Cholesky-factored innovation covariance.
+
+        Returns the applied correction.
+        """
+        pht = self.cov @ jacobian.T
+        innovation_cov = jacobian @ pht + noise_cov
+        try:
+            factor = scipy.linalg.cho_factor(0.5 * (innovation_cov + innovation_cov.T))
+        except np.linalg.LinAlgError:
+            raise NotPositiveDefiniteError(
+                "innovation covariance is not positive definite"
+            ) from None
+        gain = scipy.linalg.cho_solve(factor, pht.T).T
+        delta = gain @ residual
+        self.cov = self.cov - gain @ pht.T
+        self.cov = 0.5 * (self.cov + self.cov.T)
+        self.correct(delta)
+        self._check("update")
+        return delta
+
+    def replace_marginal(self, index: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
+        """Consensus: give the ``index`` block (object coordinates) a new marginal (Prop. 2).
+
+        The error-state mean of every other entry shifts by ``A (μ̄ʸ − μʸ)``; window poses take
+        that shift through ``T ← T · exp(δ)`` (eq. 21), other objects additively.
+        """
+        index = np.asarray(index, dtype=np.int64)
+        current = np.zeros(self.dim)
+        slot_cols = index - 6 * self.n_poses
+        if np.any(slot_cols < 0):
+            raise ValueError("consensus may only replace object coordinates")
+        current[index] = self.objects.ravel()[slot_cols]
+        new_mean, new_cov = replace_marginal_arrays(current, self.cov, index, mean, cov)
+        delta = new_mean - current
+        self.cov = new_cov
+        self.correct(delta)
+        self._check("consensus")

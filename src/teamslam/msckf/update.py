@@ -1,0 +1,176 @@
+"""Batched measurement work of the MSCKF: triangulation, null-space projection, gating.
+
+Distributed MSCKF paper, §V-D and §V-E. Geometric features are grouped by track length so each
+group is one stack of arrays: Gauss–Newton triangulation, residuals and Jacobians of every
+stereo observation (4 rows each), the left null space of each feature's point Jacobian by one
+batched QR (eq. 24), and a chi-square gate with the residual's own degrees of freedom. The
+accepted rows of all features are stacked, and QR-compressed when taller than the state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from teamslam.geometry.camera import StereoCamera
+from teamslam.msckf.models import observe_jacobians, points_in_camera
+
+__all__ = ["MeasurementRows", "compress", "null_space_rows", "stereo_point", "triangulate"]
+
+
+@dataclass
+class MeasurementRows:
+    """Stacked residuals and Jacobians over the error state, with per-row noise variance."""
+
+    jacobian: np.ndarray
+    residual: np.ndarray
+    variance: np.ndarray
+
+    @classmethod
+    def empty(cls, dim: int) -> MeasurementRows:
+        """No rows."""
+        return cls(np.zeros((0, dim)), np.zeros(0), np.zeros(0))
+
+    @property
+    def rows(self) -> int:
+        """Number of rows."""
+        return self.residual.size
+
+    def extend(self, other: MeasurementRows) -> MeasurementRows:
+        """Both sets of rows."""
+        return MeasurementRows(
+            np.vstack([self.jacobian, other.jacobian]),
+            np.concatenate([self.residual, other.residual]),
+            np.concatenate([self.variance, other.variance]),
+        )
+
+
+def stereo_point(
+    camera: StereoCamera, T_cam_body: np.ndarray, T_world_body: np.ndarray, z: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """World points from single stereo measurements (depth from disparity), and validity."""
+    k = camera.intrinsics
+    disparity = z[..., 0] - z[..., 2]
+    ok = disparity > 1e-9 * k[0, 0]
+    depth = camera.fx_baseline / np.where(ok, disparity, 1.0)
+    p_cam = np.stack(
+        [(z[..., 0] - k[0, 2]) / k[0, 0] * depth, (z[..., 1] - k[1, 2]) / k[1, 1] * depth, depth],
+        axis=-1,
+    )
+    p_body = (p_cam - T_cam_body[:3, 3]) @ T_cam_body[:3, :3]
+    p_world = (
+        np.einsum("...ij,...j->...i", T_world_body[..., :3, :3], p_body) + T_world_body[..., :3, 3]
+    )
+    return p_world, ok
+
+
+def triangulate(
+    camera: StereoCamera,
+    T_cam_body: np.ndarray,
+    poses: np.ndarray,
+    z: np.ndarray,
+    iterations: int = 8,
+    min_depth: float = 0.1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss–Newton triangulation of many points, each from ``n`` stereo observations.
+
+    Parameters
+    ----------
+    poses
+        ``(G, n, 4, 4)`` body poses of the observations.
+    z
+        ``(G, n, 4)`` stereo measurements.
+
+    Returns
+    -------
+    points, ok, rms
+        ``(G, 3)`` world points, ``(G,)`` validity (finite, in front of every camera,
+        well-conditioned) and ``(G,)`` RMS reprojection error.
+    """
+    g, n = z.shape[:2]
+    points, ok = stereo_point(camera, T_cam_body, poses[:, -1], z[:, -1])
+    points = np.where(ok[:, None], points, 0.0)
+    for _ in range(iterations):
+        pred, _, d_point = observe_jacobians(camera, T_cam_body, poses, points[:, None, :])
+        err = (z - pred).reshape(g, 4 * n)
+        jac = d_point.reshape(g, 4 * n, 3)
+        normal = np.einsum("gki,gkj->gij", jac, jac) + 1e-12 * np.eye(3)
+        step = np.linalg.solve(normal, np.einsum("gki,gk->gi", jac, err)[..., None])[..., 0]
+        points = points + np.where(ok[:, None], step, 0.0)
+    _, p_cam = points_in_camera(poses, points[:, None, :], T_cam_body)
+    pred = camera.project(p_cam)
+    rms = np.sqrt(np.mean((z - pred) ** 2, axis=(1, 2)))
+    ok &= np.all(np.isfinite(points), axis=1) & np.all(p_cam[..., 2] > min_depth, axis=1)
+    cond = np.linalg.cond(normal)
+    ok &= np.isfinite(cond) & (cond < 1e12)
+    return points, ok, rms
+
+
+def null_space_rows(
+    state_cov: np.ndarray,
+    pose_columns: np.ndarray,
+    dim: int,
+    pred: np.ndarray,
+    d_pose: np.ndarray,
+    d_point: np.ndarray,
+    z: np.ndarray,
+    variance: float,
+    gate: float,
+) -> tuple[MeasurementRows, np.ndarray]:
+    """Project a group of features onto their point Jacobians' left null spaces (eq. 24).
+
+    Parameters
+    ----------
+    state_cov
+        ``(dim, dim)`` covariance, for the gate.
+    pose_columns
+        ``(G, n, 6)`` error-state columns of each observation's pose.
+    pred, d_pose, d_point, z
+        ``(G, n, 4)``, ``(G, n, 4, 6)``, ``(G, n, 4, 3)``, ``(G, n, 4)``.
+    variance
+        Pixel noise variance (isotropic, so ``Nᵀ V N = σ² I``).
+    gate
+        Chi-square threshold for ``4n − 3`` degrees of freedom.
+
+    Returns
+    -------
+    rows, accepted
+        The stacked rows of the accepted features and the ``(G,)`` acceptance mask.
+    """
+    g, n = z.shape[:2]
+    m = 4 * n
+    h_x = np.zeros((g, n, 4, dim))
+    gi = np.arange(g)[:, None, None, None]
+    ni = np.arange(n)[None, :, None, None]
+    ri = np.arange(4)[None, None, :, None]
+    h_x[gi, ni, ri, pose_columns[:, :, None, :]] = d_pose
+    h_x = h_x.reshape(g, m, dim)
+    h_f = d_point.reshape(g, m, 3)
+    q, _ = np.linalg.qr(h_f, mode="complete")
+    null = q[:, :, 3:]  # (G, m, m - 3)
+    r0 = np.einsum("gki,gk->gi", null, (z - pred).reshape(g, m))
+    h0 = np.einsum("gki,gkd->gid", null, h_x)
+    s = h0 @ state_cov @ np.swapaxes(h0, 1, 2) + variance * np.eye(m - 3)
+    chi2 = np.einsum("gi,gi->g", r0, np.linalg.solve(s, r0[..., None])[..., 0])
+    accepted = chi2 < gate
+    rows = MeasurementRows(
+        h0[accepted].reshape(-1, dim),
+        r0[accepted].ravel(),
+        np.full(int(accepted.sum()) * (m - 3), variance),
+    )
+    return rows, accepted
+
+
+def compress(rows: MeasurementRows) -> MeasurementRows:
+    """QR-compress rows with equal noise blocks when there are more rows than state entries.
+
+    With ``H = Q₁ R`` the update with ``(Q₁ᵀ r, R)`` equals the update with ``(r, H)`` when the
+    noise is ``σ² I``; rows of different noise are whitened first and un-whitened as unit noise.
+    """
+    dim = rows.jacobian.shape[1]
+    if rows.rows <= dim:
+        return rows
+    scale = 1.0 / np.sqrt(rows.variance)
+    q, r = np.linalg.qr(rows.jacobian * scale[:, None], mode="reduced")
+    return MeasurementRows(r, q.T @ (rows.residual * scale), np.ones(r.shape[0]))
