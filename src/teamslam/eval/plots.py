@@ -99,3 +99,66 @@ def plot_planar_map(
         ax.legend(loc="best", fontsize=7)
     fig.suptitle(title)
     return _save(fig, path)
+
+
+def plot_team_topview(dataset, results: dict, path: str | Path) -> Path:
+    """Top view per run: ground truth, odometry and estimated trajectories, estimated objects."""
+    from teamslam.eval.metrics import dead_reckoning
+
+    names = list(results)
+    fig, axes = plt.subplots(1, len(names), figsize=(6.5 * len(names), 6.0), squeeze=False)
+    colours = plt.get_cmap("tab10")
+    for ax, name in zip(axes[0], names, strict=True):
+        result = results[name]
+        ax.plot(
+            dataset.object_positions[:, 0],
+            dataset.object_positions[:, 1],
+            "k.",
+            ms=2,
+            alpha=0.4,
+            label="true objects",
+        )
+        for i, robot in enumerate(dataset.robots):
+            c = colours(i % 10)
+            gt = robot.T_world_body[:, :3, 3]
+            odo = dead_reckoning(robot.T_world_body[0], robot.odometry)[:, :3, 3]
+            est = result.poses[i][:, :3, 3]
+            ax.plot(
+                gt[:, 0], gt[:, 1], color="0.6", lw=0.8, label="ground truth" if i == 0 else None
+            )
+            ax.plot(
+                odo[:, 0], odo[:, 1], ":", color=c, lw=0.8, label="odometry" if i == 0 else None
+            )
+            ax.plot(est[:, 0], est[:, 1], "-", color=c, lw=1.0, label=f"robot {i + 1}")
+            if len(result.objects[i]):
+                ax.plot(result.objects[i][:, 0], result.objects[i][:, 1], "^", color=c, ms=2.5)
+        ax.set_aspect("equal")
+        ax.set_title(name)
+        ax.legend(loc="best", fontsize=7)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_team_errors(dataset, results: dict, path: str | Path) -> Path:
+    """Position error over time per robot, one panel per run, with odometry for reference."""
+    from teamslam.eval.metrics import dead_reckoning
+
+    names = list(results)
+    fig, axes = plt.subplots(
+        1, len(names), figsize=(6.5 * len(names), 4.0), squeeze=False, sharey=True
+    )
+    colours = plt.get_cmap("tab10")
+    for ax, name in zip(axes[0], names, strict=True):
+        for i, robot in enumerate(dataset.robots):
+            c = colours(i % 10)
+            gt = robot.T_world_body[:, :3, 3]
+            odo = dead_reckoning(robot.T_world_body[0], robot.odometry)[:, :3, 3]
+            est = results[name].poses[i][:, :3, 3]
+            ax.plot(np.linalg.norm(est - gt, axis=1), color=c, lw=1.0, label=f"robot {i + 1}")
+            ax.plot(np.linalg.norm(odo - gt, axis=1), ":", color=c, lw=0.8)
+        ax.set_title(f"{name}: position error (dotted: odometry)")
+        ax.set_xlabel("frame")
+        ax.set_ylabel("error [m]")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, path)

@@ -26,7 +26,13 @@ from teamslam.datasets.model import Calibration, RobotSequence
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.models import observe_jacobians
 from teamslam.msckf.state import MsckfState
-from teamslam.msckf.update import MeasurementRows, compress, null_space_rows, triangulate
+from teamslam.msckf.update import (
+    MeasurementRows,
+    compress,
+    householder_project,
+    null_space_rows,
+    triangulate,
+)
 
 __all__ = ["MsckfAgent"]
 
@@ -162,10 +168,11 @@ class MsckfAgent:
             pred, d_pose, d_point = observe_jacobians(
                 self.camera, self.T_cam_body, poses[ok], points[ok][:, None, :]
             )
+            pose_dim = 6 * self.state.n_poses
             group_rows, accepted = null_space_rows(
-                self.state.cov,
+                self.state.cov[:pose_dim, :pose_dim],
                 self.state.pose_columns(widx[ok]),
-                self.state.dim,
+                pose_dim,
                 pred,
                 d_pose,
                 d_point,
@@ -174,7 +181,9 @@ class MsckfAgent:
                 float(self.config.gate(4 * n - 3)),
             )
             self.counters["rejected_features_gate"] += int((~accepted).sum())
-            rows = rows.extend(group_rows)
+            full = np.zeros((group_rows.rows, self.state.dim))
+            full[:, :pose_dim] = group_rows.jacobian
+            rows = rows.extend(MeasurementRows(full, group_rows.residual, group_rows.variance))
         return rows
 
     # ------------------------------------------------------------------ objects
@@ -203,7 +212,12 @@ class MsckfAgent:
         h[np.arange(k)[:, None, None], np.arange(4)[None, :, None], obj_cols[:, None, :]] = d_point
         r = zk - pred
         variance = self.config.object_pixel_std**2
-        s = h @ self.state.cov @ np.swapaxes(h, 1, 2) + variance * np.eye(4)
+        # each object's innovation covariance from its 9 columns (current pose + object)
+        pose_cols = np.broadcast_to(self.state.pose_columns(self.state.n_poses - 1), (k, 6))
+        local_cols = np.concatenate([pose_cols, obj_cols], axis=1)
+        local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
+        local_p = self.state.cov[local_cols[:, :, None], local_cols[:, None, :]]
+        s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + variance * np.eye(4)
         chi2 = np.einsum("ki,ki->k", r, np.linalg.solve(s, r[..., None])[..., 0])
         accepted = chi2 < self.config.gate(4)
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
@@ -260,10 +274,10 @@ class MsckfAgent:
         h_s = h_s.reshape(4 * n, dim)
         h_p = d_point.reshape(4 * n, 3)
         r = (zs - pred).ravel()
-        q, upper = np.linalg.qr(h_p, mode="complete")
-        r_p = upper[:3]
-        h_s1, h_s2 = q[:, :3].T @ h_s, q[:, 3:].T @ h_s
-        z1, z2 = q[:, :3].T @ r, q[:, 3:].T @ r
+        upper, projected = householder_project(h_p[None], np.column_stack([r, h_s])[None])
+        r_p, projected = upper[0], projected[0]
+        z1, z2 = projected[:3, 0], projected[3:, 0]
+        h_s1, h_s2 = projected[:3, 1:], projected[3:, 1:]
         # gate the landmark-free part before touching the state
         s2 = h_s2 @ state.cov @ h_s2.T + variance * np.eye(4 * n - 3)
         if z2 @ np.linalg.solve(s2, z2) > self.config.gate(4 * n - 3):

@@ -167,8 +167,11 @@ class MsckfState:
 
         Returns the applied correction.
         """
-        pht = self.cov @ jacobian.T
-        innovation_cov = jacobian @ pht + noise_cov
+        # work only on the columns the rows touch (feature rows touch only window poses)
+        cols = np.flatnonzero(np.any(jacobian != 0.0, axis=0))
+        h = jacobian[:, cols]
+        pht = self.cov[:, cols] @ h.T
+        innovation_cov = h @ pht[cols] + noise_cov
         try:
             factor = scipy.linalg.cho_factor(0.5 * (innovation_cov + innovation_cov.T))
         except np.linalg.LinAlgError:

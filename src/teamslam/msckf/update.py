@@ -16,7 +16,14 @@ import numpy as np
 from teamslam.geometry.camera import StereoCamera
 from teamslam.msckf.models import observe_jacobians, points_in_camera
 
-__all__ = ["MeasurementRows", "compress", "null_space_rows", "stereo_point", "triangulate"]
+__all__ = [
+    "MeasurementRows",
+    "compress",
+    "householder_project",
+    "null_space_rows",
+    "stereo_point",
+    "triangulate",
+]
 
 
 @dataclass
@@ -107,6 +114,38 @@ def triangulate(
     return points, ok, rms
 
 
+def householder_project(h_f: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Apply ``Qᵀ`` of the complete QR of each ``h_f`` to ``rest`` without forming ``Q``.
+
+    Parameters
+    ----------
+    h_f
+        ``(G, m, p)`` with ``m > p`` (point Jacobians, ``p = 3``).
+    rest
+        ``(G, m, k)`` columns to transform alongside (residual, state Jacobian).
+
+    Returns
+    -------
+    upper, transformed
+        ``(G, p, p)`` the triangular factor ``R`` and ``(G, m, k)`` ``Qᵀ rest``: its first ``p``
+        rows are ``Q₁ᵀ rest``, the others ``Nᵀ rest`` with ``N`` an orthonormal basis of the
+        left null space of ``h_f`` (eq. 24). ``p`` batched Householder reflections, ``O(m k)``
+        each, instead of a complete ``m × m`` ``Q``.
+    """
+    a = np.concatenate([h_f, rest], axis=2)
+    p = h_f.shape[2]
+    for j in range(p):
+        x = a[:, j:, j]
+        norm = np.linalg.norm(x, axis=1)
+        alpha = -np.where(x[:, 0] >= 0, 1.0, -1.0) * norm
+        v = x.copy()
+        v[:, 0] -= alpha
+        vnorm = np.linalg.norm(v, axis=1)
+        v = np.where(vnorm[:, None] > 0, v / np.where(vnorm > 0, vnorm, 1.0)[:, None], 0.0)
+        a[:, j:, :] -= 2.0 * v[:, :, None] * np.einsum("gm,gmk->gk", v, a[:, j:, :])[:, None, :]
+    return a[:, :p, :p], a[:, :, p:]
+
+
 def null_space_rows(
     state_cov: np.ndarray,
     pose_columns: np.ndarray,
@@ -123,9 +162,11 @@ def null_space_rows(
     Parameters
     ----------
     state_cov
-        ``(dim, dim)`` covariance, for the gate.
+        ``(dim, dim)`` covariance of the block the rows act on (the window poses), for the gate.
     pose_columns
-        ``(G, n, 6)`` error-state columns of each observation's pose.
+        ``(G, n, 6)`` columns of each observation's pose in that block.
+    dim
+        Size of that block; rows are returned over it.
     pred, d_pose, d_point, z
         ``(G, n, 4)``, ``(G, n, 4, 6)``, ``(G, n, 4, 3)``, ``(G, n, 4)``.
     variance
@@ -146,11 +187,10 @@ def null_space_rows(
     ri = np.arange(4)[None, None, :, None]
     h_x[gi, ni, ri, pose_columns[:, :, None, :]] = d_pose
     h_x = h_x.reshape(g, m, dim)
-    h_f = d_point.reshape(g, m, 3)
-    q, _ = np.linalg.qr(h_f, mode="complete")
-    null = q[:, :, 3:]  # (G, m, m - 3)
-    r0 = np.einsum("gki,gk->gi", null, (z - pred).reshape(g, m))
-    h0 = np.einsum("gki,gkd->gid", null, h_x)
+    residual = (z - pred).reshape(g, m, 1)
+    _, projected = householder_project(d_point.reshape(g, m, 3), np.concatenate([residual, h_x], 2))
+    r0 = projected[:, 3:, 0]
+    h0 = projected[:, 3:, 1:]
     s = h0 @ state_cov @ np.swapaxes(h0, 1, 2) + variance * np.eye(m - 3)
     chi2 = np.einsum("gi,gi->g", r0, np.linalg.solve(s, r0[..., None])[..., 0])
     accepted = chi2 < gate
@@ -163,14 +203,17 @@ def null_space_rows(
 
 
 def compress(rows: MeasurementRows) -> MeasurementRows:
-    """QR-compress rows with equal noise blocks when there are more rows than state entries.
+    """QR-compress when there are more rows than state columns the rows touch.
 
-    With ``H = Q₁ R`` the update with ``(Q₁ᵀ r, R)`` equals the update with ``(r, H)`` when the
-    noise is ``σ² I``; rows of different noise are whitened first and un-whitened as unit noise.
+    Rows are whitened (``r/σ``, ``H/σ``); with ``H = Q₁ R`` the update with ``(Q₁ᵀ r, R)`` and unit
+    noise equals the update with ``(r, H)``. Only the touched columns are factored, so many
+    feature rows (which touch only the window poses) shrink to at most ``6c`` rows.
     """
-    dim = rows.jacobian.shape[1]
-    if rows.rows <= dim:
+    cols = np.flatnonzero(np.any(rows.jacobian != 0.0, axis=0))
+    if rows.rows <= cols.size:
         return rows
     scale = 1.0 / np.sqrt(rows.variance)
-    q, r = np.linalg.qr(rows.jacobian * scale[:, None], mode="reduced")
-    return MeasurementRows(r, q.T @ (rows.residual * scale), np.ones(r.shape[0]))
+    q, r = np.linalg.qr(rows.jacobian[:, cols] * scale[:, None], mode="reduced")
+    jac = np.zeros((r.shape[0], rows.jacobian.shape[1]))
+    jac[:, cols] = r
+    return MeasurementRows(jac, q.T @ (rows.residual * scale), np.ones(r.shape[0]))
