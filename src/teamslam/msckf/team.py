@@ -26,7 +26,12 @@ from teamslam.msckf.consensus import (
     map_ids_message,
     validate_marginal,
 )
-from teamslam.runtime.transport import CommonMarginalMessage, InProcessTransport, Transport
+from teamslam.runtime.transport import (
+    CommonMarginalMessage,
+    InProcessTransport,
+    MapIdsMessage,
+    Transport,
+)
 
 __all__ = ["TeamResult", "run_team"]
 
@@ -77,8 +82,13 @@ def _consensus_round(
     for i in running:
         for j in np.flatnonzero(active[i]):
             transport.send(map_ids_message(agents[i].state, i, int(j), t))
+    # every inbox is drained before anyone replies, so round-1 and round-2 messages never mix
+    requests = {i: transport.receive(i) for i in running}
     for i in running:
-        for msg in transport.receive(i):
+        for msg in requests[i]:
+            if not isinstance(msg, MapIdsMessage) or msg.step != t:
+                agents[i]._reject("messages", reason="unexpected message kind or step")
+                continue
             reply = common_marginal_message(agents[i].state, i, msg.sender, t, msg.ids)
             if reply is not None:
                 transport.send(reply)
