@@ -18,7 +18,8 @@ $(STAMP): $(BIN)/python pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam dvi-demo --agents 5 --graph ring --loss 0.2 --steps 60 --seed 0 --out results/dvi-demo
+	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam simulate --robots 5 --steps 150 --seed 0 --out results/team5
+	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam run results/team5 --compare --window 10 --out results/team5-run
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks

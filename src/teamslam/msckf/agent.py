@@ -70,6 +70,7 @@ class MsckfAgent:
         self.counters: dict[str, int] = defaultdict(int)
         self.timings: dict[str, float] = defaultdict(float)
         self._warned: set[str] = set()
+        self.frame_times: list[tuple[float, float, float]] = []
         self.frame = -1
 
     # ------------------------------------------------------------------ bookkeeping
@@ -114,9 +115,11 @@ class MsckfAgent:
             self.state.marginalize_oldest()
         self._prune_histories()
         end = time.perf_counter()
-        self.timings["propagation"] += after_propagation - begin
-        self.timings["update"] += after_update - after_propagation
-        self.timings["initialisation"] += end - after_update
+        stages = (after_propagation - begin, after_update - after_propagation, end - after_update)
+        self.timings["propagation"] += stages[0]
+        self.timings["update"] += stages[1]
+        self.timings["initialisation"] += stages[2]
+        self.frame_times.append(stages)
         self.frame = t
 
     def _propagate(self, t: int) -> None:

@@ -54,6 +54,8 @@ class TeamResult:
     timings
         Per robot seconds per stage (``consensus``, ``propagation``, ``update``,
         ``initialisation``).
+    frame_times
+        Per robot ``(N_i + 1, 4)`` seconds of each frame in those four stages.
     consensus
         Whether consensus ran.
     """
@@ -64,6 +66,7 @@ class TeamResult:
     objects: list[np.ndarray]
     counters: list[dict[str, int]]
     timings: list[dict[str, float]]
+    frame_times: list[np.ndarray]
     consensus: bool
     graph: str
     loss: float
@@ -78,6 +81,7 @@ def _consensus_round(
     weights: np.ndarray,
     active: np.ndarray,
     t: int,
+    consensus_times: list[np.ndarray],
 ) -> None:
     for i in running:
         for j in np.flatnonzero(active[i]):
@@ -110,7 +114,9 @@ def _consensus_round(
             heard.append((float(weights[i, msg.sender]), msg))
         averaged = consensus_average(agent.state, float(weights[i, i]), heard)
         agent.counters["objects_averaged"] += averaged
-        agent.timings["consensus"] += time.perf_counter() - begin
+        spent = time.perf_counter() - begin
+        agent.timings["consensus"] += spent
+        consensus_times[i][t] = spent
 
 
 def run_team(
@@ -152,6 +158,7 @@ def run_team(
     frames = [r.frames for r in dataset.robots]
     poses = [np.zeros((f, 4, 4)) for f in frames]
     covs = [np.zeros((f, 6, 6)) for f in frames]
+    consensus_times = [np.zeros(f) for f in frames]
     show = sys.stderr.isatty() if progress is None else progress
     begin = time.perf_counter()
     for t in tqdm(range(max(frames)), desc="frames", disable=not show, leave=False):
@@ -162,7 +169,9 @@ def run_team(
             mask[running] = True
             active = active & mask[:, None] & mask[None, :]
             transport.set_active(active)
-            _consensus_round(agents, running, transport, metropolis_weights(active), active, t)
+            _consensus_round(
+                agents, running, transport, metropolis_weights(active), active, t, consensus_times
+            )
         for i in running:
             agents[i].step(t)
             poses[i][t] = agents[i].state.current_pose
@@ -181,6 +190,10 @@ def run_team(
         objects=[a.state.objects.copy() for a in agents],
         counters=counters,
         timings=[dict(a.timings) for a in agents],
+        frame_times=[
+            np.column_stack([c, np.array(a.frame_times).reshape(-1, 3)])
+            for c, a in zip(consensus_times, agents, strict=True)
+        ],
         consensus=consensus,
         graph=graph.name,
         loss=loss,

@@ -1,0 +1,157 @@
+"""Accuracy and speed of the distributed MSCKF (paper Table IV, Fig. 3, Fig. 4, Table I).
+
+Run on demand (BLAS pinned to one thread)::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py accuracy [--robots 3 5 10 15] [--seeds 3]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py loss [--robots 5 15]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py kitti
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py speed [--robots 5 15]
+
+``accuracy`` and ``loss`` use the simulator with the full filter (geometric features and
+objects) unless ``--objects-only``; they print separate vs consensus trajectory RMSE and object
+error and the relative change. ``speed`` prints mean and p95 time per robot per frame per stage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from teamslam.datasets import import_reference
+from teamslam.eval.metrics import team_metrics
+from teamslam.msckf import MsckfConfig, run_team
+from teamslam.sim import lissajous_team
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def _pair(dataset, config, loss=0.0, seed=0):
+    out = {}
+    for name, consensus in (("separate", False), ("consensus", True)):
+        out[name] = team_metrics(
+            dataset,
+            run_team(dataset, config, consensus=consensus, loss=loss, seed=seed, progress=False),
+        )
+    return out
+
+
+def accuracy(robots, seeds, steps, objects_only, window):
+    print(
+        f"{'robots':>6} {'sep traj':>9} {'con traj':>9} {'change':>7} "
+        f"{'sep obj':>8} {'con obj':>8} {'change':>7} {'odometry':>9}"
+    )
+    for n in robots:
+        rows = []
+        for seed in range(seeds):
+            ds = lissajous_team(robots=n, steps=steps, seed=seed)
+            cfg = MsckfConfig.for_dataset(
+                ds.metadata, window=window, use_geometric_features=not objects_only
+            )
+            m = _pair(ds, cfg)
+            rows.append(
+                [
+                    m["separate"]["trajectory_rmse_avg_m"],
+                    m["consensus"]["trajectory_rmse_avg_m"],
+                    m["separate"]["object_error_avg_m"],
+                    m["consensus"]["object_error_avg_m"],
+                    m["consensus"]["odometry_rmse_avg_m"],
+                ]
+            )
+        st, ct, so, co, odo = np.mean(rows, axis=0)
+        print(
+            f"{n:>6} {st:9.3f} {ct:9.3f} {100 * (ct / st - 1):6.0f}% {so:8.3f} {co:8.3f} "
+            f"{100 * (co / so - 1):6.0f}% {odo:9.3f}"
+        )
+
+
+def loss_sweep(robots, steps, objects_only, window):
+    print(f"{'robots':>6} {'loss':>5} {'con traj':>9} {'con obj':>8} {'disagree':>9}")
+    for n in robots:
+        ds = lissajous_team(robots=n, steps=steps, seed=0)
+        cfg = MsckfConfig.for_dataset(
+            ds.metadata, window=window, use_geometric_features=not objects_only
+        )
+        sep = team_metrics(ds, run_team(ds, cfg, consensus=False, progress=False))
+        print(
+            f"{n:>6} {'sep':>5} {sep['trajectory_rmse_avg_m']:9.3f} "
+            f"{sep['object_error_avg_m']:8.3f} {sep['object_disagreement_avg_m']:9.3f}"
+        )
+        for r in (0.0, 0.3, 0.6, 0.9):
+            m = team_metrics(ds, run_team(ds, cfg, consensus=True, loss=r, seed=1, progress=False))
+            print(
+                f"{n:>6} {r:5.1f} {m['trajectory_rmse_avg_m']:9.3f} {m['object_error_avg_m']:8.3f} "
+                f"{m['object_disagreement_avg_m']:9.3f}"
+            )
+
+
+def kitti(window):
+    src = DATA / "distributed-msckf" / "kitti00"
+    if not src.is_dir():
+        print(f"KITTI 00 not found at {src}")
+        return
+    ds = import_reference(src)
+    cfg = MsckfConfig.for_dataset(ds.metadata, window=window)
+    m = _pair(ds, cfg)
+    print(f"{'':<12} {'robot 1':>8} {'robot 2':>8} {'robot 3':>8} {'avg':>8}  obj err  disagree")
+    print(
+        f"{'odometry':<12} "
+        + " ".join(f"{v:8.2f}" for v in m["separate"]["odometry_rmse_m"])
+        + f" {m['separate']['odometry_rmse_avg_m']:8.2f}"
+    )
+    for name in ("separate", "consensus"):
+        r = m[name]
+        print(
+            f"{name:<12} "
+            + " ".join(f"{v:8.2f}" for v in r["trajectory_rmse_m"])
+            + f" {r['trajectory_rmse_avg_m']:8.2f} {r['object_error_avg_m']:8.2f} "
+            f"{r['object_disagreement_avg_m']:8.2f}"
+        )
+
+
+def speed(robots, steps, window):
+    print(f"{'robots':>6} {'stage':>15} {'mean ms':>8} {'p95 ms':>8}")
+    for n in robots:
+        ds = lissajous_team(robots=n, steps=steps, seed=0)
+        cfg = MsckfConfig.for_dataset(ds.metadata, window=window)
+        begin = time.perf_counter()
+        result = run_team(ds, cfg, consensus=True, progress=False)
+        wall = time.perf_counter() - begin
+        frames = ds.robots[0].frames
+        times = 1e3 * np.concatenate(result.frame_times)  # (robots · frames, 4) ms
+        stages = ("consensus", "propagation", "update", "initialisation")
+        for k, stage in enumerate(stages):
+            print(
+                f"{n:>6} {stage:>15} {times[:, k].mean():8.2f} "
+                f"{np.percentile(times[:, k], 95):8.2f}"
+            )
+        total = times.sum(axis=1)
+        print(f"{n:>6} {'total':>15} {total.mean():8.2f} {np.percentile(total, 95):8.2f}")
+        print(f"{n:>6} {'team wall/frame':>15} {1e3 * wall / frames:8.2f}")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("what", choices=("accuracy", "loss", "kitti", "speed"))
+    parser.add_argument("--robots", type=int, nargs="+", default=None)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--window", type=int, default=10)
+    parser.add_argument("--objects-only", action="store_true")
+    args = parser.parse_args()
+    if args.what == "accuracy":
+        accuracy(
+            args.robots or [3, 5, 10, 15], args.seeds, args.steps, args.objects_only, args.window
+        )
+    elif args.what == "loss":
+        loss_sweep(args.robots or [5, 15], args.steps, args.objects_only, args.window)
+    elif args.what == "kitti":
+        kitti(args.window)
+    else:
+        speed(args.robots or [5, 15], args.steps, args.window)
+
+
+if __name__ == "__main__":
+    main()
