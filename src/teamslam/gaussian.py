@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 
 __all__ = [
     "Gaussian",
@@ -61,6 +62,16 @@ def _cholesky(matrix: np.ndarray, what: str) -> np.ndarray:
 def spd_inverse(matrix: np.ndarray, what: str = "matrix") -> np.ndarray:
     """Inverse of a symmetric positive-definite matrix (batched) through its Cholesky factor."""
     matrix = symmetrize(matrix)
+    if matrix.ndim == 2:
+        # LAPACK potrf + potri: the inverse straight from the Cholesky factor
+        factor, info = scipy.linalg.lapack.dpotrf(matrix, lower=True, clean=True)
+        if info != 0:
+            raise NotPositiveDefiniteError(f"{what} is not positive definite")
+        inverse, info = scipy.linalg.lapack.dpotri(factor, lower=True)
+        if info != 0:
+            raise NotPositiveDefiniteError(f"{what} is singular")
+        lower_part = np.tril(inverse)
+        return lower_part + np.tril(inverse, -1).T
     lower = _cholesky(matrix, what)
     eye = np.broadcast_to(np.eye(matrix.shape[-1]), matrix.shape)
     lower_inv = np.linalg.solve(lower, eye)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from teamslam.gaussian import geometric_average_arrays, replace_marginal_arrays
+from teamslam.gaussian import spd_inverse
 from teamslam.msckf.state import MsckfState
 from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage
 
@@ -99,19 +99,21 @@ def consensus_average(
     own_mean = state.objects[slots].ravel()
     own_cov = state.cov[np.ix_(cols, cols)]
     position = {int(i): k for k, i in enumerate(y_ids)}
-    means, covs, weights = [own_mean], [own_cov], [self_weight]
+    # In information form the completed neighbour term q_i(y∖C | C) q_j(C) differs from our
+    # own marginal only on C: Ω̃_j = Ω_i + Lᵀ(M_j − M_i,C)L, η̃_j = η_i + Lᵀ(M_j μ_j − M_i,C μ_i,C)
+    # (App. B, eq. 42). With Σ w = 1 the average is Ω_i + Σ_j w_j Lᵀ(M_j − M_i,C)L.
+    total = self_weight + sum(w for w, _ in received)
+    info = spd_inverse(own_cov, "own common-object covariance")
+    info_vector = info @ own_mean
     for weight, msg in received:
+        w = weight / total
         sub = (3 * np.array([position[int(i)] for i in msg.ids])[:, None] + np.arange(3)).ravel()
-        if sub.size == own_mean.size:
-            order = np.argsort(sub)
-            m, c = msg.mean[order], msg.cov[np.ix_(order, order)]
-        else:  # complete with our own conditional for the objects the neighbour lacks
-            m, c = replace_marginal_arrays(own_mean, own_cov, sub, msg.mean, msg.cov)
-        means.append(m)
-        covs.append(c)
-        weights.append(weight)
-    w = np.asarray(weights)
-    mean, cov = geometric_average_arrays(np.stack(means), np.stack(covs), w / w.sum())
+        own_sub_info = spd_inverse(own_cov[np.ix_(sub, sub)], "own common-object covariance")
+        msg_info = spd_inverse(msg.cov, "received covariance")
+        info[np.ix_(sub, sub)] += w * (msg_info - own_sub_info)
+        info_vector[sub] += w * (msg_info @ msg.mean - own_sub_info @ own_mean[sub])
+    cov = spd_inverse(info, "averaged common-object information")
+    mean = cov @ info_vector
     state.replace_marginal(cols, mean, cov)
     return int(y_ids.size)
 
