@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -262,13 +263,111 @@ def _team_table(runs: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
-    from teamslam.datasets import load_dataset, write_tum
-    from teamslam.eval.metrics import team_metrics
+def _write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> None:
+    from teamslam.datasets import write_tum
     from teamslam.eval.plots import plot_team_errors, plot_team_topview
+
+    names = list(results)
+    payload = (
+        metrics[names[0]]
+        if len(names) == 1
+        else {**metrics["consensus"], "separate": metrics["separate"]}
+    )
+    _write_json(out / "metrics.json", payload)
+    for name, result in results.items():
+        prefix = out if len(names) == 1 else out / name
+        for i, robot in enumerate(dataset.robots):
+            write_tum(prefix / f"robot_{i + 1}.tum", result.poses[i], robot.timestamps)
+            write_tum(
+                prefix / f"robot_{i + 1}_groundtruth.tum", robot.T_world_body, robot.timestamps
+            )
+    plot_team_topview(dataset, results, out / "topview.png")
+    plot_team_errors(dataset, results, out / "errors.png")
+    print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")
+
+
+def _launch_and_report(team_path: Path, out: Path) -> int:
+    from teamslam.datasets import load_dataset
+    from teamslam.eval.metrics import team_metrics
+    from teamslam.runtime.launch import exit_summary, gather, launch_team
+    from teamslam.runtime.team_file import load_team_file
+
+    team = load_team_file(team_path)
+    codes = launch_team(team, team_path, out)
+    finished = [r for r, c in sorted(codes.items()) if c == 0]
+    if len(finished) < team.n:
+        sys.stderr.write(f"teamslam team: {exit_summary(codes)} (see {out}/robot_N.log)\n")
+    if not finished:
+        return 1
+    if team.dataset is None or any(r.dataset for r in team.robots):
+        print("robots ran on their own datasets; per-robot results are in", out)
+        return 0 if len(finished) == team.n else 1
+    dataset = load_dataset(team.dataset)
+    result = gather(team, out, finished)
+    if len(finished) < team.n:
+        print(f"robots {', '.join(str(r) for r in finished)} finished; metrics cover them only")
+        from teamslam.datasets import TeamDataset
+
+        dataset = TeamDataset(
+            dataset.name,
+            dataset.calibration,
+            [dataset.robots[r] for r in finished],
+            dataset.object_ids,
+            dataset.object_positions,
+            metadata=dataset.metadata,
+        )
+    metrics = {"consensus": team_metrics(dataset, result)}
+    for summary in result.extra["per_robot"]:
+        if summary["lost_neighbours"]:
+            print(f"robot {summary['robot']} lost neighbour(s) {summary['lost_neighbours']}")
+    metrics["consensus"]["transport"] = result.extra["per_robot"]
+    print(_team_table(metrics))
+    _write_team_outputs(out, dataset, {"consensus": result}, metrics)
+    return 0 if len(finished) == team.n else 1
+
+
+def _cmd_team_launch(args: argparse.Namespace) -> int:
+    return _launch_and_report(Path(args.team_file), Path(args.out))
+
+
+def _cmd_agent(args: argparse.Namespace) -> int:
+    from teamslam.runtime.agent_process import run_agent
+    from teamslam.runtime.team_file import load_team_file
+
+    team = load_team_file(args.team)
+    if not 0 <= args.robot < team.n:
+        raise UsageError(f"--robot must lie in 0..{team.n - 1}")
+    summary = run_agent(team, args.robot, Path(args.out), resume=args.resume)
+    print(json.dumps({k: summary[k] for k in ("robot", "frames", "lost_neighbours")}))
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from teamslam.datasets import load_dataset
+    from teamslam.eval.metrics import team_metrics
     from teamslam.graph import make
     from teamslam.msckf import MsckfConfig, run_team
 
+    if args.processes:
+        if args.out is None or args.compare or args.separate:
+            raise UsageError("--processes needs --out and runs consensus only")
+        from teamslam.runtime.team_file import write_team_file
+
+        n = load_dataset(args.dataset).n_robots
+        adjacency = make(args.graph, n, seed=args.seed).adjacency
+        filt = {"window": args.window} if args.window else {}
+        if args.objects_only:
+            filt["objects_only"] = True
+        team_path = write_team_file(
+            Path(args.out) / "team.yaml",
+            f"run-{os.getpid()}",
+            args.dataset,
+            adjacency,
+            base_port=args.base_port,
+            message_loss=args.loss,
+            filter=filt,
+        )
+        return _launch_and_report(team_path, Path(args.out))
     dataset = load_dataset(args.dataset)
     overrides = {"window": args.window} if args.window else {}
     if args.objects_only:
@@ -287,23 +386,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(f"{dataset.name}: {dataset.n_robots} robots, graph {graph.name}, loss {args.loss}")
     print(_team_table(metrics))
     if args.out is not None:
-        out = Path(args.out)
-        payload = (
-            metrics[next(iter(modes))]
-            if len(modes) == 1
-            else {**metrics["consensus"], "separate": metrics["separate"]}
-        )
-        _write_json(out / "metrics.json", payload)
-        for name, result in results.items():
-            prefix = out if len(modes) == 1 else out / name
-            for i, robot in enumerate(dataset.robots):
-                write_tum(prefix / f"robot_{i + 1}.tum", result.poses[i], robot.timestamps)
-                write_tum(
-                    prefix / f"robot_{i + 1}_groundtruth.tum", robot.T_world_body, robot.timestamps
-                )
-        plot_team_topview(dataset, results, out / "topview.png")
-        plot_team_errors(dataset, results, out / "errors.png")
-        print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")
+        _write_team_outputs(Path(args.out), dataset, results, metrics)
     return 0
 
 
@@ -385,7 +468,33 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--objects-only", action="store_true", help="ignore geometric features")
     run.add_argument("--seed", type=_non_negative_int, default=0, help="seed of the link loss")
     run.add_argument("--out", type=Path, default=None, help="directory for results")
+    run.add_argument(
+        "--processes",
+        action="store_true",
+        help="one process per robot talking over Zenoh on loopback",
+    )
+    run.add_argument(
+        "--base-port",
+        type=_positive_int,
+        default=17400,
+        help="first loopback TCP port with --processes",
+    )
     run.set_defaults(handler=_cmd_run)
+
+    agent = sub.add_parser("agent", help="one robot's filter as a process (Zenoh)")
+    agent.add_argument("--team", type=Path, required=True, help="team file (team.yaml)")
+    agent.add_argument("--robot", type=int, required=True, help="robot id in the team file")
+    agent.add_argument("--out", type=Path, default=Path("results/team"), help="output directory")
+    agent.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
+    agent.set_defaults(handler=_cmd_agent)
+
+    team_cmd = sub.add_parser("team", help="run a team of robot processes")
+    team_sub = team_cmd.add_subparsers(dest="team_command", metavar="ACTION", parser_class=_Parser)
+    team_sub.required = True
+    launch = team_sub.add_parser("launch", help="start one process per robot and gather results")
+    launch.add_argument("team_file", type=Path, help="team file (team.yaml)")
+    launch.add_argument("--out", type=Path, required=True, help="output directory")
+    launch.set_defaults(handler=_cmd_team_launch)
 
     fej = sub.add_parser("fej", help="planar multi-robot EKF: standard vs first-estimate vs ideal")
     fej_sub = fej.add_subparsers(dest="fej_command", metavar="ACTION", parser_class=_Parser)

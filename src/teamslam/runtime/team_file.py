@@ -1,0 +1,232 @@
+"""The team file (``team.yaml``): who the robots are, what they run on, whom they talk to.
+
+Example::
+
+    team: lissajous-demo             # name; also separates teams on a shared network
+    dataset: results/team3           # a teamslam team dataset (each robot uses its slice)
+    sync: lockstep                   # or: async
+    timeout_s: 5.0                   # lock-step: how long to wait for a neighbour's messages
+    max_age_steps: 3                 # async: oldest neighbour marginal still used
+    checkpoint_every: 25             # frames between checkpoints (0: never)
+    message_loss: 0.0                # injected loss rate of sent messages (experiments)
+    message_delay_ms: 0.0            # injected delay before each send
+    filter: {window: 10, objects_only: false}
+    robots:
+      - id: 0
+        listen: tcp/127.0.0.1:17400  # default: tcp/127.0.0.1:<17400 + id>
+        neighbours: [1, 2]
+      - id: 1
+        neighbours: [0, 2]
+      - id: 2
+        neighbours: [0, 1]
+        dataset: other/team          # optional: another dataset …
+        dataset_robot: 0             # … and which of its robots
+
+Each agent listens on its own endpoint and connects to its neighbours' (Zenoh peer mode, no
+router, multicast scouting off so it runs on closed networks). Consensus weights are the
+Metropolis–Hastings weights of the neighbour graph, which every robot can compute for its own
+row from the file alone. Loading validates everything and names the first problem.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+__all__ = ["RobotEntry", "TeamFile", "TeamFileError", "load_team_file", "write_team_file"]
+
+
+class TeamFileError(ValueError):
+    """A malformed team file; the message names the field."""
+
+
+@dataclass
+class RobotEntry:
+    """One robot of the team file."""
+
+    id: int
+    listen: str
+    neighbours: list[int]
+    dataset: Path | None = None
+    dataset_robot: int | None = None
+
+
+@dataclass
+class TeamFile:
+    """A validated team file."""
+
+    team: str
+    dataset: Path | None
+    robots: list[RobotEntry]
+    sync: str = "lockstep"
+    timeout_s: float = 5.0
+    max_age_steps: int = 3
+    checkpoint_every: int = 25
+    message_loss: float = 0.0
+    message_delay_ms: float = 0.0
+    filter: dict = field(default_factory=dict)
+    path: Path | None = None
+
+    @property
+    def n(self) -> int:
+        """Number of robots."""
+        return len(self.robots)
+
+    def adjacency(self) -> np.ndarray:
+        """Neighbour graph."""
+        a = np.zeros((self.n, self.n), dtype=bool)
+        for r in self.robots:
+            a[r.id, r.neighbours] = True
+        return a
+
+    def dataset_of(self, robot: int) -> tuple[Path, int]:
+        """Dataset directory and robot index within it for ``robot``."""
+        entry = self.robots[robot]
+        path = entry.dataset or self.dataset
+        if path is None:
+            raise TeamFileError(
+                f"robot {robot} has no dataset (set 'dataset' at the top or per robot)"
+            )
+        return path, entry.dataset_robot if entry.dataset_robot is not None else robot
+
+
+def _number(data: dict, key: str, default, kind, low=None, high=None):
+    value = data.get(key, default)
+    try:
+        value = kind(value)
+    except (TypeError, ValueError):
+        raise TeamFileError(f"'{key}' must be a {kind.__name__}, got {value!r}") from None
+    if (low is not None and value < low) or (high is not None and value > high):
+        raise TeamFileError(f"'{key}' = {value} outside [{low}, {high}]")
+    return value
+
+
+def load_team_file(path: str | Path) -> TeamFile:
+    """Read and validate a team file; relative paths are relative to the file."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise TeamFileError(f"{path}: cannot read ({exc})") from None
+    except yaml.YAMLError as exc:
+        raise TeamFileError(f"{path}: not valid YAML ({exc})") from None
+    try:
+        return _parse(data, path)
+    except TeamFileError as exc:
+        raise TeamFileError(f"{path}: {exc}") from None
+
+
+def _parse(data, path: Path) -> TeamFile:
+    if not isinstance(data, dict):
+        raise TeamFileError("the team file must be a mapping")
+    unknown = set(data) - {
+        "team",
+        "dataset",
+        "sync",
+        "timeout_s",
+        "max_age_steps",
+        "checkpoint_every",
+        "message_loss",
+        "message_delay_ms",
+        "filter",
+        "robots",
+    }
+    if unknown:
+        raise TeamFileError(f"unknown field(s): {', '.join(sorted(unknown))}")
+    team = data.get("team")
+    if not isinstance(team, str) or not team or "/" in team or "*" in team:
+        raise TeamFileError("'team' must be a non-empty name without '/' or '*'")
+    base = path.parent
+
+    def as_path(value, where):
+        if value is None:
+            return None
+        if not isinstance(value, str):
+            raise TeamFileError(f"'{where}' must be a path")
+        p = Path(value)
+        return p if p.is_absolute() else base / p
+
+    robots_raw = data.get("robots")
+    if not isinstance(robots_raw, list) or len(robots_raw) < 1:
+        raise TeamFileError("'robots' must be a non-empty list")
+    robots = []
+    for k, r in enumerate(robots_raw):
+        if not isinstance(r, dict):
+            raise TeamFileError(f"robots[{k}] must be a mapping")
+        if r.get("id") != k:
+            raise TeamFileError(f"robots[{k}].id must be {k} (robots are numbered 0..N-1 in order)")
+        neighbours = r.get("neighbours", [])
+        if not isinstance(neighbours, list) or not all(isinstance(j, int) for j in neighbours):
+            raise TeamFileError(f"robots[{k}].neighbours must be a list of robot ids")
+        listen = r.get("listen", f"tcp/127.0.0.1:{17400 + k}")
+        if not isinstance(listen, str) or "/" not in listen:
+            raise TeamFileError(f"robots[{k}].listen must be a Zenoh endpoint like tcp/HOST:PORT")
+        robots.append(
+            RobotEntry(
+                k,
+                listen,
+                sorted(set(neighbours)),
+                as_path(r.get("dataset"), f"robots[{k}].dataset"),
+                r.get("dataset_robot"),
+            )
+        )
+    n = len(robots)
+    for r in robots:
+        for j in r.neighbours:
+            if not 0 <= j < n or j == r.id:
+                raise TeamFileError(f"robots[{r.id}].neighbours names {j}, not another robot")
+            if r.id not in robots[j].neighbours:
+                raise TeamFileError(
+                    f"link {r.id}–{j} is listed by robot {r.id} but not by robot {j}"
+                )
+    sync = data.get("sync", "lockstep")
+    if sync not in ("lockstep", "async"):
+        raise TeamFileError("'sync' must be lockstep or async")
+    filt = data.get("filter", {}) or {}
+    if not isinstance(filt, dict) or set(filt) - {"window", "objects_only"}:
+        raise TeamFileError("'filter' accepts window and objects_only")
+    return TeamFile(
+        team=team,
+        dataset=as_path(data.get("dataset"), "dataset"),
+        robots=robots,
+        sync=sync,
+        timeout_s=_number(data, "timeout_s", 5.0, float, 0.0),
+        max_age_steps=_number(data, "max_age_steps", 3, int, 0),
+        checkpoint_every=_number(data, "checkpoint_every", 25, int, 0),
+        message_loss=_number(data, "message_loss", 0.0, float, 0.0, 1.0),
+        message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
+        filter=filt,
+        path=path,
+    )
+
+
+def write_team_file(
+    path: str | Path,
+    team: str,
+    dataset: str | Path,
+    adjacency: np.ndarray,
+    base_port: int = 17400,
+    **settings,
+) -> Path:
+    """Write a team file for a dataset and a neighbour graph (all endpoints on loopback)."""
+    path = Path(path)
+    adjacency = np.asarray(adjacency, dtype=bool)
+    payload = {
+        "team": team,
+        "dataset": str(Path(dataset).resolve()),
+        **settings,
+        "robots": [
+            {
+                "id": i,
+                "listen": f"tcp/127.0.0.1:{base_port + i}",
+                "neighbours": [int(j) for j in np.flatnonzero(adjacency[i])],
+            }
+            for i in range(adjacency.shape[0])
+        ],
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(payload, sort_keys=False))
+    return path

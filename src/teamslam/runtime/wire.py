@@ -1,0 +1,138 @@
+"""teamslam's wire format for consensus messages: versioned, compact, validated binary.
+
+Every message is a fixed little-endian header followed by a payload::
+
+    offset size field
+    0      4    magic b"TSLM"
+    4      1    format version (1)
+    5      1    kind: 1 = map ids, 2 = common marginal
+    6      2    reserved (0)
+    8      8    team id (64-bit hash of the team name)
+    16     2    sender robot
+    18     2    receiver robot
+    20     4    step
+    24     4    number of ids n
+    28     4    mean length d (0 for map ids, 3 n for a marginal)
+    32     ...  n int64 ids, d float64 mean, d (d + 1) / 2 float64 covariance upper
+                triangle (row-major)
+
+No pickle, no code: :func:`decode` checks the magic, version, kind, team, robots, sizes (the
+byte length must match the header exactly and stay under a limit), ids without repeats and
+finite numbers, and raises :class:`WireError` naming the first problem. A transport catches that
+error, drops the message and counts it — nothing malformed ever reaches a filter.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import struct
+
+import numpy as np
+
+from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage, Message
+
+__all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
+
+MAGIC = b"TSLM"
+FORMAT_VERSION = 1
+KIND_IDS = 1
+KIND_MARGINAL = 2
+HEADER = struct.Struct("<4sBBHQHHIII")
+MAX_MESSAGE_BYTES = 16 * 1024 * 1024
+MAX_IDS = 100_000
+
+
+class WireError(ValueError):
+    """A received message that cannot be used; the message names the reason."""
+
+
+def team_id(name: str) -> int:
+    """64-bit id of a team name (the first 8 bytes of its SHA-256)."""
+    return int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "little")
+
+
+def encode(message: Message, team: int) -> bytes:
+    """Serialise a message."""
+    ids = np.ascontiguousarray(message.ids, dtype="<i8")
+    if isinstance(message, MapIdsMessage):
+        header = HEADER.pack(
+            MAGIC,
+            FORMAT_VERSION,
+            KIND_IDS,
+            0,
+            team,
+            message.sender,
+            message.receiver,
+            message.step,
+            ids.size,
+            0,
+        )
+        return header + ids.tobytes()
+    mean = np.ascontiguousarray(message.mean, dtype="<f8")
+    d = mean.size
+    upper = np.asarray(message.cov, dtype="<f8")[np.triu_indices(d)]
+    header = HEADER.pack(
+        MAGIC,
+        FORMAT_VERSION,
+        KIND_MARGINAL,
+        0,
+        team,
+        message.sender,
+        message.receiver,
+        message.step,
+        ids.size,
+        d,
+    )
+    return header + ids.tobytes() + mean.tobytes() + upper.tobytes()
+
+
+def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_BYTES) -> Message:
+    """Parse and validate a message.
+
+    Raises
+    ------
+    WireError
+        Truncated, oversized, bad magic, unknown version or kind, another team, an unknown robot,
+        sizes that disagree, repeated ids or non-finite numbers.
+    """
+    if len(data) > max_bytes:
+        raise WireError(f"oversized message ({len(data)} bytes > {max_bytes})")
+    if len(data) < HEADER.size:
+        raise WireError(f"truncated header ({len(data)} of {HEADER.size} bytes)")
+    magic, version, kind, _, team_of, sender, receiver, step, n_ids, d = HEADER.unpack_from(data)
+    if magic != MAGIC:
+        raise WireError("not a teamslam message (bad magic)")
+    if version != FORMAT_VERSION:
+        raise WireError(f"unknown format version {version}")
+    if team_of != team:
+        raise WireError("message from another team")
+    if sender >= n_robots or receiver >= n_robots:
+        raise WireError(f"unknown robot (sender {sender}, receiver {receiver}, team of {n_robots})")
+    if n_ids > MAX_IDS:
+        raise WireError(f"too many ids ({n_ids})")
+    if kind == KIND_IDS:
+        if d != 0:
+            raise WireError("map-ids message with a mean")
+        expected = HEADER.size + 8 * n_ids
+    elif kind == KIND_MARGINAL:
+        if d != 3 * n_ids or n_ids == 0:
+            raise WireError(f"marginal of {n_ids} objects with mean length {d}")
+        expected = HEADER.size + 8 * (n_ids + d + d * (d + 1) // 2)
+    else:
+        raise WireError(f"unknown message kind {kind}")
+    if len(data) != expected:
+        raise WireError(f"length {len(data)} bytes, header says {expected}")
+    ids = np.frombuffer(data, dtype="<i8", count=n_ids, offset=HEADER.size).astype(np.int64)
+    if np.unique(ids).size != ids.size:
+        raise WireError("repeated ids")
+    if kind == KIND_IDS:
+        return MapIdsMessage(int(sender), int(receiver), int(step), ids)
+    offset = HEADER.size + 8 * n_ids
+    mean = np.frombuffer(data, dtype="<f8", count=d, offset=offset).astype(float)
+    upper = np.frombuffer(data, dtype="<f8", count=d * (d + 1) // 2, offset=offset + 8 * d)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(upper))):
+        raise WireError("non-finite mean or covariance")
+    cov = np.zeros((d, d))
+    cov[np.triu_indices(d)] = upper
+    cov = cov + np.triu(cov, 1).T
+    return CommonMarginalMessage(int(sender), int(receiver), int(step), ids, mean, cov)
