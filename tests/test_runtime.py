@@ -1,0 +1,300 @@
+"""Robots as processes: wire format, team file, Zenoh teams (all traffic on loopback)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from teamslam.datasets import save_dataset
+from teamslam.graph import complete, path
+from teamslam.msckf import MsckfConfig, run_team
+from teamslam.runtime.agent_process import load_robot_result, run_agent
+from teamslam.runtime.team_file import TeamFileError, load_team_file, write_team_file
+from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage
+from teamslam.runtime.wire import WireError, decode, encode, team_id
+from teamslam.sim import lissajous_team
+
+TEAM = team_id("test-team")
+
+
+def _marginal(k: int = 2) -> CommonMarginalMessage:
+    rng = np.random.default_rng(k)
+    a = rng.normal(size=(3 * k, 3 * k))
+    return CommonMarginalMessage(
+        1, 2, 17, np.arange(10, 10 + k), rng.normal(size=3 * k), a @ a.T + np.eye(3 * k)
+    )
+
+
+def test_wire_round_trip_is_exact():
+    msg = _marginal(3)
+    back = decode(encode(msg, TEAM), TEAM, 4)
+    assert isinstance(back, CommonMarginalMessage)
+    assert (back.sender, back.receiver, back.step) == (1, 2, 17)
+    np.testing.assert_array_equal(back.ids, msg.ids)
+    np.testing.assert_array_equal(back.mean, msg.mean)
+    np.testing.assert_array_equal(back.cov, msg.cov)
+    ids = MapIdsMessage(0, 3, 5, np.array([4, 8, 15]))
+    back = decode(encode(ids, TEAM), TEAM, 4)
+    assert isinstance(back, MapIdsMessage)
+    np.testing.assert_array_equal(back.ids, ids.ids)
+    # compact: header + ids + mean + upper triangle only
+    assert len(encode(msg, TEAM)) == 32 + 8 * (3 + 9 + 45)
+
+
+@pytest.mark.parametrize(
+    ("mutate", "reason"),
+    [
+        (lambda b: b[:20], "truncated header"),
+        (lambda b: b[:-1], "length"),
+        (lambda b: b + b"\x00" * 8, "length"),
+        (lambda b: b"XXXX" + b[4:], "bad magic"),
+        (lambda b: b[:4] + bytes([9]) + b[5:], "unknown format version"),
+        (lambda b: b[:5] + bytes([7]) + b[6:], "unknown message kind"),
+    ],
+)
+def test_wire_rejections_are_named(mutate, reason):
+    with pytest.raises(WireError, match=reason):
+        decode(mutate(encode(_marginal(), TEAM)), TEAM, 4)
+
+
+def test_wire_rejects_other_team_unknown_robot_and_oversize():
+    data = encode(_marginal(), TEAM)
+    with pytest.raises(WireError, match="another team"):
+        decode(data, team_id("other"), 4)
+    with pytest.raises(WireError, match="unknown robot"):
+        decode(data, TEAM, 2)
+    with pytest.raises(WireError, match="oversized"):
+        decode(data, TEAM, 4, max_bytes=64)
+    nan = _marginal()
+    bad = CommonMarginalMessage(1, 2, 3, nan.ids, np.full(6, np.nan), nan.cov)
+    with pytest.raises(WireError, match="non-finite"):
+        decode(encode(bad, TEAM), TEAM, 4)
+
+
+def _only_message_or_wire_error(data: bytes) -> None:
+    try:
+        msg = decode(data, TEAM, 4)
+    except WireError:
+        return
+    assert isinstance(msg, MapIdsMessage | CommonMarginalMessage)
+
+
+@given(st.binary(max_size=600))
+@settings(max_examples=400, deadline=None)
+def test_decoder_on_random_bytes(data):
+    _only_message_or_wire_error(data)
+
+
+@given(st.integers(0, 10_000), st.data())
+@settings(max_examples=400, deadline=None)
+def test_decoder_on_truncated_and_bit_flipped_messages(seed, data):
+    raw = bytearray(encode(_marginal(1 + seed % 3), TEAM))
+    cut = data.draw(st.integers(0, len(raw)))
+    _only_message_or_wire_error(bytes(raw[:cut]))
+    for _ in range(data.draw(st.integers(1, 4))):
+        pos = data.draw(st.integers(0, len(raw) - 1))
+        raw[pos] ^= 1 << data.draw(st.integers(0, 7))
+    _only_message_or_wire_error(bytes(raw))
+
+
+def test_team_file_validation(tmp_path):
+    good = write_team_file(tmp_path / "team.yaml", "t", tmp_path, path(3).adjacency)
+    team = load_team_file(good)
+    assert team.n == 3 and team.robots[1].neighbours == [0, 2]
+    assert team.robots[2].listen == "tcp/127.0.0.1:17402"
+    cases = {
+        "team: a/b\nrobots: [{id: 0}]\n": "'team'",
+        "team: t\nrobots: []\n": "'robots'",
+        "team: t\nrobots: [{id: 1}]\n": "robots\\[0\\].id",
+        "team: t\nrobots: [{id: 0, neighbours: [1]}, {id: 1}]\n": "not by robot 1",
+        "team: t\nrobots: [{id: 0, neighbours: [5]}]\n": "not another robot",
+        "team: t\nsync: sometimes\nrobots: [{id: 0}]\n": "'sync'",
+        "team: t\ntimeout_s: -1\nrobots: [{id: 0}]\n": "timeout_s",
+        "team: t\ncolour: red\nrobots: [{id: 0}]\n": "unknown field",
+        "team: [unclosed\n": "not valid YAML",
+    }
+    for text, reason in cases.items():
+        f = tmp_path / "bad.yaml"
+        f.write_text(text)
+        with pytest.raises(TeamFileError, match=reason):
+            load_team_file(f)
+
+
+# ------------------------------------------------------------------ processes over Zenoh
+@pytest.fixture(scope="module")
+def small_team(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("team") / "data"
+    dataset = lissajous_team(robots=3, steps=40, seed=1, landmarks=600)
+    save_dataset(dataset, directory)
+    return dataset, directory
+
+
+def _port(offset: int) -> int:
+    return 18000 + (os.getpid() % 500) * 8 + offset
+
+
+def _agent_cmd(team_path: Path, robot: int, out: Path, *extra: str) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "teamslam",
+        "agent",
+        "--team",
+        str(team_path),
+        "--robot",
+        str(robot),
+        "--out",
+        str(out),
+        *extra,
+    ]
+
+
+def test_three_processes_equal_the_in_process_runner(small_team, tmp_path):
+    dataset, directory = small_team
+    team_path = write_team_file(
+        tmp_path / "team.yaml",
+        f"eq-{os.getpid()}",
+        directory,
+        complete(3).adjacency,
+        base_port=_port(0),
+        timeout_s=20.0,
+        filter={"window": 8},
+    )
+    procs = [
+        subprocess.Popen(
+            _agent_cmd(team_path, r, tmp_path / "out"),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        for r in range(3)
+    ]
+    for p in procs:
+        out, _ = p.communicate(timeout=240)
+        assert p.returncode == 0, out.decode()
+    reference = run_team(
+        dataset, MsckfConfig.for_dataset(dataset.metadata, window=8), progress=False
+    )
+    for r in range(3):
+        arrays, summary = load_robot_result(tmp_path / "out", r)
+        np.testing.assert_allclose(arrays["poses"], reference.poses[r], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(arrays["objects"], reference.objects[r], rtol=0, atol=1e-12)
+        assert summary["counters"].get("links_lost", 0) == 0
+        assert summary["counters"]["bytes"] > 0
+        assert summary["counters"]["objects_averaged"] > 0
+
+
+def test_killed_agent_lets_the_others_finish(small_team, tmp_path):
+    _, directory = small_team
+    team_path = write_team_file(
+        tmp_path / "team.yaml",
+        f"kill-{os.getpid()}",
+        directory,
+        complete(3).adjacency,
+        base_port=_port(3),
+        timeout_s=0.5,
+        filter={"window": 8},
+    )
+    out = tmp_path / "out"
+    procs = [
+        subprocess.Popen(
+            _agent_cmd(team_path, r, out), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        for r in range(3)
+    ]
+    progress = out / "robot_2" / "progress.json"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        try:
+            if json.loads(progress.read_text())["frame"] >= 5:
+                break
+        except (OSError, ValueError, KeyError):
+            pass
+        time.sleep(0.05)
+    procs[2].send_signal(signal.SIGKILL)
+    procs[2].wait(timeout=10)
+    for p in procs[:2]:
+        assert p.wait(timeout=180) == 0
+    for r in (0, 1):
+        _, summary = load_robot_result(out, r)
+        assert summary["lost_neighbours"] == [2]
+        assert summary["counters"]["links_lost"] >= 1
+    assert not (out / "robot_2" / "result.json").exists()
+
+
+def test_resume_from_checkpoint_reproduces_the_run(small_team, tmp_path, monkeypatch):
+    """A robot without neighbours crashes after a checkpoint and resumes: same result."""
+    from teamslam.msckf.agent import MsckfAgent
+
+    _, directory = small_team
+    team_path = tmp_path / "solo.yaml"
+    team_path.write_text(
+        f"team: solo\ndataset: {directory}\ncheckpoint_every: 10\n"
+        "filter: {window: 8}\nrobots:\n  - id: 0\n    listen: "
+        f"tcp/127.0.0.1:{_port(6)}\n"
+    )
+    team = load_team_file(team_path)
+
+    class Quiet:
+        def close(self):
+            pass
+
+    whole = run_agent(team, 0, tmp_path / "whole", transport=Quiet())
+    original_step = MsckfAgent.step
+
+    def crashing(self, t):
+        if t == 15:
+            raise RuntimeError("simulated crash")
+        return original_step(self, t)
+
+    monkeypatch.setattr(MsckfAgent, "step", crashing)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        run_agent(team, 0, tmp_path / "crash", transport=Quiet())
+    monkeypatch.setattr(MsckfAgent, "step", original_step)
+    assert (tmp_path / "crash" / "robot_0" / "checkpoint.npz").exists()
+    run_agent(team, 0, tmp_path / "crash", resume=True, transport=Quiet())
+    a, _ = load_robot_result(tmp_path / "whole", 0)
+    b, _ = load_robot_result(tmp_path / "crash", 0)
+    np.testing.assert_array_equal(a["poses"], b["poses"])
+    np.testing.assert_array_equal(a["objects"], b["objects"])
+    assert whole["frames"] == 41
+
+
+def test_run_with_processes_writes_the_same_metrics(small_team, tmp_path, capsys):
+    from teamslam.cli import main
+
+    _, directory = small_team
+    out = tmp_path / "proc"
+    argv = [
+        "run",
+        str(directory),
+        "--processes",
+        "--window",
+        "8",
+        "--base-port",
+        str(_port(7)),
+        "--out",
+        str(out),
+    ]
+    assert main(argv) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    for key in (
+        "trajectory_rmse_m",
+        "object_error_m",
+        "object_disagreement_avg_m",
+        "nees_pose_avg",
+        "time_per_robot_step_ms",
+    ):
+        assert key in metrics
+    assert len(metrics["transport"]) == 3
+    assert all(t["bytes_per_step"] > 0 for t in metrics["transport"])
+    assert (out / "topview.png").exists() and (out / "robot_1.tum").exists()
