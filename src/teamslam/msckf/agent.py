@@ -132,12 +132,18 @@ class MsckfAgent:
         self.state.augment(odometry, t, cov)
 
     # ------------------------------------------------------------------ geometric features
-    def _feature_rows(self, t: int) -> MeasurementRows:
-        ids, z = self.sequence.features.frame(t)
+    def _finite_observations(self, kind: str, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``t``'s ``features`` or ``objects``, rejecting (and counting) non-finite rows."""
+        ids, z = getattr(self.sequence, kind).frame(t)
         finite = np.all(np.isfinite(z), axis=1)
         if not finite.all():
-            self._reject("feature_measurements", int((~finite).sum()), "non-finite")
+            what = "feature_measurements" if kind == "features" else "object_measurements"
+            self._reject(what, int((~finite).sum()), "non-finite")
             ids, z = ids[finite], z[finite]
+        return ids, z
+
+    def _feature_rows(self, t: int) -> MeasurementRows:
+        ids, z = self._finite_observations("features", t)
         seen = set(ids.tolist())
         for i, row in zip(ids.tolist(), z, strict=True):
             self.tracks[i].append((t, row))
@@ -191,11 +197,7 @@ class MsckfAgent:
 
     # ------------------------------------------------------------------ objects
     def _object_rows(self, t: int) -> MeasurementRows:
-        ids, z = self.sequence.objects.frame(t)
-        finite = np.all(np.isfinite(z), axis=1)
-        if not finite.all():
-            self._reject("object_measurements", int((~finite).sum()), "non-finite")
-            ids, z = ids[finite], z[finite]
+        ids, z = self._finite_observations("objects", t)
         for i, row in zip(ids.tolist(), z, strict=True):
             self.object_history[i].append((t, row))
         slots = self.state.object_slots(ids)
