@@ -298,3 +298,40 @@ def test_run_with_processes_writes_the_same_metrics(small_team, tmp_path, capsys
     assert len(metrics["transport"]) == 3
     assert all(t["bytes_per_step"] > 0 for t in metrics["transport"])
     assert (out / "topview.png").exists() and (out / "robot_1.tum").exists()
+
+
+@pytest.mark.parametrize("mode", ["async", "lossy"])
+def test_async_and_lossy_teams_finish_with_sane_estimates(small_team, tmp_path, mode):
+    dataset, directory = small_team
+    settings = (
+        {"sync": "async", "max_age_steps": 2}
+        if mode == "async"
+        else {"message_loss": 0.3, "message_delay_ms": 1.0, "timeout_s": 0.3}
+    )
+    team_path = write_team_file(
+        tmp_path / "team.yaml",
+        f"{mode}-{os.getpid()}",
+        directory,
+        complete(3).adjacency,
+        base_port=_port(8 if mode == "async" else 11),
+        filter={"window": 8},
+        **settings,
+    )
+    procs = [
+        subprocess.Popen(
+            _agent_cmd(team_path, r, tmp_path / "out"),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.STDOUT,
+        )
+        for r in range(3)
+    ]
+    for p in procs:
+        assert p.wait(timeout=240) == 0
+    for r in range(3):
+        arrays, summary = load_robot_result(tmp_path / "out", r)
+        truth = dataset.robots[r].T_world_body
+        err = np.linalg.norm(arrays["poses"][:, :3, 3] - truth[:, :3, 3], axis=1)
+        assert np.all(np.isfinite(err)) and err.max() < 1.0
+        if mode == "lossy":
+            assert summary["counters"]["injected_drops"] > 0
+            assert summary["counters"]["links_lost"] > 0
