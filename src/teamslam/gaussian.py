@@ -132,8 +132,8 @@ def replace_marginal_arrays(
     -------
     new_mean, new_cov
         The joint whose ``y`` marginal is the new one and whose conditional ``p(x | y)`` is the
-        old one. Only the ``x``-``y`` and ``x``-``x`` blocks are rewritten; the update
-        ``Σ̄ˣ = Σˣ + A (Σ̄ʸ - Σʸ) Aᵀ`` touches each entry once.
+        old one, computed as the rank-``|y|`` correction ``Σ + G (Σ̄ʸ − Σʸ) Gᵀ`` with
+        ``G = Σ[:, y] Σʸ⁻¹``.
     """
     mean, cov = _check_moment(mean, cov, "replace_marginal joint")
     n = mean.size
@@ -143,21 +143,18 @@ def replace_marginal_arrays(
         raise ValueError(
             f"replace_marginal: new marginal has size {mean_y.size}, index set has {iy.size}"
         )
-    ix = _complement(iy, n)
     sigma_y = cov[np.ix_(iy, iy)]
-    sigma_xy = cov[np.ix_(ix, iy)]
     factor = scipy.linalg.cho_factor(_spd(sigma_y, "replace_marginal: old marginal Σʸ"))
-    gain = scipy.linalg.cho_solve(factor, sigma_xy.T).T  # A = Σˣʸ Σʸ⁻¹
-    new_mean = mean.copy()
+    # G = Σ[:, y] Σʸ⁻¹ stacks A (rows of x) over the identity (rows of y), so the whole new
+    # joint is one rank-|y| correction: μ̄ = μ + G (μ̄ʸ − μʸ), Σ̄ = Σ + G (Σ̄ʸ − Σʸ) Gᵀ. That is
+    # eq. 14 block by block, computed without gathering the x–x block.
+    gain = scipy.linalg.cho_solve(factor, cov[iy, :]).T
+    gain[iy] = np.eye(iy.size)  # exact identity rows
+    new_mean = mean + gain @ (mean_y - mean[iy])
     new_mean[iy] = mean_y
-    new_mean[ix] = mean[ix] + gain @ (mean_y - mean[iy])
-    cov_y = symmetrize(cov_y)
-    new_cov = np.empty_like(cov)
-    new_cov[np.ix_(iy, iy)] = cov_y
-    cross = gain @ cov_y
-    new_cov[np.ix_(ix, iy)] = cross
-    new_cov[np.ix_(iy, ix)] = cross.T
-    new_cov[np.ix_(ix, ix)] = cov[np.ix_(ix, ix)] + gain @ (cov_y - sigma_y) @ gain.T
+    delta = symmetrize(cov_y) - sigma_y
+    new_cov = cov + (gain @ delta) @ gain.T
+    new_cov[np.ix_(iy, iy)] = symmetrize(cov_y)
     return new_mean, symmetrize(new_cov)
 
 

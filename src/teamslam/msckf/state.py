@@ -119,14 +119,18 @@ class MsckfState:
         block = jac @ self.cov[last, last] @ jac.T + odometry_cov
         n = self.dim
         cov = np.empty((n + 6, n + 6))
-        # new pose goes after the existing poses, before the objects
-        keep = np.r_[0:split, split:n]
-        new_idx = np.arange(split, split + 6)
-        old_idx = np.r_[0:split, split + 6 : n + 6]
-        cov[np.ix_(old_idx, old_idx)] = self.cov[np.ix_(keep, keep)]
-        cov[np.ix_(new_idx, old_idx)] = cross
-        cov[np.ix_(old_idx, new_idx)] = cross.T
-        cov[np.ix_(new_idx, new_idx)] = 0.5 * (block + block.T)
+        # the new pose goes after the existing poses, before the objects: four block copies
+        new = slice(split, split + 6)
+        after = slice(split + 6, n + 6)
+        cov[:split, :split] = self.cov[:split, :split]
+        cov[:split, after] = self.cov[:split, split:]
+        cov[after, :split] = self.cov[split:, :split]
+        cov[after, after] = self.cov[split:, split:]
+        cov[new, :split] = cross[:, :split]
+        cov[new, after] = cross[:, split:]
+        cov[:split, new] = cross[:, :split].T
+        cov[after, new] = cross[:, split:].T
+        cov[new, new] = 0.5 * (block + block.T)
         self.cov = cov
         self.poses = np.concatenate([self.poses, new_pose[None]])
         self.frames = np.append(self.frames, frame)
