@@ -19,9 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 
 from teamslam.ekf2d import models
 from teamslam.ekf2d.linearization import LinearizationPoints, Policy
+from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry.se2 import wrap_angle
 
 __all__ = ["JacobianRecord", "MultiRobotEKF", "StepObservations"]
@@ -331,8 +333,12 @@ class MultiRobotEKF:
         p = self._cov[:n, :n]
         pht = p[:, cols] @ h.T  # (n, 2m)
         s = h @ pht[cols] + _block_diagonal(obs.covariances(self.observation_covs))
-        factor = scipy.linalg.cho_factor(0.5 * (s + s.T))
-        gain = scipy.linalg.cho_solve(factor, pht.T).T
+        # LAPACK directly: this runs every step, the wrappers' checks cost more than the solve
+        factor, info = scipy.linalg.lapack.dpotrf(0.5 * (s + s.T), lower=True)
+        if info != 0:
+            raise NotPositiveDefiniteError("innovation covariance is not positive definite")
+        solved, _ = scipy.linalg.lapack.dpotrs(factor, pht.T, lower=True)
+        gain = solved.T
         self._mean[:n] += gain @ innovation
         self._mean[2:nr:3] = wrap_angle(self._mean[2:nr:3])
         p -= gain @ pht.T

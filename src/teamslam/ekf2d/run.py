@@ -81,14 +81,11 @@ def _score(ekf: MultiRobotEKF, run: PlanarRun, k: int, out: RunMetrics) -> None:
         ids = np.asarray(ekf.feature_ids)
         fe = truth.features[ids] - ekf.features
         nr = 3 * ekf.n_robots
-        diag = np.arange(f)
-        cov = ekf.cov[nr:, nr:].reshape(f, 2, f, 2)[diag, :, diag, :]  # (f, 2, 2) blocks
-        det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
-        quad = (
-            cov[:, 1, 1] * fe[:, 0] ** 2
-            - 2 * cov[:, 0, 1] * fe[:, 0] * fe[:, 1]
-            + cov[:, 0, 0] * fe[:, 1] ** 2
-        ) / det
+        x = nr + 2 * np.arange(f)  # each feature's 2×2 diagonal block, read element-wise
+        p = ekf.cov
+        cxx, cxy, cyy = p[x, x], p[x, x + 1], p[x + 1, x + 1]
+        det = cxx * cyy - cxy * cxy
+        quad = (cyy * fe[:, 0] ** 2 - 2 * cxy * fe[:, 0] * fe[:, 1] + cxx * fe[:, 1] ** 2) / det
         out.feature_nees[k] = np.mean(quad) / 2.0
         out.feature_sq[k] = np.mean(np.sum(fe**2, axis=1))
 
