@@ -318,3 +318,33 @@ def test_kitti00_objects_only_beats_odometry_and_consensus_agrees(kitti00_dir):
     assert con["trajectory_rmse_avg_m"] < con["odometry_rmse_avg_m"]
     assert con["trajectory_rmse_avg_m"] < sep["trajectory_rmse_avg_m"]
     assert con["object_disagreement_avg_m"] < 0.5 * sep["object_disagreement_avg_m"]
+
+
+def test_partial_neighbour_marginals_equal_the_moment_form_construction():
+    """A neighbour sharing only some common objects is completed with our own conditional:
+    the information-form average equals Prop. 2 completion + weighted geometric average."""
+    from teamslam.gaussian import replace_marginal_arrays
+
+    rng = np.random.default_rng(9)
+    state = _state_with_objects(rng, [1, 2, 3, 4], rng.normal(size=(4, 3)))
+    y_ids = np.array([1, 2, 3, 4])
+    cols = state.object_columns(state.object_slots(y_ids)).ravel()
+    own_mean, own_cov = state.objects.ravel().copy(), state.cov[np.ix_(cols, cols)].copy()
+    msgs, terms = [], []
+    for sender, ids in ((1, [1, 2, 3]), (2, [4]), (3, [2, 4, 1, 3])):
+        sub = (3 * (np.array(ids) - 1)[:, None] + np.arange(3)).ravel()
+        a = rng.normal(size=(sub.size, sub.size))
+        m, c = (
+            own_mean[sub] + rng.normal(size=sub.size) * 0.3,
+            a @ a.T / sub.size + np.eye(sub.size),
+        )
+        msgs.append((0.2, CommonMarginalMessage(sender, 0, 1, np.array(ids), m, c)))
+        terms.append(replace_marginal_arrays(own_mean, own_cov, sub, m, c))
+    consensus_average(state, 0.4, msgs)
+    want_mean, want_cov = geometric_average_arrays(
+        np.stack([own_mean] + [t[0] for t in terms]),
+        np.stack([own_cov] + [t[1] for t in terms]),
+        np.array([0.4, 0.2, 0.2, 0.2]),
+    )
+    np.testing.assert_allclose(state.objects.ravel(), want_mean, atol=1e-9)
+    np.testing.assert_allclose(state.cov[np.ix_(cols, cols)], want_cov, atol=1e-9)

@@ -20,6 +20,7 @@ is rejected and counted; the estimate is unaffected.
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg
 
 from teamslam.gaussian import spd_inverse
 from teamslam.msckf.state import MsckfState
@@ -70,6 +71,23 @@ def validate_marginal(state: MsckfState, message: CommonMarginalMessage) -> str 
     return None
 
 
+def _marginal_information(info: np.ndarray, cov: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    """Information matrix of the ``sub`` block's marginal, the cheaper way round.
+
+    Either invert ``cov[sub, sub]`` (``|sub|³``) or take the Schur complement of the rest in the
+    joint information, ``Ω_CC − Ω_CR Ω_RR⁻¹ Ω_RC`` (``|rest|³``) — a neighbour usually shares
+    most of the common objects, so the rest is small.
+    """
+    rest = np.setdiff1d(np.arange(info.shape[0]), sub)
+    if rest.size == 0:
+        return info[np.ix_(sub, sub)]
+    if rest.size >= sub.size:
+        return spd_inverse(cov[np.ix_(sub, sub)], "own common-object covariance")
+    factor = scipy.linalg.cho_factor(info[np.ix_(rest, rest)])
+    cross = info[np.ix_(rest, sub)]
+    return info[np.ix_(sub, sub)] - cross.T @ scipy.linalg.cho_solve(factor, cross)
+
+
 def consensus_average(
     state: MsckfState,
     self_weight: float,
@@ -103,12 +121,13 @@ def consensus_average(
     # own marginal only on C: Ω̃_j = Ω_i + Lᵀ(M_j − M_i,C)L, η̃_j = η_i + Lᵀ(M_j μ_j − M_i,C μ_i,C)
     # (App. B, eq. 42). With Σ w = 1 the average is Ω_i + Σ_j w_j Lᵀ(M_j − M_i,C)L.
     total = self_weight + sum(w for w, _ in received)
-    info = spd_inverse(own_cov, "own common-object covariance")
-    info_vector = info @ own_mean
+    own_info = spd_inverse(own_cov, "own common-object covariance")
+    info = own_info.copy()
+    info_vector = own_info @ own_mean
     for weight, msg in received:
         w = weight / total
         sub = (3 * np.array([position[int(i)] for i in msg.ids])[:, None] + np.arange(3)).ravel()
-        own_sub_info = spd_inverse(own_cov[np.ix_(sub, sub)], "own common-object covariance")
+        own_sub_info = _marginal_information(own_info, own_cov, sub)
         msg_info = spd_inverse(msg.cov, "received covariance")
         info[np.ix_(sub, sub)] += w * (msg_info - own_sub_info)
         info_vector[sub] += w * (msg_info @ msg.mean - own_sub_info @ own_mean[sub])
