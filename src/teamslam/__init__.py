@@ -7,6 +7,19 @@ try:
 except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
     __version__ = "0+unknown"
 
-from teamslam import dvi, gaussian, geometry, graph
+from teamslam import datasets, dvi, ekf2d, gaussian, geometry, graph, msckf, sim
+from teamslam.msckf import MsckfConfig, run_team
 
-__all__ = ["__version__", "dvi", "gaussian", "geometry", "graph"]
+__all__ = [
+    "MsckfConfig",
+    "__version__",
+    "datasets",
+    "dvi",
+    "ekf2d",
+    "gaussian",
+    "geometry",
+    "graph",
+    "msckf",
+    "run_team",
+    "sim",
+]

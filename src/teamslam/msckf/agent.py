@@ -74,7 +74,7 @@ class MsckfAgent:
         self.frame = -1
 
     # ------------------------------------------------------------------ bookkeeping
-    def _reject(self, what: str, count: int = 1, reason: str = "") -> None:
+    def reject(self, what: str, count: int = 1, reason: str = "") -> None:
         self.counters[f"rejected_{what}"] += count
         if what not in self._warned:
             self._warned.add(what)
@@ -126,7 +126,7 @@ class MsckfAgent:
         odometry = self.sequence.odometry[t - 1]
         cov = self.config.odometry_cov()
         if not np.all(np.isfinite(odometry)):
-            self._reject("odometry", reason="non-finite relative pose")
+            self.reject("odometry", reason="non-finite relative pose")
             odometry = np.eye(4)
             cov = cov * 1e4  # no motion information at all for this step
         self.state.augment(odometry, t, cov)
@@ -138,7 +138,7 @@ class MsckfAgent:
         finite = np.all(np.isfinite(z), axis=1)
         if not finite.all():
             what = "feature_measurements" if kind == "features" else "object_measurements"
-            self._reject(what, int((~finite).sum()), "non-finite")
+            self.reject(what, int((~finite).sum()), "non-finite")
             ids, z = ids[finite], z[finite]
         return ids, z
 

@@ -91,7 +91,7 @@ def _consensus_round(
     for i in running:
         for msg in requests[i]:
             if not isinstance(msg, MapIdsMessage) or msg.step != t:
-                agents[i]._reject("messages", reason="unexpected message kind or step")
+                agents[i].reject("messages", reason="unexpected message kind or step")
                 continue
             reply = common_marginal_message(agents[i].state, i, msg.sender, t, msg.ids)
             if reply is not None:
@@ -102,14 +102,14 @@ def _consensus_round(
         heard = []
         for msg in transport.receive(i):
             if not isinstance(msg, CommonMarginalMessage) or msg.step != t:
-                agent._reject("messages", reason="unexpected message kind or step")
+                agent.reject("messages", reason="unexpected message kind or step")
                 continue
             if not 0 <= msg.sender < len(agents) or weights[i, msg.sender] <= 0:
-                agent._reject("messages", reason=f"message from unknown robot {msg.sender}")
+                agent.reject("messages", reason=f"message from unknown robot {msg.sender}")
                 continue
             problem = validate_marginal(agent.state, msg)
             if problem:
-                agent._reject("messages", reason=problem)
+                agent.reject("messages", reason=problem)
                 continue
             heard.append((float(weights[i, msg.sender]), msg))
         averaged = consensus_average(agent.state, float(weights[i, i]), heard)

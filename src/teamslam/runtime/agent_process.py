@@ -210,7 +210,7 @@ def run_agent(
                 for m in replies:
                     problem = validate_marginal(agent.state, m)
                     if problem:
-                        agent._reject("messages", reason=problem)
+                        agent.reject("messages", reason=problem)
                         continue
                     heard.append((weights[m.sender], m))
                 agent.counters["objects_averaged"] += consensus_average(

@@ -22,7 +22,7 @@ from collections import defaultdict
 import numpy as np
 
 from teamslam.runtime.team_file import TeamFile
-from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage, Message
+from teamslam.runtime.transport import MapIdsMessage, Message
 from teamslam.runtime.wire import WireError, decode, encode, team_id
 
 __all__ = ["ZenohTransport"]
@@ -195,6 +195,3 @@ class ZenohTransport:
             self._subscriber.undeclare()
         finally:
             self.session.close()
-
-
-__all__ += ["CommonMarginalMessage"]
