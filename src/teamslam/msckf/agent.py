@@ -75,6 +75,7 @@ class MsckfAgent:
 
     # ------------------------------------------------------------------ bookkeeping
     def reject(self, what: str, count: int = 1, reason: str = "") -> None:
+        """Count ``count`` rejected inputs of kind ``what``; log the first one with its reason."""
         self.counters[f"rejected_{what}"] += count
         if what not in self._warned:
             self._warned.add(what)
