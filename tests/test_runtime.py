@@ -335,3 +335,41 @@ def test_async_and_lossy_teams_finish_with_sane_estimates(small_team, tmp_path, 
         if mode == "lossy":
             assert summary["counters"]["injected_drops"] > 0
             assert summary["counters"]["links_lost"] > 0
+
+
+def test_ctrl_c_stops_every_agent(small_team, tmp_path):
+    _, directory = small_team
+    team_path = write_team_file(
+        tmp_path / "team.yaml",
+        f"int-{os.getpid()}",
+        directory,
+        complete(3).adjacency,
+        base_port=_port(14),
+        timeout_s=5.0,
+        filter={"window": 8},
+    )
+    out = tmp_path / "out"
+    launcher = subprocess.Popen(
+        [sys.executable, "-m", "teamslam", "team", "launch", str(team_path), "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    progress = out / "robot_0" / "progress.json"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not progress.exists():
+        time.sleep(0.05)
+    launcher.send_signal(signal.SIGINT)
+    _, err = launcher.communicate(timeout=60)
+    assert launcher.returncode == 130
+    assert "interrupted" in err and "Traceback" not in err
+    pids = []
+    for r in range(3):
+        try:
+            pids.append(json.loads((out / f"robot_{r}" / "progress.json").read_text())["pid"])
+        except (OSError, ValueError):
+            continue
+    time.sleep(0.5)
+    for pid in pids:
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
