@@ -15,6 +15,7 @@ send) make lossy-radio experiments reproducible.
 from __future__ import annotations
 
 import json
+import logging
 import threading
 import time
 from collections import defaultdict
@@ -26,6 +27,8 @@ from teamslam.runtime.transport import MapIdsMessage, Message
 from teamslam.runtime.wire import WireError, decode, encode, team_id
 
 __all__ = ["ZenohTransport"]
+
+log = logging.getLogger(__name__)
 
 
 def _kind(message: Message) -> str:
@@ -80,8 +83,14 @@ class ZenohTransport:
         try:
             message = decode(data, self.team_id, self.team.n)
         except WireError as exc:
+            reason = str(exc).split(" (")[0]
             with self._cond:
-                self.rejected[str(exc).split(" (")[0]] += 1
+                first = reason not in self.rejected
+                self.rejected[reason] += 1
+            if first:
+                log.warning(
+                    "robot %d: dropped a message: %s (further ones are counted)", self.robot, exc
+                )
             return
         if message.receiver != self.robot:
             with self._cond:
