@@ -231,13 +231,16 @@ class MultiRobotEKF:
         nr, n = self.n_robots, self.dim
         r = 3 * nr
         p = self._cov[:n, :n]
-        # Φ is block-diagonal over robots and identity on features: only robot rows/cols change
-        p[:r, :] = np.einsum("aij,ajk->aik", phi, p[:r, :].reshape(nr, 3, n)).reshape(r, n)
-        p[:, :r] = np.einsum("kaj,aij->kai", p[:, :r].reshape(n, nr, 3), phi).reshape(n, r)
+        # Φ is the identity except each robot's heading column c = J (x_p' − x_p) (eq. 5), so
+        # Φ P Φᵀ is two rank-one updates per robot on its position rows and columns
         q = self.odometry_covs if odometry_covs is None else np.asarray(odometry_covs, float)
         noise = np.einsum("nij,njk,nlk->nil", g, q, g)
         for i in range(nr):
-            p[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] += noise[i]
+            a = 3 * i
+            c = phi[i, :2, 2]
+            p[a : a + 2, :] += np.outer(c, p[a + 2, :])
+            p[:, a : a + 2] += np.outer(p[:, a + 2], c)
+            p[a : a + 3, a : a + 3] += noise[i]
         self._mean[:r] = propagated.ravel()
         self.prior_poses = propagated.copy()
         if self.record is not None:
