@@ -140,7 +140,8 @@ def small_team(tmp_path_factory):
 
 
 def _port(offset: int) -> int:
-    return 18000 + (os.getpid() % 500) * 8 + offset
+    """Loopback ports below the ephemeral range, distinct per test (offsets 0–31)."""
+    return 18000 + (os.getpid() % 400) * 32 + offset
 
 
 def _agent_cmd(team_path: Path, robot: int, out: Path, *extra: str) -> list[str]:
@@ -313,7 +314,7 @@ def test_async_and_lossy_teams_finish_with_sane_estimates(small_team, tmp_path, 
         f"{mode}-{os.getpid()}",
         directory,
         complete(3).adjacency,
-        base_port=_port(8 if mode == "async" else 11),
+        base_port=_port(12 if mode == "async" else 15),
         filter={"window": 8},
         **settings,
     )
@@ -344,7 +345,7 @@ def test_ctrl_c_stops_every_agent(small_team, tmp_path):
         f"int-{os.getpid()}",
         directory,
         complete(3).adjacency,
-        base_port=_port(14),
+        base_port=_port(18),
         timeout_s=5.0,
         filter={"window": 8},
     )
