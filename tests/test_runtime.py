@@ -282,7 +282,7 @@ def test_run_with_processes_writes_the_same_metrics(small_team, tmp_path, capsys
         "--window",
         "8",
         "--base-port",
-        str(_port(7)),
+        str(_port(9)),
         "--out",
         str(out),
     ]
