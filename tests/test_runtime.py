@@ -144,6 +144,18 @@ def _port(offset: int) -> int:
     return 18000 + (os.getpid() % 400) * 32 + offset
 
 
+def _team_file(tmp_path: Path, name: str, directory: Path, base_port: int, **settings) -> Path:
+    """A complete-graph team file of the 3-robot test team on loopback."""
+    return write_team_file(
+        tmp_path / "team.yaml",
+        name,
+        directory,
+        complete(3).adjacency,
+        base_port=base_port,
+        **settings,
+    )
+
+
 def _agent_cmd(team_path: Path, robot: int, out: Path, *extra: str) -> list[str]:
     return [
         sys.executable,
@@ -162,14 +174,8 @@ def _agent_cmd(team_path: Path, robot: int, out: Path, *extra: str) -> list[str]
 
 def test_three_processes_equal_the_in_process_runner(small_team, tmp_path):
     dataset, directory = small_team
-    team_path = write_team_file(
-        tmp_path / "team.yaml",
-        f"eq-{os.getpid()}",
-        directory,
-        complete(3).adjacency,
-        base_port=_port(0),
-        timeout_s=20.0,
-        filter={"window": 8},
+    team_path = _team_file(
+        tmp_path, f"eq-{os.getpid()}", directory, _port(0), timeout_s=20.0, filter={"window": 8}
     )
     procs = [
         subprocess.Popen(
@@ -196,14 +202,8 @@ def test_three_processes_equal_the_in_process_runner(small_team, tmp_path):
 
 def test_killed_agent_lets_the_others_finish(small_team, tmp_path):
     _, directory = small_team
-    team_path = write_team_file(
-        tmp_path / "team.yaml",
-        f"kill-{os.getpid()}",
-        directory,
-        complete(3).adjacency,
-        base_port=_port(3),
-        timeout_s=0.5,
-        filter={"window": 8},
+    team_path = _team_file(
+        tmp_path, f"kill-{os.getpid()}", directory, _port(3), timeout_s=0.5, filter={"window": 8}
     )
     out = tmp_path / "out"
     procs = [
@@ -309,12 +309,11 @@ def test_async_and_lossy_teams_finish_with_sane_estimates(small_team, tmp_path, 
         if mode == "async"
         else {"message_loss": 0.3, "message_delay_ms": 1.0, "timeout_s": 0.3}
     )
-    team_path = write_team_file(
-        tmp_path / "team.yaml",
+    team_path = _team_file(
+        tmp_path,
         f"{mode}-{os.getpid()}",
         directory,
-        complete(3).adjacency,
-        base_port=_port(12 if mode == "async" else 15),
+        _port(12 if mode == "async" else 15),
         filter={"window": 8},
         **settings,
     )
@@ -340,14 +339,8 @@ def test_async_and_lossy_teams_finish_with_sane_estimates(small_team, tmp_path, 
 
 def test_ctrl_c_stops_every_agent(small_team, tmp_path):
     _, directory = small_team
-    team_path = write_team_file(
-        tmp_path / "team.yaml",
-        f"int-{os.getpid()}",
-        directory,
-        complete(3).adjacency,
-        base_port=_port(18),
-        timeout_s=5.0,
-        filter={"window": 8},
+    team_path = _team_file(
+        tmp_path, f"int-{os.getpid()}", directory, _port(18), timeout_s=5.0, filter={"window": 8}
     )
     out = tmp_path / "out"
     launcher = subprocess.Popen(
