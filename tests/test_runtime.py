@@ -19,6 +19,7 @@ from teamslam.datasets import save_dataset
 from teamslam.graph import complete, path
 from teamslam.msckf import MsckfConfig, run_team
 from teamslam.runtime.agent_process import load_robot_result, run_agent
+from teamslam.runtime.launch import agent_command
 from teamslam.runtime.team_file import TeamFileError, load_team_file, write_team_file
 from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage
 from teamslam.runtime.wire import WireError, decode, encode, team_id
@@ -156,22 +157,6 @@ def _team_file(tmp_path: Path, name: str, directory: Path, base_port: int, **set
     )
 
 
-def _agent_cmd(team_path: Path, robot: int, out: Path, *extra: str) -> list[str]:
-    return [
-        sys.executable,
-        "-m",
-        "teamslam",
-        "agent",
-        "--team",
-        str(team_path),
-        "--robot",
-        str(robot),
-        "--out",
-        str(out),
-        *extra,
-    ]
-
-
 def test_three_processes_equal_the_in_process_runner(small_team, tmp_path):
     dataset, directory = small_team
     team_path = _team_file(
@@ -179,7 +164,7 @@ def test_three_processes_equal_the_in_process_runner(small_team, tmp_path):
     )
     procs = [
         subprocess.Popen(
-            _agent_cmd(team_path, r, tmp_path / "out"),
+            agent_command(team_path, r, tmp_path / "out"),
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
         )
@@ -208,7 +193,7 @@ def test_killed_agent_lets_the_others_finish(small_team, tmp_path):
     out = tmp_path / "out"
     procs = [
         subprocess.Popen(
-            _agent_cmd(team_path, r, out), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            agent_command(team_path, r, out), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
         )
         for r in range(3)
     ]
@@ -319,7 +304,7 @@ def test_async_and_lossy_teams_finish_with_sane_estimates(small_team, tmp_path, 
     )
     procs = [
         subprocess.Popen(
-            _agent_cmd(team_path, r, tmp_path / "out"),
+            agent_command(team_path, r, tmp_path / "out"),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.STDOUT,
         )

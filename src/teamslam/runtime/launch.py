@@ -22,7 +22,7 @@ from teamslam.msckf.team import TeamResult
 from teamslam.runtime.agent_process import load_robot_result
 from teamslam.runtime.team_file import TeamFile
 
-__all__ = ["gather", "launch_team"]
+__all__ = ["agent_command", "gather", "launch_team"]
 
 
 def _progress(out: Path, robot: int) -> int:
@@ -30,6 +30,23 @@ def _progress(out: Path, robot: int) -> int:
         return int(json.loads((out / f"robot_{robot}" / "progress.json").read_text())["frame"]) + 1
     except (OSError, ValueError, KeyError):
         return 0
+
+
+def agent_command(team_path: Path, robot: int, out: Path, *extra: str) -> list[str]:
+    """The command line that runs one robot of a team file as its own process."""
+    return [
+        sys.executable,
+        "-m",
+        "teamslam",
+        "agent",
+        "--team",
+        str(team_path),
+        "--robot",
+        str(robot),
+        "--out",
+        str(out),
+        *extra,
+    ]
 
 
 def launch_team(
@@ -48,19 +65,7 @@ def launch_team(
     for r in team.robots:
         log = open(out / f"robot_{r.id}.log", "w")
         logs[r.id] = log
-        cmd = [
-            sys.executable,
-            "-m",
-            "teamslam",
-            "agent",
-            "--team",
-            str(team_path),
-            "--robot",
-            str(r.id),
-            "--out",
-            str(out),
-            *(extra_args or {}).get(r.id, []),
-        ]
+        cmd = agent_command(team_path, r.id, out, *(extra_args or {}).get(r.id, []))
         procs[r.id] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
     show = sys.stderr.isatty() if progress is None else progress
     bar = tqdm(total=None, desc="team frames", disable=not show, leave=False)
