@@ -22,7 +22,7 @@ import numpy as np
 
 from teamslam.datasets import import_reference
 from teamslam.eval.metrics import team_metrics
-from teamslam.msckf import MsckfConfig, run_team
+from teamslam.msckf import config_for, run_team
 from teamslam.sim import lissajous_team
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -47,9 +47,7 @@ def accuracy(robots, seeds, steps, objects_only, window):
         rows = []
         for seed in range(seeds):
             ds = lissajous_team(robots=n, steps=steps, seed=seed)
-            cfg = MsckfConfig.for_dataset(
-                ds.metadata, window=window, use_geometric_features=not objects_only
-            )
+            cfg = config_for(ds, window=window, use_geometric_features=not objects_only)
             m = _pair(ds, cfg)
             rows.append(
                 [
@@ -71,9 +69,7 @@ def loss_sweep(robots, steps, objects_only, window):
     print(f"{'robots':>6} {'loss':>5} {'con traj':>9} {'con obj':>8} {'disagree':>9}")
     for n in robots:
         ds = lissajous_team(robots=n, steps=steps, seed=0)
-        cfg = MsckfConfig.for_dataset(
-            ds.metadata, window=window, use_geometric_features=not objects_only
-        )
+        cfg = config_for(ds, window=window, use_geometric_features=not objects_only)
         sep = team_metrics(ds, run_team(ds, cfg, consensus=False, progress=False))
         print(
             f"{n:>6} {'sep':>5} {sep['trajectory_rmse_avg_m']:9.3f} "
@@ -93,7 +89,7 @@ def kitti(window):
         print(f"KITTI 00 not found at {src}")
         return
     ds = import_reference(src)
-    cfg = MsckfConfig.for_dataset(ds.metadata, window=window)
+    cfg = config_for(ds, window=window)
     m = _pair(ds, cfg)
     print(f"{'':<12} {'robot 1':>8} {'robot 2':>8} {'robot 3':>8} {'avg':>8}  obj err  disagree")
     print(
@@ -115,7 +111,7 @@ def speed(robots, steps, window):
     print(f"{'robots':>6} {'stage':>15} {'mean ms':>8} {'p95 ms':>8}")
     for n in robots:
         ds = lissajous_team(robots=n, steps=steps, seed=0)
-        cfg = MsckfConfig.for_dataset(ds.metadata, window=window)
+        cfg = config_for(ds, window=window)
         begin = time.perf_counter()
         result = run_team(ds, cfg, consensus=True, progress=False)
         wall = time.perf_counter() - begin

@@ -21,7 +21,7 @@ import numpy as np
 
 from teamslam.datasets import save_dataset
 from teamslam.graph import complete
-from teamslam.msckf import MsckfConfig, run_team
+from teamslam.msckf import config_for, run_team
 from teamslam.runtime.agent_process import load_robot_result
 from teamslam.runtime.team_file import write_team_file
 from teamslam.sim import lissajous_team
@@ -38,9 +38,7 @@ def main() -> None:
         directory = Path(tmp) / "data"
         save_dataset(dataset, directory)
         begin = time.perf_counter()
-        reference = run_team(
-            dataset, MsckfConfig.for_dataset(dataset.metadata, window=args.window), progress=False
-        )
+        reference = run_team(dataset, config_for(dataset, window=args.window), progress=False)
         in_process = time.perf_counter() - begin
         team = write_team_file(
             Path(tmp) / "team.yaml",

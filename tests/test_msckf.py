@@ -9,7 +9,7 @@ from teamslam.eval.metrics import team_metrics
 from teamslam.gaussian import geometric_average_arrays
 from teamslam.geometry import se3
 from teamslam.graph import from_edges
-from teamslam.msckf import MsckfConfig, MsckfState, run_team
+from teamslam.msckf import MsckfState, config_for, run_team
 from teamslam.msckf.consensus import consensus_average, validate_marginal
 from teamslam.msckf.models import observe, observe_jacobians
 from teamslam.msckf.update import householder_project, triangulate
@@ -89,7 +89,7 @@ def exact_team():
 
 @pytest.mark.parametrize("consensus", [False, True])
 def test_noise_free_team_recovers_ground_truth(exact_team, consensus):
-    cfg = MsckfConfig.for_dataset(exact_team.metadata, window=8, debug=True)
+    cfg = config_for(exact_team, window=8, debug=True)
     result = run_team(exact_team, cfg, consensus=consensus, progress=False)
     for est, robot in zip(result.poses, exact_team.robots, strict=True):
         np.testing.assert_allclose(est[:, :3, 3], robot.T_world_body[:, :3, 3], atol=1e-6)
@@ -114,7 +114,7 @@ def drifting_team():
 
 @pytest.fixture(scope="module")
 def drifting_runs(drifting_team):
-    cfg = MsckfConfig.for_dataset(drifting_team.metadata, window=10, use_geometric_features=False)
+    cfg = config_for(drifting_team, window=10, use_geometric_features=False)
     return {
         name: run_team(drifting_team, cfg, consensus=c, progress=False)
         for name, c in (("separate", False), ("consensus", True))
@@ -247,7 +247,7 @@ def test_bad_neighbour_messages_are_named():
 def test_gate_rejects_about_its_false_alarm_rate():
     """A correct χ² gate (right quantile, right dof) rejects ≈ 5% of good features."""
     team = lissajous_team(robots=1, steps=80, seed=7)
-    result = run_team(team, MsckfConfig.for_dataset(team.metadata, window=10), progress=False)
+    result = run_team(team, config_for(team, window=10), progress=False)
     c = result.counters[0]
     rate = c["rejected_features_gate"] / c["features_used"]
     assert 0.02 < rate < 0.10, rate
@@ -256,7 +256,7 @@ def test_gate_rejects_about_its_false_alarm_rate():
 def test_single_robot_nees_band():
     """Documented band: pose NEES / 6 of one robot over a short noisy run stays in [0.3, 3]."""
     team = lissajous_team(robots=1, steps=80, seed=8)
-    result = run_team(team, MsckfConfig.for_dataset(team.metadata, window=10), progress=False)
+    result = run_team(team, config_for(team, window=10), progress=False)
     nees = team_metrics(team, result)["nees_pose_avg"][0]
     assert 0.3 < nees < 3.0, nees
 
@@ -267,7 +267,7 @@ def test_bad_odometry_and_measurements_are_rejected_and_counted(exact_team):
     team = copy.deepcopy(exact_team)
     team.robots[0].odometry[5, 0, 3] = np.nan
     team.robots[0].objects.measurements[3, 1] = np.inf
-    cfg = MsckfConfig.for_dataset(team.metadata, window=8)
+    cfg = config_for(team, window=8)
     result = run_team(team, cfg, consensus=False, progress=False)
     c = result.counters[0]
     assert c["rejected_odometry"] == 1
@@ -279,39 +279,12 @@ def test_bad_odometry_and_measurements_are_rejected_and_counted(exact_team):
     )
 
 
-def _truncate(dataset, frames: int):
-    """The first ``frames`` frames of every robot."""
-    from teamslam.datasets import FrameObservations, RobotSequence, TeamDataset
-
-    def cut(obs):
-        return FrameObservations(
-            obs.offsets[: frames + 1],
-            obs.ids[: obs.offsets[frames]],
-            obs.measurements[: obs.offsets[frames]],
-        )
-
-    robots = [
-        RobotSequence(
-            r.T_world_body[:frames], r.odometry[: frames - 1], cut(r.features), cut(r.objects)
-        )
-        for r in dataset.robots
-    ]
-    return TeamDataset(
-        dataset.name,
-        dataset.calibration,
-        robots,
-        dataset.object_ids,
-        dataset.object_positions,
-        metadata=dataset.metadata,
-    )
-
-
 def test_kitti00_objects_only_beats_odometry_and_consensus_agrees(kitti00_dir):
     from teamslam.datasets import import_reference
 
-    team = _truncate(import_reference(kitti00_dir), 1200)
-    cfg = MsckfConfig.for_dataset(team.metadata)
-    assert cfg.object_pixel_std >= 10  # the detections' real noise, not a simulated one
+    team = import_reference(kitti00_dir).head(1200)
+    assert team.sensor_model is None  # nothing hand-set: the noise is calibrated from the data
+    cfg = config_for(team)
     sep = team_metrics(team, run_team(team, cfg, consensus=False, progress=False))
     con = team_metrics(team, run_team(team, cfg, consensus=True, progress=False))
     assert sep["trajectory_rmse_avg_m"] < sep["odometry_rmse_avg_m"]

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from teamslam.datasets import save_dataset
 from teamslam.graph import complete, path
-from teamslam.msckf import MsckfConfig, run_team
+from teamslam.msckf import config_for, run_team
 from teamslam.runtime.agent_process import load_robot_result, run_agent
 from teamslam.runtime.launch import agent_command
 from teamslam.runtime.team_file import TeamFileError, load_team_file, write_team_file
@@ -173,9 +173,7 @@ def test_three_processes_equal_the_in_process_runner(small_team, tmp_path):
     for p in procs:
         out, _ = p.communicate(timeout=240)
         assert p.returncode == 0, out.decode()
-    reference = run_team(
-        dataset, MsckfConfig.for_dataset(dataset.metadata, window=8), progress=False
-    )
+    reference = run_team(dataset, config_for(dataset, window=8), progress=False)
     for r in range(3):
         arrays, summary = load_robot_result(tmp_path / "out", r)
         np.testing.assert_allclose(arrays["poses"], reference.poses[r], rtol=0, atol=1e-12)

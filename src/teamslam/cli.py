@@ -130,11 +130,47 @@ def _cmd_data_info(args: argparse.Namespace) -> int:
 def _cmd_data_import_reference(args: argparse.Namespace) -> int:
     from teamslam.datasets import dataset_info, format_info, import_reference, save_dataset
 
-    dataset = import_reference(args.source, inverted_odometry=args.inverted_odometry)
+    dataset = import_reference(
+        args.source, inverted_odometry=args.inverted_odometry, params=args.params
+    )
     path = save_dataset(dataset, args.out)
     print(format_info(dataset_info(dataset)))
     print(f"\nwrote {path}")
+    if dataset.sensor_model is not None:
+        _check_params(dataset, path)
     return 0
+
+
+def _check_params(dataset, path: Path) -> None:
+    """Compare a params file's noise levels with a calibration from the data; warn on a gap."""
+    import numpy as np
+
+    from teamslam.msckf.calibration import calibrate
+    from teamslam.msckf.settings import resolve_config
+
+    model = dataset.sensor_model.team
+    start = resolve_config(dataset, calibrate="never").config
+    estimate = calibrate(dataset, start).sensor_model.team
+    print(f"\nsensor model from {dataset.sensor_model.note}")
+    print(f"{'':<16}{'params file':>14}{'the data say':>14}")
+    for label, key in (
+        ("odometry σ", "odometry_std"),
+        ("feature σ", "feature_std"),
+        ("object σ", "object_std"),
+    ):
+        given, found = getattr(model, key), getattr(estimate, key)
+        if given is None or found is None:
+            continue
+        given_v = float(np.max(given)) if key == "odometry_std" else given
+        found_v = float(np.max(found)) if key == "odometry_std" else found
+        print(f"{label:<16}{given_v:>14.4g}{found_v:>14.4g}")
+        if not 1 / 3 <= given_v / found_v <= 3:
+            print(
+                f"warning: the params file's {label} ({given_v:.4g}) is "
+                f"{given_v / found_v:.2g}× what the data show ({found_v:.4g}); "
+                f"`teamslam calibrate {path} --write` replaces it",
+                file=sys.stderr,
+            )
 
 
 def _fej_environment(args: argparse.Namespace):
@@ -286,7 +322,7 @@ def _write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> Non
     print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")
 
 
-def _launch_and_report(team_path: Path, out: Path) -> int:
+def _launch_and_report(team_path: Path, out: Path, effective=None) -> int:
     from teamslam.datasets import load_dataset
     from teamslam.eval.metrics import team_metrics
     from teamslam.runtime.launch import exit_summary, gather, launch_team
@@ -321,7 +357,11 @@ def _launch_and_report(team_path: Path, out: Path) -> int:
         if summary["lost_neighbours"]:
             print(f"robot {summary['robot']} lost neighbour(s) {summary['lost_neighbours']}")
     metrics["consensus"]["transport"] = result.extra["per_robot"]
+    if effective is not None:
+        metrics["consensus"].update(effective.to_json())
     print(_team_table(metrics))
+    if "nis" in metrics["consensus"]:
+        _print_health("consensus", metrics["consensus"])
     _write_team_outputs(out, dataset, {"consensus": result}, metrics)
     return 0 if len(finished) == team.n else 1
 
@@ -342,22 +382,70 @@ def _cmd_agent(args: argparse.Namespace) -> int:
     return 0
 
 
+def _settings(args: argparse.Namespace, dataset, calibrate: str | None = None):
+    """The effective settings of a run: dataset, calibration, ``--config``, flags."""
+    from teamslam.msckf.settings import load_config_file, parse_assignments, resolve_config
+
+    file_values = load_config_file(args.config) if args.config is not None else {}
+    flags = parse_assignments(args.set or [])
+    if getattr(args, "window", None):
+        flags["window"] = args.window
+    if getattr(args, "objects_only", False):
+        flags["use_geometric_features"] = False
+    return resolve_config(
+        dataset,
+        file_values,
+        flags,
+        calibrate=calibrate or args.calibrate,
+        calibration_frames=getattr(args, "calibration_frames", None),
+    )
+
+
+def _settings_line(dataset, effective) -> str:
+    """One line: where the noise levels came from."""
+    model = dataset.sensor_model
+    if effective.calibration is not None:
+        c = effective.calibration
+        keys = sorted(k for k, v in effective.sources.items() if v == "calibration")
+        return (
+            f"sensor model: {'none in the dataset; ' if model is None else ''}calibrated from "
+            f"the data in {c.seconds:.1f} s ({len(c.iterations)} passes over {c.frames} frames "
+            f"per robot{'' if c.converged else ', not converged'}): {', '.join(keys)}"
+        )
+    if model is not None:
+        note = f": {model.note}" if model.note else ""
+        return f"sensor model: the dataset's ({model.origin}{note})"
+    return "sensor model: none in the dataset and calibration off; camera-scaled defaults"
+
+
+def _print_health(name: str, metrics: dict) -> None:
+    from teamslam.msckf.health import health_warnings
+
+    for line in health_warnings(
+        {
+            "nis": metrics["nis"],
+            "gate_rejection_rate": metrics["gate_rejection_rate"],
+            "odometry_residual_ratio": metrics["odometry_residual_ratio"],
+        }
+    ):
+        print(f"warning ({name}): {line}", file=sys.stderr)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from teamslam.datasets import load_dataset
     from teamslam.eval.metrics import team_metrics
     from teamslam.graph import make
-    from teamslam.msckf import MsckfConfig, run_team
+    from teamslam.msckf import run_team
 
+    dataset = load_dataset(args.dataset)
+    effective = _settings(args, dataset)
+    print(_settings_line(dataset, effective))
     if args.processes:
         if args.out is None or args.compare or args.separate:
             raise UsageError("--processes needs --out and runs consensus only")
         from teamslam.runtime.team_file import write_team_file
 
-        n = load_dataset(args.dataset).n_robots
-        adjacency = make(args.graph, n, seed=args.seed).adjacency
-        filt = {"window": args.window} if args.window else {}
-        if args.objects_only:
-            filt["objects_only"] = True
+        adjacency = make(args.graph, dataset.n_robots, seed=args.seed).adjacency
         team_path = write_team_file(
             Path(args.out) / "team.yaml",
             f"run-{os.getpid()}",
@@ -365,14 +453,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
             adjacency,
             base_port=args.base_port,
             message_loss=args.loss,
-            filter=filt,
+            filter=effective.config.to_json(),
         )
-        return _launch_and_report(team_path, Path(args.out))
-    dataset = load_dataset(args.dataset)
-    overrides = {"window": args.window} if args.window else {}
-    if args.objects_only:
-        overrides["use_geometric_features"] = False
-    config = MsckfConfig.for_dataset(dataset.metadata, **overrides)
+        return _launch_and_report(team_path, Path(args.out), effective)
     graph = make(args.graph, dataset.n_robots, seed=args.seed)
     modes = (
         {"separate": False, "consensus": True}
@@ -381,13 +464,125 @@ def _cmd_run(args: argparse.Namespace) -> int:
     )
     results, metrics = {}, {}
     for name, consensus in modes.items():
-        results[name] = run_team(dataset, config, graph, consensus, args.loss, args.seed)
-        metrics[name] = team_metrics(dataset, results[name])
+        results[name] = run_team(dataset, effective.robots, graph, consensus, args.loss, args.seed)
+        metrics[name] = {**team_metrics(dataset, results[name]), **effective.to_json()}
     print(f"{dataset.name}: {dataset.n_robots} robots, graph {graph.name}, loss {args.loss}")
     print(_team_table(metrics))
+    for name, m in metrics.items():
+        _print_health(name, m)
     if args.out is not None:
         _write_team_outputs(Path(args.out), dataset, results, metrics)
     return 0
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from teamslam.datasets import load_dataset, save_dataset
+    from teamslam.msckf.calibration import calibrate
+    from teamslam.msckf.config import MsckfConfig
+
+    dataset = load_dataset(args.dataset)
+    # every setting but the noise levels from the usual layers; noise starts from the defaults
+    effective = _settings(args, dataset, calibrate="never")
+    start = effective.config
+    if dataset.sensor_model is not None:
+        from teamslam.msckf.settings import camera_defaults
+
+        start = MsckfConfig(**{**start.to_json(), **camera_defaults(dataset)})
+    result = calibrate(dataset, start, frames=args.frames, odometry_per_axis=args.odometry_per_axis)
+    payload = result.to_json()
+    if dataset.sensor_model is not None:
+        payload["dataset_sensor_model"] = dataset.sensor_model.to_json()
+    if args.json:
+        print(json.dumps(_json_safe(payload), indent=2))
+    else:
+        print(_calibration_table(dataset, result))
+    if args.write:
+        from dataclasses import replace
+
+        save_dataset(replace(dataset, sensor_model=result.sensor_model), args.dataset)
+        if not args.json:
+            print(f"\nwrote the calibrated sensor model into {args.dataset}")
+    return 0
+
+
+def _calibration_table(dataset, result) -> str:
+    noise = result.sensor_model.team
+    old = dataset.sensor_model.team if dataset.sensor_model is not None else None
+    lines = [
+        f"{dataset.name}: calibrated from {result.frames} frames per robot in "
+        f"{result.seconds:.1f} s, {len(result.iterations)} filter passes"
+        f"{'' if result.converged else ' (not converged)'}",
+        f"{'':<22}{'calibrated':>38}"
+        + (f"  {'dataset (' + dataset.sensor_model.origin + ')':>38}" if old else ""),
+    ]
+
+    def show(value) -> str:
+        if value is None:
+            return "—"
+        if isinstance(value, tuple):
+            return "[" + ", ".join(f"{v:.4g}" for v in value) + "]"
+        return f"{value:.4g}"
+
+    for label, key in (
+        ("odometry σ (m, rad)", "odometry_std"),
+        ("feature σ (K units)", "feature_std"),
+        ("object σ (K units)", "object_std"),
+        ("object depth (m)", "object_depth_range"),
+    ):
+        row = f"{label:<22}{show(getattr(noise, key)):>38}"
+        if old is not None:
+            row += f"  {show(getattr(old, key)):>38}"
+        lines.append(row)
+    start = result.start
+    for sensor in ("features", "objects"):
+        bound = start.get(f"{sensor}_epipolar_std")
+        if bound is not None:
+            lines.append(
+                f"{sensor} left/right-independent noise (epipolar residual): {bound:.4g} K units"
+            )
+    last = result.iterations[-1]
+    health = ", ".join(f"{s} NIS/dof {v:.2f}" for s, v in last["nis"].items() if v is not None)
+    if health:
+        lines.append(f"last pass: {health}")
+    return "\n".join(lines)
+
+
+def _cmd_config_show(args: argparse.Namespace) -> int:
+    from teamslam.datasets import load_dataset
+
+    dataset = load_dataset(args.dataset)
+    effective = _settings(args, dataset)
+    if args.json:
+        print(json.dumps(_json_safe(effective.to_json()), indent=2))
+    else:
+        print(_settings_line(dataset, effective))
+        print(effective.table())
+    return 0
+
+
+def _settings_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--config", type=Path, default=None, help="YAML file of filter settings (key: value)"
+    )
+    parser.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="a filter setting, e.g. --set object_std=0.01 (repeatable; wins over --config)",
+    )
+    parser.add_argument(
+        "--calibrate",
+        choices=("auto", "always", "never"),
+        default="auto",
+        help="calibrate noise levels from the data: when the dataset, file and flags lack them "
+        "(auto), in place of the dataset's (always), or not at all (never)",
+    )
+    parser.add_argument(
+        "--calibration-frames",
+        type=_positive_int,
+        default=None,
+        help="frames per robot a calibration uses (default: ~1200/robots)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -449,6 +644,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="the source stores inverse relative poses (the published simulated teams)",
     )
+    imp.add_argument(
+        "--params",
+        type=Path,
+        default=None,
+        help="the publisher's parameter file (params.yaml): its noise variances become the "
+        "dataset's sensor model, checked against a calibration from the data",
+    )
     imp.set_defaults(handler=_cmd_data_import_reference)
 
     run = sub.add_parser(
@@ -466,6 +668,7 @@ def build_parser() -> argparse.ArgumentParser:
     mode.add_argument("--compare", action="store_true", help="run separate and consensus")
     run.add_argument("--window", type=_positive_int, default=None, help="window size c")
     run.add_argument("--objects-only", action="store_true", help="ignore geometric features")
+    _settings_arguments(run)
     run.add_argument("--seed", type=_non_negative_int, default=0, help="seed of the link loss")
     run.add_argument("--out", type=Path, default=None, help="directory for results")
     run.add_argument(
@@ -480,6 +683,50 @@ def build_parser() -> argparse.ArgumentParser:
         help="first loopback TCP port with --processes",
     )
     run.set_defaults(handler=_cmd_run)
+
+    cal = sub.add_parser(
+        "calibrate",
+        help="estimate a dataset's sensor model (odometry and measurement noise) from its data",
+        description="Estimate the odometry noise (per step), the measurement noise of geometric "
+        "features and objects (in the camera's units) and the object depth range from the data "
+        "alone — no ground truth — by robust covariance matching of the filter's innovations "
+        "and expectation-maximisation of the odometry noise over the smoothed window.",
+    )
+    cal.add_argument("dataset", type=Path, help="dataset directory (teamslam format)")
+    cal.add_argument(
+        "--frames",
+        type=_positive_int,
+        default=None,
+        help="frames per robot (default: ~1200/robots)",
+    )
+    cal.add_argument(
+        "--odometry-per-axis",
+        action="store_true",
+        help="fit six odometry σ instead of one for translation and one for rotation",
+    )
+    cal.add_argument("--json", action="store_true", help="print one JSON object")
+    cal.add_argument(
+        "--write", action="store_true", help="store the result as the dataset's sensor model"
+    )
+    cal.add_argument("--config", type=Path, default=None, help="YAML file of filter settings")
+    cal.add_argument("--set", action="append", metavar="KEY=VALUE", help="a filter setting")
+    cal.set_defaults(handler=_cmd_calibrate)
+
+    config_cmd = sub.add_parser("config", help="the settings a run would use, and their sources")
+    config_sub = config_cmd.add_subparsers(
+        dest="config_command", metavar="ACTION", parser_class=_Parser
+    )
+    config_sub.required = True
+    show = config_sub.add_parser(
+        "show",
+        help="every effective setting and where it came from",
+        description="Print every filter setting `teamslam run DATASET` would use and its source: "
+        "default (scaled to the camera), dataset (its sensor model), calibration, file or flag.",
+    )
+    show.add_argument("dataset", type=Path, help="dataset directory (teamslam format)")
+    show.add_argument("--json", action="store_true", help="print one JSON object")
+    _settings_arguments(show)
+    show.set_defaults(handler=_cmd_config_show)
 
     agent = sub.add_parser("agent", help="one robot's filter as a process (Zenoh)")
     agent.add_argument("--team", type=Path, required=True, help="team file (team.yaml)")

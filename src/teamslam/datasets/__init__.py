@@ -2,6 +2,7 @@
 
 * :mod:`~teamslam.datasets.model` — :class:`TeamDataset`, :class:`RobotSequence`,
   :class:`FrameObservations`, :class:`Calibration`;
+* :mod:`~teamslam.datasets.sensor_model` — :class:`SensorModel`, the noise of a team's sensors;
 * :mod:`~teamslam.datasets.storage` — :func:`save_dataset` / :func:`load_dataset` (JSON
   manifest + compressed ``.npz``, validated, no pickle);
 * :mod:`~teamslam.datasets.reference` — :func:`import_reference` for the distributed-MSCKF
@@ -17,7 +18,14 @@ from teamslam.datasets.model import (
     RobotSequence,
     TeamDataset,
 )
-from teamslam.datasets.reference import UnsafePickleError, import_reference, safe_unpickle
+from teamslam.datasets.reference import (
+    UnsafePickleError,
+    export_reference,
+    import_reference,
+    read_reference_params,
+    safe_unpickle,
+)
+from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.datasets.stats import dataset_info, format_info
 from teamslam.datasets.storage import FORMAT_VERSION, load_dataset, save_dataset
 from teamslam.datasets.trajectory import read_kitti, read_tum, write_kitti, write_tum
@@ -28,13 +36,17 @@ __all__ = [
     "DatasetError",
     "FrameObservations",
     "RobotSequence",
+    "SensorModel",
+    "SensorNoise",
     "TeamDataset",
     "UnsafePickleError",
     "dataset_info",
+    "export_reference",
     "format_info",
     "import_reference",
     "load_dataset",
     "read_kitti",
+    "read_reference_params",
     "read_tum",
     "safe_unpickle",
     "save_dataset",

@@ -16,11 +16,15 @@ Frames and conventions
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from teamslam.geometry.camera import StereoCamera
+
+if TYPE_CHECKING:
+    from teamslam.datasets.sensor_model import SensorModel
 
 __all__ = ["Calibration", "DatasetError", "FrameObservations", "RobotSequence", "TeamDataset"]
 
@@ -119,6 +123,13 @@ class FrameObservations:
         a, b = self.offsets[k], self.offsets[k + 1]
         return self.ids[a:b], self.measurements[a:b]
 
+    def head(self, frames: int) -> FrameObservations:
+        """The first ``frames`` frames."""
+        end = self.offsets[min(frames, self.frames)]
+        return FrameObservations(
+            self.offsets[: frames + 1], self.ids[:end], self.measurements[:end]
+        )
+
     def counts(self) -> np.ndarray:
         """Observations per frame."""
         return np.diff(self.offsets)
@@ -198,6 +209,18 @@ class RobotSequence:
         """Number of frames ``N + 1``."""
         return self.T_world_body.shape[0]
 
+    def head(self, frames: int) -> RobotSequence:
+        """The first ``frames`` frames (the whole sequence when it is shorter)."""
+        if frames >= self.frames:
+            return self
+        return RobotSequence(
+            T_world_body=self.T_world_body[:frames],
+            odometry=self.odometry[: frames - 1],
+            features=self.features.head(frames),
+            objects=self.objects.head(frames),
+            timestamps=None if self.timestamps is None else self.timestamps[:frames],
+        )
+
     def validate(self, where: str) -> None:
         """Raise :class:`DatasetError` naming ``where`` and the field on any inconsistency."""
         poses, odo = self.T_world_body, self.odometry
@@ -249,7 +272,11 @@ class TeamDataset:
         For simulated data: ``(T, 2)`` rows ``(track id, landmark id)`` naming the landmark each
         geometric track observes (track ids are unique over the whole team); empty otherwise.
     metadata
-        Free-form description: source, generator parameters, noise levels.
+        Free-form description (generator parameters, where the files came from). Nothing
+        reads settings from it.
+    sensor_model
+        The noise of the team's sensors (:class:`~teamslam.datasets.sensor_model.SensorModel`),
+        or ``None`` when unknown (then ``teamslam run`` calibrates it from the data).
     """
 
     name: str
@@ -261,6 +288,7 @@ class TeamDataset:
     landmark_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     track_landmarks: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     metadata: dict = field(default_factory=dict)
+    sensor_model: SensorModel | None = None
 
     def __post_init__(self) -> None:
         self.object_ids = np.asarray(self.object_ids, dtype=np.int64)
@@ -290,6 +318,14 @@ class TeamDataset:
                 raise DatasetError(f"{name}_positions contain NaN or infinite values")
         if np.unique(self.track_landmarks[:, 0]).size != len(self.track_landmarks):
             raise DatasetError("track_landmarks names a track twice")
+        if self.sensor_model is not None:
+            extra = [i for i in self.sensor_model.robots if i >= self.n_robots]
+            if extra:
+                raise DatasetError(f"sensor_model.robots names robot {extra[0]}, not in the team")
+
+    def head(self, frames: int) -> TeamDataset:
+        """The first ``frames`` frames of every robot (truth, map and sensor model kept)."""
+        return replace(self, robots=[r.head(frames) for r in self.robots])
 
     @property
     def n_robots(self) -> int:

@@ -12,6 +12,15 @@ Files of a published set (see the data README): ``calib``, ``inputs.npz`` (odome
 ``poses.npz`` (ground truth), ``obj_features_messages``, ``obj_features_gt`` and, when
 available, ``geo_features_messages``. The simulated sets store the *inverse* relative pose in
 ``inputs.npz`` (``inverted_odometry=True``) and object truth as an ``(M, 3)`` array indexed by id.
+
+The published files carry no noise levels; a publisher's parameter file (``params.yaml``) can
+be given to :func:`read_reference_params`. The published code uses its numbers as
+**variances**: the odometry noise is ``W = q·I₆`` with ``q = motion_noise`` (so σ = √q for every
+translation axis in metres *and* every rotation axis in radians), the measurement noise
+``V = r·I₄`` with ``r = geo_obs_noise`` (geometric features) or ``obj_obs_noise`` (objects), in
+the units of the measurements (σ = √r); ``obj_init_dist_min_thre`` / ``obj_init_dist_max_thre``
+are the object depth range in metres. :func:`export_reference` writes a team in the published
+layout (for tests and for tools that read it).
 """
 
 from __future__ import annotations
@@ -32,10 +41,18 @@ from teamslam.datasets.model import (
     RobotSequence,
     TeamDataset,
 )
+from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
 
-__all__ = ["RestrictedUnpickler", "UnsafePickleError", "import_reference", "safe_unpickle"]
+__all__ = [
+    "RestrictedUnpickler",
+    "UnsafePickleError",
+    "export_reference",
+    "import_reference",
+    "read_reference_params",
+    "safe_unpickle",
+]
 
 
 class UnsafePickleError(DatasetError):
@@ -126,10 +143,106 @@ def _frames(messages: Any, path: Path, robots: int) -> list[FrameObservations]:
     return out
 
 
+def read_reference_params(path: str | Path) -> SensorModel:
+    """A publisher's parameter file (``params.yaml``) as a sensor model (see the module
+    docstring for the conversion from variances to σ)."""
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        raise DatasetError(f"{path}: not valid YAML ({exc})") from None
+    if not isinstance(data, Mapping):
+        raise DatasetError(f"{path}: expected 'name: value' lines")
+
+    def variance_std(key: str) -> float | None:
+        if key not in data:
+            return None
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
+            raise DatasetError(f"{path}: {key} must be a positive variance, got {value!r}")
+        return float(np.sqrt(value))
+
+    motion = variance_std("motion_noise")
+    depth = None
+    if "obj_init_dist_min_thre" in data or "obj_init_dist_max_thre" in data:
+        try:
+            depth = (float(data["obj_init_dist_min_thre"]), float(data["obj_init_dist_max_thre"]))
+        except (KeyError, TypeError, ValueError):
+            raise DatasetError(
+                f"{path}: obj_init_dist_min_thre and obj_init_dist_max_thre must both be numbers"
+            ) from None
+    try:
+        noise = SensorNoise(
+            odometry_std=None if motion is None else (motion,) * 6,
+            feature_std=variance_std("geo_obs_noise"),
+            object_std=variance_std("obj_obs_noise"),
+            object_depth_range=depth,
+        )
+    except DatasetError as exc:
+        raise DatasetError(f"{path}: {exc}") from None
+    note = (
+        f"{path.name}: variances converted to σ (odometry √motion_noise on every axis, "
+        "features √geo_obs_noise, objects √obj_obs_noise)"
+    )
+    return SensorModel(noise, origin="params file", note=note)
+
+
+def export_reference(
+    dataset: TeamDataset, directory: str | Path, inverted_odometry: bool = False
+) -> Path:
+    """Write ``dataset`` in the published layout (pickles + ``.npz``; no noise levels).
+
+    Object ids are written as ``numpy.int64`` keys and the object truth as a dict, geometric
+    tracks (when any) as ``geo_features_messages``; ``inverted_odometry`` stores
+    ``T_{k+1}⁻¹ T_k`` as the published simulated teams do.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    cal = dataset.calibration
+    calib = {
+        "opt_T_b": cal.T_cam_body,
+        "K_mono": cal.camera.intrinsics,
+        "o0To1": cal.camera.T_left_right,
+        "fsu_b": np.float64(cal.camera.fx_baseline),
+    }
+    (directory / "calib").write_bytes(pickle.dumps(calib))
+    odometry = [r.odometry for r in dataset.robots]
+    if inverted_odometry:
+        odometry = [se3.inverse(o) for o in odometry]
+    np.savez(directory / "inputs.npz", *odometry)
+    np.savez(directory / "poses.npz", *[r.T_world_body for r in dataset.robots])
+
+    def messages(kind: str) -> list:
+        out = []
+        for robot in dataset.robots:
+            obs = getattr(robot, kind)
+            frames = []
+            for k in range(obs.frames):
+                ids, z = obs.frame(k)
+                frames.append({np.int64(i): row.copy() for i, row in zip(ids, z, strict=True)})
+            out.append(frames)
+        return out
+
+    (directory / "obj_features_messages").write_bytes(pickle.dumps(messages("objects")))
+    if any(r.features.ids.size for r in dataset.robots):
+        (directory / "geo_features_messages").write_bytes(pickle.dumps(messages("features")))
+    truth = {
+        np.int64(i): p.copy()
+        for i, p in zip(dataset.object_ids, dataset.object_positions, strict=True)
+    }
+    (directory / "obj_features_gt").write_bytes(pickle.dumps(truth))
+    return directory
+
+
 def import_reference(
     source: str | Path,
     inverted_odometry: bool = False,
     name: str | None = None,
+    params: str | Path | None = None,
 ) -> TeamDataset:
     """Read a published distributed-MSCKF data directory into a :class:`TeamDataset`.
 
@@ -143,10 +256,15 @@ def import_reference(
         ``T_{k+1}⁻¹ T_k``; KITTI stores ``T_k⁻¹ T_{k+1}``).
     name
         Dataset name (default: the directory name).
+    params
+        A publisher's parameter file: its noise levels become the dataset's sensor model
+        (origin ``params file``; :func:`read_reference_params`). Without it the dataset has
+        no sensor model, and ``teamslam run`` calibrates one from the data.
     """
     source = Path(source)
     if not source.is_dir():
         raise DatasetError(f"{source}: not a directory")
+    sensor_model = read_reference_params(params) if params is not None else None
     calib = safe_unpickle(source / "calib")
     if not isinstance(calib, Mapping):
         raise DatasetError(f"{source / 'calib'}: expected a dict")
@@ -209,4 +327,5 @@ def import_reference(
             "inverted_odometry": inverted_odometry,
             "geometric_features": geo_path.exists(),
         },
+        sensor_model=sensor_model,
     )

@@ -2,7 +2,7 @@
 
 A dataset is a directory::
 
-    manifest.json        format name, version, calibration, robots, metadata
+    manifest.json        format name, version, calibration, sensor model, robots, metadata
     robot_000.npz        T_world_body, odometry, feature_{offsets,ids,measurements},
     robot_001.npz        object_{offsets,ids,measurements}, [timestamps]
     ...
@@ -14,6 +14,10 @@ observations are flat arrays plus offsets. Floats in the manifest are written wi
 shortest round-trip representation, so a save/load round trip is bit-exact. Loading validates
 every field and names the file and field of the first problem; writing is atomic (a reader never
 sees half a dataset).
+
+Versions: 2 adds the ``sensor_model`` section (:mod:`~teamslam.datasets.sensor_model`; absent
+when unknown). Version 1 datasets still load: without a sensor model, except that a simulated
+team's recorded generator noise (``metadata.simulation``) becomes its sensor model.
 """
 
 from __future__ import annotations
@@ -33,12 +37,14 @@ from teamslam.datasets.model import (
     RobotSequence,
     TeamDataset,
 )
+from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.geometry.camera import StereoCamera
 
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "load_dataset", "save_dataset"]
 
 FORMAT_NAME = "teamslam-team-dataset"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 MANIFEST = "manifest.json"
 
 
@@ -78,6 +84,8 @@ def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
             "map": "map.npz",
             "metadata": dataset.metadata,
         }
+        if dataset.sensor_model is not None:
+            manifest["sensor_model"] = dataset.sensor_model.to_json()
         for i, robot in enumerate(dataset.robots):
             arrays = {
                 "T_world_body": robot.T_world_body,
@@ -191,10 +199,10 @@ def load_dataset(directory: str | Path) -> TeamDataset:
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT_NAME:
         raise DatasetError(f"{manifest_path}: format is not {FORMAT_NAME!r}")
     version = manifest.get("version")
-    if version != FORMAT_VERSION:
+    if version not in READABLE_VERSIONS:
         raise DatasetError(
             f"{manifest_path}: unsupported format version {version!r} "
-            f"(this teamslam reads version {FORMAT_VERSION})"
+            f"(this teamslam reads versions {', '.join(map(str, READABLE_VERSIONS))})"
         )
     try:
         cal = manifest["calibration"]
@@ -262,6 +270,18 @@ def load_dataset(directory: str | Path) -> TeamDataset:
             )
         robots.append(robot)
 
+    metadata = manifest.get("metadata") or {}
+    if not isinstance(metadata, dict):
+        raise DatasetError(f"{manifest_path}: metadata must be a mapping")
+    sensor_model = None
+    if "sensor_model" in manifest:
+        try:
+            sensor_model = SensorModel.from_json(manifest["sensor_model"], robots=len(robots))
+        except DatasetError as exc:
+            raise DatasetError(f"{manifest_path}: {exc}") from None
+    elif version == 1:
+        sensor_model = _version1_simulation_noise(metadata)
+
     map_path = directory / str(map_file)
     m = _load_npz(
         map_path,
@@ -283,7 +303,36 @@ def load_dataset(directory: str | Path) -> TeamDataset:
             landmark_ids=m["landmark_ids"],
             landmark_positions=m["landmark_positions"],
             track_landmarks=m["track_landmarks"],
-            metadata=manifest.get("metadata") or {},
+            metadata=metadata,
+            sensor_model=sensor_model,
         )
     except DatasetError as exc:
         raise DatasetError(f"{map_path}: {exc}") from None
+
+
+def _version1_simulation_noise(metadata: dict) -> SensorModel | None:
+    """A version-1 simulated team recorded its generator's noise in its metadata; keep it."""
+    sim = metadata.get("simulation")
+    keys = (
+        "odometry_translation_noise",
+        "odometry_rotation_noise",
+        "pixel_noise",
+        "object_pixel_noise",
+        "object_max_depth",
+        "min_depth",
+    )
+    if not isinstance(sim, dict) or not all(isinstance(sim.get(k), int | float) for k in keys):
+        return None
+    if min(sim[k] for k in keys) <= 0:
+        return None  # a noise-free team: no noise to record
+    try:
+        noise = SensorNoise(
+            odometry_std=(sim["odometry_translation_noise"],) * 3
+            + (sim["odometry_rotation_noise"],) * 3,
+            feature_std=sim["pixel_noise"],
+            object_std=sim["object_pixel_noise"],
+            object_depth_range=(sim["min_depth"], sim["object_max_depth"]),
+        )
+    except DatasetError:
+        return None
+    return SensorModel(noise, origin="simulation", note="generator noise (format version 1)")

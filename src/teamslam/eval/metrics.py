@@ -8,7 +8,9 @@
   the other robots' estimates of the same object (Table III);
 * pose NEES per robot per frame from the current pose's 6×6 covariance, with the error in the
   filter's own convention ``T_true = T_est · exp(ε^)``, normalised by 6 (1 when consistent);
-* time per robot per frame for each stage.
+* time per robot per frame for each stage;
+* sensor health (:mod:`teamslam.msckf.health`): per sensor the mean NIS / dof and the share of
+  measurements the χ² gate rejected, and the odometry's smoothed-residual ratio.
 """
 
 from __future__ import annotations
@@ -129,4 +131,18 @@ def team_metrics(dataset: TeamDataset, result: TeamResult) -> dict:
         "time_per_robot_step_ms": timing,
         "counters": result.counters,
         "wall_seconds": result.wall_seconds,
+        **_health(result.health),
+    }
+
+
+def _health(health: dict) -> dict:
+    """``nis``, ``gate_rejection_rate``, ``odometry_residual_ratio`` of the team, and per robot."""
+    if not health:
+        return {}
+    team = health["team"]
+    return {
+        "nis": team["nis"],
+        "gate_rejection_rate": team["gate_rejection_rate"],
+        "odometry_residual_ratio": team["odometry_residual_ratio"],
+        "health_per_robot": health["robots"],
     }

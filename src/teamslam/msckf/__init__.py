@@ -6,12 +6,29 @@
 * :mod:`~teamslam.msckf.update` — triangulation, null-space rows (24), gating, compression;
 * :mod:`~teamslam.msckf.agent` — Algorithm 1 for one robot;
 * :mod:`~teamslam.msckf.consensus` — averaging of the common objects (19–21);
-* :mod:`~teamslam.msckf.team` — the lock-step team runner.
+* :mod:`~teamslam.msckf.team` — the lock-step team runner;
+* :mod:`~teamslam.msckf.settings` — where every setting comes from (defaults scaled to the
+  camera, the dataset's sensor model, calibration, file, flags);
+* :mod:`~teamslam.msckf.calibration` — the sensor model estimated from the data alone;
+* :mod:`~teamslam.msckf.health` — NIS and gate statistics of every sensor.
 """
 
 from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.calibration import CalibrationResult, calibrate
 from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.settings import EffectiveConfig, config_for, resolve_config
 from teamslam.msckf.state import MsckfState
 from teamslam.msckf.team import TeamResult, run_team
 
-__all__ = ["MsckfAgent", "MsckfConfig", "MsckfState", "TeamResult", "run_team"]
+__all__ = [
+    "CalibrationResult",
+    "EffectiveConfig",
+    "MsckfAgent",
+    "MsckfConfig",
+    "MsckfState",
+    "TeamResult",
+    "calibrate",
+    "config_for",
+    "resolve_config",
+    "run_team",
+]

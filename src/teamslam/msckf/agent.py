@@ -24,7 +24,8 @@ import numpy as np
 
 from teamslam.datasets.model import Calibration, RobotSequence
 from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.models import observe_jacobians
+from teamslam.msckf.health import SensorHealth, odometry_lag_residuals, odometry_residual
+from teamslam.msckf.models import observe_jacobians, points_in_camera
 from teamslam.msckf.state import MsckfState
 from teamslam.msckf.update import (
     MeasurementRows,
@@ -52,10 +53,18 @@ class MsckfAgent:
         The robot's recorded data (its first ground-truth pose is the known start).
     config
         Filter settings.
+    record_innovations
+        Keep every innovation for calibration (:attr:`health`); rejected inputs are then only
+        counted, not logged.
     """
 
     def __init__(
-        self, robot: int, calibration: Calibration, sequence: RobotSequence, config: MsckfConfig
+        self,
+        robot: int,
+        calibration: Calibration,
+        sequence: RobotSequence,
+        config: MsckfConfig,
+        record_innovations: bool = False,
     ) -> None:
         self.robot = robot
         self.camera = calibration.camera
@@ -70,6 +79,8 @@ class MsckfAgent:
         self.counters: dict[str, int] = defaultdict(int)
         self.timings: dict[str, float] = defaultdict(float)
         self._warned: set[str] = set()
+        self.health = SensorHealth(record=record_innovations)
+        self._odometry_rejected: set[int] = set()
         self.frame_times: list[tuple[float, float, float]] = []
         self.frame = -1
 
@@ -77,7 +88,7 @@ class MsckfAgent:
     def reject(self, what: str, count: int = 1, reason: str = "") -> None:
         """Count ``count`` rejected inputs of kind ``what``; log the first one with its reason."""
         self.counters[f"rejected_{what}"] += count
-        if what not in self._warned:
+        if what not in self._warned and not self.health.record:
             self._warned.add(what)
             log.warning(
                 "robot %d: rejecting %s (%s); further ones are only counted",
@@ -113,6 +124,7 @@ class MsckfAgent:
         if self.config.use_objects:
             self._initialise_objects(t)
         while self.state.n_poses > self.config.window:
+            self._odometry_health(0)
             self.state.marginalize_oldest()
         self._prune_histories()
         end = time.perf_counter()
@@ -128,9 +140,49 @@ class MsckfAgent:
         cov = self.config.odometry_cov()
         if not np.all(np.isfinite(odometry)):
             self.reject("odometry", reason="non-finite relative pose")
+            self._odometry_rejected.add(t - 1)
             odometry = np.eye(4)
             cov = cov * 1e4  # no motion information at all for this step
         self.state.augment(odometry, t, cov)
+
+    def _odometry_health(self, index: int) -> None:
+        """Smoothed residual of the odometry between window poses ``index`` and ``index + 1``."""
+        state = self.state
+        first = int(state.frames[index])
+        if state.frames[index + 1] != first + 1 or first in self._odometry_rejected:
+            return
+        cols = np.concatenate(state.pose_columns(np.array([index, index + 1])))
+        residual, var = odometry_residual(
+            state.poses[index],
+            state.poses[index + 1],
+            self.sequence.odometry[first],
+            state.cov[np.ix_(cols, cols)],
+        )
+        assumed = np.square(self.config.odometry_std)
+        self.health.odometry(residual, var, assumed)
+        if self.health.record and index == 0:
+            # every lag of the window (consecutive frames, no rejected step) for calibration
+            frames = state.frames
+            last = 1
+            while (
+                last < state.n_poses
+                and frames[last] == first + last
+                and int(frames[last - 1]) not in self._odometry_rejected
+            ):
+                last += 1
+            if last > 2:
+                cols = slice(0, 6 * last)
+                moment, design = odometry_lag_residuals(
+                    state.poses[:last],
+                    self.sequence.odometry[first : first + last - 1],
+                    state.cov[cols, cols],
+                )
+                self.health.odometry_lags(moment, design, assumed)
+
+    def flush_odometry_health(self) -> None:
+        """At the end of a run: add the odometry residuals of the poses still in the window."""
+        for index in range(self.state.n_poses - 1):
+            self._odometry_health(index)
 
     # ------------------------------------------------------------------ geometric features
     def _finite_observations(self, kind: str, t: int) -> tuple[np.ndarray, np.ndarray]:
@@ -164,7 +216,7 @@ class MsckfAgent:
                     (widx[keep], np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k]))
                 )
         rows = MeasurementRows.empty(self.state.dim)
-        variance = self.config.feature_pixel_std**2
+        variance = self.config.feature_std**2
         for n, members in groups.items():
             widx = np.stack([w for w, _ in members])
             zs = np.stack([zz for _, zz in members])
@@ -179,7 +231,7 @@ class MsckfAgent:
                 self.camera, self.T_cam_body, poses[ok], points[ok][:, None, :]
             )
             pose_dim = 6 * self.state.n_poses
-            group_rows, accepted = null_space_rows(
+            r0, h0, s = null_space_rows(
                 self.state.cov[:pose_dim, :pose_dim],
                 self.state.pose_columns(widx[ok]),
                 pose_dim,
@@ -188,12 +240,17 @@ class MsckfAgent:
                 d_point,
                 zs[ok],
                 variance,
-                float(self.config.gate(4 * n - 3)),
+            )
+            accepted = self.health.test(
+                "features", r0, s, variance, float(self.config.gate(4 * n - 3))
             )
             self.counters["rejected_features_gate"] += int((~accepted).sum())
-            full = np.zeros((group_rows.rows, self.state.dim))
-            full[:, :pose_dim] = group_rows.jacobian
-            rows = rows.extend(MeasurementRows(full, group_rows.residual, group_rows.variance))
+            h0 = h0[accepted].reshape(-1, pose_dim)
+            full = np.zeros((h0.shape[0], self.state.dim))
+            full[:, :pose_dim] = h0
+            rows = rows.extend(
+                MeasurementRows(full, r0[accepted].ravel(), np.full(h0.shape[0], variance))
+            )
         return rows
 
     # ------------------------------------------------------------------ objects
@@ -206,7 +263,17 @@ class MsckfAgent:
         if not known.any():
             return MeasurementRows.empty(self.state.dim)
         slots, zk = slots[known], z[known]
+        # an object the estimate puts (nearly) behind the camera has no usable projection
+        _, p_cam = points_in_camera(
+            self.state.current_pose, self.state.objects[slots], self.T_cam_body
+        )
+        in_front = p_cam[:, 2] > 1e-3 * self.camera.baseline
+        if not in_front.all():
+            self.reject("object_behind_camera", int((~in_front).sum()), "object behind the camera")
+            slots, zk = slots[in_front], zk[in_front]
         k = slots.size
+        if k == 0:
+            return MeasurementRows.empty(self.state.dim)
         pose = self.state.current_pose
         pred, d_pose, d_point = observe_jacobians(
             self.camera, self.T_cam_body, pose, self.state.objects[slots]
@@ -217,15 +284,14 @@ class MsckfAgent:
         obj_cols = self.state.object_columns(slots)  # (k, 3)
         h[np.arange(k)[:, None, None], np.arange(4)[None, :, None], obj_cols[:, None, :]] = d_point
         r = zk - pred
-        variance = self.config.object_pixel_std**2
+        variance = self.config.object_std**2
         # each object's innovation covariance from its 9 columns (current pose + object)
         pose_cols = np.broadcast_to(self.state.pose_columns(self.state.n_poses - 1), (k, 6))
         local_cols = np.concatenate([pose_cols, obj_cols], axis=1)
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
         local_p = self.state.cov[local_cols[:, :, None], local_cols[:, None, :]]
         s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + variance * np.eye(4)
-        chi2 = np.einsum("ki,ki->k", r, np.linalg.solve(s, r[..., None])[..., 0])
-        accepted = chi2 < self.config.gate(4)
+        accepted = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
         self.counters["object_updates"] += int(accepted.sum())
         return MeasurementRows(
@@ -251,14 +317,14 @@ class MsckfAgent:
         by_length: dict[int, list] = defaultdict(list)
         for c in candidates:
             by_length[c[1].size].append(c)
-        variance = cfg.object_pixel_std**2
+        variance = cfg.object_std**2
         for n, members in by_length.items():
             widx = np.stack([m[1] for m in members])
             zs = np.stack([m[2] for m in members])
             points, ok, rms = triangulate(self.camera, self.T_cam_body, self.state.poses[widx], zs)
             depth = np.linalg.norm(points - self.state.current_pose[:3, 3], axis=1)
             ok &= (depth > cfg.object_min_depth) & (depth < cfg.object_max_depth)
-            ok &= rms < 3.0 * cfg.object_pixel_std
+            ok &= rms < 3.0 * cfg.object_std
             self.counters["rejected_object_init"] += int((~ok).sum())
             for j in np.flatnonzero(ok):
                 self._add_object(members[j][0], points[j], widx[j], zs[j], variance, n)
@@ -286,6 +352,8 @@ class MsckfAgent:
         h_s1, h_s2 = projected[:3, 1:], projected[3:, 1:]
         # gate the landmark-free part before touching the state
         s2 = h_s2 @ state.cov @ h_s2.T + variance * np.eye(4 * n - 3)
+        # not a sensor-health innovation: it is linearised at a fresh triangulation, so its NIS
+        # measures the triangulation as much as the noise
         if z2 @ np.linalg.solve(s2, z2) > self.config.gate(4 * n - 3):
             self.counters["rejected_object_init"] += 1
             return

@@ -1,8 +1,13 @@
-"""Settings of one robot's distributed MSCKF."""
+"""Settings of one robot's distributed MSCKF.
+
+Where a run's settings come from — camera-scaled defaults, the dataset's sensor model,
+calibration, a config file, flags — is decided in :mod:`teamslam.msckf.settings`; this module
+only holds and validates them.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 from scipy import stats
@@ -18,17 +23,19 @@ class MsckfConfig:
     ----------
     window
         Window size ``c`` (number of body poses kept).
-    odometry_translation_std, odometry_rotation_std
-        Per-axis std of the odometry noise per step (m, rad); ``W = diag(σ_t² I, σ_r² I)``.
-    feature_pixel_std, object_pixel_std
-        Std of the stereo measurement noise of geometric features and of object box centres,
-        in the units of the camera intrinsics.
+    odometry_std
+        Six per-axis std of the odometry noise per step, translation ``(x, y, z)`` in metres then
+        rotation ``(x, y, z)`` in radians (body frame, right perturbation):
+        ``W = diag(odometry_std)²``.
+    feature_std, object_std
+        Std of each stereo coordinate of geometric features and of object box centres, in the
+        units of the camera intrinsics (pixels; normalised coordinates when ``K = I``).
     min_track_length
         Fewest observations of a geometric feature used in an MSCKF update.
     object_init_observations
         Observations of an object (inside the window) needed to initialise it.
     object_min_depth, object_max_depth
-        Accepted distance of a new object from the current pose.
+        Accepted distance of a new object from the current pose (metres).
     gate_probability
         Chi-square gate: a feature or object whose normalised innovation exceeds this quantile
         of χ²(dof) — dof = its residual length — is rejected.
@@ -41,10 +48,9 @@ class MsckfConfig:
     """
 
     window: int = 20
-    odometry_translation_std: float = 0.02
-    odometry_rotation_std: float = 0.004
-    feature_pixel_std: float = 1.0
-    object_pixel_std: float = 2.0
+    odometry_std: tuple[float, ...] = (0.02, 0.02, 0.02, 0.004, 0.004, 0.004)
+    feature_std: float = 1.0
+    object_std: float = 2.0
     min_track_length: int = 3
     object_init_observations: int = 3
     object_min_depth: float = 1.0
@@ -56,26 +62,36 @@ class MsckfConfig:
     debug: bool = False
 
     def __post_init__(self) -> None:
-        if self.window < 2:
-            raise ValueError("window must hold at least 2 poses")
-        for name in (
-            "odometry_translation_std",
-            "odometry_rotation_std",
-            "feature_pixel_std",
-            "object_pixel_std",
-            "initial_pose_std",
-        ):
+        if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 2:
+            raise ValueError("window must be an integer of at least 2 poses")
+        odometry = self.odometry_std
+        if isinstance(odometry, int | float):
+            raise ValueError("odometry_std must be six numbers (x, y, z in m; rx, ry, rz in rad)")
+        odometry = tuple(float(v) for v in odometry)
+        if len(odometry) != 6 or not all(np.isfinite(v) and v > 0 for v in odometry):
+            raise ValueError("odometry_std must be six positive numbers")
+        object.__setattr__(self, "odometry_std", odometry)
+        for name in ("feature_std", "object_std", "initial_pose_std", "object_min_depth"):
             value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
+            if isinstance(value, bool) or not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number")
+        if not self.object_max_depth > self.object_min_depth:
+            raise ValueError("object_max_depth must exceed object_min_depth")
         if not 0 < self.gate_probability < 1:
             raise ValueError("gate_probability must lie in (0, 1)")
-        if self.min_track_length < 2 or self.object_init_observations < 2:
-            raise ValueError("tracks and objects need at least 2 observations")
+        for name in ("min_track_length", "object_init_observations"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 2:
+                raise ValueError(f"{name} must be an integer of at least 2 observations")
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        """Every setting's name."""
+        return tuple(f.name for f in fields(cls))
 
     def odometry_cov(self) -> np.ndarray:
         """``W`` (6×6)."""
-        return np.diag([self.odometry_translation_std**2] * 3 + [self.odometry_rotation_std**2] * 3)
+        return np.diag(np.square(self.odometry_std))
 
     def gate(self, dof: np.ndarray) -> np.ndarray:
         """Chi-square threshold for residuals of ``dof`` entries."""
@@ -85,32 +101,11 @@ class MsckfConfig:
         """A copy with some fields changed."""
         return replace(self, **changes)
 
-    @classmethod
-    def for_dataset(cls, metadata: dict, **overrides) -> MsckfConfig:
-        """Settings for a dataset: a simulated team's own noise levels, or the measured noise of
-        the published KITTI data; ``overrides`` win."""
-        sim = metadata.get("simulation", {}) if metadata else {}
-        values = {}
-        if sim:
-            values = {
-                "odometry_translation_std": max(sim["odometry_translation_noise"], 1e-4),
-                "odometry_rotation_std": max(sim["odometry_rotation_noise"], 1e-5),
-                "feature_pixel_std": max(sim["pixel_noise"], 1e-3),
-                "object_pixel_std": max(sim["object_pixel_noise"], 1e-3),
-                "object_max_depth": sim["object_max_depth"],
-            }
-        elif metadata and metadata.get("source") == "distributed-MSCKF published data":
-            # KITTI 00 as published: libviso2 odometry errors per step have std ≈ 1.5 cm
-            # (forward), 0.6 cm (lateral/vertical) and ≈ 0.001 rad; YOLO box centres are
-            # off the true object's projection by ≈ 17 px (u) and 5 px (v) robust std with
-            # heavy tails (median 21 px, p90 75 px), hence a wide isotropic σ and the gate.
-            # Object depth limits follow the published parameters (5–30 m).
-            values = {
-                "odometry_translation_std": 0.015,
-                "odometry_rotation_std": 0.0012,
-                "object_pixel_std": 15.0,
-                "object_min_depth": 5.0,
-                "object_max_depth": 30.0,
-            }
-        values.update(overrides)
-        return cls(**values)
+    def to_json(self) -> dict:
+        """Every setting as plain JSON."""
+        return {
+            f.name: list(getattr(self, f.name))
+            if isinstance(getattr(self, f.name), tuple)
+            else getattr(self, f.name)
+            for f in fields(self)
+        }

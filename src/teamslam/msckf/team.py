@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,6 +27,7 @@ from teamslam.msckf.consensus import (
     map_ids_message,
     validate_marginal,
 )
+from teamslam.msckf.health import SensorHealth
 from teamslam.runtime.transport import (
     CommonMarginalMessage,
     InProcessTransport,
@@ -58,6 +60,9 @@ class TeamResult:
         Per robot ``(N_i + 1, 4)`` seconds of each frame in those four stages.
     consensus
         Whether consensus ran.
+    health
+        Sensor health (:meth:`~teamslam.msckf.health.SensorHealth.summary`): ``team`` over
+        every robot, ``robots`` per robot.
     """
 
     poses: list[np.ndarray]
@@ -72,6 +77,7 @@ class TeamResult:
     loss: float
     wall_seconds: float = 0.0
     extra: dict = field(default_factory=dict)
+    health: dict = field(default_factory=dict)
 
 
 def _consensus_round(
@@ -121,7 +127,7 @@ def _consensus_round(
 
 def run_team(
     dataset: TeamDataset,
-    config: MsckfConfig | None = None,
+    config: MsckfConfig | Sequence[MsckfConfig] | None = None,
     graph: CommunicationGraph | None = None,
     consensus: bool = True,
     loss: float = 0.0,
@@ -135,7 +141,9 @@ def run_team(
     dataset
         The team's data.
     config
-        Filter settings (default: noise levels from the dataset's metadata when simulated).
+        Filter settings, one for the team or one per robot (default:
+        :func:`~teamslam.msckf.settings.resolve_config` — the dataset's sensor model, or a
+        calibration from the data when it has none).
     graph
         Communication graph (default: complete).
     consensus
@@ -148,11 +156,23 @@ def run_team(
         Show a progress bar (default: when standard error is a terminal).
     """
     n = dataset.n_robots
-    config = config or MsckfConfig.for_dataset(dataset.metadata)
+    if config is None:
+        from teamslam.msckf.settings import resolve_config
+
+        configs = resolve_config(dataset).robots
+    elif isinstance(config, MsckfConfig):
+        configs = [config] * n
+    else:
+        configs = list(config)
+        if len(configs) != n:
+            raise ValueError(f"{len(configs)} configs for a team of {n} robots")
     graph = graph or complete(n)
     if graph.n != n:
         raise ValueError(f"graph has {graph.n} robots, dataset has {n}")
-    agents = [MsckfAgent(i, dataset.calibration, r, config) for i, r in enumerate(dataset.robots)]
+    agents = [
+        MsckfAgent(i, dataset.calibration, r, c)
+        for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))
+    ]
     transport = InProcessTransport(n)
     edge_loss = EdgeLoss(graph, loss, seed)
     frames = [r.frames for r in dataset.robots]
@@ -177,6 +197,8 @@ def run_team(
             poses[i][t] = agents[i].state.current_pose
             covs[i][t] = agents[i].state.current_pose_cov()
     wall = time.perf_counter() - begin
+    for a in agents:
+        a.flush_odometry_health()
     counters = []
     for i, a in enumerate(agents):
         c = dict(a.counters)
@@ -198,4 +220,8 @@ def run_team(
         graph=graph.name,
         loss=loss,
         wall_seconds=wall,
+        health={
+            "team": SensorHealth.combine([a.health for a in agents]).summary(),
+            "robots": [a.health.summary() for a in agents],
+        },
     )

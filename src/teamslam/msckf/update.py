@@ -155,14 +155,13 @@ def null_space_rows(
     d_point: np.ndarray,
     z: np.ndarray,
     variance: float,
-    gate: float,
-) -> tuple[MeasurementRows, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Project a group of features onto their point Jacobians' left null spaces (eq. 24).
 
     Parameters
     ----------
     state_cov
-        ``(dim, dim)`` covariance of the block the rows act on (the window poses), for the gate.
+        ``(dim, dim)`` covariance of the block the rows act on (the window poses).
     pose_columns
         ``(G, n, 6)`` columns of each observation's pose in that block.
     dim
@@ -170,14 +169,13 @@ def null_space_rows(
     pred, d_pose, d_point, z
         ``(G, n, 4)``, ``(G, n, 4, 6)``, ``(G, n, 4, 3)``, ``(G, n, 4)``.
     variance
-        Pixel noise variance (isotropic, so ``Nᵀ V N = σ² I``).
-    gate
-        Chi-square threshold for ``4n − 3`` degrees of freedom.
+        Measurement noise variance (isotropic, so ``Nᵀ V N = σ² I``).
 
     Returns
     -------
-    rows, accepted
-        The stacked rows of the accepted features and the ``(G,)`` acceptance mask.
+    residual, jacobian, innovation_cov
+        ``(G, 4n − 3)`` projected residuals, ``(G, 4n − 3, dim)`` projected Jacobians and
+        ``(G, 4n − 3, 4n − 3)`` innovation covariances (for the χ² gate).
     """
     g, n = z.shape[:2]
     m = 4 * n
@@ -192,14 +190,7 @@ def null_space_rows(
     r0 = projected[:, 3:, 0]
     h0 = projected[:, 3:, 1:]
     s = h0 @ state_cov @ np.swapaxes(h0, 1, 2) + variance * np.eye(m - 3)
-    chi2 = np.einsum("gi,gi->g", r0, np.linalg.solve(s, r0[..., None])[..., 0])
-    accepted = chi2 < gate
-    rows = MeasurementRows(
-        h0[accepted].reshape(-1, dim),
-        r0[accepted].ravel(),
-        np.full(int(accepted.sum()) * (m - 3), variance),
-    )
-    return rows, accepted
+    return r0, h0, s
 
 
 def compress(rows: MeasurementRows) -> MeasurementRows:

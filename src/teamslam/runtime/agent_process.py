@@ -24,19 +24,20 @@ import json
 import os
 import time
 from collections import defaultdict
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from teamslam.datasets import load_dataset
+from teamslam.datasets import SensorModel, TeamDataset, load_dataset
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.consensus import (
     common_marginal_message,
     consensus_average,
     map_ids_message,
     validate_marginal,
 )
+from teamslam.msckf.settings import resolve_config
 from teamslam.runtime.team_file import TeamFile
 from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage
 
@@ -128,6 +129,14 @@ def _load_checkpoint(path: Path, agent: MsckfAgent, poses, covs) -> int:
     return t
 
 
+def _own_sensor_model(dataset: TeamDataset, index: int) -> SensorModel | None:
+    """The dataset's sensor model as it applies to its robot ``index`` alone."""
+    model = dataset.sensor_model
+    if model is None:
+        return None
+    return SensorModel(model.for_robot(index), origin=model.origin, note=model.note)
+
+
 def _weights(team: TeamFile, robot: int) -> dict[int, float]:
     degree = team.adjacency().sum(axis=1)
     return {j: 1.0 / (1.0 + max(degree[robot], degree[j])) for j in team.robots[robot].neighbours}
@@ -146,12 +155,10 @@ def run_agent(
     if not 0 <= index < dataset.n_robots:
         raise ValueError(f"robot {robot}: dataset {dataset_path} has no robot {index}")
     sequence = dataset.robots[index]
-    overrides = {}
-    if "window" in team.filter:
-        overrides["window"] = int(team.filter["window"])
-    if team.filter.get("objects_only"):
-        overrides["use_geometric_features"] = False
-    config = MsckfConfig.for_dataset(dataset.metadata, **overrides)
+    # the team file's settings win over the dataset's sensor model; noise levels neither gives
+    # are calibrated from this robot's own data
+    own = replace(dataset, robots=[sequence], sensor_model=_own_sensor_model(dataset, index))
+    config = resolve_config(own, file_values=team.filter).config
     agent = MsckfAgent(robot, dataset.calibration, sequence, config)
     frames = sequence.frames
     poses = np.zeros((frames, 4, 4))
@@ -231,6 +238,7 @@ def run_agent(
     finally:
         if hasattr(transport, "close"):
             transport.close()
+    agent.flush_odometry_health()
     frame_times = np.column_stack([consensus_times, np.array(agent.frame_times).reshape(-1, 3)])
     _atomic_savez(
         out / "result.npz",
@@ -251,6 +259,7 @@ def run_agent(
         "frames": frames,
         "counters": counters,
         "timings": dict(agent.timings),
+        "health": agent.health.to_json(),
         "lost_neighbours": sorted(lost_reported),
         "steps_with_lost_links": lost_steps,
         "bytes_per_step": counters["bytes"] / max(frames - 1, 1),

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from teamslam.msckf.health import SensorHealth
 from teamslam.msckf.team import TeamResult
 from teamslam.runtime.agent_process import load_robot_result
 from teamslam.runtime.team_file import TeamFile
@@ -112,7 +113,18 @@ def gather(team: TeamFile, out: Path, robots: list[int] | None = None) -> TeamRe
         graph=f"team file {team.team}",
         loss=team.message_loss,
         extra={"per_robot": list(summaries)},
+        health=_health(summaries),
     )
+
+
+def _health(summaries) -> dict:
+    parts = [SensorHealth.from_json(s["health"]) for s in summaries if "health" in s]
+    if len(parts) != len(summaries):
+        return {}
+    return {
+        "team": SensorHealth.combine(parts).summary(),
+        "robots": [p.summary() for p in parts],
+    }
 
 
 def exit_summary(codes: dict[int, int]) -> str:

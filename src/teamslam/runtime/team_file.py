@@ -10,7 +10,8 @@ Example::
     checkpoint_every: 25             # frames between checkpoints (0: never)
     message_loss: 0.0                # injected loss rate of sent messages (experiments)
     message_delay_ms: 0.0            # injected delay before each send
-    filter: {window: 10, objects_only: false}
+    filter: {window: 10, object_std: 2.0}   # any filter setting (teamslam config show lists
+                                     # them); objects_only: true = use_geometric_features: false
     robots:
       - id: 0
         listen: tcp/127.0.0.1:17400  # default: tcp/127.0.0.1:<17400 + id>
@@ -35,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+
+from teamslam.msckf.settings import ConfigError, coerce_settings
 
 __all__ = ["RobotEntry", "TeamFile", "TeamFileError", "load_team_file", "write_team_file"]
 
@@ -186,8 +189,19 @@ def _parse(data, path: Path) -> TeamFile:
     if sync not in ("lockstep", "async"):
         raise TeamFileError("'sync' must be lockstep or async")
     filt = data.get("filter", {}) or {}
-    if not isinstance(filt, dict) or set(filt) - {"window", "objects_only"}:
-        raise TeamFileError("'filter' accepts window and objects_only")
+    if not isinstance(filt, dict):
+        raise TeamFileError("'filter' must map filter settings to values")
+    filt = dict(filt)
+    if "objects_only" in filt:
+        objects_only = filt.pop("objects_only")
+        if not isinstance(objects_only, bool):
+            raise TeamFileError("filter.objects_only must be true or false")
+        if objects_only:
+            filt["use_geometric_features"] = False
+    try:
+        filt = coerce_settings(filt, "filter")
+    except ConfigError as exc:
+        raise TeamFileError(str(exc)) from None
     return TeamFile(
         team=team,
         dataset=as_path(data.get("dataset"), "dataset"),

@@ -1,5 +1,6 @@
 """Simulated teams: 3D stereo robots on Lissajous curves (distributed-MSCKF paper, §VI-B)."""
 
 from teamslam.sim.lissajous import SimulationConfig, lissajous_team
+from teamslam.sim.scenarios import SENSOR_SCENARIOS, scenario_team
 
-__all__ = ["SimulationConfig", "lissajous_team"]
+__all__ = ["SENSOR_SCENARIOS", "SimulationConfig", "lissajous_team", "scenario_team"]

@@ -9,6 +9,11 @@ feature track starts when its landmark enters the view and ends when it leaves. 
 true relative pose perturbed on SE(3): ``δT = δT_true · exp(n)``,
 ``n ~ N(0, diag(σ_t² I, σ_r² I))``.
 
+Measurements are in pixels, or — with ``normalised_coordinates=True`` — in normalised image
+coordinates (``K = I``, as the published simulated teams), the noise σ being given in the
+units written. The team's sensor model (:mod:`teamslam.datasets.sensor_model`) records the
+generator's true noise levels.
+
 Everything is drawn from ``numpy.random.SeedSequence(seed)``, so a seed gives the same team in
 every process and on every platform numpy supports.
 """
@@ -21,6 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from teamslam.datasets.model import Calibration, FrameObservations, RobotSequence, TeamDataset
+from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
 
@@ -56,7 +62,11 @@ class SimulationConfig:
     object_max_depth
         Range within which objects are detected.
     pixel_noise, object_pixel_noise
-        Std of the stereo measurement noise of geometric features and of object box centres.
+        Std of the stereo measurement noise of geometric features and of object box centres,
+        in the units of the measurements (pixels, or normalised coordinates).
+    normalised_coordinates
+        Write measurements in normalised image coordinates (``K = I``) instead of pixels; the
+        field of view is still the one of ``image_size`` and ``focal``.
     odometry_translation_noise, odometry_rotation_noise
         Per-axis std of the SE(3) odometry perturbation (m, rad), per step.
     object_spread, landmark_spread
@@ -80,6 +90,7 @@ class SimulationConfig:
     object_max_depth: float = 25.0
     pixel_noise: float = 1.0
     object_pixel_noise: float = 2.0
+    normalised_coordinates: bool = False
     odometry_translation_noise: float = 0.02
     odometry_rotation_noise: float = 0.004
     object_spread: tuple[float, float, float] = (5.0, 5.0, 1.5)
@@ -106,9 +117,39 @@ class SimulationConfig:
             raise ValueError("step_length, focal and baseline must be positive")
 
     def camera(self) -> StereoCamera:
-        """The stereo camera."""
+        """The stereo camera in pixels (its image bounds decide what is visible)."""
         w, h = self.image_size
         return StereoCamera.from_baseline(self.focal, self.focal, w / 2.0, h / 2.0, self.baseline)
+
+    def measurement_camera(self) -> StereoCamera:
+        """The camera the measurements are written in: :meth:`camera`, or ``K = I``."""
+        if self.normalised_coordinates:
+            return StereoCamera.from_baseline(1.0, 1.0, 0.0, 0.0, self.baseline)
+        return self.camera()
+
+    def sensor_model(self) -> SensorModel:
+        """The generator's true noise as the team's sensor model.
+
+        A noise-free team records tiny positive floors instead of zero (a filter needs a
+        positive σ): 10⁻⁴ m and 10⁻⁵ rad per step, ``2.5·10⁻⁶ fx`` for measurements.
+        """
+        unit = self.measurement_camera().intrinsics[0, 0]
+        floor = 2.5e-6 * unit
+        noise = SensorNoise(
+            odometry_std=(max(self.odometry_translation_noise, 1e-4),) * 3
+            + (max(self.odometry_rotation_noise, 1e-5),) * 3,
+            feature_std=max(self.pixel_noise, floor),
+            object_std=max(self.object_pixel_noise, floor),
+            object_depth_range=(self.min_depth, self.object_max_depth),
+        )
+        noise_free = 0.0 in (
+            self.odometry_translation_noise,
+            self.odometry_rotation_noise,
+            self.pixel_noise,
+            self.object_pixel_noise,
+        )
+        note = "true noise of the generator" + (" (zero noise floored)" if noise_free else "")
+        return SensorModel(noise, origin="simulation", note=note)
 
 
 def _lissajous(config: SimulationConfig, rng: np.random.Generator) -> np.ndarray:
@@ -147,13 +188,13 @@ def _scatter(
 def _observe(
     T_world_body: np.ndarray,
     points: np.ndarray,
-    camera: StereoCamera,
     config: SimulationConfig,
     max_depth: float,
     noise_std: float,
     rng: np.random.Generator,
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per frame ``(point indices, noisy stereo measurements)`` of the visible points."""
+    camera, output = config.camera(), config.measurement_camera()
     w, h = config.image_size
     tree = cKDTree(points) if len(points) else None
     reach = np.hypot(max_depth, np.hypot(w, h) / (2 * config.focal) * max_depth)
@@ -169,7 +210,7 @@ def _observe(
         p_cam = points[near] @ T_cam_world[k, :3, :3].T + T_cam_world[k, :3, 3]
         visible = camera.in_view(p_cam, w, h, config.min_depth, max_depth)
         idx = near[visible]
-        z = camera.project(p_cam[visible])
+        z = output.project(p_cam[visible])
         if noise_std > 0:
             z = z + noise_std * rng.standard_normal(z.shape)
             keep = z[:, 0] - z[:, 2] > 0  # noisy disparity must stay positive
@@ -258,8 +299,6 @@ def lissajous_team(
             map_rng.uniform(-half, half, (background, 3)),
         ]
     )
-    camera = config.camera()
-
     sequences = []
     track_pairs: list[tuple[int, int]] = []
     next_track = 0
@@ -269,12 +308,11 @@ def lissajous_team(
         odo_true = se3.inverse(path[:-1]) @ path[1:]
         odometry = odo_true @ se3.exp(rng.standard_normal((config.steps, 6)) * sigma)
         feat_frames = _observe(
-            path, landmark_positions, camera, config, config.max_depth, config.pixel_noise, rng
+            path, landmark_positions, config, config.max_depth, config.pixel_noise, rng
         )
         obj_frames = _observe(
             path,
             object_positions,
-            camera,
             config,
             config.object_max_depth,
             config.object_pixel_noise,
@@ -293,7 +331,11 @@ def lissajous_team(
         )
     return TeamDataset(
         name=f"lissajous-{robots}r-{steps}s-seed{seed}",
-        calibration=Calibration(camera, T_CAM_BODY, config.image_size),
+        calibration=Calibration(
+            config.measurement_camera(),
+            T_CAM_BODY,
+            None if config.normalised_coordinates else config.image_size,
+        ),
         robots=sequences,
         object_ids=np.arange(config.objects),
         object_positions=object_positions,
@@ -301,6 +343,7 @@ def lissajous_team(
         landmark_positions=landmark_positions,
         track_landmarks=np.array(track_pairs, dtype=np.int64).reshape(-1, 2),
         metadata={"source": "teamslam.sim.lissajous_team", "simulation": _jsonable(asdict(config))},
+        sensor_model=config.sensor_model(),
     )
 
 

@@ -1,0 +1,365 @@
+"""Self-calibration of a team's sensor model from its data alone (no ground truth).
+
+What is estimated: the odometry noise per axis (6 σ, per step), the measurement noise σ of
+geometric features and of object box centres (in the camera's units), and the range of depths
+at which objects are detected.
+
+How
+---
+1. **Start** (filter-free). A stereo observation has four coordinates and a point three, so each
+   single observation leaves one residual: for a rectified rig it is ``v_l − v_r``, in general
+   the component of its triangulation residual orthogonal to the point Jacobian. Its robust
+   spread gives the part of the measurement noise that is independent between the two images;
+   noise common to both images (a detector's box offset seen in both) is invisible to it, so it
+   is a lower bound, used only to start the iterations from above it (``3×`` it, or the
+   camera-scaled default when larger). The object depth range is the 1st–99th percentile of the
+   single-frame stereo depths of the object detections.
+2. **Iterate** (at most ``max_iterations`` passes of every robot's filter alone over its first
+   ``frames`` frames, stopping when no σ changes by more than ``tolerance``):
+
+   * *measurement σ by robust covariance matching of the innovations* (Mehra 1972, "Approaches
+     to adaptive filtering", IEEE TAC 17(5); Bar-Shalom, Li & Kirubarajan 2001, §5.4 on NIS):
+     each innovation ``r`` of a sensor has ``S = H P Hᵀ + σ² I`` and should give
+     ``NIS = rᵀ S⁻¹ r ~ χ²(dim r)``. In the eigenbasis of ``S`` the NIS for another σ is
+     ``Σ c_j² / (λ_j + σ²)`` with ``λ_j`` the eigenvalues of ``H P Hᵀ``, so σ is chosen — by
+     bisection, the left side being monotone — such that the *median* over innovations of
+     ``F_χ²(dim r)(NIS(σ))`` is ½. The state's share ``H P Hᵀ`` is accounted for exactly, and
+     the median makes the estimate insensitive to the heavy tails of real detectors (every
+     innovation counts, gated or not).
+   * *odometry σ by expectation–maximisation*: ``W_aa ← mean(ê_a² + Σₑ,aa)`` over the smoothed
+     odometry residuals of the window (see :mod:`teamslam.msckf.health`; Shumway & Stoffer
+     1982, "An approach to time series smoothing and forecasting using the EM algorithm",
+     J. Time Series Analysis 3(4); Särkkä 2013, §12.3.3). Each EM step moves ``W`` towards the
+     noise level the measurements explain; the fixed-lag smoother of the MSCKF window stands
+     in for the full smoother. EM converges slowly when the measurements say little about the
+     motion between two frames, so each update is extrapolated along the last two steps in
+     log space (SQUAREM-like; Varadhan & Roland 2008) when they agree in direction.
+
+The filters of a calibration pass run without consensus (each robot alone), so a calibration
+costs a few separate runs over the first ``frames`` frames of each robot.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, stats
+
+from teamslam.datasets.model import TeamDataset
+from teamslam.datasets.sensor_model import SensorModel, SensorNoise
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.health import SENSORS, InnovationRecord, SensorHealth
+from teamslam.msckf.update import stereo_point
+
+__all__ = [
+    "CalibrationResult",
+    "calibrate",
+    "default_frames",
+    "epipolar_noise",
+    "nis_ratio",
+    "object_depth_range",
+]
+
+log = logging.getLogger(__name__)
+
+_MIN_INNOVATIONS = 20
+
+
+def _robust_std(x: np.ndarray) -> float:
+    """1.4826 × median absolute deviation (the std of a Gaussian)."""
+    x = np.asarray(x, dtype=float)
+    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if x.size else float("nan")
+
+
+def epipolar_noise(dataset: TeamDataset, kind: str) -> float | None:
+    """Filter-free lower bound of the ``kind`` (``features``/``objects``) measurement σ.
+
+    For every single stereo observation the residual orthogonal to the point Jacobian (the
+    epipolar residual; ``(v_l − v_r)/√2`` for a rectified rig) has variance ``σ²`` when the four
+    coordinates carry independent noise of std ``σ``. Returns its robust std over the team's
+    observations (``None`` when there are fewer than 20), computed on the single-frame stereo
+    point as linearisation point.
+    """
+    camera = dataset.calibration.camera
+    z = np.concatenate([getattr(r, kind).measurements for r in dataset.robots])
+    if z.shape[0] < _MIN_INNOVATIONS:
+        return None
+    p_cam, ok = stereo_point(camera, np.eye(4), np.eye(4), z)
+    z, p_cam = z[ok], p_cam[ok]
+    if z.shape[0] < _MIN_INNOVATIONS:
+        return None
+    jac = camera.project_jacobian(p_cam)  # (M, 4, 3)
+    # the left null vector of each 4×3 Jacobian: the last left singular vector
+    u, _, _ = np.linalg.svd(jac)
+    normal = u[:, :, 3]
+    residual = np.einsum("mi,mi->m", normal, z - camera.project(p_cam))
+    return _robust_std(residual)
+
+
+def object_depth_range(dataset: TeamDataset) -> tuple[float, float] | None:
+    """1st–99th percentile of the single-frame stereo depths of the object detections."""
+    camera = dataset.calibration.camera
+    z = np.concatenate([r.objects.measurements for r in dataset.robots])
+    if z.shape[0] < _MIN_INNOVATIONS:
+        return None
+    p_cam, ok = stereo_point(camera, np.eye(4), np.eye(4), z)
+    depth = np.linalg.norm(p_cam[ok], axis=1)
+    if depth.size < _MIN_INNOVATIONS:
+        return None
+    low, high = np.percentile(depth, [1.0, 99.0])
+    return float(low), float(high)
+
+
+#: NIS beyond this χ² quantile is winsorised (counted as the quantile) by :func:`nis_ratio`.
+NIS_WINSOR_PROBABILITY = 1.0 - 1e-6
+
+
+def nis_ratio(record: InnovationRecord, std: float) -> float | None:
+    """Mean NIS of a sensor's innovations over its model value (1 when σ is right).
+
+    Covariance matching (Mehra 1972, "Approaches to adaptive filtering", IEEE TAC 17(5);
+    Bar-Shalom, Li & Kirubarajan 2001, *Estimation with Applications to Tracking and
+    Navigation*, §5.4): for a consistent filter the NIS of an innovation with ``d`` degrees of
+    freedom averages ``d``. Each NIS is winsorised at the χ² quantile ``1 − 10⁻⁶`` of its dof
+    — ``Σ min(NIS_i, g_i) / Σ E[min(χ²(d_i), g_i)]`` — so that a handful of absurd
+    measurements (a mismatched id) cannot decide σ, while the heavy, frequent tails of a real
+    detector still count in full: a σ fitted to the core of such a detector and a gate throwing
+    away the rest leaves the filter overconfident on the data it keeps.
+
+    The NIS is taken over the directions the state can explain (eigenvalue of ``H P Hᵀ`` above
+    zero): a direction with none — for a rectified rig, ``v_l − v_r`` — carries only the noise
+    that is independent between the two images, which the update never uses (its Kalman gain is
+    zero) and which, for a detector whose left and right errors are correlated, is far smaller
+    than the noise that matters. ``None`` with fewer than 20 innovations.
+    """
+    dof, nis = [], []
+    variance = std**2
+    for c, lam in zip(record.c2, record.lam, strict=True):
+        keep = lam > 1e-9 * max(float(lam.max()), variance)
+        if keep.any():
+            dof.append(int(keep.sum()))
+            nis.append(float(np.sum(c[keep] / (lam[keep] + variance))))
+    if len(dof) < _MIN_INNOVATIONS:
+        return None
+    d = np.array(dof)
+    cap = stats.chi2.ppf(NIS_WINSOR_PROBABILITY, d)
+    # E[min(X, g)] for X ~ χ²(d): d·F_{d+2}(g) + g·(1 − F_d(g))
+    expected = np.sum(d * stats.chi2.cdf(cap, d + 2) + cap * (1.0 - NIS_WINSOR_PROBABILITY))
+    return float(np.sum(np.minimum(nis, cap)) / expected)
+
+
+class _Secant:
+    """One noise level driven to ``ratio = 1`` in log space, by secant steps on ``log ratio``."""
+
+    def __init__(self, value: float) -> None:
+        self.log_value = float(np.log(value))
+        self.previous: tuple[float, float] | None = None
+
+    def step(self, ratio: float) -> float:
+        """Move after a pass that gave ``ratio`` at the current value; returns |log step|."""
+        log_ratio = float(np.log(ratio))
+        slope = -2.0  # ratio ∝ σ⁻² when the measurement noise dominates the innovation
+        if self.previous is not None:
+            d_value = self.log_value - self.previous[0]
+            if abs(d_value) > 1e-3:
+                slope = (log_ratio - self.previous[1]) / d_value
+        # the state's share of the innovation shrinks the slope towards 0; never let it flip
+        slope = float(np.clip(slope, -2.0, -0.2))
+        step = float(np.clip(-log_ratio / slope, -np.log(10.0), np.log(10.0)))
+        self.previous = (self.log_value, log_ratio)
+        self.log_value += step
+        return abs(step)
+
+    @property
+    def value(self) -> float:
+        return float(np.exp(self.log_value))
+
+
+@dataclass
+class CalibrationResult:
+    """A calibrated sensor model and how it was reached.
+
+    Attributes
+    ----------
+    sensor_model
+        The estimate (origin ``calibration``).
+    iterations
+        Per filter pass: the σ used, and the NIS / gate rejection it gave.
+    converged
+        Whether the last pass changed no σ by more than the tolerance.
+    seconds
+        Wall time of the whole calibration.
+    frames
+        Frames per robot used.
+    start
+        The filter-free starting values (epipolar bounds, depth range).
+    """
+
+    sensor_model: SensorModel
+    iterations: list[dict] = field(default_factory=list)
+    converged: bool = False
+    seconds: float = 0.0
+    frames: int = 0
+    start: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """Plain JSON."""
+        return {
+            "sensor_model": self.sensor_model.to_json(),
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "seconds": self.seconds,
+            "frames_per_robot": self.frames,
+            "start": self.start,
+        }
+
+
+def default_frames(robots: int) -> int:
+    """Frames per robot a calibration uses by default: about 1,200 robot-frames per pass,
+    between 100 and 400 per robot."""
+    return int(np.clip(1200 // max(robots, 1), 100, 400))
+
+
+def _odometry_variances(health: SensorHealth, current: np.ndarray, per_axis: bool) -> np.ndarray:
+    """Per-axis odometry variances from the lag normal equations (non-negative least squares).
+
+    Unless ``per_axis``, one variance for the three translation axes and one for the three
+    rotation axes (the fit's columns summed per group); an axis the data cannot see keeps a
+    thousandth of its current value at least.
+    """
+    groups = np.eye(6) if per_axis else np.kron(np.eye(2), np.ones((3, 1)))  # (6, k)
+    normal = groups.T @ health.lag_normal @ groups
+    rhs = groups.T @ health.lag_rhs
+    factor = np.linalg.cholesky(normal + 1e-12 * np.trace(normal) * np.eye(normal.shape[0]))
+    solution, _ = optimize.nnls(factor.T, np.linalg.solve(factor, rhs))
+    return np.maximum(groups @ solution, 1e-3 * current)
+
+
+def _pass(dataset: TeamDataset, config: MsckfConfig, frames: int) -> SensorHealth:
+    """Every robot's filter alone over its first ``frames`` frames, innovations recorded."""
+    parts = []
+    for i, robot in enumerate(dataset.robots):
+        agent = MsckfAgent(
+            i, dataset.calibration, robot.head(frames), config, record_innovations=True
+        )
+        for t in range(agent.frames):
+            agent.step(t)
+        agent.flush_odometry_health()
+        parts.append(agent.health)
+    return SensorHealth.combine(parts)
+
+
+def calibrate(
+    dataset: TeamDataset,
+    config: MsckfConfig,
+    frames: int | None = None,
+    max_iterations: int = 12,
+    tolerance: float = 0.05,
+    odometry_per_axis: bool = False,
+) -> CalibrationResult:
+    """Estimate the team's sensor model from its data (see the module docstring).
+
+    Parameters
+    ----------
+    dataset
+        The team; its ground truth, if any, is not used (only each robot's first pose, which
+        the filter also uses as its known start).
+    config
+        Every other setting (window, gates, which sensors to use) and the starting σ.
+    frames
+        Frames per robot to calibrate on (``None``: :func:`default_frames`).
+    max_iterations
+        Most filter passes.
+    tolerance
+        Stop when no σ changes by more than this fraction.
+    odometry_per_axis
+        Fit six odometry σ instead of one for translation and one for rotation. Only for data
+        that see the motion along every axis well: an axis the measurements barely observe
+        (e.g. forward motion seen through distant objects) converges slowly and stays poorly
+        determined.
+    """
+    begin = time.perf_counter()
+    use = {
+        "features": config.use_geometric_features
+        and any(r.features.ids.size for r in dataset.robots),
+        "objects": config.use_objects and any(r.objects.ids.size for r in dataset.robots),
+    }
+    if frames is None:
+        frames = default_frames(dataset.n_robots)
+    if frames < 2:
+        raise ValueError("calibration needs at least 2 frames per robot")
+    frames = min(max(r.frames for r in dataset.robots), frames)
+    start: dict = {}
+    std = {"features": config.feature_std, "objects": config.object_std}
+    for sensor in SENSORS:
+        bound = epipolar_noise(dataset, sensor) if use[sensor] else None
+        start[f"{sensor}_epipolar_std"] = bound
+        if bound is not None:
+            std[sensor] = max(std[sensor], 3.0 * bound)
+    depth_range = None
+    changes: dict = {}
+    # start the odometry from above: a filter that trusts its odometry too much explains the
+    # data by odometry and EM then crawls; one that trusts it too little lets the data speak
+    log_odometry = np.log(3.0 * np.asarray(config.odometry_std))
+    searches = {sensor: _Secant(std[sensor]) for sensor in SENSORS}
+    iterations: list[dict] = []
+    converged = False
+    for _ in range(max_iterations):
+        current = config.with_(
+            feature_std=std["features"],
+            object_std=std["objects"],
+            odometry_std=tuple(np.exp(log_odometry)),
+            **changes,
+        )
+        health = _pass(dataset, current, frames)
+        summary = health.summary()
+        entry = {
+            "odometry_std": list(current.odometry_std),
+            "feature_std": current.feature_std if use["features"] else None,
+            "object_std": current.object_std if use["objects"] else None,
+            "nis": summary["nis"],
+            "gate_rejection_rate": summary["gate_rejection_rate"],
+        }
+        iterations.append(entry)
+        change = 0.0
+        for sensor in SENSORS:
+            if not use[sensor]:
+                continue
+            ratio = nis_ratio(health.records[sensor], std[sensor])
+            entry[f"{sensor}_nis_ratio"] = ratio
+            if ratio is not None:
+                change = max(change, searches[sensor].step(ratio))
+                std[sensor] = searches[sensor].value
+        if health.lag_rows >= _MIN_INNOVATIONS:
+            variances = _odometry_variances(health, np.exp(2 * log_odometry), odometry_per_axis)
+            target = 0.5 * np.log(variances)
+            step = target - log_odometry
+            log_odometry = target
+            change = max(change, float(np.max(np.abs(step))))
+        log.info("calibration pass %d: %s", len(iterations), entry)
+        if change < np.log1p(tolerance):
+            converged = True
+            break
+    noise = SensorNoise(
+        odometry_std=tuple(float(v) for v in np.exp(log_odometry)),
+        feature_std=std["features"] if use["features"] else None,
+        object_std=std["objects"] if use["objects"] else None,
+        object_depth_range=depth_range,
+    )
+    seconds = time.perf_counter() - begin
+    note = (
+        f"teamslam calibrate: {len(iterations)} passes over {frames} frames per robot"
+        f"{'' if converged else ' (not converged)'}"
+    )
+    return CalibrationResult(
+        SensorModel(noise, origin="calibration", note=note),
+        iterations,
+        converged,
+        seconds,
+        frames,
+        start,
+    )
