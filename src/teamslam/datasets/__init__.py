@@ -26,7 +26,7 @@ from teamslam.datasets.reference import (
     safe_unpickle,
 )
 from teamslam.datasets.sensor_model import SensorModel, SensorNoise
-from teamslam.datasets.stats import dataset_info, format_info
+from teamslam.datasets.stats import dataset_info, format_info, ground_truth_noise
 from teamslam.datasets.storage import FORMAT_VERSION, load_dataset, save_dataset
 from teamslam.datasets.trajectory import read_kitti, read_tum, write_kitti, write_tum
 
@@ -43,6 +43,7 @@ __all__ = [
     "dataset_info",
     "export_reference",
     "format_info",
+    "ground_truth_noise",
     "import_reference",
     "load_dataset",
     "read_kitti",

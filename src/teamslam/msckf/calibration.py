@@ -1,42 +1,49 @@
 """Self-calibration of a team's sensor model from its data alone (no ground truth).
 
-What is estimated: the odometry noise per axis (6 σ, per step), the measurement noise σ of
-geometric features and of object box centres (in the camera's units), and the range of depths
-at which objects are detected.
+What is estimated: the odometry noise per step (one σ for the translation axes and one for the
+rotation axes, or six with ``odometry_per_axis``) and the measurement noise σ of geometric
+features and of object box centres, in the camera's own units. (The object depth range is not:
+it stays the dataset's, a file's, a flag's or the camera-scaled default.)
 
 How
 ---
 1. **Start** (filter-free). A stereo observation has four coordinates and a point three, so each
    single observation leaves one residual: for a rectified rig it is ``v_l − v_r``, in general
-   the component of its triangulation residual orthogonal to the point Jacobian. Its robust
-   spread gives the part of the measurement noise that is independent between the two images;
-   noise common to both images (a detector's box offset seen in both) is invisible to it, so it
-   is a lower bound, used only to start the iterations from above it (``3×`` it, or the
-   camera-scaled default when larger). The object depth range is the 1st–99th percentile of the
-   single-frame stereo depths of the object detections.
-2. **Iterate** (at most ``max_iterations`` passes of every robot's filter alone over its first
-   ``frames`` frames, stopping when no σ changes by more than ``tolerance``):
+   the component of its triangulation residual orthogonal to the point Jacobian
+   (:func:`epipolar_noise`). Its robust spread is the part of the measurement noise that is
+   independent between the two images; noise common to both images (a detector's box offset
+   seen in both) is invisible to it, so it is a lower bound, used only to start from above it
+   (``3×`` it, or the camera-scaled default when larger). The odometry starts at three times
+   its camera-scaled default: a filter that trusts its odometry too much explains the data by
+   odometry and the odometry estimate then crawls; one that trusts it too little lets the data
+   speak.
+2. **Iterate** — filter passes of every robot alone (no consensus) over its first ``frames``
+   frames, at most ``max_iterations``, until no σ moves by more than ``tolerance``:
 
-   * *measurement σ by robust covariance matching of the innovations* (Mehra 1972, "Approaches
-     to adaptive filtering", IEEE TAC 17(5); Bar-Shalom, Li & Kirubarajan 2001, §5.4 on NIS):
-     each innovation ``r`` of a sensor has ``S = H P Hᵀ + σ² I`` and should give
-     ``NIS = rᵀ S⁻¹ r ~ χ²(dim r)``. In the eigenbasis of ``S`` the NIS for another σ is
-     ``Σ c_j² / (λ_j + σ²)`` with ``λ_j`` the eigenvalues of ``H P Hᵀ``, so σ is chosen — by
-     bisection, the left side being monotone — such that the *median* over innovations of
-     ``F_χ²(dim r)(NIS(σ))`` is ½. The state's share ``H P Hᵀ`` is accounted for exactly, and
-     the median makes the estimate insensitive to the heavy tails of real detectors (every
-     innovation counts, gated or not).
-   * *odometry σ by expectation–maximisation*: ``W_aa ← mean(ê_a² + Σₑ,aa)`` over the smoothed
-     odometry residuals of the window (see :mod:`teamslam.msckf.health`; Shumway & Stoffer
-     1982, "An approach to time series smoothing and forecasting using the EM algorithm",
-     J. Time Series Analysis 3(4); Särkkä 2013, §12.3.3). Each EM step moves ``W`` towards the
-     noise level the measurements explain; the fixed-lag smoother of the MSCKF window stands
-     in for the full smoother. EM converges slowly when the measurements say little about the
-     motion between two frames, so each update is extrapolated along the last two steps in
-     log space (SQUAREM-like; Varadhan & Roland 2008) when they agree in direction.
+   * *measurement σ by covariance matching of the innovations* (Mehra 1972, "Approaches to
+     adaptive filtering", IEEE TAC 17(5); Bar-Shalom, Li & Kirubarajan 2001, *Estimation with
+     Applications to Tracking and Navigation*, §5.4): each sensor's σ is moved until its
+     innovations' mean NIS equals their degrees of freedom (:func:`nis_ratio`: winsorised at
+     the χ² quantile 1 − 10⁻⁶, counted over the directions the state can explain). The state's
+     own uncertainty — object covariances grown from the same σ — changes with σ, so each step
+     is a secant step on ``log ratio`` against ``log σ`` across passes, never more than twice
+     the plain ``σ·√ratio``;
+   * *odometry σ by expectation–maximisation over the smoothed window* (Shumway & Stoffer 1982,
+     "An approach to time series smoothing and forecasting using the EM algorithm", J. Time
+     Series Analysis 3(4); Särkkä 2013, *Bayesian Filtering and Smoothing*, §12.3.3): when a
+     pose leaves the window it and every later window pose have been smoothed by all
+     measurements of the window; the composed odometry from it to each of them has the
+     residual second moment ``ê êᵀ + J Σ Jᵀ`` with expectation ``M_L · diag W``
+     (:func:`~teamslam.msckf.health.odometry_lag_residuals`). The variances ``diag W`` are the
+     non-negative least-squares fit of these equations over every lag — the long lags, where
+     the measurements rather than the odometry decide the motion, make it converge in a few
+     passes where one-step EM crawls (cf. the autocovariance least-squares method, Odelson,
+     Rajamani & Rawlings 2006, Automatica 42).
 
-The filters of a calibration pass run without consensus (each robot alone), so a calibration
-costs a few separate runs over the first ``frames`` frames of each robot.
+The fixed point is a sensor model under which the filter's innovations are χ²-consistent and
+the odometry noise is what the smoothed motion shows; for Gaussian noise and a consistent filter
+that is the true noise. A detector with heavy tails gets the σ that covers its errors on
+average (and the gate's nominal 5% rejection is then exceeded: the run reports it).
 """
 
 from __future__ import annotations
@@ -61,7 +68,6 @@ __all__ = [
     "default_frames",
     "epipolar_noise",
     "nis_ratio",
-    "object_depth_range",
 ]
 
 log = logging.getLogger(__name__)
@@ -98,20 +104,6 @@ def epipolar_noise(dataset: TeamDataset, kind: str) -> float | None:
     normal = u[:, :, 3]
     residual = np.einsum("mi,mi->m", normal, z - camera.project(p_cam))
     return _robust_std(residual)
-
-
-def object_depth_range(dataset: TeamDataset) -> tuple[float, float] | None:
-    """1st–99th percentile of the single-frame stereo depths of the object detections."""
-    camera = dataset.calibration.camera
-    z = np.concatenate([r.objects.measurements for r in dataset.robots])
-    if z.shape[0] < _MIN_INNOVATIONS:
-        return None
-    p_cam, ok = stereo_point(camera, np.eye(4), np.eye(4), z)
-    depth = np.linalg.norm(p_cam[ok], axis=1)
-    if depth.size < _MIN_INNOVATIONS:
-        return None
-    low, high = np.percentile(depth, [1.0, 99.0])
-    return float(low), float(high)
 
 
 #: NIS beyond this χ² quantile is winsorised (counted as the quantile) by :func:`nis_ratio`.
@@ -165,10 +157,11 @@ class _Secant:
         slope = -2.0  # ratio ∝ σ⁻² when the measurement noise dominates the innovation
         if self.previous is not None:
             d_value = self.log_value - self.previous[0]
-            if abs(d_value) > 1e-3:
+            if abs(d_value) > 0.05:  # closer passes differ by noise more than by slope
                 slope = (log_ratio - self.previous[1]) / d_value
-        # the state's share of the innovation shrinks the slope towards 0; never let it flip
-        slope = float(np.clip(slope, -2.0, -0.2))
+        # the state's share of the innovation (itself grown from σ) flattens the slope; never
+        # let it flip, and never take more than twice the plain step σ·√ratio
+        slope = float(np.clip(slope, -2.0, -0.5))
         step = float(np.clip(-log_ratio / slope, -np.log(10.0), np.log(10.0)))
         self.previous = (self.log_value, log_ratio)
         self.log_value += step
@@ -196,7 +189,7 @@ class CalibrationResult:
     frames
         Frames per robot used.
     start
-        The filter-free starting values (epipolar bounds, depth range).
+        The filter-free starting values (epipolar bounds).
     """
 
     sensor_model: SensorModel
@@ -300,8 +293,6 @@ def calibrate(
         start[f"{sensor}_epipolar_std"] = bound
         if bound is not None:
             std[sensor] = max(std[sensor], 3.0 * bound)
-    depth_range = None
-    changes: dict = {}
     # start the odometry from above: a filter that trusts its odometry too much explains the
     # data by odometry and EM then crawls; one that trusts it too little lets the data speak
     log_odometry = np.log(3.0 * np.asarray(config.odometry_std))
@@ -313,7 +304,6 @@ def calibrate(
             feature_std=std["features"],
             object_std=std["objects"],
             odometry_std=tuple(np.exp(log_odometry)),
-            **changes,
         )
         health = _pass(dataset, current, frames)
         summary = health.summary()
@@ -348,7 +338,6 @@ def calibrate(
         odometry_std=tuple(float(v) for v in np.exp(log_odometry)),
         feature_std=std["features"] if use["features"] else None,
         object_std=std["objects"] if use["objects"] else None,
-        object_depth_range=depth_range,
     )
     seconds = time.perf_counter() - begin
     note = (

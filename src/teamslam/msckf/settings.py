@@ -170,15 +170,17 @@ def _sensor_values(noise: SensorNoise) -> dict[str, Any]:
     return out
 
 
-def _relevant_noise(dataset: TeamDataset, values: dict[str, Any]) -> tuple[str, ...]:
-    """Noise settings the run will use on this data."""
+def _calibratable(dataset: TeamDataset, values: dict[str, Any]) -> tuple[str, ...]:
+    """Noise levels the run will use on this data that a calibration estimates (the object
+    depth range is not one of them: it comes from the dataset, a file, a flag or the
+    camera-scaled default)."""
     keys = ["odometry_std"]
     if values.get("use_geometric_features", True) and any(
         r.features.ids.size for r in dataset.robots
     ):
         keys.append("feature_std")
     if values.get("use_objects", True) and any(r.objects.ids.size for r in dataset.robots):
-        keys += ["object_std", "object_min_depth", "object_max_depth"]
+        keys.append("object_std")
     return tuple(keys)
 
 
@@ -276,7 +278,7 @@ def resolve_config(
     for name, layer in layers:
         values.update(layer)
         sources.update(dict.fromkeys(layer, name))
-    relevant = _relevant_noise(dataset, values)
+    relevant = _calibratable(dataset, values)
     explicit = set(file_values) | set(flag_values)
     if calibrate == "always":
         wanted = [k for k in relevant if k not in explicit]
