@@ -141,3 +141,21 @@ def test_wrong_sigma_draws_one_warning_line_naming_the_sensor(tmp_path, capsys):
     err = capsys.readouterr().err
     lines = [s for s in err.splitlines() if s.startswith("warning")]
     assert any("object σ (object_std) probably too large" in s for s in lines), err
+
+
+def test_params_file_is_imported_but_checked_against_the_data(tmp_path, capsys):
+    truth_team = scenario_team("normalised-0.005-objects", 2, 80, 5)
+    export_reference(truth_team, tmp_path / "published")
+    params = tmp_path / "params.yaml"
+    # variances: odometry σ 0.02 (right), objects σ 0.5 — a hundred times the truth
+    params.write_text("motion_noise: 0.0004\nobj_obs_noise: 0.25\n")
+    argv = ["data", "import-reference", str(tmp_path / "published"), str(tmp_path / "d")]
+    assert main([*argv, "--params", str(params)]) == 0
+    out, err = capsys.readouterr()
+    assert "params.yaml: variances converted to σ" in out
+    assert "warning: the params file's object σ (0.5)" in err
+    assert "odometry σ" not in err
+    from teamslam.datasets import load_dataset
+
+    model = load_dataset(tmp_path / "d").sensor_model
+    assert model.origin == "params file" and model.team.object_std == 0.5

@@ -291,12 +291,40 @@ def _team_table(runs: dict[str, dict]) -> str:
             f"{f'robot {i + 1} pose NEES / 6':<36}"
             + "".join(f"{runs[n]['nees_pose_avg'][i]:>{width}.2f}" for n in names)
         )
+    for sensor, label in (("features", "features"), ("objects", "objects")):
+        if any(runs[n].get("nis", {}).get(sensor) is not None for n in names):
+            lines.append(
+                f"{f'{label} NIS/dof | gate rejected':<36}"
+                + "".join(_health_cell(runs[n], sensor, width) for n in names)
+            )
+    if any(runs[n].get("odometry_residual_ratio") for n in names):
+        lines.append(
+            f"{'odometry residual ratio (t | r)':<36}"
+            + "".join(_odometry_cell(runs[n], width) for n in names)
+        )
     for stage in ("consensus", "propagation", "update", "initialisation", "total"):
         lines.append(
             f"{f'time {stage} [ms/robot/frame]':<36}"
             + "".join(f"{runs[n]['time_per_robot_step_ms'][stage]:>{width}.2f}" for n in names)
         )
     return "\n".join(lines)
+
+
+def _health_cell(run: dict, sensor: str, width: int) -> str:
+    nis = run.get("nis", {}).get(sensor)
+    rejected = run.get("gate_rejection_rate", {}).get(sensor)
+    if nis is None:
+        return f"{'—':>{width}}"
+    cell = f"{nis:.2f} | {100 * rejected:.1f}%"
+    return f"{cell:>{width}}"
+
+
+def _odometry_cell(run: dict, width: int) -> str:
+    ratio = run.get("odometry_residual_ratio")
+    if not ratio:
+        return f"{'—':>{width}}"
+    cell = f"{ratio['translation']:.2f} | {ratio['rotation']:.2f}"
+    return f"{cell:>{width}}"
 
 
 def _write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> None:
@@ -512,8 +540,8 @@ def _calibration_table(dataset, result) -> str:
         f"{dataset.name}: calibrated from {result.frames} frames per robot in "
         f"{result.seconds:.1f} s, {len(result.iterations)} filter passes"
         f"{'' if result.converged else ' (not converged)'}",
-        f"{'':<22}{'calibrated':>38}"
-        + (f"  {'dataset (' + dataset.sensor_model.origin + ')':>38}" if old else ""),
+        f"{'':<22}{'calibrated':>44}"
+        + (f"  {'dataset (' + dataset.sensor_model.origin + ')':>44}" if old else ""),
     ]
 
     def show(value) -> str:
@@ -527,11 +555,11 @@ def _calibration_table(dataset, result) -> str:
         ("odometry σ (m, rad)", "odometry_std"),
         ("feature σ (K units)", "feature_std"),
         ("object σ (K units)", "object_std"),
-        ("object depth (m)", "object_depth_range"),
+        ("object depth (m)", "object_depth_range"),  # not calibrated: shown for reference
     ):
-        row = f"{label:<22}{show(getattr(noise, key)):>38}"
+        row = f"{label:<22}{show(getattr(noise, key)):>44}"
         if old is not None:
-            row += f"  {show(getattr(old, key)):>38}"
+            row += f"  {show(getattr(old, key)):>44}"
         lines.append(row)
     start = result.start
     for sensor in ("features", "objects"):
