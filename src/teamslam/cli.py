@@ -534,6 +534,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _calibration_table(dataset, result) -> str:
+    from teamslam.textio import format_value
+
     noise = result.sensor_model.team
     old = dataset.sensor_model.team if dataset.sensor_model is not None else None
     lines = [
@@ -544,22 +546,15 @@ def _calibration_table(dataset, result) -> str:
         + (f"  {'dataset (' + dataset.sensor_model.origin + ')':>44}" if old else ""),
     ]
 
-    def show(value) -> str:
-        if value is None:
-            return "—"
-        if isinstance(value, tuple):
-            return "[" + ", ".join(f"{v:.4g}" for v in value) + "]"
-        return f"{value:.4g}"
-
     for label, key in (
         ("odometry σ (m, rad)", "odometry_std"),
         ("feature σ (K units)", "feature_std"),
         ("object σ (K units)", "object_std"),
         ("object depth (m)", "object_depth_range"),  # not calibrated: shown for reference
     ):
-        row = f"{label:<22}{show(getattr(noise, key)):>44}"
+        row = f"{label:<22}{format_value(getattr(noise, key)):>44}"
         if old is not None:
-            row += f"  {show(getattr(old, key)):>44}"
+            row += f"  {format_value(getattr(old, key)):>44}"
         lines.append(row)
     start = result.start
     for sensor in ("features", "objects"):

@@ -44,6 +44,7 @@ from teamslam.datasets.model import (
 from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
+from teamslam.textio import read_yaml
 
 __all__ = [
     "RestrictedUnpickler",
@@ -146,15 +147,8 @@ def _frames(messages: Any, path: Path, robots: int) -> list[FrameObservations]:
 def read_reference_params(path: str | Path) -> SensorModel:
     """A publisher's parameter file (``params.yaml``) as a sensor model (see the module
     docstring for the conversion from variances to σ)."""
-    import yaml
-
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise DatasetError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except yaml.YAMLError as exc:
-        raise DatasetError(f"{path}: not valid YAML ({exc})") from None
+    data = read_yaml(path, DatasetError)
     if not isinstance(data, Mapping):
         raise DatasetError(f"{path}: expected 'name: value' lines")
 

@@ -7,6 +7,7 @@ import numpy as np
 
 from teamslam.datasets.model import FrameObservations, TeamDataset
 from teamslam.geometry import se3
+from teamslam.textio import format_value
 
 __all__ = ["dataset_info", "format_info", "ground_truth_noise"]
 
@@ -135,14 +136,6 @@ def format_info(info: dict) -> str:
     )
 
 
-def _vector(values) -> str:
-    if values is None:
-        return "—"
-    if isinstance(values, list):
-        return "[" + ", ".join(f"{v:.3g}" for v in values) + "]"
-    return f"{values:.3g}"
-
-
 def _noise_lines(info: dict) -> list[str]:
     model = info.get("sensor_model")
     truth = info.get("noise_against_ground_truth") or {}
@@ -154,9 +147,9 @@ def _noise_lines(info: dict) -> list[str]:
         lines.append(f"sensor model       {model['origin']}{note}")
         for key in ("odometry_std", "feature_std", "object_std", "object_depth_range"):
             if key in model:
-                lines.append(f"  {key:<17}{_vector(model[key])}")
+                lines.append(f"  {key:<17}{format_value(model[key], 3)}")
     if truth:
         lines.append("noise against ground truth (robust std)")
         for key in ("odometry_std", "feature_std", "object_std"):
-            lines.append(f"  {key:<17}{_vector(truth.get(key))}")
+            lines.append(f"  {key:<17}{format_value(truth.get(key), 3)}")
     return lines

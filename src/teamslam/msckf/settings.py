@@ -28,6 +28,7 @@ import yaml
 from teamslam.datasets.model import TeamDataset
 from teamslam.datasets.sensor_model import SensorNoise
 from teamslam.msckf.config import MsckfConfig
+from teamslam.textio import format_value, read_yaml
 
 __all__ = [
     "NOISE_KEYS",
@@ -96,13 +97,7 @@ def coerce_settings(values: dict[str, Any], where: str) -> dict[str, Any]:
 
 def load_config_file(path: str | Path) -> dict[str, Any]:
     """Read a YAML config file of ``setting: value`` lines, checked."""
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+    data = read_yaml(path, ConfigError)
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -229,12 +224,7 @@ class EffectiveConfig:
         width = max(len(k) for k in data)
         lines = []
         for key, value in data.items():
-            if isinstance(value, list):
-                shown = "[" + ", ".join(f"{v:.6g}" for v in value) + "]"
-            elif isinstance(value, float):
-                shown = f"{value:.6g}"
-            else:
-                shown = str(value)
+            shown = format_value(value, 6)
             lines.append(f"{key:<{width}}  {shown:<48} {self.sources[key]}")
         for i, c in enumerate(self.robots):
             if c != self.config:

@@ -38,6 +38,7 @@ import numpy as np
 import yaml
 
 from teamslam.msckf.settings import ConfigError, coerce_settings
+from teamslam.textio import read_yaml
 
 __all__ = ["RobotEntry", "TeamFile", "TeamFileError", "load_team_file", "write_team_file"]
 
@@ -110,12 +111,7 @@ def _number(data: dict, key: str, default, kind, low=None, high=None):
 def load_team_file(path: str | Path) -> TeamFile:
     """Read and validate a team file; relative paths are relative to the file."""
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise TeamFileError(f"{path}: cannot read ({exc})") from None
-    except yaml.YAMLError as exc:
-        raise TeamFileError(f"{path}: not valid YAML ({exc})") from None
+    data = read_yaml(path, TeamFileError)
     try:
         return _parse(data, path)
     except TeamFileError as exc:

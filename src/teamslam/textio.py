@@ -1,0 +1,33 @@
+"""Small readers and formatters shared by the file formats and the command line."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = ["format_value", "read_yaml"]
+
+
+def read_yaml(path: str | Path, error: type[Exception]) -> Any:
+    """Parse a YAML file; an unreadable file or bad YAML raises ``error`` naming the file."""
+    path = Path(path)
+    try:
+        return yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        raise error(f"{path}: not valid YAML ({exc})") from None
+
+
+def format_value(value: Any, digits: int = 4) -> str:
+    """A number or a sequence of numbers with ``digits`` significant digits; ``—`` for None."""
+    if value is None:
+        return "—"
+    if isinstance(value, Sequence) and not isinstance(value, str):
+        return "[" + ", ".join(f"{v:.{digits}g}" for v in value) + "]"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return str(value)
