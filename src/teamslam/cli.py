@@ -506,16 +506,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from teamslam.datasets import load_dataset, save_dataset
     from teamslam.msckf.calibration import calibrate
-    from teamslam.msckf.config import MsckfConfig
 
     dataset = load_dataset(args.dataset)
-    # every setting but the noise levels from the usual layers; noise starts from the defaults
-    effective = _settings(args, dataset, calibrate="never")
-    start = effective.config
+    # every setting from the usual layers, but the estimated noise levels start from the
+    # camera-scaled defaults, not from what the dataset already says
+    start = _settings(args, dataset, calibrate="never").config
     if dataset.sensor_model is not None:
-        from teamslam.msckf.settings import camera_defaults
+        from teamslam.msckf.settings import CALIBRATED_KEYS, camera_defaults
 
-        start = MsckfConfig(**{**start.to_json(), **camera_defaults(dataset)})
+        defaults = camera_defaults(dataset)
+        start = start.with_(**{k: defaults[k] for k in CALIBRATED_KEYS})
     result = calibrate(dataset, start, frames=args.frames, odometry_per_axis=args.odometry_per_axis)
     payload = result.to_json()
     if dataset.sensor_model is not None:
@@ -527,7 +527,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     if args.write:
         from dataclasses import replace
 
-        save_dataset(replace(dataset, sensor_model=result.sensor_model), args.dataset)
+        model = result.sensor_model
+        if dataset.sensor_model is not None:  # keep what calibration does not estimate
+            model = replace(model, team=dataset.sensor_model.team.merged(model.team))
+        save_dataset(replace(dataset, sensor_model=model), args.dataset)
         if not args.json:
             print(f"\nwrote the calibrated sensor model into {args.dataset}")
     return 0

@@ -296,13 +296,13 @@ def calibrate(
     # start the odometry from above: a filter that trusts its odometry too much explains the
     # data by odometry and EM then crawls; one that trusts it too little lets the data speak
     log_odometry = np.log(3.0 * np.asarray(config.odometry_std))
-    searches = {sensor: _Secant(std[sensor]) for sensor in SENSORS}
+    searches = {sensor: _Secant(value) for sensor, value in std.items()}
     iterations: list[dict] = []
     converged = False
     for _ in range(max_iterations):
         current = config.with_(
-            feature_std=std["features"],
-            object_std=std["objects"],
+            feature_std=searches["features"].value,
+            object_std=searches["objects"].value,
             odometry_std=tuple(np.exp(log_odometry)),
         )
         health = _pass(dataset, current, frames)
@@ -319,11 +319,10 @@ def calibrate(
         for sensor in SENSORS:
             if not use[sensor]:
                 continue
-            ratio = nis_ratio(health.records[sensor], std[sensor])
+            ratio = nis_ratio(health.records[sensor], searches[sensor].value)
             entry[f"{sensor}_nis_ratio"] = ratio
             if ratio is not None:
                 change = max(change, searches[sensor].step(ratio))
-                std[sensor] = searches[sensor].value
         if health.lag_rows >= _MIN_INNOVATIONS:
             variances = _odometry_variances(health, np.exp(2 * log_odometry), odometry_per_axis)
             target = 0.5 * np.log(variances)
@@ -336,8 +335,8 @@ def calibrate(
             break
     noise = SensorNoise(
         odometry_std=tuple(float(v) for v in np.exp(log_odometry)),
-        feature_std=std["features"] if use["features"] else None,
-        object_std=std["objects"] if use["objects"] else None,
+        feature_std=searches["features"].value if use["features"] else None,
+        object_std=searches["objects"].value if use["objects"] else None,
     )
     seconds = time.perf_counter() - begin
     note = (

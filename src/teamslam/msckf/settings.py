@@ -31,7 +31,7 @@ from teamslam.msckf.config import MsckfConfig
 from teamslam.textio import format_value, read_yaml
 
 __all__ = [
-    "NOISE_KEYS",
+    "CALIBRATED_KEYS",
     "SOURCES",
     "ConfigError",
     "EffectiveConfig",
@@ -46,7 +46,8 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 SOURCES = ("default", "dataset", "calibration", "file", "flag")
-NOISE_KEYS = ("odometry_std", "feature_std", "object_std", "object_min_depth", "object_max_depth")
+#: The noise levels a calibration estimates.
+CALIBRATED_KEYS = ("odometry_std", "feature_std", "object_std")
 #: Default measurement noise as an angle (rad): σ = angle · focal length, in the camera's units.
 DEFAULT_FEATURE_ANGLE = 1.5e-3
 DEFAULT_OBJECT_ANGLE = 5e-3
@@ -169,14 +170,14 @@ def _calibratable(dataset: TeamDataset, values: dict[str, Any]) -> tuple[str, ..
     """Noise levels the run will use on this data that a calibration estimates (the object
     depth range is not one of them: it comes from the dataset, a file, a flag or the
     camera-scaled default)."""
-    keys = ["odometry_std"]
-    if values.get("use_geometric_features", True) and any(
-        r.features.ids.size for r in dataset.robots
-    ):
-        keys.append("feature_std")
-    if values.get("use_objects", True) and any(r.objects.ids.size for r in dataset.robots):
-        keys.append("object_std")
-    return tuple(keys)
+    used = {
+        "odometry_std": True,
+        "feature_std": values.get("use_geometric_features", True)
+        and any(r.features.ids.size for r in dataset.robots),
+        "object_std": values.get("use_objects", True)
+        and any(r.objects.ids.size for r in dataset.robots),
+    }
+    return tuple(k for k in CALIBRATED_KEYS if used[k])
 
 
 @dataclass
@@ -276,24 +277,19 @@ def resolve_config(
         wanted = [k for k in relevant if sources[k] == "default"]
     else:
         wanted = []
-    calibration = None
-    if wanted:
-        from teamslam.msckf.calibration import calibrate as run_calibration
-
-        try:
-            start = MsckfConfig(**values)
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(str(exc)) from None
-        calibration = run_calibration(dataset, start, frames=calibration_frames)
-        estimated = _sensor_values(calibration.sensor_model.team)
-        for key in wanted:
-            if key in estimated:
-                values[key] = estimated[key]
-                sources[key] = "calibration"
     try:
         config = MsckfConfig(**values)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"settings: {exc}") from None
+    calibration = None
+    if wanted:
+        from teamslam.msckf.calibration import calibrate as run_calibration
+
+        calibration = run_calibration(dataset, config, frames=calibration_frames)
+        estimated = _sensor_values(calibration.sensor_model.team)
+        changes = {key: estimated[key] for key in wanted if key in estimated}
+        sources.update(dict.fromkeys(changes, "calibration"))
+        config = config.with_(**changes)
     robots = []
     for i in range(dataset.n_robots):
         own = model.robots.get(i) if model is not None else None
