@@ -154,7 +154,7 @@ def test_params_file_is_imported_but_checked_against_the_data(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert "params.yaml: variances converted to σ" in out
     assert "warning: the params file's object σ (0.5)" in err
-    assert "odometry σ" not in err
+    assert "odometry σ translation" not in err
     from teamslam.datasets import load_dataset
 
     model = load_dataset(tmp_path / "d").sensor_model

@@ -143,32 +143,39 @@ def _cmd_data_import_reference(args: argparse.Namespace) -> int:
 
 def _check_params(dataset, path: Path) -> None:
     """Compare a params file's noise levels with a calibration from the data; warn on a gap."""
-    import numpy as np
-
     from teamslam.msckf.calibration import calibrate
-    from teamslam.msckf.settings import resolve_config
+    from teamslam.msckf.settings import calibration_start, resolve_config
 
     model = dataset.sensor_model.team
-    start = resolve_config(dataset, calibrate="never").config
+    start = calibration_start(dataset, resolve_config(dataset, calibrate="never").config)
     estimate = calibrate(dataset, start).sensor_model.team
+
+    def pick(noise, label):
+        odometry = noise.odometry_std
+        return {
+            "odometry σ translation (m)": None if odometry is None else max(odometry[:3]),
+            "odometry σ rotation (rad)": None if odometry is None else max(odometry[3:]),
+            "feature σ": noise.feature_std,
+            "object σ": noise.object_std,
+        }[label]
+
     print(f"\nsensor model from {dataset.sensor_model.note}")
-    print(f"{'':<16}{'params file':>14}{'the data say':>14}")
-    for label, key in (
-        ("odometry σ", "odometry_std"),
-        ("feature σ", "feature_std"),
-        ("object σ", "object_std"),
+    print(f"{'':<28}{'params file':>14}{'the data say':>14}")
+    for label in (
+        "odometry σ translation (m)",
+        "odometry σ rotation (rad)",
+        "feature σ",
+        "object σ",
     ):
-        given, found = getattr(model, key), getattr(estimate, key)
+        given, found = pick(model, label), pick(estimate, label)
         if given is None or found is None:
             continue
-        given_v = float(np.max(given)) if key == "odometry_std" else given
-        found_v = float(np.max(found)) if key == "odometry_std" else found
-        print(f"{label:<16}{given_v:>14.4g}{found_v:>14.4g}")
-        if not 1 / 3 <= given_v / found_v <= 3:
+        print(f"{label:<28}{given:>14.4g}{found:>14.4g}")
+        if not 1 / 3 <= given / found <= 3:
             print(
-                f"warning: the params file's {label} ({given_v:.4g}) is "
-                f"{given_v / found_v:.2g}× what the data show ({found_v:.4g}); "
-                f"`teamslam calibrate {path} --write` replaces it",
+                f"warning: the params file's {label} ({given:.4g}) is {given / found:.2g}× "
+                f"what the data show ({found:.4g}); `teamslam calibrate {path} --write` "
+                "replaces it",
                 file=sys.stderr,
             )
 
@@ -506,16 +513,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from teamslam.datasets import load_dataset, save_dataset
     from teamslam.msckf.calibration import calibrate
+    from teamslam.msckf.settings import calibration_start
 
     dataset = load_dataset(args.dataset)
     # every setting from the usual layers, but the estimated noise levels start from the
     # camera-scaled defaults, not from what the dataset already says
-    start = _settings(args, dataset, calibrate="never").config
-    if dataset.sensor_model is not None:
-        from teamslam.msckf.settings import CALIBRATED_KEYS, camera_defaults
-
-        defaults = camera_defaults(dataset)
-        start = start.with_(**{k: defaults[k] for k in CALIBRATED_KEYS})
+    start = calibration_start(dataset, _settings(args, dataset, calibrate="never").config)
     result = calibrate(dataset, start, frames=args.frames, odometry_per_axis=args.odometry_per_axis)
     payload = result.to_json()
     if dataset.sensor_model is not None:

@@ -35,6 +35,7 @@ __all__ = [
     "SOURCES",
     "ConfigError",
     "EffectiveConfig",
+    "calibration_start",
     "camera_defaults",
     "coerce_settings",
     "config_for",
@@ -150,6 +151,13 @@ def camera_defaults(dataset: TeamDataset) -> dict[str, Any]:
         "object_min_depth": 2.0 * baseline,
         "object_max_depth": 100.0 * baseline,
     }
+
+
+def calibration_start(dataset: TeamDataset, config: MsckfConfig) -> MsckfConfig:
+    """``config`` with the noise levels a calibration estimates reset to the camera-scaled
+    defaults, so that a calibration starts from the data's scale, not from a guess to check."""
+    defaults = camera_defaults(dataset)
+    return config.with_(**{key: defaults[key] for key in CALIBRATED_KEYS})
 
 
 def _sensor_values(noise: SensorNoise) -> dict[str, Any]:
