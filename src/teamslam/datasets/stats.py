@@ -147,9 +147,9 @@ def _noise_lines(info: dict) -> list[str]:
         lines.append(f"sensor model       {model['origin']}{note}")
         for key in ("odometry_std", "feature_std", "object_std", "object_depth_range"):
             if key in model:
-                lines.append(f"  {key:<17}{format_value(model[key], 3)}")
+                lines.append(f"  {key:<20}{format_value(model[key], 3)}")
     if truth:
         lines.append("noise against ground truth (robust std)")
         for key in ("odometry_std", "feature_std", "object_std"):
-            lines.append(f"  {key:<17}{format_value(truth.get(key), 3)}")
+            lines.append(f"  {key:<20}{format_value(truth.get(key), 3)}")
     return lines
