@@ -589,7 +589,8 @@ def _cmd_config_show(args: argparse.Namespace) -> int:
     return 0
 
 
-def _settings_arguments(parser: argparse.ArgumentParser) -> None:
+def _settings_arguments(parser: argparse.ArgumentParser, calibration_flags: bool = True) -> None:
+    """``--config`` and ``--set`` (and, unless told otherwise, when to calibrate)."""
     parser.add_argument(
         "--config", type=Path, default=None, help="YAML file of filter settings (key: value)"
     )
@@ -599,6 +600,8 @@ def _settings_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="a filter setting, e.g. --set object_std=0.01 (repeatable; wins over --config)",
     )
+    if not calibration_flags:
+        return
     parser.add_argument(
         "--calibrate",
         choices=("auto", "always", "never"),
@@ -716,10 +719,10 @@ def build_parser() -> argparse.ArgumentParser:
     cal = sub.add_parser(
         "calibrate",
         help="estimate a dataset's sensor model (odometry and measurement noise) from its data",
-        description="Estimate the odometry noise (per step), the measurement noise of geometric "
-        "features and objects (in the camera's units) and the object depth range from the data "
-        "alone — no ground truth — by robust covariance matching of the filter's innovations "
-        "and expectation-maximisation of the odometry noise over the smoothed window.",
+        description="Estimate the odometry noise (per step) and the measurement noise of "
+        "geometric features and objects (in the camera's units) from the data alone — no ground "
+        "truth — by covariance matching of the filter's innovations (mean NIS = dof) and "
+        "expectation-maximisation of the odometry noise over the smoothed window.",
     )
     cal.add_argument("dataset", type=Path, help="dataset directory (teamslam format)")
     cal.add_argument(
@@ -737,8 +740,7 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--write", action="store_true", help="store the result as the dataset's sensor model"
     )
-    cal.add_argument("--config", type=Path, default=None, help="YAML file of filter settings")
-    cal.add_argument("--set", action="append", metavar="KEY=VALUE", help="a filter setting")
+    _settings_arguments(cal, calibration_flags=False)
     cal.set_defaults(handler=_cmd_calibrate)
 
     config_cmd = sub.add_parser("config", help="the settings a run would use, and their sources")
