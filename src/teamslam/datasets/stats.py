@@ -9,10 +9,10 @@ from teamslam.datasets.model import FrameObservations, TeamDataset
 from teamslam.geometry import se3
 from teamslam.textio import format_value
 
-__all__ = ["dataset_info", "format_info", "ground_truth_noise"]
+__all__ = ["dataset_info", "format_info", "ground_truth_noise", "robust_std"]
 
 
-def _robust_std(x: np.ndarray, axis: int = 0) -> np.ndarray:
+def robust_std(x: np.ndarray, axis: int = 0) -> np.ndarray:
     """1.4826 × median absolute deviation (the std of a Gaussian), robust to outliers."""
     med = np.median(x, axis=axis, keepdims=True)
     return 1.4826 * np.median(np.abs(x - med), axis=axis)
@@ -62,15 +62,15 @@ def ground_truth_noise(dataset: TeamDataset) -> dict:
             true_steps = se3.inverse(robot.T_world_body[:-1]) @ robot.T_world_body[1:]
             steps.append(se3.log(se3.inverse(true_steps) @ robot.odometry))
     out: dict = {
-        "odometry_std": _robust_std(np.concatenate(steps)).tolist() if steps else None,
+        "odometry_std": robust_std(np.concatenate(steps)).tolist() if steps else None,
     }
     for kind, key in (("features", "feature_std"), ("objects", "object_std")):
         errors = _measurement_errors(dataset, kind)
         if errors.shape[0] < 2:
             out[key] = out[f"{key}_per_coordinate"] = None
             continue
-        out[key] = float(_robust_std(errors.ravel()))
-        out[f"{key}_per_coordinate"] = _robust_std(errors).tolist()
+        out[key] = float(robust_std(errors.ravel()))
+        out[f"{key}_per_coordinate"] = robust_std(errors).tolist()
     return out
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from teamslam.datasets.model import Calibration, RobotSequence
 from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.health import SensorHealth, odometry_lag_residuals, odometry_residual
+from teamslam.msckf.health import SensorHealth, odometry_lag_residuals
 from teamslam.msckf.models import observe_jacobians, points_in_camera
 from teamslam.msckf.state import MsckfState
 from teamslam.msckf.update import (
@@ -152,14 +152,13 @@ class MsckfAgent:
         if state.frames[index + 1] != first + 1 or first in self._odometry_rejected:
             return
         cols = np.concatenate(state.pose_columns(np.array([index, index + 1])))
-        residual, var = odometry_residual(
-            state.poses[index],
-            state.poses[index + 1],
-            self.sequence.odometry[first],
+        moment, _ = odometry_lag_residuals(
+            state.poses[index : index + 2],
+            self.sequence.odometry[first : first + 1],
             state.cov[np.ix_(cols, cols)],
         )
         assumed = np.square(self.config.odometry_std)
-        self.health.odometry(residual, var, assumed)
+        self.health.odometry(moment[0], assumed)
         if self.health.record and index == 0:
             # every lag of the window (consecutive frames, no rejected step) for calibration
             frames = state.frames

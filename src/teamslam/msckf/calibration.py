@@ -57,6 +57,7 @@ from scipy import optimize, stats
 
 from teamslam.datasets.model import TeamDataset
 from teamslam.datasets.sensor_model import SensorModel, SensorNoise
+from teamslam.datasets.stats import robust_std
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.health import SENSORS, InnovationRecord, SensorHealth
@@ -73,12 +74,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 _MIN_INNOVATIONS = 20
-
-
-def _robust_std(x: np.ndarray) -> float:
-    """1.4826 × median absolute deviation (the std of a Gaussian)."""
-    x = np.asarray(x, dtype=float)
-    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if x.size else float("nan")
 
 
 def epipolar_noise(dataset: TeamDataset, kind: str) -> float | None:
@@ -103,7 +98,7 @@ def epipolar_noise(dataset: TeamDataset, kind: str) -> float | None:
     u, _, _ = np.linalg.svd(jac)
     normal = u[:, :, 3]
     residual = np.einsum("mi,mi->m", normal, z - camera.project(p_cam))
-    return _robust_std(residual)
+    return float(robust_std(residual))
 
 
 #: NIS beyond this χ² quantile is winsorised (counted as the quantile) by :func:`nis_ratio`.

@@ -41,7 +41,6 @@ __all__ = [
     "SensorHealth",
     "health_warnings",
     "odometry_lag_residuals",
-    "odometry_residual",
 ]
 
 SENSORS = ("features", "objects")
@@ -63,24 +62,9 @@ class InnovationRecord:
     lam: list[np.ndarray] = field(default_factory=list)
 
 
-def odometry_residual(
-    T_world_first: np.ndarray, T_world_next: np.ndarray, odometry: np.ndarray, pair_cov: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residual ``ê = log((T̂₀⁻¹ T̂₁)⁻¹ u)`` of an odometry step and the diagonal of its covariance.
-
-    With ``T_i = T̂_i exp(ε_i)`` the relative pose is ``δT̂ exp(ε₁ − Ad(δT̂⁻¹) ε₀)`` to first
-    order, so the odometry noise ``n = log(δT⁻¹ u) ≈ ê − (ε₁ − Ad(δT̂⁻¹) ε₀)`` and
-    ``Cov(n | data) = J Σ₀₁ Jᵀ`` with ``J = [Ad(δT̂⁻¹), −I]``.
-    """
-    relative = se3.inverse(T_world_first) @ T_world_next
-    residual = se3.log(se3.inverse(relative) @ odometry)
-    jac = np.hstack([se3.adjoint(se3.inverse(relative)), -np.eye(6)])
-    return residual, np.einsum("ij,jk,ik->i", jac, pair_cov, jac)
-
-
 def odometry_lag_residuals(
     poses: np.ndarray, odometry: np.ndarray, cov: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray]:
     """Residuals of the composed odometry from window pose 0 to every later window pose.
 
     Parameters
@@ -99,6 +83,11 @@ def odometry_lag_residuals(
         and ``(c − 1, 6, 6)`` matrices ``M_L`` with ``diag Cov ν_L = M_L diag W``: the composed
         odometry is ``U_L = Δ_L exp(ν_L)``, ``ν_L ≈ Σ_j Ad(B_j⁻¹) n_j`` where ``B_j`` composes the
         steps after ``j``, so ``M_L = Σ_j Ad(B_j⁻¹) ∘ Ad(B_j⁻¹)`` (element-wise squares).
+
+    With ``T_i = T̂_i exp(ε_i)`` the relative pose is ``Δ̂_L exp(ε_L − Ad(Δ̂_L⁻¹) ε₀)`` to first
+    order, so ``ν_L ≈ ê_L − (ε_L − Ad(Δ̂_L⁻¹) ε₀)`` with ``ê_L = log(Δ̂_L⁻¹ U_L)`` and
+    ``Cov(ν_L | data) = J Σ Jᵀ``, ``J = [Ad(Δ̂_L⁻¹), −I]`` on poses 0 and ``L``. Lag 1 of two
+    poses is the one-step statistic of the odometry's health.
     """
     c = poses.shape[0]
     prefix = np.empty((c, 4, 4))  # P_m = u_0 ⋯ u_{m−1}
@@ -140,7 +129,6 @@ class SensorHealth:
         self.tested = dict.fromkeys(SENSORS, 0)
         self.rejected = dict.fromkeys(SENSORS, 0)
         self.records = {s: InnovationRecord() for s in SENSORS}
-        self.odometry_second_moment = np.zeros(6)  # Σ (ê² + diag Σₑ), absolute
         self.odometry_ratio_sum = np.zeros(6)  # Σ (ê² + diag Σₑ) / diag W
         self.odometry_steps = 0
         self.lag_normal = np.zeros((6, 6))  # Σ w M_rowᵀ M_row over lags (record mode)
@@ -177,11 +165,9 @@ class SensorHealth:
             rec.lam.extend(np.maximum(lam - variance, 0.0))
         return accepted
 
-    def odometry(self, residual: np.ndarray, cov_diagonal: np.ndarray, assumed_var: np.ndarray):
-        """Add one smoothed odometry residual (see :func:`odometry_residual`)."""
-        moment = residual**2 + cov_diagonal
-        self.odometry_second_moment += moment
-        self.odometry_ratio_sum += moment / assumed_var
+    def odometry(self, second_moment: np.ndarray, assumed_var: np.ndarray) -> None:
+        """Add one step's smoothed ``ê² + diag Σₑ`` (lag 1 of :func:`odometry_lag_residuals`)."""
+        self.odometry_ratio_sum += second_moment / assumed_var
         self.odometry_steps += 1
 
     def odometry_lags(self, second_moment: np.ndarray, design: np.ndarray, assumed_var):
@@ -200,7 +186,6 @@ class SensorHealth:
             "dof_sum": self.dof_sum,
             "tested": self.tested,
             "rejected": self.rejected,
-            "odometry_second_moment": self.odometry_second_moment.tolist(),
             "odometry_ratio_sum": self.odometry_ratio_sum.tolist(),
             "odometry_steps": self.odometry_steps,
         }
@@ -211,7 +196,6 @@ class SensorHealth:
         health = cls()
         for name in ("nis_sum", "dof_sum", "tested", "rejected"):
             getattr(health, name).update({s: data[name][s] for s in SENSORS})
-        health.odometry_second_moment = np.asarray(data["odometry_second_moment"], dtype=float)
         health.odometry_ratio_sum = np.asarray(data["odometry_ratio_sum"], dtype=float)
         health.odometry_steps = int(data["odometry_steps"])
         return health
@@ -228,7 +212,6 @@ class SensorHealth:
                 total.rejected[s] += p.rejected[s]
                 total.records[s].c2.extend(p.records[s].c2)
                 total.records[s].lam.extend(p.records[s].lam)
-            total.odometry_second_moment += p.odometry_second_moment
             total.odometry_ratio_sum += p.odometry_ratio_sum
             total.odometry_steps += p.odometry_steps
             total.lag_normal += p.lag_normal
