@@ -8,7 +8,7 @@ from scipy import stats
 
 from teamslam import dvi, graph
 from teamslam.dvi import kalman_predict, kalman_update
-from teamslam.gaussian import Gaussian, nees
+from teamslam.gaussian import Gaussian, average_common_marginal, nees
 
 
 @pytest.fixture(scope="module")
@@ -165,8 +165,8 @@ def test_consensus_between_two_agents_is_equation_19_by_hand():
     rng = np.random.default_rng(4)
     ga, gb = (Gaussian(rng.normal(size=5), np.diag(rng.uniform(1, 3, 5))) for _ in range(2))
     iy = np.array([3, 4])
-    msg = dvi.CommonMarginalMessage(1, gb.mean[iy], gb.cov[np.ix_(iy, iy)])
-    mean, cov = dvi.consensus_average(ga.mean, ga.cov, iy, 0.5, [(0.5, msg)])
+    msg = dvi.NeighbourMarginal(1, gb.mean[iy], gb.cov[np.ix_(iy, iy)])
+    mean, cov = average_common_marginal(ga.mean, ga.cov, iy, 0.5, [(0.5, msg.mean, msg.cov)])
     ia, ib = np.linalg.inv(ga.cov[3:, 3:]), np.linalg.inv(gb.cov[3:, 3:])
     cov_y = np.linalg.inv(0.5 * ia + 0.5 * ib)
     mean_y = cov_y @ (0.5 * ia @ ga.mean[3:] + 0.5 * ib @ gb.mean[3:])

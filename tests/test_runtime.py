@@ -18,10 +18,11 @@ from hypothesis import strategies as st
 from teamslam.datasets import save_dataset
 from teamslam.graph import complete, path
 from teamslam.msckf import config_for, run_team
+from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.transport import MemoryNetwork
 from teamslam.runtime.agent_process import load_robot_result, run_agent
 from teamslam.runtime.launch import agent_command
 from teamslam.runtime.team_file import TeamFileError, load_team_file, write_team_file
-from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage
 from teamslam.runtime.wire import WireError, decode, encode, team_id
 from teamslam.sim import lissajous_team
 
@@ -228,11 +229,10 @@ def test_resume_from_checkpoint_reproduces_the_run(small_team, tmp_path, monkeyp
     )
     team = load_team_file(team_path)
 
-    class Quiet:
-        def close(self):
-            pass
+    def quiet():
+        return MemoryNetwork(1).endpoint(0)
 
-    whole = run_agent(team, 0, tmp_path / "whole", transport=Quiet())
+    whole = run_agent(team, 0, tmp_path / "whole", transport=quiet())
     original_step = MsckfAgent.step
 
     def crashing(self, t):
@@ -242,10 +242,10 @@ def test_resume_from_checkpoint_reproduces_the_run(small_team, tmp_path, monkeyp
 
     monkeypatch.setattr(MsckfAgent, "step", crashing)
     with pytest.raises(RuntimeError, match="simulated crash"):
-        run_agent(team, 0, tmp_path / "crash", transport=Quiet())
+        run_agent(team, 0, tmp_path / "crash", transport=quiet())
     monkeypatch.setattr(MsckfAgent, "step", original_step)
     assert (tmp_path / "crash" / "robot_0" / "checkpoint.npz").exists()
-    run_agent(team, 0, tmp_path / "crash", resume=True, transport=Quiet())
+    run_agent(team, 0, tmp_path / "crash", resume=True, transport=quiet())
     a, _ = load_robot_result(tmp_path / "whole", 0)
     b, _ = load_robot_result(tmp_path / "crash", 0)
     np.testing.assert_array_equal(a["poses"], b["poses"])

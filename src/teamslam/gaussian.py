@@ -30,8 +30,11 @@ __all__ = [
     "Gaussian",
     "InformationGaussian",
     "NotPositiveDefiniteError",
+    "average_common_marginal",
+    "completed_geometric_average",
     "geometric_average",
     "geometric_average_arrays",
+    "marginal_information",
     "nees",
     "replace_marginal",
     "replace_marginal_arrays",
@@ -164,10 +167,76 @@ def _spd(matrix: np.ndarray, what: str) -> np.ndarray:
     return matrix
 
 
+def marginal_information(
+    info: np.ndarray, cov: np.ndarray | None, index_y: IndexLike
+) -> np.ndarray:
+    """Information matrix of the marginal of ``index_y``, the cheaper way round.
+
+    Either the Schur complement of the rest in the joint information,
+    ``Λʸʸ − Λʸˣ (Λˣˣ)⁻¹ Λˣʸ`` (``|x|³``), or — when ``cov`` is given and ``y`` is the smaller
+    block — the inverse of ``Σʸʸ`` (``|y|³``). Both are the same matrix.
+    """
+    n = info.shape[0]
+    iy = _as_index(index_y, n, "marginal_information index_y")
+    ix = _complement(iy, n)
+    if ix.size == 0:
+        return info[np.ix_(iy, iy)]
+    if cov is not None and ix.size >= iy.size:
+        return spd_inverse(cov[np.ix_(iy, iy)], "marginal covariance Σʸʸ")
+    factor = scipy.linalg.cho_factor(_spd(info[np.ix_(ix, ix)], "information block Λˣˣ"))
+    cross = info[np.ix_(ix, iy)]
+    return info[np.ix_(iy, iy)] - cross.T @ scipy.linalg.cho_solve(factor, cross)
+
+
+def completed_geometric_average(
+    mean: np.ndarray,
+    cov: np.ndarray,
+    terms: Sequence[tuple[float, np.ndarray, np.ndarray, np.ndarray]],
+    info: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 19 in information form, each neighbour's term completed by our own conditional.
+
+    Our marginal of ``y`` is ``N(mean, cov)``. Neighbour ``j`` holds a Gaussian over a subset
+    ``C_j`` of ``y`` (positions ``index_j``) with information ``M_j`` and information vector
+    ``m_j``; completed with our conditional ``q(y∖C_j | C_j)`` (Prop. 2) its information differs
+    from ours only on ``C_j`` (App. B, eq. 42), so with weights summing to one
+    (``w_self + Σ_j w_j = 1``) the average is
+
+        ``Ω̄ = Ω + Σ_j w_j Lⱼᵀ (M_j − Ω_{C_j}) Lⱼ``,  ``η̄ = η + Σ_j w_j Lⱼᵀ (m_j − Ω_{C_j} μ_{C_j})``
+
+    where ``Ω_{C_j}`` is the information of our own marginal of ``C_j``. A neighbour that holds
+    all of ``y`` gives plain eq. 19, ``Ω̄ = w_self Ω + Σ_j w_j M_j``.
+
+    Parameters
+    ----------
+    mean, cov
+        Our marginal of ``y``.
+    terms
+        ``(w_j, index_j, M_j, m_j)`` per neighbour.
+    info
+        ``cov⁻¹`` if already known.
+
+    Returns
+    -------
+    mean, cov
+        The averaged marginal of ``y``.
+    """
+    own_info = spd_inverse(cov, "own marginal covariance") if info is None else info
+    info_bar = own_info.copy()
+    eta_bar = own_info @ mean
+    for weight, index, m_info, m_eta in terms:
+        sub = np.asarray(index, dtype=np.intp)
+        own_sub = marginal_information(own_info, cov, sub)
+        info_bar[np.ix_(sub, sub)] += weight * (m_info - own_sub)
+        eta_bar[sub] += weight * (m_eta - own_sub @ mean[sub])
+    new_cov = spd_inverse(info_bar, "averaged information")
+    return new_cov @ eta_bar, new_cov
+
+
 def geometric_average_arrays(
     means: np.ndarray, covs: np.ndarray, weights: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted geometric average of Gaussians (eq. 15 / 19), batched over the inputs.
+    """Weighted geometric average of Gaussians (eq. 15 / 19) over the same variable.
 
     Parameters
     ----------
@@ -182,7 +251,8 @@ def geometric_average_arrays(
     Returns
     -------
     mean, cov
-        ``Σ̄ = (Σⱼ wⱼ Σⱼ⁻¹)⁻¹`` and ``μ̄ = Σ̄ Σⱼ wⱼ Σⱼ⁻¹ μⱼ``.
+        ``Σ̄ = (Σⱼ wⱼ Σⱼ⁻¹)⁻¹`` and ``μ̄ = Σ̄ Σⱼ wⱼ Σⱼ⁻¹ μⱼ`` — computed by
+        :func:`completed_geometric_average` with every term over the whole variable.
     """
     means = np.asarray(means, dtype=float)
     covs = np.asarray(covs, dtype=float)
@@ -199,10 +269,47 @@ def geometric_average_arrays(
     if not (np.all(np.isfinite(means)) and np.all(np.isfinite(covs))):
         raise ValueError("geometric_average: inputs contain NaN or infinite values")
     infos = spd_inverse(covs, "geometric_average: an input covariance")
-    info = np.einsum("k,kij->ij", weights, infos)
-    info_vector = np.einsum("k,kij,kj->i", weights, infos, means)
-    cov = spd_inverse(info, "geometric_average: averaged information")
-    return cov @ info_vector, cov
+    whole = np.arange(means.shape[1])
+    terms = [(weights[k], whole, infos[k], infos[k] @ means[k]) for k in range(1, len(means))]
+    return completed_geometric_average(means[0], covs[0], terms, info=infos[0])
+
+
+def average_common_marginal(
+    mean: np.ndarray,
+    cov: np.ndarray,
+    common_index: IndexLike,
+    self_weight: float,
+    neighbours: Sequence[tuple[float, np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray]:
+    """One consensus step on a joint: eq. 19 on the common block ``y``, then Prop. 2.
+
+    Parameters
+    ----------
+    mean, cov
+        The joint over ``[x; y]``.
+    common_index
+        Indices of ``y``.
+    self_weight
+        ``A_ii``.
+    neighbours
+        ``(A_ij, mean_j, cov_j)``: each neighbour's marginal of the whole of ``y``.
+
+    Returns
+    -------
+    mean, cov
+        The joint with ``y``'s marginal replaced by the weighted geometric average (the
+        weights normalised to sum to one); without neighbours the input comes back unchanged.
+    """
+    if not neighbours:
+        return mean, cov
+    iy = _as_index(common_index, np.asarray(mean).size, "average_common_marginal index")
+    weights = np.array([self_weight] + [w for w, _, _ in neighbours], dtype=float)
+    avg_mean, avg_cov = geometric_average_arrays(
+        np.stack([mean[iy]] + [m for _, m, _ in neighbours]),
+        np.stack([cov[np.ix_(iy, iy)]] + [c for _, _, c in neighbours]),
+        weights / weights.sum(),
+    )
+    return replace_marginal_arrays(mean, cov, iy, avg_mean, avg_cov)
 
 
 @dataclass(frozen=True)

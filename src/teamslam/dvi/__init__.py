@@ -12,10 +12,9 @@ These are the reference the nonlinear filters are tested against.
 
 from teamslam.dvi.filters import (
     CentralizedKalmanFilter,
-    CommonMarginalMessage,
     DistributedKalmanFilter,
     DistributedRun,
-    consensus_average,
+    NeighbourMarginal,
     run_centralized,
     run_distributed,
 )
@@ -34,14 +33,13 @@ from teamslam.dvi.models import LinearGaussianModel, TeamProblem, tracking_probl
 
 __all__ = [
     "CentralizedKalmanFilter",
-    "CommonMarginalMessage",
     "DistributedKalmanFilter",
     "DistributedRun",
     "LiftedModel",
     "LinearGaussianModel",
+    "NeighbourMarginal",
     "TeamProblem",
     "centralized_lifted_posterior",
-    "consensus_average",
     "kalman_predict",
     "kalman_update",
     "lifted_common_index",

@@ -12,7 +12,7 @@ Each agent ``i`` keeps ``N(μ_i, Σ_i)`` over ``s_i = [x_i; y]`` and at every st
 3. **update** with its own observations (eqs. 65–67; ``S = 0`` unless given).
 
 The agent's view of its neighbours is only the messages it is handed — a
-:class:`CommonMarginalMessage` per neighbour — never the neighbours' filters.
+:class:`NeighbourMarginal` per neighbour — never the neighbours' filters.
 """
 
 from __future__ import annotations
@@ -24,64 +24,26 @@ import numpy as np
 
 from teamslam.dvi.kalman import kalman_predict, kalman_update
 from teamslam.dvi.models import LinearGaussianModel, TeamProblem
-from teamslam.gaussian import geometric_average_arrays, replace_marginal_arrays
+from teamslam.gaussian import average_common_marginal
 from teamslam.graph import EdgeLoss
 
 __all__ = [
     "CentralizedKalmanFilter",
-    "CommonMarginalMessage",
     "DistributedKalmanFilter",
     "DistributedRun",
-    "consensus_average",
+    "NeighbourMarginal",
     "run_centralized",
     "run_distributed",
 ]
 
 
 @dataclass(frozen=True)
-class CommonMarginalMessage:
+class NeighbourMarginal:
     """What one agent tells a neighbour: the marginal ``N(mean, cov)`` of the common block."""
 
     sender: int
     mean: np.ndarray
     cov: np.ndarray
-
-
-def consensus_average(
-    mean: np.ndarray,
-    cov: np.ndarray,
-    common_index: np.ndarray,
-    self_weight: float,
-    messages: Sequence[tuple[float, CommonMarginalMessage]],
-) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. 19 then Prop. 2: average the common marginal with the neighbours', rebuild the joint.
-
-    Parameters
-    ----------
-    mean, cov
-        The agent's joint over ``[x; y]``.
-    common_index
-        Indices of ``y``.
-    self_weight
-        ``A_ii``.
-    messages
-        ``(A_ij, message_j)`` for each neighbour ``j`` heard this step.
-
-    Returns
-    -------
-    mean, cov
-        The joint with ``y``'s marginal replaced by the weighted geometric average.
-        Without messages the input comes back unchanged.
-    """
-    if not messages:
-        return mean, cov
-    own_mean = mean[common_index]
-    own_cov = cov[np.ix_(common_index, common_index)]
-    weights = np.array([self_weight] + [w for w, _ in messages])
-    means = np.stack([own_mean] + [m.mean for _, m in messages])
-    covs = np.stack([own_cov] + [m.cov for _, m in messages])
-    avg_mean, avg_cov = geometric_average_arrays(means, covs, weights / weights.sum())
-    return replace_marginal_arrays(mean, cov, common_index, avg_mean, avg_cov)
 
 
 class CentralizedKalmanFilter:
@@ -116,17 +78,21 @@ class DistributedKalmanFilter:
         self.mean = model.prior_mean.copy()
         self.cov = model.prior_cov.copy()
 
-    def message(self) -> CommonMarginalMessage:
+    def message(self) -> NeighbourMarginal:
         """This agent's common-block marginal, as sent to its neighbours."""
         iy = self.model.common_index
-        return CommonMarginalMessage(self.agent, self.mean[iy].copy(), self.cov[np.ix_(iy, iy)])
+        return NeighbourMarginal(self.agent, self.mean[iy].copy(), self.cov[np.ix_(iy, iy)])
 
     def consensus(
-        self, self_weight: float, messages: Sequence[tuple[float, CommonMarginalMessage]]
+        self, self_weight: float, messages: Sequence[tuple[float, NeighbourMarginal]]
     ) -> None:
         """Average the common marginal with the received ones (eq. 19, Prop. 2)."""
-        self.mean, self.cov = consensus_average(
-            self.mean, self.cov, self.model.common_index, self_weight, messages
+        self.mean, self.cov = average_common_marginal(
+            self.mean,
+            self.cov,
+            self.model.common_index,
+            self_weight,
+            [(w, m.mean, m.cov) for w, m in messages],
         )
 
     def predict(self, control: np.ndarray) -> None:

@@ -1,36 +1,45 @@
-"""Consensus averaging of the common objects (distributed MSCKF paper, §V-B, eqs. 19–21).
+"""Consensus averaging of the common objects on one robot's state (distributed MSCKF, eqs. 19–21).
 
-Two rounds per step, each through the :class:`~teamslam.runtime.transport.Transport`:
+The protocol around it — who sends what, which messages are accepted, the weights — is
+:mod:`teamslam.msckf.protocol`. This module holds what it does to the state:
 
-1. every agent sends each active neighbour the ids of its map objects;
-2. every agent sends each neighbour the marginal (mean and covariance) of just the objects the
-   two share.
-
-Agent ``i`` then forms one weighted geometric average (eq. 19) over ``y``, the objects it shares
-with at least one neighbour it heard: neighbour ``j``'s message covers the objects ``C_ij ⊆ y``;
-for the rest of ``y`` agent ``i`` completes it with its own conditional ``p_i(y∖C_ij | C_ij)``
-(Prop. 2), so every term is a Gaussian over the same ``y`` and the average is one
-information-form sum with the weights ``A_ii, A_ij`` — not a sequence of pairwise averages. The
-joint is rebuilt with Prop. 2 and the window poses corrected with ``exp`` (eq. 21).
+* :func:`common_marginal_message` — our marginal of the objects a neighbour asked about;
+* :func:`receive_marginal` — a neighbour's marginal checked against our map and factorised once
+  (its information matrix is what the average uses);
+* :func:`consensus_average` — agent ``i`` forms one weighted geometric average (eq. 19) over
+  ``y``, the objects it shares with at least one neighbour it heard: neighbour ``j``'s message
+  covers ``C_ij ⊆ y`` and is completed with ``i``'s own conditional ``p_i(y∖C_ij | C_ij)``
+  (Prop. 2) — :func:`teamslam.gaussian.completed_geometric_average` — then the joint is rebuilt
+  with Prop. 2 and the window poses corrected with ``exp`` (eq. 21) by
+  :meth:`~teamslam.msckf.state.MsckfState.replace_marginal`.
 
 A message with unknown ids, wrong sizes, or a covariance that is not symmetric positive definite
-is rejected and counted; the estimate is unaffected.
+is rejected; the estimate is unaffected.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.linalg
 
-from teamslam.gaussian import spd_inverse
+from teamslam.gaussian import completed_geometric_average
+from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
-from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage
 
-__all__ = ["common_marginal_message", "consensus_average", "validate_marginal"]
+__all__ = [
+    "ReceivedMarginal",
+    "common_marginal_message",
+    "consensus_average",
+    "receive_marginal",
+    "validate_marginal",
+]
 
 
 def common_marginal_message(
-    state: MsckfState, sender: int, receiver: int, step: int, ids: np.ndarray
+    state: MsckfState, sender: int, receiver: int, step: int, ids: np.ndarray, degree: int = 0
 ) -> CommonMarginalMessage | None:
     """The marginal of the objects ``ids`` (those the sender holds), or ``None`` if none."""
     ids = np.asarray(ids, dtype=np.int64)
@@ -46,52 +55,69 @@ def common_marginal_message(
         ids[held].copy(),
         state.objects[slots[held]].ravel().copy(),
         state.cov[np.ix_(cols, cols)].copy(),
+        int(degree),
     )
+
+
+@dataclass(frozen=True)
+class ReceivedMarginal:
+    """A neighbour's marginal that passed every check, in information form.
+
+    Attributes
+    ----------
+    sender
+        Who sent it.
+    ids
+        Its objects (all in our map, no repeats).
+    info, info_vector
+        ``Σ⁻¹`` and ``Σ⁻¹ μ`` of the neighbour's marginal.
+    """
+
+    sender: int
+    ids: np.ndarray
+    info: np.ndarray
+    info_vector: np.ndarray
+
+
+def receive_marginal(
+    state: MsckfState, message: CommonMarginalMessage
+) -> tuple[str | None, ReceivedMarginal | None]:
+    """Check a neighbour's marginal against our map and factorise it once.
+
+    Returns ``(None, marginal)`` when it can be used, ``(reason, None)`` when it cannot.
+    """
+    ids = np.asarray(message.ids)
+    k = ids.size
+    if ids.ndim != 1 or k == 0 or np.unique(ids).size != k:
+        return "ids must be a non-empty list without repeats", None
+    if np.shape(message.mean) != (3 * k,) or np.shape(message.cov) != (3 * k, 3 * k):
+        return "mean/covariance sizes do not match the ids", None
+    mean = np.asarray(message.mean, dtype=float)
+    cov = np.asarray(message.cov, dtype=float)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+        return "non-finite mean or covariance", None
+    if np.any(state.object_slots(ids) < 0):
+        return "ids not in this robot's map", None
+    if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
+        return "covariance is not symmetric", None
+    try:
+        factor = scipy.linalg.cho_factor(0.5 * (cov + cov.T), lower=True)
+    except np.linalg.LinAlgError:
+        return "covariance is not positive definite", None
+    info = scipy.linalg.cho_solve(factor, np.eye(3 * k))
+    info = 0.5 * (info + info.T)
+    return None, ReceivedMarginal(int(message.sender), ids.astype(np.int64), info, info @ mean)
 
 
 def validate_marginal(state: MsckfState, message: CommonMarginalMessage) -> str | None:
     """Why a received marginal cannot be used (``None`` when it can)."""
-    ids = np.asarray(message.ids)
-    k = ids.size
-    if ids.ndim != 1 or k == 0 or np.unique(ids).size != k:
-        return "ids must be a non-empty list without repeats"
-    if np.shape(message.mean) != (3 * k,) or np.shape(message.cov) != (3 * k, 3 * k):
-        return "mean/covariance sizes do not match the ids"
-    if not (np.all(np.isfinite(message.mean)) and np.all(np.isfinite(message.cov))):
-        return "non-finite mean or covariance"
-    if np.any(state.object_slots(ids) < 0):
-        return "ids not in this robot's map"
-    cov = message.cov
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
-        return "covariance is not symmetric"
-    try:
-        np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        return "covariance is not positive definite"
-    return None
-
-
-def _marginal_information(info: np.ndarray, cov: np.ndarray, sub: np.ndarray) -> np.ndarray:
-    """Information matrix of the ``sub`` block's marginal, the cheaper way round.
-
-    Either invert ``cov[sub, sub]`` (``|sub|³``) or take the Schur complement of the rest in the
-    joint information, ``Ω_CC − Ω_CR Ω_RR⁻¹ Ω_RC`` (``|rest|³``) — a neighbour usually shares
-    most of the common objects, so the rest is small.
-    """
-    rest = np.setdiff1d(np.arange(info.shape[0]), sub)
-    if rest.size == 0:
-        return info[np.ix_(sub, sub)]
-    if rest.size >= sub.size:
-        return spd_inverse(cov[np.ix_(sub, sub)], "own common-object covariance")
-    factor = scipy.linalg.cho_factor(info[np.ix_(rest, rest)])
-    cross = info[np.ix_(rest, sub)]
-    return info[np.ix_(sub, sub)] - cross.T @ scipy.linalg.cho_solve(factor, cross)
+    return receive_marginal(state, message)[0]
 
 
 def consensus_average(
     state: MsckfState,
     self_weight: float,
-    received: list[tuple[float, CommonMarginalMessage]],
+    received: Sequence[tuple[float, ReceivedMarginal | CommonMarginalMessage]],
 ) -> int:
     """Average the common objects with the neighbours' marginals and rebuild the joint.
 
@@ -100,9 +126,11 @@ def consensus_average(
     state
         The agent's state (edited in place).
     self_weight
-        ``A_ii``.
+        ``A_ii``; with the neighbours' weights (and those of neighbours heard without a usable
+        marginal, whose term is our own marginal) it sums to one.
     received
-        ``(A_ij, message)`` for every valid neighbour marginal.
+        ``(A_ij, marginal)`` for every usable neighbour marginal (a message is checked with
+        :func:`receive_marginal` first and raises ``ValueError`` if it cannot be used).
 
     Returns
     -------
@@ -111,32 +139,29 @@ def consensus_average(
     """
     if not received:
         return 0
-    y_ids = np.unique(np.concatenate([m.ids for _, m in received]))
+    weights = [float(w) for w, _ in received]
+    if self_weight < -1e-12 or min(weights) < 0 or self_weight + sum(weights) > 1 + 1e-9:
+        raise ValueError(
+            f"consensus weights must be non-negative with a sum of at most one "
+            f"(self {self_weight}, neighbours {weights})"
+        )
+    marginals = []
+    for _, m in received:
+        if isinstance(m, CommonMarginalMessage):
+            problem, m = receive_marginal(state, m)
+            if m is None:
+                raise ValueError(f"unusable neighbour marginal: {problem}")
+        marginals.append(m)
+    y_ids = np.unique(np.concatenate([m.ids for m in marginals]))
     slots = state.object_slots(y_ids)
     cols = state.object_columns(slots).ravel()
     own_mean = state.objects[slots].ravel()
     own_cov = state.cov[np.ix_(cols, cols)]
-    position = {int(i): k for k, i in enumerate(y_ids)}
-    # In information form the completed neighbour term q_i(y∖C | C) q_j(C) differs from our
-    # own marginal only on C: Ω̃_j = Ω_i + Lᵀ(M_j − M_i,C)L, η̃_j = η_i + Lᵀ(M_j μ_j − M_i,C μ_i,C)
-    # (App. B, eq. 42). With Σ w = 1 the average is Ω_i + Σ_j w_j Lᵀ(M_j − M_i,C)L.
-    total = self_weight + sum(w for w, _ in received)
-    own_info = spd_inverse(own_cov, "own common-object covariance")
-    info = own_info.copy()
-    info_vector = own_info @ own_mean
-    for weight, msg in received:
-        w = weight / total
-        sub = (3 * np.array([position[int(i)] for i in msg.ids])[:, None] + np.arange(3)).ravel()
-        own_sub_info = _marginal_information(own_info, own_cov, sub)
-        msg_info = spd_inverse(msg.cov, "received covariance")
-        info[np.ix_(sub, sub)] += w * (msg_info - own_sub_info)
-        info_vector[sub] += w * (msg_info @ msg.mean - own_sub_info @ own_mean[sub])
-    cov = spd_inverse(info, "averaged common-object information")
-    mean = cov @ info_vector
+    terms = []
+    for w, m in zip(weights, marginals, strict=True):
+        position = np.searchsorted(y_ids, m.ids)
+        sub = (3 * position[:, None] + np.arange(3)).ravel()
+        terms.append((w, sub, m.info, m.info_vector))
+    mean, cov = completed_geometric_average(own_mean, own_cov, terms)
     state.replace_marginal(cols, mean, cov)
     return int(y_ids.size)
-
-
-def map_ids_message(state: MsckfState, sender: int, receiver: int, step: int) -> MapIdsMessage:
-    """Round 1: the ids of every object in the map."""
-    return MapIdsMessage(sender, receiver, step, state.object_ids.copy())

@@ -1,10 +1,13 @@
 """The team runner: N distributed-MSCKF agents over a team dataset, in lock-step.
 
 At each frame, every robot still running first takes part in consensus over the links that
-survive this frame's loss (two rounds of messages through the transport), then processes the
-frame (:meth:`~teamslam.msckf.agent.MsckfAgent.step`). Consensus weights are the
-Metropolis–Hastings weights of the surviving links among the robots still running, so they stay
-doubly stochastic. The filtered estimate of frame ``k`` (after its update) is what is recorded.
+survive this frame's loss, then processes the frame
+(:meth:`~teamslam.msckf.agent.MsckfAgent.step`). The consensus protocol — messages, checks,
+weights, the average — is :class:`~teamslam.msckf.protocol.ConsensusProtocol`, the same object
+the robot processes run; this runner only schedules its two rounds over an in-memory
+:class:`~teamslam.msckf.transport.MemoryNetwork` whose links follow the loss draws. The weights
+are therefore the Metropolis–Hastings weights of the surviving links among the robots still
+running. The filtered estimate of frame ``k`` (after its update) is what is recorded.
 """
 
 from __future__ import annotations
@@ -18,22 +21,13 @@ import numpy as np
 from tqdm import tqdm
 
 from teamslam.datasets.model import TeamDataset
-from teamslam.graph import CommunicationGraph, EdgeLoss, complete, metropolis_weights
+from teamslam.graph import CommunicationGraph, EdgeLoss, complete
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.consensus import (
-    common_marginal_message,
-    consensus_average,
-    map_ids_message,
-    validate_marginal,
-)
 from teamslam.msckf.health import SensorHealth
-from teamslam.runtime.transport import (
-    CommonMarginalMessage,
-    InProcessTransport,
-    MapIdsMessage,
-    Transport,
-)
+from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.protocol import ConsensusProtocol
+from teamslam.msckf.transport import MemoryNetwork
 
 __all__ = ["TeamResult", "run_team"]
 
@@ -78,51 +72,6 @@ class TeamResult:
     wall_seconds: float = 0.0
     extra: dict = field(default_factory=dict)
     health: dict = field(default_factory=dict)
-
-
-def _consensus_round(
-    agents: list[MsckfAgent],
-    running: list[int],
-    transport: Transport,
-    weights: np.ndarray,
-    active: np.ndarray,
-    t: int,
-    consensus_times: list[np.ndarray],
-) -> None:
-    for i in running:
-        for j in np.flatnonzero(active[i]):
-            transport.send(map_ids_message(agents[i].state, i, int(j), t))
-    # every inbox is drained before anyone replies, so round-1 and round-2 messages never mix
-    requests = {i: transport.receive(i) for i in running}
-    for i in running:
-        for msg in requests[i]:
-            if not isinstance(msg, MapIdsMessage) or msg.step != t:
-                agents[i].reject("messages", reason="unexpected message kind or step")
-                continue
-            reply = common_marginal_message(agents[i].state, i, msg.sender, t, msg.ids)
-            if reply is not None:
-                transport.send(reply)
-    for i in running:
-        begin = time.perf_counter()
-        agent = agents[i]
-        heard = []
-        for msg in transport.receive(i):
-            if not isinstance(msg, CommonMarginalMessage) or msg.step != t:
-                agent.reject("messages", reason="unexpected message kind or step")
-                continue
-            if not 0 <= msg.sender < len(agents) or weights[i, msg.sender] <= 0:
-                agent.reject("messages", reason=f"message from unknown robot {msg.sender}")
-                continue
-            problem = validate_marginal(agent.state, msg)
-            if problem:
-                agent.reject("messages", reason=problem)
-                continue
-            heard.append((float(weights[i, msg.sender]), msg))
-        averaged = consensus_average(agent.state, float(weights[i, i]), heard)
-        agent.counters["objects_averaged"] += averaged
-        spent = time.perf_counter() - begin
-        agent.timings["consensus"] += spent
-        consensus_times[i][t] = spent
 
 
 def run_team(
@@ -173,8 +122,12 @@ def run_team(
         MsckfAgent(i, dataset.calibration, r, c)
         for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))
     ]
-    transport = InProcessTransport(n)
     edge_loss = EdgeLoss(graph, loss, seed)
+    links: dict[int, np.ndarray] = {}
+    network = MemoryNetwork(n, links=links.__getitem__)
+    endpoints = [network.endpoint(i) for i in range(n)]
+    neighbours = [np.flatnonzero(graph.adjacency[i]) for i in range(n)]
+    protocols = [ConsensusProtocol(agents[i], neighbours[i]) for i in range(n)]
     frames = [r.frames for r in dataset.robots]
     poses = [np.zeros((f, 4, 4)) for f in frames]
     covs = [np.zeros((f, 6, 6)) for f in frames]
@@ -187,11 +140,20 @@ def run_team(
         if consensus and t > 0:
             mask = np.zeros(n, dtype=bool)
             mask[running] = True
-            active = active & mask[:, None] & mask[None, :]
-            transport.set_active(active)
-            _consensus_round(
-                agents, running, transport, metropolis_weights(active), active, t, consensus_times
-            )
+            links.clear()
+            links[t] = active & mask[:, None] & mask[None, :]
+            for i in running:
+                for message in protocols[i].requests(t, np.flatnonzero(links[t][i])):
+                    endpoints[i].send(message)
+            # every robot answers only once all requests are out, so the rounds never mix
+            for i in running:
+                heard = endpoints[i].collect(t, MapIdsMessage, set(neighbours[i]), 0.0)
+                for reply in protocols[i].answer(heard):
+                    endpoints[i].send(reply)
+            for i in running:
+                heard = endpoints[i].collect(t, CommonMarginalMessage, set(neighbours[i]), 0.0)
+                protocols[i].average(heard)
+                consensus_times[i][t] = protocols[i].spent
         for i in running:
             agents[i].step(t)
             poses[i][t] = agents[i].state.current_pose
@@ -202,8 +164,8 @@ def run_team(
     counters = []
     for i, a in enumerate(agents):
         c = dict(a.counters)
-        c["messages"] = int(transport.messages_sent[i])
-        c["bytes"] = int(transport.bytes_sent[i])
+        c["messages"] = int(endpoints[i].messages_sent)
+        c["bytes"] = int(endpoints[i].bytes_sent)
         counters.append(c)
     return TeamResult(
         poses=poses,

@@ -12,8 +12,10 @@ through a :class:`~teamslam.runtime.zenoh_transport.ZenohTransport`:
 * **async** — it never waits: it answers any ids request it has, and averages with each
   neighbour's newest marginal no older than ``max_age_steps``.
 
-Weights are the Metropolis–Hastings weights of the neighbour graph for the neighbours heard,
-the rest of the row on the robot itself; with every link up they equal the in-process runner's.
+What is sent, what is accepted, the weights and the average are
+:class:`~teamslam.msckf.protocol.ConsensusProtocol`, the object the in-process runner schedules
+too; this driver adds only the waiting (lock-step or asynchronous), lost-neighbour bookkeeping,
+checkpoints and result files.
 Results (trajectory, covariances, map, counters, timings, transport figures) are written
 atomically at the end; a checkpoint every ``checkpoint_every`` frames lets ``--resume`` continue.
 """
@@ -31,15 +33,11 @@ import numpy as np
 
 from teamslam.datasets import SensorModel, TeamDataset, load_dataset
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.consensus import (
-    common_marginal_message,
-    consensus_average,
-    map_ids_message,
-    validate_marginal,
-)
+from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.protocol import ConsensusProtocol
 from teamslam.msckf.settings import resolve_config
+from teamslam.msckf.transport import Transport
 from teamslam.runtime.team_file import TeamFile
-from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage
 
 __all__ = ["load_robot_result", "run_agent"]
 
@@ -137,15 +135,31 @@ def _own_sensor_model(dataset: TeamDataset, index: int) -> SensorModel | None:
     return SensorModel(model.for_robot(index), origin=model.origin, note=model.note)
 
 
-def _weights(team: TeamFile, robot: int) -> dict[int, float]:
-    degree = team.adjacency().sum(axis=1)
-    return {j: 1.0 / (1.0 + max(degree[robot], degree[j])) for j in team.robots[robot].neighbours}
-
-
 def run_agent(
-    team: TeamFile, robot: int, out: Path, resume: bool = False, lost_after: int = 3, transport=None
+    team: TeamFile,
+    robot: int,
+    out: Path,
+    resume: bool = False,
+    lost_after: int = 3,
+    transport: Transport | None = None,
 ) -> dict:
-    """Run robot ``robot`` of ``team`` to the end of its sequence; returns its summary."""
+    """Run robot ``robot`` of ``team`` to the end of its sequence; returns its summary.
+
+    Parameters
+    ----------
+    team
+        The team file.
+    robot
+        This robot's id.
+    out
+        Output directory (``robot_<id>/`` is written inside it).
+    resume
+        Continue from the last checkpoint if there is one.
+    lost_after
+        Silent frames in a row after which a neighbour is reported lost and no longer awaited.
+    transport
+        The endpoint to talk through (default: a Zenoh session from the team file).
+    """
     from teamslam.runtime.zenoh_transport import ZenohTransport
 
     out = Path(out) / f"robot_{robot}"
@@ -167,8 +181,9 @@ def run_agent(
     if resume and (out / "checkpoint.npz").exists():
         start = _load_checkpoint(out, agent, poses, covs) + 1
     transport = transport or ZenohTransport(team, robot)
-    weights = _weights(team, robot)
     neighbours = set(team.robots[robot].neighbours)
+    lockstep = team.sync == "lockstep"
+    protocol = ConsensusProtocol(agent, neighbours, max_age=0 if lockstep else team.max_age_steps)
     silent = dict.fromkeys(neighbours, 0)
     lost_reported: set[int] = set()
     consensus_times = np.zeros(frames)
@@ -176,55 +191,38 @@ def run_agent(
     lost_steps: list[int] = []
     _atomic_json(out / "progress.json", {"frame": start - 1, "frames": frames, "pid": os.getpid()})
     try:
-        if hasattr(transport, "wait_for_peers"):
-            # a first run waits for every neighbour; a resumed robot only for its links to form
-            transport.wait_for_peers(len(neighbours), team.timeout_s if start == 0 else 1.0)
+        # a first run waits for every neighbour; a resumed robot only for its links to form
+        transport.wait_for_peers(len(neighbours), team.timeout_s if start == 0 else 1.0)
         for t in range(start, frames):
             step_begin = time.perf_counter()
             if t > 0 and neighbours:
-                began = time.perf_counter()
                 waiting = {j for j in neighbours if silent[j] < lost_after}
-                for j in sorted(neighbours):
-                    transport.send(map_ids_message(agent.state, robot, j, t))
-                if team.sync == "lockstep":
+                for message in protocol.requests(t):
+                    transport.send(message)
+                if lockstep:
                     requests = transport.collect(t, MapIdsMessage, waiting, team.timeout_s)
                 else:
                     requests = transport.newest(MapIdsMessage, neighbours, team.max_age_steps, t)
-                heard_from = {m.sender for m in requests}
+                for reply in protocol.answer(requests):
+                    transport.send(reply)
                 for j in neighbours:
-                    silent[j] = 0 if j in heard_from else silent[j] + 1
+                    silent[j] = 0 if j in protocol.heard else silent[j] + 1
                     if silent[j] >= lost_after and j not in lost_reported:
                         lost_reported.add(j)
                         agent.counters["neighbours_lost"] += 1
-                expected = set()
-                for m in requests:
-                    reply = common_marginal_message(agent.state, robot, m.sender, t, m.ids)
-                    if reply is not None:
-                        transport.send(reply)
-                    if np.intersect1d(m.ids, agent.state.object_ids).size:
-                        expected.add(m.sender)
-                if team.sync == "lockstep":
-                    replies = transport.collect(t, CommonMarginalMessage, expected, team.timeout_s)
+                if lockstep:
+                    replies = transport.collect(
+                        t, CommonMarginalMessage, protocol.expected, team.timeout_s
+                    )
                 else:
                     replies = transport.newest(
                         CommonMarginalMessage, neighbours, team.max_age_steps, t
                     )
-                if neighbours - heard_from:
-                    agent.counters["links_lost"] += len(neighbours - heard_from)
+                if neighbours - protocol.heard:
+                    agent.counters["links_lost"] += len(neighbours - protocol.heard)
                     lost_steps.append(t)
-                self_weight = 1.0 - sum(weights[j] for j in heard_from)
-                heard = []
-                for m in replies:
-                    problem = validate_marginal(agent.state, m)
-                    if problem:
-                        agent.reject("messages", reason=problem)
-                        continue
-                    heard.append((weights[m.sender], m))
-                agent.counters["objects_averaged"] += consensus_average(
-                    agent.state, self_weight, heard
-                )
-                consensus_times[t] = time.perf_counter() - began
-                agent.timings["consensus"] += consensus_times[t]
+                protocol.average(replies)
+                consensus_times[t] = protocol.spent
             agent.step(t)
             poses[t] = agent.state.current_pose
             covs[t] = agent.state.current_pose_cov()
@@ -236,8 +234,7 @@ def run_agent(
                     out / "progress.json", {"frame": t, "frames": frames, "pid": os.getpid()}
                 )
     finally:
-        if hasattr(transport, "close"):
-            transport.close()
+        transport.close()
     agent.flush_odometry_health()
     frame_times = np.column_stack([consensus_times, np.array(agent.frame_times).reshape(-1, 3)])
     _atomic_savez(
@@ -249,11 +246,12 @@ def run_agent(
         frame_times=frame_times,
     )
     counters = dict(agent.counters)
-    counters["messages"] = int(getattr(transport, "messages_sent", 0))
-    counters["bytes"] = int(getattr(transport, "bytes_sent", 0))
-    counters["injected_drops"] = int(getattr(transport, "injected_drops", 0))
-    counters["rejected_wire"] = int(sum(getattr(transport, "rejected", {}).values()))
-    latencies = np.asarray(getattr(transport, "latencies", []), dtype=float)
+    network = transport.statistics()
+    counters["messages"] = int(transport.messages_sent)
+    counters["bytes"] = int(transport.bytes_sent)
+    counters["injected_drops"] = int(network.get("injected_drops", 0))
+    counters["rejected_wire"] = int(network.get("rejected_wire", 0))
+    latencies = np.asarray(network.get("latencies", []), dtype=float)
     summary = {
         "robot": robot,
         "frames": frames,

@@ -29,7 +29,7 @@ import struct
 
 import numpy as np
 
-from teamslam.runtime.transport import CommonMarginalMessage, MapIdsMessage, Message
+from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
 
 __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
 

@@ -22,8 +22,9 @@ from collections import defaultdict
 
 import numpy as np
 
+from teamslam.msckf.messages import MapIdsMessage, Message
+from teamslam.msckf.transport import Mailbox
 from teamslam.runtime.team_file import TeamFile
-from teamslam.runtime.transport import MapIdsMessage, Message
 from teamslam.runtime.wire import WireError, decode, encode, team_id
 
 __all__ = ["ZenohTransport"]
@@ -36,7 +37,7 @@ def _kind(message: Message) -> str:
 
 
 class ZenohTransport:
-    """A :class:`~teamslam.runtime.transport.Transport` over a Zenoh peer session.
+    """A :class:`~teamslam.msckf.transport.Transport` over a Zenoh peer session.
 
     Parameters
     ----------
@@ -60,7 +61,7 @@ class ZenohTransport:
         self.injected_drops = 0
         self.rejected: dict[str, int] = defaultdict(int)
         self.latencies: list[float] = []
-        self._buffer: list[tuple[Message, float]] = []
+        self._mailbox = Mailbox()
         self._cond = threading.Condition()
         me = team.robots[robot]
         config = zenoh.Config()
@@ -101,8 +102,7 @@ class ZenohTransport:
         with self._cond:
             if sent is not None:
                 self.latencies.append(time.time() - sent)
-            self._buffer.append((message, time.monotonic()))
-            self._cond.notify_all()
+        self._mailbox.put(message)
 
     def alive_neighbours(self) -> set[int]:
         """Neighbours whose liveliness token is visible now."""
@@ -141,61 +141,23 @@ class ZenohTransport:
         )
         self.session.put(key, payload, attachment=repr(time.time()))
 
-    def receive(self, robot: int) -> list[Message]:
-        """Every buffered message (in arrival order), removing them from the buffer."""
-        with self._cond:
-            out = [m for m, _ in self._buffer]
-            self._buffer.clear()
-        return out
-
     def collect(self, step: int, kind: type, senders: set[int], timeout: float) -> list[Message]:
-        """Wait until a ``kind`` message of ``step`` arrived from every sender, or ``timeout``.
-
-        Returns those messages (one per sender, the first to arrive), sorted by sender; older
-        steps' leftovers are discarded, newer ones stay buffered.
-        """
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while True:
-                self._buffer = [(m, t) for m, t in self._buffer if m.step >= step]
-                have = {
-                    m.sender
-                    for m, _ in self._buffer
-                    if m.step == step and isinstance(m, kind) and m.sender in senders
-                }
-                remaining = deadline - time.monotonic()
-                if have >= senders or remaining <= 0:
-                    break
-                self._cond.wait(remaining)
-            picked: dict[int, Message] = {}
-            keep = []
-            for m, t in self._buffer:
-                if (
-                    m.step == step
-                    and isinstance(m, kind)
-                    and m.sender in senders
-                    and m.sender not in picked
-                ):
-                    picked[m.sender] = m
-                else:
-                    keep.append((m, t))
-            self._buffer = keep
-        return [picked[s] for s in sorted(picked)]
+        """See :meth:`teamslam.msckf.transport.Transport.collect`."""
+        return self._mailbox.collect(step, kind, senders, timeout, None)
 
     def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
-        """Asynchronous mode: each sender's newest ``kind`` message no older than ``max_age``."""
+        """See :meth:`teamslam.msckf.transport.Transport.newest`."""
+        return self._mailbox.newest(kind, senders, max_age, step)
+
+    def statistics(self) -> dict:
+        """Injected drops, messages rejected before decoding, and per-message latencies."""
         with self._cond:
-            best: dict[int, Message] = {}
-            for m, _ in self._buffer:
-                if (
-                    isinstance(m, kind)
-                    and m.sender in senders
-                    and step - m.step <= max_age
-                    and (m.sender not in best or m.step > best[m.sender].step)
-                ):
-                    best[m.sender] = m
-            self._buffer = [(m, t) for m, t in self._buffer if step - m.step <= max_age]
-        return [best[s] for s in sorted(best)]
+            return {
+                "injected_drops": self.injected_drops,
+                "rejected_wire": int(sum(self.rejected.values())),
+                "rejected_reasons": dict(self.rejected),
+                "latencies": list(self.latencies),
+            }
 
     def close(self) -> None:
         """Close the Zenoh session."""

@@ -1,0 +1,65 @@
+"""The consensus messages: what one robot may tell a neighbour (distributed MSCKF paper, §V-B).
+
+Two rounds per step:
+
+1. :class:`MapIdsMessage` — the ids of the objects in the sender's map;
+2. :class:`CommonMarginalMessage` — the sender's marginal (mean and covariance) of the objects it
+   shares with the receiver, plus the number of neighbours the sender heard in round 1 (its
+   degree this step), from which both ends compute the same Metropolis–Hastings weight.
+
+Messages are plain data. How they travel is a :class:`~teamslam.msckf.transport.Transport`;
+their byte layout on a network is :mod:`teamslam.runtime.wire`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["CommonMarginalMessage", "MapIdsMessage", "Message"]
+
+
+@dataclass(frozen=True)
+class MapIdsMessage:
+    """Round 1 of consensus: the ids of the objects in the sender's map."""
+
+    sender: int
+    receiver: int
+    step: int
+    ids: np.ndarray
+
+    def nbytes(self) -> int:
+        """Payload size on a wire (header of four int64 plus the ids)."""
+        return 32 + 8 * int(np.size(self.ids))
+
+
+@dataclass(frozen=True)
+class CommonMarginalMessage:
+    """Round 2: the sender's marginal of the objects it shares with the receiver (eq. 19).
+
+    Attributes
+    ----------
+    ids
+        The shared objects' ids.
+    mean, cov
+        Their marginal, ``3·len(ids)`` long, in the order of ``ids``.
+    degree
+        How many neighbours the sender heard from in round 1 of this step.
+    """
+
+    sender: int
+    receiver: int
+    step: int
+    ids: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    degree: int = 0
+
+    def nbytes(self) -> int:
+        """Payload size on a wire: ids, mean and the covariance's upper triangle."""
+        d = int(np.size(self.mean))
+        return 32 + 8 * int(np.size(self.ids)) + 8 * d + 8 * (d * (d + 1) // 2)
+
+
+Message = MapIdsMessage | CommonMarginalMessage

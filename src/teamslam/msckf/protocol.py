@@ -1,0 +1,167 @@
+"""The consensus protocol of one robot, in one place (distributed MSCKF paper, §V-B, Alg. 1 step 1).
+
+:class:`ConsensusProtocol` decides what a robot sends, how it answers and how it averages; the
+two drivers — the in-process team runner (:func:`teamslam.msckf.team.run_team`) and the robot
+process (:func:`teamslam.runtime.agent_process.run_agent`) — only schedule it and move its
+messages through a :class:`~teamslam.msckf.transport.Transport`. One step is::
+
+    transport.send(*protocol.requests(t, neighbours))          # round 1: my map ids
+    for reply in protocol.answer(t, <ids messages heard>):     # round 2: our common marginal
+        transport.send(reply)
+    protocol.average(t, <marginals heard>)                      # eq. 19 + Prop. 2
+
+**The weighting rule** (the only one): the Metropolis–Hastings weight of a link heard this step,
+``A_ij = 1 / (1 + max(d_i, d_j))``, where ``d_i`` is the number of neighbours robot ``i`` heard
+in round 1 and ``d_j`` travels in ``j``'s round-2 message; ``A_ii = 1 − Σ_j A_ij`` over the
+neighbours heard in round 1. With symmetric links this is the doubly-stochastic Metropolis
+matrix of the links that work this step, whoever computes it. A neighbour heard in round 1
+whose marginal did not arrive or was rejected contributes its weight as our own marginal —
+exactly its term in eq. 42 when it shares nothing with us — so the weights always sum to one.
+
+Every received message is checked here once: kind, step (``step − max_age ≤ s ≤ step``), a
+sender that is a neighbour, and for a marginal the ids, sizes, finiteness and one Cholesky
+factorisation that also gives the information matrix used by the average. A rejected message is
+counted on the agent (``rejected_messages``, first reason logged) and never reaches the state.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.consensus import (
+    ReceivedMarginal,
+    common_marginal_message,
+    consensus_average,
+    receive_marginal,
+)
+from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
+
+__all__ = ["ConsensusProtocol", "metropolis_weight"]
+
+
+def metropolis_weight(degree_i: int, degree_j: int) -> float:
+    """``A_ij = 1 / (1 + max(d_i, d_j))`` for a link heard by both ends."""
+    return 1.0 / (1.0 + max(degree_i, degree_j))
+
+
+class ConsensusProtocol:
+    """One robot's side of consensus.
+
+    Parameters
+    ----------
+    agent
+        The robot's filter (its state is averaged in place; rejections, counts and the
+        consensus time are recorded on it).
+    neighbours
+        The robots it may hear from (its neighbours in the communication graph).
+    max_age
+        Oldest step accepted, as ``step − max_age`` (0: lock-step, only the current step).
+    """
+
+    def __init__(self, agent: MsckfAgent, neighbours: Iterable[int], max_age: int = 0) -> None:
+        self.agent = agent
+        self.robot = agent.robot
+        self.neighbours = frozenset(int(j) for j in neighbours)
+        if self.robot in self.neighbours:
+            raise ValueError(f"robot {self.robot} cannot be its own neighbour")
+        self.max_age = int(max_age)
+        self.step = -1
+        self.heard: set[int] = set()
+        self.expected: set[int] = set()
+        self.spent = 0.0
+
+    # ------------------------------------------------------------------ checks
+    def _acceptable(self, message: object, kind: type) -> bool:
+        if not isinstance(message, kind):
+            self.agent.reject("messages", reason="unexpected message kind")
+            return False
+        if not self.step - self.max_age <= message.step <= self.step:
+            self.agent.reject("messages", reason=f"message of step {message.step} at {self.step}")
+            return False
+        if message.sender not in self.neighbours or message.receiver != self.robot:
+            self.agent.reject(
+                "messages",
+                reason=f"message from robot {message.sender} (not a neighbour) "
+                f"to robot {message.receiver}",
+            )
+            return False
+        return True
+
+    # ------------------------------------------------------------------ rounds
+    def requests(self, step: int, to: Iterable[int] | None = None) -> list[MapIdsMessage]:
+        """Round 1 of ``step``: our map ids for each neighbour in ``to`` (default: all)."""
+        self.step = int(step)
+        self.heard = set()
+        self.expected = set()
+        self.spent = 0.0
+        ids = self.agent.state.object_ids
+        targets = sorted(self.neighbours if to is None else set(to) & self.neighbours)
+        return [MapIdsMessage(self.robot, j, self.step, ids.copy()) for j in targets]
+
+    def answer(self, received: Sequence[Message]) -> list[CommonMarginalMessage]:
+        """Round 2: our marginal of the objects each requester shares with us.
+
+        Records who was heard (our degree this step) and whose marginal to expect back.
+        """
+        begin = time.perf_counter()
+        requests = {}
+        for m in received:
+            if self._acceptable(m, MapIdsMessage) and m.sender not in requests:
+                requests[m.sender] = m
+        self.heard = set(requests)
+        replies = []
+        own = self.agent.state.object_ids
+        for j in sorted(requests):
+            reply = common_marginal_message(
+                self.agent.state, self.robot, j, self.step, requests[j].ids, len(self.heard)
+            )
+            if reply is not None:
+                replies.append(reply)
+            if np.intersect1d(requests[j].ids, own).size:
+                self.expected.add(j)
+        self.spent += time.perf_counter() - begin
+        return replies
+
+    def weights(self, degrees: dict[int, int]) -> tuple[float, dict[int, float]]:
+        """``(A_ii, {j: A_ij})`` for the neighbours heard, given each one's degree."""
+        mine = len(self.heard)
+        out = {j: metropolis_weight(mine, degrees.get(j, mine)) for j in sorted(self.heard)}
+        return 1.0 - sum(out.values()), out
+
+    def average(self, received: Sequence[Message]) -> int:
+        """Validate the neighbours' marginals and average the common objects (eq. 19, Prop. 2).
+
+        Returns the number of objects averaged; adds it to the agent's ``objects_averaged``
+        counter and the time spent this step to its ``consensus`` timing.
+        """
+        begin = time.perf_counter()
+        marginals: dict[int, ReceivedMarginal] = {}
+        degrees: dict[int, int] = {}
+        for m in received:
+            if not self._acceptable(m, CommonMarginalMessage) or m.sender in marginals:
+                continue
+            if m.sender not in self.heard:
+                # asynchronous mode: a marginal from a neighbour whose ids we did not hear this
+                # step still counts as heard (the link works)
+                if self.max_age == 0:
+                    self.agent.reject("messages", reason=f"robot {m.sender} not heard in round 1")
+                    continue
+                self.heard.add(m.sender)
+            problem, marginal = receive_marginal(self.agent.state, m)
+            if marginal is None:
+                self.agent.reject("messages", reason=problem)
+                continue
+            marginals[m.sender] = marginal
+            degrees[m.sender] = int(m.degree)
+        self_weight, weights = self.weights(degrees)
+        averaged = consensus_average(
+            self.agent.state, self_weight, [(weights[j], marginals[j]) for j in sorted(marginals)]
+        )
+        self.agent.counters["objects_averaged"] += averaged
+        self.spent += time.perf_counter() - begin
+        self.agent.timings["consensus"] += self.spent
+        return averaged

@@ -1,0 +1,199 @@
+"""How agents hear each other: the :class:`Transport` seam and its in-memory implementation.
+
+An agent never reaches into another agent: everything it learns about a neighbour arrives as a
+message through its own :class:`Transport` endpoint. The operations are those a robot needs to
+run the consensus protocol (:mod:`teamslam.msckf.protocol`) in lock-step or asynchronously:
+send a message, wait for one message of a kind and step from each of a set of neighbours
+(:meth:`Transport.collect`), take each neighbour's newest message (:meth:`Transport.newest`),
+and wait for the neighbours to come up.
+
+:class:`MemoryNetwork` implements it inside one process — for the in-process team runner (lock-step,
+deterministic) and for tests that run the robot-process driver in threads. An optional
+``links(step)`` function gives the adjacency of the links that work at each step; a message
+over a link that is down is lost, and :meth:`~MemoryTransport.collect` does not wait for it.
+:mod:`teamslam.runtime.zenoh_transport` implements the same protocol over a network.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+
+from teamslam.msckf.messages import Message
+
+__all__ = ["Mailbox", "MemoryNetwork", "MemoryTransport", "Transport"]
+
+
+class Transport(Protocol):
+    """One robot's endpoint: what an agent may do to talk to its neighbours.
+
+    Attributes
+    ----------
+    messages_sent, bytes_sent
+        What this endpoint has sent so far (lost messages included).
+    """
+
+    messages_sent: int
+    bytes_sent: int
+
+    def send(self, message: Message) -> None:
+        """Send ``message`` to ``message.receiver`` (it may be lost)."""
+
+    def collect(self, step: int, kind: type, senders: set[int], timeout: float) -> list[Message]:
+        """Wait until a ``kind`` message of ``step`` arrived from every sender, or ``timeout``.
+
+        Returns one message per sender that was heard (the first to arrive), sorted by sender.
+        Leftovers of older steps are discarded; later steps' messages stay buffered.
+        """
+
+    def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
+        """Each sender's newest ``kind`` message no older than ``step − max_age``, by sender."""
+
+    def wait_for_peers(self, count: int, timeout: float) -> int:
+        """Block until ``count`` neighbours are reachable (or ``timeout``); how many are."""
+
+    def statistics(self) -> dict:
+        """Figures of the link layer: ``injected_drops``, ``rejected_wire`` (messages dropped
+        before decoding), ``latencies`` (seconds, one per message received) where known."""
+
+    def close(self) -> None:
+        """Release the endpoint."""
+
+
+class Mailbox:
+    """Messages delivered to one robot, with the two ways of taking them out (thread-safe)."""
+
+    def __init__(self) -> None:
+        self._messages: list[Message] = []
+        self._cond = threading.Condition()
+
+    def put(self, message: Message) -> None:
+        """Deliver a message."""
+        with self._cond:
+            self._messages.append(message)
+            self._cond.notify_all()
+
+    def collect(
+        self, step: int, kind: type, senders: set[int], timeout: float, awaited: set[int] | None
+    ) -> list[Message]:
+        """One ``kind`` message of ``step`` per sender (the first), waiting up to ``timeout``
+        for every sender in ``awaited`` (default: ``senders``); sorted by sender. Older steps'
+        leftovers are discarded, later steps' messages kept."""
+        awaited = senders if awaited is None else awaited
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                self._messages = [m for m in self._messages if m.step >= step]
+                have = {m.sender for m in self._messages if m.step == step and isinstance(m, kind)}
+                remaining = deadline - time.monotonic()
+                if have >= awaited or remaining <= 0:
+                    break
+                self._cond.wait(remaining)
+            picked: dict[int, Message] = {}
+            keep = []
+            for m in self._messages:
+                if (
+                    m.step == step
+                    and isinstance(m, kind)
+                    and m.sender in senders
+                    and m.sender not in picked
+                ):
+                    picked[m.sender] = m
+                else:
+                    keep.append(m)
+            self._messages = keep
+        return [picked[s] for s in sorted(picked)]
+
+    def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
+        """Each sender's newest ``kind`` message no older than ``step − max_age``, by sender;
+        expired messages are discarded."""
+        with self._cond:
+            best: dict[int, Message] = {}
+            for m in self._messages:
+                if (
+                    isinstance(m, kind)
+                    and m.sender in senders
+                    and step - m.step <= max_age
+                    and (m.sender not in best or m.step > best[m.sender].step)
+                ):
+                    best[m.sender] = m
+            self._messages = [m for m in self._messages if step - m.step <= max_age]
+        return [best[s] for s in sorted(best)]
+
+
+class MemoryNetwork:
+    """Message delivery between the robots of one process, optionally over lossy links.
+
+    Parameters
+    ----------
+    n
+        Number of robots.
+    links
+        ``links(step)`` → ``(n, n)`` boolean adjacency of the links that work at ``step``
+        (default: every link always works). A message over a link that is down is lost.
+    """
+
+    def __init__(self, n: int, links: Callable[[int], np.ndarray] | None = None) -> None:
+        self.n = n
+        self._links = links
+        self.mailboxes = [Mailbox() for _ in range(n)]
+        self.dropped = 0
+
+    def link_up(self, sender: int, receiver: int, step: int) -> bool:
+        """Whether the ``sender → receiver`` link works at ``step``."""
+        if not (0 <= sender < self.n and 0 <= receiver < self.n) or sender == receiver:
+            return False
+        return True if self._links is None else bool(self._links(step)[sender, receiver])
+
+    def endpoint(self, robot: int) -> MemoryTransport:
+        """Robot ``robot``'s :class:`Transport`."""
+        if not 0 <= robot < self.n:
+            raise ValueError(f"no robot {robot} in a network of {self.n}")
+        return MemoryTransport(self, robot)
+
+    def _deliver(self, message: Message) -> bool:
+        if not self.link_up(message.sender, message.receiver, message.step):
+            self.dropped += 1
+            return False
+        self.mailboxes[message.receiver].put(message)
+        return True
+
+
+class MemoryTransport:
+    """One robot's endpoint on a :class:`MemoryNetwork` (a :class:`Transport`)."""
+
+    def __init__(self, network: MemoryNetwork, robot: int) -> None:
+        self.network = network
+        self.robot = robot
+        self.messages_sent = 0
+        self.bytes_sent = 0
+
+    def send(self, message: Message) -> None:
+        """Deliver if the link works at the message's step; otherwise it is lost."""
+        self.messages_sent += 1
+        self.bytes_sent += message.nbytes()
+        self.network._deliver(message)
+
+    def collect(self, step: int, kind: type, senders: set[int], timeout: float) -> list[Message]:
+        """See :meth:`Transport.collect`; senders whose link is down at ``step`` are not awaited."""
+        reachable = {s for s in senders if self.network.link_up(s, self.robot, step)}
+        return self.network.mailboxes[self.robot].collect(step, kind, senders, timeout, reachable)
+
+    def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
+        """See :meth:`Transport.newest`."""
+        return self.network.mailboxes[self.robot].newest(kind, senders, max_age, step)
+
+    def wait_for_peers(self, count: int, timeout: float) -> int:
+        """Every robot of the network is reachable at once."""
+        return min(count, self.network.n - 1)
+
+    def statistics(self) -> dict:
+        """Messages lost on links that were down (network-wide)."""
+        return {"dropped": self.network.dropped}
+
+    def close(self) -> None:
+        """Nothing to release."""
