@@ -102,6 +102,72 @@ class MsckfAgent:
         """Frames in the robot's sequence."""
         return self.sequence.frames
 
+    # ------------------------------------------------------------------ snapshot
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Everything needed to continue from the last processed frame, as arrays only.
+
+        The state (:meth:`MsckfState.snapshot`), the open feature tracks and object
+        observation histories, per-frame stage times, counters and timings.
+        """
+        out = {f"state_{k}": v for k, v in self.state.snapshot().items()}
+        for name, history in (("tracks", self.tracks), ("objhist", self.object_history)):
+            ids, frames, zs = [], [], []
+            for key, obs in history.items():
+                for f, z in obs:
+                    ids.append(key)
+                    frames.append(f)
+                    zs.append(z)
+            out[f"{name}_ids"] = np.array(ids, dtype=np.int64)
+            out[f"{name}_frames"] = np.array(frames, dtype=np.int64)
+            out[f"{name}_z"] = np.array(zs, dtype=float).reshape(-1, 4)
+        out["frame"] = np.array(self.frame, dtype=np.int64)
+        out["frame_times"] = np.array(self.frame_times, dtype=float).reshape(-1, 3)
+        out["counter_names"] = np.array(sorted(self.counters), dtype=str)
+        out["counter_values"] = np.array([self.counters[k] for k in sorted(self.counters)], int)
+        out["timing_names"] = np.array(sorted(self.timings), dtype=str)
+        out["timing_values"] = np.array([self.timings[k] for k in sorted(self.timings)], float)
+        return out
+
+    def restore(self, snapshot: dict[str, np.ndarray]) -> None:
+        """Continue from a :meth:`snapshot` (of this robot's filter on the same sequence).
+
+        Raises
+        ------
+        ValueError
+            A snapshot that is incomplete or inconsistent (named); the agent is unchanged.
+        """
+        try:
+            frame = int(snapshot["frame"])
+            frame_times = np.asarray(snapshot["frame_times"], dtype=float).reshape(-1, 3)
+            histories = {}
+            for name in ("tracks", "objhist"):
+                ids, frames = snapshot[f"{name}_ids"], snapshot[f"{name}_frames"]
+                zs = np.asarray(snapshot[f"{name}_z"], dtype=float).reshape(-1, 4)
+                if not ids.shape == frames.shape == zs.shape[:1]:
+                    raise ValueError(f"snapshot {name}: {ids.shape} ids, {zs.shape} observations")
+                history: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
+                for key, f, z in zip(ids.tolist(), frames.tolist(), zs, strict=True):
+                    history[key].append((f, z.copy()))
+                histories[name] = history
+            names = (snapshot["counter_names"].tolist(), snapshot["timing_names"].tolist())
+            values = (snapshot["counter_values"].tolist(), snapshot["timing_values"].tolist())
+            counters = dict(zip(names[0], values[0], strict=True))
+            timings = dict(zip(names[1], values[1], strict=True))
+        except KeyError as exc:
+            raise ValueError(f"robot {self.robot}: snapshot lacks {exc.args[0]!r}") from None
+        if not -1 <= frame < self.sequence.frames or frame_times.shape[0] != frame + 1:
+            raise ValueError(
+                f"robot {self.robot}: snapshot at frame {frame} with {frame_times.shape[0]} "
+                f"frame times, sequence of {self.sequence.frames} frames"
+            )
+        self.state.restore({k[6:]: v for k, v in snapshot.items() if k.startswith("state_")})
+        self.frame = frame
+        self.frame_times = [tuple(r) for r in frame_times]
+        self.tracks = histories["tracks"]
+        self.object_history = histories["objhist"]
+        self.counters = defaultdict(int, counters)
+        self.timings = defaultdict(float, timings)
+
     # ------------------------------------------------------------------ Algorithm 1, steps 2-4
     def step(self, t: int) -> None:
         """Process frame ``t``: propagate (``t > 0``), update, initialise objects, slide."""

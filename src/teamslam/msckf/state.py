@@ -45,6 +45,53 @@ class MsckfState:
         self.cov = np.asarray(pose_cov, dtype=float).reshape(6, 6).copy()
         self.debug = debug
 
+    # ------------------------------------------------------------------ snapshot
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """The whole state as arrays (copies): window poses and frames, objects, covariance."""
+        return {
+            "window_poses": self.poses.copy(),
+            "window_frames": self.frames.copy(),
+            "object_ids": self.object_ids.copy(),
+            "objects": self.objects.copy(),
+            "cov": self.cov.copy(),
+        }
+
+    def restore(self, snapshot: dict[str, np.ndarray]) -> None:
+        """Put back a :meth:`snapshot`, after checking that its parts fit together.
+
+        Raises
+        ------
+        ValueError
+            Missing arrays, shapes that disagree, non-finite values or a covariance that is
+            not symmetric positive definite; the state is then left as it was.
+        """
+        try:
+            poses = np.asarray(snapshot["window_poses"], dtype=float)
+            frames = np.asarray(snapshot["window_frames"], dtype=np.int64)
+            ids = np.asarray(snapshot["object_ids"], dtype=np.int64)
+            objects = np.asarray(snapshot["objects"], dtype=float).reshape(-1, 3)
+            cov = np.asarray(snapshot["cov"], dtype=float)
+        except KeyError as exc:
+            raise ValueError(f"state snapshot lacks {exc.args[0]!r}") from None
+        c, m = poses.shape[0], ids.size
+        if poses.shape != (c, 4, 4) or frames.shape != (c,) or c == 0:
+            raise ValueError(f"state snapshot: window poses {poses.shape}, frames {frames.shape}")
+        if objects.shape != (m, 3) or np.unique(ids).size != m:
+            raise ValueError(f"state snapshot: {m} object ids for objects {objects.shape}")
+        dim = 6 * c + 3 * m
+        if cov.shape != (dim, dim):
+            raise ValueError(f"state snapshot: covariance {cov.shape}, state dimension {dim}")
+        if not all(np.all(np.isfinite(a)) for a in (poses, objects, cov)):
+            raise ValueError("state snapshot: non-finite values")
+        if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
+            raise ValueError("state snapshot: covariance is not symmetric")
+        try:
+            np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            raise ValueError("state snapshot: covariance is not positive definite") from None
+        self.poses, self.frames, self.object_ids, self.objects = poses, frames, ids, objects
+        self.cov = 0.5 * (cov + cov.T)
+
     # ------------------------------------------------------------------ layout
     @property
     def n_poses(self) -> int:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
 
@@ -54,76 +53,19 @@ def _atomic_json(path: Path, payload: dict) -> None:
     os.replace(tmp, path)
 
 
-def _flatten_history(history: dict[int, list[tuple[int, np.ndarray]]]) -> dict[str, np.ndarray]:
-    ids, frames, zs = [], [], []
-    for key, obs in history.items():
-        for f, z in obs:
-            ids.append(key)
-            frames.append(f)
-            zs.append(z)
-    return {
-        "ids": np.array(ids, dtype=np.int64),
-        "frames": np.array(frames, dtype=np.int64),
-        "z": np.array(zs, dtype=float).reshape(-1, 4),
-    }
-
-
-def _restore_history(ids, frames, zs) -> dict[int, list[tuple[int, np.ndarray]]]:
-    out: dict[int, list] = defaultdict(list)
-    for i, f, z in zip(ids.tolist(), frames.tolist(), zs, strict=True):
-        out[i].append((f, z.copy()))
-    return out
-
-
 def _save_checkpoint(path: Path, agent: MsckfAgent, poses, covs, t: int) -> None:
-    s = agent.state
-    tracks = _flatten_history(agent.tracks)
-    objects = _flatten_history(agent.object_history)
     _atomic_savez(
-        path / "checkpoint.npz",
-        frame=np.array(t),
-        poses=poses[: t + 1],
-        covs=covs[: t + 1],
-        window_poses=s.poses,
-        window_frames=s.frames,
-        object_ids=s.object_ids,
-        objects=s.objects,
-        cov=s.cov,
-        frame_times=np.array(agent.frame_times).reshape(-1, 3),
-        track_ids=tracks["ids"],
-        track_frames=tracks["frames"],
-        track_z=tracks["z"],
-        objhist_ids=objects["ids"],
-        objhist_frames=objects["frames"],
-        objhist_z=objects["z"],
-    )
-    _atomic_json(
-        path / "checkpoint.json",
-        {"frame": t, "counters": dict(agent.counters), "timings": dict(agent.timings)},
+        path / "checkpoint.npz", poses=poses[: t + 1], covs=covs[: t + 1], **agent.snapshot()
     )
 
 
 def _load_checkpoint(path: Path, agent: MsckfAgent, poses, covs) -> int:
     with np.load(path / "checkpoint.npz", allow_pickle=False) as c:
-        t = int(c["frame"])
-        poses[: t + 1] = c["poses"]
-        covs[: t + 1] = c["covs"]
-        s = agent.state
-        s.poses, s.frames = c["window_poses"].copy(), c["window_frames"].copy()
-        s.object_ids, s.objects, s.cov = (
-            c["object_ids"].copy(),
-            c["objects"].copy(),
-            c["cov"].copy(),
-        )
-        agent.frame_times = [tuple(r) for r in c["frame_times"]]
-        agent.tracks = _restore_history(c["track_ids"], c["track_frames"], c["track_z"])
-        agent.object_history = _restore_history(
-            c["objhist_ids"], c["objhist_frames"], c["objhist_z"]
-        )
-    meta = json.loads((path / "checkpoint.json").read_text())
-    agent.counters = defaultdict(int, meta["counters"])
-    agent.timings = defaultdict(float, meta["timings"])
-    agent.frame = t
+        snapshot = {k: c[k] for k in c.files}
+    agent.restore(snapshot)
+    t = agent.frame
+    poses[: t + 1] = snapshot["poses"]
+    covs[: t + 1] = snapshot["covs"]
     return t
 
 
