@@ -166,3 +166,26 @@ def test_fej_table_bad_environment_file(tmp_path):
     assert proc.returncode == 2
     assert len(proc.stderr.strip().splitlines()) == 1
     assert "env.json" in proc.stderr
+
+
+def test_a_diverging_filter_exits_1_naming_robot_and_frame(tmp_path, capsys, monkeypatch):
+    from teamslam.gaussian import NotPositiveDefiniteError
+    from teamslam.msckf.agent import MsckfAgent
+
+    assert main(["simulate", "--robots", "2", "--steps", "8", "--out", str(tmp_path / "d")]) == 0
+    capsys.readouterr()
+    original = MsckfAgent._step
+
+    def failing(self, t):
+        if self.robot == 1 and t == 3:
+            raise NotPositiveDefiniteError("innovation covariance is not positive definite")
+        return original(self, t)
+
+    monkeypatch.setattr(MsckfAgent, "_step", failing)
+    code = main(["run", str(tmp_path / "d"), "--separate", "--calibrate", "never"])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "robot 1, frame 3" in err and "not positive definite" in err
+    assert "error:" not in err  # a failure, not a usage error
+    # a dataset that is not there is the user's input: exit 2
+    assert main(["run", str(tmp_path / "missing"), "--separate"]) == 2

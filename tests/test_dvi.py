@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from teamslam import dvi, graph
 from teamslam.dvi import kalman_predict, kalman_update
+from teamslam.eval.montecarlo import chi2_band
 from teamslam.gaussian import Gaussian, average_common_marginal, nees
 
 
@@ -223,10 +223,10 @@ def test_nees_monte_carlo():
     """Centralised filter consistent (95% χ² band); distributed never above the upper bound."""
     runs, steps = 300, 12
     central, distributed, dim_c, dim_a = _monte_carlo(runs, steps)
-    lo, hi = (stats.chi2.ppf(q, runs * dim_c) / runs for q in (0.025, 0.975))
+    lo, hi = (dim_c * b for b in chi2_band(dim_c, runs))
     avg = central.mean(axis=0)
     assert lo <= avg[-1] <= hi, (lo, avg[-1], hi)
     assert np.mean((avg < lo) | (avg > hi)) <= 0.2  # 5% expected outside a 95% band
     # the distributed filter's per-agent NEES is averaged over agents too: 3 · runs samples
-    upper = stats.chi2.ppf(0.975, 3 * runs * dim_a) / (3 * runs)
+    upper = dim_a * chi2_band(dim_a, 3 * runs)[1]
     assert np.all(distributed.mean(axis=0) <= upper)

@@ -6,7 +6,6 @@ import json
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from teamslam.ekf2d import environments as E
 from teamslam.ekf2d import models, observability
@@ -15,6 +14,7 @@ from teamslam.ekf2d import simulate as S
 from teamslam.ekf2d.filter import MultiRobotEKF, StepObservations
 from teamslam.ekf2d.linearization import policy
 from teamslam.ekf2d.start import StartError, gauss_newton_start
+from teamslam.eval.montecarlo import chi2_band
 from teamslam.testing import numerical_jacobian
 
 
@@ -149,7 +149,7 @@ def test_ideal_ekf_nees_is_consistent():
         m = R.run_filter(env, S.simulate(env, truth, np.random.default_rng(seed)), policy("ideal"))
         nees.append(m.pose_nees[1 : steps + 1])
     avg = float(np.mean(nees))
-    lo, hi = (stats.chi2.ppf(q, 3 * runs) / (3 * runs) for q in (0.025, 0.975))
+    lo, hi = chi2_band(3, runs)
     assert lo <= avg <= hi, (lo, avg, hi)
 
 
@@ -188,12 +188,12 @@ def test_environment_files(tmp_path, shared_data):
             }
         )
     )
-    with pytest.raises(E.EnvironmentError, match="at least 2 robots"):
+    with pytest.raises(E.PlanarEnvironmentError, match="at least 2 robots"):
         E.load_environment(tmp_path / "bad.json")
     (tmp_path / "junk.json").write_text("{not json")
-    with pytest.raises(E.EnvironmentError, match="cannot read"):
+    with pytest.raises(E.PlanarEnvironmentError, match="cannot read"):
         E.load_environment(tmp_path / "junk.json")
-    with pytest.raises(E.EnvironmentError, match="'lm'"):
+    with pytest.raises(E.PlanarEnvironmentError, match="'lm'"):
         E.load_matlab_environment([shared_data / "fej-environments" / "RobotsWaypoints_1.mat"])
     pub = E.load_matlab_environment(
         [

@@ -26,6 +26,8 @@ import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
 
+from teamslam.errors import EstimationError, InputError
+
 __all__ = [
     "Gaussian",
     "InformationGaussian",
@@ -45,8 +47,12 @@ __all__ = [
 IndexLike = Sequence[int] | np.ndarray | slice
 
 
-class NotPositiveDefiniteError(ValueError):
-    """A covariance or information matrix that must be symmetric positive definite is not."""
+class NotPositiveDefiniteError(EstimationError, ValueError):
+    """A covariance or information matrix that must be symmetric positive definite is not.
+
+    An :class:`~teamslam.errors.EstimationError` (a filter that lost positive definiteness has
+    failed, not been misused); also a ``ValueError`` for callers that validate inputs with it.
+    """
 
 
 def symmetrize(matrix: np.ndarray) -> np.ndarray:
@@ -103,13 +109,13 @@ def _check_moment(mean: np.ndarray, cov: np.ndarray, what: str) -> tuple[np.ndar
     mean = np.asarray(mean, dtype=float)
     cov = np.asarray(cov, dtype=float)
     if mean.ndim != 1:
-        raise ValueError(f"{what}: mean must be a vector, got shape {mean.shape}")
+        raise InputError(f"{what}: mean must be a vector, got shape {mean.shape}")
     if cov.shape != (mean.size, mean.size):
-        raise ValueError(
+        raise InputError(
             f"{what}: covariance shape {cov.shape} does not match mean of size {mean.size}"
         )
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
-        raise ValueError(f"{what}: mean or covariance contains NaN or infinite values")
+        raise InputError(f"{what}: mean or covariance contains NaN or infinite values")
     return mean, cov
 
 
@@ -143,7 +149,7 @@ def replace_marginal_arrays(
     iy = _as_index(index_y, n, "replace_marginal index_y")
     mean_y, cov_y = _check_moment(mean_y, cov_y, "replace_marginal new marginal")
     if mean_y.size != iy.size:
-        raise ValueError(
+        raise InputError(
             f"replace_marginal: new marginal has size {mean_y.size}, index set has {iy.size}"
         )
     sigma_y = cov[np.ix_(iy, iy)]
@@ -258,16 +264,16 @@ def geometric_average_arrays(
     covs = np.asarray(covs, dtype=float)
     weights = np.asarray(weights, dtype=float)
     if means.ndim != 2 or covs.shape != (*means.shape, means.shape[1]):
-        raise ValueError(
+        raise InputError(
             f"geometric_average: expected means (k, d) and covs (k, d, d), "
             f"got {means.shape} and {covs.shape}"
         )
     if weights.shape != (means.shape[0],):
-        raise ValueError(f"geometric_average: {weights.shape[0]} weights for {len(means)} inputs")
+        raise InputError(f"geometric_average: {weights.shape[0]} weights for {len(means)} inputs")
     if np.any(weights < 0) or not np.isclose(weights.sum(), 1.0, atol=1e-9):
-        raise ValueError("geometric_average: weights must be non-negative and sum to 1")
+        raise InputError("geometric_average: weights must be non-negative and sum to 1")
     if not (np.all(np.isfinite(means)) and np.all(np.isfinite(covs))):
-        raise ValueError("geometric_average: inputs contain NaN or infinite values")
+        raise InputError("geometric_average: inputs contain NaN or infinite values")
     infos = spd_inverse(covs, "geometric_average: an input covariance")
     whole = np.arange(means.shape[1])
     terms = [(weights[k], whole, infos[k], infos[k] @ means[k]) for k in range(1, len(means))]
@@ -345,7 +351,7 @@ class Gaussian:
         ix = _complement(iy, self.dim)
         value_y = np.asarray(value_y, dtype=float)
         if value_y.shape != (iy.size,):
-            raise ValueError(f"Gaussian.conditional: value has shape {value_y.shape}")
+            raise InputError(f"Gaussian.conditional: value has shape {value_y.shape}")
         factor = scipy.linalg.cho_factor(_spd(self.cov[np.ix_(iy, iy)], "Gaussian.conditional: Σʸ"))
         gain = scipy.linalg.cho_solve(factor, self.cov[np.ix_(ix, iy)].T).T
         mean = self.mean[ix] + gain @ (value_y - self.mean[iy])
@@ -434,7 +440,7 @@ def replace_marginal(joint: Gaussian, index_y: IndexLike, new_marginal: Gaussian
 def geometric_average(marginals: Sequence[Gaussian], weights: Sequence[float]) -> Gaussian:
     """Weighted geometric average (eq. 15 / 19); see :func:`geometric_average_arrays`."""
     if len(marginals) == 0:
-        raise ValueError("geometric_average: no marginals given")
+        raise InputError("geometric_average: no marginals given")
     mean, cov = geometric_average_arrays(
         np.stack([m.mean for m in marginals]),
         np.stack([m.cov for m in marginals]),

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teamslam.errors import InputError
+
 __all__ = [
     "GRAPH_KINDS",
     "CommunicationGraph",
@@ -54,14 +56,14 @@ class CommunicationGraph:
     def __post_init__(self) -> None:
         adjacency = np.asarray(self.adjacency)
         if adjacency.ndim != 2 or adjacency.shape[0] != adjacency.shape[1]:
-            raise ValueError(f"adjacency must be square, got shape {adjacency.shape}")
+            raise InputError(f"adjacency must be square, got shape {adjacency.shape}")
         if adjacency.shape[0] < 1:
-            raise ValueError("a communication graph needs at least one robot")
+            raise InputError("a communication graph needs at least one robot")
         adjacency = adjacency.astype(bool)
         if not np.array_equal(adjacency, adjacency.T):
-            raise ValueError("adjacency must be symmetric (communication is two-way)")
+            raise InputError("adjacency must be symmetric (communication is two-way)")
         if np.any(np.diag(adjacency)):
-            raise ValueError("adjacency must have no self-loops")
+            raise InputError("adjacency must have no self-loops")
         adjacency.setflags(write=False)
         object.__setattr__(self, "adjacency", adjacency)
 
@@ -128,7 +130,7 @@ def metropolis_weights(adjacency: np.ndarray) -> np.ndarray:
 def drop_edges(adjacency: np.ndarray, rate: float, rng: np.random.Generator) -> np.ndarray:
     """Remove each undirected edge independently with probability ``rate``."""
     if not 0.0 <= rate <= 1.0:
-        raise ValueError(f"loss rate must lie in [0, 1], got {rate}")
+        raise InputError(f"loss rate must lie in [0, 1], got {rate}")
     adjacency = np.asarray(adjacency, dtype=bool)
     keep = np.triu(rng.random(adjacency.shape) >= rate, k=1)
     keep = keep | keep.T
@@ -159,7 +161,7 @@ class EdgeLoss:
         seed: int | np.random.Generator | None = None,
     ) -> None:
         if not 0.0 <= rate <= 1.0:
-            raise ValueError(f"loss rate must lie in [0, 1], got {rate}")
+            raise InputError(f"loss rate must lie in [0, 1], got {rate}")
         self.graph = graph
         self.rate = float(rate)
         self.rng = np.random.default_rng(seed)
@@ -182,14 +184,14 @@ def from_edges(
 ) -> CommunicationGraph:
     """Graph over ``n`` robots from an undirected edge list."""
     if n < 1:
-        raise ValueError(f"number of robots must be positive, got {n}")
+        raise InputError(f"number of robots must be positive, got {n}")
     adjacency = np.zeros((n, n), dtype=bool)
     for edge in edges:
         a, b = (int(v) for v in edge)
         if not (0 <= a < n and 0 <= b < n):
-            raise ValueError(f"edge ({a}, {b}) names a robot outside 0..{n - 1}")
+            raise InputError(f"edge ({a}, {b}) names a robot outside 0..{n - 1}")
         if a == b:
-            raise ValueError(f"edge ({a}, {b}) is a self-loop")
+            raise InputError(f"edge ({a}, {b}) is a self-loop")
         adjacency[a, b] = adjacency[b, a] = True
     return CommunicationGraph(adjacency, name or f"edges({n})")
 
@@ -197,7 +199,7 @@ def from_edges(
 def complete(n: int) -> CommunicationGraph:
     """Every robot talks to every other robot."""
     if n < 1:
-        raise ValueError(f"number of robots must be positive, got {n}")
+        raise InputError(f"number of robots must be positive, got {n}")
     return CommunicationGraph(~np.eye(n, dtype=bool), f"complete({n})")
 
 
@@ -215,7 +217,7 @@ def ring(n: int) -> CommunicationGraph:
 def star(n: int, centre: int = 0) -> CommunicationGraph:
     """One hub robot talks to all the others."""
     if not 0 <= centre < n:
-        raise ValueError(f"star centre {centre} outside 0..{n - 1}")
+        raise InputError(f"star centre {centre} outside 0..{n - 1}")
     return from_edges(n, [(centre, j) for j in range(n) if j != centre], f"star({n})")
 
 
@@ -231,11 +233,11 @@ def random_geometric(
     0.5) makes a connected draw likely for every ``n``.
     """
     if n < 1:
-        raise ValueError(f"number of robots must be positive, got {n}")
+        raise InputError(f"number of robots must be positive, got {n}")
     if radius is None:
         radius = max(0.5, float(np.sqrt(2.0 * np.log(max(n, 2)) / n)))
     if radius <= 0:
-        raise ValueError(f"radius must be positive, got {radius}")
+        raise InputError(f"radius must be positive, got {radius}")
     rng = np.random.default_rng(seed)
     for _ in range(max_tries):
         points = rng.random((n, 2))
@@ -243,7 +245,7 @@ def random_geometric(
         adjacency = (distance <= radius) & ~np.eye(n, dtype=bool)
         if _is_connected(adjacency):
             return CommunicationGraph(adjacency, f"random_geometric({n}, r={radius:.3g})")
-    raise ValueError(
+    raise InputError(
         f"no connected random geometric graph with radius {radius} in {max_tries} draws"
     )
 
@@ -263,4 +265,4 @@ def make(kind: str, n: int, seed: int | None = None) -> CommunicationGraph:
         return star(n)
     if kind == "random":
         return random_geometric(n, seed=seed)
-    raise ValueError(f"unknown graph kind {kind!r}; choose one of {', '.join(GRAPH_KINDS)}")
+    raise InputError(f"unknown graph kind {kind!r}; choose one of {', '.join(GRAPH_KINDS)}")

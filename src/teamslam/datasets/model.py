@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from teamslam.errors import InputError
 from teamslam.geometry.camera import StereoCamera
 
 if TYPE_CHECKING:
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
 __all__ = ["Calibration", "DatasetError", "FrameObservations", "RobotSequence", "TeamDataset"]
 
 
-class DatasetError(ValueError):
+class DatasetError(InputError):
     """A dataset (in memory or on disk) is malformed; the message names the field."""
 
 
@@ -326,6 +327,16 @@ class TeamDataset:
     def head(self, frames: int) -> TeamDataset:
         """The first ``frames`` frames of every robot (truth, map and sensor model kept)."""
         return replace(self, robots=[r.head(frames) for r in self.robots])
+
+    def subset(self, robots: list[int]) -> TeamDataset:
+        """The team of just ``robots`` (in that order), renumbered from 0; map and truth kept."""
+        if not robots or any(not 0 <= r < self.n_robots for r in robots):
+            raise DatasetError(f"robots {robots} are not a subset of a team of {self.n_robots}")
+        model = self.sensor_model
+        if model is not None:
+            own = {new: model.robots[old] for new, old in enumerate(robots) if old in model.robots}
+            model = replace(model, robots=own)
+        return replace(self, robots=[self.robots[r] for r in robots], sensor_model=model)
 
     @property
     def n_robots(self) -> int:

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from teamslam.datasets.model import DatasetError
+from teamslam.errors import InputError
 
 __all__ = ["read_kitti", "read_tum", "write_kitti", "write_tum"]
 
@@ -23,9 +24,9 @@ _FMT = "%.17g"
 def _poses(poses: np.ndarray) -> np.ndarray:
     poses = np.asarray(poses, dtype=float)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
-        raise ValueError(f"poses must be (N, 4, 4), got {poses.shape}")
+        raise InputError(f"poses must be (N, 4, 4), got {poses.shape}")
     if not np.all(np.isfinite(poses)):
-        raise ValueError("poses contain NaN or infinite values")
+        raise InputError("poses contain NaN or infinite values")
     return poses
 
 
@@ -41,7 +42,7 @@ def write_tum(path: str | Path, poses: np.ndarray, timestamps: np.ndarray | None
     poses = _poses(poses)
     ts = np.arange(len(poses), dtype=float) if timestamps is None else np.asarray(timestamps, float)
     if ts.shape != (len(poses),):
-        raise ValueError(f"{len(poses)} poses but {ts.shape} timestamps")
+        raise InputError(f"{len(poses)} poses but {ts.shape} timestamps")
     quat = Rotation.from_matrix(poses[:, :3, :3]).as_quat()  # x, y, z, w
     _atomic_savetxt(Path(path), np.column_stack([ts, poses[:, :3, 3], quat]))
 

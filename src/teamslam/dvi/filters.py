@@ -24,6 +24,7 @@ import numpy as np
 
 from teamslam.dvi.kalman import kalman_predict, kalman_update
 from teamslam.dvi.models import LinearGaussianModel, TeamProblem
+from teamslam.errors import InputError
 from teamslam.gaussian import average_common_marginal
 from teamslam.graph import EdgeLoss
 
@@ -155,7 +156,7 @@ def run_distributed(
     """
     n = problem.n_agents
     if edge_loss.graph.n != n:
-        raise ValueError(f"graph has {edge_loss.graph.n} robots, problem has {n} agents")
+        raise InputError(f"graph has {edge_loss.graph.n} robots, problem has {n} agents")
     filters = [DistributedKalmanFilter(i, m) for i, m in enumerate(problem.agents)]
     means = [np.empty((problem.steps + 1, m.dim)) for m in problem.agents]
     covs = [np.empty((problem.steps + 1, m.dim, m.dim)) for m in problem.agents]

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
+from teamslam.errors import InputError
 from teamslam.gaussian import NotPositiveDefiniteError, symmetrize
 
 __all__ = ["kalman_predict", "kalman_update"]
@@ -75,7 +76,7 @@ def kalman_update(
     h = np.asarray(observation_matrix, dtype=float)
     z = np.asarray(observation, dtype=float)
     if h.ndim != 2 or h.shape[1] != mean.size or z.shape != (h.shape[0],):
-        raise ValueError(
+        raise InputError(
             f"kalman_update: H {h.shape}, z {z.shape} do not fit a state of size {mean.size}"
         )
     cross = cov @ h.T  # Cov(s, z) = Σ⁺ Hᵀ + S
@@ -83,7 +84,7 @@ def kalman_update(
     if correlation is not None:
         s = np.asarray(correlation, dtype=float)
         if s.shape != (mean.size, h.shape[0]):
-            raise ValueError(f"kalman_update: correlation S has shape {s.shape}")
+            raise InputError(f"kalman_update: correlation S has shape {s.shape}")
         cross = cross + s
         hs = h @ s
         innovation_cov = innovation_cov + hs + hs.T

@@ -29,6 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from teamslam.dvi.models import LinearGaussianModel
+from teamslam.errors import InputError
 from teamslam.gaussian import (
     Gaussian,
     InformationGaussian,
@@ -40,7 +41,6 @@ __all__ = [
     "LiftedModel",
     "centralized_lifted_posterior",
     "lifted_common_index",
-    "lifted_model",
     "local_posterior",
     "mirror_descent",
     "mirror_descent_step",
@@ -63,7 +63,7 @@ class LiftedModel:
 
     def __init__(self, model: LinearGaussianModel, steps: int) -> None:
         if steps < 0:
-            raise ValueError("steps must be non-negative")
+            raise InputError("steps must be non-negative")
         n = model.dim
         blocks = steps + 1
         self.model = model
@@ -97,7 +97,7 @@ class LiftedModel:
         """The local posterior (17) in information form."""
         observations = np.asarray(observations, dtype=float)
         if observations.shape != (self.steps + 1, self.model.observation_matrix.shape[0]):
-            raise ValueError(
+            raise InputError(
                 f"observations must be (T + 1, m) = ({self.steps + 1}, "
                 f"{self.model.observation_matrix.shape[0]}), got {observations.shape}"
             )
@@ -108,11 +108,6 @@ class LiftedModel:
             prior.info_vector + (observations @ ht_vinv.T).ravel(),
             prior.info_matrix + obs_info,
         )
-
-
-def lifted_model(model: LinearGaussianModel, steps: int) -> LiftedModel:
-    """The lifted matrices of eq. (12)."""
-    return LiftedModel(model, steps)
 
 
 def local_posterior(
@@ -142,7 +137,7 @@ def split_common_prior(model: LinearGaussianModel, agents: int) -> LinearGaussia
         or np.any(model.process_cov[np.ix_(ix, iy)])
         or np.any(model.prior_cov[np.ix_(ix, iy)])
     ):
-        raise ValueError("split_common_prior needs y's dynamics and noise independent of x")
+        raise InputError("split_common_prior needs y's dynamics and noise independent of x")
     scale = np.ones(model.dim)
     scale[iy] = float(agents)
     root = np.sqrt(scale)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from teamslam.errors import InputError
 from teamslam.gaussian import NotPositiveDefiniteError, symmetrize
 
 __all__ = ["LinearGaussianModel", "TeamProblem", "tracking_problem"]
@@ -67,17 +68,17 @@ class LinearGaussianModel:
         }
         for name, shape in checks.items():
             if np.shape(getattr(self, name)) != shape:
-                raise ValueError(f"LinearGaussianModel.{name} must be {shape}")
+                raise InputError(f"LinearGaussianModel.{name} must be {shape}")
         g = np.asarray(self.control_matrix)
         h = np.asarray(self.observation_matrix)
         if g.ndim != 2 or g.shape[0] != n:
-            raise ValueError(f"LinearGaussianModel.control_matrix must have {n} rows")
+            raise InputError(f"LinearGaussianModel.control_matrix must have {n} rows")
         if h.ndim != 2 or h.shape[1] != n:
-            raise ValueError(f"LinearGaussianModel.observation_matrix must have {n} columns")
+            raise InputError(f"LinearGaussianModel.observation_matrix must have {n} columns")
         if np.shape(self.observation_cov) != (h.shape[0], h.shape[0]):
-            raise ValueError("LinearGaussianModel.observation_cov does not match H")
+            raise InputError("LinearGaussianModel.observation_cov does not match H")
         if not 0 <= self.common_dim <= n:
-            raise ValueError(f"common_dim {self.common_dim} outside 0..{n}")
+            raise InputError(f"common_dim {self.common_dim} outside 0..{n}")
         object.__setattr__(self, "process_cov", _require_spd(self.process_cov, "W"))
         object.__setattr__(self, "observation_cov", _require_spd(self.observation_cov, "V"))
         object.__setattr__(self, "prior_cov", _require_spd(self.prior_cov, "Σ₀"))
@@ -180,10 +181,10 @@ def tracking_problem(
     TeamProblem
     """
     if agents < 1 or landmarks < 1 or steps < 1:
-        raise ValueError("agents, landmarks and steps must all be positive")
+        raise InputError("agents, landmarks and steps must all be positive")
     per_agent = landmarks_per_agent or max(1, int(np.ceil(2 * landmarks / agents)))
     if not 1 <= per_agent <= landmarks:
-        raise ValueError(f"landmarks_per_agent must lie in 1..{landmarks}")
+        raise InputError(f"landmarks_per_agent must lie in 1..{landmarks}")
     rng = np.random.default_rng(seed)
     n_y = 2 * landmarks
 
@@ -269,12 +270,12 @@ def _centralize(models: list[LinearGaussianModel]) -> LinearGaussianModel:
     for m in models:
         ix, jy = np.arange(m.private_dim), m.common_index
         if np.any(m.process_cov[np.ix_(ix, jy)]) or np.any(m.prior_cov[np.ix_(ix, jy)]):
-            raise ValueError("centralising needs private and common noise/prior uncorrelated")
+            raise InputError("centralising needs private and common noise/prior uncorrelated")
     for m in models[1:]:
         if m.common_dim != n_y or not np.allclose(
             m.transition[np.ix_(m.common_index, m.common_index)], first.transition[np.ix_(iy, iy)]
         ):
-            raise ValueError("agents disagree on the common block's dynamics")
+            raise InputError("agents disagree on the common block's dynamics")
     dims_x = [m.private_dim for m in models]
     offsets = np.concatenate([[0], np.cumsum(dims_x)])
     n = offsets[-1] + n_y

@@ -26,9 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
+from teamslam.errors import InputError
+
 __all__ = [
-    "EnvironmentError",
     "PlanarEnvironment",
+    "PlanarEnvironmentError",
     "environment",
     "load_environment",
     "load_matlab_environment",
@@ -39,7 +41,7 @@ FORMAT = "teamslam-planar-environment"
 VERSION = 1
 
 
-class EnvironmentError(ValueError):
+class PlanarEnvironmentError(InputError):
     """A malformed environment file or definition."""
 
 
@@ -77,23 +79,23 @@ class PlanarEnvironment:
         self.waypoints = [np.asarray(w, dtype=float).reshape(-1, 2) for w in self.waypoints]
         self.features = np.asarray(self.features, dtype=float).reshape(-1, 2)
         if len(self.waypoints) < 2:
-            raise EnvironmentError("an environment needs waypoints for at least 2 robots")
+            raise PlanarEnvironmentError("an environment needs waypoints for at least 2 robots")
         for i, w in enumerate(self.waypoints):
             if len(w) < 3 or not np.all(np.isfinite(w)):
-                raise EnvironmentError(f"robot {i + 1}: need ≥ 3 finite waypoints")
+                raise PlanarEnvironmentError(f"robot {i + 1}: need ≥ 3 finite waypoints")
             if np.any(np.linalg.norm(np.diff(np.vstack([w, w[:1]]), axis=0), axis=1) == 0):
-                raise EnvironmentError(f"robot {i + 1}: consecutive waypoints coincide")
+                raise PlanarEnvironmentError(f"robot {i + 1}: consecutive waypoints coincide")
         if not np.all(np.isfinite(self.features)):
-            raise EnvironmentError("features contain NaN or infinite values")
+            raise PlanarEnvironmentError("features contain NaN or infinite values")
         if self.loops < 1 or self.sensor_range <= 0:
-            raise EnvironmentError("loops and sensor_range must be positive")
+            raise PlanarEnvironmentError("loops and sensor_range must be positive")
         n = len(self.waypoints)
         if not self.odometry_std:
             self.odometry_std = [(0.3, np.deg2rad(2.0))] * n
         if not self.observation_std:
             self.observation_std = [0.5] + [0.6] * (n - 1)
         if len(self.odometry_std) != n or len(self.observation_std) != n:
-            raise EnvironmentError("noise levels must be given for every robot")
+            raise PlanarEnvironmentError("noise levels must be given for every robot")
 
     @property
     def n_robots(self) -> int:
@@ -104,20 +106,6 @@ class PlanarEnvironment:
     def steps(self) -> int:
         """Motion steps: ``loops`` times the longest loop."""
         return self.loops * max(len(w) for w in self.waypoints)
-
-    def with_features(self, count: int) -> PlanarEnvironment:
-        """The same environment with only its first ``count`` features."""
-        if not 1 <= count <= len(self.features):
-            raise EnvironmentError(f"feature count must lie in 1..{len(self.features)}")
-        return PlanarEnvironment(
-            f"{self.name}-{count}f",
-            self.waypoints,
-            self.features[:count],
-            self.loops,
-            self.sensor_range,
-            list(self.odometry_std),
-            list(self.observation_std),
-        )
 
     def odometry_covs(self) -> np.ndarray:
         """``(N, 3, 3)`` odometry noise covariances."""
@@ -158,7 +146,7 @@ def _features_along(
 def environment(number: int, features: int = 20) -> PlanarEnvironment:
     """Environment 1 or 2 of the paper with 20, 60 or 100 features (generated, deterministic)."""
     if features not in (20, 60, 100):
-        raise EnvironmentError(f"feature count must be 20, 60 or 100, got {features}")
+        raise PlanarEnvironmentError(f"feature count must be 20, 60 or 100, got {features}")
     rng = np.random.default_rng(1000 + number)
     if number == 1:
         # two hand-drawn-like circles (radii 23.5 m and 22 m, centres 16 m apart), both robots
@@ -197,7 +185,7 @@ def environment(number: int, features: int = 20) -> PlanarEnvironment:
             [(0.2, np.deg2rad(3.0))] * 2,
             [0.5, 0.6],
         )
-    raise EnvironmentError(f"unknown environment {number}; choose 1 or 2")
+    raise PlanarEnvironmentError(f"unknown environment {number}; choose 1 or 2")
 
 
 def save_environment(env: PlanarEnvironment, path: str | Path) -> None:
@@ -225,11 +213,11 @@ def load_environment(path: str | Path) -> PlanarEnvironment:
     try:
         payload = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise EnvironmentError(f"{path}: cannot read environment ({exc})") from None
+        raise PlanarEnvironmentError(f"{path}: cannot read environment ({exc})") from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise EnvironmentError(f"{path}: not a {FORMAT} file")
+        raise PlanarEnvironmentError(f"{path}: not a {FORMAT} file")
     if payload.get("version") != VERSION:
-        raise EnvironmentError(f"{path}: unsupported version {payload.get('version')!r}")
+        raise PlanarEnvironmentError(f"{path}: unsupported version {payload.get('version')!r}")
     try:
         return PlanarEnvironment(
             str(payload.get("name", path.stem)),
@@ -241,9 +229,9 @@ def load_environment(path: str | Path) -> PlanarEnvironment:
             list(payload.get("observation_std", [])),
         )
     except KeyError as exc:
-        raise EnvironmentError(f"{path}: field {exc} is missing") from None
+        raise PlanarEnvironmentError(f"{path}: field {exc} is missing") from None
     except (TypeError, ValueError) as exc:
-        raise EnvironmentError(f"{path}: {exc}") from None
+        raise PlanarEnvironmentError(f"{path}: {exc}") from None
 
 
 def load_matlab_environment(
@@ -267,22 +255,22 @@ def load_matlab_environment(
         try:
             data = scipy.io.loadmat(p)
         except (OSError, ValueError, NotImplementedError, TypeError) as exc:
-            raise EnvironmentError(f"{p}: cannot read MATLAB file ({exc})") from None
+            raise PlanarEnvironmentError(f"{p}: cannot read MATLAB file ({exc})") from None
         merged.update({k: v for k, v in data.items() if not k.startswith("__")})
     if "lm" not in merged:
-        raise EnvironmentError("no file holds the features 'lm' (2×F)")
+        raise PlanarEnvironmentError("no file holds the features 'lm' (2×F)")
     robots = []
     k = 1
     while f"wp{k}" in merged:
         robots.append(merged[f"wp{k}"])
         k += 1
     if len(robots) < 2:
-        raise EnvironmentError("need waypoints 'wp1' and 'wp2' (2×K each)")
+        raise PlanarEnvironmentError("need waypoints 'wp1' and 'wp2' (2×K each)")
 
     def as_points(arr: np.ndarray, what: str) -> np.ndarray:
         arr = np.asarray(arr, dtype=float)
         if arr.ndim != 2 or arr.shape[0] != 2:
-            raise EnvironmentError(f"'{what}' must be 2×K, got {arr.shape}")
+            raise PlanarEnvironmentError(f"'{what}' must be 2×K, got {arr.shape}")
         return arr.T
 
     return PlanarEnvironment(

@@ -21,6 +21,7 @@ from teamslam.ekf2d.environments import PlanarEnvironment
 from teamslam.ekf2d.linearization import policy as make_policy
 from teamslam.ekf2d.run import RunMetrics, run_filter
 from teamslam.ekf2d.simulate import PlanarTruth, simulate, truth_of
+from teamslam.errors import InputError
 from teamslam.eval.montecarlo import run_parallel
 
 __all__ = ["FILTERS", "MonteCarloResult", "format_table", "monte_carlo"]
@@ -96,7 +97,7 @@ def monte_carlo(
 ) -> MonteCarloResult:
     """Run ``runs`` seeded Monte Carlo runs of every filter on ``env``."""
     if runs < 1:
-        raise ValueError("runs must be positive")
+        raise InputError("runs must be positive")
     for name in filters:
         make_policy(name)
     truth = truth_of(env)

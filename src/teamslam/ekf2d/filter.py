@@ -23,6 +23,7 @@ import scipy.linalg.lapack
 
 from teamslam.ekf2d import models
 from teamslam.ekf2d.linearization import LinearizationPoints, Policy
+from teamslam.errors import InputError
 from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry.se2 import wrap_angle
 
@@ -47,13 +48,13 @@ class StepObservations:
         self.feature = np.asarray(self.feature, dtype=np.int64).ravel()
         self.z = np.asarray(self.z, dtype=float).reshape(-1, 2)
         if not (self.robot.size == self.feature.size == self.z.shape[0]):
-            raise ValueError("observations: robot, feature and z must have one row each")
+            raise InputError("observations: robot, feature and z must have one row each")
         if not np.all(np.isfinite(self.z)):
-            raise ValueError("observations: z contains NaN or infinite values")
+            raise InputError("observations: z contains NaN or infinite values")
         if self.cov is not None:
             self.cov = np.asarray(self.cov, dtype=float).reshape(-1, 2, 2)
             if self.cov.shape[0] != self.robot.size or not np.all(np.isfinite(self.cov)):
-                raise ValueError("observations: cov must be (m, 2, 2) and finite")
+                raise InputError("observations: cov must be (m, 2, 2) and finite")
 
     def select(self, mask: np.ndarray) -> StepObservations:
         """The rows where ``mask`` holds."""
@@ -112,7 +113,7 @@ class MultiRobotEKF:
         self.observation_covs = np.asarray(observation_covs, dtype=float)
         n = self.odometry_covs.shape[0]
         if self.odometry_covs.shape != (n, 3, 3) or self.observation_covs.shape != (n, 2, 2):
-            raise ValueError("need (N, 3, 3) odometry and (N, 2, 2) observation covariances")
+            raise InputError("need (N, 3, 3) odometry and (N, 2, 2) observation covariances")
         self.n_robots = n
         self.policy = policy
         self.record = JacobianRecord() if record_jacobians else None
@@ -194,7 +195,7 @@ class MultiRobotEKF:
         dim = 3 * self.n_robots + 2 * len(feature_ids)
         cov = np.asarray(cov, dtype=float)
         if cov.shape != (dim, dim):
-            raise ValueError(f"start covariance must be {dim}×{dim}, got {cov.shape}")
+            raise InputError(f"start covariance must be {dim}×{dim}, got {cov.shape}")
         self.dim = 3 * self.n_robots
         self.feature_ids, self._slot = [], {}
         self._grow(2 * len(feature_ids))
@@ -222,7 +223,7 @@ class MultiRobotEKF:
         """
         odometry = np.asarray(odometry, dtype=float).reshape(self.n_robots, 3)
         if not np.all(np.isfinite(odometry)):
-            raise ValueError("odometry contains NaN or infinite values")
+            raise InputError("odometry contains NaN or infinite values")
         posterior = self.poses.copy()
         propagated = models.motion(posterior, odometry)
         points = LinearizationPoints(posterior, self.prior_poses, propagated, true_from, true_to)
@@ -258,10 +259,10 @@ class MultiRobotEKF:
         """Initialise new features, then one batch update with the other observations."""
         obs = observations
         if obs.robot.size and (obs.robot.min() < 0 or obs.robot.max() >= self.n_robots):
-            raise ValueError("observations name a robot outside 0..N-1")
+            raise InputError("observations name a robot outside 0..N-1")
         lin_poses = self.policy.update_poses(self.poses.copy(), true_poses)
         if self.policy.needs_truth and (true_poses is None or true_features is None):
-            raise ValueError(f"the {self.policy.name} policy needs ground truth")
+            raise InputError(f"the {self.policy.name} policy needs ground truth")
         slots = self.slots(obs.feature)
         new = slots < 0
         if np.any(new):

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teamslam.errors import InputError
+
 __all__ = [
     "POLICIES",
     "FirstEstimate",
@@ -134,4 +136,4 @@ def policy(name: str) -> Policy:
     try:
         return POLICIES[name]()
     except KeyError:
-        raise ValueError(f"unknown linearisation {name!r}; choose std, fej or ideal") from None
+        raise InputError(f"unknown linearisation {name!r}; choose std, fej or ideal") from None

@@ -17,6 +17,7 @@ import numpy as np
 import scipy.linalg
 
 from teamslam.ekf2d.filter import JacobianRecord
+from teamslam.errors import InputError
 
 __all__ = ["nullspace", "observability_matrix", "rank"]
 
@@ -28,7 +29,7 @@ def observability_matrix(record: JacobianRecord, start: int, length: int) -> np.
     ``k → k + 1``. The state dimension must not change inside the window.
     """
     if start < 0 or length < 0 or start + length >= len(record.h):
-        raise ValueError(
+        raise InputError(
             f"window {start}..{start + length} outside the {len(record.h)} recorded steps"
         )
     dim = record.h[start].shape[1]
@@ -38,7 +39,7 @@ def observability_matrix(record: JacobianRecord, start: int, length: int) -> np.
         k = start + t
         phi = record.phi[k - 1]
         if phi.shape != (dim, dim) or record.h[k].shape[1] != dim:
-            raise ValueError(
+            raise InputError(
                 f"state dimension changes at step {k}; pick a window without new features"
             )
         transition = phi @ transition

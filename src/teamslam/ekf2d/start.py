@@ -21,13 +21,14 @@ import numpy as np
 
 from teamslam.ekf2d import models
 from teamslam.ekf2d.filter import StepObservations
+from teamslam.errors import InputError
 from teamslam.gaussian import spd_inverse
 from teamslam.geometry.se2 import wrap_angle
 
 __all__ = ["StartError", "StartSolution", "gauss_newton_start"]
 
 
-class StartError(ValueError):
+class StartError(InputError):
     """The step-0 problem is not solvable (too few shared features)."""
 
 

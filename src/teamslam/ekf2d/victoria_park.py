@@ -16,6 +16,7 @@ from teamslam.datasets.victoria_park import VictoriaParkSplit
 from teamslam.ekf2d.filter import MultiRobotEKF, StepObservations
 from teamslam.ekf2d.linearization import policy as make_policy
 from teamslam.ekf2d.start import gauss_newton_start
+from teamslam.errors import InputError
 from teamslam.geometry.se2 import wrap_angle
 
 __all__ = ["VictoriaParkResult", "run_victoria_park"]
@@ -58,7 +59,7 @@ def run_victoria_park(
     import time
 
     if policy == "ideal":
-        raise ValueError("the ideal EKF needs ground truth, which Victoria Park does not have")
+        raise InputError("the ideal EKF needs ground truth, which Victoria Park does not have")
     begin = time.perf_counter()
     n = len(split.robots)
     steps = min(r.steps for r in split.robots)

@@ -51,11 +51,6 @@ def one_minus_cos_over_sq(theta: np.ndarray) -> np.ndarray:
     )
 
 
-def one_minus_cos_over(theta: np.ndarray) -> np.ndarray:
-    """``(1 - cos θ) / θ``."""
-    return np.asarray(theta, dtype=float) * one_minus_cos_over_sq(theta)
-
-
 def theta_minus_sin_over_cube(theta: np.ndarray) -> np.ndarray:
     """``(θ - sin θ) / θ³``."""
     return _blend(

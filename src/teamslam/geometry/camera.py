@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teamslam.errors import InputError
+
 __all__ = ["StereoCamera"]
 
 
@@ -35,13 +37,13 @@ class StereoCamera:
         k = np.asarray(self.intrinsics, dtype=float)
         t = np.asarray(self.T_left_right, dtype=float)
         if k.shape != (3, 3) or t.shape != (4, 4):
-            raise ValueError(
+            raise InputError(
                 f"StereoCamera needs K 3×3 and T_left_right 4×4, got {k.shape}, {t.shape}"
             )
         if not (np.all(np.isfinite(k)) and np.all(np.isfinite(t))):
-            raise ValueError("StereoCamera: intrinsics or extrinsics contain NaN/inf")
+            raise InputError("StereoCamera: intrinsics or extrinsics contain NaN/inf")
         if k[0, 0] <= 0 or k[1, 1] <= 0:
-            raise ValueError("StereoCamera: focal lengths must be positive")
+            raise InputError("StereoCamera: focal lengths must be positive")
         object.__setattr__(self, "intrinsics", k)
         object.__setattr__(self, "T_left_right", t)
 

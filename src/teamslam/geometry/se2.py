@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from teamslam.errors import InputError
 from teamslam.geometry import _series
 
 __all__ = [
@@ -48,14 +49,14 @@ def wrap_angle(angle: np.ndarray) -> np.ndarray:
 def _check_tangent(xi: np.ndarray, name: str) -> np.ndarray:
     xi = np.asarray(xi, dtype=float)
     if xi.shape[-1] != 3:
-        raise ValueError(f"se2.{name} expects a trailing axis of size 3, got shape {xi.shape}")
+        raise InputError(f"se2.{name} expects a trailing axis of size 3, got shape {xi.shape}")
     return xi
 
 
 def _check_pose(pose: np.ndarray, name: str) -> np.ndarray:
     pose = np.asarray(pose, dtype=float)
     if pose.shape[-2:] != (3, 3):
-        raise ValueError(f"se2.{name} expects (..., 3, 3), got shape {pose.shape}")
+        raise InputError(f"se2.{name} expects (..., 3, 3), got shape {pose.shape}")
     return pose
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from teamslam.errors import InputError
 from teamslam.geometry import _series, so3
 
 __all__ = [
@@ -37,14 +38,14 @@ __all__ = [
 def _check_tangent(xi: np.ndarray, name: str) -> np.ndarray:
     xi = np.asarray(xi, dtype=float)
     if xi.shape[-1] != 6:
-        raise ValueError(f"se3.{name} expects a trailing axis of size 6, got shape {xi.shape}")
+        raise InputError(f"se3.{name} expects a trailing axis of size 6, got shape {xi.shape}")
     return xi
 
 
 def _check_pose(pose: np.ndarray, name: str) -> np.ndarray:
     pose = np.asarray(pose, dtype=float)
     if pose.shape[-2:] != (4, 4):
-        raise ValueError(f"se3.{name} expects (..., 4, 4), got shape {pose.shape}")
+        raise InputError(f"se3.{name} expects (..., 4, 4), got shape {pose.shape}")
     return pose
 
 

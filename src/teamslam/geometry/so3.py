@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from teamslam.errors import InputError
 from teamslam.geometry import _series
 
 __all__ = [
@@ -33,7 +34,7 @@ def hat(phi: np.ndarray) -> np.ndarray:
     """Skew-symmetric matrix ``φ^`` with ``φ^ v = φ × v``; shape ``(..., 3) -> (..., 3, 3)``."""
     phi = np.asarray(phi, dtype=float)
     if phi.shape[-1] != 3:
-        raise ValueError(f"so3.hat expects a trailing axis of size 3, got shape {phi.shape}")
+        raise InputError(f"so3.hat expects a trailing axis of size 3, got shape {phi.shape}")
     out = np.zeros((*phi.shape[:-1], 3, 3))
     x, y, z = phi[..., 0], phi[..., 1], phi[..., 2]
     out[..., 0, 1] = -z
@@ -49,7 +50,7 @@ def vee(omega: np.ndarray) -> np.ndarray:
     """Inverse of :func:`hat` (uses the antisymmetric part); ``(..., 3, 3) -> (..., 3)``."""
     omega = np.asarray(omega, dtype=float)
     if omega.shape[-2:] != (3, 3):
-        raise ValueError(f"so3.vee expects (..., 3, 3), got shape {omega.shape}")
+        raise InputError(f"so3.vee expects (..., 3, 3), got shape {omega.shape}")
     return 0.5 * np.stack(
         [
             omega[..., 2, 1] - omega[..., 1, 2],
@@ -93,7 +94,7 @@ def log(rotation: np.ndarray) -> np.ndarray:
     """
     rotation = np.asarray(rotation, dtype=float)
     if rotation.shape[-2:] != (3, 3):
-        raise ValueError(f"so3.log expects (..., 3, 3), got shape {rotation.shape}")
+        raise InputError(f"so3.log expects (..., 3, 3), got shape {rotation.shape}")
     batch_shape = rotation.shape[:-2]
     rotation = rotation.reshape(-1, 3, 3)
     trace = np.trace(rotation, axis1=-2, axis2=-1)

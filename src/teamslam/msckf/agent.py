@@ -23,6 +23,8 @@ from collections import defaultdict
 import numpy as np
 
 from teamslam.datasets.model import Calibration, RobotSequence
+from teamslam.errors import EstimationError, InputError
+from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.health import SensorHealth, odometry_lag_residuals
 from teamslam.msckf.models import observe_jacobians, points_in_camera
@@ -98,7 +100,7 @@ class MsckfAgent:
             )
 
     @property
-    def frames(self) -> int:
+    def n_frames(self) -> int:
         """Frames in the robot's sequence."""
         return self.sequence.frames
 
@@ -144,7 +146,7 @@ class MsckfAgent:
                 ids, frames = snapshot[f"{name}_ids"], snapshot[f"{name}_frames"]
                 zs = np.asarray(snapshot[f"{name}_z"], dtype=float).reshape(-1, 4)
                 if not ids.shape == frames.shape == zs.shape[:1]:
-                    raise ValueError(f"snapshot {name}: {ids.shape} ids, {zs.shape} observations")
+                    raise InputError(f"snapshot {name}: {ids.shape} ids, {zs.shape} observations")
                 history: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
                 for key, f, z in zip(ids.tolist(), frames.tolist(), zs, strict=True):
                     history[key].append((f, z.copy()))
@@ -154,9 +156,9 @@ class MsckfAgent:
             counters = dict(zip(names[0], values[0], strict=True))
             timings = dict(zip(names[1], values[1], strict=True))
         except KeyError as exc:
-            raise ValueError(f"robot {self.robot}: snapshot lacks {exc.args[0]!r}") from None
+            raise InputError(f"robot {self.robot}: snapshot lacks {exc.args[0]!r}") from None
         if not -1 <= frame < self.sequence.frames or frame_times.shape[0] != frame + 1:
-            raise ValueError(
+            raise InputError(
                 f"robot {self.robot}: snapshot at frame {frame} with {frame_times.shape[0]} "
                 f"frame times, sequence of {self.sequence.frames} frames"
             )
@@ -170,9 +172,22 @@ class MsckfAgent:
 
     # ------------------------------------------------------------------ Algorithm 1, steps 2-4
     def step(self, t: int) -> None:
-        """Process frame ``t``: propagate (``t > 0``), update, initialise objects, slide."""
+        """Process frame ``t``: propagate (``t > 0``), update, initialise objects, slide.
+
+        Raises
+        ------
+        EstimationError
+            The filter failed numerically (a covariance lost positive definiteness); the text
+            names the robot and the frame.
+        """
         if t != self.frame + 1:
-            raise ValueError(f"robot {self.robot}: frames must be processed in order (got {t})")
+            raise InputError(f"robot {self.robot}: frames must be processed in order (got {t})")
+        try:
+            self._step(t)
+        except NotPositiveDefiniteError as exc:
+            raise EstimationError(f"robot {self.robot}, frame {t}: {exc}") from exc
+
+    def _step(self, t: int) -> None:
         begin = time.perf_counter()
         if t > 0:
             self._propagate(t)

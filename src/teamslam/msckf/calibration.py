@@ -58,6 +58,7 @@ from scipy import optimize, stats
 from teamslam.datasets.model import TeamDataset
 from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.datasets.stats import robust_std
+from teamslam.errors import InputError
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.health import SENSORS, InnovationRecord, SensorHealth
@@ -234,7 +235,7 @@ def _pass(dataset: TeamDataset, config: MsckfConfig, frames: int) -> SensorHealt
         agent = MsckfAgent(
             i, dataset.calibration, robot.head(frames), config, record_innovations=True
         )
-        for t in range(agent.frames):
+        for t in range(agent.n_frames):
             agent.step(t)
         agent.flush_odometry_health()
         parts.append(agent.health)
@@ -279,7 +280,7 @@ def calibrate(
     if frames is None:
         frames = default_frames(dataset.n_robots)
     if frames < 2:
-        raise ValueError("calibration needs at least 2 frames per robot")
+        raise InputError("calibration needs at least 2 frames per robot")
     frames = min(max(r.frames for r in dataset.robots), frames)
     start: dict = {}
     std = {"features": config.feature_std, "objects": config.object_std}

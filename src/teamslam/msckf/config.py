@@ -12,6 +12,8 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy import stats
 
+from teamslam.errors import InputError
+
 __all__ = ["MsckfConfig"]
 
 
@@ -63,26 +65,26 @@ class MsckfConfig:
 
     def __post_init__(self) -> None:
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 2:
-            raise ValueError("window must be an integer of at least 2 poses")
+            raise InputError("window must be an integer of at least 2 poses")
         odometry = self.odometry_std
         if isinstance(odometry, int | float):
-            raise ValueError("odometry_std must be six numbers (x, y, z in m; rx, ry, rz in rad)")
+            raise InputError("odometry_std must be six numbers (x, y, z in m; rx, ry, rz in rad)")
         odometry = tuple(float(v) for v in odometry)
         if len(odometry) != 6 or not all(np.isfinite(v) and v > 0 for v in odometry):
-            raise ValueError("odometry_std must be six positive numbers")
+            raise InputError("odometry_std must be six positive numbers")
         object.__setattr__(self, "odometry_std", odometry)
         for name in ("feature_std", "object_std", "initial_pose_std", "object_min_depth"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number")
+                raise InputError(f"{name} must be a positive number")
         if not self.object_max_depth > self.object_min_depth:
-            raise ValueError("object_max_depth must exceed object_min_depth")
+            raise InputError("object_max_depth must exceed object_min_depth")
         if not 0 < self.gate_probability < 1:
-            raise ValueError("gate_probability must lie in (0, 1)")
+            raise InputError("gate_probability must lie in (0, 1)")
         for name in ("min_track_length", "object_init_observations"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 2:
-                raise ValueError(f"{name} must be an integer of at least 2 observations")
+                raise InputError(f"{name} must be an integer of at least 2 observations")
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

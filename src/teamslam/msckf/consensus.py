@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from teamslam.errors import InputError
 from teamslam.gaussian import completed_geometric_average
 from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
@@ -141,7 +142,7 @@ def consensus_average(
         return 0
     weights = [float(w) for w, _ in received]
     if self_weight < -1e-12 or min(weights) < 0 or self_weight + sum(weights) > 1 + 1e-9:
-        raise ValueError(
+        raise InputError(
             f"consensus weights must be non-negative with a sum of at most one "
             f"(self {self_weight}, neighbours {weights})"
         )
@@ -150,7 +151,7 @@ def consensus_average(
         if isinstance(m, CommonMarginalMessage):
             problem, m = receive_marginal(state, m)
             if m is None:
-                raise ValueError(f"unusable neighbour marginal: {problem}")
+                raise InputError(f"unusable neighbour marginal: {problem}")
         marginals.append(m)
     y_ids = np.unique(np.concatenate([m.ids for m in marginals]))
     slots = state.object_slots(y_ids)

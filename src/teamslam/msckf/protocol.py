@@ -31,6 +31,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
+from teamslam.errors import InputError
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus import (
     ReceivedMarginal,
@@ -67,7 +68,7 @@ class ConsensusProtocol:
         self.robot = agent.robot
         self.neighbours = frozenset(int(j) for j in neighbours)
         if self.robot in self.neighbours:
-            raise ValueError(f"robot {self.robot} cannot be its own neighbour")
+            raise InputError(f"robot {self.robot} cannot be its own neighbour")
         self.max_age = int(max_age)
         self.step = -1
         self.heard: set[int] = set()

@@ -27,6 +27,7 @@ import yaml
 
 from teamslam.datasets.model import TeamDataset
 from teamslam.datasets.sensor_model import SensorNoise
+from teamslam.errors import InputError
 from teamslam.msckf.config import MsckfConfig
 from teamslam.textio import format_value, read_yaml
 
@@ -56,7 +57,7 @@ DEFAULT_OBJECT_ANGLE = 5e-3
 DEFAULT_ODOMETRY_FRACTION = 0.01
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A setting that does not exist or has a value it cannot take; the message names it."""
 
 

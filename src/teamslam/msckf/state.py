@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
+from teamslam.errors import InputError
 from teamslam.gaussian import NotPositiveDefiniteError, replace_marginal_arrays
 from teamslam.geometry import se3
 
@@ -72,23 +73,23 @@ class MsckfState:
             objects = np.asarray(snapshot["objects"], dtype=float).reshape(-1, 3)
             cov = np.asarray(snapshot["cov"], dtype=float)
         except KeyError as exc:
-            raise ValueError(f"state snapshot lacks {exc.args[0]!r}") from None
+            raise InputError(f"state snapshot lacks {exc.args[0]!r}") from None
         c, m = poses.shape[0], ids.size
         if poses.shape != (c, 4, 4) or frames.shape != (c,) or c == 0:
-            raise ValueError(f"state snapshot: window poses {poses.shape}, frames {frames.shape}")
+            raise InputError(f"state snapshot: window poses {poses.shape}, frames {frames.shape}")
         if objects.shape != (m, 3) or np.unique(ids).size != m:
-            raise ValueError(f"state snapshot: {m} object ids for objects {objects.shape}")
+            raise InputError(f"state snapshot: {m} object ids for objects {objects.shape}")
         dim = 6 * c + 3 * m
         if cov.shape != (dim, dim):
-            raise ValueError(f"state snapshot: covariance {cov.shape}, state dimension {dim}")
+            raise InputError(f"state snapshot: covariance {cov.shape}, state dimension {dim}")
         if not all(np.all(np.isfinite(a)) for a in (poses, objects, cov)):
-            raise ValueError("state snapshot: non-finite values")
+            raise InputError("state snapshot: non-finite values")
         if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
-            raise ValueError("state snapshot: covariance is not symmetric")
+            raise InputError("state snapshot: covariance is not symmetric")
         try:
             np.linalg.cholesky(cov)
         except np.linalg.LinAlgError:
-            raise ValueError("state snapshot: covariance is not positive definite") from None
+            raise InputError("state snapshot: covariance is not positive definite") from None
         self.poses, self.frames, self.object_ids, self.objects = poses, frames, ids, objects
         self.cov = 0.5 * (cov + cov.T)
 
@@ -247,7 +248,7 @@ class MsckfState:
         current = np.zeros(self.dim)
         slot_cols = index - 6 * self.n_poses
         if np.any(slot_cols < 0):
-            raise ValueError("consensus may only replace object coordinates")
+            raise InputError("consensus may only replace object coordinates")
         current[index] = self.objects.ravel()[slot_cols]
         new_mean, new_cov = replace_marginal_arrays(current, self.cov, index, mean, cov)
         delta = new_mean - current

@@ -21,6 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from teamslam.datasets.model import TeamDataset
+from teamslam.errors import InputError
 from teamslam.graph import CommunicationGraph, EdgeLoss, complete
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
@@ -114,10 +115,10 @@ def run_team(
     else:
         configs = list(config)
         if len(configs) != n:
-            raise ValueError(f"{len(configs)} configs for a team of {n} robots")
+            raise InputError(f"{len(configs)} configs for a team of {n} robots")
     graph = graph or complete(n)
     if graph.n != n:
-        raise ValueError(f"graph has {graph.n} robots, dataset has {n}")
+        raise InputError(f"graph has {graph.n} robots, dataset has {n}")
     agents = [
         MsckfAgent(i, dataset.calibration, r, c)
         for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))

@@ -23,6 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
+from teamslam.errors import InputError
 from teamslam.msckf.messages import Message
 
 __all__ = ["Mailbox", "MemoryNetwork", "MemoryTransport", "Transport"]
@@ -152,7 +153,7 @@ class MemoryNetwork:
     def endpoint(self, robot: int) -> MemoryTransport:
         """Robot ``robot``'s :class:`Transport`."""
         if not 0 <= robot < self.n:
-            raise ValueError(f"no robot {robot} in a network of {self.n}")
+            raise InputError(f"no robot {robot} in a network of {self.n}")
         return MemoryTransport(self, robot)
 
     def _deliver(self, message: Message) -> bool:

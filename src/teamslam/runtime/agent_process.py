@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from teamslam.datasets import SensorModel, TeamDataset, load_dataset
+from teamslam.errors import InputError
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.protocol import ConsensusProtocol
@@ -109,12 +110,12 @@ def run_agent(
     dataset_path, index = team.dataset_of(robot)
     dataset = load_dataset(dataset_path)
     if not 0 <= index < dataset.n_robots:
-        raise ValueError(f"robot {robot}: dataset {dataset_path} has no robot {index}")
+        raise InputError(f"robot {robot}: dataset {dataset_path} has no robot {index}")
     sequence = dataset.robots[index]
     # the team file's settings win over the dataset's sensor model; noise levels neither gives
     # are calibrated from this robot's own data
     own = replace(dataset, robots=[sequence], sensor_model=_own_sensor_model(dataset, index))
-    config = resolve_config(own, file_values=team.filter).config
+    config = resolve_config(own, file_values=team.filter_settings).config
     agent = MsckfAgent(robot, dataset.calibration, sequence, config)
     frames = sequence.frames
     poses = np.zeros((frames, 4, 4))

@@ -37,13 +37,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from teamslam.errors import InputError
 from teamslam.msckf.settings import ConfigError, coerce_settings
 from teamslam.textio import read_yaml
 
 __all__ = ["RobotEntry", "TeamFile", "TeamFileError", "load_team_file", "write_team_file"]
 
 
-class TeamFileError(ValueError):
+class TeamFileError(InputError):
     """A malformed team file; the message names the field."""
 
 
@@ -71,7 +72,7 @@ class TeamFile:
     checkpoint_every: int = 25
     message_loss: float = 0.0
     message_delay_ms: float = 0.0
-    filter: dict = field(default_factory=dict)
+    filter_settings: dict = field(default_factory=dict)
     path: Path | None = None
 
     @property
@@ -208,7 +209,7 @@ def _parse(data, path: Path) -> TeamFile:
         checkpoint_every=_number(data, "checkpoint_every", 25, int, 0),
         message_loss=_number(data, "message_loss", 0.0, float, 0.0, 1.0),
         message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
-        filter=filt,
+        filter_settings=filt,
         path=path,
     )
 

@@ -29,6 +29,7 @@ import struct
 
 import numpy as np
 
+from teamslam.errors import InputError
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
 
 __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
@@ -42,7 +43,7 @@ MAX_MESSAGE_BYTES = 16 * 1024 * 1024
 MAX_IDS = 100_000
 
 
-class WireError(ValueError):
+class WireError(InputError):
     """A received message that cannot be used; the message names the reason."""
 
 

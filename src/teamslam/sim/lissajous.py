@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 
 from teamslam.datasets.model import Calibration, FrameObservations, RobotSequence, TeamDataset
 from teamslam.datasets.sensor_model import SensorModel, SensorNoise
+from teamslam.errors import InputError
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
 
@@ -98,11 +99,11 @@ class SimulationConfig:
 
     def __post_init__(self) -> None:
         if self.robots < 1 or self.steps < 1:
-            raise ValueError("robots and steps must be positive")
+            raise InputError("robots and steps must be positive")
         if self.objects < 0 or self.landmarks < 0:
-            raise ValueError("objects and landmarks must be non-negative")
+            raise InputError("objects and landmarks must be non-negative")
         if not 0.0 <= self.background_fraction <= 1.0:
-            raise ValueError("background_fraction must lie in [0, 1]")
+            raise InputError("background_fraction must lie in [0, 1]")
         for name in (
             "pixel_noise",
             "object_pixel_noise",
@@ -110,11 +111,11 @@ class SimulationConfig:
             "odometry_rotation_noise",
         ):
             if getattr(self, name) < 0 or not np.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} must be a finite non-negative number")
+                raise InputError(f"{name} must be a finite non-negative number")
         if not 0 < self.min_depth < self.max_depth:
-            raise ValueError("need 0 < min_depth < max_depth")
+            raise InputError("need 0 < min_depth < max_depth")
         if self.step_length <= 0 or self.focal <= 0 or self.baseline <= 0:
-            raise ValueError("step_length, focal and baseline must be positive")
+            raise InputError("step_length, focal and baseline must be positive")
 
     def camera(self) -> StereoCamera:
         """The stereo camera in pixels (its image bounds decide what is visible)."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from teamslam.datasets.model import TeamDataset
+from teamslam.errors import InputError
 from teamslam.sim.lissajous import lissajous_team
 
 __all__ = ["SENSOR_SCENARIOS", "scenario_team"]
@@ -66,7 +67,7 @@ def scenario_team(
     try:
         fields = SENSOR_SCENARIOS[name]
     except KeyError:
-        raise ValueError(
+        raise InputError(
             f"unknown scenario {name!r}; scenarios: {', '.join(SENSOR_SCENARIOS)}"
         ) from None
     team = lissajous_team(robots=robots, steps=steps, seed=seed, **fields)

@@ -1,0 +1,135 @@
+"""``teamslam simulate`` and ``teamslam data``: make, inspect and import team datasets."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from teamslam.cli._common import Parser, non_negative_int, positive_int
+
+__all__ = ["register"]
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from teamslam.datasets import dataset_info, format_info, save_dataset
+    from teamslam.sim import lissajous_team
+
+    dataset = lissajous_team(
+        robots=args.robots,
+        steps=args.steps,
+        objects=args.objects,
+        seed=args.seed,
+        noise_free=args.noise_free,
+    )
+    path = save_dataset(dataset, args.out)
+    print(format_info(dataset_info(dataset)))
+    print(f"\nwrote {path}")
+    return 0
+
+
+def _cmd_data_info(args: argparse.Namespace) -> int:
+    from teamslam.datasets import dataset_info, format_info, load_dataset
+
+    info = dataset_info(load_dataset(args.dataset))
+    print(json.dumps(info, indent=2) if args.json else format_info(info))
+    return 0
+
+
+def _cmd_data_import_reference(args: argparse.Namespace) -> int:
+    from teamslam.datasets import dataset_info, format_info, import_reference, save_dataset
+
+    dataset = import_reference(
+        args.source, inverted_odometry=args.inverted_odometry, params=args.params
+    )
+    path = save_dataset(dataset, args.out)
+    print(format_info(dataset_info(dataset)))
+    print(f"\nwrote {path}")
+    if dataset.sensor_model is not None:
+        _check_params(dataset, path)
+    return 0
+
+
+def _check_params(dataset, path: Path) -> None:
+    """Compare a params file's noise levels with a calibration from the data; warn on a gap."""
+    from teamslam.msckf.calibration import calibrate
+    from teamslam.msckf.settings import calibration_start, resolve_config
+
+    model = dataset.sensor_model.team
+    start = calibration_start(dataset, resolve_config(dataset, calibrate="never").config)
+    estimate = calibrate(dataset, start).sensor_model.team
+
+    def pick(noise, label):
+        odometry = noise.odometry_std
+        return {
+            "odometry σ translation (m)": None if odometry is None else max(odometry[:3]),
+            "odometry σ rotation (rad)": None if odometry is None else max(odometry[3:]),
+            "feature σ": noise.feature_std,
+            "object σ": noise.object_std,
+        }[label]
+
+    print(f"\nsensor model from {dataset.sensor_model.note}")
+    print(f"{'':<28}{'params file':>14}{'the data say':>14}")
+    for label in (
+        "odometry σ translation (m)",
+        "odometry σ rotation (rad)",
+        "feature σ",
+        "object σ",
+    ):
+        given, found = pick(model, label), pick(estimate, label)
+        if given is None or found is None:
+            continue
+        print(f"{label:<28}{given:>14.4g}{found:>14.4g}")
+        if not 1 / 3 <= given / found <= 3:
+            print(
+                f"warning: the params file's {label} ({given:.4g}) is {given / found:.2g}× "
+                f"what the data show ({found:.4g}); `teamslam calibrate {path} --write` "
+                "replaces it",
+                file=sys.stderr,
+            )
+
+
+def register(sub) -> None:
+    """Add this group's commands to the ``teamslam`` subparsers."""
+    sim = sub.add_parser(
+        "simulate",
+        help="simulate a stereo robot team on Lissajous curves and write a dataset",
+        description="Simulate a team of stereo robots flying 3D Lissajous curves through one "
+        "arena (objects, geometric feature tracks, noisy odometry) and write it in teamslam's "
+        "dataset format.",
+    )
+    sim.add_argument("--robots", type=positive_int, default=5, help="number of robots")
+    sim.add_argument("--steps", type=positive_int, default=300, help="motion steps per robot")
+    sim.add_argument("--objects", type=non_negative_int, default=210, help="objects in the map")
+    sim.add_argument("--seed", type=non_negative_int, default=0, help="random seed")
+    sim.add_argument("--noise-free", action="store_true", help="exact measurements and odometry")
+    sim.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    sim.set_defaults(handler=_cmd_simulate)
+
+    data = sub.add_parser("data", help="inspect and import team datasets")
+    data_sub = data.add_subparsers(dest="data_command", metavar="ACTION", parser_class=Parser)
+    data_sub.required = True
+    info = data_sub.add_parser("info", help="summary of a dataset")
+    info.add_argument("dataset", type=Path, help="dataset directory")
+    info.add_argument("--json", action="store_true", help="print one JSON object")
+    info.set_defaults(handler=_cmd_data_info)
+    imp = data_sub.add_parser(
+        "import-reference",
+        help="convert the distributed-MSCKF paper's published data to teamslam's format",
+    )
+    imp.add_argument("source", type=Path, help="directory of the published files")
+    imp.add_argument("out", type=Path, help="dataset directory to write")
+    imp.add_argument(
+        "--inverted-odometry",
+        action="store_true",
+        help="the source stores inverse relative poses (the published simulated teams)",
+    )
+    imp.add_argument(
+        "--params",
+        type=Path,
+        default=None,
+        help="the publisher's parameter file (params.yaml): its noise variances become the "
+        "dataset's sensor model, checked against a calibration from the data",
+    )
+    imp.set_defaults(handler=_cmd_data_import_reference)

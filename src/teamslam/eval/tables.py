@@ -1,0 +1,66 @@
+"""Text tables of team runs (separate vs consensus side by side)."""
+
+from __future__ import annotations
+
+__all__ = ["team_table"]
+
+
+def team_table(runs: dict[str, dict]) -> str:
+    """Side-by-side summary of team runs (separate vs consensus)."""
+    names = list(runs)
+    rows = [
+        ("trajectory RMSE avg [m]", "trajectory_rmse_avg_m"),
+        ("trajectory RMSE max [m]", "trajectory_rmse_max_m"),
+        ("odometry-only RMSE avg [m]", "odometry_rmse_avg_m"),
+        ("object error avg [m]", "object_error_avg_m"),
+        ("object disagreement avg [m]", "object_disagreement_avg_m"),
+    ]
+    width = max(14, *(len(n) + 2 for n in names))
+    lines = [f"{'':<36}" + "".join(f"{n:>{width}}" for n in names)]
+    for label, key in rows:
+        lines.append(f"{label:<36}" + "".join(f"{runs[n][key]:>{width}.3f}" for n in names))
+    n_robots = runs[names[0]]["robots"]
+    for i in range(n_robots):
+        lines.append(
+            f"{f'robot {i + 1} trajectory RMSE [m]':<36}"
+            + "".join(f"{runs[n]['trajectory_rmse_m'][i]:>{width}.3f}" for n in names)
+        )
+    for i in range(n_robots):
+        lines.append(
+            f"{f'robot {i + 1} pose NEES / 6':<36}"
+            + "".join(f"{runs[n]['nees_pose_avg'][i]:>{width}.2f}" for n in names)
+        )
+    for sensor, label in (("features", "features"), ("objects", "objects")):
+        if any(runs[n].get("nis", {}).get(sensor) is not None for n in names):
+            lines.append(
+                f"{f'{label} NIS/dof | gate rejected':<36}"
+                + "".join(_health_cell(runs[n], sensor, width) for n in names)
+            )
+    if any(runs[n].get("odometry_residual_ratio") for n in names):
+        lines.append(
+            f"{'odometry residual ratio (t | r)':<36}"
+            + "".join(_odometry_cell(runs[n], width) for n in names)
+        )
+    for stage in ("consensus", "propagation", "update", "initialisation", "total"):
+        lines.append(
+            f"{f'time {stage} [ms/robot/frame]':<36}"
+            + "".join(f"{runs[n]['time_per_robot_step_ms'][stage]:>{width}.2f}" for n in names)
+        )
+    return "\n".join(lines)
+
+
+def _health_cell(run: dict, sensor: str, width: int) -> str:
+    nis = run.get("nis", {}).get(sensor)
+    rejected = run.get("gate_rejection_rate", {}).get(sensor)
+    if nis is None:
+        return f"{'—':>{width}}"
+    cell = f"{nis:.2f} | {100 * rejected:.1f}%"
+    return f"{cell:>{width}}"
+
+
+def _odometry_cell(run: dict, width: int) -> str:
+    ratio = run.get("odometry_residual_ratio")
+    if not ratio:
+        return f"{'—':>{width}}"
+    cell = f"{ratio['translation']:.2f} | {ratio['rotation']:.2f}"
+    return f"{cell:>{width}}"
