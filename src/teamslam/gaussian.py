@@ -36,6 +36,7 @@ __all__ = [
     "completed_geometric_average",
     "geometric_average",
     "geometric_average_arrays",
+    "kl_divergence",
     "marginal_information",
     "nees",
     "replace_marginal",
@@ -423,6 +424,30 @@ class InformationGaussian:
         return InformationGaussian(
             self.info_vector[ix] - lam[np.ix_(ix, iy)] @ value_y, lam[np.ix_(ix, ix)]
         )
+
+
+def kl_divergence(
+    mean0: np.ndarray, cov0: np.ndarray, mean1: np.ndarray, cov1: np.ndarray
+) -> np.ndarray:
+    """``KL(N(μ₀, Σ₀) ‖ N(μ₁, Σ₁))`` in nats, batched over leading axes.
+
+    ``½ [tr(Σ₁⁻¹Σ₀) + (μ₁ − μ₀)ᵀ Σ₁⁻¹ (μ₁ − μ₀) − d + ln det Σ₁ − ln det Σ₀]``, through the
+    Cholesky factors of both covariances.
+    """
+    mean0, mean1 = np.asarray(mean0, dtype=float), np.asarray(mean1, dtype=float)
+    l0 = _cholesky(np.asarray(cov0, dtype=float), "kl_divergence: Σ₀")
+    l1 = _cholesky(np.asarray(cov1, dtype=float), "kl_divergence: Σ₁")
+    d = mean0.shape[-1]
+    # Σ₁⁻¹Σ₀ trace = ‖L₁⁻¹L₀‖²_F; Mahalanobis term = ‖L₁⁻¹(μ₁ − μ₀)‖²
+    rhs = np.concatenate([l0, (mean1 - mean0)[..., :, None]], axis=-1)
+    solved = np.linalg.solve(l1, rhs)
+    trace = np.sum(solved[..., :d] ** 2, axis=(-2, -1))
+    maha = np.sum(solved[..., d] ** 2, axis=-1)
+    logdet = 2.0 * np.sum(
+        np.log(np.diagonal(l1, axis1=-2, axis2=-1)) - np.log(np.diagonal(l0, axis1=-2, axis2=-1)),
+        axis=-1,
+    )
+    return 0.5 * (trace + maha - d + logdet)
 
 
 def nees(mean: np.ndarray, cov: np.ndarray, truth: np.ndarray) -> float:

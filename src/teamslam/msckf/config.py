@@ -45,6 +45,11 @@ class MsckfConfig:
         Which measurements to use.
     initial_pose_std
         Std of the first pose (tiny: robots start from a known pose in the common frame).
+    consensus_kl_threshold
+        Consensus averages a common object with a neighbour only when its marginal has moved,
+        on either robot, since the two last exchanged it: by more than this Kullback–Leibler
+        divergence (nats; unit-free, so the same for any camera or scale). 0 averages every
+        common object at every step, as the paper does.
     debug
         Check the covariance after every edit.
     """
@@ -61,6 +66,7 @@ class MsckfConfig:
     use_geometric_features: bool = True
     use_objects: bool = True
     initial_pose_std: float = 1e-4
+    consensus_kl_threshold: float = 1e-3
     debug: bool = False
 
     def __post_init__(self) -> None:
@@ -79,6 +85,9 @@ class MsckfConfig:
                 raise InputError(f"{name} must be a positive number")
         if not self.object_max_depth > self.object_min_depth:
             raise InputError("object_max_depth must exceed object_min_depth")
+        threshold = self.consensus_kl_threshold
+        if isinstance(threshold, bool) or not (np.isfinite(threshold) and threshold >= 0):
+            raise InputError("consensus_kl_threshold must be a number ≥ 0 (nats)")
         if not 0 < self.gate_probability < 1:
             raise InputError("gate_probability must lie in (0, 1)")
         for name in ("min_track_length", "object_init_observations"):

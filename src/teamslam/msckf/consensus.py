@@ -34,9 +34,16 @@ __all__ = [
     "ReceivedMarginal",
     "common_marginal_message",
     "consensus_average",
+    "object_marginals",
     "receive_marginal",
     "validate_marginal",
 ]
+
+
+def object_marginals(state: MsckfState) -> tuple[np.ndarray, np.ndarray]:
+    """Each map object's own marginal: ``(m, 3)`` means and ``(m, 3, 3)`` covariance blocks."""
+    cols = state.object_columns(np.arange(state.n_objects))
+    return state.objects.copy(), state.cov[cols[:, :, None], cols[:, None, :]]
 
 
 def common_marginal_message(

@@ -22,16 +22,26 @@ __all__ = ["CommonMarginalMessage", "MapIdsMessage", "Message"]
 
 @dataclass(frozen=True)
 class MapIdsMessage:
-    """Round 1 of consensus: the ids of the objects in the sender's map."""
+    """Round 1 of consensus: the ids of the objects in the sender's map.
+
+    Attributes
+    ----------
+    ids
+        Every object in the sender's map.
+    moved
+        One flag per id: whether the sender's marginal of that object has moved since the two
+        robots last exchanged it (``None``: all have — average every common object).
+    """
 
     sender: int
     receiver: int
     step: int
     ids: np.ndarray
+    moved: np.ndarray | None = None
 
     def nbytes(self) -> int:
-        """Payload size on a wire (header of four int64 plus the ids)."""
-        return 32 + 8 * int(np.size(self.ids))
+        """Payload size on a wire (header, the ids, one bit per id for ``moved``)."""
+        return 32 + 8 * int(np.size(self.ids)) + (int(np.size(self.ids)) + 7) // 8
 
 
 @dataclass(frozen=True)

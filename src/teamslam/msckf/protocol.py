@@ -18,6 +18,18 @@ matrix of the links that work this step, whoever computes it. A neighbour heard 
 whose marginal did not arrive or was rejected contributes its weight as our own marginal —
 exactly its term in eq. 42 when it shares nothing with us — so the weights always sum to one.
 
+**Consensus on what can change.** Averaging a common object whose marginal has not moved on
+either robot since the two last exchanged it changes nothing measurable, so a pair of robots
+averages only the common objects that moved: each robot remembers, per neighbour, its own
+marginal of every object as it was when they last exchanged it, flags in round 1 the objects
+whose marginal has since moved by more than ``kl_threshold`` (Kullback–Leibler divergence,
+nats), and both robots then exchange and average the common objects flagged by either — the
+same set on both sides. Residual disagreement after an average shows up as movement (each robot
+moved towards the other), so pairs keep averaging until they agree to within the threshold;
+new objects and objects observed since are always averaged. A robot records an exchange only
+once its neighbour's marginal arrived, so a lost message never hides a change. With
+``kl_threshold = 0`` (or in asynchronous mode) every common object is averaged at every step.
+
 Every received message is checked here once: kind, step (``step − max_age ≤ s ≤ step``), a
 sender that is a neighbour, and for a marginal the ids, sizes, finiteness and one Cholesky
 factorisation that also gives the information matrix used by the average. A rejected message is
@@ -32,11 +44,13 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from teamslam.errors import InputError
+from teamslam.gaussian import kl_divergence
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus import (
     ReceivedMarginal,
     common_marginal_message,
     consensus_average,
+    object_marginals,
     receive_marginal,
 )
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
@@ -61,15 +75,32 @@ class ConsensusProtocol:
         The robots it may hear from (its neighbours in the communication graph).
     max_age
         Oldest step accepted, as ``step − max_age`` (0: lock-step, only the current step).
+    kl_threshold
+        Average a common object only when it moved by more than this since the last exchange
+        (default: the agent's ``config.consensus_kl_threshold``; 0 averages everything).
     """
 
-    def __init__(self, agent: MsckfAgent, neighbours: Iterable[int], max_age: int = 0) -> None:
+    def __init__(
+        self,
+        agent: MsckfAgent,
+        neighbours: Iterable[int],
+        max_age: int = 0,
+        kl_threshold: float | None = None,
+    ) -> None:
         self.agent = agent
         self.robot = agent.robot
         self.neighbours = frozenset(int(j) for j in neighbours)
         if self.robot in self.neighbours:
             raise InputError(f"robot {self.robot} cannot be its own neighbour")
         self.max_age = int(max_age)
+        threshold = agent.config.consensus_kl_threshold if kl_threshold is None else kl_threshold
+        # asynchronous exchanges mix steps: there every common object is averaged
+        self.kl_threshold = float(threshold) if self.max_age == 0 else 0.0
+        # per neighbour: our own per-object marginals as they were at the last exchange
+        self._agreed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._moved: dict[int, np.ndarray] = {}
+        self._pending: dict[int, np.ndarray] = {}
+        self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.step = -1
         self.heard: set[int] = set()
         self.expected: set[int] = set()
@@ -94,19 +125,49 @@ class ConsensusProtocol:
 
     # ------------------------------------------------------------------ rounds
     def requests(self, step: int, to: Iterable[int] | None = None) -> list[MapIdsMessage]:
-        """Round 1 of ``step``: our map ids for each neighbour in ``to`` (default: all)."""
+        """Round 1 of ``step``: our map ids (and which moved) for each neighbour in ``to``."""
+        begin = time.perf_counter()
         self.step = int(step)
         self.heard = set()
         self.expected = set()
-        self.spent = 0.0
-        ids = self.agent.state.object_ids
+        self._moved = {}
+        self._pending = {}
+        ids = self.agent.state.object_ids.copy()
+        self._own = (ids, *object_marginals(self.agent.state)) if self.kl_threshold > 0 else None
         targets = sorted(self.neighbours if to is None else set(to) & self.neighbours)
-        return [MapIdsMessage(self.robot, j, self.step, ids.copy()) for j in targets]
+        out = []
+        for j in targets:
+            moved = self._moved_for(j)
+            out.append(MapIdsMessage(self.robot, j, self.step, ids, moved))
+        self.spent = time.perf_counter() - begin
+        return out
+
+    def _moved_for(self, j: int) -> np.ndarray | None:
+        """Which of our objects moved since we last exchanged them with ``j`` (``None``: all)."""
+        if self._own is None:
+            return None
+        if j in self._moved:
+            return self._moved[j]
+        ids, means, covs = self._own
+        moved = np.ones(ids.size, dtype=bool)
+        agreed = self._agreed.get(j)
+        if agreed is not None and ids.size and agreed[0].size:
+            a_ids, a_means, a_covs = agreed
+            pos = np.minimum(np.searchsorted(a_ids, ids), a_ids.size - 1)
+            known = a_ids[pos] == ids
+            if known.any():
+                k = pos[known]
+                kl = kl_divergence(means[known], covs[known], a_means[k], a_covs[k])
+                moved[known] = kl > self.kl_threshold
+        self._moved[j] = moved
+        return moved
 
     def answer(self, received: Sequence[Message]) -> list[CommonMarginalMessage]:
-        """Round 2: our marginal of the objects each requester shares with us.
+        """Round 2: our marginal of the common objects to average with each requester.
 
-        Records who was heard (our degree this step) and whose marginal to expect back.
+        Those are the objects we share that moved on either side (all we share with a
+        threshold of 0). Records who was heard (our degree this step) and whose marginal to
+        expect back.
         """
         begin = time.perf_counter()
         requests = {}
@@ -117,13 +178,27 @@ class ConsensusProtocol:
         replies = []
         own = self.agent.state.object_ids
         for j in sorted(requests):
+            their_ids = np.asarray(requests[j].ids, dtype=np.int64)
+            mine_moved = self._moved_for(j)
+            theirs_moved = requests[j].moved
+            if mine_moved is None or theirs_moved is None:
+                share = np.intersect1d(their_ids, own)
+            else:
+                theirs_moved = np.asarray(theirs_moved, dtype=bool)
+                if theirs_moved.shape != their_ids.shape:
+                    self.agent.reject("messages", reason="moved flags do not match the ids")
+                    self.heard.discard(j)
+                    continue
+                flagged = np.union1d(their_ids[theirs_moved], own[mine_moved])
+                share = np.intersect1d(np.intersect1d(their_ids, own), flagged)
+            if share.size == 0:
+                continue
             reply = common_marginal_message(
-                self.agent.state, self.robot, j, self.step, requests[j].ids, len(self.heard)
+                self.agent.state, self.robot, j, self.step, share, len(self.heard)
             )
-            if reply is not None:
-                replies.append(reply)
-            if np.intersect1d(requests[j].ids, own).size:
-                self.expected.add(j)
+            replies.append(reply)
+            self._pending[j] = share
+            self.expected.add(j)
         self.spent += time.perf_counter() - begin
         return replies
 
@@ -162,7 +237,26 @@ class ConsensusProtocol:
         averaged = consensus_average(
             self.agent.state, self_weight, [(weights[j], marginals[j]) for j in sorted(marginals)]
         )
+        if self._own is not None:
+            for j in marginals:
+                if j in self._pending:
+                    self._record_exchange(j, self._pending[j])
         self.agent.counters["objects_averaged"] += averaged
         self.spent += time.perf_counter() - begin
         self.agent.timings["consensus"] += self.spent
         return averaged
+
+    def _record_exchange(self, j: int, exchanged: np.ndarray) -> None:
+        """Remember our pre-average marginals of the objects just exchanged with ``j``."""
+        ids, means, covs = self._own
+        take = np.isin(ids, exchanged)
+        old = self._agreed.get(j)
+        if old is not None:
+            keep = np.isin(old[0], ids) & ~np.isin(old[0], exchanged)  # still in our map
+            new_ids = np.concatenate([old[0][keep], ids[take]])
+            new_means = np.concatenate([old[1][keep], means[take]])
+            new_covs = np.concatenate([old[2][keep], covs[take]])
+        else:
+            new_ids, new_means, new_covs = ids[take], means[take], covs[take]
+        order = np.argsort(new_ids)
+        self._agreed[j] = (new_ids[order], new_means[order], new_covs[order])

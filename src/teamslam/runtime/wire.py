@@ -4,17 +4,22 @@ Every message is a fixed little-endian header followed by a payload::
 
     offset size field
     0      4    magic b"TSLM"
-    4      1    format version (1)
+    4      1    format version (2)
     5      1    kind: 1 = map ids, 2 = common marginal
-    6      2    reserved (0)
+    6      2    marginal: the sender's degree this step (neighbours heard); map ids: 0
     8      8    team id (64-bit hash of the team name)
     16     2    sender robot
     18     2    receiver robot
     20     4    step
     24     4    number of ids n
-    28     4    mean length d (0 for map ids, 3 n for a marginal)
-    32     ...  n int64 ids, d float64 mean, d (d + 1) / 2 float64 covariance upper
-                triangle (row-major)
+    28     4    marginal: mean length d = 3 n; map ids: length b of the moved flags
+                (0: none, all moved; else ceil(n / 8))
+    32     ...  map ids: n int64 ids, then b bytes of moved flags (one bit per id, little
+                bit order); marginal: n int64 ids, d float64 mean, d (d + 1) / 2 float64
+                covariance upper triangle (row-major)
+
+Version 2 added the moved flags and the degree (consensus on what changed, one weighting
+rule); a version-1 message is refused by name.
 
 No pickle, no code: :func:`decode` checks the magic, version, kind, team, robots, sizes (the
 byte length must match the header exactly and stay under a limit), ids without repeats and
@@ -35,7 +40,7 @@ from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Messag
 __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
 
 MAGIC = b"TSLM"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 KIND_IDS = 1
 KIND_MARGINAL = 2
 HEADER = struct.Struct("<4sBBHQHHIII")
@@ -56,6 +61,12 @@ def encode(message: Message, team: int) -> bytes:
     """Serialise a message."""
     ids = np.ascontiguousarray(message.ids, dtype="<i8")
     if isinstance(message, MapIdsMessage):
+        flags = b""
+        if message.moved is not None:
+            moved = np.asarray(message.moved, dtype=bool)
+            if moved.shape != ids.shape:
+                raise WireError(f"{moved.size} moved flags for {ids.size} ids")
+            flags = np.packbits(moved, bitorder="little").tobytes()
         header = HEADER.pack(
             MAGIC,
             FORMAT_VERSION,
@@ -66,9 +77,9 @@ def encode(message: Message, team: int) -> bytes:
             message.receiver,
             message.step,
             ids.size,
-            0,
+            len(flags),
         )
-        return header + ids.tobytes()
+        return header + ids.tobytes() + flags
     mean = np.ascontiguousarray(message.mean, dtype="<f8")
     d = mean.size
     upper = np.asarray(message.cov, dtype="<f8")[np.triu_indices(d)]
@@ -76,7 +87,7 @@ def encode(message: Message, team: int) -> bytes:
         MAGIC,
         FORMAT_VERSION,
         KIND_MARGINAL,
-        0,
+        min(int(message.degree), 0xFFFF),
         team,
         message.sender,
         message.receiver,
@@ -100,7 +111,9 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
         raise WireError(f"oversized message ({len(data)} bytes > {max_bytes})")
     if len(data) < HEADER.size:
         raise WireError(f"truncated header ({len(data)} of {HEADER.size} bytes)")
-    magic, version, kind, _, team_of, sender, receiver, step, n_ids, d = HEADER.unpack_from(data)
+    magic, version, kind, degree, team_of, sender, receiver, step, n_ids, d = HEADER.unpack_from(
+        data
+    )
     if magic != MAGIC:
         raise WireError("not a teamslam message (bad magic)")
     if version != FORMAT_VERSION:
@@ -112,9 +125,11 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
     if n_ids > MAX_IDS:
         raise WireError(f"too many ids ({n_ids})")
     if kind == KIND_IDS:
-        if d != 0:
-            raise WireError("map-ids message with a mean")
-        expected = HEADER.size + 8 * n_ids
+        if d not in (0, (n_ids + 7) // 8) or (n_ids == 0 and d != 0):
+            raise WireError(f"map-ids message with {d} bytes of flags for {n_ids} ids")
+        if degree != 0:
+            raise WireError("map-ids message with a degree")
+        expected = HEADER.size + 8 * n_ids + d
     elif kind == KIND_MARGINAL:
         if d != 3 * n_ids or n_ids == 0:
             raise WireError(f"marginal of {n_ids} objects with mean length {d}")
@@ -127,7 +142,11 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
     if np.unique(ids).size != ids.size:
         raise WireError("repeated ids")
     if kind == KIND_IDS:
-        return MapIdsMessage(int(sender), int(receiver), int(step), ids)
+        moved = None
+        if d:
+            bits = np.frombuffer(data, dtype=np.uint8, count=d, offset=HEADER.size + 8 * n_ids)
+            moved = np.unpackbits(bits, count=n_ids, bitorder="little").astype(bool)
+        return MapIdsMessage(int(sender), int(receiver), int(step), ids, moved)
     offset = HEADER.size + 8 * n_ids
     mean = np.frombuffer(data, dtype="<f8", count=d, offset=offset).astype(float)
     upper = np.frombuffer(data, dtype="<f8", count=d * (d + 1) // 2, offset=offset + 8 * d)
@@ -136,4 +155,4 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
     cov = np.zeros((d, d))
     cov[np.triu_indices(d)] = upper
     cov = cov + np.triu(cov, 1).T
-    return CommonMarginalMessage(int(sender), int(receiver), int(step), ids, mean, cov)
+    return CommonMarginalMessage(int(sender), int(receiver), int(step), ids, mean, cov, int(degree))
