@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from teamslam import __version__
+from teamslam.ros2.commands import register as register_ros2
 
 __all__ = ["main"]
 
@@ -336,6 +337,7 @@ def _odometry_cell(run: dict, width: int) -> str:
 
 def _write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> None:
     from teamslam.datasets import write_tum
+    from teamslam.eval.estimates import save_estimates
     from teamslam.eval.plots import plot_team_errors, plot_team_topview
 
     names = list(results)
@@ -347,6 +349,7 @@ def _write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> Non
     _write_json(out / "metrics.json", payload)
     for name, result in results.items():
         prefix = out if len(names) == 1 else out / name
+        save_estimates(prefix / "estimates.npz", dataset, result)
         for i, robot in enumerate(dataset.robots):
             write_tum(prefix / f"robot_{i + 1}.tum", result.poses[i], robot.timestamps)
             write_tum(
@@ -812,6 +815,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     vp.add_argument("--out", type=Path, default=None, help="directory for metrics and figure")
     vp.set_defaults(handler=_cmd_fej_victoria_park)
+    register_ros2(sub)
     return parser
 
 

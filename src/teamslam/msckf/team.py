@@ -50,6 +50,8 @@ class TeamResult:
         Per robot ``(N_i + 1, 6, 6)`` covariance of that pose (right perturbation).
     object_ids, objects
         Per robot the final map: ids and ``(m, 3)`` positions.
+    object_covs
+        Per robot ``(m, 3, 3)`` marginal covariances of those positions (empty when unknown).
     counters
         Per robot counts (updates, rejected measurements, objects initialised, …) plus
         ``messages`` and ``bytes`` sent.
@@ -78,6 +80,13 @@ class TeamResult:
     wall_seconds: float = 0.0
     extra: dict = field(default_factory=dict)
     health: dict = field(default_factory=dict)
+    object_covs: list[np.ndarray] = field(default_factory=list)
+
+
+def _object_covs(state) -> np.ndarray:
+    """``(m, 3, 3)`` marginal covariances of the objects in the map."""
+    cols = state.object_columns(np.arange(state.n_objects))
+    return state.cov[cols[:, :, None], cols[:, None, :]].copy()
 
 
 def _consensus_round(
@@ -210,6 +219,7 @@ def run_team(
         pose_covs=covs,
         object_ids=[a.state.object_ids.copy() for a in agents],
         objects=[a.state.objects.copy() for a in agents],
+        object_covs=[_object_covs(a.state) for a in agents],
         counters=counters,
         timings=[dict(a.timings) for a in agents],
         frame_times=[
