@@ -113,8 +113,14 @@ def _wrap_agent(original):
         team = load_team_file(args.team)
         if not 0 <= args.robot < team.n:
             raise InputError(f"--robot must lie in 0..{team.n - 1}")
+        from teamslam.datasets import load_dataset
+        from teamslam.eval.estimates import stamps_ns
+
+        dataset_path, index = team.dataset_of(args.robot)
+        sequence = load_dataset(dataset_path).robots[index]
         publisher = Ros2Publisher(
             robot=args.robot,
+            stamps_ns=stamps_ns(sequence.timestamps, sequence.frames, args.period),
             domain_id=args.domain_id,
             connect=args.ros2_connect,
             listen=args.ros2_listen,
@@ -218,6 +224,12 @@ def register(subparsers) -> None:
         )
         agent.add_argument(
             "--domain-id", type=_domain_id, default=0, help="ROS_DOMAIN_ID (default 0)"
+        )
+        agent.add_argument(
+            "--period",
+            type=float,
+            default=1.0,
+            help="seconds between frames, for stamps when the dataset has no timestamps",
         )
         agent.add_argument(
             "--ros2-connect",

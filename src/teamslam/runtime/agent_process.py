@@ -143,9 +143,19 @@ def _weights(team: TeamFile, robot: int) -> dict[int, float]:
 
 
 def run_agent(
-    team: TeamFile, robot: int, out: Path, resume: bool = False, lost_after: int = 3, transport=None
+    team: TeamFile,
+    robot: int,
+    out: Path,
+    resume: bool = False,
+    lost_after: int = 3,
+    transport=None,
+    publisher=None,
 ) -> dict:
-    """Run robot ``robot`` of ``team`` to the end of its sequence; returns its summary."""
+    """Run robot ``robot`` of ``team`` to the end of its sequence; returns its summary.
+
+    ``publisher`` (optional) gets ``publish(t, poses[: t + 1], state)`` after every frame, e.g.
+    a :class:`~teamslam.ros2.rmw_zenoh.Ros2Publisher`.
+    """
     from teamslam.runtime.zenoh_transport import ZenohTransport
 
     out = Path(out) / f"robot_{robot}"
@@ -228,6 +238,8 @@ def run_agent(
             agent.step(t)
             poses[t] = agent.state.current_pose
             covs[t] = agent.state.current_pose_cov()
+            if publisher is not None:
+                publisher.publish(t, poses[: t + 1], agent.state)
             step_latency.append(time.perf_counter() - step_begin)
             if team.checkpoint_every and (t + 1) % team.checkpoint_every == 0:
                 _save_checkpoint(out, agent, poses, covs, t)
