@@ -81,7 +81,6 @@ def write_mcap(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     begin = time.perf_counter()
-    store = m.typestore()
     everything = [r for robots in runs.values() for r in robots]
     extent = _scene_extent(everything)
     sphere = 0.01 * extent if extent > 0 else 1.0
@@ -92,19 +91,22 @@ def write_mcap(
             stamps = r.stamps_ns
             n = len(stamps)
             every = max(1, math.ceil(n / max(path_messages, 1)))
+            estimate = m.poses_stamped(r.poses, stamps)
+            truth = None
+            if r.ground_truth is not None and not prefix:
+                truth = m.poses_stamped(r.ground_truth, stamps)
             for k in range(n):
                 s = int(stamps[k])
-                records.append(
-                    (s, f"{base}/pose", POSE, m.serialize(m.pose_stamped(r.poses[k], s), POSE))
-                )
+                records.append((s, f"{base}/pose", POSE, m.serialize(estimate[k], POSE)))
                 frames = [(r.poses[k], "world", f"{base.lstrip('/')}/base_link")]
-                if r.ground_truth is not None and not prefix:
-                    gt = m.pose_stamped(r.ground_truth[k], s)
-                    records.append((s, f"/ground_truth{base}/pose", POSE, m.serialize(gt, POSE)))
+                if truth is not None:
+                    records.append(
+                        (s, f"/ground_truth{base}/pose", POSE, m.serialize(truth[k], POSE))
+                    )
                     frames.append((r.ground_truth[k], "world", f"{base.lstrip('/')}/ground_truth"))
                 records.append((s, "/tf", TF, m.serialize(m.tf_message(frames, s), TF)))
                 if (k + 1) % every == 0 or k == n - 1:
-                    path = m.path_msg(r.poses[: k + 1], stamps[: k + 1])
+                    path = m.path_msg(estimate[: k + 1], stamps[: k + 1])
                     records.append((s, f"{base}/path", PATH, m.serialize(path, PATH)))
             last = int(stamps[-1])
             markers = m.object_markers(
@@ -121,7 +123,9 @@ def write_mcap(
             connections = {}
             for stamp, topic, msgtype, data in records:
                 if topic not in connections:
-                    connections[topic] = writer.add_connection(topic, msgtype, typestore=store)
+                    connections[topic] = writer.add_connection(
+                        topic, msgtype, msgdef=m.schema_text(msgtype), rihs01=m.type_hash(msgtype)
+                    )
                 writer.write(connections[topic], stamp, data)
                 counts[topic] = counts.get(topic, 0) + 1
         os.replace(next(bag.glob("*.mcap")), out)

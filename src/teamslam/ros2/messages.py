@@ -22,7 +22,9 @@ __all__ = [
     "observations_msgdef",
     "path_msg",
     "pose_msg",
+    "pose_msgs",
     "pose_stamped",
+    "poses_stamped",
     "serialize",
     "tf_message",
     "type_hash",
@@ -32,6 +34,7 @@ __all__ = [
 OBSERVATIONS_TYPE = "teamslam_msgs/msg/StereoObservations"
 KIND_FEATURE = 0
 KIND_OBJECT = 1
+OBSERVATION_COLUMNS = ("u_left", "v_left", "u_right", "v_right")
 
 
 def observations_msgdef() -> str:
@@ -51,6 +54,20 @@ def typestore():
     store = get_typestore(Stores.ROS2_JAZZY)
     store.register(get_types_from_msg(observations_msgdef(), OBSERVATIONS_TYPE))
     return store
+
+
+def schema_text(msgtype: str) -> str:
+    """The ``ros2msg`` schema of ``msgtype``: its definition then each dependency's.
+
+    For ``teamslam_msgs/msg/StereoObservations`` the definition is the shipped ``.msg`` text
+    itself (with its comments), so a bag carries the documented definition.
+    """
+    text, _ = typestore().generate_msgdef(msgtype, ros_version=2)
+    if msgtype == OBSERVATIONS_TYPE:
+        separator = "=" * 80 + "\n"
+        _, _, rest = text.partition(separator)
+        text = observations_msgdef().rstrip("\n") + "\n" + separator + rest
+    return text
 
 
 def type_hash(msgtype: str) -> str:
@@ -92,17 +109,30 @@ def header(stamp: int, frame_id: str):
     return _types()["std_msgs/msg/Header"](stamp=time_msg(stamp), frame_id=frame_id)
 
 
+def pose_msgs(poses: np.ndarray) -> list:
+    """``geometry_msgs/msg/Pose`` of each of ``(N, 4, 4)`` transforms (one batched conversion)."""
+    t = _types()
+    poses = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
+    if not len(poses):
+        return []
+    quats = Rotation.from_matrix(poses[:, :3, :3]).as_quat().tolist()
+    Pose, Point, Quaternion = (
+        t["geometry_msgs/msg/Pose"],
+        t["geometry_msgs/msg/Point"],
+        t["geometry_msgs/msg/Quaternion"],
+    )
+    return [
+        Pose(
+            position=Point(x=p[0], y=p[1], z=p[2]),
+            orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]),
+        )
+        for p, q in zip(poses[:, :3, 3].tolist(), quats, strict=True)
+    ]
+
+
 def pose_msg(T: np.ndarray):
     """``geometry_msgs/msg/Pose`` of a 4×4 transform."""
-    t = _types()
-    q = Rotation.from_matrix(np.asarray(T)[:3, :3]).as_quat()
-    p = np.asarray(T)[:3, 3]
-    return t["geometry_msgs/msg/Pose"](
-        position=t["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-        orientation=t["geometry_msgs/msg/Quaternion"](
-            x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
-        ),
-    )
+    return pose_msgs(np.asarray(T)[None])[0]
 
 
 def pose_matrix(pose) -> np.ndarray:
@@ -122,20 +152,28 @@ def pose_stamped(T: np.ndarray, stamp: int, frame_id: str = "world"):
     )
 
 
-def path_msg(poses: np.ndarray, stamps: np.ndarray, frame_id: str = "world"):
-    """``nav_msgs/msg/Path`` of ``(N, 4, 4)`` poses stamped ``stamps``; stamped as the last."""
-    return _types()["nav_msgs/msg/Path"](
-        header=header(int(stamps[-1]), frame_id),
-        poses=[pose_stamped(T, s, frame_id) for T, s in zip(poses, stamps, strict=True)],
-    )
+def poses_stamped(poses: np.ndarray, stamps: np.ndarray, frame_id: str = "world") -> list:
+    """``PoseStamped`` of each of ``(N, 4, 4)`` poses, stamped ``stamps`` (batched)."""
+    PoseStamped = _types()["geometry_msgs/msg/PoseStamped"]
+    return [
+        PoseStamped(header=header(int(s), frame_id), pose=p)
+        for p, s in zip(pose_msgs(poses), stamps, strict=True)
+    ]
+
+
+def path_msg(poses: np.ndarray | list, stamps: np.ndarray, frame_id: str = "world"):
+    """``nav_msgs/msg/Path`` of ``(N, 4, 4)`` poses stamped ``stamps`` (or of ready
+    ``PoseStamped`` messages); the path is stamped as its last pose."""
+    stamped = poses if isinstance(poses, list) else poses_stamped(poses, stamps, frame_id)
+    return _types()["nav_msgs/msg/Path"](header=header(int(stamps[-1]), frame_id), poses=stamped)
 
 
 def tf_message(transforms: list[tuple[np.ndarray, str, str]], stamp: int):
     """``tf2_msgs/msg/TFMessage`` of ``(T_parent_child, parent, child)`` triples."""
     t = _types()
     out = []
-    for T, parent, child in transforms:
-        pose = pose_msg(T)
+    poses = pose_msgs(np.stack([T for T, _, _ in transforms])) if transforms else []
+    for pose, (_, parent, child) in zip(poses, transforms, strict=True):
         p, q = pose.position, pose.orientation
         out.append(
             t["geometry_msgs/msg/TransformStamped"](

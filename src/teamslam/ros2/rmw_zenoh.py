@@ -165,6 +165,7 @@ class Ros2Publisher:
             "objects": (f"/robot_{robot}/objects", MARKERS),
         }
         self.sphere_diameter: float | None = None
+        self._published: list = []
         self.samples_sent = 0
         self.bytes_sent = 0
         self._lock = threading.Lock()
@@ -230,9 +231,12 @@ class Ros2Publisher:
         with self._lock:
             stamp = int(self.stamps_ns[frame])
             last = frame == len(self.stamps_ns) - 1
-            self._put("pose", m.pose_stamped(poses[frame], stamp))
+            if len(self._published) != frame:  # a resumed run: the frames before this one
+                self._published = m.poses_stamped(poses[:frame], self.stamps_ns[:frame])
+            self._published.append(m.pose_stamped(poses[frame], stamp))
+            self._put("pose", self._published[-1])
             if (frame + 1) % self.path_every == 0 or last:
-                self._put("path", m.path_msg(poses[: frame + 1], self.stamps_ns[: frame + 1]))
+                self._put("path", m.path_msg(self._published, self.stamps_ns[: frame + 1]))
             if ((frame + 1) % self.objects_every == 0 or last) and state.n_objects:
                 cols = state.object_columns(np.arange(state.n_objects))
                 covs = state.cov[cols[:, :, None], cols[:, None, :]]
