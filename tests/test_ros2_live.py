@@ -31,8 +31,8 @@ POSE_STAMPED_HASH = "RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0c
 
 
 def _port(offset: int) -> int:
-    """Loopback ports 31000–32199 (other tests use lower ones), distinct per test (0–3)."""
-    return 31000 + (os.getpid() % 300) * 4 + offset
+    """Loopback ports 31000–32199 (other tests use lower ones), distinct per test (0–7)."""
+    return 31000 + (os.getpid() % 150) * 8 + offset
 
 
 def _decoder(msgtype: str):
@@ -205,8 +205,51 @@ def test_robot_process_publishes_decodable_ros2_samples(one_robot_team):
     assert sum(kind == "DELETE" for _, kind in tokens) == 4, "tokens withdrawn on close"
 
 
-def test_agent_cli_flag_is_registered():
+def test_agent_command_with_a_ros2_team_file(one_robot_team, tmp_path):
+    """``teamslam agent`` with a team file's ``ros2`` section publishes every frame."""
+    import zenoh
+
+    from teamslam.cli import main
+
+    dataset, _, directory = one_robot_team
+    text = (directory / "team.yaml").read_text()
+    text = text.replace(f"live-{os.getpid()}", f"cli-{os.getpid()}")
+    text = text.replace(f"127.0.0.1:{_port(2)}", f"127.0.0.1:{_port(5)}")
+    ros2 = {
+        "domain_id": 5,
+        "connect": [f"tcp/127.0.0.1:{_port(4)}"],
+        "listen": [f"tcp/127.0.0.1:{_port(6)}"],
+        "wait_s": 10.0,
+    }
+    team_path = tmp_path / "team.yaml"
+    team_path.write_text(text + f"ros2: {json.dumps(ros2)}\n")
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps("peer"))
+    config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{_port(4)}"]))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    got: list[tuple[str, bytes]] = []
+    frames = dataset.robots[0].frames
+    with zenoh.open(config) as session:
+        session.declare_subscriber(
+            "5/**", lambda s: got.append((str(s.key_expr), s.attachment.to_bytes()))
+        )
+        assert (
+            main(
+                ["agent", "--team", str(team_path), "--robot", "0", "--out", str(tmp_path / "out")]
+            )
+            == 0
+        )
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and sum("/pose/" in k for k, _ in got) < frames:
+            time.sleep(0.05)
+    pose_key = topic_key(5, "/robot_0/pose", "geometry_msgs/msg/PoseStamped")
+    seqs = [parse_attachment(a)[0] for k, a in got if k == pose_key]
+    assert seqs == list(range(1, frames + 1)), "every frame, none lost before the link formed"
+
+
+def test_ros2_settings_are_checked():
     from teamslam.cli import build_parser
+    from teamslam.ros2.rmw_zenoh import ros2_settings
 
     args = build_parser().parse_args(
         ["agent", "--team", "t.yaml", "--robot", "0", "--ros2", "--domain-id", "3"]
@@ -216,6 +259,17 @@ def test_agent_cli_flag_is_registered():
         build_parser().parse_args(
             ["agent", "--team", "t.yaml", "--robot", "0", "--domain-id", "300"]
         )
+    assert ros2_settings({"domain_id": 4}, domain_id=None)["domain_id"] == 4
+    assert ros2_settings({"domain_id": 4}, domain_id=9)["domain_id"] == 9
+    for bad, reason in (
+        ({"domain": 1}, "unknown setting"),
+        ({"domain_id": 233}, "domain_id"),
+        ({"connect": "tcp/localhost:7447"}, "list of Zenoh endpoints"),
+        ({"period": 0}, "period"),
+        ({"path_every": 0}, "path_every"),
+    ):
+        with pytest.raises(InputError, match=reason):
+            ros2_settings(bad)
 
 
 def test_publisher_key_for_path_type():

@@ -103,27 +103,37 @@ def _cmd_export_bag(args: argparse.Namespace) -> int:
 
 def _wrap_agent(original):
     def handler(args: argparse.Namespace) -> int:
-        if not args.ros2:
-            return original(args)
-        from teamslam.errors import InputError
-        from teamslam.ros2.rmw_zenoh import Ros2Publisher
-        from teamslam.runtime.agent_process import run_agent
         from teamslam.runtime.team_file import load_team_file
 
         team = load_team_file(args.team)
+        if not (args.ros2 or team.ros2 is not None):
+            return original(args)
+        from teamslam.datasets import load_dataset
+        from teamslam.errors import InputError
+        from teamslam.eval.estimates import stamps_ns
+        from teamslam.ros2.rmw_zenoh import Ros2Publisher, ros2_settings
+        from teamslam.runtime.agent_process import run_agent
+
         if not 0 <= args.robot < team.n:
             raise InputError(f"--robot must lie in 0..{team.n - 1}")
-        from teamslam.datasets import load_dataset
-        from teamslam.eval.estimates import stamps_ns
-
+        settings = ros2_settings(
+            team.ros2,
+            domain_id=args.domain_id,
+            connect=args.ros2_connect,
+            listen=args.ros2_listen,
+            period=args.period,
+        )
         dataset_path, index = team.dataset_of(args.robot)
         sequence = load_dataset(dataset_path).robots[index]
         publisher = Ros2Publisher(
             robot=args.robot,
-            stamps_ns=stamps_ns(sequence.timestamps, sequence.frames, args.period),
-            domain_id=args.domain_id,
-            connect=args.ros2_connect,
-            listen=args.ros2_listen,
+            stamps_ns=stamps_ns(sequence.timestamps, sequence.frames, settings["period"]),
+            domain_id=settings["domain_id"],
+            connect=settings["connect"],
+            listen=settings["listen"],
+            path_every=settings["path_every"],
+            objects_every=settings["objects_every"],
+            wait_s=settings["wait_s"],
         )
         try:
             summary = run_agent(
@@ -220,16 +230,21 @@ def register(subparsers) -> None:
         agent.add_argument(
             "--ros2",
             action="store_true",
-            help="publish pose, path and objects as ROS 2 topics over rmw_zenoh",
+            help="publish pose, path and objects as ROS 2 topics over rmw_zenoh (also on when "
+            "the team file has a ros2 section)",
         )
         agent.add_argument(
-            "--domain-id", type=_domain_id, default=0, help="ROS_DOMAIN_ID (default 0)"
+            "--domain-id",
+            type=_domain_id,
+            default=None,
+            help="ROS_DOMAIN_ID (default: the team file's ros2.domain_id, else 0)",
         )
         agent.add_argument(
             "--period",
             type=float,
-            default=1.0,
-            help="seconds between frames, for stamps when the dataset has no timestamps",
+            default=None,
+            help="seconds between frames, for stamps when the dataset has no timestamps "
+            "(default 1)",
         )
         agent.add_argument(
             "--ros2-connect",

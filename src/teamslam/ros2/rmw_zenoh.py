@@ -44,6 +44,7 @@ __all__ = [
     "mangle",
     "parse_attachment",
     "publisher_gid",
+    "ros2_settings",
     "topic_key",
 ]
 
@@ -119,6 +120,55 @@ def parse_attachment(data: bytes) -> tuple[int, int, bytes]:
     return seq, stamp, data[17:]
 
 
+ROS2_SETTINGS = {
+    "domain_id": 0,
+    "connect": None,
+    "listen": None,
+    "period": 1.0,
+    "path_every": 10,
+    "objects_every": 10,
+    "wait_s": 0.0,
+}
+
+
+def ros2_settings(section: dict | None, **overrides) -> dict:
+    """The ``ros2`` section of a team file, checked, with defaults and non-None overrides.
+
+    Keys: ``domain_id`` (0..232), ``connect`` / ``listen`` (lists of Zenoh endpoints),
+    ``period`` (seconds between frames when the dataset has no timestamps), ``path_every``,
+    ``objects_every`` (frames between Path / MarkerArray messages), ``wait_s`` (seconds to
+    wait, at most, for a subscriber on every topic before the first frame).
+    """
+    from teamslam.errors import InputError
+
+    section = dict(section or {})
+    unknown = set(section) - set(ROS2_SETTINGS)
+    if unknown:
+        raise InputError(f"ros2: unknown setting(s) {', '.join(sorted(unknown))}")
+    out = {**ROS2_SETTINGS, **section}
+    out.update({k: v for k, v in overrides.items() if v is not None})
+    domain = out["domain_id"]
+    if isinstance(domain, bool) or not isinstance(domain, int) or not 0 <= domain <= 232:
+        raise InputError(f"ros2.domain_id must be an integer in 0..232, got {domain!r}")
+    for key in ("connect", "listen"):
+        value = out[key]
+        if value is not None and (
+            not isinstance(value, list) or not all(isinstance(e, str) and "/" in e for e in value)
+        ):
+            raise InputError(f"ros2.{key} must be a list of Zenoh endpoints like tcp/HOST:PORT")
+    period = out["period"]
+    if isinstance(period, bool) or not isinstance(period, int | float) or not period > 0:
+        raise InputError(f"ros2.period must be a positive number of seconds, got {period!r}")
+    wait = out["wait_s"]
+    if isinstance(wait, bool) or not isinstance(wait, int | float) or not 0 <= wait <= 3600:
+        raise InputError(f"ros2.wait_s must be a number of seconds in [0, 3600], got {wait!r}")
+    for key in ("path_every", "objects_every"):
+        value = out[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise InputError(f"ros2.{key} must be a positive integer, got {value!r}")
+    return out
+
+
 class Ros2Publisher:
     """One robot's pose, path and map as ROS 2 topics on an rmw_zenoh network.
 
@@ -137,6 +187,12 @@ class Ros2Publisher:
         ``ROS_DOMAIN_ID``.
     connect, listen
         Zenoh endpoints (default: rmw_zenoh's, router ``tcp/localhost:7447``).
+    path_every, objects_every
+        Frames between Path and between MarkerArray messages.
+    n_sigma
+        Size of the object ellipsoids.
+    wait_s
+        Wait up to this long for a subscriber on every topic before returning.
     """
 
     def __init__(
@@ -149,6 +205,7 @@ class Ros2Publisher:
         path_every: int = 10,
         objects_every: int = 10,
         n_sigma: float = 3.0,
+        wait_s: float = 0.0,
     ) -> None:
         import zenoh
 
@@ -193,6 +250,8 @@ class Ros2Publisher:
             )
             self._tokens.append(self.session.liveliness().declare_token(token_key))
             self._publishers[name] = [publisher, msgtype, publisher_gid(token_key), 1]
+        if wait_s > 0:
+            self.wait_for_subscribers(wait_s)
 
     @property
     def keys(self) -> dict[str, str]:
