@@ -98,12 +98,12 @@ def write_mcap(
             for k in range(n):
                 s = int(stamps[k])
                 records.append((s, f"{base}/pose", POSE, m.serialize(estimate[k], POSE)))
-                frames = [(r.poses[k], "world", f"{base.lstrip('/')}/base_link")]
+                frames = [(estimate[k].pose, "world", f"{base.lstrip('/')}/base_link")]
                 if truth is not None:
                     records.append(
                         (s, f"/ground_truth{base}/pose", POSE, m.serialize(truth[k], POSE))
                     )
-                    frames.append((r.ground_truth[k], "world", f"{base.lstrip('/')}/ground_truth"))
+                    frames.append((truth[k].pose, "world", f"{base.lstrip('/')}/ground_truth"))
                 records.append((s, "/tf", TF, m.serialize(m.tf_message(frames, s), TF)))
                 if (k + 1) % every == 0 or k == n - 1:
                     path = m.path_msg(estimate[: k + 1], stamps[: k + 1])

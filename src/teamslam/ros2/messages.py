@@ -168,11 +168,16 @@ def path_msg(poses: np.ndarray | list, stamps: np.ndarray, frame_id: str = "worl
     return _types()["nav_msgs/msg/Path"](header=header(int(stamps[-1]), frame_id), poses=stamped)
 
 
-def tf_message(transforms: list[tuple[np.ndarray, str, str]], stamp: int):
-    """``tf2_msgs/msg/TFMessage`` of ``(T_parent_child, parent, child)`` triples."""
+def tf_message(transforms: list[tuple[np.ndarray | object, str, str]], stamp: int):
+    """``tf2_msgs/msg/TFMessage`` of ``(T_parent_child, parent, child)`` triples.
+
+    ``T_parent_child`` is a 4×4 matrix or a ready ``geometry_msgs/msg/Pose``.
+    """
     t = _types()
     out = []
-    poses = pose_msgs(np.stack([T for T, _, _ in transforms])) if transforms else []
+    matrices = [T for T, _, _ in transforms if isinstance(T, np.ndarray)]
+    converted = iter(pose_msgs(np.stack(matrices)) if matrices else [])
+    poses = [next(converted) if isinstance(T, np.ndarray) else T for T, _, _ in transforms]
     for pose, (_, parent, child) in zip(poses, transforms, strict=True):
         p, q = pose.position, pose.orientation
         out.append(
