@@ -30,6 +30,7 @@ def write_json(path: Path, payload: dict) -> None:
 
 def write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> None:
     from teamslam.datasets import write_tum
+    from teamslam.eval.estimates import save_estimates
     from teamslam.eval.plots import plot_team_errors, plot_team_topview
 
     names = list(results)
@@ -41,6 +42,7 @@ def write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> None
     write_json(out / "metrics.json", payload)
     for name, result in results.items():
         prefix = out if len(names) == 1 else out / name
+        save_estimates(prefix / "estimates.npz", dataset, result)
         for i, robot in enumerate(dataset.robots):
             write_tum(prefix / f"robot_{i + 1}.tum", result.poses[i], robot.timestamps)
             write_tum(

@@ -25,6 +25,7 @@ from teamslam.errors import InputError
 from teamslam.graph import CommunicationGraph, EdgeLoss, complete
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.consensus import object_marginals
 from teamslam.msckf.health import SensorHealth
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.protocol import ConsensusProtocol
@@ -45,6 +46,8 @@ class TeamResult:
         Per robot ``(N_i + 1, 6, 6)`` covariance of that pose (right perturbation).
     object_ids, objects
         Per robot the final map: ids and ``(m, 3)`` positions.
+    object_covs
+        Per robot ``(m, 3, 3)`` marginal covariances of those positions (empty when unknown).
     counters
         Per robot counts (updates, rejected measurements, objects initialised, …) plus
         ``messages`` and ``bytes`` sent.
@@ -73,6 +76,7 @@ class TeamResult:
     wall_seconds: float = 0.0
     extra: dict = field(default_factory=dict)
     health: dict = field(default_factory=dict)
+    object_covs: list[np.ndarray] = field(default_factory=list)
 
 
 def run_team(
@@ -173,6 +177,7 @@ def run_team(
         pose_covs=covs,
         object_ids=[a.state.object_ids.copy() for a in agents],
         objects=[a.state.objects.copy() for a in agents],
+        object_covs=[object_marginals(a.state)[1] for a in agents],
         counters=counters,
         timings=[dict(a.timings) for a in agents],
         frame_times=[

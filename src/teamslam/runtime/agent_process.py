@@ -85,6 +85,7 @@ def run_agent(
     resume: bool = False,
     lost_after: int = 3,
     transport: Transport | None = None,
+    publisher=None,
 ) -> dict:
     """Run robot ``robot`` of ``team`` to the end of its sequence; returns its summary.
 
@@ -102,6 +103,9 @@ def run_agent(
         Silent frames in a row after which a neighbour is reported lost and no longer awaited.
     transport
         The endpoint to talk through (default: a Zenoh session from the team file).
+    publisher
+        Optional; gets ``publish(t, poses[: t + 1], state)`` after every frame, e.g. a
+        :class:`~teamslam.ros2.rmw_zenoh.Ros2Publisher`.
     """
     from teamslam.runtime.zenoh_transport import ZenohTransport
 
@@ -169,6 +173,8 @@ def run_agent(
             agent.step(t)
             poses[t] = agent.state.current_pose
             covs[t] = agent.state.current_pose_cov()
+            if publisher is not None:
+                publisher.publish(t, poses[: t + 1], agent.state)
             step_latency.append(time.perf_counter() - step_begin)
             if team.checkpoint_every and (t + 1) % team.checkpoint_every == 0:
                 _save_checkpoint(out, agent, poses, covs, t)

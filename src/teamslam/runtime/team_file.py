@@ -12,6 +12,8 @@ Example::
     message_delay_ms: 0.0            # injected delay before each send
     filter: {window: 10, object_std: 2.0}   # any filter setting (teamslam config show lists
                                      # them); objects_only: true = use_geometric_features: false
+    ros2: {domain_id: 0}             # optional: every robot publishes ROS 2 topics over
+                                     # rmw_zenoh (teamslam.ros2.rmw_zenoh.ros2_settings)
     robots:
       - id: 0
         listen: tcp/127.0.0.1:17400  # default: tcp/127.0.0.1:<17400 + id>
@@ -74,6 +76,7 @@ class TeamFile:
     message_delay_ms: float = 0.0
     filter_settings: dict = field(default_factory=dict)
     path: Path | None = None
+    ros2: dict | None = None
 
     @property
     def n(self) -> int:
@@ -109,6 +112,13 @@ def _number(data: dict, key: str, default, kind, low=None, high=None):
     return value
 
 
+def _mapping(data: dict, key: str) -> dict | None:
+    value = data.get(key)
+    if value is not None and not isinstance(value, dict):
+        raise TeamFileError(f"'{key}' must be a mapping")
+    return value
+
+
 def load_team_file(path: str | Path) -> TeamFile:
     """Read and validate a team file; relative paths are relative to the file."""
     path = Path(path)
@@ -133,6 +143,7 @@ def _parse(data, path: Path) -> TeamFile:
         "message_delay_ms",
         "filter",
         "robots",
+        "ros2",
     }
     if unknown:
         raise TeamFileError(f"unknown field(s): {', '.join(sorted(unknown))}")
@@ -211,6 +222,7 @@ def _parse(data, path: Path) -> TeamFile:
         message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
         filter_settings=filt,
         path=path,
+        ros2=_mapping(data, "ros2"),
     )
 
 
