@@ -3,30 +3,44 @@
 One class serves the standard, first-estimate and ideal filters: the only difference is the
 :class:`~teamslam.ekf2d.linearization.Policy` that says where Jacobians are evaluated. The
 state (eq. 1) is ``[x_r1, …, x_rN, x_f1, …, x_fF]`` with features appended in the order they
-are first seen; the covariance is one dense matrix kept symmetric, stored with spare capacity
-so appending a feature does not copy it every time.
+are first seen.
 
-Per step ``k → k + 1`` (:meth:`MultiRobotEKF.step`): propagate every robot (eqs. 4–6; only the
-robot rows and columns of ``P`` change), initialise features seen for the first time from their
-first observation (with full cross-covariances), then one batch update with every other
-observation of the step (eqs. 8–11). ``H`` is assembled only over the columns it touches, so an
-update costs ``O(n · m)`` for ``P Hᵀ`` plus the rank-``m`` downdate of ``P``.
+Per step ``k → k + 1`` (:meth:`MultiRobotEKF.step`): propagate every robot (eqs. 4–6), initialise
+features seen for the first time from their first observation (with full cross-covariances),
+then one batch update with every other observation of the step (eqs. 8–11).
+
+Storage and cost. The covariance ``P`` is one contiguous ``dim × dim`` array of which only the
+lower triangle is kept (the upper one is never read), so the update's rank-``2m`` downdate
+``P ← P − Wᵀ W`` is one in-place BLAS ``syrk`` over half the matrix, and ``P`` is symmetric by
+construction. The steps touch only what changes:
+
+* propagation: ``Φ`` is the identity outside the robot block, so only the robot block
+  (``Φ_r P_rr Φ_rᵀ + G Q Gᵀ``, one small product) and the robot–feature cross block
+  (``P_fr Φ_rᵀ``) are rewritten;
+* update: ``H`` has five non-zero columns per observation (its robot's pose and its feature), so
+  ``P Hᵀ`` reads only those columns of ``P``; with ``S = L Lᵀ`` (Cholesky) and
+  ``[W | v] = L⁻¹ [H P | r]`` (one triangular solve), the mean moves by ``Wᵀ v`` and ``P`` by
+  ``− Wᵀ W``;
+* a new feature appends rows (the lower triangle's new rows are exactly the cross-covariances
+  and the new block), so the matrix is copied once per step that adds features.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
+import scipy.linalg.blas
 import scipy.linalg.lapack
 
 from teamslam.ekf2d import models
 from teamslam.ekf2d.linearization import LinearizationPoints, Policy
 from teamslam.gaussian import NotPositiveDefiniteError
-from teamslam.geometry.se2 import wrap_angle
 
 __all__ = ["JacobianRecord", "MultiRobotEKF", "StepObservations"]
+
+_TWO_PI = 2.0 * np.pi
 
 
 @dataclass
@@ -55,10 +69,30 @@ class StepObservations:
             if self.cov.shape[0] != self.robot.size or not np.all(np.isfinite(self.cov)):
                 raise ValueError("observations: cov must be (m, 2, 2) and finite")
 
+    @classmethod
+    def checked_rows(
+        cls,
+        robot: np.ndarray,
+        feature: np.ndarray,
+        z: np.ndarray,
+        cov: np.ndarray | None = None,
+    ) -> StepObservations:
+        """Rows of arrays that were already validated as a whole (no checks, no copies).
+
+        ``robot`` and ``feature`` must be 1-D ``int64``, ``z`` ``(m, 2)`` float and ``cov``
+        ``None`` or ``(m, 2, 2)`` float, all finite — e.g. slices of one run's observations
+        checked once by :class:`StepObservations` itself.
+        """
+        out = object.__new__(cls)
+        out.robot, out.feature, out.z, out.cov = robot, feature, z, cov
+        return out
+
     def select(self, mask: np.ndarray) -> StepObservations:
         """The rows where ``mask`` holds."""
         cov = None if self.cov is None else self.cov[mask]
-        return StepObservations(self.robot[mask], self.feature[mask], self.z[mask], cov)
+        return StepObservations.checked_rows(
+            self.robot[mask], self.feature[mask], self.z[mask], cov
+        )
 
     def covariances(self, per_robot: np.ndarray) -> np.ndarray:
         """``(m, 2, 2)`` noise covariance of every row."""
@@ -84,6 +118,13 @@ def _block_diagonal(blocks: np.ndarray) -> np.ndarray:
     diag = np.arange(k)
     out[diag, :, diag, :] = blocks
     return out.reshape(k * b, k * b)
+
+
+def _features_at(truth: Mapping[int, np.ndarray] | np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Ground-truth positions ``(m, 2)`` of feature ids, from a mapping or an id-indexed array."""
+    if isinstance(truth, np.ndarray):
+        return truth[ids]
+    return np.array([truth[i] for i in ids.tolist()], dtype=float).reshape(-1, 2)
 
 
 class MultiRobotEKF:
@@ -116,14 +157,37 @@ class MultiRobotEKF:
         self.n_robots = n
         self.policy = policy
         self.record = JacobianRecord() if record_jacobians else None
-        self._capacity = 3 * n + 2 * 32
+        r = 3 * n
+        self._capacity = r + 2 * 32
         self._mean = np.zeros(self._capacity)
-        self._cov = np.zeros((self._capacity, self._capacity))
-        self.dim = 3 * n
+        self._lower = np.zeros((r, r))  # P; only its lower triangle is meaningful
+        self.dim = r
         self.feature_ids: list[int] = []
         self._slot: dict[int, int] = {}
         self._first = np.zeros((32, 2))
         self.prior_poses = np.zeros((n, 3))
+        # propagation: [Φ_r | G] (r × 2r) and diag(P_rr, Q) (2r × 2r), so that
+        # Φ_r P_rr Φ_rᵀ + G Q Gᵀ is one product; only their per-step entries are rewritten
+        self._phi_g = np.hstack([np.eye(r), np.eye(r)])
+        a = 3 * np.arange(n)[:, None]
+        width = 2 * r
+        self._phi_g_index = np.hstack(
+            [
+                a * width + a + 2,  # Φ[a, a+2] = −Δy
+                (a + 1) * width + a + 2,  # Φ[a+1, a+2] = Δx
+                a * width + r + a,  # G[a, a] = cos
+                a * width + r + a + 1,  # G[a, a+1] = −sin
+                (a + 1) * width + r + a,  # G[a+1, a] = sin
+                (a + 1) * width + r + a + 1,  # G[a+1, a+1] = cos
+            ]
+        ).ravel()
+        self._blocks = np.zeros((width, width))
+        self._blocks[r:, r:] = _block_diagonal(self.odometry_covs)
+        self._template = np.zeros((2, 5))  # [−I, −J d, I]: column 2 filled per observation
+        self._template[:, :2] = -np.eye(2)
+        self._template[:, 3:] = np.eye(2)
+        self._index_dim = -1
+        self._update_indices()
 
     # ------------------------------------------------------------------ state access
     @property
@@ -133,12 +197,13 @@ class MultiRobotEKF:
 
     @property
     def cov(self) -> np.ndarray:
-        """State covariance (a view)."""
-        return self._cov[: self.dim, : self.dim]
+        """State covariance (a symmetric copy)."""
+        lower = np.tril(self._lower)
+        return lower + np.tril(lower, -1).T
 
     @property
     def poses(self) -> np.ndarray:
-        """``(N, 3)`` current robot poses."""
+        """``(N, 3)`` current robot poses (a view)."""
         return self._mean[: 3 * self.n_robots].reshape(self.n_robots, 3)
 
     @property
@@ -148,7 +213,7 @@ class MultiRobotEKF:
 
     @property
     def features(self) -> np.ndarray:
-        """``(F, 2)`` current feature estimates in state order."""
+        """``(F, 2)`` current feature estimates in state order (a view)."""
         return self._mean[3 * self.n_robots : self.dim].reshape(-1, 2)
 
     @property
@@ -158,26 +223,56 @@ class MultiRobotEKF:
 
     def slots(self, ids: np.ndarray) -> np.ndarray:
         """State slots of feature ids (``-1`` where not in the state)."""
-        return np.array([self._slot.get(int(i), -1) for i in np.ravel(ids)], dtype=np.int64)
+        get = self._slot.get
+        return np.array([get(i, -1) for i in np.ravel(ids).tolist()], dtype=np.int64)
 
     def pose_cov(self, robot: int) -> np.ndarray:
         """3×3 covariance of a robot's pose."""
-        s = slice(3 * robot, 3 * robot + 3)
-        return self._cov[s, s]
+        return self.pose_covs()[robot]
 
-    def _grow(self, extra: int) -> None:
+    def pose_covs(self) -> np.ndarray:
+        """``(N, 3, 3)`` covariance of every robot's pose."""
+        return self._lower.ravel()[self._pose_index]
+
+    def feature_covs(self) -> np.ndarray:
+        """``(F, 2, 2)`` marginal covariance of every feature (state order)."""
+        return self._lower.ravel()[self._feature_index]
+
+    def _update_indices(self) -> None:
+        """Flat indices into the lower triangle that depend on ``dim``."""
+        n, r = self.dim, 3 * self.n_robots
+        if n == self._index_dim:
+            return
+
+        def symmetric(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+            return np.maximum(rows, cols) * n + np.minimum(rows, cols)
+
+        ar = np.arange(r)
+        self._robot_index = symmetric(ar[:, None], ar[None, :])
+        pose = 3 * np.arange(self.n_robots)[:, None, None] + np.arange(3)
+        self._pose_index = symmetric(pose, np.swapaxes(pose, 1, 2))
+        feat = r + 2 * np.arange((n - r) // 2)[:, None, None] + np.arange(2)
+        self._feature_index = symmetric(feat, np.swapaxes(feat, 1, 2))
+        self._rows = np.arange(n)[:, None]
+        self._index_dim = n
+
+    def _columns(self, cols: np.ndarray) -> np.ndarray:
+        """Full columns ``P[:, cols]`` ``(dim, len(cols))`` read from the lower triangle."""
+        p = self._lower
+        out = p[cols]  # rows of P: right for entries left of the diagonal
+        np.copyto(out, p.T[cols], where=self._rows.T > cols[:, None])
+        return out.T
+
+    def _grow_mean(self, extra: int) -> None:
         need = self.dim + extra
         if need <= self._capacity:
             return
         cap = max(need, 2 * self._capacity)
         mean = np.zeros(cap)
-        cov = np.zeros((cap, cap))
         mean[: self.dim] = self.mean
-        cov[: self.dim, : self.dim] = self.cov
-        self._mean, self._cov, self._capacity = mean, cov, cap
         first = np.zeros((cap, 2))
         first[: self.n_features] = self.first_estimates
-        self._first = first
+        self._mean, self._first, self._capacity = mean, first, cap
 
     # ------------------------------------------------------------------ start
     def start(
@@ -197,16 +292,17 @@ class MultiRobotEKF:
             raise ValueError(f"start covariance must be {dim}×{dim}, got {cov.shape}")
         self.dim = 3 * self.n_robots
         self.feature_ids, self._slot = [], {}
-        self._grow(2 * len(feature_ids))
+        self._grow_mean(2 * len(feature_ids))
         self.dim = dim
         self._mean[: 3 * self.n_robots] = poses.ravel()
         self._mean[3 * self.n_robots : dim] = features.ravel()
-        self._cov[:dim, :dim] = 0.5 * (cov + cov.T)
-        for k, fid in enumerate(feature_ids):
-            self._slot[int(fid)] = k
-            self.feature_ids.append(int(fid))
+        self._lower = 0.5 * (cov + cov.T)
+        for k, fid in enumerate(feature_ids.tolist()):
+            self._slot[fid] = k
+            self.feature_ids.append(fid)
         self._first[: len(feature_ids)] = features
         self.prior_poses = poses.copy()
+        self._update_indices()
 
     # ------------------------------------------------------------------ propagation
     def propagate(
@@ -221,31 +317,36 @@ class MultiRobotEKF:
         ``odometry_covs`` ``(N, 3, 3)`` overrides the constant odometry noise for this step.
         """
         odometry = np.asarray(odometry, dtype=float).reshape(self.n_robots, 3)
-        if not np.all(np.isfinite(odometry)):
+        if not np.isfinite(odometry).all():
             raise ValueError("odometry contains NaN or infinite values")
         posterior = self.poses.copy()
         propagated = models.motion(posterior, odometry)
         points = LinearizationPoints(posterior, self.prior_poses, propagated, true_from, true_to)
         pos_from, pos_to = self.policy.propagation_positions(points)
-        phi, g = models.motion_jacobians(pos_from, pos_to, self.policy.propagation_heading(points))
-        nr, n = self.n_robots, self.dim
-        r = 3 * nr
-        p = self._cov[:n, :n]
-        # Φ is the identity except each robot's heading column c = J (x_p' − x_p) (eq. 5), so
-        # Φ P Φᵀ is two rank-one updates per robot on its position rows and columns
-        q = self.odometry_covs if odometry_covs is None else np.asarray(odometry_covs, float)
-        noise = np.einsum("nij,njk,nlk->nil", g, q, g)
-        for i in range(nr):
-            a = 3 * i
-            c = phi[i, :2, 2]
-            p[a : a + 2, :] += np.outer(c, p[a + 2, :])
-            p[:, a : a + 2] += np.outer(p[:, a + 2], c)
-            p[a : a + 3, a : a + 3] += noise[i]
+        heading = self.policy.propagation_heading(points)
+        delta = pos_to - pos_from
+        c, s = np.cos(heading), np.sin(heading)
+        # Φ_r: identity but each robot's heading column J Δ (eq. 5); G: C(φ) per robot (eq. 6)
+        self._phi_g.flat[self._phi_g_index] = (
+            np.concatenate([-delta[:, 1], delta[:, 0], c, -s, s, c]).reshape(6, -1).T.ravel()
+        )
+        n, r = self.dim, 3 * self.n_robots
+        blocks = self._blocks
+        if odometry_covs is not None:
+            blocks[r:, r:] = _block_diagonal(np.asarray(odometry_covs, dtype=float))
+        p = self._lower
+        blocks[:r, :r] = p.ravel()[self._robot_index]
+        phi_g = self._phi_g
+        p[:r, :r] = phi_g @ blocks @ phi_g.T  # Φ_r P_rr Φ_rᵀ + G Q Gᵀ (lower triangle read)
+        if n > r:
+            p[r:n, :r] = p[r:n, :r] @ phi_g[:, :r].T  # P_fr Φ_rᵀ
+        if odometry_covs is not None:
+            blocks[r:, r:] = _block_diagonal(self.odometry_covs)
         self._mean[:r] = propagated.ravel()
-        self.prior_poses = propagated.copy()
+        self.prior_poses = propagated
         if self.record is not None:
             full = np.eye(n)
-            full[:r, :r] = _block_diagonal(phi)
+            full[:r, :r] = phi_g[:, :r]
             self.record.phi.append(full)
 
     # ------------------------------------------------------------------ update
@@ -253,18 +354,23 @@ class MultiRobotEKF:
         self,
         observations: StepObservations,
         true_poses: np.ndarray | None = None,
-        true_features: dict[int, np.ndarray] | None = None,
+        true_features: Mapping[int, np.ndarray] | np.ndarray | None = None,
     ) -> None:
-        """Initialise new features, then one batch update with the other observations."""
+        """Initialise new features, then one batch update with the other observations.
+
+        ``true_features`` (ideal policy only) maps feature id to position, as a mapping or as an
+        array indexed by id.
+        """
         obs = observations
         if obs.robot.size and (obs.robot.min() < 0 or obs.robot.max() >= self.n_robots):
             raise ValueError("observations name a robot outside 0..N-1")
-        lin_poses = self.policy.update_poses(self.poses.copy(), true_poses)
+        poses_now = self.poses.copy()
+        lin_poses = self.policy.update_poses(poses_now, true_poses)
         if self.policy.needs_truth and (true_poses is None or true_features is None):
             raise ValueError(f"the {self.policy.name} policy needs ground truth")
         slots = self.slots(obs.feature)
         new = slots < 0
-        if np.any(new):
+        if new.any():
             # the first observation of each new feature initialises it
             ids_new = obs.feature[new]
             _, first_rows = np.unique(ids_new, return_index=True)
@@ -278,38 +384,37 @@ class MultiRobotEKF:
             self.record.h.append(np.zeros((0, self.dim)))
         if obs.robot.size == 0:
             return
-        truth_f = np.array([true_features[i] for i in self.feature_ids]) if true_features else None
-        lin_features = self.policy.update_features(self.features, self.first_estimates, truth_f)
-        self._batch_update(obs, slots, lin_poses, lin_features)
+        truth_f = None if true_features is None else _features_at(true_features, obs.feature)
+        current = self.features[slots]
+        lin_features = self.policy.update_features(current, self._first[slots], truth_f)
+        self._batch_update(obs, slots, lin_poses, lin_features, current, lin_poses is poses_now)
 
     def _initialise(self, obs: StepObservations, lin_poses: np.ndarray) -> None:
         k = obs.robot.size
         n = self.dim
-        self._grow(2 * k)
-        poses = self.poses
-        estimate = models.feature_from_observation(poses[obs.robot], obs.z)
+        self._grow_mean(2 * k)
+        estimate = models.feature_from_observation(self.poses[obs.robot], obs.z)
         d_pose, d_z = models.feature_from_observation_jacobians(lin_poses[obs.robot], obs.z)
-        p = self._cov
-        rows = 3 * obs.robot[:, None] + np.arange(3)  # (k, 3)
+        rows = (3 * obs.robot[:, None] + np.arange(3)).ravel()  # (3k,)
         # cross-covariance with everything already in the state: A P, A selects robot rows
-        cross = np.einsum("kij,kjn->kin", d_pose, p[rows, :n]).reshape(2 * k, n)
-        a_full = np.zeros((2 * k, n))
-        for j in range(k):
-            a_full[2 * j : 2 * j + 2, rows[j]] = d_pose[j]
-        new_block = a_full @ cross.T
-        r = obs.covariances(self.observation_covs)
-        noise = np.einsum("kij,kjl,kml->kim", d_z, r, d_z)
-        for j in range(k):
-            new_block[2 * j : 2 * j + 2, 2 * j : 2 * j + 2] += noise[j]
-        p[n : n + 2 * k, :n] = cross
-        p[:n, n : n + 2 * k] = cross.T
-        p[n : n + 2 * k, n : n + 2 * k] = 0.5 * (new_block + new_block.T)
+        cross = np.matmul(d_pose, self._columns(rows).T.reshape(k, 3, n)).reshape(2 * k, n)
+        new_block = np.einsum("xlc,lbc->xlb", cross[:, rows].reshape(2 * k, k, 3), d_pose)
+        new_block = new_block.reshape(2 * k, 2 * k)
+        noise = d_z @ obs.covariances(self.observation_covs) @ np.swapaxes(d_z, 1, 2)
+        new_block += _block_diagonal(noise)
+        grown = np.zeros((n + 2 * k, n + 2 * k))
+        grown[:n, :n] = self._lower
+        grown[n:, :n] = cross
+        grown[n:, n:] = 0.5 * (new_block + new_block.T)
+        self._lower = grown
         self._mean[n : n + 2 * k] = estimate.ravel()
-        for j, fid in enumerate(obs.feature):
-            self._slot[int(fid)] = self.n_features
-            self._first[self.n_features] = estimate[j]
-            self.feature_ids.append(int(fid))
+        f = self.n_features
+        self._first[f : f + k] = estimate
+        for j, fid in enumerate(obs.feature.tolist()):
+            self._slot[fid] = f + j
+            self.feature_ids.append(fid)
         self.dim = n + 2 * k
+        self._update_indices()
 
     def _batch_update(
         self,
@@ -317,39 +422,66 @@ class MultiRobotEKF:
         slots: np.ndarray,
         lin_poses: np.ndarray,
         lin_features: np.ndarray,
+        current_features: np.ndarray,
+        linearised_at_current_poses: bool,
     ) -> None:
-        n, m, nr = self.dim, obs.robot.size, 3 * self.n_robots
-        h_r, h_f = models.observation_jacobians(
-            lin_poses[obs.robot, :2], lin_poses[obs.robot, 2], lin_features[slots]
-        )
-        robot_cols = 3 * obs.robot[:, None] + np.arange(3)
-        feat_cols = nr + 2 * slots[:, None] + np.arange(2)
-        cols = np.unique(np.concatenate([robot_cols.ravel(), feat_cols.ravel()]))
-        h = np.zeros((2 * m, cols.size))
-        row = np.arange(2 * m).reshape(m, 2)
-        rc = np.searchsorted(cols, robot_cols)
-        fc = np.searchsorted(cols, feat_cols)
-        h[row[:, :, None], rc[:, None, :]] = h_r
-        h[row[:, :, None], fc[:, None, :]] = h_f
-        predicted = models.observation(self.poses[obs.robot], self.features[slots])
-        innovation = (obs.z - predicted).ravel()
-        p = self._cov[:n, :n]
-        pht = p[:, cols] @ h.T  # (n, 2m)
-        s = h @ pht[cols] + _block_diagonal(obs.covariances(self.observation_covs))
-        # LAPACK directly: this runs every step, the wrappers' checks cost more than the solve
-        factor, info = scipy.linalg.lapack.dpotrf(0.5 * (s + s.T), lower=True)
+        n, m, r = self.dim, obs.robot.size, 3 * self.n_robots
+        robot = obs.robot
+        # H of observation i over its five columns [x_ri, x_fi]: C(φ)ᵀ [−I, −J d, I] (10–11)
+        lin_pose = lin_poses[robot]
+        c, s = np.cos(lin_pose[:, 2]), np.sin(lin_pose[:, 2])
+        rot_t = np.stack([c, s, -s, c], axis=1).reshape(m, 2, 2)  # C(φ)ᵀ
+        d = lin_features - lin_pose[:, :2]
+        blk = np.empty((m, 2, 5))
+        blk[:] = self._template
+        blk[:, 0, 2] = d[:, 1]
+        blk[:, 1, 2] = -d[:, 0]
+        h = rot_t @ blk  # (m, 2, 5)
+        cols = np.empty((m, 5), dtype=np.int64)
+        cols[:, :3] = 3 * robot[:, None] + np.arange(3)
+        cols[:, 3:] = r + 2 * slots[:, None] + np.arange(2)
+        # predicted observation at the current estimate (eq. 7)
+        pose = self.poses[robot]
+        if linearised_at_current_poses:
+            rot_now = rot_t
+        else:
+            cn, sn = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+            rot_now = np.stack([cn, sn, -sn, cn], axis=1).reshape(m, 2, 2)
+        diff = current_features - pose[:, :2]
+        predicted = (rot_now @ diff[:, :, None]).reshape(m, 2)
+        # [P Hᵀ; rᵀ] in one (n + 1, 2m) array, so one triangular solve gives [W | v]
+        # H over the distinct columns it touches (q ≤ 5m): P Hᵀ reads only those columns of P
+        touched, where = np.unique(cols, return_inverse=True)
+        h_c = np.zeros((2 * m, touched.size))
+        h_c[np.arange(2 * m).reshape(m, 2, 1), where.reshape(m, 1, 5)] = h
+        ext = np.empty((n + 1, 2 * m))
+        np.matmul(self._columns(touched), h_c.T, out=ext[:n])
+        s_mat = h_c @ ext[touched]
+        diag = np.arange(m)
+        s4 = s_mat.reshape(m, 2, m, 2)
+        s4[diag, :, diag, :] += obs.covariances(self.observation_covs)
+        factor, info = scipy.linalg.lapack.dpotrf(s_mat, lower=True, clean=False)
         if info != 0:
             raise NotPositiveDefiniteError("innovation covariance is not positive definite")
-        solved, _ = scipy.linalg.lapack.dpotrs(factor, pht.T, lower=True)
-        gain = solved.T
-        self._mean[:n] += gain @ innovation
-        self._mean[2:nr:3] = wrap_angle(self._mean[2:nr:3])
-        p -= gain @ pht.T
-        p += p.T
-        p *= 0.5
+        ext[n] = (obs.z - predicted).ravel()
+        solved, info = scipy.linalg.lapack.dtrtrs(factor, ext.T, lower=True, overwrite_b=True)
+        if info != 0:
+            raise NotPositiveDefiniteError("innovation covariance is singular")
+        w = solved[:, :n]
+        mean = self._mean
+        mean[:n] += w.T @ solved[:, n]
+        heading = mean[2:r:3]
+        heading += np.pi
+        np.remainder(heading, _TWO_PI, out=heading)
+        heading -= np.pi
+        # P ← P − Wᵀ W on the lower triangle, in place (Fortran view of the C array: upper)
+        scipy.linalg.blas.dsyrk(
+            -1.0, w, beta=1.0, c=self._lower.T, trans=1, lower=False, overwrite_c=True
+        )
         if self.record is not None:
             full = np.zeros((2 * m, n))
-            full[:, cols] = h
+            row = np.arange(2 * m).reshape(m, 2)
+            full[row[:, :, None], cols[:, None, :]] = h
             self.record.h.append(full)
 
     # ------------------------------------------------------------------ one step
@@ -359,7 +491,7 @@ class MultiRobotEKF:
         observations: StepObservations,
         true_from: np.ndarray | None = None,
         true_to: np.ndarray | None = None,
-        true_features: dict[int, np.ndarray] | None = None,
+        true_features: Mapping[int, np.ndarray] | np.ndarray | None = None,
         odometry_covs: np.ndarray | None = None,
     ) -> None:
         """Propagate with ``odometry`` then update with ``observations`` of the new step."""
