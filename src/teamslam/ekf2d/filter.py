@@ -120,6 +120,13 @@ def _block_diagonal(blocks: np.ndarray) -> np.ndarray:
     return out.reshape(k * b, k * b)
 
 
+def _collapse_columns(h: np.ndarray, columns: np.ndarray, n: int) -> np.ndarray:
+    """``(rows, n)`` matrix with ``h``'s columns added into ``columns`` (which may repeat)."""
+    full = np.zeros((h.shape[0], n))
+    np.add.at(full.T, columns, h.T)
+    return full
+
+
 def _features_at(truth: Mapping[int, np.ndarray] | np.ndarray, ids: np.ndarray) -> np.ndarray:
     """Ground-truth positions ``(m, 2)`` of feature ids, from a mapping or an id-indexed array."""
     if isinstance(truth, np.ndarray):
@@ -186,6 +193,9 @@ class MultiRobotEKF:
         self._template = np.zeros((2, 5))  # [−I, −J d, I]: column 2 filled per observation
         self._template[:, :2] = -np.eye(2)
         self._template[:, 3:] = np.eye(2)
+        self._robot_cols = np.arange(r)
+        self._feature_cols = r + 2 * np.arange(32)[:, None] + np.arange(2)
+        self._shapes: dict[int, tuple[np.ndarray, ...]] = {}
         self._index_dim = -1
         self._update_indices()
 
@@ -273,6 +283,8 @@ class MultiRobotEKF:
         first = np.zeros((cap, 2))
         first[: self.n_features] = self.first_estimates
         self._mean, self._first, self._capacity = mean, first, cap
+        r = 3 * self.n_robots
+        self._feature_cols = r + 2 * np.arange(cap)[:, None] + np.arange(2)
 
     # ------------------------------------------------------------------ start
     def start(
@@ -316,21 +328,34 @@ class MultiRobotEKF:
 
         ``odometry_covs`` ``(N, 3, 3)`` overrides the constant odometry noise for this step.
         """
-        odometry = np.asarray(odometry, dtype=float).reshape(self.n_robots, 3)
+        nr = self.n_robots
+        n, r = self.dim, 3 * nr
+        odometry = np.asarray(odometry, dtype=float).reshape(nr, 3)
         if not np.isfinite(odometry).all():
             raise ValueError("odometry contains NaN or infinite values")
-        posterior = self.poses.copy()
-        propagated = models.motion(posterior, odometry)
+        mean = self._mean
+        posterior = mean[:r].copy().reshape(nr, 3)
+        # motion (eq. 2): x_p' = x_p + C(φ) u, φ' = φ + v
+        c, s = np.cos(posterior[:, 2]), np.sin(posterior[:, 2])
+        step = np.stack(
+            (c * odometry[:, 0] - s * odometry[:, 1], s * odometry[:, 0] + c * odometry[:, 1])
+        )
+        propagated = posterior + odometry
+        propagated[:, :2] = posterior[:, :2] + step.T
+        heading = propagated[:, 2]
+        heading += np.pi
+        np.remainder(heading, _TWO_PI, out=heading)
+        heading -= np.pi
         points = LinearizationPoints(posterior, self.prior_poses, propagated, true_from, true_to)
         pos_from, pos_to = self.policy.propagation_positions(points)
-        heading = self.policy.propagation_heading(points)
+        heading_g = self.policy.propagation_heading(points)
+        if not (heading_g.base is posterior and heading_g.strides == posterior[:, 2].strides):
+            c, s = np.cos(heading_g), np.sin(heading_g)
         delta = pos_to - pos_from
-        c, s = np.cos(heading), np.sin(heading)
         # Φ_r: identity but each robot's heading column J Δ (eq. 5); G: C(φ) per robot (eq. 6)
-        self._phi_g.flat[self._phi_g_index] = (
-            np.concatenate([-delta[:, 1], delta[:, 0], c, -s, s, c]).reshape(6, -1).T.ravel()
+        self._phi_g.flat[self._phi_g_index] = np.stack(
+            (-delta[:, 1], delta[:, 0], c, -s, s, c), axis=1
         )
-        n, r = self.dim, 3 * self.n_robots
         blocks = self._blocks
         if odometry_covs is not None:
             blocks[r:, r:] = _block_diagonal(np.asarray(odometry_covs, dtype=float))
@@ -342,7 +367,7 @@ class MultiRobotEKF:
             p[r:n, :r] = p[r:n, :r] @ phi_g[:, :r].T  # P_fr Φ_rᵀ
         if odometry_covs is not None:
             blocks[r:, r:] = _block_diagonal(self.odometry_covs)
-        self._mean[:r] = propagated.ravel()
+        mean[:r] = propagated.ravel()
         self.prior_poses = propagated
         if self.record is not None:
             full = np.eye(n)
@@ -362,32 +387,35 @@ class MultiRobotEKF:
         array indexed by id.
         """
         obs = observations
-        if obs.robot.size and (obs.robot.min() < 0 or obs.robot.max() >= self.n_robots):
+        nr = self.n_robots
+        if obs.robot.size and (obs.robot.min() < 0 or obs.robot.max() >= nr):
             raise ValueError("observations name a robot outside 0..N-1")
-        poses_now = self.poses.copy()
+        poses_now = self._mean[: 3 * nr].copy().reshape(nr, 3)
         lin_poses = self.policy.update_poses(poses_now, true_poses)
         if self.policy.needs_truth and (true_poses is None or true_features is None):
             raise ValueError(f"the {self.policy.name} policy needs ground truth")
-        slots = self.slots(obs.feature)
-        new = slots < 0
-        if new.any():
+        get = self._slot.get
+        slots = [get(i, -1) for i in obs.feature.tolist()]
+        if -1 in slots:
             # the first observation of each new feature initialises it
-            ids_new = obs.feature[new]
-            _, first_rows = np.unique(ids_new, return_index=True)
+            new = np.array(slots) < 0
+            _, first_rows = np.unique(obs.feature[new], return_index=True)
             rows = np.flatnonzero(new)[np.sort(first_rows)]
             self._initialise(obs.select(rows), lin_poses)
             init_mask = np.zeros(obs.robot.size, dtype=bool)
             init_mask[rows] = True
             obs = obs.select(~init_mask)
-            slots = self.slots(obs.feature)
-        if self.record is not None and obs.robot.size == 0:
-            self.record.h.append(np.zeros((0, self.dim)))
-        if obs.robot.size == 0:
+            slots = [get(i, -1) for i in obs.feature.tolist()]
+        if not slots:
+            if self.record is not None:
+                self.record.h.append(np.zeros((0, self.dim)))
             return
+        slots = np.array(slots)
         truth_f = None if true_features is None else _features_at(true_features, obs.feature)
-        current = self.features[slots]
+        r = 3 * nr
+        current = self._mean[r : self.dim].reshape(-1, 2)[slots]
         lin_features = self.policy.update_features(current, self._first[slots], truth_f)
-        self._batch_update(obs, slots, lin_poses, lin_features, current, lin_poses is poses_now)
+        self._batch_update(obs, slots, poses_now, lin_poses, current, lin_features)
 
     def _initialise(self, obs: StepObservations, lin_poses: np.ndarray) -> None:
         k = obs.robot.size
@@ -416,55 +444,78 @@ class MultiRobotEKF:
         self.dim = n + 2 * k
         self._update_indices()
 
+    def _update_shapes(self, m: int) -> tuple[np.ndarray, ...]:
+        """Index arrays of an update with ``m`` observations (cached per ``m``)."""
+        shapes = self._shapes.get(m)
+        if shapes is None:
+            r = 3 * self.n_robots
+            width = r + 2 * m  # columns of H: every robot's pose, then each observation's feature
+            row = np.arange(2 * m).reshape(m, 2, 1)
+            local = np.concatenate(
+                [np.broadcast_to(np.arange(3), (m, 3)), r + 2 * np.arange(m)[:, None] + (0, 1)],
+                axis=1,
+            )
+            h_index = row * width + local[:, None, :]  # robot 0's columns; + 3 i for robot i
+            robot_shift = 3 * np.arange(self.n_robots)[:, None, None] * (1, 1, 1, 0, 0)
+            diag = np.arange(m)
+            s_index = (2 * diag[:, None, None] + np.arange(2)[:, None]) * (2 * m) + (
+                2 * diag[:, None, None] + np.arange(2)
+            )
+            blk = np.zeros((m, 2, 5))
+            blk[:] = self._template
+            shapes = (h_index, robot_shift, s_index.ravel(), blk)
+            self._shapes[m] = shapes
+        return shapes
+
     def _batch_update(
         self,
         obs: StepObservations,
         slots: np.ndarray,
+        poses: np.ndarray,
         lin_poses: np.ndarray,
+        current: np.ndarray,
         lin_features: np.ndarray,
-        current_features: np.ndarray,
-        linearised_at_current_poses: bool,
     ) -> None:
-        n, m, r = self.dim, obs.robot.size, 3 * self.n_robots
+        """One update with ``m`` observations of features in the state.
+
+        ``poses``/``current`` are the estimates (for the predicted observation),
+        ``lin_poses``/``lin_features`` where the policy evaluates ``H``.
+        """
+        n, m, r = self.dim, slots.size, 3 * self.n_robots
         robot = obs.robot
+        h_index, robot_shift, s_index, blk = self._update_shapes(m)
         # H of observation i over its five columns [x_ri, x_fi]: C(φ)ᵀ [−I, −J d, I] (10–11)
         lin_pose = lin_poses[robot]
         c, s = np.cos(lin_pose[:, 2]), np.sin(lin_pose[:, 2])
-        rot_t = np.stack([c, s, -s, c], axis=1).reshape(m, 2, 2)  # C(φ)ᵀ
+        rot_t = np.stack((c, s, -s, c), axis=1).reshape(m, 2, 2)  # C(φ)ᵀ
         d = lin_features - lin_pose[:, :2]
-        blk = np.empty((m, 2, 5))
-        blk[:] = self._template
-        blk[:, 0, 2] = d[:, 1]
-        blk[:, 1, 2] = -d[:, 0]
+        blk[:, :, 2] = d[:, ::-1]
+        blk[:, 1, 2] *= -1.0
         h = rot_t @ blk  # (m, 2, 5)
-        cols = np.empty((m, 5), dtype=np.int64)
-        cols[:, :3] = 3 * robot[:, None] + np.arange(3)
-        cols[:, 3:] = r + 2 * slots[:, None] + np.arange(2)
         # predicted observation at the current estimate (eq. 7)
-        pose = self.poses[robot]
-        if linearised_at_current_poses:
-            rot_now = rot_t
+        if lin_poses is poses:
+            diff = d if lin_features is current else current - lin_pose[:, :2]
         else:
-            cn, sn = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-            rot_now = np.stack([cn, sn, -sn, cn], axis=1).reshape(m, 2, 2)
-        diff = current_features - pose[:, :2]
-        predicted = (rot_now @ diff[:, :, None]).reshape(m, 2)
-        # [P Hᵀ; rᵀ] in one (n + 1, 2m) array, so one triangular solve gives [W | v]
-        # H over the distinct columns it touches (q ≤ 5m): P Hᵀ reads only those columns of P
-        touched, where = np.unique(cols, return_inverse=True)
-        h_c = np.zeros((2 * m, touched.size))
-        h_c[np.arange(2 * m).reshape(m, 2, 1), where.reshape(m, 1, 5)] = h
+            pose = poses[robot]
+            c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+            rot_t = np.stack((c, s, -s, c), axis=1).reshape(m, 2, 2)
+            diff = current - pose[:, :2]
+        # H over [x_r1 … x_rN, x_f of each observation] (features may repeat): P Hᵀ reads only
+        # those columns of P
+        touched = np.concatenate((self._robot_cols, self._feature_cols[slots].ravel()))
+        h_c = np.zeros((2 * m, r + 2 * m))
+        h_c.ravel()[h_index + robot_shift[robot]] = h
+        # [P Hᵀ; rᵀ] in one (n + 1, 2m) array, so one triangular solve gives [W | v] = U⁻ᵀ [H P | r]
         ext = np.empty((n + 1, 2 * m))
         np.matmul(self._columns(touched), h_c.T, out=ext[:n])
         s_mat = h_c @ ext[touched]
-        diag = np.arange(m)
-        s4 = s_mat.reshape(m, 2, m, 2)
-        s4[diag, :, diag, :] += obs.covariances(self.observation_covs)
-        factor, info = scipy.linalg.lapack.dpotrf(s_mat, lower=True, clean=False)
+        s_mat.ravel()[s_index] += obs.covariances(self.observation_covs).ravel()
+        # S = Uᵀ U with U upper in Fortran order: the lower triangle of S read in place
+        factor, info = scipy.linalg.lapack.dpotrf(s_mat.T, clean=False, overwrite_a=True)
         if info != 0:
             raise NotPositiveDefiniteError("innovation covariance is not positive definite")
-        ext[n] = (obs.z - predicted).ravel()
-        solved, info = scipy.linalg.lapack.dtrtrs(factor, ext.T, lower=True, overwrite_b=True)
+        np.subtract(obs.z, (rot_t @ diff[:, :, None]).reshape(m, 2), out=ext[n].reshape(m, 2))
+        solved, info = scipy.linalg.lapack.dtrtrs(factor, ext.T, trans=1, overwrite_b=True)
         if info != 0:
             raise NotPositiveDefiniteError("innovation covariance is singular")
         w = solved[:, :n]
@@ -479,10 +530,7 @@ class MultiRobotEKF:
             -1.0, w, beta=1.0, c=self._lower.T, trans=1, lower=False, overwrite_c=True
         )
         if self.record is not None:
-            full = np.zeros((2 * m, n))
-            row = np.arange(2 * m).reshape(m, 2)
-            full[row[:, :, None], cols[:, None, :]] = h
-            self.record.h.append(full)
+            self.record.h.append(_collapse_columns(h_c, touched, n))
 
     # ------------------------------------------------------------------ one step
     def step(
