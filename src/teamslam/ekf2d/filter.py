@@ -9,17 +9,20 @@ Per step ``k → k + 1`` (:meth:`MultiRobotEKF.step`): propagate every robot (eq
 features seen for the first time from their first observation (with full cross-covariances),
 then one batch update with every other observation of the step (eqs. 8–11).
 
-Storage and cost. The covariance ``P`` is one contiguous ``dim × dim`` array of which only the
-lower triangle is kept (the upper one is never read), so the update's rank-``2m`` downdate
-``P ← P − Wᵀ W`` is one in-place BLAS ``syrk`` over half the matrix, and ``P`` is symmetric by
-construction. The steps touch only what changes:
+Storage and cost. The covariance ``P`` is one contiguous ``dim × dim`` array. Up to
+``FULL_STORAGE_MAX`` state entries both triangles are kept, so any column of ``P`` is read as a
+row, and the update's rank-``2m`` downdate ``P ← P − Wᵀ W`` is one in-place BLAS ``gemm``; above
+it only the lower triangle is kept (the upper one is no longer read), the downdate is one
+in-place ``syrk`` over half the matrix, and the columns the update needs are read from rows
+left of the diagonal and from columns below it. Either way ``P`` is symmetric by construction
+(:attr:`MultiRobotEKF.cov` mirrors the lower triangle). The steps touch only what changes:
 
 * propagation: ``Φ`` is the identity outside the robot block, so only the robot block
   (``Φ_r P_rr Φ_rᵀ + G Q Gᵀ``, one small product) and the robot–feature cross block
   (``P_fr Φ_rᵀ``) are rewritten;
 * update: ``H`` has five non-zero columns per observation (its robot's pose and its feature), so
-  ``P Hᵀ`` reads only those columns of ``P``; with ``S = L Lᵀ`` (Cholesky) and
-  ``[W | v] = L⁻¹ [H P | r]`` (one triangular solve), the mean moves by ``Wᵀ v`` and ``P`` by
+  ``P Hᵀ`` reads only those columns of ``P``; with ``S = Uᵀ U`` (Cholesky) and
+  ``[W | v] = U⁻ᵀ [H P | r]`` (one triangular solve), the mean moves by ``Wᵀ v`` and ``P`` by
   ``− Wᵀ W``;
 * a new feature appends rows (the lower triangle's new rows are exactly the cross-covariances
   and the new block), so the matrix is copied once per step that adds features.
@@ -41,6 +44,9 @@ from teamslam.gaussian import NotPositiveDefiniteError
 __all__ = ["JacobianRecord", "MultiRobotEKF", "StepObservations"]
 
 _TWO_PI = 2.0 * np.pi
+FULL_STORAGE_MAX = 128  # state size up to which both triangles of P are kept
+_J_T = np.array([[0.0, 1.0], [-1.0, 0.0]])  # Δ @ Jᵀ = J Δ per row
+_MINUS_J_T = -_J_T
 
 
 @dataclass
@@ -167,7 +173,7 @@ class MultiRobotEKF:
         r = 3 * n
         self._capacity = r + 2 * 32
         self._mean = np.zeros(self._capacity)
-        self._lower = np.zeros((r, r))  # P; only its lower triangle is meaningful
+        self._lower = np.zeros((r, r))  # P: its lower triangle (both while _full)
         self.dim = r
         self.feature_ids: list[int] = []
         self._slot: dict[int, int] = {}
@@ -178,16 +184,21 @@ class MultiRobotEKF:
         self._phi_g = np.hstack([np.eye(r), np.eye(r)])
         a = 3 * np.arange(n)[:, None]
         width = 2 * r
-        self._phi_g_index = np.hstack(
+        self._phi_index = np.hstack(
             [
                 a * width + a + 2,  # Φ[a, a+2] = −Δy
                 (a + 1) * width + a + 2,  # Φ[a+1, a+2] = Δx
+            ]
+        )
+        self._g_index = np.hstack(
+            [
                 a * width + r + a,  # G[a, a] = cos
                 a * width + r + a + 1,  # G[a, a+1] = −sin
                 (a + 1) * width + r + a,  # G[a+1, a] = sin
                 (a + 1) * width + r + a + 1,  # G[a+1, a+1] = cos
             ]
-        ).ravel()
+        )
+        self._phi_g_values = np.zeros((n, 6))
         self._blocks = np.zeros((width, width))
         self._blocks[r:, r:] = _block_diagonal(self.odometry_covs)
         self._template = np.zeros((2, 5))  # [−I, −J d, I]: column 2 filled per observation
@@ -197,6 +208,7 @@ class MultiRobotEKF:
         self._feature_cols = r + 2 * np.arange(32)[:, None] + np.arange(2)
         self._shapes: dict[int, tuple[np.ndarray, ...]] = {}
         self._index_dim = -1
+        self._full = True
         self._update_indices()
 
     # ------------------------------------------------------------------ state access
@@ -251,6 +263,8 @@ class MultiRobotEKF:
     def _update_indices(self) -> None:
         """Flat indices into the lower triangle that depend on ``dim``."""
         n, r = self.dim, 3 * self.n_robots
+        # full storage (both triangles kept) while small; from then on the lower triangle only
+        self._full = self._full and n <= FULL_STORAGE_MAX
         if n == self._index_dim:
             return
 
@@ -270,7 +284,8 @@ class MultiRobotEKF:
         """Full columns ``P[:, cols]`` ``(dim, len(cols))`` read from the lower triangle."""
         p = self._lower
         out = p[cols]  # rows of P: right for entries left of the diagonal
-        np.copyto(out, p.T[cols], where=self._rows.T > cols[:, None])
+        if not self._full:
+            np.copyto(out, p.T[cols], where=self._rows.T > cols[:, None])
         return out.T
 
     def _grow_mean(self, extra: int) -> None:
@@ -309,6 +324,7 @@ class MultiRobotEKF:
         self._mean[: 3 * self.n_robots] = poses.ravel()
         self._mean[3 * self.n_robots : dim] = features.ravel()
         self._lower = 0.5 * (cov + cov.T)
+        self._full = True
         for k, fid in enumerate(feature_ids.tolist()):
             self._slot[fid] = k
             self.feature_ids.append(fid)
@@ -335,13 +351,14 @@ class MultiRobotEKF:
             raise ValueError("odometry contains NaN or infinite values")
         mean = self._mean
         posterior = mean[:r].copy().reshape(nr, 3)
-        # motion (eq. 2): x_p' = x_p + C(φ) u, φ' = φ + v
-        c, s = np.cos(posterior[:, 2]), np.sin(posterior[:, 2])
-        step = np.stack(
-            (c * odometry[:, 0] - s * odometry[:, 1], s * odometry[:, 0] + c * odometry[:, 1])
-        )
-        propagated = posterior + odometry
-        propagated[:, :2] = posterior[:, :2] + step.T
+        # G (eq. 6) at the posterior heading: it also moves the means, x' = x + G u (eq. 2)
+        phi_g, vals = self._phi_g, self._phi_g_values
+        np.cos(posterior[:, 2], out=vals[:, 2])
+        np.sin(posterior[:, 2], out=vals[:, 4])
+        vals[:, 5] = vals[:, 2]
+        np.negative(vals[:, 4], out=vals[:, 3])
+        np.put(phi_g, self._g_index, vals[:, 2:])
+        propagated = (posterior.ravel() + phi_g[:, r:] @ odometry.ravel()).reshape(nr, 3)
         heading = propagated[:, 2]
         heading += np.pi
         np.remainder(heading, _TWO_PI, out=heading)
@@ -349,13 +366,15 @@ class MultiRobotEKF:
         points = LinearizationPoints(posterior, self.prior_poses, propagated, true_from, true_to)
         pos_from, pos_to = self.policy.propagation_positions(points)
         heading_g = self.policy.propagation_heading(points)
-        if not (heading_g.base is posterior and heading_g.strides == posterior[:, 2].strides):
-            c, s = np.cos(heading_g), np.sin(heading_g)
-        delta = pos_to - pos_from
-        # Φ_r: identity but each robot's heading column J Δ (eq. 5); G: C(φ) per robot (eq. 6)
-        self._phi_g.flat[self._phi_g_index] = np.stack(
-            (-delta[:, 1], delta[:, 0], c, -s, s, c), axis=1
-        )
+        if not (heading_g.base is posterior and heading_g.strides == heading.strides):
+            np.cos(heading_g, out=vals[:, 2])  # the policy rotates the noise elsewhere
+            np.sin(heading_g, out=vals[:, 4])
+            vals[:, 5] = vals[:, 2]
+            np.negative(vals[:, 4], out=vals[:, 3])
+            np.put(phi_g, self._g_index, vals[:, 2:])
+        # Φ_r (eq. 5): identity but each robot's heading column J Δ, J Δ = (−Δy, Δx)
+        np.matmul(pos_to - pos_from, _J_T, out=vals[:, :2])
+        np.put(phi_g, self._phi_index, vals[:, :2])
         blocks = self._blocks
         if odometry_covs is not None:
             blocks[r:, r:] = _block_diagonal(np.asarray(odometry_covs, dtype=float))
@@ -365,6 +384,8 @@ class MultiRobotEKF:
         p[:r, :r] = phi_g @ blocks @ phi_g.T  # Φ_r P_rr Φ_rᵀ + G Q Gᵀ (lower triangle read)
         if n > r:
             p[r:n, :r] = p[r:n, :r] @ phi_g[:, :r].T  # P_fr Φ_rᵀ
+            if self._full:
+                p[:r, r:n] = p[r:n, :r].T
         if odometry_covs is not None:
             blocks[r:, r:] = _block_diagonal(self.odometry_covs)
         mean[:r] = propagated.ravel()
@@ -433,6 +454,8 @@ class MultiRobotEKF:
         grown = np.zeros((n + 2 * k, n + 2 * k))
         grown[:n, :n] = self._lower
         grown[n:, :n] = cross
+        if self._full:
+            grown[:n, n:] = cross.T
         grown[n:, n:] = 0.5 * (new_block + new_block.T)
         self._lower = grown
         self._mean[n : n + 2 * k] = estimate.ravel()
@@ -486,19 +509,24 @@ class MultiRobotEKF:
         h_index, robot_shift, s_index, blk = self._update_shapes(m)
         # H of observation i over its five columns [x_ri, x_fi]: C(φ)ᵀ [−I, −J d, I] (10–11)
         lin_pose = lin_poses[robot]
-        c, s = np.cos(lin_pose[:, 2]), np.sin(lin_pose[:, 2])
-        rot_t = np.stack((c, s, -s, c), axis=1).reshape(m, 2, 2)  # C(φ)ᵀ
+        rot_t = np.empty((m, 2, 2))  # C(φ)ᵀ = [[cos, sin], [−sin, cos]]
+        np.cos(lin_pose[:, 2], out=rot_t[:, 0, 0])
+        np.sin(lin_pose[:, 2], out=rot_t[:, 0, 1])
+        rot_t[:, 1, 1] = rot_t[:, 0, 0]
+        np.negative(rot_t[:, 0, 1], out=rot_t[:, 1, 0])
         d = lin_features - lin_pose[:, :2]
-        blk[:, :, 2] = d[:, ::-1]
-        blk[:, 1, 2] *= -1.0
+        np.matmul(d, _MINUS_J_T, out=blk[:, :, 2])  # −J d = (Δy, −Δx)
         h = rot_t @ blk  # (m, 2, 5)
         # predicted observation at the current estimate (eq. 7)
         if lin_poses is poses:
             diff = d if lin_features is current else current - lin_pose[:, :2]
         else:
             pose = poses[robot]
-            c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-            rot_t = np.stack((c, s, -s, c), axis=1).reshape(m, 2, 2)
+            rot_t = np.empty((m, 2, 2))
+            np.cos(pose[:, 2], out=rot_t[:, 0, 0])
+            np.sin(pose[:, 2], out=rot_t[:, 0, 1])
+            rot_t[:, 1, 1] = rot_t[:, 0, 0]
+            np.negative(rot_t[:, 0, 1], out=rot_t[:, 1, 0])
             diff = current - pose[:, :2]
         # H over [x_r1 … x_rN, x_f of each observation] (features may repeat): P Hᵀ reads only
         # those columns of P
@@ -526,9 +554,14 @@ class MultiRobotEKF:
         np.remainder(heading, _TWO_PI, out=heading)
         heading -= np.pi
         # P ← P − Wᵀ W on the lower triangle, in place (Fortran view of the C array: upper)
-        scipy.linalg.blas.dsyrk(
-            -1.0, w, beta=1.0, c=self._lower.T, trans=1, lower=False, overwrite_c=True
-        )
+        if self._full:
+            scipy.linalg.blas.dgemm(
+                -1.0, w, w, beta=1.0, c=self._lower.T, trans_a=1, overwrite_c=True
+            )
+        else:
+            scipy.linalg.blas.dsyrk(
+                -1.0, w, beta=1.0, c=self._lower.T, trans=1, lower=False, overwrite_c=True
+            )
         if self.record is not None:
             self.record.h.append(_collapse_columns(h_c, touched, n))
 
