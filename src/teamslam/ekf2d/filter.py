@@ -280,12 +280,21 @@ class MultiRobotEKF:
         self._rows = np.arange(n)[:, None]
         self._index_dim = n
 
-    def _columns(self, cols: np.ndarray) -> np.ndarray:
-        """Full columns ``P[:, cols]`` ``(dim, len(cols))`` read from the lower triangle."""
+    def _columns(self, cols: np.ndarray, robots_first: bool = False) -> np.ndarray:
+        """Full columns ``P[:, cols]`` ``(dim, len(cols))`` read from the lower triangle.
+
+        With ``robots_first``, ``cols`` starts with every robot column ``0 … 3N − 1``.
+        """
         p = self._lower
         out = p[cols]  # rows of P: right for entries left of the diagonal
         if not self._full:
-            np.copyto(out, p.T[cols], where=self._rows.T > cols[:, None])
+            fix, below = out, cols
+            if robots_first:  # the robot block and the robot–feature block, read as blocks
+                r = 3 * self.n_robots
+                out[:r, :r] = p.ravel()[self._robot_index]
+                out[:r, r:] = p[r:, :r].T
+                fix, below = out[r:], cols[r:]
+            np.copyto(fix, p.T[below], where=self._rows.T > below[:, None])
         return out.T
 
     def _grow_mean(self, extra: int) -> None:
@@ -535,7 +544,7 @@ class MultiRobotEKF:
         h_c.ravel()[h_index + robot_shift[robot]] = h
         # [P Hᵀ; rᵀ] in one (n + 1, 2m) array, so one triangular solve gives [W | v] = U⁻ᵀ [H P | r]
         ext = np.empty((n + 1, 2 * m))
-        np.matmul(self._columns(touched), h_c.T, out=ext[:n])
+        np.matmul(self._columns(touched, robots_first=True), h_c.T, out=ext[:n])
         s_mat = h_c @ ext[touched]
         s_mat.ravel()[s_index] += obs.covariances(self.observation_covs).ravel()
         # S = Uᵀ U with U upper in Fortran order: the lower triangle of S read in place
