@@ -376,13 +376,20 @@ def _random_team_run(rng, n_robots, steps, n_features):
 
 
 @pytest.mark.parametrize("name", ["std", "fej", "ideal"])
-@pytest.mark.parametrize(("own_noise", "full_storage_max"), [(False, 10**9), (True, 0)])
-def test_filter_matches_a_plain_dense_reference(name, own_noise, full_storage_max, monkeypatch):
+@pytest.mark.parametrize(
+    ("own_noise", "full_storage_max", "record"),
+    [(False, 10**9, False), (True, 10**9, True), (True, 0, False)],
+    ids=["compiled", "numpy-full", "numpy-lower"],
+)
+def test_filter_matches_a_plain_dense_reference(
+    name, own_noise, full_storage_max, record, monkeypatch
+):
     """Mean and covariance equal the plain dense EKF's at every step, to 1e-9.
 
     Three robots, 40 steps, features appearing over time, shared and repeated observations;
-    with ``own_noise`` every odometry step and observation brings its own covariance. Both
-    storages of ``P`` are exercised: full (small states) and lower triangle only.
+    with ``own_noise`` every odometry step and observation brings its own covariance. Every
+    path is exercised: the compiled kernels (small state), numpy with both triangles stored
+    (taken when Jacobians are recorded) and numpy with the lower triangle only.
     """
     monkeypatch.setattr(filter_module, "FULL_STORAGE_MAX", full_storage_max)
     rng = np.random.default_rng(7)
@@ -395,7 +402,7 @@ def test_filter_matches_a_plain_dense_reference(name, own_noise, full_storage_ma
     start_feat = features[start_ids] + rng.normal(0, 0.1, (2, 2))
     a = rng.normal(size=(13, 13))
     start_cov = 0.01 * a @ a.T + 0.01 * np.eye(13)
-    ekf = MultiRobotEKF(q, r, policy(name))
+    ekf = MultiRobotEKF(q, r, policy(name), record_jacobians=record)
     ekf.start(noisy, start_ids, start_feat, start_cov)
     ref = _ReferenceEKF(name, q, r, noisy, start_ids, start_feat, start_cov)
     truth = dict(enumerate(features))

@@ -26,6 +26,10 @@ left of the diagonal and from columns below it. Either way ``P`` is symmetric by
   ``− Wᵀ W``;
 * a new feature appends rows (the lower triangle's new rows are exactly the cross-covariances
   and the new block), so the matrix is copied once per step that adds features.
+
+With a small state (full storage) the cost is the number of numpy calls, not the arithmetic, so
+propagation and update each run as one compiled call (:mod:`teamslam.ekf2d.kernels`, numba);
+the numpy path above serves large states and runs that record their Jacobians.
 """
 
 from __future__ import annotations
@@ -124,6 +128,13 @@ def _block_diagonal(blocks: np.ndarray) -> np.ndarray:
     diag = np.arange(k)
     out[diag, :, diag, :] = blocks
     return out.reshape(k * b, k * b)
+
+
+def _kernels():
+    """:mod:`teamslam.ekf2d.kernels`, imported (and compiled) on first use."""
+    from teamslam.ekf2d import kernels
+
+    return kernels
 
 
 def _collapse_columns(h: np.ndarray, columns: np.ndarray, n: int) -> np.ndarray:
@@ -360,6 +371,24 @@ class MultiRobotEKF:
             raise ValueError("odometry contains NaN or infinite values")
         mean = self._mean
         posterior = mean[:r].copy().reshape(nr, 3)
+        if self._full and self.record is None:
+            # small state: compiled motion and covariance propagation (see ekf2d.kernels)
+            kernels = _kernels()
+            propagated = kernels.motion(posterior, np.ascontiguousarray(odometry))
+            points = LinearizationPoints(
+                posterior, self.prior_poses, propagated, true_from, true_to
+            )
+            pos_from, pos_to = self.policy.propagation_positions(points)
+            q = self.odometry_covs if odometry_covs is None else odometry_covs
+            kernels.propagate_full(
+                self._lower,
+                pos_to - pos_from,
+                self.policy.propagation_heading(points),
+                np.ascontiguousarray(q, dtype=float),
+            )
+            mean[:r] = propagated.ravel()
+            self.prior_poses = propagated
+            return
         # G (eq. 6) at the posterior heading: it also moves the means, x' = x + G u (eq. 2)
         phi_g, vals = self._phi_g, self._phi_g_values
         np.cos(posterior[:, 2], out=vals[:, 2])
@@ -515,6 +544,24 @@ class MultiRobotEKF:
         """
         n, m, r = self.dim, slots.size, 3 * self.n_robots
         robot = obs.robot
+        if self._full and self.record is None:
+            # small state: one compiled call does the whole update (see ekf2d.kernels)
+            ok = _kernels().update_full(
+                self._lower,
+                self._mean[:n],
+                self.n_robots,
+                robot,
+                slots,
+                obs.z,
+                obs.covariances(self.observation_covs),
+                lin_poses[robot],
+                lin_features,
+                poses[robot],
+                current,
+            )
+            if not ok:
+                raise NotPositiveDefiniteError("innovation covariance is not positive definite")
+            return
         h_index, robot_shift, s_index, blk = self._update_shapes(m)
         # H of observation i over its five columns [x_ri, x_fi]: C(φ)ᵀ [−I, −J d, I] (10–11)
         lin_pose = lin_poses[robot]
