@@ -595,16 +595,20 @@ class MultiRobotEKF:
         s_mat = h_c @ ext[touched]
         s_mat.ravel()[s_index] += obs.covariances(self.observation_covs).ravel()
         # S = Uᵀ U with U upper in Fortran order: the lower triangle of S read in place
-        factor, info = scipy.linalg.lapack.dpotrf(s_mat.T, clean=False, overwrite_a=True)
+        factor, info = scipy.linalg.lapack.dpotrf(s_mat.T, overwrite_a=True)
         if info != 0:
             raise NotPositiveDefiniteError("innovation covariance is not positive definite")
         np.subtract(obs.z, (rot_t @ diff[:, :, None]).reshape(m, 2), out=ext[n].reshape(m, 2))
-        solved, info = scipy.linalg.lapack.dtrtrs(factor, ext.T, trans=1, overwrite_b=True)
+        # [W | v]ᵀ = [P Hᵀ; rᵀ] U⁻¹: U⁻¹ of the (2m × 2m) triangular factor, then one GEMM
+        # over the n + 1 rows (BLAS trsm is several times slower for so few columns and
+        # triangular inversion is as accurate as the substitution)
+        u_inv, info = scipy.linalg.lapack.dtrtri(factor, overwrite_c=True)
         if info != 0:
             raise NotPositiveDefiniteError("innovation covariance is singular")
-        w = solved[:, :n]
+        solved = ext @ u_inv
+        w = solved[:n].T  # (2m × n), Fortran order
         mean = self._mean
-        mean[:n] += w.T @ solved[:, n]
+        mean[:n] += solved[:n] @ solved[n]
         heading = mean[2:r:3]
         heading += np.pi
         np.remainder(heading, _TWO_PI, out=heading)
