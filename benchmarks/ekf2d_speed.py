@@ -15,8 +15,14 @@ sensitive to other jobs on a shared machine), BLAS pinned to one thread, of
 * one Victoria Park filter run (2 robots, 2,545 steps, 287 features; loading excluded) for the
   standard and first-estimate EKFs, when the data is at ``../shared/data/victoria-park``.
 
+Targets: one environment-1 run ≤ 0.02 s, one Victoria Park run ≤ 1 s. Every workload is run
+once untimed first, so one-time costs (imports, loading the compiled kernels of
+:mod:`teamslam.ekf2d.kernels`) are not in the medians.
+
 With ``--baseline`` a column gives ``baseline / now`` (the speed-up) for every row both runs
-measured. The machine may be shared: medians of several repeats, not single times.
+measured; to compare with an older version, run this script with that version importable
+(e.g. ``PYTHONPATH=<its src>``) and ``--save``. The machine may be shared: medians of several
+repeats, not single times.
 """
 
 from __future__ import annotations
@@ -77,6 +83,7 @@ def victoria_park_runs(repeats: int) -> dict[str, float]:
     split = load_victoria_park(directory)
     out = {}
     for name in ("std", "fej"):
+        run_victoria_park(split, name)  # warm-up
         times = []
         for _ in range(repeats):
             times.append(_timed(run_victoria_park, split, name))
