@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from teamslam.ekf2d import environments as E
+from teamslam.ekf2d import filter as filter_module
 from teamslam.ekf2d import models, observability
 from teamslam.ekf2d import run as R
 from teamslam.ekf2d import simulate as S
@@ -242,3 +243,188 @@ def test_bad_inputs_to_the_filter():
         )
     with pytest.raises(ValueError, match="unknown linearisation"):
         policy("best")
+
+
+class _ReferenceEKF:
+    """The multi-robot EKF written plainly: full ``Φ``, full ``H``, ``K = P Hᵀ S⁻¹``.
+
+    Dense ``n × n`` algebra over the whole state, one feature initialised at a time, nothing
+    gathered or triangular: what :class:`MultiRobotEKF` must reproduce.
+    """
+
+    def __init__(self, name, odometry_covs, observation_covs, poses, ids, features, cov):
+        self.name = name
+        self.q, self.r = odometry_covs, observation_covs
+        self.n_robots = poses.shape[0]
+        self.x = np.concatenate([poses.ravel(), features.ravel()])
+        self.p = cov.copy()
+        self.ids = list(ids)
+        self.first = [f.copy() for f in features]
+        self.prior = poses.copy()
+
+    def poses(self):
+        return self.x[: 3 * self.n_robots].reshape(-1, 3)
+
+    def feature(self, fid):
+        k = 3 * self.n_robots + 2 * self.ids.index(fid)
+        return self.x[k : k + 2]
+
+    def propagate(self, odometry, true_from, true_to, q=None):
+        q = self.q if q is None else q
+        n, nr = self.x.size, self.n_robots
+        post = self.poses().copy()
+        prop = np.array([models.motion(post[i], odometry[i]) for i in range(nr)])
+        phi, noise = np.eye(n), np.zeros((n, n))
+        for i in range(nr):
+            if self.name == "std":
+                a, b, heading = post[i, :2], prop[i, :2], post[i, 2]
+            elif self.name == "fej":
+                a, b, heading = self.prior[i, :2], prop[i, :2], post[i, 2]
+            else:
+                a, b, heading = true_from[i, :2], true_to[i, :2], true_from[i, 2]
+            phi_i, g_i = models.motion_jacobians(a, b, heading)
+            s = slice(3 * i, 3 * i + 3)
+            phi[s, s] = phi_i
+            noise[s, s] = g_i @ q[i] @ g_i.T
+        self.p = phi @ self.p @ phi.T + noise
+        self.x[: 3 * nr] = prop.ravel()
+        self.prior = prop.copy()
+
+    def update(self, obs, true_poses, true_features):
+        nr = self.n_robots
+        lin_poses = true_poses if self.name == "ideal" else self.poses().copy()
+        covs = obs.cov if obs.cov is not None else self.r[obs.robot]
+        rows = []
+        for j in range(obs.robot.size):
+            fid, i = int(obs.feature[j]), int(obs.robot[j])
+            if fid in self.ids:
+                rows.append(j)
+                continue
+            n = self.x.size
+            d_pose, d_z = models.feature_from_observation_jacobians(lin_poses[i], obs.z[j])
+            a = np.zeros((2, n))
+            a[:, 3 * i : 3 * i + 3] = d_pose
+            cross = a @ self.p
+            block = a @ self.p @ a.T + d_z @ covs[j] @ d_z.T
+            self.p = np.block([[self.p, cross.T], [cross, block]])
+            est = models.feature_from_observation(self.poses()[i], obs.z[j])
+            self.x = np.concatenate([self.x, est])
+            self.ids.append(fid)
+            self.first.append(est.copy())
+        if not rows:
+            return
+        n = self.x.size
+        h = np.zeros((2 * len(rows), n))
+        innovation = np.zeros(2 * len(rows))
+        noise = np.zeros((2 * len(rows), 2 * len(rows)))
+        for k, j in enumerate(rows):
+            fid, i = int(obs.feature[j]), int(obs.robot[j])
+            slot = self.ids.index(fid)
+            lin_f = {
+                "std": self.feature(fid),
+                "fej": self.first[slot],
+                "ideal": true_features[fid],
+            }[self.name]
+            h_r, h_f = models.observation_jacobians(lin_poses[i, :2], lin_poses[i, 2], lin_f)
+            c = 3 * nr + 2 * slot
+            h[2 * k : 2 * k + 2, 3 * i : 3 * i + 3] = h_r
+            h[2 * k : 2 * k + 2, c : c + 2] = h_f
+            predicted = models.observation(self.poses()[i], self.feature(fid))
+            innovation[2 * k : 2 * k + 2] = obs.z[j] - predicted
+            noise[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = covs[j]
+        s = h @ self.p @ h.T + noise
+        gain = np.linalg.solve(s, h @ self.p).T
+        self.x = self.x + gain @ innovation
+        self.x[2 : 3 * nr : 3] = np.angle(np.exp(1j * self.x[2 : 3 * nr : 3]))
+        self.p = self.p - gain @ s @ gain.T
+        self.p = 0.5 * (self.p + self.p.T)
+
+
+def _random_team_run(rng, n_robots, steps, n_features):
+    """A random planar team: poses, odometry, and each step's observations of random features.
+
+    Features appear over time (new ones every few steps), some are seen by several robots in
+    one step, and a new feature may be seen twice in the step that introduces it.
+    """
+    features = rng.uniform(-20, 20, (n_features, 2))
+    poses = np.zeros((steps + 1, n_robots, 3))
+    poses[0] = np.column_stack([rng.uniform(-5, 5, (n_robots, 2)), rng.uniform(-3, 3, n_robots)])
+    odometry = np.zeros((steps, n_robots, 3))
+    odometry[..., 0] = rng.uniform(0.5, 1.5, (steps, n_robots))
+    odometry[..., 1] = rng.normal(0, 0.2, (steps, n_robots))
+    odometry[..., 2] = rng.normal(0, 0.2, (steps, n_robots))
+    for k in range(steps):
+        poses[k + 1] = models.motion(poses[k], odometry[k])
+    observations = []
+    for k in range(steps + 1):
+        known = min(n_features, 4 + 2 * k)
+        robot, feature = [], []
+        for i in range(n_robots):
+            seen = rng.choice(known, size=min(known, int(rng.integers(1, 6))), replace=False)
+            robot += [i] * seen.size
+            feature += seen.tolist()
+        if k and known > min(n_features, 4 + 2 * (k - 1)):  # the new feature, seen twice
+            robot += [0, n_robots - 1]
+            feature += [known - 1, known - 1]
+        robot, feature = np.array(robot), np.array(feature)
+        z = models.observation(poses[k, robot], features[feature]) + rng.normal(
+            0, 0.3, (robot.size, 2)
+        )
+        cov = np.array([np.diag(rng.uniform(0.05, 0.2, 2)) for _ in robot])
+        observations.append(StepObservations(robot, feature, z, cov))
+    return poses, odometry, features, observations
+
+
+@pytest.mark.parametrize("name", ["std", "fej", "ideal"])
+@pytest.mark.parametrize(
+    ("own_noise", "full_storage_max", "record"),
+    [(False, 10**9, False), (True, 10**9, True), (True, 0, False)],
+    ids=["compiled", "numpy-full", "numpy-lower"],
+)
+def test_filter_matches_a_plain_dense_reference(
+    name, own_noise, full_storage_max, record, monkeypatch
+):
+    """Mean and covariance equal the plain dense EKF's at every step, to 1e-9.
+
+    Three robots, 40 steps, features appearing over time, shared and repeated observations;
+    with ``own_noise`` every odometry step and observation brings its own covariance. Every
+    path is exercised: the compiled kernels (small state), numpy with both triangles stored
+    (taken when Jacobians are recorded) and numpy with the lower triangle only.
+    """
+    monkeypatch.setattr(filter_module, "FULL_STORAGE_MAX", full_storage_max)
+    rng = np.random.default_rng(7)
+    n_robots, steps = 3, 40
+    poses, odometry, features, observations = _random_team_run(rng, n_robots, steps, 30)
+    q = np.array([np.diag([0.02, 0.03, 0.002])] * n_robots)
+    r = np.array([np.diag([0.1, 0.15])] * n_robots)
+    start_ids = np.array([0, 1])
+    noisy = poses[0] + rng.normal(0, 0.05, poses[0].shape)
+    start_feat = features[start_ids] + rng.normal(0, 0.1, (2, 2))
+    a = rng.normal(size=(13, 13))
+    start_cov = 0.01 * a @ a.T + 0.01 * np.eye(13)
+    ekf = MultiRobotEKF(q, r, policy(name), record_jacobians=record)
+    ekf.start(noisy, start_ids, start_feat, start_cov)
+    ref = _ReferenceEKF(name, q, r, noisy, start_ids, start_feat, start_cov)
+    truth = dict(enumerate(features))
+    first = observations[0].select(~np.isin(observations[0].feature, start_ids))
+    if not own_noise:
+        first.cov = None
+    ekf.update(first, poses[0], truth)
+    ref.update(first, poses[0], truth)
+    for k in range(steps):
+        obs = observations[k + 1]
+        q_k = None
+        if own_noise:
+            b = rng.normal(size=(n_robots, 3, 3)) * 0.1
+            q_k = b @ np.swapaxes(b, 1, 2) + 0.001 * np.eye(3)
+        else:
+            obs = obs.select(np.ones(obs.robot.size, bool))
+            obs.cov = None
+        ekf.step(odometry[k], obs, poses[k], poses[k + 1], truth, q_k)
+        ref.propagate(odometry[k], poses[k], poses[k + 1], q_k)
+        ref.update(obs, poses[k + 1], truth)
+        assert ekf.feature_ids == ref.ids
+        np.testing.assert_allclose(ekf.mean, ref.x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(ekf.cov, ref.p, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(ekf.cov, ekf.cov.T)
+    assert ekf.n_features >= 20  # the run really grew the state

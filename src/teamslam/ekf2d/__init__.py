@@ -3,6 +3,7 @@
 * :mod:`~teamslam.ekf2d.models` — motion (eqs. 2–6) and observation (eqs. 7–11) models;
 * :mod:`~teamslam.ekf2d.linearization` — standard / first-estimate / ideal Jacobian policies;
 * :mod:`~teamslam.ekf2d.filter` — the EKF over ``[robot poses, features]`` (eq. 1);
+  :mod:`~teamslam.ekf2d.kernels` — its compiled small-state propagation and update (numba);
 * :mod:`~teamslam.ekf2d.start` — step-0 Gauss–Newton start (eq. 12);
 * :mod:`~teamslam.ekf2d.observability` — local observability matrix and rank (eq. 13, Lemma 1);
 * :mod:`~teamslam.ekf2d.environments`, :mod:`~teamslam.ekf2d.simulate` — environments 1 and 2

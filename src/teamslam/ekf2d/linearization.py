@@ -81,7 +81,11 @@ class Policy:
     def update_features(
         self, current: np.ndarray, first: np.ndarray, truth: np.ndarray | None
     ) -> np.ndarray:
-        """Feature positions ``(F, 2)`` at which ``H`` is evaluated."""
+        """Positions ``(m, 2)`` at which ``H`` is evaluated for the ``m`` observed features.
+
+        ``current``, ``first`` and ``truth`` (``None`` without ground truth) are those features'
+        current estimates, first estimates and true positions, row for row.
+        """
         raise NotImplementedError
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from teamslam.ekf2d.environments import PlanarEnvironment
 from teamslam.ekf2d.filter import MultiRobotEKF
 from teamslam.ekf2d.linearization import Policy
-from teamslam.ekf2d.simulate import PlanarRun
+from teamslam.ekf2d.simulate import PlanarRun, PlanarTruth
 from teamslam.ekf2d.start import gauss_newton_start
 from teamslam.geometry.se2 import wrap_angle
 
@@ -59,52 +59,70 @@ def start_filter(
     start = gauss_newton_start(obs0, run.truth.poses[0, 0], env.observation_covs())
     ekf.start(start.poses, start.feature_ids, start.features, start.cov)
     rest = ~np.isin(obs0.feature, start.feature_ids)
-    truth_features = dict(enumerate(run.truth.features))
-    ekf.update(obs0.select(rest), run.truth.poses[0], truth_features)
+    ekf.update(obs0.select(rest), run.truth.poses[0], run.truth.features)
     return ekf
 
 
-def _score(ekf: MultiRobotEKF, run: PlanarRun, k: int, out: RunMetrics) -> None:
-    truth = run.truth
-    err = truth.poses[k] - ekf.poses
-    err[:, 2] = wrap_angle(err[:, 2])
-    out.position_sq[k] = np.sum(err[:, :2] ** 2, axis=1)
-    out.heading_sq[k] = err[:, 2] ** 2
-    covs = np.stack([ekf.pose_cov(i) for i in range(ekf.n_robots)])
-    out.pose_error[k] = err
-    out.pose_sigma[k] = np.sqrt(np.maximum(np.diagonal(covs, axis1=1, axis2=2), 0.0))
-    if k > 0:
-        solved = np.linalg.solve(covs, err[..., None])[..., 0]
-        out.pose_nees[k] = np.einsum("ni,ni->n", err, solved) / 3.0
-    f = ekf.n_features
-    if f:
-        ids = np.asarray(ekf.feature_ids)
-        fe = truth.features[ids] - ekf.features
-        nr = 3 * ekf.n_robots
-        x = nr + 2 * np.arange(f)  # each feature's 2×2 diagonal block, read element-wise
-        p = ekf.cov
-        cxx, cxy, cyy = p[x, x], p[x, x + 1], p[x + 1, x + 1]
-        det = cxx * cyy - cxy * cxy
-        quad = (cyy * fe[:, 0] ** 2 - 2 * cxy * fe[:, 0] * fe[:, 1] + cxx * fe[:, 1] ** 2) / det
-        out.feature_nees[k] = np.mean(quad) / 2.0
-        out.feature_sq[k] = np.mean(np.sum(fe**2, axis=1))
+class _Recorder:
+    """Per-step estimates and the covariance blocks the metrics need, scored after the run."""
+
+    def __init__(self, steps: int, n_robots: int) -> None:
+        self.poses = np.empty((steps + 1, n_robots, 3))
+        self.pose_covs = np.empty((steps + 1, n_robots, 3, 3))
+        self.features: list[np.ndarray] = []
+        self.feature_covs: list[np.ndarray] = []
+
+    def record(self, ekf: MultiRobotEKF, k: int) -> None:
+        self.poses[k] = ekf.poses
+        self.pose_covs[k] = ekf.pose_covs()
+        self.features.append(ekf.features.copy())
+        self.feature_covs.append(ekf.feature_covs())
+
+    def score(self, truth: PlanarTruth, feature_ids: list[int]) -> RunMetrics:
+        steps = self.poses.shape[0] - 1
+        n = self.poses.shape[1]
+        err = truth.poses[: steps + 1] - self.poses
+        err[..., 2] = wrap_angle(err[..., 2])
+        covs = self.pose_covs
+        pose_nees = np.full((steps + 1, n), np.nan)
+        if steps:
+            solved = np.linalg.solve(covs[1:], err[1:, ..., None])[..., 0]
+            pose_nees[1:] = np.einsum("kni,kni->kn", err[1:], solved) / 3.0
+        sigma = np.sqrt(np.maximum(np.diagonal(covs, axis1=2, axis2=3), 0.0))
+        # features: the state at step k holds the first f_k features of the final order
+        counts = np.array([f.shape[0] for f in self.features])
+        feature_nees = np.full(steps + 1, np.nan)
+        feature_sq = np.full(steps + 1, np.nan)
+        if counts.sum():
+            offsets = np.cumsum(counts) - counts
+            slot = np.arange(counts.sum()) - np.repeat(offsets, counts)
+            fe = truth.features[np.asarray(feature_ids)[slot]] - np.concatenate(self.features)
+            fc = np.concatenate(self.feature_covs)
+            cxx, cxy, cyy = fc[:, 0, 0], fc[:, 0, 1], fc[:, 1, 1]
+            det = cxx * cyy - cxy * cxy
+            quad = (cyy * fe[:, 0] ** 2 - 2 * cxy * fe[:, 0] * fe[:, 1] + cxx * fe[:, 1] ** 2) / det
+            have = counts > 0
+            start = offsets[have]
+            feature_nees[have] = np.add.reduceat(quad, start) / counts[have] / 2.0
+            feature_sq[have] = np.add.reduceat(np.sum(fe**2, axis=1), start) / counts[have]
+        return RunMetrics(
+            pose_nees,
+            np.sum(err[..., :2] ** 2, axis=-1),
+            err[..., 2] ** 2,
+            feature_nees,
+            feature_sq,
+            err,
+            sigma,
+        )
 
 
 def run_filter(env: PlanarEnvironment, run: PlanarRun, policy: Policy) -> RunMetrics:
     """Start, then step through the whole run, scoring every step."""
-    steps, n = run.truth.steps, env.n_robots
-    out = RunMetrics(
-        np.full((steps + 1, n), np.nan),
-        np.zeros((steps + 1, n)),
-        np.zeros((steps + 1, n)),
-        np.full(steps + 1, np.nan),
-        np.full(steps + 1, np.nan),
-        np.zeros((steps + 1, n, 3)),
-        np.zeros((steps + 1, n, 3)),
-    )
+    steps = run.truth.steps
+    recorder = _Recorder(steps, env.n_robots)
     ekf = start_filter(env, run, policy)
-    truth_features = dict(enumerate(run.truth.features)) if policy.needs_truth else None
-    _score(ekf, run, 0, out)
+    truth_features = run.truth.features if policy.needs_truth else None
+    recorder.record(ekf, 0)
     for k in range(steps):
         ekf.step(
             run.odometry[k],
@@ -113,5 +131,5 @@ def run_filter(env: PlanarEnvironment, run: PlanarRun, policy: Policy) -> RunMet
             run.truth.poses[k + 1],
             truth_features,
         )
-        _score(ekf, run, k + 1, out)
-    return out
+        recorder.record(ekf, k + 1)
+    return recorder.score(run.truth, ekf.feature_ids)

@@ -61,11 +61,16 @@ class PlanarRun:
     odometry: np.ndarray
     obs_z: np.ndarray
 
+    def __post_init__(self) -> None:
+        # every step's observations are slices of these, checked once here
+        t = self.truth
+        self._all = StepObservations(t.obs_robot, t.obs_feature, self.obs_z)
+
     def observations(self, k: int) -> StepObservations:
         """Observations of step ``k``."""
-        t = self.truth
-        a, b = t.obs_offsets[k], t.obs_offsets[k + 1]
-        return StepObservations(t.obs_robot[a:b], t.obs_feature[a:b], self.obs_z[a:b])
+        a, b = self.truth.obs_offsets[k], self.truth.obs_offsets[k + 1]
+        obs = self._all
+        return StepObservations.checked_rows(obs.robot[a:b], obs.feature[a:b], obs.z[a:b])
 
 
 def truth_of(env: PlanarEnvironment) -> PlanarTruth:

@@ -36,15 +36,33 @@ class VictoriaParkResult:
     seconds: float
 
 
+def _all_observations(split: VictoriaParkSplit, steps: int) -> tuple[StepObservations, np.ndarray]:
+    """Every robot's observations ordered by step then robot (checked once), and step bounds.
+
+    Step ``k`` holds rows ``bounds[k]:bounds[k + 1]``; within a step and robot the file order
+    is kept.
+    """
+    robots = split.robots
+    step = np.concatenate([r.obs_step for r in robots])
+    robot = np.concatenate([np.full(r.obs_step.size, i) for i, r in enumerate(robots)])
+    order = np.lexsort((robot, step))
+    everything = StepObservations(
+        robot[order],
+        np.concatenate([r.obs_feature for r in robots])[order],
+        np.concatenate([r.obs_z for r in robots])[order],
+        np.concatenate([r.obs_cov for r in robots])[order],
+    )
+    return everything, np.searchsorted(step[order], np.arange(steps + 2))
+
+
 def _step_observations(
-    split: VictoriaParkSplit, k: int, index: list[np.ndarray]
+    everything: StepObservations, bounds: np.ndarray, k: int, own_noise: bool
 ) -> StepObservations:
-    rows = [(r, index[r][k]) for r in range(len(split.robots))]
-    robot = np.concatenate([np.full(ix.size, r) for r, ix in rows])
-    feat = np.concatenate([split.robots[r].obs_feature[ix] for r, ix in rows])
-    z = np.concatenate([split.robots[r].obs_z[ix] for r, ix in rows])
-    cov = np.concatenate([split.robots[r].obs_cov[ix] for r, ix in rows])
-    return StepObservations(robot, feat, z, cov)
+    a, b = bounds[k], bounds[k + 1]
+    cov = everything.cov[a:b] if own_noise else None
+    return StepObservations.checked_rows(
+        everything.robot[a:b], everything.feature[a:b], everything.z[a:b], cov
+    )
 
 
 def run_victoria_park(
@@ -63,31 +81,22 @@ def run_victoria_park(
     begin = time.perf_counter()
     n = len(split.robots)
     steps = min(r.steps for r in split.robots)
-    index = []
-    for r in split.robots:
-        order = np.argsort(r.obs_step, kind="stable")
-        bounds = np.searchsorted(r.obs_step[order], np.arange(steps + 2))
-        index.append([order[bounds[k] : bounds[k + 1]] for k in range(steps + 1)])
+    everything, bounds = _all_observations(split, steps)
+    odometry = np.stack([r.odometry[:steps] for r in split.robots], axis=1)
+    odometry_covs = np.stack([r.odometry_cov[:steps] for r in split.robots], axis=1)
     mean_q = np.stack([r.odometry_cov.mean(axis=0) for r in split.robots])
     mean_r = np.stack([r.obs_cov.mean(axis=0) for r in split.robots])
     ekf = MultiRobotEKF(mean_q, mean_r, make_policy(policy))
-    obs0 = _step_observations(split, 0, index)
-    if not per_measurement_noise:
-        obs0.cov = None
+    obs0 = _step_observations(everything, bounds, 0, per_measurement_noise)
     start = gauss_newton_start(obs0, split.robots[0].reference_poses[0], mean_r)
     ekf.start(start.poses, start.feature_ids, start.features, start.cov)
     ekf.update(obs0.select(~np.isin(obs0.feature, start.feature_ids)))
     poses = np.zeros((steps + 1, n, 3))
     poses[0] = ekf.poses
     for k in range(steps):
-        odo = np.stack([r.odometry[k] for r in split.robots])
-        obs = _step_observations(split, k + 1, index)
-        q = None
-        if per_measurement_noise:
-            q = np.stack([r.odometry_cov[k] for r in split.robots])
-        else:
-            obs.cov = None
-        ekf.step(odo, obs, odometry_covs=q)
+        obs = _step_observations(everything, bounds, k + 1, per_measurement_noise)
+        q = odometry_covs[k] if per_measurement_noise else None
+        ekf.step(odometry[k], obs, odometry_covs=q)
         poses[k + 1] = ekf.poses
     seconds = time.perf_counter() - begin
 
