@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from teamslam import __version__
+from teamslam.eval.commands import register as register_eval
 
 __all__ = ["main"]
 
@@ -334,9 +335,12 @@ def _odometry_cell(run: dict, width: int) -> str:
     return f"{cell:>{width}}"
 
 
-def _write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> None:
+def _write_team_outputs(
+    out: Path, dataset, results: dict, metrics: dict, report: bool = True
+) -> None:
     from teamslam.datasets import write_tum
     from teamslam.eval.plots import plot_team_errors, plot_team_topview
+    from teamslam.eval.report import write_run_report
 
     names = list(results)
     payload = (
@@ -355,6 +359,8 @@ def _write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> Non
     plot_team_topview(dataset, results, out / "topview.png")
     plot_team_errors(dataset, results, out / "errors.png")
     print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")
+    if report:
+        print(f"report: {write_run_report(out, dataset, results)}")
 
 
 def _launch_and_report(team_path: Path, out: Path, effective=None) -> int:
@@ -506,7 +512,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for name, m in metrics.items():
         _print_health(name, m)
     if args.out is not None:
-        _write_team_outputs(Path(args.out), dataset, results, metrics)
+        _write_team_outputs(Path(args.out), dataset, results, metrics, not args.no_report)
     return 0
 
 
@@ -703,6 +709,7 @@ def build_parser() -> argparse.ArgumentParser:
     _settings_arguments(run)
     run.add_argument("--seed", type=_non_negative_int, default=0, help="seed of the link loss")
     run.add_argument("--out", type=Path, default=None, help="directory for results")
+    run.add_argument("--no-report", action="store_true", help="no report.html in --out")
     run.add_argument(
         "--processes",
         action="store_true",
@@ -812,6 +819,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     vp.add_argument("--out", type=Path, default=None, help="directory for metrics and figure")
     vp.set_defaults(handler=_cmd_fej_victoria_park)
+    register_eval(sub)
     return parser
 
 
