@@ -236,3 +236,18 @@ def test_load_runs_reads_both_layouts(team_run):
     assert runs[0].metrics["consensus"] is False and runs[1].metrics["consensus"] is True
     assert "separate" not in runs[1].metrics
     assert all(len(r.estimates) == 3 and len(r.references) == 3 for r in runs)
+
+
+def test_graph_adjacency_from_team_file_or_graph_name(tmp_path):
+    from teamslam.eval.report import graph_adjacency
+    from teamslam.eval.runs import TeamRun
+    from teamslam.graph import random_geometric, ring
+    from teamslam.runtime.team_file import write_team_file
+
+    named = TeamRun("a", [], metrics={"graph": "ring(4)"}, directory=tmp_path)
+    np.testing.assert_array_equal(graph_adjacency(named), ring(4).adjacency)
+    drawn = random_geometric(5, seed=3)
+    unknown = TeamRun("b", [], metrics={"graph": drawn.name}, directory=tmp_path)
+    assert graph_adjacency(unknown) is None  # a random draw is not rebuilt from its name
+    write_team_file(tmp_path / "team.yaml", "t", tmp_path, drawn.adjacency)
+    np.testing.assert_array_equal(graph_adjacency(unknown), drawn.adjacency)

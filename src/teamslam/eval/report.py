@@ -176,7 +176,7 @@ def graph_adjacency(run: TeamRun) -> np.ndarray | None:
             from teamslam.runtime.team_file import load_team_file
 
             try:
-                return np.asarray(load_team_file(candidate / "team.yaml").adjacency, dtype=bool)
+                return np.asarray(load_team_file(candidate / "team.yaml").adjacency(), dtype=bool)
             except (ValueError, OSError):
                 break
     name = (run.metrics or {}).get("graph")
