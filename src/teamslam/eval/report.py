@@ -200,8 +200,8 @@ table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
 th,td{border:1px solid #ddd;padding:.25em .6em;text-align:right;white-space:nowrap}
 th{background:#f3f5f8}td.l,th.l{text-align:left}tr:nth-child(even) td{background:#fafbfc}
 figure{margin:.8em 0}figure img{max-width:100%;height:auto;border:1px solid #eee}
-figcaption{color:#555;font-size:.85em}.warn{color:#a40}.graphs{display:flex;gap:1em;
-flex-wrap:wrap}
+figcaption{color:#555;font-size:.85em}.warn{color:#a40}
+.row{display:flex;gap:1.5em;flex-wrap:wrap;align-items:flex-start}
 """
 
 
@@ -218,6 +218,53 @@ def _table(header: list[str], rows: list[tuple[str, list[str]]], table_id: str =
         out.append(f"<tr><td class='l'>{_esc(label)}</td>")
         out += [f"<td>{_esc(c)}</td>" for c in cells]
         out.append("</tr>")
+    out.append("</tbody></table>")
+    return "".join(out)
+
+
+def _stats_tables(names: list[str], stats: list[dict]) -> str:
+    """APE/RPE of the team (a column group of statistics per run) and RMSE per robot."""
+    head = "".join(f"<th colspan='{len(_STATS)}'>{_esc(n)}</th>" for n in names)
+    sub = "".join(f"<th>{t}</th>" for _ in names for t in _STATS)
+    out = [
+        f"<table id=\"accuracy-table\"><thead><tr><th class='l'></th>{head}</tr>"
+        f"<tr><th class='l'>team, all frames</th>{sub}</tr></thead><tbody>"
+    ]
+    out.append("<tr><td class='l'>alignment</td>")
+    for row in evaluation_rows(stats)[:1]:
+        out += [f"<td colspan='{len(_STATS)}'>{_esc(c)}</td>" for c in row[1]]
+    out.append("</tr>")
+    for key, label in (
+        ("ape_translation_m", "APE translation [m]"),
+        ("ape_rotation_deg", "APE rotation [deg]"),
+        ("rpe_translation_m", "RPE translation [m]"),
+        ("rpe_rotation_deg", "RPE rotation [deg]"),
+    ):
+        if key.startswith("rpe"):
+            unit = {"frames": "frames", "m": "m"}[stats[0]["rpe_unit"]]
+            label += f", Δ = {_fmt(stats[0]['rpe_delta'])} {unit}"
+        cells = "".join(f"<td>{_fmt(s['team'][key][t])}</td>" for s in stats for t in _STATS)
+        out.append(f"<tr><td class='l'>{_esc(label)}</td>{cells}</tr>")
+    out.append("</tbody></table>")
+    parts = (
+        ("ape_translation_m", "APE t [m]"),
+        ("ape_rotation_deg", "APE r [deg]"),
+        ("rpe_translation_m", "RPE t [m]"),
+        ("rpe_rotation_deg", "RPE r [deg]"),
+    )
+    head = "".join(f"<th colspan='{len(parts)}'>{_esc(n)}</th>" for n in names)
+    sub = "".join(f"<th>{label}</th>" for _ in names for _, label in parts)
+    out.append(
+        f"<table id=\"robots-table\"><thead><tr><th class='l'></th>{head}</tr>"
+        f"<tr><th class='l'>RMSE per robot</th>{sub}</tr></thead><tbody>"
+    )
+    for k in range(max(len(s["robots"]) for s in stats)):
+        cells = []
+        for s in stats:
+            for key, _ in parts:
+                value = s["robots"][k][key]["rmse"] if k < len(s["robots"]) else None
+                cells.append(f"<td>{_fmt(value)}</td>")
+        out.append(f"<tr><td class='l'>robot {k + 1}</td>{''.join(cells)}</tr>")
     out.append("</tbody></table>")
     return "".join(out)
 
@@ -251,7 +298,7 @@ def _team_section(names: list[str], runs: list[TeamRun]) -> str:
         ("wall time [s]", _metric_cells(runs, lambda m: m["wall_seconds"])),
         ("directory", [str(r.directory) if r.directory else "—" for r in runs]),
     ]
-    parts = ["<section id='team'><h2>Team</h2>", _table(names, rows, "team-table")]
+    parts = ["<section id='team'><h2>Team</h2><div class='row'>", _table(names, rows, "team-table")]
     from teamslam.eval.figures import figure_png, graph_figure
 
     graphs = []
@@ -267,9 +314,8 @@ def _team_section(names: list[str], runs: list[TeamRun]) -> str:
         graphs.append(
             _img(figure_png(graph_figure(adjacency, str(label))), "communication graph", label)
         )
-    if graphs:
-        parts.append("<div class='graphs'>" + "".join(graphs) + "</div>")
-    parts.append("</section>")
+    parts += graphs
+    parts.append("</div></section>")
     return "".join(parts)
 
 
@@ -299,7 +345,7 @@ def _accuracy_section(
             "<section id='accuracy'><h2>Accuracy</h2>",
             "<p>Absolute (APE) and relative (RPE) pose errors against the ground truth, every "
             "robot's frames pooled for the team.</p>",
-            _table(names, evaluation_rows(stats), "accuracy-table"),
+            _stats_tables(names, stats),
             "<p>The run's own measures (no alignment; objects against the true map).</p>",
             _table(names, metric_rows, "metrics-table"),
             _img(
@@ -505,6 +551,37 @@ def _configuration_section(names: list[str], runs: list[TeamRun]) -> str:
     )
 
 
+def _summary_section(
+    names: list[str], runs: list[TeamRun], evaluations: list[TeamEvaluation]
+) -> str:
+    stats = [ev.statistics() for ev in evaluations]
+    rows = [
+        (
+            f"APE translation RMSE, team [m] (align {stats[0]['align']})",
+            [_fmt(s["team"]["ape_translation_m"]["rmse"]) for s in stats],
+        ),
+        ("object error avg [m]", _metric_cells(runs, lambda m: m["object_error_avg_m"])),
+        (
+            "object disagreement avg [m]",
+            _metric_cells(runs, lambda m: m["object_disagreement_avg_m"]),
+        ),
+        (
+            "pose NEES / 6, mean of robots",
+            _metric_cells(runs, lambda m: float(np.mean(m["nees_pose_avg"]))),
+        ),
+        (
+            "time total [ms/robot/frame]",
+            _metric_cells(runs, lambda m: m["time_per_robot_step_ms"]["total"]),
+        ),
+        (
+            "MB sent, team",
+            _metric_cells(runs, lambda m: sum(c["bytes"] for c in m["counters"]) / 1e6),
+        ),
+    ]
+    table = _table(names, rows, "summary-table")
+    return f"<section id='summary'><h2>Summary</h2>{table}</section>"
+
+
 def build_report(runs: list[TeamRun], evaluations: list[TeamEvaluation]) -> str:
     """The HTML text of the report, a column per run."""
     from teamslam import __version__
@@ -516,6 +593,7 @@ def build_report(runs: list[TeamRun], evaluations: list[TeamEvaluation]) -> str:
     body = [
         f"<h1>{_esc(title)}</h1>",
         f"<p class='sub'>{len(runs)} run(s), written by teamslam {_esc(__version__)}</p>",
+        _summary_section(names, runs, evaluations),
         _team_section(names, runs),
         _accuracy_section(names, runs, evaluations),
         _consistency_section(names, runs),
