@@ -246,3 +246,15 @@ def test_evaluate_team_rejects_mismatched_input():
     bad[3, 0, 3] = np.nan
     with pytest.raises(InputError, match="NaN"):
         Trajectory(bad, name="robot 1")
+
+
+def test_nees_band_holds_95_percent_of_consistent_nees():
+    from teamslam.eval.figures import nees_band
+
+    rng = np.random.default_rng(0)
+    for dof in (6, 30):
+        lo, hi = nees_band(dof)
+        nees = rng.chisquare(dof, 200_000) / dof
+        inside = np.mean((nees >= lo) & (nees <= hi))
+        assert abs(inside - 0.95) < 0.003
+        assert np.mean(nees < lo) == pytest.approx(0.025, abs=0.002)

@@ -103,7 +103,8 @@ def ape_over_time_figure(names: list[str], evaluations: list[TeamEvaluation]):
         for k, robot in enumerate(ev.robots):
             ax.plot(robot.timestamps, robot.ape["translation_m"], color=_colour(k), lw=0.9)
         ax.set_title(f"{name}: position error", fontsize=9)
-        ax.set_xlabel("time [s]")
+        timed = all(robot.timed for robot in ev.robots)
+        ax.set_xlabel("time [s]" if timed else "frame")
         ax.grid(alpha=0.3)
     axes[0, 0].set_ylabel("APE [m]")
     fig.tight_layout()

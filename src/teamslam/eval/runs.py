@@ -14,7 +14,7 @@ first data line.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +63,6 @@ class TeamRun:
     metrics: dict | None = None
     series: dict | None = None
     directory: Path | None = None
-    extra: dict = field(default_factory=dict)
 
 
 def _first_data_line(path: Path) -> str:

@@ -24,7 +24,7 @@ choice for a shared map, where per-robot alignment would hide the robots' disagr
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -381,7 +381,10 @@ def error_statistics(values: np.ndarray, squared: np.ndarray | None = None) -> d
 
 @dataclass
 class RobotEvaluation:
-    """One robot's errors after association and alignment."""
+    """One robot's errors after association and alignment.
+
+    ``timestamps`` are the estimate's, or its frame indices when it has none (``timed`` false).
+    """
 
     name: str
     timestamps: np.ndarray
@@ -390,6 +393,7 @@ class RobotEvaluation:
     alignment: Similarity
     ape: dict[str, np.ndarray]
     rpe: dict[str, np.ndarray]
+    timed: bool = True
 
     def statistics(self) -> dict:
         """APE and RPE statistics (translation in m, rotation in degrees)."""
@@ -420,7 +424,6 @@ class TeamEvaluation:
     rpe_delta: float
     rpe_unit: str
     team_alignment: Similarity | None = None
-    extra: dict = field(default_factory=dict)
 
     def statistics(self) -> dict:
         """Everything as plain numbers (the ``--json`` output of ``teamslam eval``)."""
@@ -454,7 +457,6 @@ class TeamEvaluation:
             "rpe_unit": self.rpe_unit,
             "team": team,
             "robots": robots,
-            **self.extra,
         }
 
 
@@ -517,6 +519,7 @@ def evaluate_team(
                 alignment=transform,
                 ape=absolute_errors(aligned, ref),
                 rpe=relative_errors(aligned, ref, rpe_delta, rpe_unit, all_pairs),
+                timed=estimates[k].timestamps is not None,
             )
         )
     return TeamEvaluation(robots, align, scope, rpe_delta, rpe_unit, team_transform)
