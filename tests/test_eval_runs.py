@@ -117,6 +117,12 @@ def test_eval_alignment_scopes_and_table(team_run, capsys, tmp_path):
         c = robot[name]["team"]["ape_translation_m"]["rmse"]
         assert c <= b <= a
         assert robot[name]["rpe_delta"] == 2
+    metres = _eval_json(capsys, str(run), "--rpe-unit", "m", "--rpe-delta", "1.5")
+    for name, s in metres.items():
+        # pairs 1.5 m apart along the path: fewer than the pairs one frame apart
+        assert s["rpe_unit"] == "m"
+        pairs = s["team"]["rpe_translation_m"]["count"]
+        assert 0 < pairs < none[name]["team"]["rpe_translation_m"]["count"]
     capsys.readouterr()
     assert main(["eval", str(run), "--align", "first-pose", "--out", str(tmp_path / "ev")]) == 0
     table = capsys.readouterr().out
