@@ -202,6 +202,7 @@ th{background:#f3f5f8}td.l,th.l{text-align:left}tr:nth-child(even) td{background
 figure{margin:.8em 0}figure img{max-width:100%;height:auto;border:1px solid #eee}
 figcaption{color:#555;font-size:.85em}.warn{color:#a40}
 .row{display:flex;gap:1.5em;flex-wrap:wrap;align-items:flex-start}
+#configuration-table td{white-space:normal;max-width:30em;overflow-wrap:anywhere}
 """
 
 
