@@ -65,7 +65,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for name, m in metrics.items():
         print_health(name, m)
     if args.out is not None:
-        write_team_outputs(Path(args.out), dataset, results, metrics)
+        write_team_outputs(Path(args.out), dataset, results, metrics, not args.no_report)
     return 0
 
 
@@ -170,6 +170,7 @@ def register(sub) -> None:
     settings_arguments(run)
     run.add_argument("--seed", type=non_negative_int, default=0, help="seed of the link loss")
     run.add_argument("--out", type=Path, default=None, help="directory for results")
+    run.add_argument("--no-report", action="store_true", help="no report.html in --out")
     run.add_argument(
         "--processes",
         action="store_true",

@@ -28,7 +28,12 @@ def write_json(path: Path, payload: dict) -> None:
     tmp.replace(path)
 
 
-def write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> None:
+def write_team_outputs(
+    out: Path, dataset, results: dict, metrics: dict, report: bool = True
+) -> None:
+    """metrics.json, per-robot TUM trajectories (estimate and truth), estimates.npz, the
+    top-view and error figures and (unless ``report`` is false) report.html; prints the
+    report's path last."""
     from teamslam.datasets import write_tum
     from teamslam.eval.estimates import save_estimates
     from teamslam.eval.plots import plot_team_errors, plot_team_topview
@@ -51,3 +56,7 @@ def write_team_outputs(out: Path, dataset, results: dict, metrics: dict) -> None
     plot_team_topview(dataset, results, out / "topview.png")
     plot_team_errors(dataset, results, out / "errors.png")
     print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")
+    if report:
+        from teamslam.eval.report import write_run_report
+
+        print(f"report: {write_run_report(out, dataset, results)}")
