@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from teamslam import __version__
+from teamslam.runtime.commands import register as register_security
 
 __all__ = ["main"]
 
@@ -812,6 +813,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     vp.add_argument("--out", type=Path, default=None, help="directory for metrics and figure")
     vp.set_defaults(handler=_cmd_fej_victoria_park)
+    register_security(sub)
     return parser
 
 

@@ -15,6 +15,7 @@ Example::
     robots:
       - id: 0
         listen: tcp/127.0.0.1:17400  # default: tcp/127.0.0.1:<17400 + id>
+        name: robot-0                # default: robot-<id>; the common name of its certificate
         neighbours: [1, 2]
       - id: 1
         neighbours: [0, 2]
@@ -22,6 +23,17 @@ Example::
         neighbours: [0, 1]
         dataset: other/team          # optional: another dataset …
         dataset_robot: 0             # … and which of its robots
+
+A secured team (mutual TLS and access control, :mod:`teamslam.runtime.security`) adds::
+
+    security:
+      ca_certificate: certs/ca.pem   # the team CA: the only authority a robot trusts
+      verify_name: true              # on connect, the neighbour's certificate must name its host
+      robots:                        # each robot's key and certificate (a robot's machine
+        - {id: 0, key: certs/robot-0.key, certificate: certs/robot-0.pem}   # needs only its own)
+        - ...
+
+and every endpoint is then a ``tls/HOST:PORT`` endpoint (``teamslam team certs`` writes both).
 
 Each agent listens on its own endpoint and connects to its neighbours' (Zenoh peer mode, no
 router, multicast scouting off so it runs on closed networks). Consensus weights are the
@@ -38,9 +50,17 @@ import numpy as np
 import yaml
 
 from teamslam.msckf.settings import ConfigError, coerce_settings
+from teamslam.runtime.security import RobotCredentials, SecuritySection
 from teamslam.textio import read_yaml
 
-__all__ = ["RobotEntry", "TeamFile", "TeamFileError", "load_team_file", "write_team_file"]
+__all__ = [
+    "RobotEntry",
+    "TeamFile",
+    "TeamFileError",
+    "load_team_file",
+    "security_payload",
+    "write_team_file",
+]
 
 
 class TeamFileError(ValueError):
@@ -56,6 +76,11 @@ class RobotEntry:
     neighbours: list[int]
     dataset: Path | None = None
     dataset_robot: int | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            self.name = f"robot-{self.id}"
 
 
 @dataclass
@@ -73,6 +98,7 @@ class TeamFile:
     message_delay_ms: float = 0.0
     filter: dict = field(default_factory=dict)
     path: Path | None = None
+    security: SecuritySection | None = None
 
     @property
     def n(self) -> int:
@@ -132,6 +158,7 @@ def _parse(data, path: Path) -> TeamFile:
         "message_delay_ms",
         "filter",
         "robots",
+        "security",
     }
     if unknown:
         raise TeamFileError(f"unknown field(s): {', '.join(sorted(unknown))}")
@@ -163,6 +190,9 @@ def _parse(data, path: Path) -> TeamFile:
         listen = r.get("listen", f"tcp/127.0.0.1:{17400 + k}")
         if not isinstance(listen, str) or "/" not in listen:
             raise TeamFileError(f"robots[{k}].listen must be a Zenoh endpoint like tcp/HOST:PORT")
+        name = r.get("name", f"robot-{k}")
+        if not isinstance(name, str) or not name or any(c in name for c in "/\\*\0"):
+            raise TeamFileError(f"robots[{k}].name must be a non-empty name without '/' or '*'")
         robots.append(
             RobotEntry(
                 k,
@@ -170,8 +200,12 @@ def _parse(data, path: Path) -> TeamFile:
                 sorted(set(neighbours)),
                 as_path(r.get("dataset"), f"robots[{k}].dataset"),
                 r.get("dataset_robot"),
+                name,
             )
         )
+    names = [r.name for r in robots]
+    if len(set(names)) != len(names):
+        raise TeamFileError("robot names must be distinct")
     n = len(robots)
     for r in robots:
         for j in r.neighbours:
@@ -181,6 +215,7 @@ def _parse(data, path: Path) -> TeamFile:
                 raise TeamFileError(
                     f"link {r.id}–{j} is listed by robot {r.id} but not by robot {j}"
                 )
+    security = _security(data.get("security"), robots, as_path)
     sync = data.get("sync", "lockstep")
     if sync not in ("lockstep", "async"):
         raise TeamFileError("'sync' must be lockstep or async")
@@ -210,7 +245,73 @@ def _parse(data, path: Path) -> TeamFile:
         message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
         filter=filt,
         path=path,
+        security=security,
     )
+
+
+def _security(raw, robots: list[RobotEntry], as_path) -> SecuritySection | None:
+    """The ``security`` section, or None; endpoints must be ``tls/`` exactly when it is given."""
+    plain = [r.id for r in robots if not r.listen.startswith("tls/")]
+    if raw is None:
+        tls = [r.id for r in robots if r.listen.startswith("tls/")]
+        if tls:
+            raise TeamFileError(
+                f"robots {tls} listen on tls/ endpoints but the file has no 'security' section"
+            )
+        return None
+    if not isinstance(raw, dict):
+        raise TeamFileError("'security' must be a mapping")
+    unknown = set(raw) - {"ca_certificate", "verify_name", "robots"}
+    if unknown:
+        raise TeamFileError(f"security: unknown field(s): {', '.join(sorted(unknown))}")
+    if plain:
+        raise TeamFileError(
+            f"security: robots {plain} must listen on tls/HOST:PORT endpoints, not "
+            + ", ".join(robots[i].listen for i in plain)
+        )
+    if not isinstance(raw.get("ca_certificate"), str):
+        raise TeamFileError("security.ca_certificate must be the path of the team CA certificate")
+    verify = raw.get("verify_name", True)
+    if not isinstance(verify, bool):
+        raise TeamFileError("security.verify_name must be true or false")
+    entries = raw.get("robots")
+    if not isinstance(entries, list):
+        raise TeamFileError("security.robots must list each robot's id, key and certificate")
+    creds: dict[int, RobotCredentials] = {}
+    for k, e in enumerate(entries):
+        if not isinstance(e, dict) or set(e) != {"id", "key", "certificate"}:
+            raise TeamFileError(f"security.robots[{k}] must have exactly id, key and certificate")
+        rid = e["id"]
+        if not isinstance(rid, int) or not 0 <= rid < len(robots) or rid in creds:
+            raise TeamFileError(f"security.robots[{k}].id {rid!r} is not a robot, or repeated")
+        creds[rid] = RobotCredentials(
+            as_path(e["key"], f"security.robots[{k}].key"),
+            as_path(e["certificate"], f"security.robots[{k}].certificate"),
+        )
+    missing = sorted(set(range(len(robots))) - set(creds))
+    if missing:
+        raise TeamFileError(f"security.robots has no key and certificate for robots {missing}")
+    return SecuritySection(as_path(raw["ca_certificate"], "security.ca_certificate"), creds, verify)
+
+
+def security_payload(security: SecuritySection, base: Path) -> dict:
+    """The ``security`` section as written to a team file in directory ``base``."""
+
+    def rel(p: Path) -> str:
+        p = Path(p).resolve()
+        try:
+            return str(p.relative_to(base.resolve()))
+        except ValueError:
+            return str(p)
+
+    return {
+        "ca_certificate": rel(security.ca_certificate),
+        "verify_name": security.verify_name,
+        "robots": [
+            {"id": i, "key": rel(c.key), "certificate": rel(c.certificate)}
+            for i, c in sorted(security.robots.items())
+        ],
+    }
 
 
 def write_team_file(
@@ -219,11 +320,17 @@ def write_team_file(
     dataset: str | Path,
     adjacency: np.ndarray,
     base_port: int = 17400,
+    security: SecuritySection | None = None,
+    host: str = "127.0.0.1",
     **settings,
 ) -> Path:
-    """Write a team file for a dataset and a neighbour graph (all endpoints on loopback)."""
+    """Write a team file for a dataset and a neighbour graph (all endpoints on ``host``).
+
+    With ``security`` the endpoints are ``tls/`` and the file gets its ``security`` section.
+    """
     path = Path(path)
     adjacency = np.asarray(adjacency, dtype=bool)
+    protocol = "tls" if security is not None else "tcp"
     payload = {
         "team": team,
         "dataset": str(Path(dataset).resolve()),
@@ -231,12 +338,14 @@ def write_team_file(
         "robots": [
             {
                 "id": i,
-                "listen": f"tcp/127.0.0.1:{base_port + i}",
+                "listen": f"{protocol}/{host}:{base_port + i}",
                 "neighbours": [int(j) for j in np.flatnonzero(adjacency[i])],
             }
             for i in range(adjacency.shape[0])
         ],
     }
+    if security is not None:
+        payload["security"] = security_payload(security, path.parent)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(payload, sort_keys=False))
     return path

@@ -8,6 +8,11 @@ subscribes to ``teamslam/<team>/to/<itself>/**``. Received bytes are decoded and
 the subscriber callback: anything malformed, from another team or from an unknown robot is
 dropped and counted, never handed to the filter.
 
+With a ``security`` section in the team file the session uses mutual TLS and access control
+(:mod:`teamslam.runtime.security`): only the team's robots get a link, and a put is accepted
+from robot ``i``'s link only on keys ``.../from/<i>/...``. Every transport also drops a message
+whose decoded sender is not the ``from/<i>`` of the key it arrived on.
+
 Optional injected loss (each send dropped with a probability) and delay (sleep before each
 send) make lossy-radio experiments reproducible.
 """
@@ -33,6 +38,15 @@ log = logging.getLogger(__name__)
 
 def _kind(message: Message) -> str:
     return "ids" if isinstance(message, MapIdsMessage) else "marginal"
+
+
+def _key_sender(key_expr) -> int | None:
+    """The ``<i>`` of ``teamslam/<team>/to/<j>/from/<i>/...``; None if the key has no such part."""
+    parts = str(key_expr).split("/")
+    try:
+        return int(parts[5]) if parts[4] == "from" else None
+    except (IndexError, ValueError):
+        return None
 
 
 class ZenohTransport:
@@ -70,6 +84,13 @@ class ZenohTransport:
             "connect/endpoints", json.dumps([team.robots[j].listen for j in me.neighbours])
         )
         config.insert_json5("scouting/multicast/enabled", "false")
+        if team.security is not None:
+            from teamslam.runtime.security import apply_settings, zenoh_security_settings
+
+            members = {r.id: r.name for r in team.robots}
+            apply_settings(
+                config, zenoh_security_settings(team.security, robot, team.team, members)
+            )
         self.session = zenoh.open(config)
         self._subscriber = self.session.declare_subscriber(
             f"teamslam/{team.team}/to/{robot}/**", self._on_sample
@@ -96,6 +117,10 @@ class ZenohTransport:
             with self._cond:
                 self.rejected["addressed to another robot"] += 1
             return
+        if _key_sender(sample.key_expr) != message.sender:
+            with self._cond:
+                self.rejected["sender differs from the key's"] += 1
+            return
         attachment = sample.attachment
         sent = float(attachment.to_string()) if attachment is not None else None
         with self._cond:
@@ -117,13 +142,48 @@ class ZenohTransport:
         return alive & set(self.team.robots[self.robot].neighbours)
 
     def wait_for_peers(self, count: int, timeout: float) -> int:
-        """Block until ``count`` neighbours are alive (or ``timeout``); returns how many are."""
+        """Block until ``count`` neighbours are alive (or ``timeout``); returns how many are.
+
+        Each neighbour still missing at the deadline is named in a warning (with the names of
+        the authenticated links the session does have, on a secured team): a refused TLS
+        handshake or access-control denial is otherwise silent in Zenoh.
+        """
         deadline = time.monotonic() + timeout
         while True:
-            alive = len(self.alive_neighbours())
-            if alive >= count or time.monotonic() >= deadline:
-                return alive
+            alive = self.alive_neighbours()
+            if len(alive) >= count or time.monotonic() >= deadline:
+                break
             time.sleep(0.02)
+        missing = sorted(set(self.team.robots[self.robot].neighbours) - alive)
+        if missing and len(alive) < count:
+            for line in self.missing_links_report(missing, timeout):
+                log.warning("%s", line)
+        return len(alive)
+
+    def missing_links_report(self, missing: list[int], waited: float) -> list[str]:
+        """One line per neighbour in ``missing``: no (authenticated) link after ``waited`` s."""
+        team = self.team
+        if team.security is None:
+            return [
+                f"robot {self.robot}: no link to neighbour robot {j} ({team.robots[j].listen}) "
+                f"after {waited:g} s: not running or unreachable"
+                for j in missing
+            ]
+        from teamslam.runtime.security import authenticated_peers
+
+        seen = sorted(set(authenticated_peers(self.session).values()))
+        members = {r.name for r in team.robots}
+        strangers = [n for n in seen if n not in members]
+        note = f"; authenticated links: {', '.join(seen) if seen else 'none'}"
+        if strangers:
+            note += f" (not members, denied: {', '.join(strangers)})"
+        return [
+            f"robot {self.robot}: no authenticated link to neighbour robot {j} "
+            f"('{team.robots[j].name}' at {team.robots[j].listen}) after {waited:g} s: not "
+            "running, unreachable, or the TLS handshake was refused (certificate not signed by "
+            f"this team's CA, or not naming that host){note}"
+            for j in missing
+        ]
 
     def send(self, message: Message) -> None:
         """Publish a message to its receiver (subject to injected loss and delay)."""
