@@ -70,6 +70,20 @@ def register(subparsers) -> None:
         )
         plain = run.get_default("handler")
         run.set_defaults(handler=lambda args: _cmd_run(args, plain))
+    agent = subparsers.choices.get("agent")
+    if agent is not None:
+        unchecked = agent.get_default("handler")
+        agent.set_defaults(handler=lambda args: _cmd_agent(args, unchecked))
+
+
+def _cmd_agent(args: argparse.Namespace, unchecked) -> int:
+    from teamslam.runtime.security import check_credentials
+    from teamslam.runtime.team_file import load_team_file
+
+    team = load_team_file(args.team)
+    if team.security is not None and 0 <= args.robot < team.n:
+        check_credentials(team.security, args.robot)
+    return unchecked(args)
 
 
 def certify_team_file(
