@@ -10,6 +10,8 @@ Example::
     checkpoint_every: 25             # frames between checkpoints (0: never)
     message_loss: 0.0                # injected loss rate of sent messages (experiments)
     message_delay_ms: 0.0            # injected delay before each send
+    shared_memory: true              # Zenoh may hand large messages to robots on the same
+                                     # machine through shared memory instead of the network
     filter: {window: 10, object_std: 2.0}   # any filter setting (teamslam config show lists
                                      # them); objects_only: true = use_geometric_features: false
     robots:
@@ -96,6 +98,7 @@ class TeamFile:
     checkpoint_every: int = 25
     message_loss: float = 0.0
     message_delay_ms: float = 0.0
+    shared_memory: bool = True
     filter: dict = field(default_factory=dict)
     path: Path | None = None
     security: SecuritySection | None = None
@@ -159,6 +162,7 @@ def _parse(data, path: Path) -> TeamFile:
         "filter",
         "robots",
         "security",
+        "shared_memory",
     }
     if unknown:
         raise TeamFileError(f"unknown field(s): {', '.join(sorted(unknown))}")
@@ -216,6 +220,8 @@ def _parse(data, path: Path) -> TeamFile:
                     f"link {r.id}–{j} is listed by robot {r.id} but not by robot {j}"
                 )
     security = _security(data.get("security"), robots, as_path)
+    if not isinstance(data.get("shared_memory", True), bool):
+        raise TeamFileError("'shared_memory' must be true or false")
     sync = data.get("sync", "lockstep")
     if sync not in ("lockstep", "async"):
         raise TeamFileError("'sync' must be lockstep or async")
@@ -243,6 +249,7 @@ def _parse(data, path: Path) -> TeamFile:
         checkpoint_every=_number(data, "checkpoint_every", 25, int, 0),
         message_loss=_number(data, "message_loss", 0.0, float, 0.0, 1.0),
         message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
+        shared_memory=data.get("shared_memory", True),
         filter=filt,
         path=path,
         security=security,
@@ -321,16 +328,20 @@ def write_team_file(
     adjacency: np.ndarray,
     base_port: int = 17400,
     security: SecuritySection | None = None,
-    host: str = "127.0.0.1",
+    host: str | list[str] = "127.0.0.1",
     **settings,
 ) -> Path:
-    """Write a team file for a dataset and a neighbour graph (all endpoints on ``host``).
+    """Write a team file for a dataset and a neighbour graph.
 
+    Robot ``i`` listens on ``host`` (or ``host[i]`` when a list) at port ``base_port + i``.
     With ``security`` the endpoints are ``tls/`` and the file gets its ``security`` section.
     """
     path = Path(path)
     adjacency = np.asarray(adjacency, dtype=bool)
     protocol = "tls" if security is not None else "tcp"
+    hosts = [host] * adjacency.shape[0] if isinstance(host, str) else list(host)
+    if len(hosts) != adjacency.shape[0]:
+        raise TeamFileError(f"{len(hosts)} hosts for {adjacency.shape[0]} robots")
     payload = {
         "team": team,
         "dataset": str(Path(dataset).resolve()),
@@ -338,7 +349,7 @@ def write_team_file(
         "robots": [
             {
                 "id": i,
-                "listen": f"{protocol}/{host}:{base_port + i}",
+                "listen": f"{protocol}/{hosts[i]}:{base_port + i}",
                 "neighbours": [int(j) for j in np.flatnonzero(adjacency[i])],
             }
             for i in range(adjacency.shape[0])

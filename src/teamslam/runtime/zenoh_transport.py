@@ -84,6 +84,7 @@ class ZenohTransport:
             "connect/endpoints", json.dumps([team.robots[j].listen for j in me.neighbours])
         )
         config.insert_json5("scouting/multicast/enabled", "false")
+        config.insert_json5("transport/shared_memory/enabled", json.dumps(team.shared_memory))
         if team.security is not None:
             from teamslam.runtime.security import apply_settings, zenoh_security_settings
 
