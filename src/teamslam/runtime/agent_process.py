@@ -174,6 +174,7 @@ def run_agent(
     consensus_times = np.zeros(frames)
     step_latency = []
     lost_steps: list[int] = []
+    averaged_with: dict[int, list[int]] = defaultdict(list)
     _atomic_json(out / "progress.json", {"frame": start - 1, "frames": frames, "pid": os.getpid()})
     try:
         if hasattr(transport, "wait_for_peers"):
@@ -187,7 +188,9 @@ def run_agent(
                 for j in sorted(neighbours):
                     transport.send(map_ids_message(agent.state, robot, j, t))
                 if team.sync == "lockstep":
-                    requests = transport.collect(t, MapIdsMessage, waiting, team.timeout_s)
+                    requests = transport.collect(
+                        t, MapIdsMessage, waiting, team.timeout_s, also=neighbours
+                    )
                 else:
                     requests = transport.newest(MapIdsMessage, neighbours, team.max_age_steps, t)
                 heard_from = {m.sender for m in requests}
@@ -220,6 +223,7 @@ def run_agent(
                         agent.reject("messages", reason=problem)
                         continue
                     heard.append((weights[m.sender], m))
+                    averaged_with[m.sender].append(t)
                 agent.counters["objects_averaged"] += consensus_average(
                     agent.state, self_weight, heard
                 )
@@ -262,6 +266,7 @@ def run_agent(
         "health": agent.health.to_json(),
         "lost_neighbours": sorted(lost_reported),
         "steps_with_lost_links": lost_steps,
+        "averaged_with": {str(j): steps for j, steps in sorted(averaged_with.items())},
         "bytes_per_step": counters["bytes"] / max(frames - 1, 1),
         "message_latency_ms": {
             "median": float(np.median(latencies) * 1e3) if latencies.size else None,

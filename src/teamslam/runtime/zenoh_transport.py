@@ -75,6 +75,8 @@ class ZenohTransport:
         self.rejected: dict[str, int] = defaultdict(int)
         self.latencies: list[float] = []
         self._buffer: list[tuple[Message, float]] = []
+        self.newest_step: dict[int, int] = {}  # per neighbour, the latest step it has spoken in
+        self.stale_skipped = 0
         self._cond = threading.Condition()
         me = team.robots[robot]
         config = zenoh.Config()
@@ -125,6 +127,8 @@ class ZenohTransport:
         attachment = sample.attachment
         sent = float(attachment.to_string()) if attachment is not None else None
         with self._cond:
+            if message.step > self.newest_step.get(message.sender, -1):
+                self.newest_step[message.sender] = message.step
             if sent is not None:
                 self.latencies.append(time.time() - sent)
             self._buffer.append((message, time.monotonic()))
@@ -187,7 +191,17 @@ class ZenohTransport:
         ]
 
     def send(self, message: Message) -> None:
-        """Publish a message to its receiver (subject to injected loss and delay)."""
+        """Publish a message to its receiver (subject to injected loss and delay).
+
+        A message for a step its receiver has already left (it spoke in a later step: links
+        deliver in order) is not sent — it would be discarded there — and is only counted in
+        ``stale_skipped``; a robot that resumed behind its team catches up without talking.
+        """
+        with self._cond:
+            stale = self.newest_step.get(message.receiver, -1) > message.step
+        if stale:
+            self.stale_skipped += 1
+            return
         payload = encode(message, self.team_id)
         self.messages_sent += 1
         self.bytes_sent += len(payload)
@@ -209,23 +223,39 @@ class ZenohTransport:
             self._buffer.clear()
         return out
 
-    def collect(self, step: int, kind: type, senders: set[int], timeout: float) -> list[Message]:
+    def collect(
+        self,
+        step: int,
+        kind: type,
+        senders: set[int],
+        timeout: float,
+        also: set[int] | frozenset[int] = frozenset(),
+    ) -> list[Message]:
         """Wait until a ``kind`` message of ``step`` arrived from every sender, or ``timeout``.
+
+        A sender from which a message of a later step has already arrived is not waited for:
+        links deliver in order, so it has moved on (a robot that resumed behind its team
+        catches up without waiting). Messages of ``step`` from ``also`` (neighbours reported
+        lost) are taken when they are there; one of them is waited for again once it has
+        spoken in the previous step or later — it is back, in phase with this robot.
 
         Returns those messages (one per sender, the first to arrive), sorted by sender; older
         steps' leftovers are discarded, newer ones stay buffered.
         """
         deadline = time.monotonic() + timeout
+        wanted = set(senders) | set(also)
         with self._cond:
+            senders = set(senders) | {j for j in also if self.newest_step.get(j, -1) >= step - 1}
             while True:
                 self._buffer = [(m, t) for m, t in self._buffer if m.step >= step]
-                have = {
+                done = {
                     m.sender
                     for m, _ in self._buffer
-                    if m.step == step and isinstance(m, kind) and m.sender in senders
+                    if m.sender in senders
+                    and (m.step > step or (m.step == step and isinstance(m, kind)))
                 }
                 remaining = deadline - time.monotonic()
-                if have >= senders or remaining <= 0:
+                if done >= senders or remaining <= 0:
                     break
                 self._cond.wait(remaining)
             picked: dict[int, Message] = {}
@@ -234,7 +264,7 @@ class ZenohTransport:
                 if (
                     m.step == step
                     and isinstance(m, kind)
-                    and m.sender in senders
+                    and m.sender in wanted
                     and m.sender not in picked
                 ):
                     picked[m.sender] = m
