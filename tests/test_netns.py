@@ -39,7 +39,7 @@ def test_namespaces_are_removed_when_the_body_fails():
 
 def test_secured_team_on_three_emulated_hosts_with_capped_lossy_links(tmp_path):
     """1 Mbit/s per link, 10% loss, mutual TLS between 10.77.0.1–3: the loopback result."""
-    dataset = lissajous_team(robots=3, steps=24, seed=1, landmarks=600)
+    dataset = lissajous_team(robots=3, steps=16, seed=1, landmarks=600)
     save_dataset(dataset, tmp_path / "data")
     with EmulatedNetwork(3, rate_mbit=1.0, loss=0.1, subnet="10.77.0") as net:
         hosts = [net.address(i) for i in range(3)]

@@ -331,3 +331,22 @@ def test_a_robot_names_the_neighbour_it_cannot_authenticate(small_team, tmp_path
     assert "neighbour robot 2 ('robot-2'" in outputs[0]
     _, summary = load_robot_result(tmp_path / "out", 0)
     assert summary["lost_neighbours"] == [1, 2]
+
+
+def test_run_secure_uses_throw_away_certificates(tmp_path, capsys):
+    from teamslam.cli import main
+
+    dataset = lissajous_team(robots=3, steps=8, seed=3, landmarks=300)
+    save_dataset(dataset, tmp_path / "data")
+    out = tmp_path / "run"
+    argv = ["run", str(tmp_path / "data"), "--secure", "--window", "6", "--out", str(out)]
+    assert main(argv) == 2  # --secure needs --processes
+    assert "--secure needs --processes" in capsys.readouterr().err
+    argv += ["--processes", "--base-port", str(_port(12))]
+    assert main(argv) == 0, capsys.readouterr().err
+    team = load_team_file(out / "team.yaml")
+    assert team.security is not None and team.robots[0].listen.startswith("tls/")
+    assert not (out / "certs").exists()  # the keys did not outlive the run
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert all(t["counters"]["bytes"] > 0 for t in metrics["transport"])
+    assert all(t["counters"].get("links_lost", 0) == 0 for t in metrics["transport"])
