@@ -193,12 +193,16 @@ class ZenohTransport:
     def send(self, message: Message) -> None:
         """Publish a message to its receiver (subject to injected loss and delay).
 
-        A message for a step its receiver has already left (it spoke in a later step: links
-        deliver in order) is not sent — it would be discarded there — and is only counted in
-        ``stale_skipped``; a robot that resumed behind its team catches up without talking.
+        Lock-step: a message for a step its receiver has already left (it spoke in a later
+        step: links deliver in order) is not sent — it would be discarded there — and is only
+        counted in ``stale_skipped``; a robot that resumed behind its team catches up without
+        talking. (Asynchronous robots use messages up to ``max_age_steps`` old: all are sent.)
         """
         with self._cond:
-            stale = self.newest_step.get(message.receiver, -1) > message.step
+            stale = (
+                self.team.sync == "lockstep"
+                and self.newest_step.get(message.receiver, -1) > message.step
+            )
         if stale:
             self.stale_skipped += 1
             return
