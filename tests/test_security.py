@@ -350,3 +350,46 @@ def test_run_secure_uses_throw_away_certificates(tmp_path, capsys):
     metrics = json.loads((out / "metrics.json").read_text())
     assert all(t["counters"]["bytes"] > 0 for t in metrics["transport"])
     assert all(t["counters"].get("links_lost", 0) == 0 for t in metrics["transport"])
+
+
+def test_a_member_cannot_speak_in_another_members_name(tmp_path):
+    """Access control binds ``from/<i>`` to robot i's certificate; the key binds the sender."""
+    from teamslam.runtime.zenoh_transport import ZenohTransport
+
+    name = f"name-{os.getpid()}"
+    team_path, _ = _secured_team_file(tmp_path, tmp_path, _port(20), name)
+    team = load_team_file(team_path)
+    members = {r.id: r.name for r in team.robots}
+    robot_0 = ZenohTransport(team, 0)
+    # robot 1's own credentials, used by a process that is not robot 1's agent
+    peer = _stranger_session(
+        [team.robots[0].listen], zenoh_security_settings(team.security, 1, name, members)
+    )
+    tid = team_id(name)
+    try:
+        honest = encode(MapIdsMessage(1, 0, 1, np.array([3, 4])), tid)
+        received = []
+        deadline = time.monotonic() + 20
+        while not received and time.monotonic() < deadline:
+            peer.put(f"teamslam/{name}/to/0/from/1/step/1/ids", honest)
+            time.sleep(0.1)
+            received = robot_0.receive(0)
+        assert received and received[0].sender == 1
+        # on robot 2's key: denied by access control, never decoded
+        as_2 = encode(MapIdsMessage(2, 0, 2, np.array([5])), tid)
+        peer.put(f"teamslam/{name}/to/0/from/2/step/2/ids", as_2)
+        # on its own key but claiming robot 2 inside: decoded, then dropped
+        peer.put(f"teamslam/{name}/to/0/from/1/step/2/ids", as_2)
+        marker = encode(MapIdsMessage(1, 0, 3, np.array([6])), tid)
+        peer.put(f"teamslam/{name}/to/0/from/1/step/3/ids", marker)  # in order, after both
+        deadline = time.monotonic() + 10
+        late: list = []
+        while not any(m.step == 3 for m in late) and time.monotonic() < deadline:
+            time.sleep(0.05)
+            late += robot_0.receive(0)
+        # (copies of the honest step-1 message may still have been on their way)
+        assert [(m.sender, m.step) for m in late if m.step != 1] == [(1, 3)]
+        assert dict(robot_0.rejected) == {"sender differs from the key's": 1}
+    finally:
+        peer.close()
+        robot_0.close()
