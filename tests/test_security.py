@@ -231,20 +231,6 @@ def test_strangers_are_kept_out_of_a_secured_team(small_team, tmp_path):
         section = SecuritySection(made.ca_certificate, {9: creds}, verify_name=False)
         return zenoh_security_settings(section, 9, name, members)
 
-    strangers = {
-        "no TLS": _stranger_session([e.replace("tls/", "tcp/") for e in endpoints], None),
-        "other CA": _stranger_session(endpoints, tls_for(other_ca.robots[0])),
-        "non-member": _stranger_session(endpoints, tls_for(intruder.robots[9])),
-    }
-    overheard = []
-    subscribers = [
-        s.declare_subscriber(
-            f"teamslam/{name}/**",
-            lambda sample: overheard.append(sample),
-            allowed_origin=zenoh.Locality.REMOTE,  # not the stranger's own puts
-        )
-        for s in strangers.values()
-    ]
     procs = [
         subprocess.Popen(
             agent_command(team_path, r, tmp_path / "out"),
@@ -253,14 +239,32 @@ def test_strangers_are_kept_out_of_a_secured_team(small_team, tmp_path):
         )
         for r in range(3)
     ]
+    # a robot writes progress.json once its session listens: then the strangers come, each in
+    # its own thread (opening a session whose handshake is refused can take seconds)
+    deadline = time.monotonic() + 120
+    while not all((tmp_path / "out" / f"robot_{r}" / "progress.json").exists() for r in range(3)):
+        assert time.monotonic() < deadline and all(p.poll() is None for p in procs)
+        time.sleep(0.02)
+    strangers = {
+        "no TLS": ([e.replace("tls/", "tcp/") for e in endpoints], None),
+        "other CA": (endpoints, tls_for(other_ca.robots[0])),
+        "non-member": (endpoints, tls_for(intruder.robots[9])),
+    }
     stop = threading.Event()
     published = dict.fromkeys(strangers, 0)
     links = dict.fromkeys(strangers, 0)  # most links each stranger ever had at once
+    overheard = []
     ids = dataset.object_ids[:6]
 
-    def attack() -> None:
-        while not stop.is_set():
-            for label, session in strangers.items():
+    def attack(label: str) -> None:
+        session = _stranger_session(*strangers[label])
+        subscriber = session.declare_subscriber(
+            f"teamslam/{name}/**",
+            lambda sample: overheard.append(sample),
+            allowed_origin=zenoh.Locality.REMOTE,  # not the stranger's own puts
+        )
+        try:
+            while not stop.is_set():
                 links[label] = max(links[label], len(list(session.info.links())))
                 for r in range(3):
                     sender = (r + 1) % 3
@@ -271,19 +275,20 @@ def test_strangers_are_kept_out_of_a_secured_team(small_team, tmp_path):
                     for t in range(1, dataset.robots[r].frames):
                         session.put(f"{base_key}/{t}/marginal", _forged(name, sender, r, t, ids))
                     published[label] += 2 + dataset.robots[r].frames - 1
-            stop.wait(0.1)
+                stop.wait(0.05)
+        finally:
+            subscriber.undeclare()
+            session.close()
 
-    attacker = threading.Thread(target=attack)
-    attacker.start()
+    attackers = [threading.Thread(target=attack, args=(label,)) for label in strangers]
+    for thread in attackers:
+        thread.start()
     try:
         outputs = [p.communicate(timeout=240)[0].decode() for p in procs]
     finally:
         stop.set()
-        attacker.join(timeout=30)
-        for sub in subscribers:
-            sub.undeclare()
-        for s in strangers.values():
-            s.close()
+        for thread in attackers:
+            thread.join(timeout=60)
     for p, out in zip(procs, outputs, strict=True):
         assert p.returncode == 0, out
     assert all(n > 100 for n in published.values()), published
