@@ -311,7 +311,7 @@ def test_a_robot_names_the_neighbour_it_cannot_authenticate(small_team, tmp_path
     _, directory = small_team
     name = f"auth-{os.getpid()}"
     team_path, made = _secured_team_file(
-        tmp_path, directory, _port(8), name, timeout_s=1.0, filter={"window": 8}
+        tmp_path, directory, _port(8), name, timeout_s=0.5, filter={"window": 8}
     )
     other = make_team_certificates("other", {1: ("robot-1", "127.0.0.1")}, tmp_path / "o")
     made.robots[1].key.write_bytes(other.robots[1].key.read_bytes())
