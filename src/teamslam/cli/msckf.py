@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 from pathlib import Path
 
 from teamslam.cli._common import (
@@ -34,22 +35,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     effective = effective_settings(args, dataset)
     print(settings_line(dataset, effective))
+    if args.secure and not args.processes:
+        raise UsageError("--secure needs --processes (robots as processes on loopback)")
     if args.processes:
         if args.out is None or args.compare or args.separate:
             raise UsageError("--processes needs --out and runs consensus only")
-        from teamslam.runtime.team_file import write_team_file
-
-        adjacency = make(args.graph, dataset.n_robots, seed=args.seed).adjacency
-        team_path = write_team_file(
-            Path(args.out) / "team.yaml",
-            f"run-{os.getpid()}",
-            args.dataset,
-            adjacency,
-            base_port=args.base_port,
-            message_loss=args.loss,
-            filter=effective.config.to_json(),
-        )
-        return launch_and_report(team_path, Path(args.out), effective)
+        return _run_processes(args, dataset, effective)
     graph = make(args.graph, dataset.n_robots, seed=args.seed)
     modes = (
         {"separate": False, "consensus": True}
@@ -67,6 +58,38 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.out is not None:
         write_team_outputs(Path(args.out), dataset, results, metrics, not args.no_report)
     return 0
+
+
+def _run_processes(args: argparse.Namespace, dataset, effective) -> int:
+    """``run --processes [--secure]``: write a loopback team file, launch it, report."""
+    from teamslam.graph import make
+    from teamslam.runtime.team_file import write_team_file
+
+    out = Path(args.out)
+    name = f"run-{os.getpid()}"
+    adjacency = make(args.graph, dataset.n_robots, seed=args.seed).adjacency
+    settings = {
+        "base_port": args.base_port,
+        "message_loss": args.loss,
+        "filter": effective.config.to_json(),
+    }
+    if not args.secure:
+        team_path = write_team_file(out / "team.yaml", name, args.dataset, adjacency, **settings)
+        return launch_and_report(team_path, out, effective)
+    from teamslam.runtime.security import SecuritySection, make_team_certificates
+
+    keys = out / "certs"
+    robots = {i: (f"robot-{i}", "127.0.0.1") for i in range(dataset.n_robots)}
+    written = make_team_certificates(name, robots, keys, days=1, reuse_ca=False)
+    try:
+        security = SecuritySection(written.ca_certificate, written.robots)
+        team_path = write_team_file(
+            out / "team.yaml", name, args.dataset, adjacency, security=security, **settings
+        )
+        print(f"secured team: mutual TLS, access control; throw-away certificates in {keys}")
+        return launch_and_report(team_path, out, effective)
+    finally:
+        shutil.rmtree(keys, ignore_errors=True)
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -181,6 +204,11 @@ def register(sub) -> None:
         type=positive_int,
         default=17400,
         help="first loopback TCP port with --processes",
+    )
+    run.add_argument(
+        "--secure",
+        action="store_true",
+        help="with --processes: mutual TLS and access control with throw-away certificates",
     )
     run.set_defaults(handler=_cmd_run)
 

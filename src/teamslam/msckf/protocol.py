@@ -104,6 +104,7 @@ class ConsensusProtocol:
         self.step = -1
         self.heard: set[int] = set()
         self.expected: set[int] = set()
+        self.averaged_with: list[int] = []
         self.spent = 0.0
 
     # ------------------------------------------------------------------ checks
@@ -130,6 +131,7 @@ class ConsensusProtocol:
         self.step = int(step)
         self.heard = set()
         self.expected = set()
+        self.averaged_with = []
         self._moved = {}
         self._pending = {}
         ids = self.agent.state.object_ids.copy()
@@ -234,6 +236,7 @@ class ConsensusProtocol:
             marginals[m.sender] = marginal
             degrees[m.sender] = int(m.degree)
         self_weight, weights = self.weights(degrees)
+        self.averaged_with = sorted(marginals)
         averaged = consensus_average(
             self.agent.state, self_weight, [(weights[j], marginals[j]) for j in sorted(marginals)]
         )

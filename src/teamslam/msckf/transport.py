@@ -44,11 +44,20 @@ class Transport(Protocol):
     def send(self, message: Message) -> None:
         """Send ``message`` to ``message.receiver`` (it may be lost)."""
 
-    def collect(self, step: int, kind: type, senders: set[int], timeout: float) -> list[Message]:
+    def collect(
+        self,
+        step: int,
+        kind: type,
+        senders: set[int],
+        timeout: float,
+        also: set[int] | frozenset[int] = frozenset(),
+    ) -> list[Message]:
         """Wait until a ``kind`` message of ``step`` arrived from every sender, or ``timeout``.
 
-        Returns one message per sender that was heard (the first to arrive), sorted by sender.
-        Leftovers of older steps are discarded; later steps' messages stay buffered.
+        Returns one message per sender that was heard (the first to arrive), sorted by sender;
+        messages of ``step`` from ``also`` (neighbours not awaited, e.g. reported lost) are
+        taken too when they are there. Leftovers of older steps are discarded; later steps'
+        messages stay buffered.
         """
 
     def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
@@ -89,7 +98,12 @@ class Mailbox:
         with self._cond:
             while True:
                 self._messages = [m for m in self._messages if m.step >= step]
-                have = {m.sender for m in self._messages if m.step == step and isinstance(m, kind)}
+                # a sender that already spoke in a later step has moved on (links keep order)
+                have = {
+                    m.sender
+                    for m in self._messages
+                    if m.step > step or (m.step == step and isinstance(m, kind))
+                }
                 remaining = deadline - time.monotonic()
                 if have >= awaited or remaining <= 0:
                     break
@@ -179,10 +193,18 @@ class MemoryTransport:
         self.bytes_sent += message.nbytes()
         self.network._deliver(message)
 
-    def collect(self, step: int, kind: type, senders: set[int], timeout: float) -> list[Message]:
+    def collect(
+        self,
+        step: int,
+        kind: type,
+        senders: set[int],
+        timeout: float,
+        also: set[int] | frozenset[int] = frozenset(),
+    ) -> list[Message]:
         """See :meth:`Transport.collect`; senders whose link is down at ``step`` are not awaited."""
         reachable = {s for s in senders if self.network.link_up(s, self.robot, step)}
-        return self.network.mailboxes[self.robot].collect(step, kind, senders, timeout, reachable)
+        box = self.network.mailboxes[self.robot]
+        return box.collect(step, kind, set(senders) | set(also), timeout, reachable)
 
     def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
         """See :meth:`Transport.newest`."""

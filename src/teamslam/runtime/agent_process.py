@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
 
@@ -58,6 +59,7 @@ def _save_checkpoint(path: Path, agent: MsckfAgent, poses, covs, t: int) -> None
     _atomic_savez(
         path / "checkpoint.npz", poses=poses[: t + 1], covs=covs[: t + 1], **agent.snapshot()
     )
+    _atomic_json(path / "checkpoint.json", {"frame": t})  # which frame the checkpoint holds
 
 
 def _load_checkpoint(path: Path, agent: MsckfAgent, poses, covs) -> int:
@@ -136,6 +138,7 @@ def run_agent(
     consensus_times = np.zeros(frames)
     step_latency = []
     lost_steps: list[int] = []
+    averaged_with: dict[int, list[int]] = defaultdict(list)
     _atomic_json(out / "progress.json", {"frame": start - 1, "frames": frames, "pid": os.getpid()})
     try:
         # a first run waits for every neighbour; a resumed robot only for its links to form
@@ -147,7 +150,9 @@ def run_agent(
                 for message in protocol.requests(t):
                     transport.send(message)
                 if lockstep:
-                    requests = transport.collect(t, MapIdsMessage, waiting, team.timeout_s)
+                    requests = transport.collect(
+                        t, MapIdsMessage, waiting, team.timeout_s, also=neighbours - waiting
+                    )
                 else:
                     requests = transport.newest(MapIdsMessage, neighbours, team.max_age_steps, t)
                 for reply in protocol.answer(requests):
@@ -169,6 +174,8 @@ def run_agent(
                     agent.counters["links_lost"] += len(neighbours - protocol.heard)
                     lost_steps.append(t)
                 protocol.average(replies)
+                for j in protocol.averaged_with:
+                    averaged_with[j].append(t)
                 consensus_times[t] = protocol.spent
             agent.step(t)
             poses[t] = agent.state.current_pose
@@ -209,6 +216,7 @@ def run_agent(
         "health": agent.health.to_json(),
         "lost_neighbours": sorted(lost_reported),
         "steps_with_lost_links": lost_steps,
+        "averaged_with": {str(j): steps for j, steps in sorted(averaged_with.items())},
         "bytes_per_step": counters["bytes"] / max(frames - 1, 1),
         "message_latency_ms": {
             "median": float(np.median(latencies) * 1e3) if latencies.size else None,

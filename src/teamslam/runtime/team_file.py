@@ -10,6 +10,8 @@ Example::
     checkpoint_every: 25             # frames between checkpoints (0: never)
     message_loss: 0.0                # injected loss rate of sent messages (experiments)
     message_delay_ms: 0.0            # injected delay before each send
+    shared_memory: true              # Zenoh may hand large messages to robots on the same
+                                     # machine through shared memory instead of the network
     filter: {window: 10, object_std: 2.0}   # any filter setting (teamslam config show lists
                                      # them); objects_only: true = use_geometric_features: false
     ros2: {domain_id: 0}             # optional: every robot publishes ROS 2 topics over
@@ -17,6 +19,7 @@ Example::
     robots:
       - id: 0
         listen: tcp/127.0.0.1:17400  # default: tcp/127.0.0.1:<17400 + id>
+        name: robot-0                # default: robot-<id>; the common name of its certificate
         neighbours: [1, 2]
       - id: 1
         neighbours: [0, 2]
@@ -24,6 +27,17 @@ Example::
         neighbours: [0, 1]
         dataset: other/team          # optional: another dataset …
         dataset_robot: 0             # … and which of its robots
+
+A secured team (mutual TLS and access control, :mod:`teamslam.runtime.security`) adds::
+
+    security:
+      ca_certificate: certs/ca.pem   # the team CA: the only authority a robot trusts
+      verify_name: true              # on connect, the neighbour's certificate must name its host
+      robots:                        # each robot's key and certificate (a robot's machine
+        - {id: 0, key: certs/robot-0.key, certificate: certs/robot-0.pem}   # needs only its own)
+        - ...
+
+and every endpoint is then a ``tls/HOST:PORT`` endpoint (``teamslam team certs`` writes both).
 
 Each agent listens on its own endpoint and connects to its neighbours' (Zenoh peer mode, no
 router, multicast scouting off so it runs on closed networks). Consensus weights are the
@@ -41,9 +55,17 @@ import yaml
 
 from teamslam.errors import InputError
 from teamslam.msckf.settings import ConfigError, coerce_settings
+from teamslam.runtime.security import RobotCredentials, SecuritySection
 from teamslam.textio import read_yaml
 
-__all__ = ["RobotEntry", "TeamFile", "TeamFileError", "load_team_file", "write_team_file"]
+__all__ = [
+    "RobotEntry",
+    "TeamFile",
+    "TeamFileError",
+    "load_team_file",
+    "security_payload",
+    "write_team_file",
+]
 
 
 class TeamFileError(InputError):
@@ -59,6 +81,11 @@ class RobotEntry:
     neighbours: list[int]
     dataset: Path | None = None
     dataset_robot: int | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            self.name = f"robot-{self.id}"
 
 
 @dataclass
@@ -74,9 +101,11 @@ class TeamFile:
     checkpoint_every: int = 25
     message_loss: float = 0.0
     message_delay_ms: float = 0.0
+    shared_memory: bool = True
     filter_settings: dict = field(default_factory=dict)
     path: Path | None = None
     ros2: dict | None = None
+    security: SecuritySection | None = None
 
     @property
     def n(self) -> int:
@@ -144,6 +173,8 @@ def _parse(data, path: Path) -> TeamFile:
         "filter",
         "robots",
         "ros2",
+        "security",
+        "shared_memory",
     }
     if unknown:
         raise TeamFileError(f"unknown field(s): {', '.join(sorted(unknown))}")
@@ -175,6 +206,9 @@ def _parse(data, path: Path) -> TeamFile:
         listen = r.get("listen", f"tcp/127.0.0.1:{17400 + k}")
         if not isinstance(listen, str) or "/" not in listen:
             raise TeamFileError(f"robots[{k}].listen must be a Zenoh endpoint like tcp/HOST:PORT")
+        name = r.get("name", f"robot-{k}")
+        if not isinstance(name, str) or not name or any(c in name for c in "/\\*\0"):
+            raise TeamFileError(f"robots[{k}].name must be a non-empty name without '/' or '*'")
         robots.append(
             RobotEntry(
                 k,
@@ -182,8 +216,12 @@ def _parse(data, path: Path) -> TeamFile:
                 sorted(set(neighbours)),
                 as_path(r.get("dataset"), f"robots[{k}].dataset"),
                 r.get("dataset_robot"),
+                name,
             )
         )
+    names = [r.name for r in robots]
+    if len(set(names)) != len(names):
+        raise TeamFileError("robot names must be distinct")
     n = len(robots)
     for r in robots:
         for j in r.neighbours:
@@ -193,6 +231,9 @@ def _parse(data, path: Path) -> TeamFile:
                 raise TeamFileError(
                     f"link {r.id}–{j} is listed by robot {r.id} but not by robot {j}"
                 )
+    security = _security(data.get("security"), robots, as_path)
+    if not isinstance(data.get("shared_memory", True), bool):
+        raise TeamFileError("'shared_memory' must be true or false")
     sync = data.get("sync", "lockstep")
     if sync not in ("lockstep", "async"):
         raise TeamFileError("'sync' must be lockstep or async")
@@ -220,10 +261,77 @@ def _parse(data, path: Path) -> TeamFile:
         checkpoint_every=_number(data, "checkpoint_every", 25, int, 0),
         message_loss=_number(data, "message_loss", 0.0, float, 0.0, 1.0),
         message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
+        shared_memory=data.get("shared_memory", True),
         filter_settings=filt,
         path=path,
         ros2=_mapping(data, "ros2"),
+        security=security,
     )
+
+
+def _security(raw, robots: list[RobotEntry], as_path) -> SecuritySection | None:
+    """The ``security`` section, or None; endpoints must be ``tls/`` exactly when it is given."""
+    plain = [r.id for r in robots if not r.listen.startswith("tls/")]
+    if raw is None:
+        tls = [r.id for r in robots if r.listen.startswith("tls/")]
+        if tls:
+            raise TeamFileError(
+                f"robots {tls} listen on tls/ endpoints but the file has no 'security' section"
+            )
+        return None
+    if not isinstance(raw, dict):
+        raise TeamFileError("'security' must be a mapping")
+    unknown = set(raw) - {"ca_certificate", "verify_name", "robots"}
+    if unknown:
+        raise TeamFileError(f"security: unknown field(s): {', '.join(sorted(unknown))}")
+    if plain:
+        raise TeamFileError(
+            f"security: robots {plain} must listen on tls/HOST:PORT endpoints, not "
+            + ", ".join(robots[i].listen for i in plain)
+        )
+    if not isinstance(raw.get("ca_certificate"), str):
+        raise TeamFileError("security.ca_certificate must be the path of the team CA certificate")
+    verify = raw.get("verify_name", True)
+    if not isinstance(verify, bool):
+        raise TeamFileError("security.verify_name must be true or false")
+    entries = raw.get("robots")
+    if not isinstance(entries, list):
+        raise TeamFileError("security.robots must list each robot's id, key and certificate")
+    creds: dict[int, RobotCredentials] = {}
+    for k, e in enumerate(entries):
+        if not isinstance(e, dict) or set(e) != {"id", "key", "certificate"}:
+            raise TeamFileError(f"security.robots[{k}] must have exactly id, key and certificate")
+        rid = e["id"]
+        if not isinstance(rid, int) or not 0 <= rid < len(robots) or rid in creds:
+            raise TeamFileError(f"security.robots[{k}].id {rid!r} is not a robot, or repeated")
+        creds[rid] = RobotCredentials(
+            as_path(e["key"], f"security.robots[{k}].key"),
+            as_path(e["certificate"], f"security.robots[{k}].certificate"),
+        )
+    missing = sorted(set(range(len(robots))) - set(creds))
+    if missing:
+        raise TeamFileError(f"security.robots has no key and certificate for robots {missing}")
+    return SecuritySection(as_path(raw["ca_certificate"], "security.ca_certificate"), creds, verify)
+
+
+def security_payload(security: SecuritySection, base: Path) -> dict:
+    """The ``security`` section as written to a team file in directory ``base``."""
+
+    def rel(p: Path) -> str:
+        p = Path(p).resolve()
+        try:
+            return str(p.relative_to(base.resolve()))
+        except ValueError:
+            return str(p)
+
+    return {
+        "ca_certificate": rel(security.ca_certificate),
+        "verify_name": security.verify_name,
+        "robots": [
+            {"id": i, "key": rel(c.key), "certificate": rel(c.certificate)}
+            for i, c in sorted(security.robots.items())
+        ],
+    }
 
 
 def write_team_file(
@@ -232,11 +340,21 @@ def write_team_file(
     dataset: str | Path,
     adjacency: np.ndarray,
     base_port: int = 17400,
+    security: SecuritySection | None = None,
+    host: str | list[str] = "127.0.0.1",
     **settings,
 ) -> Path:
-    """Write a team file for a dataset and a neighbour graph (all endpoints on loopback)."""
+    """Write a team file for a dataset and a neighbour graph.
+
+    Robot ``i`` listens on ``host`` (or ``host[i]`` when a list) at port ``base_port + i``.
+    With ``security`` the endpoints are ``tls/`` and the file gets its ``security`` section.
+    """
     path = Path(path)
     adjacency = np.asarray(adjacency, dtype=bool)
+    protocol = "tls" if security is not None else "tcp"
+    hosts = [host] * adjacency.shape[0] if isinstance(host, str) else list(host)
+    if len(hosts) != adjacency.shape[0]:
+        raise TeamFileError(f"{len(hosts)} hosts for {adjacency.shape[0]} robots")
     payload = {
         "team": team,
         "dataset": str(Path(dataset).resolve()),
@@ -244,12 +362,14 @@ def write_team_file(
         "robots": [
             {
                 "id": i,
-                "listen": f"tcp/127.0.0.1:{base_port + i}",
+                "listen": f"{protocol}/{hosts[i]}:{base_port + i}",
                 "neighbours": [int(j) for j in np.flatnonzero(adjacency[i])],
             }
             for i in range(adjacency.shape[0])
         ],
     }
+    if security is not None:
+        payload["security"] = security_payload(security, path.parent)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(payload, sort_keys=False))
     return path

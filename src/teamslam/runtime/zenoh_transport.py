@@ -8,6 +8,11 @@ subscribes to ``teamslam/<team>/to/<itself>/**``. Received bytes are decoded and
 the subscriber callback: anything malformed, from another team or from an unknown robot is
 dropped and counted, never handed to the filter.
 
+With a ``security`` section in the team file the session uses mutual TLS and access control
+(:mod:`teamslam.runtime.security`): only the team's robots get a link, and a put is accepted
+from robot ``i``'s link only on keys ``.../from/<i>/...``. Every transport also drops a message
+whose decoded sender is not the ``from/<i>`` of the key it arrived on.
+
 Optional injected loss (each send dropped with a probability) and delay (sleep before each
 send) make lossy-radio experiments reproducible.
 """
@@ -36,6 +41,15 @@ def _kind(message: Message) -> str:
     return "ids" if isinstance(message, MapIdsMessage) else "marginal"
 
 
+def _key_sender(key_expr) -> int | None:
+    """The ``<i>`` of ``teamslam/<team>/to/<j>/from/<i>/...``; None if the key has no such part."""
+    parts = str(key_expr).split("/")
+    try:
+        return int(parts[5]) if parts[4] == "from" else None
+    except (IndexError, ValueError):
+        return None
+
+
 class ZenohTransport:
     """A :class:`~teamslam.msckf.transport.Transport` over a Zenoh peer session.
 
@@ -62,6 +76,8 @@ class ZenohTransport:
         self.rejected: dict[str, int] = defaultdict(int)
         self.latencies: list[float] = []
         self._mailbox = Mailbox()
+        self.newest_step: dict[int, int] = {}  # per neighbour, the latest step it has spoken in
+        self.stale_skipped = 0
         self._cond = threading.Condition()
         me = team.robots[robot]
         config = zenoh.Config()
@@ -71,6 +87,14 @@ class ZenohTransport:
             "connect/endpoints", json.dumps([team.robots[j].listen for j in me.neighbours])
         )
         config.insert_json5("scouting/multicast/enabled", "false")
+        config.insert_json5("transport/shared_memory/enabled", json.dumps(team.shared_memory))
+        if team.security is not None:
+            from teamslam.runtime.security import apply_settings, zenoh_security_settings
+
+            members = {r.id: r.name for r in team.robots}
+            apply_settings(
+                config, zenoh_security_settings(team.security, robot, team.team, members)
+            )
         self.session = zenoh.open(config)
         self._subscriber = self.session.declare_subscriber(
             f"teamslam/{team.team}/to/{robot}/**", self._on_sample
@@ -97,9 +121,15 @@ class ZenohTransport:
             with self._cond:
                 self.rejected["addressed to another robot"] += 1
             return
+        if _key_sender(sample.key_expr) != message.sender:
+            with self._cond:
+                self.rejected["sender differs from the key's"] += 1
+            return
         attachment = sample.attachment
         sent = float(attachment.to_string()) if attachment is not None else None
         with self._cond:
+            if message.step > self.newest_step.get(message.sender, -1):
+                self.newest_step[message.sender] = message.step
             if sent is not None:
                 self.latencies.append(time.time() - sent)
         self._mailbox.put(message)
@@ -117,16 +147,65 @@ class ZenohTransport:
         return alive & set(self.team.robots[self.robot].neighbours)
 
     def wait_for_peers(self, count: int, timeout: float) -> int:
-        """Block until ``count`` neighbours are alive (or ``timeout``); returns how many are."""
+        """Block until ``count`` neighbours are alive (or ``timeout``); returns how many are.
+
+        Each neighbour still missing at the deadline is named in a warning (with the names of
+        the authenticated links the session does have, on a secured team): a refused TLS
+        handshake or access-control denial is otherwise silent in Zenoh.
+        """
         deadline = time.monotonic() + timeout
         while True:
-            alive = len(self.alive_neighbours())
-            if alive >= count or time.monotonic() >= deadline:
-                return alive
+            alive = self.alive_neighbours()
+            if len(alive) >= count or time.monotonic() >= deadline:
+                break
             time.sleep(0.02)
+        missing = sorted(set(self.team.robots[self.robot].neighbours) - alive)
+        if missing and len(alive) < count:
+            for line in self.missing_links_report(missing, timeout):
+                log.warning("%s", line)
+        return len(alive)
+
+    def missing_links_report(self, missing: list[int], waited: float) -> list[str]:
+        """One line per neighbour in ``missing``: no (authenticated) link after ``waited`` s."""
+        team = self.team
+        if team.security is None:
+            return [
+                f"robot {self.robot}: no link to neighbour robot {j} ({team.robots[j].listen}) "
+                f"after {waited:g} s: not running or unreachable"
+                for j in missing
+            ]
+        from teamslam.runtime.security import authenticated_peers
+
+        seen = sorted(set(authenticated_peers(self.session).values()))
+        members = {r.name for r in team.robots}
+        strangers = [n for n in seen if n not in members]
+        note = f"; authenticated links: {', '.join(seen) if seen else 'none'}"
+        if strangers:
+            note += f" (not members, denied: {', '.join(strangers)})"
+        return [
+            f"robot {self.robot}: no authenticated link to neighbour robot {j} "
+            f"('{team.robots[j].name}' at {team.robots[j].listen}) after {waited:g} s: not "
+            "running, unreachable, or the TLS handshake was refused (certificate not signed by "
+            f"this team's CA, or not naming that host){note}"
+            for j in missing
+        ]
 
     def send(self, message: Message) -> None:
-        """Publish a message to its receiver (subject to injected loss and delay)."""
+        """Publish a message to its receiver (subject to injected loss and delay).
+
+        Lock-step: a message for a step its receiver has already left (it spoke in a later
+        step: links deliver in order) is not sent — it would be discarded there — and is only
+        counted in ``stale_skipped``; a robot that resumed behind its team catches up without
+        talking. (Asynchronous robots use messages up to ``max_age_steps`` old: all are sent.)
+        """
+        with self._cond:
+            stale = (
+                self.team.sync == "lockstep"
+                and self.newest_step.get(message.receiver, -1) > message.step
+            )
+        if stale:
+            self.stale_skipped += 1
+            return
         payload = encode(message, self.team_id)
         self.messages_sent += 1
         self.bytes_sent += len(payload)
@@ -141,9 +220,27 @@ class ZenohTransport:
         )
         self.session.put(key, payload, attachment=repr(time.time()))
 
-    def collect(self, step: int, kind: type, senders: set[int], timeout: float) -> list[Message]:
-        """See :meth:`teamslam.msckf.transport.Transport.collect`."""
-        return self._mailbox.collect(step, kind, senders, timeout, None)
+    def collect(
+        self,
+        step: int,
+        kind: type,
+        senders: set[int],
+        timeout: float,
+        also: set[int] | frozenset[int] = frozenset(),
+    ) -> list[Message]:
+        """See :meth:`teamslam.msckf.transport.Transport.collect`.
+
+        A sender from which a message of a later step has already arrived is not waited for:
+        links deliver in order, so it has moved on (a robot that resumed behind its team
+        catches up without waiting). Messages of ``step`` from ``also`` (neighbours reported
+        lost) are taken when they are there; one of them is waited for again once it has
+        spoken in the previous step or later — it is back, in phase with this robot.
+        """
+        with self._cond:
+            back = {j for j in also if self.newest_step.get(j, -1) >= step - 1}
+        return self._mailbox.collect(
+            step, kind, set(senders) | set(also), timeout, set(senders) | back
+        )
 
     def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
         """See :meth:`teamslam.msckf.transport.Transport.newest`."""
