@@ -249,3 +249,52 @@ def test_consensus_on_what_moved_equals_full_averaging_on_a_team():
         assert np.abs(moved.poses[r][:, :3, 3] - full.poses[r][:, :3, 3]).max() < 0.02
     for key in ("trajectory_rmse_avg_m", "object_error_avg_m"):
         assert metrics[1e-2][key] == pytest.approx(metrics[0.0][key], rel=0.02), key
+
+
+@pytest.mark.parametrize("per_object", [False, True])
+@pytest.mark.parametrize("float32", [False, True])
+def test_compact_marginals_cross_the_wire_exactly(team4, per_object, float32):
+    from teamslam.msckf.consensus import common_marginal_message, receive_marginal
+    from teamslam.runtime.wire import decode, encode, team_id
+
+    dataset, _ = team4
+    agents = _agents(dataset, 1)
+    state = agents[0].state
+    ids = state.object_ids[-4:]
+    msg = common_marginal_message(state, 0, 1, 15, ids, 2, per_object, float32)
+    assert msg.per_object == per_object and msg.single_precision == float32
+    data = encode(msg, team_id("w"))
+    assert len(data) == msg.nbytes()
+    back = decode(data, team_id("w"), 2)
+    np.testing.assert_array_equal(back.mean, msg.mean)
+    np.testing.assert_array_equal(back.cov, msg.cov)
+    k = ids.size
+    full = 32 + 8 * k + 8 * (3 * k + 3 * k * (3 * k + 1) // 2)
+    assert len(data) < full or not (per_object or float32)
+    # the per-object message is each object's own block of the joint one
+    problem, received = receive_marginal(state, back)
+    assert problem is None
+    joint = common_marginal_message(state, 0, 1, 15, ids, 2, False, float32)
+    if per_object:
+        for i in range(k):
+            block = slice(3 * i, 3 * i + 3)
+            want = np.linalg.inv(joint.cov[block, block])
+            np.testing.assert_allclose(received.info[block, block], want, rtol=1e-9)
+        off = received.info.copy()  # no cross-object information
+        for i in range(k):
+            off[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = 0
+        assert not off.any()
+
+
+def test_with_one_common_object_per_object_averaging_is_the_joint_one(team4):
+    from teamslam.msckf.consensus import common_marginal_message, consensus_average
+
+    dataset, _ = team4
+    a, b = _agents(dataset, 2)
+    twin = _agents(dataset, 2)[0]
+    ids = np.array([1000])
+    for per_object, target in ((False, a), (True, twin)):
+        msg = common_marginal_message(b.state, 1, 0, 15, ids, 1, per_object)
+        consensus_average(target.state, 0.5, [(0.5, msg)])
+    np.testing.assert_allclose(twin.state.cov, a.state.cov, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(twin.state.objects, a.state.objects, rtol=1e-12, atol=1e-15)

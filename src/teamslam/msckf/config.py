@@ -50,6 +50,12 @@ class MsckfConfig:
         on either robot, since the two last exchanged it: by more than this Kullback–Leibler
         divergence (nats; unit-free, so the same for any camera or scale). 0 averages every
         common object at every step, as the paper does.
+    consensus_per_object
+        Send each common object's own 3×3 marginal instead of the joint marginal of all of
+        them (the cross-object covariances are dropped from the message, not from the filter):
+        the message grows linearly instead of quadratically with the objects shared.
+    consensus_float32
+        Round the means and covariances a robot sends to single precision (half the bytes).
     debug
         Check the covariance after every edit.
     """
@@ -67,6 +73,8 @@ class MsckfConfig:
     use_objects: bool = True
     initial_pose_std: float = 1e-4
     consensus_kl_threshold: float = 1e-3
+    consensus_per_object: bool = False
+    consensus_float32: bool = False
     debug: bool = False
 
     def __post_init__(self) -> None:

@@ -23,10 +23,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from teamslam.errors import InputError
-from teamslam.gaussian import completed_geometric_average
+from teamslam.gaussian import NotPositiveDefiniteError, completed_geometric_average, spd_inverse
 from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
 
@@ -47,23 +46,37 @@ def object_marginals(state: MsckfState) -> tuple[np.ndarray, np.ndarray]:
 
 
 def common_marginal_message(
-    state: MsckfState, sender: int, receiver: int, step: int, ids: np.ndarray, degree: int = 0
+    state: MsckfState,
+    sender: int,
+    receiver: int,
+    step: int,
+    ids: np.ndarray,
+    degree: int = 0,
+    per_object: bool = False,
+    float32: bool = False,
 ) -> CommonMarginalMessage | None:
-    """The marginal of the objects ``ids`` (those the sender holds), or ``None`` if none."""
+    """The marginal of the objects ``ids`` (those the sender holds), or ``None`` if none.
+
+    ``per_object`` sends each object's own 3×3 covariance instead of the joint one; ``float32``
+    rounds every number to single precision (what the wire then carries exactly).
+    """
     ids = np.asarray(ids, dtype=np.int64)
     slots = state.object_slots(ids)
     held = slots >= 0
     if not held.any():
         return None
-    cols = state.object_columns(slots[held]).ravel()
+    cols = state.object_columns(slots[held])
+    if per_object:
+        cov = state.cov[cols[:, :, None], cols[:, None, :]]
+    else:
+        flat = cols.ravel()
+        cov = state.cov[np.ix_(flat, flat)]
+    mean = state.objects[slots[held]].ravel().copy()
+    if float32:
+        mean = mean.astype(np.float32).astype(float)
+        cov = cov.astype(np.float32).astype(float)
     return CommonMarginalMessage(
-        sender,
-        receiver,
-        step,
-        ids[held].copy(),
-        state.objects[slots[held]].ravel().copy(),
-        state.cov[np.ix_(cols, cols)].copy(),
-        int(degree),
+        sender, receiver, step, ids[held].copy(), mean, cov.copy(), int(degree)
     )
 
 
@@ -98,7 +111,9 @@ def receive_marginal(
     k = ids.size
     if ids.ndim != 1 or k == 0 or np.unique(ids).size != k:
         return "ids must be a non-empty list without repeats", None
-    if np.shape(message.mean) != (3 * k,) or np.shape(message.cov) != (3 * k, 3 * k):
+    per_object = np.ndim(message.cov) == 3
+    shape = (k, 3, 3) if per_object else (3 * k, 3 * k)
+    if np.shape(message.mean) != (3 * k,) or np.shape(message.cov) != shape:
         return "mean/covariance sizes do not match the ids", None
     mean = np.asarray(message.mean, dtype=float)
     cov = np.asarray(message.cov, dtype=float)
@@ -106,14 +121,18 @@ def receive_marginal(
         return "non-finite mean or covariance", None
     if np.any(state.object_slots(ids) < 0):
         return "ids not in this robot's map", None
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
+    cov_t = np.swapaxes(cov, -1, -2)
+    if np.abs(cov - cov_t).max() > 1e-9 * np.abs(cov).max() + 1e-12:
         return "covariance is not symmetric", None
     try:
-        factor = scipy.linalg.cho_factor(0.5 * (cov + cov.T), lower=True)
-    except np.linalg.LinAlgError:
+        info = spd_inverse(0.5 * (cov + cov_t), "covariance")
+    except NotPositiveDefiniteError:
         return "covariance is not positive definite", None
-    info = scipy.linalg.cho_solve(factor, np.eye(3 * k))
-    info = 0.5 * (info + info.T)
+    if per_object:  # block-diagonal information of the per-object marginals
+        blocks = info
+        info = np.zeros((3 * k, 3 * k))
+        index = 3 * np.arange(k)[:, None] + np.arange(3)
+        info[index[:, :, None], index[:, None, :]] = blocks
     return None, ReceivedMarginal(int(message.sender), ids.astype(np.int64), info, info @ mean)
 
 

@@ -53,7 +53,9 @@ class CommonMarginalMessage:
     ids
         The shared objects' ids.
     mean, cov
-        Their marginal, ``3·len(ids)`` long, in the order of ``ids``.
+        Their marginal, ``3·len(ids)`` long, in the order of ``ids``: ``cov`` is the joint
+        ``(3k, 3k)`` covariance, or ``(k, 3, 3)`` — each object's own block — for a
+        per-object message.
     degree
         How many neighbours the sender heard from in round 1 of this step.
     """
@@ -66,10 +68,27 @@ class CommonMarginalMessage:
     cov: np.ndarray
     degree: int = 0
 
+    @property
+    def per_object(self) -> bool:
+        """Whether ``cov`` holds each object's own 3×3 block only."""
+        return np.ndim(self.cov) == 3
+
+    @property
+    def single_precision(self) -> bool:
+        """Whether every number is exactly a float32 (sent in 4 bytes)."""
+        mean, cov = np.asarray(self.mean), np.asarray(self.cov)
+        return bool(
+            np.array_equal(mean.astype(np.float32), mean)
+            and np.array_equal(cov.astype(np.float32), cov)
+        )
+
     def nbytes(self) -> int:
-        """Payload size on a wire: ids, mean and the covariance's upper triangle."""
+        """Payload size on a wire: ids, mean and the covariance's upper triangle(s)."""
         d = int(np.size(self.mean))
-        return 32 + 8 * int(np.size(self.ids)) + 8 * d + 8 * (d * (d + 1) // 2)
+        k = int(np.size(self.ids))
+        upper = 6 * k if self.per_object else d * (d + 1) // 2
+        width = 4 if self.single_precision else 8
+        return 32 + 8 * k + width * (d + upper)
 
 
 Message = MapIdsMessage | CommonMarginalMessage

@@ -195,8 +195,16 @@ class ConsensusProtocol:
                 share = np.intersect1d(np.intersect1d(their_ids, own), flagged)
             if share.size == 0:
                 continue
+            config = self.agent.config
             reply = common_marginal_message(
-                self.agent.state, self.robot, j, self.step, share, len(self.heard)
+                self.agent.state,
+                self.robot,
+                j,
+                self.step,
+                share,
+                len(self.heard),
+                per_object=config.consensus_per_object,
+                float32=config.consensus_float32,
             )
             replies.append(reply)
             self._pending[j] = share

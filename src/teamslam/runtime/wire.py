@@ -5,7 +5,8 @@ Every message is a fixed little-endian header followed by a payload::
     offset size field
     0      4    magic b"TSLM"
     4      1    format version (2)
-    5      1    kind: 1 = map ids, 2 = common marginal
+    5      1    kind: 1 = map ids; a common marginal: 2 = joint, float64; 3 = joint, float32;
+                4 = per object, float64; 5 = per object, float32
     6      2    marginal: the sender's degree this step (neighbours heard); map ids: 0
     8      8    team id (64-bit hash of the team name)
     16     2    sender robot
@@ -15,8 +16,9 @@ Every message is a fixed little-endian header followed by a payload::
     28     4    marginal: mean length d = 3 n; map ids: length b of the moved flags
                 (0: none, all moved; else ceil(n / 8))
     32     ...  map ids: n int64 ids, then b bytes of moved flags (one bit per id, little
-                bit order); marginal: n int64 ids, d float64 mean, d (d + 1) / 2 float64
-                covariance upper triangle (row-major)
+                bit order); marginal: n int64 ids, d mean values, then the covariance
+                upper triangle (row-major): of the joint (d (d + 1) / 2 values) or of each
+                object's 3×3 block (6 n values); values float64 or float32 by kind
 
 Version 2 added the moved flags and the degree (consensus on what changed, one weighting
 rule); a version-1 message is refused by name.
@@ -42,7 +44,9 @@ __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode
 MAGIC = b"TSLM"
 FORMAT_VERSION = 2
 KIND_IDS = 1
-KIND_MARGINAL = 2
+KIND_MARGINAL = 2  # joint float64; 3 joint float32; 4 per object float64; 5 per object float32
+_MARGINAL_KINDS = {(False, False): 2, (False, True): 3, (True, False): 4, (True, True): 5}
+_TRIU3 = np.triu_indices(3)
 HEADER = struct.Struct("<4sBBHQHHIII")
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024
 MAX_IDS = 100_000
@@ -80,13 +84,16 @@ def encode(message: Message, team: int) -> bytes:
             len(flags),
         )
         return header + ids.tobytes() + flags
-    mean = np.ascontiguousarray(message.mean, dtype="<f8")
+    per_object, single = message.per_object, message.single_precision
+    dtype = "<f4" if single else "<f8"
+    mean = np.ascontiguousarray(message.mean, dtype=dtype)
     d = mean.size
-    upper = np.asarray(message.cov, dtype="<f8")[np.triu_indices(d)]
+    cov = np.asarray(message.cov, dtype=dtype)
+    upper = cov[:, _TRIU3[0], _TRIU3[1]].ravel() if per_object else cov[np.triu_indices(d)]
     header = HEADER.pack(
         MAGIC,
         FORMAT_VERSION,
-        KIND_MARGINAL,
+        _MARGINAL_KINDS[per_object, single],
         min(int(message.degree), 0xFFFF),
         team,
         message.sender,
@@ -130,10 +137,12 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
         if degree != 0:
             raise WireError("map-ids message with a degree")
         expected = HEADER.size + 8 * n_ids + d
-    elif kind == KIND_MARGINAL:
+    elif kind in _MARGINAL_KINDS.values():
         if d != 3 * n_ids or n_ids == 0:
             raise WireError(f"marginal of {n_ids} objects with mean length {d}")
-        expected = HEADER.size + 8 * (n_ids + d + d * (d + 1) // 2)
+        per_object, width = kind >= 4, 4 if kind in (3, 5) else 8
+        upper = 6 * n_ids if per_object else d * (d + 1) // 2
+        expected = HEADER.size + 8 * n_ids + width * (d + upper)
     else:
         raise WireError(f"unknown message kind {kind}")
     if len(data) != expected:
@@ -148,11 +157,18 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
             moved = np.unpackbits(bits, count=n_ids, bitorder="little").astype(bool)
         return MapIdsMessage(int(sender), int(receiver), int(step), ids, moved)
     offset = HEADER.size + 8 * n_ids
-    mean = np.frombuffer(data, dtype="<f8", count=d, offset=offset).astype(float)
-    upper = np.frombuffer(data, dtype="<f8", count=d * (d + 1) // 2, offset=offset + 8 * d)
-    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(upper))):
+    dtype = "<f4" if width == 4 else "<f8"
+    mean = np.frombuffer(data, dtype=dtype, count=d, offset=offset).astype(float)
+    values = np.frombuffer(data, dtype=dtype, count=upper, offset=offset + width * d)
+    values = values.astype(float)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(values))):
         raise WireError("non-finite mean or covariance")
-    cov = np.zeros((d, d))
-    cov[np.triu_indices(d)] = upper
-    cov = cov + np.triu(cov, 1).T
+    if per_object:
+        cov = np.zeros((n_ids, 3, 3))
+        cov[:, _TRIU3[0], _TRIU3[1]] = values.reshape(n_ids, 6)
+        cov = cov + np.triu(cov, 1).swapaxes(-1, -2)
+    else:
+        cov = np.zeros((d, d))
+        cov[np.triu_indices(d)] = values
+        cov = cov + np.triu(cov, 1).T
     return CommonMarginalMessage(int(sender), int(receiver), int(step), ids, mean, cov, int(degree))
