@@ -200,6 +200,7 @@ def completed_geometric_average(
     cov: np.ndarray,
     terms: Sequence[tuple[float, np.ndarray, np.ndarray, np.ndarray]],
     info: np.ndarray | None = None,
+    block: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 19 in information form, each neighbour's term completed by our own conditional.
 
@@ -222,12 +223,22 @@ def completed_geometric_average(
         ``(w_j, index_j, M_j, m_j)`` per neighbour.
     info
         ``cov⁻¹`` if already known.
+    block
+        Per-block averaging, for neighbours that sent each block's own marginal (``M_j``
+        block-diagonal in blocks of this size): every block ``b`` is averaged on its own, eq.
+        19 over the marginals that hold it, ours completing the rest —
+        ``Ω̄_b = Σ_bb⁻¹ + Σ_j w_j (M_j,b − Σ_bb⁻¹)`` (a convex combination, so positive
+        definite) — and the joint keeps our own correlation structure:
+        ``Σ̄ = T Σ Tᵀ`` with ``T = blockdiag(L̄_b L_b⁻¹)`` (``L`` the Cholesky factors of the
+        blocks before and after), whose diagonal blocks are exactly the averaged ones.
 
     Returns
     -------
     mean, cov
         The averaged marginal of ``y``.
     """
+    if block is not None:
+        return _per_block_average(mean, cov, terms, block)
     own_info = spd_inverse(cov, "own marginal covariance") if info is None else info
     info_bar = own_info.copy()
     eta_bar = own_info @ mean
@@ -238,6 +249,41 @@ def completed_geometric_average(
         eta_bar[sub] += weight * (m_eta - own_sub @ mean[sub])
     new_cov = spd_inverse(info_bar, "averaged information")
     return new_cov @ eta_bar, new_cov
+
+
+def _per_block_average(
+    mean: np.ndarray,
+    cov: np.ndarray,
+    terms: Sequence[tuple[float, np.ndarray, np.ndarray, np.ndarray]],
+    block: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """See ``block`` of :func:`completed_geometric_average`."""
+    d = mean.size
+    cells = np.arange(d).reshape(-1, block)
+    own_blocks = cov[cells[:, :, None], cells[:, None, :]]
+    own_factor = _cholesky(own_blocks, "own per-block marginal")
+    own_info = spd_inverse(own_blocks, "own per-block marginal")
+    means = mean.reshape(-1, block)
+    info = own_info.copy()
+    eta = np.einsum("kij,kj->ki", own_info, means)
+    for weight, index, m_info, m_eta in terms:
+        sub = np.asarray(index, dtype=np.intp).reshape(-1, block)
+        which = sub[:, 0] // block
+        local = np.arange(sub.size).reshape(-1, block)
+        their = m_info[local[:, :, None], local[:, None, :]]
+        info[which] += weight * (their - own_info[which])
+        eta[which] += weight * (
+            m_eta.reshape(-1, block) - np.einsum("kij,kj->ki", own_info[which], means[which])
+        )
+    new_blocks = spd_inverse(info, "averaged per-block information")
+    new_mean = np.einsum("kij,kj->ki", new_blocks, eta).ravel()
+    new_factor = _cholesky(new_blocks, "averaged per-block marginal")
+    # T = blockdiag(L̄ L⁻¹), applied as T Σ Tᵀ block by block
+    eye = np.broadcast_to(np.eye(block), own_factor.shape)
+    transform = new_factor @ np.linalg.solve(own_factor, eye)
+    t_full = np.zeros((d, d))
+    t_full[cells[:, :, None], cells[:, None, :]] = transform
+    return new_mean, symmetrize(t_full @ cov @ t_full.T)
 
 
 def geometric_average_arrays(

@@ -35,6 +35,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     effective = effective_settings(args, dataset)
     print(settings_line(dataset, effective))
+    if args.mcap is not None and args.out is None:
+        raise UsageError("--mcap needs --out (the run's result directory)")
     if args.secure and not args.processes:
         raise UsageError("--secure needs --processes (robots as processes on loopback)")
     if args.processes:
@@ -56,7 +58,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for name, m in metrics.items():
         print_health(name, m)
     if args.out is not None:
-        write_team_outputs(Path(args.out), dataset, results, metrics, not args.no_report)
+        mcap = None
+        if args.mcap is not None:
+            mcap = Path(args.out) / "run.mcap" if args.mcap == "" else Path(args.mcap)
+        write_team_outputs(Path(args.out), dataset, results, metrics, not args.no_report, mcap)
     return 0
 
 
@@ -194,6 +199,14 @@ def register(sub) -> None:
     run.add_argument("--seed", type=non_negative_int, default=0, help="seed of the link loss")
     run.add_argument("--out", type=Path, default=None, help="directory for results")
     run.add_argument("--no-report", action="store_true", help="no report.html in --out")
+    run.add_argument(
+        "--mcap",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="FILE",
+        help="also write the run as MCAP with ROS 2 schemas (default OUT/run.mcap)",
+    )
     run.add_argument(
         "--processes",
         action="store_true",

@@ -1,7 +1,6 @@
 """The ROS 2 commands of ``teamslam``, added to the parser by :func:`register`.
 
 * ``teamslam export mcap RESULT_DIR --out run.mcap``
-* ``teamslam run ... --out DIR --mcap [FILE]`` (default ``DIR/run.mcap``)
 * ``teamslam data import-bag BAG --robot NAME:ODOM_TOPIC[:GT_TOPIC] ... --observations TEMPLATE
   --camera FILE --out DIR``
 * ``teamslam data export-bag DATASET --out team.mcap``
@@ -48,23 +47,6 @@ def _cmd_export_mcap(args: argparse.Namespace) -> int:
 
     _print_mcap_summary(export_mcap(args.result_dir, args.out, path_messages=args.path_messages))
     return 0
-
-
-def _wrap_run(original):
-    def handler(args: argparse.Namespace) -> int:
-        if args.mcap is not None and args.out is None:
-            from teamslam.errors import InputError
-
-            raise InputError("--mcap needs --out (the run's result directory)")
-        code = original(args)
-        if code == 0 and args.mcap is not None:
-            from teamslam.ros2.mcap_export import export_mcap
-
-            target = Path(args.out) / "run.mcap" if args.mcap == "" else Path(args.mcap)
-            _print_mcap_summary(export_mcap(args.out, target))
-        return code
-
-    return handler
 
 
 def _cmd_import_bag(args: argparse.Namespace) -> int:
@@ -159,18 +141,6 @@ def register(subparsers) -> None:
         help="at most this many nav_msgs/Path messages per robot (default 100)",
     )
     mcap.set_defaults(handler=_cmd_export_mcap)
-
-    run = subparsers.choices.get("run")
-    if run is not None:
-        run.add_argument(
-            "--mcap",
-            nargs="?",
-            const="",
-            default=None,
-            metavar="FILE",
-            help="also write the run as MCAP (default OUT/run.mcap)",
-        )
-        run.set_defaults(handler=_wrap_run(run.get_default("handler")))
 
     data = subparsers.choices.get("data")
     if data is not None:

@@ -98,6 +98,7 @@ class ReceivedMarginal:
     ids: np.ndarray
     info: np.ndarray
     info_vector: np.ndarray
+    per_object: bool = False
 
 
 def receive_marginal(
@@ -133,7 +134,9 @@ def receive_marginal(
         info = np.zeros((3 * k, 3 * k))
         index = 3 * np.arange(k)[:, None] + np.arange(3)
         info[index[:, :, None], index[:, None, :]] = blocks
-    return None, ReceivedMarginal(int(message.sender), ids.astype(np.int64), info, info @ mean)
+    return None, ReceivedMarginal(
+        int(message.sender), ids.astype(np.int64), info, info @ mean, per_object
+    )
 
 
 def validate_marginal(state: MsckfState, message: CommonMarginalMessage) -> str | None:
@@ -147,6 +150,10 @@ def consensus_average(
     received: Sequence[tuple[float, ReceivedMarginal | CommonMarginalMessage]],
 ) -> int:
     """Average the common objects with the neighbours' marginals and rebuild the joint.
+
+    Per-object marginals (every neighbour's, or none) are averaged object by object: each
+    is compared with our own per-object marginal (``block=3`` of
+    :func:`~teamslam.gaussian.completed_geometric_average`).
 
     Parameters
     ----------
@@ -184,11 +191,15 @@ def consensus_average(
     cols = state.object_columns(slots).ravel()
     own_mean = state.objects[slots].ravel()
     own_cov = state.cov[np.ix_(cols, cols)]
+    per_object = {m.per_object for m in marginals}
+    if len(per_object) > 1:
+        raise InputError("neighbour marginals mix joint and per-object messages")
     terms = []
     for w, m in zip(weights, marginals, strict=True):
         position = np.searchsorted(y_ids, m.ids)
         sub = (3 * position[:, None] + np.arange(3)).ravel()
         terms.append((w, sub, m.info, m.info_vector))
-    mean, cov = completed_geometric_average(own_mean, own_cov, terms)
+    block = 3 if per_object.pop() else None
+    mean, cov = completed_geometric_average(own_mean, own_cov, terms, block=block)
     state.replace_marginal(cols, mean, cov)
     return int(y_ids.size)

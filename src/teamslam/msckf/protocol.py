@@ -237,6 +237,14 @@ class ConsensusProtocol:
                     self.agent.reject("messages", reason=f"robot {m.sender} not heard in round 1")
                     continue
                 self.heard.add(m.sender)
+            if m.per_object != self.agent.config.consensus_per_object:
+                kinds = ("joint", "per-object")
+                self.agent.reject(
+                    "messages",
+                    reason=f"a {kinds[m.per_object]} marginal from robot {m.sender}; this "
+                    f"robot exchanges {kinds[self.agent.config.consensus_per_object]} marginals",
+                )
+                continue
             problem, marginal = receive_marginal(self.agent.state, m)
             if marginal is None:
                 self.agent.reject("messages", reason=problem)
