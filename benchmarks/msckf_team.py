@@ -6,10 +6,14 @@ Run on demand (BLAS pinned to one thread)::
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py loss [--robots 5 15]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py kitti
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py speed [--robots 5 15]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py scaling [--robots 5 10 25 50 100]
 
 ``accuracy`` and ``loss`` use the simulator with the full filter (geometric features and
 objects) unless ``--objects-only``; they print separate vs consensus trajectory RMSE and object
 error and the relative change. ``speed`` prints mean and p95 time per robot per frame per stage.
+``scaling`` runs teams of growing size on a random geometric graph (each robot talks to the
+robots near it, so its neighbourhood does not grow with the team) and prints the median time
+per robot per frame, overall and for consensus, and its ratio to the smallest team.
 """
 
 from __future__ import annotations
@@ -128,9 +132,34 @@ def speed(robots, steps, window):
         print(f"{n:>6} {'team wall/frame':>15} {1e3 * wall / frames:8.2f}")
 
 
+def scaling(robots, steps, window):
+    from teamslam.graph import random_geometric
+
+    print(
+        f"{'robots':>6} {'degree':>6} {'ms/robot-step':>14} {'consensus ms':>13} "
+        f"{'ratio':>6} {'traj RMSE':>10}"
+    )
+    first = None
+    for n in robots:
+        ds = lissajous_team(robots=n, steps=steps, seed=0)
+        graph = random_geometric(n, seed=0)
+        cfg = config_for(ds, window=window)
+        result = run_team(ds, cfg, graph=graph, consensus=True, progress=False)
+        times = 1e3 * np.concatenate([f[1:] for f in result.frame_times])
+        per_step = float(np.median(times.sum(axis=1)))
+        first = first or per_step
+        degree = graph.adjacency.sum(axis=1).mean()
+        rmse = team_metrics(ds, result)["trajectory_rmse_avg_m"]
+        print(
+            f"{n:>6} {degree:6.1f} {per_step:14.2f} {np.median(times[:, 0]):13.2f} "
+            f"{per_step / first:6.2f} {rmse:10.3f}",
+            flush=True,
+        )
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("accuracy", "loss", "kitti", "speed"))
+    parser.add_argument("what", choices=("accuracy", "loss", "kitti", "speed", "scaling"))
     parser.add_argument("--robots", type=int, nargs="+", default=None)
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--steps", type=int, default=200)
@@ -145,6 +174,8 @@ def main():
         loss_sweep(args.robots or [5, 15], args.steps, args.objects_only, args.window)
     elif args.what == "kitti":
         kitti(args.window)
+    elif args.what == "scaling":
+        scaling(args.robots or [5, 10, 25, 50, 100], args.steps, args.window)
     else:
         speed(args.robots or [5, 15], args.steps, args.window)
 
