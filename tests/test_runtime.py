@@ -176,11 +176,11 @@ def test_three_processes_equal_the_in_process_runner(small_team, tmp_path):
         assert p.returncode == 0, out.decode()
     reference = run_team(dataset, config_for(dataset, window=8), progress=False)
     # equal to the last few bits: arrays decoded from the wire sit at other addresses, and
-    # numpy's SIMD reductions may then add in another order (seen once: 2e-13 relative)
+    # numpy's SIMD reductions may then add in another order (seen: 1e-12 m after 40 frames)
     for r in range(3):
         arrays, summary = load_robot_result(tmp_path / "out", r)
-        np.testing.assert_allclose(arrays["poses"], reference.poses[r], rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(arrays["objects"], reference.objects[r], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(arrays["poses"], reference.poses[r], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(arrays["objects"], reference.objects[r], rtol=1e-9, atol=1e-9)
         assert summary["counters"].get("links_lost", 0) == 0
         assert summary["counters"]["bytes"] > 0
         assert summary["counters"]["objects_averaged"] > 0

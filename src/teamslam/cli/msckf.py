@@ -58,10 +58,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for name, m in metrics.items():
         print_health(name, m)
     if args.out is not None:
-        mcap = None
+        out = Path(args.out)
+        write_team_outputs(out, dataset, results, metrics, report=False)
         if args.mcap is not None:
-            mcap = Path(args.out) / "run.mcap" if args.mcap == "" else Path(args.mcap)
-        write_team_outputs(Path(args.out), dataset, results, metrics, not args.no_report, mcap)
+            from teamslam.cli.ros2 import print_mcap_summary
+            from teamslam.ros2.mcap_export import export_mcap
+
+            target = out / "run.mcap" if args.mcap == "" else Path(args.mcap)
+            print_mcap_summary(export_mcap(out, target))
+        if not args.no_report:
+            from teamslam.eval.report import write_run_report
+
+            print(f"report: {write_run_report(out, dataset, results)}")
     return 0
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from teamslam.cli._common import positive_int
 
-__all__ = ["register"]
+__all__ = ["print_mcap_summary", "register"]
 
 
 def _subparsers_of(parser: argparse.ArgumentParser):
@@ -35,7 +35,8 @@ def _domain_id(text: str) -> int:
     return value
 
 
-def _print_mcap_summary(summary: dict) -> None:
+def print_mcap_summary(summary: dict) -> None:
+    """One line: what an MCAP export wrote."""
     print(
         f"wrote {summary['path']}: {summary['messages']} messages on {len(summary['topics'])} "
         f"topics, {summary['bytes'] / 1e6:.2f} MB in {summary['seconds']:.2f} s"
@@ -45,7 +46,7 @@ def _print_mcap_summary(summary: dict) -> None:
 def _cmd_export_mcap(args: argparse.Namespace) -> int:
     from teamslam.ros2.mcap_export import export_mcap
 
-    _print_mcap_summary(export_mcap(args.result_dir, args.out, path_messages=args.path_messages))
+    print_mcap_summary(export_mcap(args.result_dir, args.out, path_messages=args.path_messages))
     return 0
 
 

@@ -29,16 +29,11 @@ def write_json(path: Path, payload: dict) -> None:
 
 
 def write_team_outputs(
-    out: Path,
-    dataset,
-    results: dict,
-    metrics: dict,
-    report: bool = True,
-    mcap: Path | None = None,
+    out: Path, dataset, results: dict, metrics: dict, report: bool = True
 ) -> None:
     """metrics.json, per-robot TUM trajectories (estimate and truth), estimates.npz, the
-    top-view and error figures, the run as MCAP (to ``mcap`` if given) and (unless ``report``
-    is false) report.html; prints the report's path last."""
+    top-view and error figures and (unless ``report`` is false) report.html, whose path is
+    printed last."""
     from teamslam.datasets import write_tum
     from teamslam.eval.estimates import save_estimates
     from teamslam.eval.plots import plot_team_errors, plot_team_topview
@@ -61,14 +56,6 @@ def write_team_outputs(
     plot_team_topview(dataset, results, out / "topview.png")
     plot_team_errors(dataset, results, out / "errors.png")
     print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")
-    if mcap is not None:
-        from teamslam.ros2.mcap_export import export_mcap
-
-        done = export_mcap(out, mcap)
-        print(
-            f"wrote {done['path']}: {done['messages']} messages on {len(done['topics'])} "
-            f"topics, {done['bytes'] / 1e6:.2f} MB in {done['seconds']:.2f} s"
-        )
     if report:
         from teamslam.eval.report import write_run_report
 
