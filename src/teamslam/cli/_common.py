@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from pathlib import Path
@@ -14,7 +15,10 @@ __all__ = [
     "UsageError",
     "default_data",
     "effective_settings",
+    "non_negative_float",
     "non_negative_int",
+    "number",
+    "positive_float",
     "positive_int",
     "print_health",
     "rate",
@@ -35,37 +39,27 @@ class UsageError(InputError):
     """A command-line value that parses but cannot be used."""
 
 
-def positive_int(text: str) -> int:
-    """An integer ≥ 1 (argparse type)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def number(kind: type, accept, expected: str):
+    """An argparse type: ``kind(text)`` for which ``accept(value)`` holds, else a one-line
+    error "expected <expected>, got …"."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not (math.isfinite(value) and accept(value)):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {value}")
+        return value
+
+    return parse
 
 
-def rate(text: str) -> float:
-    """A number in [0, 1] (argparse type)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {value}")
-    return value
-
-
-def non_negative_int(text: str) -> int:
-    """An integer ≥ 0 (argparse type)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer ≥ 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer ≥ 0, got {value}")
-    return value
+positive_int = number(int, lambda v: v >= 1, "a positive integer")
+non_negative_int = number(int, lambda v: v >= 0, "an integer ≥ 0")
+rate = number(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
+positive_float = number(float, lambda v: v > 0, "a positive number")
+non_negative_float = number(float, lambda v: v >= 0, "a number ≥ 0")
 
 
 def default_data() -> Path:

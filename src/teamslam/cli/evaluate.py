@@ -20,29 +20,10 @@ import math
 import time
 from pathlib import Path
 
+from teamslam.cli._common import non_negative_float, positive_float
 from teamslam.errors import InputError
 
 __all__ = ["register"]
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number ≥ 0, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number ≥ 0, got {value}")
-    return value
 
 
 def _json_safe(value):
@@ -104,7 +85,7 @@ def _evaluation_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.set_defaults(scope="team")
     parser.add_argument(
-        "--rpe-delta", type=_positive_float, default=1.0, help="RPE step (default: 1)"
+        "--rpe-delta", type=positive_float, default=1.0, help="RPE step (default: 1)"
     )
     parser.add_argument(
         "--rpe-unit",
@@ -114,7 +95,7 @@ def _evaluation_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--max-time-diff",
-        type=_non_negative_float,
+        type=non_negative_float,
         default=0.01,
         help="largest time difference of associated poses, s (default: 0.01)",
     )

@@ -13,7 +13,9 @@ import argparse
 import json
 from pathlib import Path
 
-from teamslam.cli._common import positive_int
+from teamslam.cli._common import number, positive_int
+
+_domain_id = number(int, lambda v: 0 <= v <= 232, "a ROS domain id in 0..232")
 
 __all__ = ["print_mcap_summary", "register"]
 
@@ -23,16 +25,6 @@ def _subparsers_of(parser: argparse.ArgumentParser):
         if isinstance(action, argparse._SubParsersAction):
             return action
     raise RuntimeError(f"{parser.prog} has no sub-commands")
-
-
-def _domain_id(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a ROS domain id, got {text!r}") from None
-    if not 0 <= value <= 232:
-        raise argparse.ArgumentTypeError(f"ROS domain ids lie in 0..232, got {value}")
-    return value
 
 
 def print_mcap_summary(summary: dict) -> None:
