@@ -7,6 +7,7 @@ Run on demand (BLAS pinned to one thread)::
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py kitti
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py speed [--robots 5 15]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py scaling [--robots 5 10 25 50 100]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py messages --steps 150 [--robots 5]
 
 ``accuracy`` and ``loss`` use the simulator with the full filter (geometric features and
 objects) unless ``--objects-only``; they print separate vs consensus trajectory RMSE and object
@@ -111,11 +112,11 @@ def kitti(window):
         )
 
 
-def speed(robots, steps, window):
+def speed(robots, steps, window, objects_only=False):
     print(f"{'robots':>6} {'stage':>15} {'mean ms':>8} {'p95 ms':>8}")
     for n in robots:
         ds = lissajous_team(robots=n, steps=steps, seed=0)
-        cfg = config_for(ds, window=window)
+        cfg = config_for(ds, window=window, use_geometric_features=not objects_only)
         begin = time.perf_counter()
         result = run_team(ds, cfg, consensus=True, progress=False)
         wall = time.perf_counter() - begin
@@ -129,6 +130,7 @@ def speed(robots, steps, window):
             )
         total = times.sum(axis=1)
         print(f"{n:>6} {'total':>15} {total.mean():8.2f} {np.percentile(total, 95):8.2f}")
+        print(f"{n:>6} {'total median':>15} {np.median(total):8.2f}")
         print(f"{n:>6} {'team wall/frame':>15} {1e3 * wall / frames:8.2f}")
 
 
@@ -157,9 +159,46 @@ def scaling(robots, steps, window):
         )
 
 
+MESSAGE_VARIANTS = {
+    "joint, float64, every object (paper)": {"consensus_kl_threshold": 0.0},
+    "joint, float64, moved > 1e-3 (default)": {},
+    "per object, float64": {"consensus_per_object": True},
+    "per object, float32": {"consensus_per_object": True, "consensus_float32": True},
+    "per object, float32, moved > 1e-2": {
+        "consensus_per_object": True,
+        "consensus_float32": True,
+        "consensus_kl_threshold": 1e-2,
+    },
+}
+
+
+def messages(robots, steps, window):
+    """Accuracy and bytes of each kind of consensus message on one team."""
+    n = robots[0]
+    ds = lissajous_team(robots=n, steps=steps, seed=0)
+    print(
+        f"{'messages':<40} {'RMSE':>7} {'obj err':>8} {'disagree':>9} {'NEES/6':>7} "
+        f"{'B/robot-step':>13} {'consensus ms':>13}"
+    )
+    for name, settings in MESSAGE_VARIANTS.items():
+        cfg = config_for(ds, window=window, **settings)
+        result = run_team(ds, cfg, consensus=True, progress=False)
+        m = team_metrics(ds, result)
+        sent = sum(c["bytes"] for c in result.counters) / (n * (ds.robots[0].frames - 1))
+        cons = 1e3 * np.median(np.concatenate([f[1:, 0] for f in result.frame_times]))
+        print(
+            f"{name:<40} {m['trajectory_rmse_avg_m']:7.4f} {m['object_error_avg_m']:8.4f} "
+            f"{m['object_disagreement_avg_m']:9.4f} {np.mean(m['nees_pose_avg']):7.2f} "
+            f"{sent:13.0f} {cons:13.2f}",
+            flush=True,
+        )
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("accuracy", "loss", "kitti", "speed", "scaling"))
+    parser.add_argument(
+        "what", choices=("accuracy", "loss", "kitti", "speed", "scaling", "messages")
+    )
     parser.add_argument("--robots", type=int, nargs="+", default=None)
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--steps", type=int, default=200)
@@ -174,10 +213,12 @@ def main():
         loss_sweep(args.robots or [5, 15], args.steps, args.objects_only, args.window)
     elif args.what == "kitti":
         kitti(args.window)
+    elif args.what == "messages":
+        messages(args.robots or [5], args.steps, args.window)
     elif args.what == "scaling":
         scaling(args.robots or [5, 10, 25, 50, 100], args.steps, args.window)
     else:
-        speed(args.robots or [5, 15], args.steps, args.window)
+        speed(args.robots or [5, 15], args.steps, args.window, args.objects_only)
 
 
 if __name__ == "__main__":
