@@ -130,6 +130,15 @@ def team_metrics(dataset: TeamDataset, result: TeamResult) -> dict:
         "nees_pose_median": [float(np.median(v[1:])) for v in nees],
         "time_per_robot_step_ms": timing,
         "counters": result.counters,
+        # consensus messages sent, per robot per step that could exchange (frames after the first)
+        "bytes_per_robot_step": float(
+            np.mean(
+                [
+                    c.get("bytes", 0) / max(f - 1, 1)
+                    for c, f in zip(result.counters, frames, strict=True)
+                ]
+            )
+        ),
         "wall_seconds": result.wall_seconds,
         **_health(result.health),
     }
