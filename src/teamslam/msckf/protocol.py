@@ -174,8 +174,12 @@ class ConsensusProtocol:
         begin = time.perf_counter()
         requests = {}
         for m in received:
-            if self._acceptable(m, MapIdsMessage) and m.sender not in requests:
-                requests[m.sender] = m
+            if not self._acceptable(m, MapIdsMessage) or m.sender in requests:
+                continue
+            if m.moved is not None and np.shape(m.moved) != np.shape(m.ids):
+                self.agent.reject("messages", reason="moved flags do not match the ids")
+                continue
+            requests[m.sender] = m
         self.heard = set(requests)
         replies = []
         own = self.agent.state.object_ids
@@ -185,13 +189,9 @@ class ConsensusProtocol:
             theirs_moved = requests[j].moved
             if mine_moved is None or theirs_moved is None:
                 share = np.intersect1d(their_ids, own)
-            else:
+            else:  # the flags refer to our map as it was in round 1
                 theirs_moved = np.asarray(theirs_moved, dtype=bool)
-                if theirs_moved.shape != their_ids.shape:
-                    self.agent.reject("messages", reason="moved flags do not match the ids")
-                    self.heard.discard(j)
-                    continue
-                flagged = np.union1d(their_ids[theirs_moved], own[mine_moved])
+                flagged = np.union1d(their_ids[theirs_moved], self._own[0][mine_moved])
                 share = np.intersect1d(np.intersect1d(their_ids, own), flagged)
             if share.size == 0:
                 continue
