@@ -293,9 +293,10 @@ def _team_table(runs: dict[str, dict]) -> str:
             f"{f'robot {i + 1} trajectory RMSE [m]':<36}"
             + "".join(f"{runs[n]['trajectory_rmse_m'][i]:>{width}.3f}" for n in names)
         )
+    linearization = runs[names[0]].get("config", {}).get("linearization", "std")
     for i in range(n_robots):
         lines.append(
-            f"{f'robot {i + 1} pose NEES / 6':<36}"
+            f"{f'robot {i + 1} pose NEES / 6 ({linearization})':<36}"
             + "".join(f"{runs[n]['nees_pose_avg'][i]:>{width}.2f}" for n in names)
         )
     for sensor, label in (("features", "features"), ("objects", "objects")):
@@ -476,7 +477,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     effective = _settings(args, dataset)
     print(_settings_line(dataset, effective))
     if args.processes:
-        if args.out is None or args.compare or args.separate:
+        if args.out is None or args.compare or args.separate or args.centralised:
             raise UsageError("--processes needs --out and runs consensus only")
         from teamslam.runtime.team_file import write_team_file
 
@@ -497,9 +498,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if args.compare
         else ({"separate": False} if args.separate else {"consensus": True})
     )
+    if args.centralised:
+        modes = {"centralised": None}
     results, metrics = {}, {}
     for name, consensus in modes.items():
-        results[name] = run_team(dataset, effective.robots, graph, consensus, args.loss, args.seed)
+        if consensus is None:
+            from teamslam.msckf.centralised import run_centralised
+
+            results[name] = run_centralised(dataset, effective.robots)
+        else:
+            results[name] = run_team(
+                dataset, effective.robots, graph, consensus, args.loss, args.seed
+            )
         metrics[name] = {**team_metrics(dataset, results[name]), **effective.to_json()}
     print(f"{dataset.name}: {dataset.n_robots} robots, graph {graph.name}, loss {args.loss}")
     print(_team_table(metrics))
@@ -698,6 +708,11 @@ def build_parser() -> argparse.ArgumentParser:
     mode = run.add_mutually_exclusive_group()
     mode.add_argument("--separate", action="store_true", help="no consensus")
     mode.add_argument("--compare", action="store_true", help="run separate and consensus")
+    mode.add_argument(
+        "--centralised",
+        action="store_true",
+        help="one MSCKF holding every robot's window and every object (the reference)",
+    )
     run.add_argument("--window", type=_positive_int, default=None, help="window size c")
     run.add_argument("--objects-only", action="store_true", help="ignore geometric features")
     _settings_arguments(run)

@@ -43,6 +43,10 @@ class MsckfConfig:
         Which measurements to use.
     initial_pose_std
         Std of the first pose (tiny: robots start from a known pose in the common frame).
+    linearization
+        Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates)
+        ``ideal`` (ground truth, simulation only) or ``oc`` (observability-constrained);
+        :mod:`teamslam.msckf.linearization`.
     debug
         Check the covariance after every edit.
     """
@@ -59,6 +63,7 @@ class MsckfConfig:
     use_geometric_features: bool = True
     use_objects: bool = True
     initial_pose_std: float = 1e-4
+    linearization: str = "std"
     debug: bool = False
 
     def __post_init__(self) -> None:
@@ -79,6 +84,10 @@ class MsckfConfig:
             raise ValueError("object_max_depth must exceed object_min_depth")
         if not 0 < self.gate_probability < 1:
             raise ValueError("gate_probability must lie in (0, 1)")
+        if self.linearization not in ("std", "fej", "ideal", "oc"):
+            raise ValueError(
+                f"linearization must be std, fej, ideal or oc, not {self.linearization!r}"
+            )
         for name in ("min_track_length", "object_init_observations"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 2:

@@ -28,6 +28,7 @@ from teamslam.msckf.consensus import (
     validate_marginal,
 )
 from teamslam.msckf.health import SensorHealth
+from teamslam.msckf.linearization import GroundTruth
 from teamslam.runtime.transport import (
     CommonMarginalMessage,
     InProcessTransport,
@@ -170,7 +171,7 @@ def run_team(
     if graph.n != n:
         raise ValueError(f"graph has {graph.n} robots, dataset has {n}")
     agents = [
-        MsckfAgent(i, dataset.calibration, r, c)
+        MsckfAgent(i, dataset.calibration, r, c, truth=GroundTruth(r.T_world_body, dataset))
         for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))
     ]
     transport = InProcessTransport(n)
@@ -220,6 +221,7 @@ def run_team(
         graph=graph.name,
         loss=loss,
         wall_seconds=wall,
+        extra={"object_covs": [a.state.object_covs() for a in agents]},
         health={
             "team": SensorHealth.combine([a.health for a in agents]).summary(),
             "robots": [a.health.summary() for a in agents],

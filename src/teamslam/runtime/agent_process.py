@@ -112,11 +112,13 @@ def _load_checkpoint(path: Path, agent: MsckfAgent, poses, covs) -> int:
         covs[: t + 1] = c["covs"]
         s = agent.state
         s.poses, s.frames = c["window_poses"].copy(), c["window_frames"].copy()
+        s.pose_fe, s.robots = s.poses.copy(), np.zeros(len(s.frames), np.int64)  # FE restarts
         s.object_ids, s.objects, s.cov = (
             c["object_ids"].copy(),
             c["objects"].copy(),
             c["cov"].copy(),
         )
+        s.object_fe = s.objects.copy()
         agent.frame_times = [tuple(r) for r in c["frame_times"]]
         agent.tracks = _restore_history(c["track_ids"], c["track_frames"], c["track_z"])
         agent.object_history = _restore_history(
