@@ -629,6 +629,7 @@ def _settings_arguments(parser: argparse.ArgumentParser, calibration_flags: bool
 
 def build_parser() -> argparse.ArgumentParser:
     """The full ``teamslam`` argument parser."""
+    from teamslam.eval import team_montecarlo
     from teamslam.graph import GRAPH_KINDS
 
     parser = _Parser(
@@ -827,6 +828,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     vp.add_argument("--out", type=Path, default=None, help="directory for metrics and figure")
     vp.set_defaults(handler=_cmd_fej_victoria_park)
+    team_montecarlo.register(sub)
     return parser
 
 
