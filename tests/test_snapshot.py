@@ -16,19 +16,22 @@ def solo():
     return dataset, config_for(dataset, window=6)
 
 
-def _agent(solo):
+def _agent(solo, linearization="std"):
     dataset, config = solo
+    config = config.with_(linearization=linearization)
     return MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
 
 
-def test_restored_agent_continues_exactly_like_the_original(solo):
-    original = _agent(solo)
+@pytest.mark.parametrize("linearization", ["std", "fej"])
+def test_restored_agent_continues_exactly_like_the_original(solo, linearization):
+    """Also with first-estimate Jacobians: the first estimates are part of the snapshot."""
+    original = _agent(solo, linearization)
     for t in range(12):
         original.step(t)
     snapshot = original.snapshot()
     assert all(isinstance(v, np.ndarray) for v in snapshot.values())
     assert all(v.dtype != object for v in snapshot.values())
-    resumed = _agent(solo)
+    resumed = _agent(solo, linearization)
     resumed.restore({k: v.copy() for k, v in snapshot.items()})
     for t in range(12, 30):
         original.step(t)

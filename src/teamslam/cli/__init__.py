@@ -14,14 +14,14 @@ import sys
 from collections.abc import Sequence
 
 from teamslam import __version__
-from teamslam.cli import data, dvi, evaluate, fej, msckf, ros2, team
+from teamslam.cli import data, dvi, evaluate, fej, montecarlo, msckf, ros2, team
 from teamslam.cli._common import Parser
 from teamslam.errors import EXIT_FAILURE, EXIT_USAGE, EstimationError, InputError
 
 __all__ = ["build_parser", "main"]
 
 # ros2 last: it adds options to run, data and agent
-GROUPS = (dvi, data, msckf, team, fej, evaluate, ros2)
+GROUPS = (dvi, data, msckf, team, fej, montecarlo, evaluate, ros2)
 
 
 def build_parser() -> argparse.ArgumentParser:

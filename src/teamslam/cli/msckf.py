@@ -40,7 +40,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.secure and not args.processes:
         raise UsageError("--secure needs --processes (robots as processes on loopback)")
     if args.processes:
-        if args.out is None or args.compare or args.separate:
+        if args.out is None or args.compare or args.separate or args.centralised:
             raise UsageError("--processes needs --out and runs consensus only")
         return _run_processes(args, dataset, effective)
     graph = make(args.graph, dataset.n_robots, seed=args.seed)
@@ -49,9 +49,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if args.compare
         else ({"separate": False} if args.separate else {"consensus": True})
     )
+    if args.centralised:
+        modes = {"centralised": None}
     results, metrics = {}, {}
     for name, consensus in modes.items():
-        results[name] = run_team(dataset, effective.robots, graph, consensus, args.loss, args.seed)
+        if consensus is None:
+            from teamslam.msckf.centralised import run_centralised
+
+            results[name] = run_centralised(dataset, effective.robots)
+        else:
+            results[name] = run_team(
+                dataset, effective.robots, graph, consensus, args.loss, args.seed
+            )
         metrics[name] = {**team_metrics(dataset, results[name]), **effective.to_json()}
     print(f"{dataset.name}: {dataset.n_robots} robots, graph {graph.name}, loss {args.loss}")
     print(team_table(metrics))
@@ -201,6 +210,11 @@ def register(sub) -> None:
     mode = run.add_mutually_exclusive_group()
     mode.add_argument("--separate", action="store_true", help="no consensus")
     mode.add_argument("--compare", action="store_true", help="run separate and consensus")
+    mode.add_argument(
+        "--centralised",
+        action="store_true",
+        help="one MSCKF holding every robot's window and every object (the reference)",
+    )
     run.add_argument("--window", type=positive_int, default=None, help="window size c")
     run.add_argument("--objects-only", action="store_true", help="ignore geometric features")
     settings_arguments(run)

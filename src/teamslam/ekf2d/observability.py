@@ -14,10 +14,10 @@ a direction it cannot.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 from teamslam.ekf2d.filter import JacobianRecord
 from teamslam.errors import InputError
+from teamslam.linalg import nullspace, rank
 
 __all__ = ["nullspace", "observability_matrix", "rank"]
 
@@ -45,14 +45,3 @@ def observability_matrix(record: JacobianRecord, start: int, length: int) -> np.
         transition = phi @ transition
         blocks.append(record.h[k] @ transition)
     return np.vstack(blocks)
-
-
-def rank(matrix: np.ndarray, rtol: float = 1e-9) -> int:
-    """Numerical rank: singular values above ``rtol`` times the largest."""
-    s = np.linalg.svd(matrix, compute_uv=False)
-    return int(np.sum(s > rtol * s[0])) if s.size else 0
-
-
-def nullspace(matrix: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
-    """Orthonormal basis of the right nullspace (the unobservable directions)."""
-    return scipy.linalg.null_space(matrix, rcond=rtol)

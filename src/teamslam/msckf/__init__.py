@@ -7,6 +7,10 @@
 * :mod:`~teamslam.msckf.agent` — Algorithm 1 for one robot;
 * :mod:`~teamslam.msckf.consensus` — averaging of the common objects (19–21);
 * :mod:`~teamslam.msckf.team` — the lock-step team runner;
+* :mod:`~teamslam.msckf.linearization` — where Jacobians are evaluated: standard,
+  first-estimate, ideal, observability-constrained;
+* :mod:`~teamslam.msckf.centralised` — one MSCKF over the whole team (the reference);
+* :mod:`~teamslam.msckf.observability` — rank and nullspace of the 3D team filter;
 * :mod:`~teamslam.msckf.settings` — where every setting comes from (defaults scaled to the
   camera, the dataset's sensor model, calibration, file, flags);
 * :mod:`~teamslam.msckf.calibration` — the sensor model estimated from the data alone;

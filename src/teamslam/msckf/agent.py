@@ -12,6 +12,11 @@ neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.ste
 
 and finally slides the window. Bad inputs (non-finite odometry or measurements) are rejected
 and counted; the estimate is left as it was.
+
+Every Jacobian is evaluated where the configured linearisation policy says
+(:mod:`teamslam.msckf.linearization`: standard, first-estimate or ideal); residuals always at
+the current estimate. The agent's state may be its own or its window in a team state
+(:mod:`teamslam.msckf.centralised`): the same code serves both.
 """
 
 from __future__ import annotations
@@ -25,10 +30,12 @@ import numpy as np
 from teamslam.datasets.model import Calibration, RobotSequence
 from teamslam.errors import EstimationError, InputError
 from teamslam.gaussian import NotPositiveDefiniteError
+from teamslam.geometry import se3
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.health import SensorHealth, odometry_lag_residuals
-from teamslam.msckf.models import observe_jacobians, points_in_camera
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.linearization import GroundTruth, linearization_policy
+from teamslam.msckf.models import observe, observe_jacobians, points_in_camera
+from teamslam.msckf.state import MsckfState, RobotWindow
 from teamslam.msckf.update import (
     MeasurementRows,
     compress,
@@ -58,6 +65,11 @@ class MsckfAgent:
     record_innovations
         Keep every innovation for calibration (:attr:`health`); rejected inputs are then only
         counted, not logged.
+    state
+        The robot's window in a team state (the centralised filter); default: a state of its
+        own starting at the robot's first ground-truth pose.
+    truth
+        Ground truth, needed by the ``ideal`` linearisation (simulation only).
     """
 
     def __init__(
@@ -67,14 +79,27 @@ class MsckfAgent:
         sequence: RobotSequence,
         config: MsckfConfig,
         record_innovations: bool = False,
+        state: RobotWindow | None = None,
+        truth: GroundTruth | None = None,
     ) -> None:
         self.robot = robot
         self.camera = calibration.camera
         self.T_cam_body = calibration.T_cam_body
         self.sequence = sequence
         self.config = config
-        self.state = MsckfState(
-            sequence.T_world_body[0], 0, np.eye(6) * config.initial_pose_std**2, config.debug
+        self.policy = linearization_policy(config.linearization)
+        if self.policy.needs_truth and truth is None:
+            raise ValueError(
+                f"robot {robot}: the {config.linearization} linearisation needs ground truth "
+                "(simulated data only)"
+            )
+        self.truth = truth
+        self.state: MsckfState | RobotWindow = (
+            state
+            if state is not None
+            else MsckfState(
+                sequence.T_world_body[0], 0, np.eye(6) * config.initial_pose_std**2, config.debug
+            )
         )
         self.tracks: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
         self.object_history: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
@@ -224,7 +249,27 @@ class MsckfAgent:
             self._odometry_rejected.add(t - 1)
             odometry = np.eye(4)
             cov = cov * 1e4  # no motion information at all for this step
-        self.state.augment(odometry, t, cov)
+        state = self.state
+        true_step = None
+        if self.policy.needs_truth:
+            true_step = se3.inverse(self.truth.T_world_body[t - 1]) @ self.truth.T_world_body[t]
+        step = self.policy.propagation_step(
+            state.pose_fe[-1], state.current_pose @ odometry, odometry, true_step
+        )
+        state.augment(odometry, t, cov, jacobian_step=step)
+
+    def _true_poses(self, window_index: np.ndarray) -> np.ndarray | None:
+        """True poses of window positions (``None`` unless the policy needs them)."""
+        if not self.policy.needs_truth:
+            return None
+        return self.truth.T_world_body[self.state.frames[window_index]]
+
+    def _linearization_poses(self, window_index: np.ndarray) -> np.ndarray:
+        """Window poses at which the policy evaluates ``H``."""
+        state = self.state
+        return self.policy.poses(
+            state.poses[window_index], state.pose_fe[window_index], self._true_poses(window_index)
+        )
 
     def _odometry_health(self, index: int) -> None:
         """Smoothed residual of the odometry between window poses ``index`` and ``index + 1``."""
@@ -251,11 +296,11 @@ class MsckfAgent:
             ):
                 last += 1
             if last > 2:
-                cols = slice(0, 6 * last)
+                cols = state.pose_columns(np.arange(last)).ravel()
                 moment, design = odometry_lag_residuals(
                     state.poses[:last],
                     self.sequence.odometry[first : first + last - 1],
-                    state.cov[cols, cols],
+                    state.cov[np.ix_(cols, cols)],
                 )
                 self.health.odometry_lags(moment, design, assumed)
 
@@ -285,7 +330,7 @@ class MsckfAgent:
         if window_full:
             oldest = self.state.frames[0]
             ready += [i for i in seen if self.tracks[i][0][0] == oldest]
-        groups: dict[int, list[tuple[np.ndarray, np.ndarray]]] = defaultdict(list)
+        groups: dict[int, list[tuple[np.ndarray, np.ndarray, int]]] = defaultdict(list)
         for i in ready:
             obs = self.tracks.pop(i)
             frames = np.array([f for f, _ in obs])
@@ -293,13 +338,19 @@ class MsckfAgent:
             keep = widx >= 0
             if keep.sum() >= self.config.min_track_length:
                 groups[int(keep.sum())].append(
-                    (widx[keep], np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k]))
+                    (
+                        widx[keep],
+                        np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k]),
+                        i,
+                    )
                 )
         rows = MeasurementRows.empty(self.state.dim)
         variance = self.config.feature_std**2
+        block = self.state.window_columns
+        pose_dim = 6 * self.state.n_poses
         for n, members in groups.items():
-            widx = np.stack([w for w, _ in members])
-            zs = np.stack([zz for _, zz in members])
+            widx = np.stack([w for w, _, _ in members])
+            zs = np.stack([zz for _, zz, _ in members])
             poses = self.state.poses[widx]
             points, ok, _ = triangulate(self.camera, self.T_cam_body, poses, zs)
             self.counters["features_used"] += int(ok.sum())
@@ -307,13 +358,18 @@ class MsckfAgent:
                 self.counters["rejected_triangulation"] += int((~ok).sum())
             if not ok.any():
                 continue
-            pred, d_pose, d_point = observe_jacobians(
-                self.camera, self.T_cam_body, poses[ok], points[ok][:, None, :]
+            track_ids = np.array([i for _, _, i in members])[ok]
+            true_points = self.truth.track_points(track_ids) if self.policy.needs_truth else None
+            pred = observe(self.camera, self.T_cam_body, poses[ok], points[ok][:, None, :])
+            _, d_pose, d_point = observe_jacobians(
+                self.camera,
+                self.T_cam_body,
+                self._linearization_poses(widx[ok]),
+                self.policy.feature_points(points[ok], true_points)[:, None, :],
             )
-            pose_dim = 6 * self.state.n_poses
             r0, h0, s = null_space_rows(
-                self.state.cov[:pose_dim, :pose_dim],
-                self.state.pose_columns(widx[ok]),
+                self.state.cov[block, block],
+                6 * widx[ok][..., None] + np.arange(6),
                 pose_dim,
                 pred,
                 d_pose,
@@ -327,7 +383,7 @@ class MsckfAgent:
             self.counters["rejected_features_gate"] += int((~accepted).sum())
             h0 = h0[accepted].reshape(-1, pose_dim)
             full = np.zeros((h0.shape[0], self.state.dim))
-            full[:, :pose_dim] = h0
+            full[:, block] = h0
             rows = rows.extend(
                 MeasurementRows(full, r0[accepted].ravel(), np.full(h0.shape[0], variance))
             )
@@ -342,7 +398,7 @@ class MsckfAgent:
         known = slots >= 0
         if not known.any():
             return MeasurementRows.empty(self.state.dim)
-        slots, zk = slots[known], z[known]
+        slots, zk, ids = slots[known], z[known], ids[known]
         # an object the estimate puts (nearly) behind the camera has no usable projection
         _, p_cam = points_in_camera(
             self.state.current_pose, self.state.objects[slots], self.T_cam_body
@@ -350,13 +406,24 @@ class MsckfAgent:
         in_front = p_cam[:, 2] > 1e-3 * self.camera.baseline
         if not in_front.all():
             self.reject("object_behind_camera", int((~in_front).sum()), "object behind the camera")
-            slots, zk = slots[in_front], zk[in_front]
+            slots, zk, ids = slots[in_front], zk[in_front], ids[in_front]
         k = slots.size
         if k == 0:
             return MeasurementRows.empty(self.state.dim)
-        pose = self.state.current_pose
-        pred, d_pose, d_point = observe_jacobians(
-            self.camera, self.T_cam_body, pose, self.state.objects[slots]
+        state = self.state
+        pred = observe(self.camera, self.T_cam_body, state.current_pose, state.objects[slots])
+        _, d_pose, d_point = observe_jacobians(
+            self.camera,
+            self.T_cam_body,
+            self._linearization_poses(np.array(state.n_poses - 1)),
+            self.policy.objects(
+                state.objects[slots],
+                state.object_fe[slots],
+                self.truth.objects(ids) if self.policy.needs_truth else None,
+            ),
+        )
+        d_pose, d_point = self.policy.constrain(
+            d_pose, d_point, state.pose_fe[-1], state.object_fe[slots]
         )
         dim = self.state.dim
         h = np.zeros((k, 4, dim))
@@ -414,8 +481,14 @@ class MsckfAgent:
     ) -> None:
         """QR initialisation (eqs. 29–30), then an update with the landmark-free rows."""
         state = self.state
-        poses = state.poses[widx]
-        pred, d_pose, d_point = observe_jacobians(self.camera, self.T_cam_body, poses, point[None])
+        pred = observe(self.camera, self.T_cam_body, state.poses[widx], point[None])
+        true_point = self.truth.objects(np.array([oid]))[0] if self.policy.needs_truth else None
+        _, d_pose, d_point = observe_jacobians(
+            self.camera,
+            self.T_cam_body,
+            self._linearization_poses(widx),
+            self.policy.feature_points(point, true_point)[None],
+        )
         dim = state.dim
         h_s = np.zeros((n, 4, dim))
         h_s[

@@ -56,6 +56,10 @@ class MsckfConfig:
         the message grows linearly instead of quadratically with the objects shared.
     consensus_float32
         Round the means and covariances a robot sends to single precision (half the bytes).
+    linearization
+        Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates)
+        ``ideal`` (ground truth, simulation only) or ``oc`` (observability-constrained);
+        :mod:`teamslam.msckf.linearization`.
     debug
         Check the covariance after every edit.
     """
@@ -75,6 +79,7 @@ class MsckfConfig:
     consensus_kl_threshold: float = 1e-3
     consensus_per_object: bool = False
     consensus_float32: bool = False
+    linearization: str = "std"
     debug: bool = False
 
     def __post_init__(self) -> None:
@@ -98,6 +103,10 @@ class MsckfConfig:
             raise InputError("consensus_kl_threshold must be a number ≥ 0 (nats)")
         if not 0 < self.gate_probability < 1:
             raise InputError("gate_probability must lie in (0, 1)")
+        if self.linearization not in ("std", "fej", "ideal", "oc"):
+            raise InputError(
+                f"linearization must be std, fej, ideal or oc, not {self.linearization!r}"
+            )
         for name in ("min_track_length", "object_init_observations"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 2:

@@ -41,8 +41,7 @@ __all__ = [
 
 def object_marginals(state: MsckfState) -> tuple[np.ndarray, np.ndarray]:
     """Each map object's own marginal: ``(m, 3)`` means and ``(m, 3, 3)`` covariance blocks."""
-    cols = state.object_columns(np.arange(state.n_objects))
-    return state.objects.copy(), state.cov[cols[:, :, None], cols[:, None, :]]
+    return state.objects.copy(), state.object_covs()
 
 
 def common_marginal_message(

@@ -83,6 +83,9 @@ def coerce_settings(values: dict[str, Any], where: str) -> dict[str, Any]:
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise bad
             value = float(value)
+        elif kind == "str":
+            if not isinstance(value, str):
+                raise bad
         else:  # the odometry σ: six numbers
             if (
                 not isinstance(value, list | tuple)

@@ -7,6 +7,14 @@ this class**: :meth:`augment` (propagation, eqs. 22–23), :meth:`marginalize_ol
 :meth:`add_object` (initialisation, eq. 30), :meth:`update` (eqs. 26–28) and
 :meth:`replace_marginal` (consensus, Prop. 2 / eq. 21). With ``debug=True`` each edit checks
 that the covariance stays symmetric positive definite.
+
+The state also keeps each window pose's and each object's **first estimate** (the pose as it
+entered the window, the object as it was initialised) for first-estimate Jacobians
+(:mod:`teamslam.msckf.linearization`); consensus and updates never change it.
+
+One state can hold the windows of several robots (the centralised filter,
+:mod:`teamslam.msckf.centralised`): poses are kept sorted by robot, then frame, and
+:meth:`window` gives one robot's view of them.
 """
 
 from __future__ import annotations
@@ -18,7 +26,7 @@ from teamslam.errors import InputError
 from teamslam.gaussian import NotPositiveDefiniteError, replace_marginal_arrays
 from teamslam.geometry import se3
 
-__all__ = ["MsckfState"]
+__all__ = ["MsckfState", "RobotWindow"]
 
 
 class MsckfState:
@@ -41,19 +49,26 @@ class MsckfState:
     ) -> None:
         self.poses = np.asarray(T_world_body, dtype=float).reshape(1, 4, 4).copy()
         self.frames = np.array([frame], dtype=np.int64)
+        self.robots = np.zeros(1, dtype=np.int64)
+        self.pose_fe = self.poses.copy()
         self.object_ids = np.zeros(0, dtype=np.int64)
         self.objects = np.zeros((0, 3))
+        self.object_fe = np.zeros((0, 3))
         self.cov = np.asarray(pose_cov, dtype=float).reshape(6, 6).copy()
         self.debug = debug
 
     # ------------------------------------------------------------------ snapshot
     def snapshot(self) -> dict[str, np.ndarray]:
-        """The whole state as arrays (copies): window poses and frames, objects, covariance."""
+        """The whole state as arrays (copies): window poses, frames, robots and first estimates,
+        objects and their first estimates, covariance."""
         return {
             "window_poses": self.poses.copy(),
             "window_frames": self.frames.copy(),
+            "window_robots": self.robots.copy(),
+            "window_pose_fe": self.pose_fe.copy(),
             "object_ids": self.object_ids.copy(),
             "objects": self.objects.copy(),
+            "object_fe": self.object_fe.copy(),
             "cov": self.cov.copy(),
         }
 
@@ -72,17 +87,22 @@ class MsckfState:
             ids = np.asarray(snapshot["object_ids"], dtype=np.int64)
             objects = np.asarray(snapshot["objects"], dtype=float).reshape(-1, 3)
             cov = np.asarray(snapshot["cov"], dtype=float)
+            robots = np.asarray(snapshot["window_robots"], dtype=np.int64)
+            pose_fe = np.asarray(snapshot["window_pose_fe"], dtype=float)
+            object_fe = np.asarray(snapshot["object_fe"], dtype=float).reshape(-1, 3)
         except KeyError as exc:
             raise InputError(f"state snapshot lacks {exc.args[0]!r}") from None
         c, m = poses.shape[0], ids.size
         if poses.shape != (c, 4, 4) or frames.shape != (c,) or c == 0:
             raise InputError(f"state snapshot: window poses {poses.shape}, frames {frames.shape}")
+        if robots.shape != (c,) or pose_fe.shape != poses.shape or object_fe.shape != (m, 3):
+            raise InputError("state snapshot: robots or first estimates do not match the state")
         if objects.shape != (m, 3) or np.unique(ids).size != m:
             raise InputError(f"state snapshot: {m} object ids for objects {objects.shape}")
         dim = 6 * c + 3 * m
         if cov.shape != (dim, dim):
             raise InputError(f"state snapshot: covariance {cov.shape}, state dimension {dim}")
-        if not all(np.all(np.isfinite(a)) for a in (poses, objects, cov)):
+        if not all(np.all(np.isfinite(a)) for a in (poses, objects, cov, pose_fe, object_fe)):
             raise InputError("state snapshot: non-finite values")
         if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
             raise InputError("state snapshot: covariance is not symmetric")
@@ -91,7 +111,30 @@ class MsckfState:
         except np.linalg.LinAlgError:
             raise InputError("state snapshot: covariance is not positive definite") from None
         self.poses, self.frames, self.object_ids, self.objects = poses, frames, ids, objects
+        self.robots, self.pose_fe, self.object_fe = robots, pose_fe, object_fe
         self.cov = 0.5 * (cov + cov.T)
+
+    @classmethod
+    def team(
+        cls, T_world_body: np.ndarray, frame: int, pose_cov: np.ndarray, debug: bool = False
+    ) -> MsckfState:
+        """One state for a team: robot ``i`` starts at ``T_world_body[i]`` (``(R, 4, 4)``), each
+        with covariance ``pose_cov``, uncorrelated."""
+        first = np.asarray(T_world_body, dtype=float).reshape(-1, 4, 4)
+        state = cls(first[0], frame, pose_cov, debug)
+        n = first.shape[0]
+        state.poses = first.copy()
+        state.pose_fe = first.copy()
+        state.frames = np.full(n, frame, dtype=np.int64)
+        state.robots = np.arange(n, dtype=np.int64)
+        state.cov = np.kron(np.eye(n), np.asarray(pose_cov, dtype=float).reshape(6, 6))
+        return state
+
+    def window(self, robot: int) -> RobotWindow:
+        """Robot ``robot``'s window as a state of its own (shares this state's arrays)."""
+        if not np.any(self.robots == robot):
+            raise ValueError(f"robot {robot} has no pose in this state")
+        return RobotWindow(self, robot)
 
     # ------------------------------------------------------------------ layout
     @property
@@ -134,6 +177,11 @@ class MsckfState:
         return np.where(self.frames[pos] == frames, pos, -1)
 
     @property
+    def window_columns(self) -> slice:
+        """Error-state columns of the window poses."""
+        return slice(0, 6 * self.n_poses)
+
+    @property
     def current_pose(self) -> np.ndarray:
         """Newest window pose."""
         return self.poses[-1]
@@ -142,6 +190,11 @@ class MsckfState:
         """6×6 covariance of the newest pose."""
         s = slice(6 * (self.n_poses - 1), 6 * self.n_poses)
         return self.cov[s, s]
+
+    def object_covs(self) -> np.ndarray:
+        """``(m, 3, 3)`` marginal covariance of each object."""
+        cols = self.object_columns(np.arange(self.n_objects))
+        return self.cov[cols[:, :, None], cols[:, None, :]]
 
     def _check(self, what: str) -> None:
         if not self.debug:
@@ -156,18 +209,45 @@ class MsckfState:
             ) from None
 
     # ------------------------------------------------------------------ edits
-    def augment(self, odometry: np.ndarray, frame: int, odometry_cov: np.ndarray) -> None:
-        """Append ``T_new = T_last · δT`` (eq. 22) with ``ε_new = Ad(δT⁻¹) ε_last + w`` (eq. 23)."""
+    def augment(
+        self,
+        odometry: np.ndarray,
+        frame: int,
+        odometry_cov: np.ndarray,
+        robot: int = 0,
+        jacobian_step: np.ndarray | None = None,
+    ) -> None:
+        """Append ``T_new = T_last · δT`` (eq. 22) with ``ε_new = Ad(δT⁻¹) ε_last + w`` (eq. 23).
+
+        Parameters
+        ----------
+        odometry
+            ``δT``, the relative pose that moves the estimate.
+        frame
+            Frame index of the new pose.
+        odometry_cov
+            ``W``.
+        robot
+            Whose window grows (the new pose goes after that robot's newest pose).
+        jacobian_step
+            The relative pose at which the Jacobian ``Ad(δ⁻¹)`` is evaluated (default
+            ``odometry``); see :mod:`teamslam.msckf.linearization`.
+        """
         odometry = np.asarray(odometry, dtype=float)
-        new_pose = self.poses[-1] @ odometry
-        jac = se3.adjoint(se3.inverse(odometry))
-        last = slice(6 * (self.n_poses - 1), 6 * self.n_poses)
-        split = 6 * self.n_poses
+        mine = np.flatnonzero(self.robots == robot)
+        if mine.size == 0:
+            raise ValueError(f"robot {robot} has no pose in this state")
+        last_index = int(mine[-1])
+        new_pose = self.poses[last_index] @ odometry
+        step = odometry if jacobian_step is None else np.asarray(jacobian_step, dtype=float)
+        jac = se3.adjoint(se3.inverse(step))
+        last = slice(6 * last_index, 6 * last_index + 6)
+        split = 6 * (last_index + 1)
         cross = jac @ self.cov[last, :]  # (6, dim): new pose with everything
         block = jac @ self.cov[last, last] @ jac.T + odometry_cov
         n = self.dim
         cov = np.empty((n + 6, n + 6))
-        # the new pose goes after the existing poses, before the objects: four block copies
+        # the new pose goes after the robot's newest pose: four block copies
         new = slice(split, split + 6)
         after = slice(split + 6, n + 6)
         cov[:split, :split] = self.cov[:split, :split]
@@ -180,21 +260,35 @@ class MsckfState:
         cov[after, new] = cross[:, split:].T
         cov[new, new] = 0.5 * (block + block.T)
         self.cov = cov
-        self.poses = np.concatenate([self.poses, new_pose[None]])
-        self.frames = np.append(self.frames, frame)
+        at = last_index + 1
+        self.poses = np.insert(self.poses, at, new_pose, axis=0)
+        self.pose_fe = np.insert(self.pose_fe, at, new_pose, axis=0)
+        self.frames = np.insert(self.frames, at, frame)
+        self.robots = np.insert(self.robots, at, robot)
         self._check("augment")
 
-    def marginalize_oldest(self) -> None:
-        """Drop the oldest window pose (its rows and columns of the covariance)."""
-        self.cov = self.cov[6:, 6:].copy()
-        self.poses = self.poses[1:]
-        self.frames = self.frames[1:]
+    def marginalize_oldest(self, robot: int = 0) -> None:
+        """Drop the robot's oldest window pose (its rows and columns of the covariance)."""
+        first = int(np.flatnonzero(self.robots == robot)[0])
+        if first == 0:
+            self.cov = self.cov[6:, 6:].copy()
+        else:
+            keep = np.ones(self.dim, dtype=bool)
+            keep[6 * first : 6 * first + 6] = False
+            self.cov = self.cov[np.ix_(keep, keep)]
+        self.poses = np.delete(self.poses, first, axis=0)
+        self.pose_fe = np.delete(self.pose_fe, first, axis=0)
+        self.frames = np.delete(self.frames, first)
+        self.robots = np.delete(self.robots, first)
         self._check("marginalisation")
 
     def add_object(
         self, object_id: int, position: np.ndarray, cov_pp: np.ndarray, cov_ps: np.ndarray
     ) -> None:
-        """Append an object with its covariance and cross-covariance with the state (eq. 30)."""
+        """Append an object with its covariance and cross-covariance with the state (eq. 30).
+
+        ``position`` is also the object's first estimate.
+        """
         n = self.dim
         cov = np.empty((n + 3, n + 3))
         cov[:n, :n] = self.cov
@@ -204,6 +298,7 @@ class MsckfState:
         self.cov = cov
         self.object_ids = np.append(self.object_ids, int(object_id))
         self.objects = np.vstack([self.objects, np.asarray(position, dtype=float)])
+        self.object_fe = np.vstack([self.object_fe, np.asarray(position, dtype=float)])
         self._check("object initialisation")
 
     def correct(self, delta: np.ndarray) -> None:
@@ -242,7 +337,8 @@ class MsckfState:
         """Consensus: give the ``index`` block (object coordinates) a new marginal (Prop. 2).
 
         The error-state mean of every other entry shifts by ``A (μ̄ʸ − μʸ)``; window poses take
-        that shift through ``T ← T · exp(δ)`` (eq. 21), other objects additively.
+        that shift through ``T ← T · exp(δ)`` (eq. 21), other objects additively. First
+        estimates are left as they were (why: :mod:`teamslam.msckf.linearization`).
         """
         index = np.asarray(index, dtype=np.int64)
         current = np.zeros(self.dim)
@@ -255,3 +351,93 @@ class MsckfState:
         self.cov = new_cov
         self.correct(delta)
         self._check("consensus")
+
+
+class RobotWindow:
+    """One robot's window inside a (team) :class:`MsckfState`, with the single-robot interface.
+
+    Window quantities (``poses``, ``pose_fe``, ``frames``, ``n_poses``, ``current_pose``,
+    column maps, :meth:`augment`, :meth:`marginalize_oldest`) are the robot's; everything else
+    (objects, ``cov``, ``dim``, :meth:`~MsckfState.update`, …) is the shared state's.
+    """
+
+    def __init__(self, state: MsckfState, robot: int) -> None:
+        self.state = state
+        self.robot = int(robot)
+
+    def __getattr__(self, name: str):
+        return getattr(self.state, name)
+
+    def _range(self) -> tuple[int, int]:
+        robots = self.state.robots
+        return (
+            int(np.searchsorted(robots, self.robot, "left")),
+            int(np.searchsorted(robots, self.robot, "right")),
+        )
+
+    @property
+    def poses(self) -> np.ndarray:
+        """The robot's window poses (oldest first)."""
+        a, b = self._range()
+        return self.state.poses[a:b]
+
+    @property
+    def pose_fe(self) -> np.ndarray:
+        """First estimates of the robot's window poses."""
+        a, b = self._range()
+        return self.state.pose_fe[a:b]
+
+    @property
+    def frames(self) -> np.ndarray:
+        """Frame indices of the robot's window."""
+        a, b = self._range()
+        return self.state.frames[a:b]
+
+    @property
+    def n_poses(self) -> int:
+        """Poses in the robot's window."""
+        a, b = self._range()
+        return b - a
+
+    @property
+    def window_columns(self) -> slice:
+        """Error-state columns of the robot's window poses."""
+        a, b = self._range()
+        return slice(6 * a, 6 * b)
+
+    def pose_columns(self, window_index: np.ndarray) -> np.ndarray:
+        """Error-state columns ``(k, 6)`` of the robot's window poses."""
+        a, _ = self._range()
+        return 6 * (a + np.asarray(window_index))[..., None] + np.arange(6)
+
+    def window_index(self, frames: np.ndarray) -> np.ndarray:
+        """Positions of frame indices in the robot's window (``-1`` where absent)."""
+        own = self.frames
+        frames = np.asarray(frames, dtype=np.int64)
+        pos = np.clip(np.searchsorted(own, frames), 0, own.size - 1)
+        return np.where(own[pos] == frames, pos, -1)
+
+    @property
+    def current_pose(self) -> np.ndarray:
+        """The robot's newest pose."""
+        return self.poses[-1]
+
+    def current_pose_cov(self) -> np.ndarray:
+        """6×6 covariance of the robot's newest pose."""
+        _, b = self._range()
+        s = slice(6 * (b - 1), 6 * b)
+        return self.state.cov[s, s]
+
+    def augment(
+        self,
+        odometry: np.ndarray,
+        frame: int,
+        odometry_cov: np.ndarray,
+        jacobian_step: np.ndarray | None = None,
+    ) -> None:
+        """:meth:`MsckfState.augment` of this robot's window."""
+        self.state.augment(odometry, frame, odometry_cov, self.robot, jacobian_step)
+
+    def marginalize_oldest(self) -> None:
+        """:meth:`MsckfState.marginalize_oldest` of this robot's window."""
+        self.state.marginalize_oldest(self.robot)

@@ -25,8 +25,8 @@ from teamslam.errors import InputError
 from teamslam.graph import CommunicationGraph, EdgeLoss, complete
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.consensus import object_marginals
 from teamslam.msckf.health import SensorHealth
+from teamslam.msckf.linearization import GroundTruth
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.protocol import ConsensusProtocol
 from teamslam.msckf.transport import MemoryNetwork
@@ -124,7 +124,7 @@ def run_team(
     if graph.n != n:
         raise InputError(f"graph has {graph.n} robots, dataset has {n}")
     agents = [
-        MsckfAgent(i, dataset.calibration, r, c)
+        MsckfAgent(i, dataset.calibration, r, c, truth=GroundTruth(r.T_world_body, dataset))
         for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))
     ]
     edge_loss = EdgeLoss(graph, loss, seed)
@@ -177,7 +177,7 @@ def run_team(
         pose_covs=covs,
         object_ids=[a.state.object_ids.copy() for a in agents],
         objects=[a.state.objects.copy() for a in agents],
-        object_covs=[object_marginals(a.state)[1] for a in agents],
+        object_covs=[a.state.object_covs() for a in agents],
         counters=counters,
         timings=[dict(a.timings) for a in agents],
         frame_times=[

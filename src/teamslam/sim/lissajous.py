@@ -255,6 +255,7 @@ def lissajous_team(
     objects: int = 210,
     seed: int = 0,
     noise_free: bool = False,
+    noise_seed: int | None = None,
     **overrides,
 ) -> TeamDataset:
     """Simulate a team of stereo robots on Lissajous curves.
@@ -266,6 +267,9 @@ def lissajous_team(
     noise_free
         Zero every noise level (pixel, object pixel, odometry): observations are exact
         projections and odometry composes to the true path.
+    noise_seed
+        Draw the noise from this seed instead of ``seed``: the same paths and map with a
+        different noise realisation (Monte Carlo runs).
     **overrides
         Any other :class:`SimulationConfig` field.
 
@@ -285,6 +289,8 @@ def lissajous_team(
     config = SimulationConfig(robots=robots, steps=steps, objects=objects, seed=seed, **overrides)
     root = np.random.SeedSequence(seed)
     traj_seq, map_seq, noise_seq = root.spawn(3)
+    if noise_seed is not None:
+        noise_seq = np.random.SeedSequence([seed, noise_seed, 1])
     traj_rngs = [np.random.default_rng(s) for s in traj_seq.spawn(robots)]
     noise_rngs = [np.random.default_rng(s) for s in noise_seq.spawn(robots)]
     map_rng = np.random.default_rng(map_seq)

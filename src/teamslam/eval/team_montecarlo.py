@@ -1,0 +1,236 @@
+"""Monte Carlo consistency of the 3D team filter: linearisation × team mode.
+
+``N`` noise realisations of one simulated team (same paths and map, fresh odometry and
+measurement noise, :func:`~teamslam.sim.lissajous_team` with ``noise_seed``), each run through
+every linearisation policy (:mod:`teamslam.msckf.linearization`) and every mode — ``separate``
+filters, ``consensus`` (the distributed MSCKF on a complete graph) and ``centralised``
+(:mod:`teamslam.msckf.centralised`). Runs are spread over processes
+(:func:`~teamslam.eval.montecarlo.run_parallel`, BLAS pinned to one thread per worker).
+
+Per filter and mode:
+
+* ``anees_pose`` — the average NEES of the current pose, divided by 6: at each frame the
+  mean over the ``N`` runs (ANEES, Bar-Shalom et al. 2001), then averaged over frames and
+  robots; a consistent filter's per-frame ANEES lies inside ``band`` (the two-sided 95 % χ²
+  band of ``χ²(6N) / 6N``) 95 % of the time;
+* ``anees_object`` — the NEES of each object of the final maps, divided by 3, averaged over
+  objects, robots and runs; ``band_object`` the χ² band for ``N`` runs and 3 dof;
+* ``position_rmse_m``, ``heading_rmse_rad`` — RMSE over runs, robots and frames of the
+  position error and of the rotation angle of ``R_estᵀ R_true``;
+* ``median_run`` — the run whose own average pose NEES is the median, with that value;
+  ``runs_above_band`` — the runs whose own average pose NEES exceeds the upper band edge;
+* ``anees_pose_per_frame``, ``position_rmse_per_frame_m`` — the curves of the figures.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from teamslam.eval.montecarlo import chi2_band, run_parallel
+from teamslam.geometry import se3
+
+__all__ = ["MODES", "MonteCarloSpec", "plot", "run_montecarlo", "summarise", "table"]
+
+MODES = ("separate", "consensus", "centralised")
+FILTERS = ("std", "fej", "ideal", "oc")
+
+
+@dataclass(frozen=True)
+class MonteCarloSpec:
+    """What to simulate and run.
+
+    Attributes
+    ----------
+    robots, steps, runs
+        Team size, motion steps per robot, noise realisations.
+    filters
+        Linearisation policies (``std``, ``fej``, ``ideal``, ``oc``).
+    modes
+        Team modes (``separate``, ``consensus``, ``centralised``).
+    objects_only
+        Ignore geometric features.
+    seed
+        Seed of the team (paths and map); run ``k`` draws its noise from ``(seed, k)``.
+    window
+        MSCKF window size.
+    """
+
+    robots: int = 5
+    steps: int = 200
+    runs: int = 20
+    filters: tuple[str, ...] = ("std", "fej", "ideal")
+    modes: tuple[str, ...] = MODES
+    objects_only: bool = False
+    seed: int = 0
+    window: int = 10
+
+    def __post_init__(self) -> None:
+        from teamslam.errors import InputError
+
+        if self.robots < 1 or self.steps < 1 or self.runs < 1 or self.window < 2:
+            raise InputError("robots, steps and runs must be positive and the window ≥ 2")
+        for f in self.filters:
+            if f not in FILTERS:
+                raise InputError(f"unknown filter {f!r}; choose from {', '.join(FILTERS)}")
+        for m in self.modes:
+            if m not in MODES:
+                raise InputError(f"unknown mode {m!r}; choose from {', '.join(MODES)}")
+        if not self.filters or not self.modes:
+            raise InputError("give at least one filter and one mode")
+
+    def team(self, run: int):
+        """The simulated team of run ``run``."""
+        from teamslam.sim import lissajous_team
+
+        return lissajous_team(self.robots, self.steps, seed=self.seed, noise_seed=run)
+
+
+def _heading_error(estimated: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Rotation angle of ``R_estᵀ R_true`` per frame."""
+    rel = np.swapaxes(estimated[..., :3, :3], -1, -2) @ truth[..., :3, :3]
+    cos = np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    return np.arccos(cos)
+
+
+def one_run(run: int, spec: MonteCarloSpec) -> dict:
+    """Every filter and mode on realisation ``run``: per-frame errors and NEES."""
+    from teamslam.msckf import config_for, run_team
+    from teamslam.msckf.centralised import run_centralised
+
+    team = spec.team(run)
+    truth = np.stack([r.T_world_body for r in team.robots])  # (R, T + 1, 4, 4)
+    out: dict = {}
+    for filt in spec.filters:
+        config = config_for(
+            team,
+            window=spec.window,
+            linearization=filt,
+            use_geometric_features=not spec.objects_only,
+        )
+        for mode in spec.modes:
+            if mode == "centralised":
+                result = run_centralised(team, config, progress=False)
+            else:
+                result = run_team(team, config, consensus=mode == "consensus", progress=False)
+            poses = np.stack(result.poses)
+            covs = np.stack(result.pose_covs)
+            eps = se3.log(se3.inverse(poses) @ truth)
+            nees = np.einsum("rti,rti->rt", eps, np.linalg.solve(covs, eps[..., None])[..., 0])
+            object_nees = []
+            for ids, positions, cov in zip(
+                result.object_ids, result.objects, result.object_covs, strict=True
+            ):
+                err = positions - team.object_position(ids)
+                ok = np.all(np.isfinite(err), axis=1)
+                solved = np.linalg.solve(cov[ok], err[ok][..., None])[..., 0]
+                object_nees.append(np.einsum("ki,ki->k", err[ok], solved) / 3.0)
+            out[f"{filt}/{mode}"] = {
+                "nees_pose": nees / 6.0,
+                "position_error": np.linalg.norm(poses[..., :3, 3] - truth[..., :3, 3], axis=-1),
+                "heading_error": _heading_error(poses, truth),
+                "nees_object": np.concatenate(object_nees),
+            }
+    return out
+
+
+def summarise(spec: MonteCarloSpec, runs: list[dict]) -> dict:
+    """The JSON of a study from the per-run results (see the module docstring)."""
+    n = len(runs)
+    band = chi2_band(6, n)
+    band_object = chi2_band(3, n)
+    results: dict = {}
+    for filt in spec.filters:
+        results[filt] = {}
+        for mode in spec.modes:
+            key = f"{filt}/{mode}"
+            nees = np.stack([r[key]["nees_pose"][:, 1:] for r in runs])  # (N, R, T)
+            pos = np.stack([r[key]["position_error"][:, 1:] for r in runs])
+            head = np.stack([r[key]["heading_error"][:, 1:] for r in runs])
+            objects = np.concatenate([r[key]["nees_object"] for r in runs])
+            per_run = nees.mean(axis=(1, 2))
+            order = np.argsort(per_run)
+            median = int(order[(n - 1) // 2])
+            results[filt][mode] = {
+                "anees_pose": float(nees.mean()),
+                "anees_object": float(objects.mean()) if objects.size else float("nan"),
+                "band": list(band),
+                "band_object": list(band_object),
+                "position_rmse_m": float(np.sqrt(np.mean(pos**2))),
+                "heading_rmse_rad": float(np.sqrt(np.mean(head**2))),
+                "median_run": {"run": median, "anees_pose": float(per_run[median])},
+                "runs_above_band": int(np.sum(per_run > band[1])),
+                "frames_inside_band": float(
+                    np.mean((nees.mean(axis=0) >= band[0]) & (nees.mean(axis=0) <= band[1]))
+                ),
+                "anees_pose_per_frame": nees.mean(axis=(0, 1)).tolist(),
+                "position_rmse_per_frame_m": np.sqrt(np.mean(pos**2, axis=(0, 1))).tolist(),
+            }
+    return {**asdict(spec), "results": results}
+
+
+def run_montecarlo(
+    spec: MonteCarloSpec, workers: int | None = None, progress: bool | None = None
+) -> dict:
+    """Run the study in parallel and summarise it."""
+    job = functools.partial(one_run, spec=spec)
+    runs = run_parallel(job, list(range(spec.runs)), workers, progress, "Monte Carlo runs")
+    return summarise(spec, runs)
+
+
+def table(summary: dict) -> str:
+    """Plain-text table of a summary."""
+    lines = [
+        f"{summary['runs']} runs, {summary['robots']} robots, {summary['steps']} steps, "
+        f"{'objects only' if summary['objects_only'] else 'objects + geometric features'}; "
+        "pose 95% band {:.2f}–{:.2f}, object band {:.2f}–{:.2f}".format(
+            *next(iter(next(iter(summary["results"].values())).values()))["band"],
+            *next(iter(next(iter(summary["results"].values())).values()))["band_object"],
+        ),
+        f"{'filter':<7}{'mode':<13}{'ANEES pose':>11}{'ANEES obj':>11}{'pos RMSE m':>12}"
+        f"{'head RMSE':>11}{'median run':>11}{'runs above':>11}",
+    ]
+    for filt, modes in summary["results"].items():
+        for mode, r in modes.items():
+            lines.append(
+                f"{filt:<7}{mode:<13}{r['anees_pose']:>11.2f}{r['anees_object']:>11.2f}"
+                f"{r['position_rmse_m']:>12.3f}{r['heading_rmse_rad']:>11.4f}"
+                f"{r['median_run']['anees_pose']:>11.2f}{r['runs_above_band']:>11d}"
+            )
+    return "\n".join(lines)
+
+
+def plot(summary: dict, out: Path) -> list[Path]:
+    """``nees.png`` and ``rmse.png``: per-frame ANEES (with the band) and position RMSE."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    modes = list(next(iter(summary["results"].values())))
+    written = []
+    for name, key, label in (
+        ("nees.png", "anees_pose_per_frame", "pose ANEES / 6"),
+        ("rmse.png", "position_rmse_per_frame_m", "position RMSE [m]"),
+    ):
+        fig, axes = plt.subplots(1, len(modes), figsize=(4.5 * len(modes), 3.5), squeeze=False)
+        for ax, mode in zip(axes[0], modes, strict=True):
+            for filt, by_mode in summary["results"].items():
+                ax.plot(by_mode[mode][key], label=filt, lw=1)
+            if key == "anees_pose_per_frame":
+                lo, hi = by_mode[mode]["band"]
+                ax.axhspan(lo, hi, color="0.85", zorder=0, label="95% band")
+                ax.set_yscale("log")
+            ax.set_title(mode)
+            ax.set_xlabel("frame")
+            ax.set_ylabel(label)
+            ax.legend(fontsize=7)
+        fig.tight_layout()
+        path = out / name
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written

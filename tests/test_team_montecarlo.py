@@ -1,0 +1,90 @@
+"""``teamslam montecarlo``: Monte Carlo NEES/RMSE of the 3D team filter."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from teamslam.cli import main
+from teamslam.eval.team_montecarlo import MonteCarloSpec, one_run
+from teamslam.sim import lissajous_team
+
+KEYS = {
+    "anees_pose",
+    "anees_object",
+    "band",
+    "position_rmse_m",
+    "heading_rmse_rad",
+    "runs_above_band",
+}
+
+
+def test_runs_share_paths_and_map_but_not_noise():
+    a = lissajous_team(2, 10, seed=5, noise_seed=0, landmarks=50)
+    b = lissajous_team(2, 10, seed=5, noise_seed=1, landmarks=50)
+    np.testing.assert_array_equal(a.robots[1].T_world_body, b.robots[1].T_world_body)
+    np.testing.assert_array_equal(a.object_positions, b.object_positions)
+    assert not np.allclose(a.robots[1].odometry, b.robots[1].odometry)
+    c = lissajous_team(2, 10, seed=5, landmarks=50)  # without noise_seed: as before
+    np.testing.assert_array_equal(
+        c.robots[0].odometry, lissajous_team(2, 10, seed=5, landmarks=50).robots[0].odometry
+    )
+
+
+def test_montecarlo_command_json_figures_and_ideal_consistency(tmp_path, capsys):
+    argv = [
+        "montecarlo",
+        "--robots",
+        "2",
+        "--steps",
+        "20",
+        "--runs",
+        "3",
+        "--filters",
+        "ideal,std",
+        "--modes",
+        "separate,centralised",
+        "--objects-only",
+        "--workers",
+        "1",
+        "--json",
+        "--out",
+        str(tmp_path),
+    ]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary == json.loads((tmp_path / "montecarlo.json").read_text())
+    assert (tmp_path / "nees.png").stat().st_size > 0 and (tmp_path / "rmse.png").exists()
+    assert set(summary["results"]) == {"ideal", "std"}
+    lo, hi = stats.chi2.ppf([0.025, 0.975], 3 * 6) / (3 * 6)
+    for filt in ("ideal", "std"):
+        assert set(summary["results"][filt]) == {"separate", "centralised"}
+        for r in summary["results"][filt].values():
+            assert KEYS <= set(r)
+            np.testing.assert_allclose(r["band"], [lo, hi])
+            assert 0 <= r["runs_above_band"] <= 3
+            assert len(r["anees_pose_per_frame"]) == 20
+    ideal = summary["results"]["ideal"]
+    for mode in ("separate", "centralised"):
+        # the ideal filter is consistent: its average pose NEES inside the band of 3 runs
+        assert lo < ideal[mode]["anees_pose"] < hi
+        assert ideal[mode]["frames_inside_band"] > 0.8
+
+
+def test_one_run_nees_is_the_pose_error_in_the_filters_own_metric():
+    spec = MonteCarloSpec(
+        robots=1, steps=8, runs=1, filters=("std",), modes=("separate",), objects_only=True
+    )
+    out = one_run(0, spec)["std/separate"]
+    assert out["nees_pose"].shape == (1, 9) and out["position_error"].shape == (1, 9)
+    assert np.all(out["nees_pose"] >= 0) and out["heading_error"][0, 0] < 1e-6
+
+
+@pytest.mark.parametrize(
+    "bad", [["--filters", "std,best"], ["--modes", "everyone"], ["--filters", ","]]
+)
+def test_bad_arguments_exit_2(tmp_path, bad):
+    assert main(["montecarlo", *bad, "--out", str(tmp_path)]) == 2
