@@ -59,17 +59,10 @@ def run_centralised(
         ``consensus=False``, ``graph="centralised"``; ``object_ids``/``objects`` of every robot
         are the joint map; timings are per robot (its share of the joint work).
     """
-    n = dataset.n_robots
-    if config is None:
-        from teamslam.msckf.settings import resolve_config
+    from teamslam.msckf.settings import team_configs  # settings calibrate with a team run
 
-        configs = resolve_config(dataset).robots
-    elif isinstance(config, MsckfConfig):
-        configs = [config] * n
-    else:
-        configs = list(config)
-        if len(configs) != n:
-            raise ValueError(f"{len(configs)} configs for a team of {n} robots")
+    n = dataset.n_robots
+    configs = team_configs(dataset, config)
     first = configs[0]
     state = MsckfState.team(
         np.stack([r.T_world_body[0] for r in dataset.robots]),

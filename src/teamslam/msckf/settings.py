@@ -18,6 +18,7 @@ Unknown keys and bad values raise :class:`ConfigError` naming the key.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -328,3 +329,17 @@ def config_for(dataset: TeamDataset, calibrate: str = "auto", **settings: Any) -
     return resolve_config(
         dataset, flag_values=coerce_settings(settings, "config_for"), calibrate=calibrate
     ).config
+
+
+def team_configs(dataset, config: MsckfConfig | Sequence[MsckfConfig] | None) -> list[MsckfConfig]:
+    """One config per robot: ``config`` as given (one for all, or one each), or by default
+    :func:`resolve_config` — the dataset's sensor model, or a calibration from the data."""
+    n = dataset.n_robots
+    if config is None:
+        return resolve_config(dataset).robots
+    if isinstance(config, MsckfConfig):
+        return [config] * n
+    configs = list(config)
+    if len(configs) != n:
+        raise InputError(f"{len(configs)} configs for a team of {n} robots")
+    return configs

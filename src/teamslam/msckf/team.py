@@ -109,17 +109,10 @@ def run_team(
     progress
         Show a progress bar (default: when standard error is a terminal).
     """
-    n = dataset.n_robots
-    if config is None:
-        from teamslam.msckf.settings import resolve_config
+    from teamslam.msckf.settings import team_configs  # settings calibrate with a team run
 
-        configs = resolve_config(dataset).robots
-    elif isinstance(config, MsckfConfig):
-        configs = [config] * n
-    else:
-        configs = list(config)
-        if len(configs) != n:
-            raise InputError(f"{len(configs)} configs for a team of {n} robots")
+    n = dataset.n_robots
+    configs = team_configs(dataset, config)
     graph = graph or complete(n)
     if graph.n != n:
         raise InputError(f"graph has {graph.n} robots, dataset has {n}")

@@ -27,8 +27,6 @@ back the same integer nanoseconds (for runs shorter than about three weeks).
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -153,25 +151,8 @@ def _observations_msg(stamp, frame_id, features, objects):
 
 def _write_bag(records, out: Path) -> dict:
     """Write ``(stamp, topic, msgtype, cdr bytes)`` records as one MCAP file (rosbag2 MCAP)."""
-    from rosbags.rosbag2 import Writer
-    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
-
-    out.parent.mkdir(parents=True, exist_ok=True)
-    records.sort(key=lambda rec: rec[0])
-    with tempfile.TemporaryDirectory(prefix=f".{out.name}.", dir=out.parent) as tmp:
-        bag = Path(tmp) / "bag"
-        writer = Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP)
-        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        with writer:
-            connections = {}
-            for stamp, topic, msgtype, data in records:
-                if topic not in connections:
-                    connections[topic] = writer.add_connection(
-                        topic, msgtype, msgdef=m.schema_text(msgtype), rihs01=m.type_hash(msgtype)
-                    )
-                writer.write(connections[topic], stamp, data)
-        os.replace(next(bag.glob("*.mcap")), out)
-    return {"path": str(out), "messages": len(records), "bytes": out.stat().st_size}
+    counts = m.write_mcap_records(records, out)
+    return {"path": str(out), "messages": sum(counts.values()), "bytes": out.stat().st_size}
 
 
 def export_bag(

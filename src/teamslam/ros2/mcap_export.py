@@ -23,8 +23,6 @@ bag directory, so it is a plain ``.mcap`` that ``ros2 bag play`` also accepts.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import time
 from pathlib import Path
 
@@ -75,8 +73,6 @@ def write_mcap(
 
     Returns a summary: messages per topic, bytes, seconds.
     """
-    from rosbags.rosbag2 import Writer
-    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -113,22 +109,7 @@ def write_mcap(
                 r.object_ids, r.objects, r.object_covs, last, i, sphere, n_sigma=n_sigma
             )
             records.append((last, f"{base}/objects", MARKERS, m.serialize(markers, MARKERS)))
-    records.sort(key=lambda rec: rec[0])
-    counts: dict[str, int] = {}
-    with tempfile.TemporaryDirectory(prefix=f".{out.name}.", dir=out.parent) as tmp:
-        bag = Path(tmp) / "bag"
-        writer = Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP)
-        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        with writer:
-            connections = {}
-            for stamp, topic, msgtype, data in records:
-                if topic not in connections:
-                    connections[topic] = writer.add_connection(
-                        topic, msgtype, msgdef=m.schema_text(msgtype), rihs01=m.type_hash(msgtype)
-                    )
-                writer.write(connections[topic], stamp, data)
-                counts[topic] = counts.get(topic, 0) + 1
-        os.replace(next(bag.glob("*.mcap")), out)
+    counts = m.write_mcap_records(records, out)
     return {
         "path": str(out),
         "messages": sum(counts.values()),

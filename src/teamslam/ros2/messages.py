@@ -9,8 +9,11 @@ expressions and rosbag2 in its metadata) plus teamslam's own
 
 from __future__ import annotations
 
+import os
+import tempfile
 from functools import cache
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -292,3 +295,33 @@ def object_markers(
             for oid, p, s, q in zip(ids, means, scales, quats, strict=True)
         ]
     return t["visualization_msgs/msg/MarkerArray"](markers=markers)
+
+
+def write_mcap_records(records: list[tuple[int, str, str, bytes]], out: Path) -> dict[str, int]:
+    """Write ``(stamp ns, topic, type, CDR bytes)`` records, in stamp order, as one rosbag2 MCAP
+    file (zstd chunks, each topic's schema and RIHS01 hash embedded); messages per topic.
+
+    The file is written beside ``out`` and moved into place, so a partial file never replaces
+    a complete one.
+    """
+    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    counts: dict[str, int] = {}
+    with tempfile.TemporaryDirectory(prefix=f".{out.name}.", dir=out.parent) as tmp:
+        bag = Path(tmp) / "bag"
+        writer = Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        with writer:
+            connections = {}
+            for stamp, topic, msgtype, data in sorted(records, key=lambda rec: rec[0]):
+                if topic not in connections:
+                    connections[topic] = writer.add_connection(
+                        topic, msgtype, msgdef=schema_text(msgtype), rihs01=type_hash(msgtype)
+                    )
+                writer.write(connections[topic], stamp, data)
+                counts[topic] = counts.get(topic, 0) + 1
+        os.replace(next(bag.glob("*.mcap")), out)
+    return counts
