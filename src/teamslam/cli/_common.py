@@ -22,6 +22,7 @@ __all__ = [
     "positive_int",
     "print_health",
     "rate",
+    "save_and_describe",
     "settings_arguments",
     "settings_line",
 ]
@@ -60,6 +61,16 @@ non_negative_int = number(int, lambda v: v >= 0, "an integer ≥ 0")
 rate = number(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
 positive_float = number(float, lambda v: v > 0, "a positive number")
 non_negative_float = number(float, lambda v: v >= 0, "a number ≥ 0")
+
+
+def save_and_describe(dataset, out: Path) -> Path:
+    """Save ``dataset`` to ``out``, print its summary and where it went; the saved path."""
+    from teamslam.datasets import dataset_info, format_info, save_dataset
+
+    path = save_dataset(dataset, out)
+    print(format_info(dataset_info(dataset)))
+    print(f"\nwrote {path}")
+    return path
 
 
 def default_data() -> Path:

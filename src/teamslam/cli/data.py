@@ -7,13 +7,12 @@ import json
 import sys
 from pathlib import Path
 
-from teamslam.cli._common import Parser, non_negative_int, positive_int
+from teamslam.cli._common import Parser, non_negative_int, positive_int, save_and_describe
 
 __all__ = ["register"]
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from teamslam.datasets import dataset_info, format_info, save_dataset
     from teamslam.sim import lissajous_team
 
     dataset = lissajous_team(
@@ -23,9 +22,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         seed=args.seed,
         noise_free=args.noise_free,
     )
-    path = save_dataset(dataset, args.out)
-    print(format_info(dataset_info(dataset)))
-    print(f"\nwrote {path}")
+    save_and_describe(dataset, args.out)
     return 0
 
 
@@ -38,14 +35,12 @@ def _cmd_data_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_data_import_reference(args: argparse.Namespace) -> int:
-    from teamslam.datasets import dataset_info, format_info, import_reference, save_dataset
+    from teamslam.datasets import import_reference
 
     dataset = import_reference(
         args.source, inverted_odometry=args.inverted_odometry, params=args.params
     )
-    path = save_dataset(dataset, args.out)
-    print(format_info(dataset_info(dataset)))
-    print(f"\nwrote {path}")
+    path = save_and_describe(dataset, args.out)
     if dataset.sensor_model is not None:
         _check_params(dataset, path)
     return 0

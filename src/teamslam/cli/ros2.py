@@ -13,7 +13,7 @@ import argparse
 import json
 from pathlib import Path
 
-from teamslam.cli._common import number, positive_int
+from teamslam.cli._common import number, positive_int, save_and_describe
 
 _domain_id = number(int, lambda v: 0 <= v <= 232, "a ROS domain id in 0..232")
 
@@ -43,7 +43,6 @@ def _cmd_export_mcap(args: argparse.Namespace) -> int:
 
 
 def _cmd_import_bag(args: argparse.Namespace) -> int:
-    from teamslam.datasets import dataset_info, format_info, save_dataset
     from teamslam.ros2.bags import import_bag, parse_robot_spec
 
     dataset = import_bag(
@@ -53,9 +52,7 @@ def _cmd_import_bag(args: argparse.Namespace) -> int:
         camera=args.camera,
         tolerance=args.tolerance,
     )
-    path = save_dataset(dataset, args.out)
-    print(format_info(dataset_info(dataset)))
-    print(f"\nwrote {path}")
+    save_and_describe(dataset, args.out)
     return 0
 
 

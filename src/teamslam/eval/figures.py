@@ -24,8 +24,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.colors import Normalize
-from scipy.stats import chi2
 
+from teamslam.eval.montecarlo import chi2_band
 from teamslam.eval.runs import STAGES
 from teamslam.eval.trajectory import TeamEvaluation
 
@@ -155,9 +155,9 @@ def ape_path_figure(names: list[str], evaluations: list[TeamEvaluation]):
 
 
 def nees_band(dof: int, probability: float = 0.95) -> tuple[float, float]:
-    """Two-sided ``probability`` interval of NEES / dof for a consistent estimator."""
-    tail = 0.5 * (1.0 - probability)
-    return float(chi2.ppf(tail, dof) / dof), float(chi2.ppf(1.0 - tail, dof) / dof)
+    """Two-sided ``probability`` interval of NEES / dof for a consistent estimator
+    (:func:`~teamslam.eval.montecarlo.chi2_band` of one sample)."""
+    return chi2_band(dof, 1, probability)
 
 
 def nees_figure(names: list[str], series: list[dict | None]):
