@@ -258,6 +258,7 @@ def test_consensus_on_what_moved_equals_full_averaging_on_a_team():
 @pytest.mark.parametrize("float32", [False, True])
 def test_compact_marginals_cross_the_wire_exactly(team4, per_object, float32):
     from teamslam.msckf.consensus import common_marginal_message, receive_marginal
+    from teamslam.msckf.messages import encoded_ids_size
     from teamslam.runtime.wire import decode, encode, team_id
 
     dataset, _ = team4
@@ -272,7 +273,7 @@ def test_compact_marginals_cross_the_wire_exactly(team4, per_object, float32):
     np.testing.assert_array_equal(back.mean, msg.mean)
     np.testing.assert_array_equal(back.cov, msg.cov)
     k = ids.size
-    full = 32 + 8 * k + 8 * (3 * k + 3 * k * (3 * k + 1) // 2)
+    full = 36 + encoded_ids_size(back.ids) + 8 * (3 * k + 3 * k * (3 * k + 1) // 2)
     assert len(data) < full or not (per_object or float32)
     # the per-object message is each object's own block of the joint one
     problem, received = receive_marginal(state, back)

@@ -49,8 +49,8 @@ def test_wire_round_trip_is_exact():
     back = decode(encode(ids, TEAM), TEAM, 4)
     assert isinstance(back, MapIdsMessage)
     np.testing.assert_array_equal(back.ids, ids.ids)
-    # compact: header + ids + mean + upper triangle only
-    assert len(encode(msg, TEAM)) == 32 + 8 * (3 + 9 + 45)
+    # compact: header + ids (one byte each here) + mean + upper triangle only
+    assert len(encode(msg, TEAM)) == 36 + 3 + 8 * (9 + 45)
 
 
 @pytest.mark.parametrize(

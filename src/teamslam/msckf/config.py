@@ -55,7 +55,10 @@ class MsckfConfig:
         them (the cross-object covariances are dropped from the message, not from the filter):
         the message grows linearly instead of quadratically with the objects shared.
     consensus_float32
-        Round the means and covariances a robot sends to single precision (half the bytes).
+        Send means and covariances in single precision (half the bytes) where rounding is
+        harmless: a message goes in float32 only when the rounded marginal is within
+        :data:`~teamslam.msckf.consensus.FLOAT32_MAX_KL` (1e-4 nats) of the exact one, else in
+        float64 (:func:`~teamslam.msckf.consensus.common_marginal_message`).
     linearization
         Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates)
         ``ideal`` (ground truth, simulation only) or ``oc`` (observability-constrained);
@@ -78,7 +81,7 @@ class MsckfConfig:
     initial_pose_std: float = 1e-4
     consensus_kl_threshold: float = 1e-3
     consensus_per_object: bool = False
-    consensus_float32: bool = False
+    consensus_float32: bool = True
     linearization: str = "std"
     debug: bool = False
 

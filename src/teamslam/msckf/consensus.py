@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from teamslam.errors import InputError
 from teamslam.gaussian import NotPositiveDefiniteError, completed_geometric_average, spd_inverse
@@ -30,11 +31,13 @@ from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
 
 __all__ = [
+    "FLOAT32_MAX_KL",
     "ReceivedMarginal",
     "common_marginal_message",
     "consensus_average",
     "object_marginals",
     "receive_marginal",
+    "rounding_divergence",
     "validate_marginal",
 ]
 
@@ -57,9 +60,11 @@ def common_marginal_message(
     """The marginal of the objects ``ids`` (those the sender holds), or ``None`` if none.
 
     ``per_object`` sends each object's own 3×3 covariance instead of the joint one; ``float32``
-    rounds every number to single precision (what the wire then carries exactly).
+    rounds every number to single precision (what the wire then carries exactly) where that is
+    safe: when the rounded marginal is within :data:`FLOAT32_MAX_KL` nats of the exact one
+    (:func:`rounding_divergence`); otherwise the message stays in double precision.
     """
-    ids = np.asarray(ids, dtype=np.int64)
+    ids = np.unique(np.asarray(ids, dtype=np.int64))  # increasing, as messages carry them
     slots = state.object_slots(ids)
     held = slots >= 0
     if not held.any():
@@ -72,11 +77,44 @@ def common_marginal_message(
         cov = state.cov[np.ix_(flat, flat)]
     mean = state.objects[slots[held]].ravel().copy()
     if float32:
-        mean = mean.astype(np.float32).astype(float)
-        cov = cov.astype(np.float32).astype(float)
+        mean32 = mean.astype(np.float32).astype(float)
+        cov32 = cov.astype(np.float32).astype(float)
+        if rounding_divergence(mean, cov, mean32, cov32) <= FLOAT32_MAX_KL:
+            mean, cov = mean32, cov32
     return CommonMarginalMessage(
         sender, receiver, step, ids[held].copy(), mean, cov.copy(), int(degree)
     )
+
+
+FLOAT32_MAX_KL = 1e-4
+"""Largest Kullback–Leibler divergence (nats) of a marginal rounded to single precision from
+the exact one for which a ``float32`` message is sent — a thousandth of a typical
+``consensus_kl_threshold``, so rounding never changes what consensus sees."""
+
+
+def rounding_divergence(
+    mean: np.ndarray, cov: np.ndarray, mean_rounded: np.ndarray, cov_rounded: np.ndarray
+) -> float:
+    """``KL(N(mean_rounded, cov_rounded) ‖ N(mean, cov))`` to second order, in nats.
+
+    With ``cov = L Lᵀ``, ``E = L⁻¹ (cov_rounded − cov) L⁻ᵀ`` and ``e = L⁻¹ (mean_rounded −
+    mean)``, the divergence is ``¼‖E‖²_F + ½‖e‖²`` up to third-order terms. ``cov`` is one
+    ``(d, d)`` matrix, or ``(k, 3, 3)`` blocks of independent parts (their divergences add).
+    ``inf`` when ``cov`` is not positive definite.
+    """
+    try:
+        chol = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    if np.ndim(cov) == 3:
+        e = np.linalg.solve(chol, (mean_rounded - mean).reshape(-1, 3, 1))
+        half = np.linalg.solve(chol, cov_rounded - cov)
+        whitened = np.linalg.solve(chol, np.swapaxes(half, -1, -2))
+    else:
+        e = solve_triangular(chol, mean_rounded - mean, lower=True)
+        half = solve_triangular(chol, cov_rounded - cov, lower=True)
+        whitened = solve_triangular(chol, half.T, lower=True)
+    return float(0.25 * np.sum(whitened**2) + 0.5 * np.sum(e**2))
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,9 @@ Two rounds per step:
    degree this step), from which both ends compute the same Metropolis–Hastings weight.
 
 Messages are plain data. How they travel is a :class:`~teamslam.msckf.transport.Transport`;
-their byte layout on a network is :mod:`teamslam.runtime.wire`.
+their byte layout on a network is :mod:`teamslam.runtime.wire`, which writes the ids — always
+strictly increasing in a message — as variable-length deltas (:func:`encode_ids`), about one
+byte per id instead of eight.
 """
 
 from __future__ import annotations
@@ -17,7 +19,94 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CommonMarginalMessage", "MapIdsMessage", "Message"]
+__all__ = ["CommonMarginalMessage", "MapIdsMessage", "Message", "decode_ids", "encode_ids"]
+
+HEADER_BYTES = 36  # the fixed header of every message on a wire (teamslam.runtime.wire)
+_VARINT_GROUPS = 10  # 7-bit groups of a 64-bit integer
+
+
+def _varint_values(ids: np.ndarray) -> np.ndarray:
+    """The unsigned values written for strictly increasing ``ids``: the first id zigzag-coded
+    (``2i`` for ``i ≥ 0``, ``−2i − 1`` below), then the positive differences."""
+    ids = np.asarray(ids, dtype=np.int64)
+    if ids.ndim != 1:
+        raise ValueError("ids must be one-dimensional")
+    if ids.size == 0:
+        return np.zeros(0, dtype=np.uint64)
+    if np.any(ids[1:] <= ids[:-1]):
+        raise ValueError("ids must be strictly increasing")
+    steps = ids[1:].view(np.uint64) - ids[:-1].view(np.uint64)  # exact, as unsigned
+    first = ids[:1]
+    zigzag = ((first << 1) ^ (first >> 63)).view(np.uint64)
+    return np.concatenate([zigzag, steps])
+
+
+def _varint_lengths(values: np.ndarray) -> np.ndarray:
+    groups = values[:, None] >> (7 * np.arange(_VARINT_GROUPS, dtype=np.uint64))
+    return np.maximum(1, np.count_nonzero(groups, axis=1))
+
+
+def encode_ids(ids: np.ndarray) -> bytes:
+    """Strictly increasing ids as LEB128 varints of the first id (zigzag) and the differences.
+
+    Raises
+    ------
+    ValueError
+        When the ids are not strictly increasing.
+    """
+    values = _varint_values(ids)
+    if values.size == 0:
+        return b""
+    shifts = 7 * np.arange(_VARINT_GROUPS, dtype=np.uint64)
+    groups = (values[:, None] >> shifts) & np.uint64(0x7F)
+    lengths = _varint_lengths(values)
+    position = np.arange(_VARINT_GROUPS)
+    more = (position < (lengths - 1)[:, None]).astype(np.uint64) << np.uint64(7)
+    return (groups | more)[position < lengths[:, None]].astype(np.uint8).tobytes()
+
+
+def encoded_ids_size(ids: np.ndarray) -> int:
+    """``len(encode_ids(ids))`` without building the bytes."""
+    values = _varint_values(ids)
+    return int(_varint_lengths(values).sum()) if values.size else 0
+
+
+def decode_ids(data: bytes | np.ndarray, count: int) -> np.ndarray:
+    """Inverse of :func:`encode_ids`: ``count`` strictly increasing ids from exactly ``data``.
+
+    Raises
+    ------
+    ValueError
+        Naming the problem: a different number of ids, a varint longer than 64 bits, or ids
+        that leave the 64-bit range.
+    """
+    raw = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
+    if count == 0:
+        if raw.size:
+            raise ValueError(f"{raw.size} bytes of ids for 0 ids")
+        return np.zeros(0, dtype=np.int64)
+    ends = np.flatnonzero(raw < 0x80)
+    if ends.size != count or ends[-1] != raw.size - 1:
+        raise ValueError(f"the id bytes hold {ends.size} complete ids, the header says {count}")
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    lengths = ends - starts + 1
+    if lengths.max() > _VARINT_GROUPS:
+        raise ValueError("an id longer than 64 bits")
+    position = np.arange(raw.size) - np.repeat(starts, lengths)
+    if np.any(raw[ends[lengths == _VARINT_GROUPS]] > 1):
+        raise ValueError("an id longer than 64 bits")
+    parts = (raw & np.uint8(0x7F)).astype(np.uint64) << (7 * position).astype(np.uint64)
+    values = np.add.reduceat(parts, starts)
+    first = values[:1]
+    first = (first >> np.uint64(1)).view(np.int64) ^ -(first & np.uint64(1)).view(np.int64)
+    steps = values[1:]
+    if np.any(steps == 0):
+        raise ValueError("ids are not strictly increasing")
+    # unsigned sums wrap exactly; a sum past 2⁶³ − 1 comes back round below its predecessor
+    ids = np.cumsum(np.concatenate([first.view(np.uint64), steps])).view(np.int64)
+    if np.any(ids[1:] <= ids[:-1]):
+        raise ValueError("ids leave the 64-bit range")
+    return ids
 
 
 @dataclass(frozen=True)
@@ -27,7 +116,7 @@ class MapIdsMessage:
     Attributes
     ----------
     ids
-        Every object in the sender's map.
+        Every object in the sender's map, strictly increasing.
     moved
         One flag per id: whether the sender's marginal of that object has moved since the two
         robots last exchanged it (``None``: all have — average every common object).
@@ -41,7 +130,8 @@ class MapIdsMessage:
 
     def nbytes(self) -> int:
         """Payload size on a wire (header, the ids, one bit per id for ``moved``)."""
-        return 32 + 8 * int(np.size(self.ids)) + (int(np.size(self.ids)) + 7) // 8
+        flags = 0 if self.moved is None else (int(np.size(self.ids)) + 7) // 8
+        return HEADER_BYTES + encoded_ids_size(self.ids) + flags
 
 
 @dataclass(frozen=True)
@@ -51,7 +141,7 @@ class CommonMarginalMessage:
     Attributes
     ----------
     ids
-        The shared objects' ids.
+        The shared objects' ids, strictly increasing.
     mean, cov
         Their marginal, ``3·len(ids)`` long, in the order of ``ids``: ``cov`` is the joint
         ``(3k, 3k)`` covariance, or ``(k, 3, 3)`` — each object's own block — for a
@@ -88,7 +178,7 @@ class CommonMarginalMessage:
         k = int(np.size(self.ids))
         upper = 6 * k if self.per_object else d * (d + 1) // 2
         width = 4 if self.single_precision else 8
-        return 32 + 8 * k + width * (d + upper)
+        return HEADER_BYTES + encoded_ids_size(self.ids) + width * (d + upper)
 
 
 Message = MapIdsMessage | CommonMarginalMessage

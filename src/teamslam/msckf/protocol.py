@@ -134,8 +134,13 @@ class ConsensusProtocol:
         self.averaged_with = []
         self._moved = {}
         self._pending = {}
-        ids = self.agent.state.object_ids.copy()
-        self._own = (ids, *object_marginals(self.agent.state)) if self.kl_threshold > 0 else None
+        order = np.argsort(self.agent.state.object_ids)
+        ids = self.agent.state.object_ids[order]  # increasing, as messages carry them
+        if self.kl_threshold > 0:
+            means, covs = object_marginals(self.agent.state)
+            self._own = (ids, means[order], covs[order])
+        else:
+            self._own = None
         targets = sorted(self.neighbours if to is None else set(to) & self.neighbours)
         out = []
         for j in targets:

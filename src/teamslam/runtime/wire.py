@@ -4,7 +4,7 @@ Every message is a fixed little-endian header followed by a payload::
 
     offset size field
     0      4    magic b"TSLM"
-    4      1    format version (2)
+    4      1    format version (3)
     5      1    kind: 1 = map ids; a common marginal: 2 = joint, float64; 3 = joint, float32;
                 4 = per object, float64; 5 = per object, float32
     6      2    marginal: the sender's degree this step (neighbours heard); map ids: 0
@@ -13,15 +13,18 @@ Every message is a fixed little-endian header followed by a payload::
     18     2    receiver robot
     20     4    step
     24     4    number of ids n
-    28     4    marginal: mean length d = 3 n; map ids: length b of the moved flags
+    28     4    length c of the ids' bytes
+    32     4    marginal: mean length d = 3 n; map ids: length b of the moved flags
                 (0: none, all moved; else ceil(n / 8))
-    32     ...  map ids: n int64 ids, then b bytes of moved flags (one bit per id, little
-                bit order); marginal: n int64 ids, d mean values, then the covariance
-                upper triangle (row-major): of the joint (d (d + 1) / 2 values) or of each
-                object's 3×3 block (6 n values); values float64 or float32 by kind
+    36     ...  the n ids in c bytes (strictly increasing: LEB128 varints of the first id,
+                zigzag-coded, then of each difference — about one byte per id); then for map
+                ids b bytes of moved flags (one bit per id, little bit order); for a marginal
+                d mean values, then the covariance upper triangle (row-major): of the joint
+                (d (d + 1) / 2 values) or of each object's 3×3 block (6 n values); values
+                float64 or float32 by kind
 
 Version 2 added the moved flags and the degree (consensus on what changed, one weighting
-rule); a version-1 message is refused by name.
+rule); version 3 the variable-length ids. Older versions are refused by name.
 
 No pickle, no code: :func:`decode` checks the magic, version, kind, team, robots, sizes (the
 byte length must match the header exactly and stay under a limit), ids without repeats and
@@ -37,17 +40,23 @@ import struct
 import numpy as np
 
 from teamslam.errors import InputError
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
+from teamslam.msckf.messages import (
+    CommonMarginalMessage,
+    MapIdsMessage,
+    Message,
+    decode_ids,
+    encode_ids,
+)
 
 __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
 
 MAGIC = b"TSLM"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 KIND_IDS = 1
 KIND_MARGINAL = 2  # joint float64; 3 joint float32; 4 per object float64; 5 per object float32
 _MARGINAL_KINDS = {(False, False): 2, (False, True): 3, (True, False): 4, (True, True): 5}
 _TRIU3 = np.triu_indices(3)
-HEADER = struct.Struct("<4sBBHQHHIII")
+HEADER = struct.Struct("<4sBBHQHHIIII")  # HEADER_BYTES long
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024
 MAX_IDS = 100_000
 
@@ -63,7 +72,11 @@ def team_id(name: str) -> int:
 
 def encode(message: Message, team: int) -> bytes:
     """Serialise a message."""
-    ids = np.ascontiguousarray(message.ids, dtype="<i8")
+    ids = np.asarray(message.ids, dtype=np.int64)
+    try:
+        id_bytes = encode_ids(ids)
+    except ValueError as error:
+        raise WireError(f"cannot encode the ids: {error}") from error
     if isinstance(message, MapIdsMessage):
         flags = b""
         if message.moved is not None:
@@ -81,9 +94,10 @@ def encode(message: Message, team: int) -> bytes:
             message.receiver,
             message.step,
             ids.size,
+            len(id_bytes),
             len(flags),
         )
-        return header + ids.tobytes() + flags
+        return header + id_bytes + flags
     per_object, single = message.per_object, message.single_precision
     dtype = "<f4" if single else "<f8"
     mean = np.ascontiguousarray(message.mean, dtype=dtype)
@@ -100,9 +114,10 @@ def encode(message: Message, team: int) -> bytes:
         message.receiver,
         message.step,
         ids.size,
+        len(id_bytes),
         d,
     )
-    return header + ids.tobytes() + mean.tobytes() + upper.tobytes()
+    return header + id_bytes + mean.tobytes() + upper.tobytes()
 
 
 def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_BYTES) -> Message:
@@ -112,13 +127,13 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
     ------
     WireError
         Truncated, oversized, bad magic, unknown version or kind, another team, an unknown robot,
-        sizes that disagree, repeated ids or non-finite numbers.
+        sizes that disagree, ids that are not strictly increasing or non-finite numbers.
     """
     if len(data) > max_bytes:
         raise WireError(f"oversized message ({len(data)} bytes > {max_bytes})")
     if len(data) < HEADER.size:
         raise WireError(f"truncated header ({len(data)} of {HEADER.size} bytes)")
-    magic, version, kind, degree, team_of, sender, receiver, step, n_ids, d = HEADER.unpack_from(
+    magic, version, kind, degree, team_of, sender, receiver, step, n_ids, c, d = HEADER.unpack_from(
         data
     )
     if magic != MAGIC:
@@ -136,27 +151,30 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
             raise WireError(f"map-ids message with {d} bytes of flags for {n_ids} ids")
         if degree != 0:
             raise WireError("map-ids message with a degree")
-        expected = HEADER.size + 8 * n_ids + d
+        expected = HEADER.size + c + d
     elif kind in _MARGINAL_KINDS.values():
         if d != 3 * n_ids or n_ids == 0:
             raise WireError(f"marginal of {n_ids} objects with mean length {d}")
         per_object, width = kind >= 4, 4 if kind in (3, 5) else 8
         upper = 6 * n_ids if per_object else d * (d + 1) // 2
-        expected = HEADER.size + 8 * n_ids + width * (d + upper)
+        expected = HEADER.size + c + width * (d + upper)
     else:
         raise WireError(f"unknown message kind {kind}")
     if len(data) != expected:
         raise WireError(f"length {len(data)} bytes, header says {expected}")
-    ids = np.frombuffer(data, dtype="<i8", count=n_ids, offset=HEADER.size).astype(np.int64)
-    if np.unique(ids).size != ids.size:
-        raise WireError("repeated ids")
+    if not n_ids <= c <= 10 * n_ids:
+        raise WireError(f"{c} bytes for {n_ids} ids")
+    try:
+        ids = decode_ids(np.frombuffer(data, dtype=np.uint8, count=c, offset=HEADER.size), n_ids)
+    except ValueError as error:
+        raise WireError(f"bad ids: {error}") from error
     if kind == KIND_IDS:
         moved = None
         if d:
-            bits = np.frombuffer(data, dtype=np.uint8, count=d, offset=HEADER.size + 8 * n_ids)
+            bits = np.frombuffer(data, dtype=np.uint8, count=d, offset=HEADER.size + c)
             moved = np.unpackbits(bits, count=n_ids, bitorder="little").astype(bool)
         return MapIdsMessage(int(sender), int(receiver), int(step), ids, moved)
-    offset = HEADER.size + 8 * n_ids
+    offset = HEADER.size + c
     dtype = "<f4" if width == 4 else "<f8"
     mean = np.frombuffer(data, dtype=dtype, count=d, offset=offset).astype(float)
     values = np.frombuffer(data, dtype=dtype, count=upper, offset=offset + width * d)
