@@ -160,12 +160,15 @@ def scaling(robots, steps, window):
 
 
 MESSAGE_VARIANTS = {
-    "joint, float64, every object (paper)": {"consensus_kl_threshold": 0.0},
+    "joint, float64, every object (paper)": {
+        "consensus_kl_threshold": 0.0,
+        "consensus_float32": False,
+    },
     "joint, float64, moved > 1e-3": {"consensus_float32": False},
-    "joint, float32 where safe, moved > 1e-3 (default)": {},
-    "joint, float32 where safe, moved > 0.01": {"consensus_kl_threshold": 1e-2},
-    "joint, float32 where safe, moved > 0.05": {"consensus_kl_threshold": 5e-2},
-    "joint, float32 where safe, moved > 0.1": {"consensus_kl_threshold": 1e-1},
+    "joint, float32, moved > 1e-3 (default)": {},
+    "joint, float32, moved > 0.01": {"consensus_kl_threshold": 1e-2},
+    "joint, float32, moved > 0.05": {"consensus_kl_threshold": 5e-2},
+    "joint, float32, moved > 0.1": {"consensus_kl_threshold": 1e-1},
     "per object, float32": {"consensus_per_object": True},
 }
 

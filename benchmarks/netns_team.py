@@ -7,7 +7,8 @@ transport's injected delay (``--delay-ms``). The same team runs once on loopback
 (or CAP_NET_ADMIN), iproute2, tc and iptables. Run on demand::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/netns_team.py [--robots 5] [--steps 40] \\
-        [--rate-mbit 1] [--loss 0.1] [--delay-ms 0] [--timeout-s 10] [--plain]
+        [--rate-mbit 1] [--loss 0.1] [--delay-ms 0] [--timeout-s 10] [--plain] \\
+        [--set consensus_kl_threshold=0.05]
 
 Prints per run: trajectory RMSE (team average), payload and link bytes per robot per step,
 step latency (median and p95 over robots' steps), links lost and wall time, and the ratios.
@@ -16,6 +17,7 @@ step latency (median and p95 over robots' steps), links lost and wall time, and 
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 import tempfile
@@ -55,7 +57,7 @@ def _run(args, dataset, data_dir: Path, work: Path, net: EmulatedNetwork | None)
         shared_memory=False,
         timeout_s=args.timeout_s,
         message_delay_ms=args.delay_ms,
-        filter={"window": args.window},
+        filter={"window": args.window, **dict(args.set)},
     )
     out = work / "out"
     begin = time.perf_counter()
@@ -89,6 +91,16 @@ def _run(args, dataset, data_dir: Path, work: Path, net: EmulatedNetwork | None)
     }
 
 
+def _setting(text: str) -> tuple[str, object]:
+    key, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"{text!r} is not KEY=VALUE")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", type=int, default=5)
@@ -99,6 +111,14 @@ def main() -> None:
     parser.add_argument("--delay-ms", type=float, default=0.0)
     parser.add_argument("--timeout-s", type=float, default=10.0)
     parser.add_argument("--plain", action="store_true", help="TCP instead of mutual TLS")
+    parser.add_argument(
+        "--set",
+        type=_setting,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a filter setting for every robot (repeatable)",
+    )
     args = parser.parse_args()
     reason = unavailable_reason()
     if reason is not None:
