@@ -441,10 +441,17 @@ class MsckfAgent:
         accepted = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
         self.counters["object_updates"] += int(accepted.sum())
+        noise = np.full(int(accepted.sum()), variance)
+        if self.config.object_loss != "none":  # one M-estimator reweighting step
+            ra = r[accepted]
+            nis = np.einsum("gi,gi->g", ra, np.linalg.solve(s[accepted], ra[..., None])[..., 0])
+            weight = self.config.robust_weight(np.sqrt(nis))
+            self.counters["objects_downweighted"] += int((weight < 1).sum())
+            noise = noise / weight
         return MeasurementRows(
             h[accepted].reshape(-1, dim),
             r[accepted].ravel(),
-            np.full(4 * int(accepted.sum()), variance),
+            np.repeat(noise, 4),
         )
 
     def _initialise_objects(self, t: int) -> None:

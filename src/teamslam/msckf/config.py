@@ -41,6 +41,13 @@ class MsckfConfig:
     gate_probability
         Chi-square gate: a feature or object whose normalised innovation exceeds this quantile
         of χ²(dof) — dof = its residual length — is rejected.
+    object_loss, object_loss_scale
+        Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
+        ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
+        standard deviations of its predicted innovation) is updated with its measurement
+        variance divided by the weight ``w(d)`` — Huber ``min(1, c/d)``, Cauchy
+        ``1/(1 + (d/c)²)`` with ``c = object_loss_scale`` — one reweighting step of the
+        M-estimator, unit-free like the gate.
     use_geometric_features, use_objects
         Which measurements to use.
     initial_pose_std
@@ -76,6 +83,8 @@ class MsckfConfig:
     object_min_depth: float = 1.0
     object_max_depth: float = 40.0
     gate_probability: float = 0.95
+    object_loss: str = "none"
+    object_loss_scale: float = 2.0
     use_geometric_features: bool = True
     use_objects: bool = True
     initial_pose_std: float = 1e-4
@@ -104,6 +113,11 @@ class MsckfConfig:
         threshold = self.consensus_kl_threshold
         if isinstance(threshold, bool) or not (np.isfinite(threshold) and threshold >= 0):
             raise InputError("consensus_kl_threshold must be a number ≥ 0 (nats)")
+        if self.object_loss not in ("none", "huber", "cauchy"):
+            raise InputError(f"object_loss must be none, huber or cauchy, not {self.object_loss!r}")
+        scale = self.object_loss_scale
+        if isinstance(scale, bool) or not (np.isfinite(scale) and scale > 0):
+            raise InputError("object_loss_scale must be a positive number (standard deviations)")
         if not 0 < self.gate_probability < 1:
             raise InputError("gate_probability must lie in (0, 1)")
         if self.linearization not in ("std", "fej", "ideal", "oc"):
@@ -123,6 +137,16 @@ class MsckfConfig:
     def odometry_cov(self) -> np.ndarray:
         """``W`` (6×6)."""
         return np.diag(np.square(self.odometry_std))
+
+    def robust_weight(self, mahalanobis: np.ndarray) -> np.ndarray:
+        """The object update's weight ``w(d)`` for Mahalanobis distances ``d`` (1: Gaussian)."""
+        d = np.asarray(mahalanobis, dtype=float)
+        c = self.object_loss_scale
+        if self.object_loss == "huber":
+            return np.minimum(1.0, c / np.maximum(d, 1e-300))
+        if self.object_loss == "cauchy":
+            return 1.0 / (1.0 + (d / c) ** 2)
+        return np.ones_like(d)
 
     def gate(self, dof: np.ndarray) -> np.ndarray:
         """Chi-square threshold for residuals of ``dof`` entries."""
