@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teamslam.geometry.camera import StereoCamera
-from teamslam.msckf.models import observe_jacobians, points_in_camera
+from teamslam.msckf.models import points_in_camera
 
 __all__ = [
     "MeasurementRows",
@@ -98,8 +98,13 @@ def triangulate(
     g, n = z.shape[:2]
     points, ok = stereo_point(camera, T_cam_body, poses[:, -1], z[:, -1])
     points = np.where(ok[:, None], points, 0.0)
+    # ∂p_cam/∂p_world = R_cam_body Rᵀ: the point Jacobian of observe_jacobians without the
+    # pose part, which triangulation does not need
+    rot_t = np.swapaxes(poses[..., :3, :3], -1, -2)
     for _ in range(iterations):
-        pred, _, d_point = observe_jacobians(camera, T_cam_body, poses, points[:, None, :])
+        _, p_cam = points_in_camera(poses, points[:, None, :], T_cam_body)
+        d_point = (camera.project_jacobian(p_cam) @ T_cam_body[:3, :3]) @ rot_t
+        pred = camera.project(p_cam)
         err = (z - pred).reshape(g, 4 * n)
         jac = d_point.reshape(g, 4 * n, 3)
         normal = np.einsum("gki,gkj->gij", jac, jac) + 1e-12 * np.eye(3)
