@@ -169,17 +169,22 @@ def replace_marginal_shift(
     cov_y: np.ndarray,
     info_y: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Proposition 2 (eq. 14) block by block, as a shift of the joint mean.
+    """Proposition 2 (eq. 14) as a shift of the joint mean and a new covariance.
 
     With ``A = Σˣʸ Σʸ⁻¹`` the new joint is ``μ̄ = μ + [A δ; δ]`` (``δ = μ̄ʸ − μʸ``) and
-    ``Σ̄ʸ``, ``Σ̄ˣʸ = A Σ̄ʸ``, ``Σ̄ˣ = Σˣ + (Σ̄ˣʸ − Σˣʸ) Aᵀ`` (``= Σˣ + A (Σ̄ʸ − Σʸ) Aᵀ``):
-    ``O(|x| |y| (|x| + |y|))`` instead of the ``O(n² |y|)`` of a dense rank-``|y|`` correction,
-    the whole ``y`` block being given.
+    ``Σ̄ʸ``, ``Σ̄ˣʸ = A Σ̄ʸ``, ``Σ̄ˣ = Σˣ + A (Σ̄ʸ − Σʸ) Aᵀ``. Two equivalent ways, the cheaper
+    one is taken:
+
+    * ``y`` at least as large as ``x``: block by block, ``Σ̄ˣ = Σˣ + (Σ̄ˣʸ − Σˣʸ) Aᵀ``,
+      ``O(|x| |y| (|x| + |y|))`` — the whole ``y`` block is given;
+    * ``y`` smaller: one symmetric rank-``|y|`` correction ``Σ + G (Σ̄ʸ − Σʸ) Gᵀ`` with
+      ``G = [A; I]``, through the eigen-decomposition of the ``|y| × |y|`` difference so that
+      the result is exactly symmetric without a transposed pass over ``n²`` entries.
 
     Parameters
     ----------
     cov
-        Joint covariance ``(n, n)`` (not modified).
+        Joint covariance ``(n, n)``, symmetric (not modified).
     index_y
         Integer indices of ``y`` (no repeats; not checked).
     shift_y
@@ -208,9 +213,11 @@ def replace_marginal_shift(
         gain = scipy.linalg.cho_solve(factor, sigma_xy.T).T
     else:
         gain = sigma_xy @ info_y
+    shift[ix] = gain @ shift_y
+    if ix.size > iy.size:
+        return shift, _low_rank_replace(cov, ix, iy, gain, cov_y)
     new_xy = gain @ cov_y
     new_xx = symmetrize(rows_x.take(ix, axis=1) + (new_xy - sigma_xy) @ gain.T)
-    shift[ix] = gain @ shift_y
     # assemble in the order [x, y], then put every row and column back in place
     nx = ix.size
     ordered = np.empty((n, n))
@@ -221,6 +228,28 @@ def replace_marginal_shift(
     back = np.empty(n, dtype=np.intp)
     back[np.concatenate([ix, iy])] = np.arange(n)
     return shift, ordered.take(back, axis=0).take(back, axis=1)
+
+
+def _low_rank_replace(
+    cov: np.ndarray, ix: np.ndarray, iy: np.ndarray, gain: np.ndarray, cov_y: np.ndarray
+) -> np.ndarray:
+    """``Σ + G (Σ̄ʸ − Σʸ) Gᵀ`` (``G`` = ``gain`` on the rows ``ix``, identity on ``iy``).
+
+    ``Σ̄ʸ − Σʸ = V Λ Vᵀ`` splits the correction into ``W₊W₊ᵀ − W₋W₋ᵀ`` (``W = G V |Λ|^½``),
+    each product exactly symmetric.
+    """
+    difference = cov_y - cov.take(iy, axis=0).take(iy, axis=1)
+    values, vectors = np.linalg.eigh(0.5 * (difference + difference.T))
+    full_gain = np.empty((cov.shape[0], iy.size))
+    full_gain[ix] = gain @ vectors
+    full_gain[iy] = vectors
+    up = full_gain[:, values > 0] * np.sqrt(values[values > 0])
+    down = full_gain[:, values < 0] * np.sqrt(-values[values < 0])
+    out = up @ up.T
+    out -= down @ down.T
+    out += cov
+    out[np.ix_(iy, iy)] = cov_y
+    return out
 
 
 def _spd(matrix: np.ndarray, what: str) -> np.ndarray:
