@@ -205,8 +205,12 @@ def replace_marginal_shift(
     cov_y = symmetrize(cov_y)
     shift = np.empty(n)
     shift[iy] = shift_y
-    rows_x = cov.take(ix, axis=0)
-    sigma_xy = rows_x.take(iy, axis=1)
+    block_form = ix.size <= iy.size
+    if block_form:
+        rows_x = cov.take(ix, axis=0)
+        sigma_xy = rows_x.take(iy, axis=1)
+    else:  # the x rows are most of the matrix: gather only the y columns
+        sigma_xy = cov.take(iy, axis=1).take(ix, axis=0)
     if info_y is None:
         sigma_y = cov.take(iy, axis=0).take(iy, axis=1)
         factor = scipy.linalg.cho_factor(_spd(sigma_y, "replace_marginal: old marginal Σʸ"))
@@ -214,7 +218,7 @@ def replace_marginal_shift(
     else:
         gain = sigma_xy @ info_y
     shift[ix] = gain @ shift_y
-    if ix.size > iy.size:
+    if not block_form:
         return shift, _low_rank_replace(cov, ix, iy, gain, cov_y)
     new_xy = gain @ cov_y
     new_xx = symmetrize(rows_x.take(ix, axis=1) + (new_xy - sigma_xy) @ gain.T)
