@@ -156,7 +156,7 @@ def replace_marginal_arrays(
         raise InputError(
             f"replace_marginal: new marginal has size {mean_y.size}, index set has {iy.size}"
         )
-    shift, new_cov = replace_marginal_shift(cov, iy, mean_y - mean[iy], cov_y)
+    shift, new_cov = replace_marginal_shift(symmetrize(cov), iy, mean_y - mean[iy], cov_y)
     new_mean = mean + shift
     new_mean[iy] = mean_y
     return new_mean, new_cov
