@@ -11,7 +11,8 @@ Run on demand (BLAS pinned to one thread)::
 
 ``accuracy`` and ``loss`` use the simulator with the full filter (geometric features and
 objects) unless ``--objects-only``; they print separate vs consensus trajectory RMSE and object
-error and the relative change. ``speed`` prints mean and p95 time per robot per frame per stage.
+error and the relative change. ``speed`` prints mean, median and p95 time per robot per frame
+per stage (frame 0 excluded) and the accuracy of the run; ``kitti`` also prints those times.
 ``scaling`` runs teams of growing size on a random geometric graph (each robot talks to the
 robots near it, so its neighbourhood does not grow with the team) and prints the median time
 per robot per frame, overall and for consensus, and its ratio to the smallest team.
@@ -33,14 +34,35 @@ from teamslam.sim import lissajous_team
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
-def _pair(dataset, config, loss=0.0, seed=0):
+def _pair(dataset, config, loss=0.0, seed=0, runs=None):
     out = {}
     for name, consensus in (("separate", False), ("consensus", True)):
-        out[name] = team_metrics(
-            dataset,
-            run_team(dataset, config, consensus=consensus, loss=loss, seed=seed, progress=False),
+        result = run_team(
+            dataset, config, consensus=consensus, loss=loss, seed=seed, progress=False
         )
+        if runs is not None:
+            runs[name] = result
+        out[name] = team_metrics(dataset, result)
     return out
+
+
+STAGES = ("consensus", "propagation", "update", "initialisation")
+
+
+def _stage_table(label, result):
+    """Mean, median and p95 per robot per frame of each stage and of the total, in ms."""
+    times = 1e3 * np.concatenate([f[1:] for f in result.frame_times])  # (robot-steps, 4)
+    for k, stage in enumerate(STAGES):
+        column = times[:, k]
+        print(
+            f"{label:>6} {stage:>15} {column.mean():8.2f} {np.median(column):8.2f} "
+            f"{np.percentile(column, 95):8.2f}"
+        )
+    total = times.sum(axis=1)
+    print(
+        f"{label:>6} {'total':>15} {total.mean():8.2f} {np.median(total):8.2f} "
+        f"{np.percentile(total, 95):8.2f}"
+    )
 
 
 def accuracy(robots, seeds, steps, objects_only, window):
@@ -95,7 +117,8 @@ def kitti(window):
         return
     ds = import_reference(src)
     cfg = config_for(ds, window=window)
-    m = _pair(ds, cfg)
+    runs = {}
+    m = _pair(ds, cfg, runs=runs)
     print(f"{'':<12} {'robot 1':>8} {'robot 2':>8} {'robot 3':>8} {'avg':>8}  obj err  disagree")
     print(
         f"{'odometry':<12} "
@@ -110,10 +133,12 @@ def kitti(window):
             + f" {r['trajectory_rmse_avg_m']:8.2f} {r['object_error_avg_m']:8.2f} "
             f"{r['object_disagreement_avg_m']:8.2f}"
         )
+    print(f"\n{'':>6} {'stage':>15} {'mean ms':>8} {'med ms':>8} {'p95 ms':>8}")
+    _stage_table("kitti", runs["consensus"])
 
 
 def speed(robots, steps, window, objects_only=False):
-    print(f"{'robots':>6} {'stage':>15} {'mean ms':>8} {'p95 ms':>8}")
+    print(f"{'robots':>6} {'stage':>15} {'mean ms':>8} {'med ms':>8} {'p95 ms':>8}")
     for n in robots:
         ds = lissajous_team(robots=n, steps=steps, seed=0)
         cfg = config_for(ds, window=window, use_geometric_features=not objects_only)
@@ -121,17 +146,13 @@ def speed(robots, steps, window, objects_only=False):
         result = run_team(ds, cfg, consensus=True, progress=False)
         wall = time.perf_counter() - begin
         frames = ds.robots[0].frames
-        times = 1e3 * np.concatenate(result.frame_times)  # (robots · frames, 4) ms
-        stages = ("consensus", "propagation", "update", "initialisation")
-        for k, stage in enumerate(stages):
-            print(
-                f"{n:>6} {stage:>15} {times[:, k].mean():8.2f} "
-                f"{np.percentile(times[:, k], 95):8.2f}"
-            )
-        total = times.sum(axis=1)
-        print(f"{n:>6} {'total':>15} {total.mean():8.2f} {np.percentile(total, 95):8.2f}")
-        print(f"{n:>6} {'total median':>15} {np.median(total):8.2f}")
+        _stage_table(str(n), result)
         print(f"{n:>6} {'team wall/frame':>15} {1e3 * wall / frames:8.2f}")
+        m = team_metrics(ds, result)
+        print(
+            f"{n:>6} {'accuracy':>15} RMSE {m['trajectory_rmse_avg_m']:.6f} "
+            f"obj {m['object_error_avg_m']:.6f} disagree {m['object_disagreement_avg_m']:.6f}"
+        )
 
 
 def scaling(robots, steps, window):

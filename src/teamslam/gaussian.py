@@ -41,6 +41,7 @@ __all__ = [
     "nees",
     "replace_marginal",
     "replace_marginal_arrays",
+    "replace_marginal_shift",
     "spd_inverse",
     "symmetrize",
 ]
@@ -77,11 +78,14 @@ def spd_inverse(matrix: np.ndarray, what: str = "matrix") -> np.ndarray:
         factor, info = scipy.linalg.lapack.dpotrf(matrix, lower=True, clean=True)
         if info != 0:
             raise NotPositiveDefiniteError(f"{what} is not positive definite")
-        inverse, info = scipy.linalg.lapack.dpotri(factor, lower=True)
+        inverse, info = scipy.linalg.lapack.dpotri(factor, lower=True, overwrite_c=True)
         if info != 0:
             raise NotPositiveDefiniteError(f"{what} is singular")
-        lower_part = np.tril(inverse)
-        return lower_part + np.tril(inverse, -1).T
+        # potri fills the lower triangle; the upper one is still the factor's zeros
+        diagonal = inverse.diagonal().copy()
+        inverse += inverse.T
+        inverse.flat[:: inverse.shape[0] + 1] = diagonal
+        return inverse
     lower = _cholesky(matrix, what)
     eye = np.broadcast_to(np.eye(matrix.shape[-1]), matrix.shape)
     lower_inv = np.linalg.solve(lower, eye)
@@ -142,8 +146,7 @@ def replace_marginal_arrays(
     -------
     new_mean, new_cov
         The joint whose ``y`` marginal is the new one and whose conditional ``p(x | y)`` is the
-        old one, computed as the rank-``|y|`` correction ``Σ + G (Σ̄ʸ − Σʸ) Gᵀ`` with
-        ``G = Σ[:, y] Σʸ⁻¹``.
+        old one (:func:`replace_marginal_shift`).
     """
     mean, cov = _check_moment(mean, cov, "replace_marginal joint")
     n = mean.size
@@ -153,19 +156,104 @@ def replace_marginal_arrays(
         raise InputError(
             f"replace_marginal: new marginal has size {mean_y.size}, index set has {iy.size}"
         )
-    sigma_y = cov[np.ix_(iy, iy)]
-    factor = scipy.linalg.cho_factor(_spd(sigma_y, "replace_marginal: old marginal Σʸ"))
-    # G = Σ[:, y] Σʸ⁻¹ stacks A (rows of x) over the identity (rows of y), so the whole new
-    # joint is one rank-|y| correction: μ̄ = μ + G (μ̄ʸ − μʸ), Σ̄ = Σ + G (Σ̄ʸ − Σʸ) Gᵀ. That is
-    # eq. 14 block by block, computed without gathering the x–x block.
-    gain = scipy.linalg.cho_solve(factor, cov[iy, :]).T
-    gain[iy] = np.eye(iy.size)  # exact identity rows
-    new_mean = mean + gain @ (mean_y - mean[iy])
+    shift, new_cov = replace_marginal_shift(symmetrize(cov), iy, mean_y - mean[iy], cov_y)
+    new_mean = mean + shift
     new_mean[iy] = mean_y
-    delta = symmetrize(cov_y) - sigma_y
-    new_cov = cov + (gain @ delta) @ gain.T
-    new_cov[np.ix_(iy, iy)] = symmetrize(cov_y)
-    return new_mean, symmetrize(new_cov)
+    return new_mean, new_cov
+
+
+def replace_marginal_shift(
+    cov: np.ndarray,
+    index_y: np.ndarray,
+    shift_y: np.ndarray,
+    cov_y: np.ndarray,
+    info_y: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Proposition 2 (eq. 14) as a shift of the joint mean and a new covariance.
+
+    With ``A = Σˣʸ Σʸ⁻¹`` the new joint is ``μ̄ = μ + [A δ; δ]`` (``δ = μ̄ʸ − μʸ``) and
+    ``Σ̄ʸ``, ``Σ̄ˣʸ = A Σ̄ʸ``, ``Σ̄ˣ = Σˣ + A (Σ̄ʸ − Σʸ) Aᵀ``. Two equivalent ways, the cheaper
+    one is taken:
+
+    * ``y`` at least as large as ``x``: block by block, ``Σ̄ˣ = Σˣ + (Σ̄ˣʸ − Σˣʸ) Aᵀ``,
+      ``O(|x| |y| (|x| + |y|))`` — the whole ``y`` block is given;
+    * ``y`` smaller: one symmetric rank-``|y|`` correction ``Σ + G (Σ̄ʸ − Σʸ) Gᵀ`` with
+      ``G = [A; I]``, through the eigen-decomposition of the ``|y| × |y|`` difference so that
+      the result is exactly symmetric without a transposed pass over ``n²`` entries.
+
+    Parameters
+    ----------
+    cov
+        Joint covariance ``(n, n)``, symmetric (not modified).
+    index_y
+        Integer indices of ``y`` (no repeats; not checked).
+    shift_y
+        ``δ = μ̄ʸ − μʸ``.
+    cov_y
+        ``Σ̄ʸ``.
+    info_y
+        ``Σʸ⁻¹`` of the current marginal if already known (else computed by Cholesky).
+
+    Returns
+    -------
+    shift, new_cov
+        The ``(n,)`` shift of the joint mean and the new joint covariance (symmetric).
+    """
+    n = cov.shape[0]
+    iy = np.asarray(index_y, dtype=np.intp)
+    ix = _complement(iy, n)
+    cov_y = symmetrize(cov_y)
+    shift = np.empty(n)
+    shift[iy] = shift_y
+    block_form = ix.size <= iy.size
+    if block_form:
+        rows_x = cov.take(ix, axis=0)
+        sigma_xy = rows_x.take(iy, axis=1)
+    else:  # the x rows are most of the matrix: gather only the y columns
+        sigma_xy = cov.take(iy, axis=1).take(ix, axis=0)
+    if info_y is None:
+        sigma_y = cov.take(iy, axis=0).take(iy, axis=1)
+        factor = scipy.linalg.cho_factor(_spd(sigma_y, "replace_marginal: old marginal Σʸ"))
+        gain = scipy.linalg.cho_solve(factor, sigma_xy.T).T
+    else:
+        gain = sigma_xy @ info_y
+    shift[ix] = gain @ shift_y
+    if not block_form:
+        return shift, _low_rank_replace(cov, ix, iy, gain, cov_y)
+    new_xy = gain @ cov_y
+    new_xx = symmetrize(rows_x.take(ix, axis=1) + (new_xy - sigma_xy) @ gain.T)
+    # assemble in the order [x, y], then put every row and column back in place
+    nx = ix.size
+    ordered = np.empty((n, n))
+    ordered[:nx, :nx] = new_xx
+    ordered[:nx, nx:] = new_xy
+    ordered[nx:, :nx] = new_xy.T
+    ordered[nx:, nx:] = cov_y
+    back = np.empty(n, dtype=np.intp)
+    back[np.concatenate([ix, iy])] = np.arange(n)
+    return shift, ordered.take(back, axis=0).take(back, axis=1)
+
+
+def _low_rank_replace(
+    cov: np.ndarray, ix: np.ndarray, iy: np.ndarray, gain: np.ndarray, cov_y: np.ndarray
+) -> np.ndarray:
+    """``Σ + G (Σ̄ʸ − Σʸ) Gᵀ`` (``G`` = ``gain`` on the rows ``ix``, identity on ``iy``).
+
+    ``Σ̄ʸ − Σʸ = V Λ Vᵀ`` splits the correction into ``W₊W₊ᵀ − W₋W₋ᵀ`` (``W = G V |Λ|^½``),
+    each product exactly symmetric.
+    """
+    difference = cov_y - cov.take(iy, axis=0).take(iy, axis=1)
+    values, vectors = np.linalg.eigh(0.5 * (difference + difference.T))
+    full_gain = np.empty((cov.shape[0], iy.size))
+    full_gain[ix] = gain @ vectors
+    full_gain[iy] = vectors
+    up = full_gain[:, values > 0] * np.sqrt(values[values > 0])
+    down = full_gain[:, values < 0] * np.sqrt(-values[values < 0])
+    out = up @ up.T
+    out -= down @ down.T
+    out += cov
+    out[np.ix_(iy, iy)] = cov_y
+    return out
 
 
 def _spd(matrix: np.ndarray, what: str) -> np.ndarray:
@@ -185,14 +273,21 @@ def marginal_information(
     """
     n = info.shape[0]
     iy = _as_index(index_y, n, "marginal_information index_y")
-    ix = _complement(iy, n)
+    return _marginal_information(info, cov, iy, _complement(iy, n))
+
+
+def _marginal_information(
+    info: np.ndarray, cov: np.ndarray | None, iy: np.ndarray, ix: np.ndarray
+) -> np.ndarray:
+    """:func:`marginal_information` on checked, complementary index sets."""
     if ix.size == 0:
-        return info[np.ix_(iy, iy)]
+        return info.take(iy, axis=0).take(iy, axis=1)
     if cov is not None and ix.size >= iy.size:
-        return spd_inverse(cov[np.ix_(iy, iy)], "marginal covariance Σʸʸ")
-    factor = scipy.linalg.cho_factor(_spd(info[np.ix_(ix, ix)], "information block Λˣˣ"))
-    cross = info[np.ix_(ix, iy)]
-    return info[np.ix_(iy, iy)] - cross.T @ scipy.linalg.cho_solve(factor, cross)
+        return spd_inverse(cov.take(iy, axis=0).take(iy, axis=1), "marginal covariance Σʸʸ")
+    rows_x = info.take(ix, axis=0)
+    factor = scipy.linalg.cho_factor(_spd(rows_x.take(ix, axis=1), "information block Λˣˣ"))
+    cross = rows_x.take(iy, axis=1)
+    return info.take(iy, axis=0).take(iy, axis=1) - cross.T @ scipy.linalg.cho_solve(factor, cross)
 
 
 def completed_geometric_average(
@@ -242,9 +337,13 @@ def completed_geometric_average(
     own_info = spd_inverse(cov, "own marginal covariance") if info is None else info
     info_bar = own_info.copy()
     eta_bar = own_info @ mean
+    d = mean.size
     for weight, index, m_info, m_eta in terms:
         sub = np.asarray(index, dtype=np.intp)
-        own_sub = marginal_information(own_info, cov, sub)
+        if sub.size == d and np.array_equal(sub, np.arange(d)):
+            own_sub = own_info
+        else:
+            own_sub = _marginal_information(own_info, cov, sub, _complement(sub, d))
         info_bar[np.ix_(sub, sub)] += weight * (m_info - own_sub)
         eta_bar[sub] += weight * (m_eta - own_sub @ mean[sub])
     new_cov = spd_inverse(info_bar, "averaged information")
@@ -278,12 +377,13 @@ def _per_block_average(
     new_blocks = spd_inverse(info, "averaged per-block information")
     new_mean = np.einsum("kij,kj->ki", new_blocks, eta).ravel()
     new_factor = _cholesky(new_blocks, "averaged per-block marginal")
-    # T = blockdiag(L̄ L⁻¹), applied as T Σ Tᵀ block by block
+    # T = blockdiag(L̄ L⁻¹), applied as T Σ Tᵀ block by block: (T Σ Tᵀ)_ab = T_a Σ_ab T_bᵀ
     eye = np.broadcast_to(np.eye(block), own_factor.shape)
     transform = new_factor @ np.linalg.solve(own_factor, eye)
-    t_full = np.zeros((d, d))
-    t_full[cells[:, :, None], cells[:, None, :]] = transform
-    return new_mean, symmetrize(t_full @ cov @ t_full.T)
+    k = cells.shape[0]
+    left = np.einsum("aij,ajbl->aibl", transform, cov.reshape(k, block, k, block))
+    both = np.einsum("aibl,bml->aibm", left, transform)
+    return new_mean, symmetrize(both.reshape(d, d))
 
 
 def geometric_average_arrays(

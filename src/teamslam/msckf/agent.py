@@ -457,13 +457,14 @@ class MsckfAgent:
     def _initialise_objects(self, t: int) -> None:
         cfg = self.config
         candidates = []
+        in_map = set(self.state.object_ids.tolist())
         for oid, obs in self.object_history.items():
-            if self.state.object_slots(np.array([oid]))[0] >= 0:
+            if obs[-1][0] != t or oid in in_map:
                 continue
             frames = np.array([f for f, _ in obs])
             widx = self.state.window_index(frames)
             keep = widx >= 0
-            if keep.sum() >= cfg.object_init_observations and obs[-1][0] == t:
+            if keep.sum() >= cfg.object_init_observations:
                 zs = np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k])
                 candidates.append((oid, widx[keep], zs))
         if not candidates:
@@ -496,22 +497,20 @@ class MsckfAgent:
             self._linearization_poses(widx),
             self.policy.feature_points(point, true_point)[None],
         )
-        dim = state.dim
-        h_s = np.zeros((n, 4, dim))
-        h_s[
-            np.arange(n)[:, None, None],
-            np.arange(4)[None, :, None],
-            state.pose_columns(widx)[:, None, :],
-        ] = d_pose
-        h_s = h_s.reshape(4 * n, dim)
+        # the rows touch only the poses of the observations: work on those 6n columns
+        cols = state.pose_columns(widx).ravel()
+        h_s = np.zeros((n, 4, n, 6))
+        h_s[np.arange(n), :, np.arange(n), :] = d_pose
+        h_s = h_s.reshape(4 * n, 6 * n)
         h_p = d_point.reshape(4 * n, 3)
         r = (zs - pred).ravel()
         upper, projected = householder_project(h_p[None], np.column_stack([r, h_s])[None])
         r_p, projected = upper[0], projected[0]
         z1, z2 = projected[:3, 0], projected[3:, 0]
         h_s1, h_s2 = projected[:3, 1:], projected[3:, 1:]
+        cov_cc = state.cov[np.ix_(cols, cols)]
         # gate the landmark-free part before touching the state
-        s2 = h_s2 @ state.cov @ h_s2.T + variance * np.eye(4 * n - 3)
+        s2 = h_s2 @ cov_cc @ h_s2.T + variance * np.eye(4 * n - 3)
         # not a sensor-health innovation: it is linearised at a fresh triangulation, so its NIS
         # measures the triangulation as much as the noise
         if z2 @ np.linalg.solve(s2, z2) > self.config.gate(4 * n - 3):
@@ -519,11 +518,12 @@ class MsckfAgent:
             return
         r_p_inv = np.linalg.inv(r_p)
         position = point + r_p_inv @ z1
-        cov_ps = -(r_p_inv @ h_s1) @ state.cov  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
-        cov_pp = r_p_inv @ (h_s1 @ state.cov @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
+        cov_ps = -(r_p_inv @ h_s1) @ state.cov[cols, :]  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
+        cov_pp = r_p_inv @ (h_s1 @ cov_cc @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
         state.add_object(oid, position, cov_pp, cov_ps)
         self.counters["objects_initialised"] += 1
-        jac = np.hstack([h_s2, np.zeros((4 * n - 3, 3))])
+        jac = np.zeros((4 * n - 3, state.dim))
+        jac[:, cols] = h_s2
         state.update(jac, z2, variance * np.eye(4 * n - 3))
 
     def _prune_histories(self) -> None:

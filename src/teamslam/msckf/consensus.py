@@ -223,20 +223,27 @@ def consensus_average(
             if m is None:
                 raise InputError(f"unusable neighbour marginal: {problem}")
         marginals.append(m)
+    per_object = {m.per_object for m in marginals}
+    if len(per_object) > 1:
+        raise InputError("neighbour marginals mix joint and per-object messages")
+    # y: every object shared with a neighbour heard; one eq. 19 average and one Prop. 2
+    # rebuild for all neighbours together
     y_ids = np.unique(np.concatenate([m.ids for m in marginals]))
     slots = state.object_slots(y_ids)
     cols = state.object_columns(slots).ravel()
     own_mean = state.objects[slots].ravel()
-    own_cov = state.cov[np.ix_(cols, cols)]
-    per_object = {m.per_object for m in marginals}
-    if len(per_object) > 1:
-        raise InputError("neighbour marginals mix joint and per-object messages")
+    own_cov = state.cov.take(cols, axis=0).take(cols, axis=1)
     terms = []
     for w, m in zip(weights, marginals, strict=True):
         position = np.searchsorted(y_ids, m.ids)
         sub = (3 * position[:, None] + np.arange(3)).ravel()
         terms.append((w, sub, m.info, m.info_vector))
-    block = 3 if per_object.pop() else None
-    mean, cov = completed_geometric_average(own_mean, own_cov, terms, block=block)
-    state.replace_marginal(cols, mean, cov)
+    if per_object.pop():
+        mean, cov = completed_geometric_average(own_mean, own_cov, terms, block=3)
+        state.replace_marginal(cols, mean, cov)
+    else:
+        # Σʸ⁻¹ serves the average (our own information) and the rebuild (A = Σˣʸ Σʸ⁻¹)
+        own_info = spd_inverse(own_cov, "own marginal covariance")
+        mean, cov = completed_geometric_average(own_mean, own_cov, terms, info=own_info)
+        state.replace_marginal(cols, mean, cov, info=own_info)
     return int(y_ids.size)

@@ -150,24 +150,46 @@ class ConsensusProtocol:
         return out
 
     def _moved_for(self, j: int) -> np.ndarray | None:
-        """Which of our objects moved since we last exchanged them with ``j`` (``None``: all)."""
+        """Which of our objects moved since we last exchanged them with ``j`` (``None``: all).
+
+        The first call of a step computes the flags for every neighbour, in one batched
+        Kullback–Leibler evaluation.
+        """
         if self._own is None:
             return None
-        if j in self._moved:
-            return self._moved[j]
+        if j not in self._moved:
+            self._moved.update(self._moved_all())
+        return self._moved.get(j, np.ones(self._own[0].size, dtype=bool))
+
+    def _moved_all(self) -> dict[int, np.ndarray]:
+        """:meth:`_moved_for` of every neighbour (all flags set where nothing is on record)."""
         ids, means, covs = self._own
-        moved = np.ones(ids.size, dtype=bool)
-        agreed = self._agreed.get(j)
-        if agreed is not None and ids.size and agreed[0].size:
-            a_ids, a_means, a_covs = agreed
-            pos = np.minimum(np.searchsorted(a_ids, ids), a_ids.size - 1)
-            known = a_ids[pos] == ids
+        out = {j: np.ones(ids.size, dtype=bool) for j in self.neighbours | set(self._agreed)}
+        if ids.size == 0:
+            return out
+        order = np.argsort(ids)
+        sorted_ids = ids[order]
+        pairs = []  # per neighbour: our slots, its record's slots
+        for j, (a_ids, _, _) in self._agreed.items():
+            if a_ids.size == 0:
+                continue
+            # a_ids is sorted: where each of our ids sits in j's record
+            pos = np.minimum(np.searchsorted(a_ids, sorted_ids), a_ids.size - 1)
+            known = a_ids[pos] == sorted_ids
             if known.any():
-                k = pos[known]
-                kl = kl_divergence(means[known], covs[known], a_means[k], a_covs[k])
-                moved[known] = kl > self.kl_threshold
-        self._moved[j] = moved
-        return moved
+                pairs.append((j, order[known], pos[known]))
+        if not pairs:
+            return out
+        kl = kl_divergence(
+            means[np.concatenate([mine for _, mine, _ in pairs])],
+            covs[np.concatenate([mine for _, mine, _ in pairs])],
+            np.concatenate([self._agreed[j][1][theirs] for j, _, theirs in pairs]),
+            np.concatenate([self._agreed[j][2][theirs] for j, _, theirs in pairs]),
+        )
+        split = np.cumsum([mine.size for _, mine, _ in pairs])[:-1]
+        for (j, mine, _), kl_j in zip(pairs, np.split(kl, split), strict=True):
+            out[j][mine] = kl_j > self.kl_threshold
+        return out
 
     def answer(self, received: Sequence[Message]) -> list[CommonMarginalMessage]:
         """Round 2: our marginal of the common objects to average with each requester.
@@ -273,10 +295,11 @@ class ConsensusProtocol:
     def _record_exchange(self, j: int, exchanged: np.ndarray) -> None:
         """Remember our pre-average marginals of the objects just exchanged with ``j``."""
         ids, means, covs = self._own
-        take = np.isin(ids, exchanged)
+        take = _members(ids, exchanged)
         old = self._agreed.get(j)
         if old is not None:
-            keep = np.isin(old[0], ids) & ~np.isin(old[0], exchanged)  # still in our map
+            # still in our map and not just exchanged (``exchanged`` and ``old[0]`` are sorted)
+            keep = _members(old[0], np.sort(ids)) & ~_members(old[0], exchanged)
             new_ids = np.concatenate([old[0][keep], ids[take]])
             new_means = np.concatenate([old[1][keep], means[take]])
             new_covs = np.concatenate([old[2][keep], covs[take]])
@@ -284,3 +307,11 @@ class ConsensusProtocol:
             new_ids, new_means, new_covs = ids[take], means[take], covs[take]
         order = np.argsort(new_ids)
         self._agreed[j] = (new_ids[order], new_means[order], new_covs[order])
+
+
+def _members(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
+    """``np.isin(values, sorted_set)`` for a sorted ``sorted_set`` without repeats."""
+    if sorted_set.size == 0:
+        return np.zeros(values.shape, dtype=bool)
+    pos = np.minimum(np.searchsorted(sorted_set, values), sorted_set.size - 1)
+    return sorted_set[pos] == values

@@ -23,7 +23,7 @@ import numpy as np
 import scipy.linalg
 
 from teamslam.errors import InputError
-from teamslam.gaussian import NotPositiveDefiniteError, replace_marginal_arrays
+from teamslam.gaussian import NotPositiveDefiniteError, replace_marginal_shift
 from teamslam.geometry import se3
 
 __all__ = ["MsckfState", "RobotWindow"]
@@ -333,22 +333,34 @@ class MsckfState:
         self._check("update")
         return delta
 
-    def replace_marginal(self, index: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
+    def replace_marginal(
+        self,
+        index: np.ndarray,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        info: np.ndarray | None = None,
+    ) -> None:
         """Consensus: give the ``index`` block (object coordinates) a new marginal (Prop. 2).
 
         The error-state mean of every other entry shifts by ``A (μ̄ʸ − μʸ)``; window poses take
         that shift through ``T ← T · exp(δ)`` (eq. 21), other objects additively. First
-        estimates are left as they were (why: :mod:`teamslam.msckf.linearization`).
+        estimates are left as they were (why: :mod:`teamslam.msckf.linearization`). ``info``
+        is the inverse of the block's current covariance when the caller already has it.
+        The joint is rebuilt block by block (:func:`~teamslam.gaussian.replace_marginal_shift`).
         """
         index = np.asarray(index, dtype=np.int64)
-        current = np.zeros(self.dim)
         slot_cols = index - 6 * self.n_poses
         if np.any(slot_cols < 0):
             raise InputError("consensus may only replace object coordinates")
-        current[index] = self.objects.ravel()[slot_cols]
-        new_mean, new_cov = replace_marginal_arrays(current, self.cov, index, mean, cov)
-        delta = new_mean - current
-        self.cov = new_cov
+        mean = np.asarray(mean, dtype=float)
+        cov = np.asarray(cov, dtype=float)
+        k = index.size
+        if mean.shape != (k,) or cov.shape != (k, k):
+            raise InputError(f"new marginal {mean.shape}, {cov.shape} for {k} coordinates")
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+            raise InputError("new marginal has non-finite values")
+        shift_y = mean - self.objects.ravel()[slot_cols]
+        delta, self.cov = replace_marginal_shift(self.cov, index, shift_y, cov, info)
         self.correct(delta)
         self._check("consensus")
 

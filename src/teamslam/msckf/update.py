@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from teamslam.geometry.camera import StereoCamera
-from teamslam.msckf.models import observe_jacobians, points_in_camera
+from teamslam.msckf.kernels import gauss_newton_points
+from teamslam.msckf.models import points_in_camera
 
 __all__ = [
     "MeasurementRows",
@@ -95,16 +96,29 @@ def triangulate(
         ``(G, 3)`` world points, ``(G,)`` validity (finite, in front of every camera,
         well-conditioned) and ``(G,)`` RMS reprojection error.
     """
-    g, n = z.shape[:2]
     points, ok = stereo_point(camera, T_cam_body, poses[:, -1], z[:, -1])
     points = np.where(ok[:, None], points, 0.0)
-    for _ in range(iterations):
-        pred, _, d_point = observe_jacobians(camera, T_cam_body, poses, points[:, None, :])
-        err = (z - pred).reshape(g, 4 * n)
-        jac = d_point.reshape(g, 4 * n, 3)
-        normal = np.einsum("gki,gkj->gij", jac, jac) + 1e-12 * np.eye(3)
-        step = np.linalg.solve(normal, np.einsum("gki,gk->gi", jac, err)[..., None])[..., 0]
-        points = points + np.where(ok[:, None], step, 0.0)
+    # p_cam = R_cam_body Rᵀ (p_world − t) + t_cam_body of each observation, then the
+    # iterations in one compiled call (same equations as observe_jacobians)
+    rot_cam_world = T_cam_body[:3, :3] @ np.swapaxes(poses[..., :3, :3], -1, -2)
+    t_cam_world = T_cam_body[:3, 3] - np.einsum(
+        "...ij,...j->...i", rot_cam_world, poses[..., :3, 3]
+    )
+    rot_right_left = camera.T_left_right[:3, :3].T
+    k = camera.intrinsics
+    points = np.ascontiguousarray(points, dtype=float)
+    normal = gauss_newton_points(
+        points,
+        ok,
+        np.ascontiguousarray(rot_cam_world),
+        np.ascontiguousarray(t_cam_world),
+        np.ascontiguousarray(rot_right_left),
+        -rot_right_left @ camera.T_left_right[:3, 3],
+        np.array([k[0, 0], k[1, 1]]),
+        np.array([k[0, 2], k[1, 2]]),
+        np.ascontiguousarray(z, dtype=float),
+        iterations,
+    )
     _, p_cam = points_in_camera(poses, points[:, None, :], T_cam_body)
     pred = camera.project(p_cam)
     rms = np.sqrt(np.mean((z - pred) ** 2, axis=(1, 2)))
