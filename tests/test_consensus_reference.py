@@ -203,7 +203,7 @@ def test_moved_flags_equal_per_neighbour_kl():
     # neighbour 1: nothing on record; 2: a few objects, some unchanged; 3: an empty record;
     # 4: every object, all moved a little
     pick = np.sort(rng.choice(ids, 5, replace=False))
-    slots = state.object_slots(pick)
+    slots = np.array([np.flatnonzero(ids == p)[0] for p in pick])  # rows of _own
     old_means = means[slots] + np.where(np.arange(5)[:, None] < 2, 0.0, 0.01)
     protocol._agreed[2] = (pick, old_means, covs[slots])
     protocol._agreed[3] = (np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)))

@@ -8,6 +8,7 @@ only holds and validates them.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from functools import lru_cache
 
 import numpy as np
 from scipy import stats
@@ -15,6 +16,12 @@ from scipy import stats
 from teamslam.errors import InputError
 
 __all__ = ["MsckfConfig"]
+
+
+@lru_cache(maxsize=1024)
+def _chi2_quantile(probability: float, dof: int) -> float:
+    """The ``probability`` quantile of χ²(``dof``)."""
+    return float(stats.chi2.ppf(probability, dof))
 
 
 @dataclass(frozen=True)
@@ -148,9 +155,14 @@ class MsckfConfig:
             return 1.0 / (1.0 + (d / c) ** 2)
         return np.ones_like(d)
 
-    def gate(self, dof: np.ndarray) -> np.ndarray:
-        """Chi-square threshold for residuals of ``dof`` entries."""
-        return stats.chi2.ppf(self.gate_probability, dof)
+    def gate(self, dof: int | np.ndarray) -> float | np.ndarray:
+        """Chi-square threshold for residuals of ``dof`` entries (each quantile computed once)."""
+        dof = np.asarray(dof, dtype=np.int64)
+        if dof.ndim == 0:
+            return _chi2_quantile(self.gate_probability, int(dof))
+        values, index = np.unique(dof, return_inverse=True)
+        table = np.array([_chi2_quantile(self.gate_probability, int(d)) for d in values])
+        return table[index].reshape(dof.shape)
 
     def with_(self, **changes) -> MsckfConfig:
         """A copy with some fields changed."""
