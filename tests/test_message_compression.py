@@ -139,3 +139,20 @@ def test_float32_only_where_rounding_is_harmless():
     back = decode(encode(msg, TEAM), TEAM, 2)
     assert isinstance(back, CommonMarginalMessage)
     np.testing.assert_array_equal(back.cov, msg.cov)
+
+
+def test_the_joint_bound_is_above_the_divergence_and_close_to_it():
+    from teamslam.msckf.consensus import rounding_divergence_bound
+
+    rng = np.random.default_rng(8)
+    for d in (6, 30, 90):
+        a = rng.normal(size=(d, d))
+        cov = a @ a.T / d + np.diag(rng.uniform(1e-4, 1.0, d))
+        mean = 30 * rng.normal(size=d)
+        cov32 = cov.astype(np.float32).astype(float)
+        mean32 = mean.astype(np.float32).astype(float)
+        exact = rounding_divergence(mean, cov, mean32, cov32)
+        bound = rounding_divergence_bound(mean, cov, mean32, cov32)
+        assert exact <= bound <= 1e4 * exact
+    not_pd = -np.eye(3)
+    assert rounding_divergence_bound(np.zeros(3), not_pd, np.zeros(3), not_pd) == np.inf

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_triangular
+from scipy.linalg import lapack, solve_triangular
 
 from teamslam.errors import InputError
 from teamslam.gaussian import NotPositiveDefiniteError, completed_geometric_average, spd_inverse
@@ -38,6 +38,7 @@ __all__ = [
     "object_marginals",
     "receive_marginal",
     "rounding_divergence",
+    "rounding_divergence_bound",
     "validate_marginal",
 ]
 
@@ -62,7 +63,8 @@ def common_marginal_message(
     ``per_object`` sends each object's own 3×3 covariance instead of the joint one; ``float32``
     rounds every number to single precision (what the wire then carries exactly) where that is
     safe: when the rounded marginal is within :data:`FLOAT32_MAX_KL` nats of the exact one
-    (:func:`rounding_divergence`); otherwise the message stays in double precision.
+    (:func:`rounding_divergence` per object, :func:`rounding_divergence_bound` for a joint
+    marginal); otherwise the message stays in double precision.
     """
     ids = np.unique(np.asarray(ids, dtype=np.int64))  # increasing, as messages carry them
     slots = state.object_slots(ids)
@@ -79,7 +81,8 @@ def common_marginal_message(
     if float32:
         mean32 = mean.astype(np.float32).astype(float)
         cov32 = cov.astype(np.float32).astype(float)
-        if rounding_divergence(mean, cov, mean32, cov32) <= FLOAT32_MAX_KL:
+        divergence = rounding_divergence if per_object else rounding_divergence_bound
+        if divergence(mean, cov, mean32, cov32) <= FLOAT32_MAX_KL:
             mean, cov = mean32, cov32
     return CommonMarginalMessage(
         sender, receiver, step, ids[held].copy(), mean, cov.copy(), int(degree)
@@ -90,6 +93,31 @@ FLOAT32_MAX_KL = 1e-4
 """Largest Kullback–Leibler divergence (nats) of a marginal rounded to single precision from
 the exact one for which a ``float32`` message is sent — a thousandth of a typical
 ``consensus_kl_threshold``, so rounding never changes what consensus sees."""
+
+
+def rounding_divergence_bound(
+    mean: np.ndarray, cov: np.ndarray, mean_rounded: np.ndarray, cov_rounded: np.ndarray
+) -> float:
+    """An upper estimate of :func:`rounding_divergence` for one ``(d, d)`` covariance, in
+    ``d³/3`` flops (one Cholesky factorisation) instead of ``7d³/3``.
+
+    With ``‖E‖_F ≤ ‖Σ⁻¹‖₂ ‖ΔΣ‖_F``, ``‖e‖² ≤ ‖Σ⁻¹‖₂ ‖Δμ‖²`` and ``‖Σ⁻¹‖₂ ≤ ‖Σ⁻¹‖₁``, where
+    ``‖Σ⁻¹‖₁`` is LAPACK's condition estimate (``dpocon``, O(d²) after the factorisation;
+    an estimate that is rarely off by more than a small factor). ``inf`` when ``cov`` is not
+    positive definite.
+    """
+    cov = np.asarray(cov, dtype=float)
+    chol, info = lapack.dpotrf(cov, lower=1)
+    if info != 0:
+        return float("inf")
+    norm_1 = float(np.abs(cov).sum(axis=0).max())
+    rcond, info = lapack.dpocon(chol, norm_1, uplo="L")
+    if info != 0 or not rcond > 0:
+        return float("inf")
+    inverse_norm = 1.0 / (rcond * norm_1)
+    d_cov = float(np.sum((cov_rounded - cov) ** 2))
+    d_mean = float(np.sum((mean_rounded - mean) ** 2))
+    return 0.25 * inverse_norm**2 * d_cov + 0.5 * inverse_norm * d_mean
 
 
 def rounding_divergence(
