@@ -10,10 +10,12 @@ Run on demand (BLAS pinned to one thread)::
 retiring to the persistent map after ``--retire`` unobserved frames, and prints the median
 time per robot-frame over frames 100–200 and over the last 100 frames and their ratio, the peak
 state dimension, objects in the state and persistent-map size, and the memory per robot at
-frame 200 and at the end: the bytes the filter holds (state, persistent map, open tracks and
-object observations) and the process's resident set size. ``accuracy`` compares the trajectory
-RMSE with and without retirement over a shorter run of the same route (without retirement the
-cost grows with the map, so the run must stay short), and on the Lissajous team of ``make run``.
+frame 200 and at the end: the bytes the filter holds — its state with the open feature tracks
+and object observations, and apart the persistent map, which grows with the objects retired —
+and the process's resident set size (the whole team and its data set). ``accuracy`` compares
+the trajectory RMSE with and without retirement over a shorter run of the same route (without
+retirement the cost grows with the map, so the run must stay short), and on the Lissajous team
+of ``make run``.
 """
 
 from __future__ import annotations
@@ -30,15 +32,19 @@ from teamslam.msckf.agent import MsckfAgent
 from teamslam.sim import lissajous_team, long_route_team
 
 
-def held_bytes(agent: MsckfAgent) -> int:
-    """Bytes the filter holds: state arrays, persistent map rows, open observation histories."""
+def held_bytes(agent: MsckfAgent) -> tuple[int, int]:
+    """Bytes the filter holds: ``(state and open observation histories, persistent map)``.
+
+    Arrays by their size; an open observation as its 4-vector and its ``(frame, z)`` tuple; a
+    persistent-map entry as its allocated rows plus about 100 bytes of dict entry.
+    """
     state = agent.state
     arrays = (state.cov, state.poses, state.pose_fe, state.objects, state.object_fe)
-    stored = state.retired
-    total = sum(a.nbytes for a in arrays) + stored.capacity * 15 * 8 + len(stored) * 100
     observations = sum(len(v) for v in agent.tracks.values())
     observations += sum(len(v) for v in agent.object_history.values())
-    return total + observations * (4 * 8 + 112)  # a 4-vector and its (frame, z) tuple
+    working = sum(a.nbytes for a in arrays) + observations * (4 * 8 + 112)
+    stored = state.retired
+    return working, stored.capacity * 15 * 8 + len(stored) * 100
 
 
 def rss_mib() -> float:
@@ -103,10 +109,11 @@ def cost(robots: int, frames: int, retire: int, seed: int) -> None:
     print(f"persistent map at the end (per robot, largest): {probe.retired} objects")
     print(f"objects retired / re-entered per robot: {retired:.0f} / {back:.0f}")
     for t in sorted(probe.memory):
-        kib = np.array(probe.memory[t]) / 1024
+        working, stored = (np.array(probe.memory[t]) / 1024).T
         print(
-            f"frame {t:>5}: filter memory per robot {kib.mean():7.0f} KiB "
-            f"(max {kib.max():.0f}), process RSS {probe.rss[t]:.0f} MiB"
+            f"frame {t:>5}: per robot, state + open observations {working.mean():6.0f} KiB "
+            f"(max {working.max():.0f}), persistent map {stored.mean():6.0f} KiB "
+            f"(max {stored.max():.0f}); process RSS {probe.rss[t]:.0f} MiB"
         )
     print(f"trajectory RMSE (mean over robots): {metrics['trajectory_rmse_avg_m']:.3f} m")
 

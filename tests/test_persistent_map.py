@@ -208,3 +208,23 @@ def test_the_long_route_keeps_discovering_objects():
     assert team.metadata["simulation"]["objects"] == len(team.object_positions)
     route = team.robots[0].T_world_body[:, :3, 3]
     assert len(team.object_positions) >= 1.2 * np.linalg.norm(np.diff(route, axis=0), axis=1).sum()
+
+
+def test_simulate_a_long_route_from_the_command_line(tmp_path, capsys):
+    import json
+
+    from teamslam.cli import main
+    from teamslam.datasets import load_dataset
+
+    out = tmp_path / "long"
+    argv = ["simulate", "--route", "long", "--robots", "2", "--steps", "40", "--out", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert main(["data", "info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["frames_per_robot"] == [41, 41]
+    assert info["objects_observed"] >= info["objects_shared"] > 0
+    expected = long_route_team(robots=2, steps=40)
+    np.testing.assert_array_equal(load_dataset(out).object_positions, expected.object_positions)
+    assert main([*argv[:-1], str(tmp_path / "x"), "--objects", "5"]) != 0
+    assert "--objects" in capsys.readouterr().err
