@@ -108,7 +108,13 @@ def test_retirement_bounds_the_state_on_a_long_route(long_route):
     # every object initialised is in the state or in the persistent map
     assert counters["objects_initialised"] == agent.state.n_objects + len(agent.state.retired)
     assert max(in_state[80:]) <= 2 * max(in_state[:80])
-    assert agent.state.retired.arrays()["ids"].size == len(agent.state.retired)
+    ids, means, covs = agent.state.full_map()
+    assert ids.size == agent.state.n_objects + len(agent.state.retired)
+    assert np.all(np.diff(ids) > 0)
+    stored = agent.state.retired.arrays()
+    pos = np.searchsorted(ids, stored["ids"])
+    np.testing.assert_array_equal(means[pos], stored["means"])
+    np.testing.assert_array_equal(covs[pos], stored["covs"])
 
 
 def test_retired_objects_re_enter_when_observed_again():

@@ -220,6 +220,16 @@ class MsckfState:
         cols = self.object_columns(np.arange(self.n_objects))
         return self.cov[cols[:, :, None], cols[:, None, :]]
 
+    def full_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every object the robot has mapped — in the state and retired — sorted by id: ids,
+        ``(m, 3)`` means and ``(m, 3, 3)`` marginal covariances."""
+        retired = self.retired.arrays()
+        ids = np.concatenate([self.object_ids, retired["ids"]])
+        means = np.concatenate([self.objects, retired["means"]])
+        covs = np.concatenate([self.object_covs(), retired["covs"]])
+        order = np.argsort(ids)
+        return ids[order], means[order], covs[order]
+
     def _check(self, what: str) -> None:
         if not self.debug:
             return
