@@ -13,15 +13,26 @@ __all__ = ["register"]
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from teamslam.sim import lissajous_team
+    from teamslam.errors import InputError
+    from teamslam.sim import lissajous_team, long_route_team
 
-    dataset = lissajous_team(
-        robots=args.robots,
-        steps=args.steps,
-        objects=args.objects,
-        seed=args.seed,
-        noise_free=args.noise_free,
-    )
+    if args.route == "long":
+        if args.objects is not None:
+            raise InputError(
+                "--objects sets the Lissajous arena's map; the long route scatters objects "
+                "along its length (about 1.2 per metre)"
+            )
+        dataset = long_route_team(
+            robots=args.robots, steps=args.steps, seed=args.seed, noise_free=args.noise_free
+        )
+    else:
+        dataset = lissajous_team(
+            robots=args.robots,
+            steps=args.steps,
+            objects=210 if args.objects is None else args.objects,
+            seed=args.seed,
+            noise_free=args.noise_free,
+        )
     save_and_describe(dataset, args.out)
     return 0
 
@@ -89,14 +100,27 @@ def register(sub) -> None:
     """Add this group's commands to the ``teamslam`` subparsers."""
     sim = sub.add_parser(
         "simulate",
-        help="simulate a stereo robot team on Lissajous curves and write a dataset",
-        description="Simulate a team of stereo robots flying 3D Lissajous curves through one "
-        "arena (objects, geometric feature tracks, noisy odometry) and write it in teamslam's "
-        "dataset format.",
+        help="simulate a stereo robot team (Lissajous arena or long route) and write a dataset",
+        description="Simulate a team of stereo robots — flying 3D Lissajous curves through one "
+        "arena, or driving side by side along a long non-repeating route that keeps "
+        "discovering new objects (--route long) — with objects, geometric feature tracks and "
+        "noisy odometry, and write it in teamslam's dataset format.",
+    )
+    sim.add_argument(
+        "--route",
+        choices=("lissajous", "long"),
+        default="lissajous",
+        help="lissajous: curves through one arena (default); long: a long winding route "
+        "through a world of about 1.2 objects per metre",
     )
     sim.add_argument("--robots", type=positive_int, default=5, help="number of robots")
     sim.add_argument("--steps", type=positive_int, default=300, help="motion steps per robot")
-    sim.add_argument("--objects", type=non_negative_int, default=210, help="objects in the map")
+    sim.add_argument(
+        "--objects",
+        type=non_negative_int,
+        default=None,
+        help="objects in the Lissajous arena's map (default 210)",
+    )
     sim.add_argument("--seed", type=non_negative_int, default=0, help="random seed")
     sim.add_argument("--noise-free", action="store_true", help="exact measurements and odometry")
     sim.add_argument("--out", type=Path, required=True, help="dataset directory to write")

@@ -4,6 +4,8 @@
   (eqs. 18–23, 28, 30);
 * :mod:`~teamslam.msckf.models` — stereo observation model and Jacobians;
 * :mod:`~teamslam.msckf.update` — triangulation, null-space rows (24), gating, compression;
+* :mod:`~teamslam.msckf.persistent_map` — objects retired from the state (bounded cost over a
+  long mission) and their re-entry;
 * :mod:`~teamslam.msckf.agent` — Algorithm 1 for one robot;
 * :mod:`~teamslam.msckf.consensus` — averaging of the common objects (19–21);
 * :mod:`~teamslam.msckf.team` — the lock-step team runner;
@@ -20,6 +22,7 @@
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.calibration import CalibrationResult, calibrate
 from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.persistent_map import PersistentMap
 from teamslam.msckf.settings import EffectiveConfig, config_for, resolve_config
 from teamslam.msckf.state import MsckfState
 from teamslam.msckf.team import TeamResult, run_team
@@ -30,6 +33,7 @@ __all__ = [
     "MsckfAgent",
     "MsckfConfig",
     "MsckfState",
+    "PersistentMap",
     "TeamResult",
     "calibrate",
     "config_for",

@@ -10,8 +10,14 @@ neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.ste
 4. initialises objects seen often enough inside the window by QR (eqs. 29–30), then uses the
    rest of their rows to update the poses;
 
-and finally slides the window. Bad inputs (non-finite odometry or measurements) are rejected
-and counted; the estimate is left as it was.
+and finally slides the window. With ``object_retire_after = N > 0`` objects unobserved for
+``N`` frames then leave the state for the persistent map, and a retired object observed again
+re-enters the state right after propagation, before the update
+(:mod:`teamslam.msckf.persistent_map`); everything the agent keeps is then bounded over a
+mission — the window, open feature tracks and object observations inside it, the state —
+except the persistent map (15 numbers per distinct object retired) and the per-frame stage
+times (allocated once for the whole sequence). Bad inputs (non-finite odometry or
+measurements) are rejected and counted; the estimate is left as it was.
 
 Every Jacobian is evaluated where the configured linearisation policy says
 (:mod:`teamslam.msckf.linearization`: standard, first-estimate or ideal); residuals always at
@@ -108,7 +114,7 @@ class MsckfAgent:
         self._warned: set[str] = set()
         self.health = SensorHealth(record=record_innovations)
         self._odometry_rejected: set[int] = set()
-        self.frame_times: list[tuple[float, float, float]] = []
+        self._frame_times = np.zeros((sequence.frames, 3))
         self.frame = -1
 
     # ------------------------------------------------------------------ bookkeeping
@@ -123,6 +129,12 @@ class MsckfAgent:
                 what,
                 reason or "invalid",
             )
+
+    @property
+    def frame_times(self) -> np.ndarray:
+        """``(frame + 1, 3)`` seconds of each processed frame in propagation, update and
+        initialisation (a view)."""
+        return self._frame_times[: self.frame + 1]
 
     @property
     def n_frames(self) -> int:
@@ -189,7 +201,8 @@ class MsckfAgent:
             )
         self.state.restore({k[6:]: v for k, v in snapshot.items() if k.startswith("state_")})
         self.frame = frame
-        self.frame_times = [tuple(r) for r in frame_times]
+        self._frame_times = np.zeros((self.sequence.frames, 3))
+        self._frame_times[: frame + 1] = frame_times
         self.tracks = histories["tracks"]
         self.object_history = histories["objhist"]
         self.counters = defaultdict(int, counters)
@@ -216,6 +229,8 @@ class MsckfAgent:
         begin = time.perf_counter()
         if t > 0:
             self._propagate(t)
+        if self.config.use_objects and len(self.state.retired):
+            self._reenter_objects(t)
         after_propagation = time.perf_counter()
         rows = MeasurementRows.empty(self.state.dim)
         if self.config.use_geometric_features:
@@ -229,6 +244,8 @@ class MsckfAgent:
         after_update = time.perf_counter()
         if self.config.use_objects:
             self._initialise_objects(t)
+            if self.config.object_retire_after > 0:
+                self._retire_objects(t)
         while self.state.n_poses > self.config.window:
             self._odometry_health(0)
             self.state.marginalize_oldest()
@@ -238,7 +255,7 @@ class MsckfAgent:
         self.timings["propagation"] += stages[0]
         self.timings["update"] += stages[1]
         self.timings["initialisation"] += stages[2]
-        self.frame_times.append(stages)
+        self._frame_times[t] = stages
         self.frame = t
 
     def _propagate(self, t: int) -> None:
@@ -390,12 +407,29 @@ class MsckfAgent:
         return rows
 
     # ------------------------------------------------------------------ objects
+    def _reenter_objects(self, t: int) -> None:
+        """Bring the retired objects observed at ``t`` back into the state (before the update)."""
+        ids, z = self.sequence.objects.frame(t)
+        ids = np.unique(ids[np.all(np.isfinite(z), axis=1)])
+        back = ids[self.state.retired.contains(ids)]
+        if back.size:
+            self.state.reenter_objects(back, t)
+            self.counters["objects_reentered"] += int(back.size)
+
+    def _retire_objects(self, t: int) -> None:
+        """Move the objects unobserved for ``object_retire_after`` frames to the persistent map."""
+        stale = t - self.state.object_last_seen >= self.config.object_retire_after
+        if stale.any():
+            self.state.retire_objects(np.flatnonzero(stale))
+            self.counters["objects_retired"] += int(stale.sum())
+
     def _object_rows(self, t: int) -> MeasurementRows:
         ids, z = self._finite_observations("objects", t)
         for i, row in zip(ids.tolist(), z, strict=True):
             self.object_history[i].append((t, row))
         slots = self.state.object_slots(ids)
         known = slots >= 0
+        self.state.mark_seen(slots[known], t)
         if not known.any():
             return MeasurementRows.empty(self.state.dim)
         slots, zk, ids = slots[known], z[known], ids[known]
@@ -528,6 +562,8 @@ class MsckfAgent:
 
     def _prune_histories(self) -> None:
         first = self.state.frames[0]
+        if self._odometry_rejected:
+            self._odometry_rejected = {f for f in self._odometry_rejected if f >= first}
         for store in (self.object_history, self.tracks):
             stale = []
             for key, obs in store.items():

@@ -96,11 +96,12 @@ def run_centralised(
     wall = time.perf_counter() - begin
     for a in agents:
         a.flush_odometry_health()
+    full_map = state.full_map()  # in the state and retired, by id
     return TeamResult(
         poses=poses,
         pose_covs=covs,
-        object_ids=[state.object_ids.copy() for _ in agents],
-        objects=[state.objects.copy() for _ in agents],
+        object_ids=[full_map[0] for _ in agents],
+        objects=[full_map[1] for _ in agents],
         counters=[{**a.counters, "messages": 0, "bytes": 0} for a in agents],
         timings=[dict(a.timings) for a in agents],
         frame_times=[
@@ -115,5 +116,5 @@ def run_centralised(
             "team": SensorHealth.combine([a.health for a in agents]).summary(),
             "robots": [a.health.summary() for a in agents],
         },
-        object_covs=[state.object_covs() for _ in agents],
+        object_covs=[full_map[2] for _ in agents],
     )

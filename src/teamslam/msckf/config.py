@@ -77,6 +77,12 @@ class MsckfConfig:
         Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates)
         ``ideal`` (ground truth, simulation only) or ``oc`` (observability-constrained);
         :mod:`teamslam.msckf.linearization`.
+    object_retire_after
+        Frames an object may go unobserved before it leaves the filter state for the robot's
+        persistent map (its mean and 3×3 marginal kept; it re-enters with them when observed
+        again): this bounds the state, and so the cost per frame, over a long mission. 0 never
+        retires an object (the state keeps every object it initialised). Policy, exactness and
+        what it means for consensus: :mod:`teamslam.msckf.persistent_map`.
     debug
         Check the covariance after every edit.
     """
@@ -99,6 +105,7 @@ class MsckfConfig:
     consensus_per_object: bool = False
     consensus_float32: bool = True
     linearization: str = "std"
+    object_retire_after: int = 0
     debug: bool = False
 
     def __post_init__(self) -> None:
@@ -130,6 +137,11 @@ class MsckfConfig:
         if self.linearization not in ("std", "fej", "ideal", "oc"):
             raise InputError(
                 f"linearization must be std, fej, ideal or oc, not {self.linearization!r}"
+            )
+        retire = self.object_retire_after
+        if isinstance(retire, bool) or not isinstance(retire, int) or retire < 0:
+            raise InputError(
+                "object_retire_after must be an integer number of frames ≥ 0 (0: never retire)"
             )
         for name in ("min_track_length", "object_init_observations"):
             value = getattr(self, name)

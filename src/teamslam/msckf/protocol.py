@@ -30,6 +30,10 @@ new objects and objects observed since are always averaged. A robot records an e
 once its neighbour's marginal arrived, so a lost message never hides a change. With
 ``kl_threshold = 0`` (or in asynchronous mode) every common object is averaged at every step.
 
+Only objects in the filter state take part: objects retired to the persistent map
+(``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
+averaged until they are observed again and re-enter the state.
+
 Every received message is checked here once: kind, step (``step − max_age ≤ s ≤ step``), a
 sender that is a neighbour, and for a marginal the ids, sizes, finiteness and one Cholesky
 factorisation that also gives the information matrix used by the average. A rejected message is

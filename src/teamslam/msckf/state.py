@@ -5,8 +5,9 @@ The error state is ``[ε_1, …, ε_c, p̃_1, …, p̃_m]``: a 6-vector right pe
 object landmark. One joint covariance covers it all, and **every covariance edit goes through
 this class**: :meth:`augment` (propagation, eqs. 22–23), :meth:`marginalize_oldest`,
 :meth:`add_object` (initialisation, eq. 30), :meth:`update` (eqs. 26–28) and
-:meth:`replace_marginal` (consensus, Prop. 2 / eq. 21). With ``debug=True`` each edit checks
-that the covariance stays symmetric positive definite.
+:meth:`replace_marginal` (consensus, Prop. 2 / eq. 21), :meth:`retire_objects` and
+:meth:`reenter_objects` (the persistent map, :mod:`teamslam.msckf.persistent_map`). With
+``debug=True`` each edit checks that the covariance stays symmetric positive definite.
 
 The state also keeps each window pose's and each object's **first estimate** (the pose as it
 entered the window, the object as it was initialised) for first-estimate Jacobians
@@ -25,6 +26,7 @@ import scipy.linalg
 from teamslam.errors import InputError
 from teamslam.gaussian import NotPositiveDefiniteError, replace_marginal_shift
 from teamslam.geometry import se3
+from teamslam.msckf.persistent_map import PersistentMap
 
 __all__ = ["MsckfState", "RobotWindow"]
 
@@ -54,13 +56,17 @@ class MsckfState:
         self.object_ids = np.zeros(0, dtype=np.int64)
         self.objects = np.zeros((0, 3))
         self.object_fe = np.zeros((0, 3))
+        self.object_last_seen = np.zeros(0, dtype=np.int64)
+        self.retired = PersistentMap()
         self.cov = np.asarray(pose_cov, dtype=float).reshape(6, 6).copy()
         self.debug = debug
 
     # ------------------------------------------------------------------ snapshot
     def snapshot(self) -> dict[str, np.ndarray]:
         """The whole state as arrays (copies): window poses, frames, robots and first estimates,
-        objects and their first estimates, covariance."""
+        objects, their first estimates and the frame each was last observed, covariance, and the
+        persistent map of retired objects."""
+        retired = self.retired.arrays()
         return {
             "window_poses": self.poses.copy(),
             "window_frames": self.frames.copy(),
@@ -70,6 +76,8 @@ class MsckfState:
             "objects": self.objects.copy(),
             "object_fe": self.object_fe.copy(),
             "cov": self.cov.copy(),
+            "object_last_seen": self.object_last_seen.copy(),
+            **{f"retired_{k}": v for k, v in retired.items()},
         }
 
     def restore(self, snapshot: dict[str, np.ndarray]) -> None:
@@ -93,6 +101,21 @@ class MsckfState:
         except KeyError as exc:
             raise InputError(f"state snapshot lacks {exc.args[0]!r}") from None
         c, m = poses.shape[0], ids.size
+        # snapshots written before the persistent map: nothing retired, objects seen now
+        newest = int(frames.max()) if frames.size else 0
+        last_seen = np.asarray(
+            snapshot.get("object_last_seen", np.full(m, newest)), dtype=np.int64
+        ).ravel()
+        if last_seen.shape != (m,):
+            raise InputError(f"state snapshot: {last_seen.size} last-seen frames for {m} objects")
+        retired = PersistentMap.from_arrays(
+            *(
+                snapshot.get(f"retired_{k}", np.zeros((0, *shape)))
+                for k, shape in (("ids", ()), ("means", (3,)), ("covs", (3, 3)), ("fe", (3,)))
+            )
+        )
+        if np.any(retired.contains(ids)):
+            raise InputError("state snapshot: an object is both in the state and retired")
         if poses.shape != (c, 4, 4) or frames.shape != (c,) or c == 0:
             raise InputError(f"state snapshot: window poses {poses.shape}, frames {frames.shape}")
         if robots.shape != (c,) or pose_fe.shape != poses.shape or object_fe.shape != (m, 3):
@@ -112,6 +135,7 @@ class MsckfState:
             raise InputError("state snapshot: covariance is not positive definite") from None
         self.poses, self.frames, self.object_ids, self.objects = poses, frames, ids, objects
         self.robots, self.pose_fe, self.object_fe = robots, pose_fe, object_fe
+        self.object_last_seen, self.retired = last_seen, retired
         self.cov = 0.5 * (cov + cov.T)
 
     @classmethod
@@ -195,6 +219,16 @@ class MsckfState:
         """``(m, 3, 3)`` marginal covariance of each object."""
         cols = self.object_columns(np.arange(self.n_objects))
         return self.cov[cols[:, :, None], cols[:, None, :]]
+
+    def full_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every object the robot has mapped — in the state and retired — sorted by id: ids,
+        ``(m, 3)`` means and ``(m, 3, 3)`` marginal covariances."""
+        retired = self.retired.arrays()
+        ids = np.concatenate([self.object_ids, retired["ids"]])
+        means = np.concatenate([self.objects, retired["means"]])
+        covs = np.concatenate([self.object_covs(), retired["covs"]])
+        order = np.argsort(ids)
+        return ids[order], means[order], covs[order]
 
     def _check(self, what: str) -> None:
         if not self.debug:
@@ -287,7 +321,8 @@ class MsckfState:
     ) -> None:
         """Append an object with its covariance and cross-covariance with the state (eq. 30).
 
-        ``position`` is also the object's first estimate.
+        ``position`` is also the object's first estimate; it counts as observed at the newest
+        window frame.
         """
         n = self.dim
         cov = np.empty((n + 3, n + 3))
@@ -299,7 +334,63 @@ class MsckfState:
         self.object_ids = np.append(self.object_ids, int(object_id))
         self.objects = np.vstack([self.objects, np.asarray(position, dtype=float)])
         self.object_fe = np.vstack([self.object_fe, np.asarray(position, dtype=float)])
+        self.object_last_seen = np.append(self.object_last_seen, int(self.frames.max()))
         self._check("object initialisation")
+
+    def mark_seen(self, slots: np.ndarray, frame: int) -> None:
+        """Record that the objects in ``slots`` were observed at ``frame``."""
+        self.object_last_seen[np.asarray(slots, dtype=np.int64)] = int(frame)
+
+    def retire_objects(self, slots: np.ndarray) -> None:
+        """Move objects out of the state into the persistent map (exact marginalisation).
+
+        Their means, 3×3 marginal covariances and first estimates are stored; their rows and
+        columns leave the covariance, which leaves the marginal of everything else unchanged.
+        """
+        slots = np.unique(np.asarray(slots, dtype=np.int64))
+        if slots.size == 0:
+            return
+        cols = self.object_columns(slots)
+        self.retired.store(
+            self.object_ids[slots],
+            self.objects[slots],
+            self.cov[cols[:, :, None], cols[:, None, :]],
+            self.object_fe[slots],
+        )
+        keep = np.ones(self.dim, dtype=bool)
+        keep[cols.ravel()] = False
+        self.cov = self.cov[np.ix_(keep, keep)]
+        kept = np.ones(self.n_objects, dtype=bool)
+        kept[slots] = False
+        self.object_ids = self.object_ids[kept]
+        self.objects = self.objects[kept]
+        self.object_fe = self.object_fe[kept]
+        self.object_last_seen = self.object_last_seen[kept]
+        self._check("object retirement")
+
+    def reenter_objects(self, ids: np.ndarray, frame: int) -> None:
+        """Bring retired objects ``ids`` back into the state, observed at ``frame``.
+
+        Each comes back with its stored mean, marginal covariance and first estimate and no
+        cross-covariance with the rest of the state (:mod:`teamslam.msckf.persistent_map`).
+        """
+        ids = np.asarray(ids, dtype=np.int64).ravel()
+        if ids.size == 0:
+            return
+        means, covs, fe = self.retired.take(ids)
+        n, k = self.dim, ids.size
+        cov = np.zeros((n + 3 * k, n + 3 * k))
+        cov[:n, :n] = self.cov
+        rows = n + 3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]
+        cov[rows, np.swapaxes(rows, 1, 2)] = 0.5 * (covs + np.swapaxes(covs, 1, 2))
+        self.cov = cov
+        self.object_ids = np.concatenate([self.object_ids, ids])
+        self.objects = np.vstack([self.objects, means])
+        self.object_fe = np.vstack([self.object_fe, fe])
+        self.object_last_seen = np.concatenate(
+            [self.object_last_seen, np.full(k, int(frame), dtype=np.int64)]
+        )
+        self._check("object re-entry")
 
     def correct(self, delta: np.ndarray) -> None:
         """Apply an error-state correction: ``T ← T · exp(δ_T)``, ``p ← p + δ_p`` (eqs. 21, 28)."""

@@ -165,12 +165,13 @@ def run_team(
         c["messages"] = int(endpoints[i].messages_sent)
         c["bytes"] = int(endpoints[i].bytes_sent)
         counters.append(c)
+    maps = [a.state.full_map() for a in agents]  # in the state and retired, by id
     return TeamResult(
         poses=poses,
         pose_covs=covs,
-        object_ids=[a.state.object_ids.copy() for a in agents],
-        objects=[a.state.objects.copy() for a in agents],
-        object_covs=[a.state.object_covs() for a in agents],
+        object_ids=[m[0] for m in maps],
+        objects=[m[1] for m in maps],
+        object_covs=[m[2] for m in maps],
         counters=counters,
         timings=[dict(a.timings) for a in agents],
         frame_times=[

@@ -193,12 +193,13 @@ def run_agent(
         transport.close()
     agent.flush_odometry_health()
     frame_times = np.column_stack([consensus_times, np.array(agent.frame_times).reshape(-1, 3)])
+    full_map = agent.state.full_map()  # in the state and retired, by id
     _atomic_savez(
         out / "result.npz",
         poses=poses,
         covs=covs,
-        object_ids=agent.state.object_ids,
-        objects=agent.state.objects,
+        object_ids=full_map[0],
+        objects=full_map[1],
         frame_times=frame_times,
     )
     counters = dict(agent.counters)

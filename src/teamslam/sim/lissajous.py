@@ -249,6 +249,27 @@ def _tracks(
     return out, pairs, next_id
 
 
+def noise_overrides(noise_free: bool) -> dict[str, float]:
+    """The :class:`SimulationConfig` fields that zero every noise level (none unless asked)."""
+    if not noise_free:
+        return {}
+    names = ("pixel_noise", "object_pixel_noise")
+    names += ("odometry_translation_noise", "odometry_rotation_noise")
+    return dict.fromkeys(names, 0.0)
+
+
+def generators(
+    seed: int, noise_seed: int | None, robots: int
+) -> tuple[np.random.SeedSequence, np.random.Generator, list[np.random.Generator]]:
+    """The seed sequence of the paths, the map's generator and each robot's noise generator
+    (drawn from ``noise_seed`` instead of ``seed`` when given)."""
+    path_seq, map_seq, noise_seq = np.random.SeedSequence(seed).spawn(3)
+    if noise_seed is not None:
+        noise_seq = np.random.SeedSequence([seed, noise_seed, 1])
+    noise_rngs = [np.random.default_rng(s) for s in noise_seq.spawn(robots)]
+    return path_seq, np.random.default_rng(map_seq), noise_rngs
+
+
 def lissajous_team(
     robots: int = 5,
     steps: int = 300,
@@ -279,21 +300,10 @@ def lissajous_team(
         With ground-truth objects, geometric landmarks and the landmark behind every track;
         ``metadata["simulation"]`` records the full configuration.
     """
-    if noise_free:
-        overrides.update(
-            pixel_noise=0.0,
-            object_pixel_noise=0.0,
-            odometry_translation_noise=0.0,
-            odometry_rotation_noise=0.0,
-        )
+    overrides.update(noise_overrides(noise_free))
     config = SimulationConfig(robots=robots, steps=steps, objects=objects, seed=seed, **overrides)
-    root = np.random.SeedSequence(seed)
-    traj_seq, map_seq, noise_seq = root.spawn(3)
-    if noise_seed is not None:
-        noise_seq = np.random.SeedSequence([seed, noise_seed, 1])
+    traj_seq, map_rng, noise_rngs = generators(seed, noise_seed, robots)
     traj_rngs = [np.random.default_rng(s) for s in traj_seq.spawn(robots)]
-    noise_rngs = [np.random.default_rng(s) for s in noise_seq.spawn(robots)]
-    map_rng = np.random.default_rng(map_seq)
 
     paths = [_lissajous(config, rng) for rng in traj_rngs]
     centres = np.concatenate([p[:, :3, 3] for p in paths])
@@ -306,6 +316,42 @@ def lissajous_team(
             map_rng.uniform(-half, half, (background, 3)),
         ]
     )
+    return simulate_team(
+        config,
+        paths,
+        object_positions,
+        landmark_positions,
+        noise_rngs,
+        name=f"lissajous-{robots}r-{steps}s-seed{seed}",
+        metadata={"source": "teamslam.sim.lissajous_team", "simulation": _jsonable(asdict(config))},
+    )
+
+
+def simulate_team(
+    config: SimulationConfig,
+    paths: list[np.ndarray],
+    object_positions: np.ndarray,
+    landmark_positions: np.ndarray,
+    noise_rngs: list[np.random.Generator],
+    name: str,
+    metadata: dict,
+) -> TeamDataset:
+    """Sense a world along given paths: noisy odometry, feature tracks and object observations.
+
+    Parameters
+    ----------
+    config
+        Camera, depth ranges and noise levels (its path and map fields are not used).
+    paths
+        Per robot ``(steps + 1, 4, 4)`` true ``T_world_body``.
+    object_positions, landmark_positions
+        The world: ``(m, 3)`` objects (ids ``0 … m−1``) and geometric landmarks.
+    noise_rngs
+        One generator per robot for its odometry and measurement noise.
+    name, metadata
+        The dataset's name and metadata.
+    """
+    steps = paths[0].shape[0] - 1
     sequences = []
     track_pairs: list[tuple[int, int]] = []
     next_track = 0
@@ -313,7 +359,7 @@ def lissajous_team(
     for i, path in enumerate(paths):
         rng = noise_rngs[i]
         odo_true = se3.inverse(path[:-1]) @ path[1:]
-        odometry = odo_true @ se3.exp(rng.standard_normal((config.steps, 6)) * sigma)
+        odometry = odo_true @ se3.exp(rng.standard_normal((steps, 6)) * sigma)
         feat_frames = _observe(
             path, landmark_positions, config, config.max_depth, config.pixel_noise, rng
         )
@@ -333,23 +379,23 @@ def lissajous_team(
                 odometry=odometry,
                 features=FrameObservations.from_frames(feat_frames),
                 objects=FrameObservations.from_frames(obj_frames),
-                timestamps=np.arange(config.steps + 1, dtype=float),
+                timestamps=np.arange(steps + 1, dtype=float),
             )
         )
     return TeamDataset(
-        name=f"lissajous-{robots}r-{steps}s-seed{seed}",
+        name=name,
         calibration=Calibration(
             config.measurement_camera(),
             T_CAM_BODY,
             None if config.normalised_coordinates else config.image_size,
         ),
         robots=sequences,
-        object_ids=np.arange(config.objects),
+        object_ids=np.arange(len(object_positions)),
         object_positions=object_positions,
-        landmark_ids=np.arange(config.landmarks),
+        landmark_ids=np.arange(len(landmark_positions)),
         landmark_positions=landmark_positions,
         track_landmarks=np.array(track_pairs, dtype=np.int64).reshape(-1, 2),
-        metadata={"source": "teamslam.sim.lissajous_team", "simulation": _jsonable(asdict(config))},
+        metadata=metadata,
         sensor_model=config.sensor_model(),
     )
 

@@ -1,0 +1,189 @@
+"""Bounded cost over a long mission: the distributed MSCKF with a persistent map.
+
+Run on demand (BLAS pinned to one thread)::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py cost [--frames 5000] [--retire 40]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py accuracy [--frames 300] [--retire 40]
+
+``cost`` runs a team (3 robots, consensus over a complete graph) along the long route
+(:func:`teamslam.sim.long_route_team`, a world of about 1.2 objects per metre) with objects
+retiring to the persistent map after ``--retire`` unobserved frames, and prints the median
+time per robot-frame over frames 100–200 and over the last 100 frames and their ratio (wall
+time of all stages, and CPU time of the filter step, which other work on the machine disturbs
+less), the peak state dimension, objects in the state and persistent-map size, and the memory
+per robot at frame 200 and at the end: the bytes the filter holds — its state with the open
+feature tracks and object observations, and apart the persistent map, which grows with the
+objects retired — and the process's resident set size (the whole team and its data set).
+``accuracy`` compares
+the trajectory RMSE with and without retirement over a shorter run of the same route (without
+retirement the cost grows with the map, so the run must stay short), and on the Lissajous team
+of ``make run``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from teamslam.eval.metrics import team_metrics
+from teamslam.msckf import config_for, run_team
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.sim import lissajous_team, long_route_team
+
+
+def held_bytes(agent: MsckfAgent) -> tuple[int, int]:
+    """Bytes the filter holds: ``(state and open observation histories, persistent map)``.
+
+    Arrays by their size; an open observation as its 4-vector and its ``(frame, z)`` tuple; a
+    persistent-map entry as its allocated rows plus about 100 bytes of dict entry.
+    """
+    state = agent.state
+    arrays = (state.cov, state.poses, state.pose_fe, state.objects, state.object_fe)
+    observations = sum(len(v) for v in agent.tracks.values())
+    observations += sum(len(v) for v in agent.object_history.values())
+    working = sum(a.nbytes for a in arrays) + observations * (4 * 8 + 112)
+    stored = state.retired
+    return working, stored.capacity * 15 * 8 + len(stored) * 100
+
+
+def rss_mib() -> float:
+    """Resident set size of this process now (MiB)."""
+    with open("/proc/self/statm") as f:
+        pages = int(f.read().split()[1])
+    return pages * resource.getpagesize() / 2**20
+
+
+class Probe:
+    """Records, after every step of every robot, the state's size and at given frames memory."""
+
+    def __init__(self, sample_frames: tuple[int, ...]) -> None:
+        self.sample_frames = set(sample_frames)
+        self.dim = self.objects = self.retired = 0
+        self.memory: dict[int, list[int]] = {}
+        self.states: dict[int, object] = {}
+        self.cpu: dict[int, list[float]] = {}
+        self.rss: dict[int, float] = {}
+        self._step = MsckfAgent.step
+        probe = self
+
+        def step(agent: MsckfAgent, t: int) -> None:
+            begin = time.thread_time()
+            probe._step(agent, t)
+            probe.cpu.setdefault(agent.robot, []).append(time.thread_time() - begin)
+            state = agent.state
+            probe.states[agent.robot] = state
+            probe.dim = max(probe.dim, state.dim)
+            probe.objects = max(probe.objects, state.n_objects)
+            probe.retired = max(probe.retired, len(state.retired))
+            if t in probe.sample_frames:
+                probe.memory.setdefault(t, []).append(held_bytes(agent))
+                probe.rss[t] = rss_mib()
+
+        MsckfAgent.step = step
+
+    def close(self) -> None:
+        MsckfAgent.step = self._step
+
+    def with_full_maps(self, result):
+        """``result`` with each robot's final map including its persistent map."""
+        maps = [self.states[i].full_map() for i in range(len(result.objects))]
+        return replace(
+            result,
+            object_ids=[m[0] for m in maps],
+            objects=[m[1] for m in maps],
+            object_covs=[m[2] for m in maps],
+        )
+
+
+def cost(robots: int, frames: int, retire: int, seed: int) -> None:
+    begin = time.perf_counter()
+    dataset = long_route_team(robots=robots, steps=frames, seed=seed)
+    print(
+        f"long route: {robots} robots × {frames} frames, {len(dataset.object_positions)} objects "
+        f"in the world (simulated in {time.perf_counter() - begin:.0f} s)"
+    )
+    config = config_for(dataset, object_retire_after=retire)
+    probe = Probe((200, frames))
+    try:
+        result = run_team(dataset, config, progress=False)
+    finally:
+        probe.close()
+    per_frame = np.stack([t.sum(axis=1) for t in result.frame_times])  # (robots, frames + 1)
+    early = float(np.median(per_frame[:, 100:200]))
+    late = float(np.median(per_frame[:, frames - 100 : frames]))
+    metrics = team_metrics(dataset, probe.with_full_maps(result))
+    retired = sum(c.get("objects_retired", 0) for c in result.counters) / robots
+    back = sum(c.get("objects_reentered", 0) for c in result.counters) / robots
+    print(f"window {config.window}, object_retire_after {retire}, consensus on")
+    print(f"wall time {result.wall_seconds:.0f} s")
+    print(f"median time per robot-frame, frames 100–200:          {1e3 * early:7.1f} ms")
+    print(f"median time per robot-frame, frames {frames - 100}–{frames}:      {1e3 * late:7.1f} ms")
+    print(f"ratio:                                                {late / early:7.2f}")
+    cpu = np.array([probe.cpu[i] for i in range(robots)])  # CPU seconds of each step
+    cpu_early = float(np.median(cpu[:, 100:200]))
+    cpu_late = float(np.median(cpu[:, frames - 100 : frames]))
+    print(
+        f"median CPU time of a robot's step (no consensus), same frames: {1e3 * cpu_early:.1f} "
+        f"ms, {1e3 * cpu_late:.1f} ms, ratio {cpu_late / cpu_early:.2f}"
+    )
+    print(f"peak state dimension {probe.dim}, peak objects in state {probe.objects}")
+    print(f"persistent map at the end (per robot, largest): {probe.retired} objects")
+    print(f"objects retired / re-entered per robot: {retired:.0f} / {back:.0f}")
+    for t in sorted(probe.memory):
+        working, stored = (np.array(probe.memory[t]) / 1024).T
+        print(
+            f"frame {t:>5}: per robot, state + open observations {working.mean():6.0f} KiB "
+            f"(max {working.max():.0f}), persistent map {stored.mean():6.0f} KiB "
+            f"(max {stored.max():.0f}); process RSS {probe.rss[t]:.0f} MiB"
+        )
+    print(f"trajectory RMSE (mean over robots): {metrics['trajectory_rmse_avg_m']:.3f} m")
+    print(
+        f"object error, state + persistent map (mean over robots): "
+        f"{metrics['object_error_avg_m']:.3f} m"
+    )
+
+
+def accuracy(robots: int, frames: int, retire: int, seed: int) -> None:
+    print(f"{'team':<31} {'retire':>6} {'traj RMSE':>9} {'obj err':>8} {'obj err':>8} {'wall':>6}")
+    print(f"{'':<31} {'':>6} {'[m]':>9} {'state':>8} {'+ map':>8} {'[s]':>6}")
+    teams = (
+        (f"long route {robots}r × {frames}", long_route_team(robots, frames, seed), {}),
+        ("lissajous 5r × 150, window 10", lissajous_team(5, 150, seed=0), {"window": 10}),
+    )
+    for name, dataset, extra in teams:
+        for value in (0, retire):
+            config = config_for(dataset, object_retire_after=value, **extra)
+            probe = Probe(())
+            try:
+                result = run_team(dataset, config, progress=False)
+            finally:
+                probe.close()
+            m = team_metrics(dataset, result)
+            full = team_metrics(dataset, probe.with_full_maps(result))
+            print(
+                f"{name:<31} {value:>6} {m['trajectory_rmse_avg_m']:9.3f} "
+                f"{m['object_error_avg_m']:8.3f} {full['object_error_avg_m']:8.3f} "
+                f"{result.wall_seconds:6.0f}"
+            )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("what", choices=("cost", "accuracy"))
+    parser.add_argument("--robots", type=int, default=3)
+    parser.add_argument("--frames", type=int, default=None, help="5000 (cost), 300 (accuracy)")
+    parser.add_argument("--retire", type=int, default=40, help="object_retire_after (frames)")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    if args.what == "cost":
+        cost(args.robots, args.frames or 5000, args.retire, args.seed)
+    else:
+        accuracy(args.robots, args.frames or 300, args.retire, args.seed)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,236 @@
+"""Objects leave the filter state for a persistent map and come back: exact, bounded, resumable."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from teamslam.errors import InputError
+from teamslam.msckf import MsckfConfig, config_for
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.persistent_map import PersistentMap
+from teamslam.msckf.state import MsckfState
+from teamslam.sim import lissajous_team, long_route_team
+
+
+def _random_state(n_poses: int, n_objects: int, seed: int = 0) -> MsckfState:
+    rng = np.random.default_rng(seed)
+    state = MsckfState(np.eye(4), 0, np.eye(6))
+    dim = 6 * n_poses + 3 * n_objects
+    a = rng.standard_normal((dim, dim))
+    state.poses = np.tile(np.eye(4), (n_poses, 1, 1))
+    state.pose_fe = state.poses.copy()
+    state.frames = np.arange(n_poses, dtype=np.int64)
+    state.robots = np.zeros(n_poses, dtype=np.int64)
+    state.object_ids = rng.permutation(1000)[:n_objects].astype(np.int64)
+    state.objects = rng.standard_normal((n_objects, 3))
+    state.object_fe = state.objects + 0.1
+    state.object_last_seen = np.zeros(n_objects, dtype=np.int64)
+    state.cov = a @ a.T / dim + np.eye(dim)
+    return state
+
+
+def test_retirement_and_reentry_keep_the_marginals_exactly():
+    state = _random_state(4, 7)
+    before = state.snapshot()
+    cov0, ids0 = before["cov"], before["object_ids"]
+    gone = np.array([1, 4, 5])
+    state.retire_objects(gone)
+    # the remaining state's marginal: the same rows and columns of the joint covariance
+    keep = np.ones(cov0.shape[0], dtype=bool)
+    keep[state.object_columns(gone).ravel() + 0] = False
+    np.testing.assert_array_equal(state.cov, cov0[np.ix_(keep, keep)])
+    np.testing.assert_array_equal(state.object_ids, np.delete(ids0, gone))
+    np.testing.assert_array_equal(state.objects, np.delete(before["objects"], gone, axis=0))
+    assert len(state.retired) == 3 and state.n_objects == 4
+    # the stored marginal is the in-state one
+    means, covs, fe = state.retired.get(ids0[gone])
+    cols = 24 + 3 * gone[:, None] + np.arange(3)
+    np.testing.assert_array_equal(means, before["objects"][gone])
+    np.testing.assert_array_equal(covs, cov0[cols[:, :, None], cols[:, None, :]])
+    np.testing.assert_array_equal(fe, before["object_fe"][gone])
+
+    # one comes back: its own marginal as it left, no cross-covariance, the rest unchanged
+    state.reenter_objects(ids0[gone[1:2]], frame=9)
+    assert len(state.retired) == 2 and state.n_objects == 5
+    slot = state.object_slots(ids0[gone[1:2]])[0]
+    col = state.object_columns(np.array([slot]))[0]
+    np.testing.assert_array_equal(state.objects[slot], before["objects"][gone[1]])
+    np.testing.assert_array_equal(state.object_fe[slot], before["object_fe"][gone[1]])
+    np.testing.assert_array_equal(state.cov[np.ix_(col, col)], covs[1])
+    rest = np.setdiff1d(np.arange(state.dim), col)
+    np.testing.assert_array_equal(state.cov[np.ix_(col, rest)], 0.0)
+    np.testing.assert_array_equal(state.cov[np.ix_(rest, rest)], cov0[np.ix_(keep, keep)])
+    assert state.object_last_seen[slot] == 9
+    np.linalg.cholesky(state.cov)
+
+
+def test_the_persistent_map_reuses_rows_and_grows_by_doubling():
+    store = PersistentMap(capacity=2)
+    rng = np.random.default_rng(1)
+    covs = np.tile(np.eye(3), (5, 1, 1))
+    store.store(np.arange(5), rng.standard_normal((5, 3)), covs, np.zeros((5, 3)))
+    assert len(store) == 5 and store.capacity == 8
+    store.take(np.array([0, 3]))
+    store.store(np.array([10, 11]), np.ones((2, 3)), covs[:2], np.ones((2, 3)))
+    assert store.capacity == 8  # freed rows reused
+    np.testing.assert_array_equal(store.contains(np.array([0, 1, 10, 99])), [0, 1, 1, 0])
+    np.testing.assert_array_equal(store.arrays()["ids"], [1, 2, 4, 10, 11])
+    with pytest.raises(InputError, match="not in the persistent map"):
+        store.take(np.array([3]))
+
+
+@pytest.fixture(scope="module")
+def long_route():
+    return long_route_team(robots=1, steps=160, seed=2)
+
+
+def test_retirement_bounds_the_state_on_a_long_route(long_route):
+    """Every object in the state was seen within the last N frames; none is lost."""
+    retire = 8
+    config = config_for(long_route, window=6, object_retire_after=retire)
+    agent = MsckfAgent(0, long_route.calibration, long_route.robots[0], config)
+    seen_by = {}
+    in_state = []
+    for t in range(long_route.robots[0].frames):
+        agent.step(t)
+        state = agent.state
+        assert np.all(t - state.object_last_seen < retire)
+        # no more objects in the state than were observed over the last N frames
+        recent = set()
+        for k in range(max(0, t - retire + 1), t + 1):
+            recent.update(long_route.robots[0].objects.frame(k)[0].tolist())
+        assert set(state.object_ids.tolist()) <= recent
+        seen_by[t] = len(state.retired)
+        in_state.append(state.n_objects)
+    counters = agent.counters
+    assert counters["objects_retired"] > 50
+    # every object initialised is in the state or in the persistent map
+    assert counters["objects_initialised"] == agent.state.n_objects + len(agent.state.retired)
+    assert max(in_state[80:]) <= 2 * max(in_state[:80])
+    ids, means, covs = agent.state.full_map()
+    assert ids.size == agent.state.n_objects + len(agent.state.retired)
+    assert np.all(np.diff(ids) > 0)
+    stored = agent.state.retired.arrays()
+    pos = np.searchsorted(ids, stored["ids"])
+    np.testing.assert_array_equal(means[pos], stored["means"])
+    np.testing.assert_array_equal(covs[pos], stored["covs"])
+
+
+def test_retired_objects_re_enter_when_observed_again():
+    """The Lissajous arena revisits objects: they come back with the estimate they left with."""
+    dataset = lissajous_team(robots=1, steps=120, seed=3)
+    config = config_for(dataset, window=6, object_retire_after=4)
+    agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
+    state = agent.state
+    reenter = state.reenter_objects
+    checked = []
+
+    def spy(ids, frame):
+        means, covs, _ = state.retired.get(ids)
+        reenter(ids, frame)
+        slots = state.object_slots(ids)
+        np.testing.assert_array_equal(state.objects[slots], means)
+        np.testing.assert_array_equal(state.object_covs()[slots], covs)
+        observed = dataset.robots[0].objects.frame(frame)[0]
+        assert np.isin(ids, observed).all() and frame == agent.frame + 1
+        checked.append(ids.size)
+
+    state.reenter_objects = spy
+    for t in range(dataset.robots[0].frames):
+        agent.step(t)
+    assert sum(checked) == agent.counters["objects_reentered"] > 0
+    assert agent.counters["objects_retired"] > 0
+
+
+def _team_run(dataset, retire):
+    from teamslam.msckf import run_team
+
+    return run_team(dataset, config_for(dataset, window=6, object_retire_after=retire))
+
+
+def test_retirement_that_never_triggers_changes_nothing():
+    """``object_retire_after`` longer than the run gives bit-for-bit the run without it."""
+    dataset = lissajous_team(robots=2, steps=25, seed=5)
+    off, never = _team_run(dataset, 0), _team_run(dataset, 10_000)
+    for a, b in zip(off.poses, never.poses, strict=True):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(off.objects, never.objects, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert "objects_retired" not in off.counters[0]
+
+
+def test_snapshot_carries_the_persistent_map(long_route):
+    config = config_for(long_route, window=6, object_retire_after=5)
+    sequence = long_route.robots[0]
+    original = MsckfAgent(0, long_route.calibration, sequence, config)
+    for t in range(60):
+        original.step(t)
+    assert len(original.state.retired) > 0
+    snapshot = original.snapshot()
+    assert all(isinstance(v, np.ndarray) and v.dtype != object for v in snapshot.values())
+    resumed = MsckfAgent(0, long_route.calibration, sequence, config)
+    resumed.restore({k: v.copy() for k, v in snapshot.items()})
+    for name, value in original.state.retired.arrays().items():
+        np.testing.assert_array_equal(resumed.state.retired.arrays()[name], value)
+    np.testing.assert_array_equal(resumed.state.object_last_seen, original.state.object_last_seen)
+    for t in range(60, 90):
+        original.step(t)
+        resumed.step(t)
+    np.testing.assert_array_equal(resumed.state.poses, original.state.poses)
+    np.testing.assert_array_equal(resumed.state.cov, original.state.cov)
+    for name, value in original.state.retired.arrays().items():
+        np.testing.assert_array_equal(resumed.state.retired.arrays()[name], value)
+
+    # a corrupt persistent map is refused and leaves the agent as it was
+    bad = dict(snapshot)
+    bad["state_retired_covs"] = -bad["state_retired_covs"]
+    before = resumed.state.snapshot()
+    with pytest.raises(InputError, match="persistent map"):
+        resumed.restore(bad)
+    for k, v in resumed.state.snapshot().items():
+        np.testing.assert_array_equal(v, before[k])
+
+
+@pytest.mark.parametrize("value", [-1, -100, 2.5, True, "10"])
+def test_bad_retirement_settings_are_refused(value):
+    with pytest.raises(InputError, match="object_retire_after"):
+        MsckfConfig(object_retire_after=value)
+
+
+def test_the_long_route_keeps_discovering_objects():
+    team = long_route_team(robots=2, steps=120, seed=1)
+    again = long_route_team(robots=2, steps=120, seed=1)
+    np.testing.assert_array_equal(team.object_positions, again.object_positions)
+    robot = team.robots[0]
+    early = np.unique(np.concatenate([robot.objects.frame(k)[0] for k in range(20)]))
+    late = np.unique(np.concatenate([robot.objects.frame(k)[0] for k in range(100, 121)]))
+    assert early.size > 10 and late.size > 10
+    assert np.intersect1d(early, late).size == 0  # left behind, never seen again
+    # the two robots share what they see
+    other = np.unique(np.concatenate([team.robots[1].objects.frame(k)[0] for k in range(20)]))
+    assert np.intersect1d(early, other).size > 5
+    # about 1.2 objects per metre of route: ≥ 5,000 objects on a 5,000-step route
+    assert team.metadata["simulation"]["objects"] == len(team.object_positions)
+    route = team.robots[0].T_world_body[:, :3, 3]
+    assert len(team.object_positions) >= 1.2 * np.linalg.norm(np.diff(route, axis=0), axis=1).sum()
+
+
+def test_simulate_a_long_route_from_the_command_line(tmp_path, capsys):
+    import json
+
+    from teamslam.cli import main
+    from teamslam.datasets import load_dataset
+
+    out = tmp_path / "long"
+    argv = ["simulate", "--route", "long", "--robots", "2", "--steps", "40", "--out", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert main(["data", "info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["frames_per_robot"] == [41, 41]
+    assert info["objects_observed"] >= info["objects_shared"] > 0
+    expected = long_route_team(robots=2, steps=40)
+    np.testing.assert_array_equal(load_dataset(out).object_positions, expected.object_positions)
+    assert main([*argv[:-1], str(tmp_path / "x"), "--objects", "5"]) != 0
+    assert "--objects" in capsys.readouterr().err
