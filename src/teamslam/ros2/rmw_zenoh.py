@@ -296,15 +296,17 @@ class Ros2Publisher:
             self._put("pose", self._published[-1])
             if (frame + 1) % self.path_every == 0 or last:
                 self._put("path", m.path_msg(self._published, self.stamps_ns[: frame + 1]))
-            if ((frame + 1) % self.objects_every == 0 or last) and state.n_objects:
-                cols = state.object_columns(np.arange(state.n_objects))
-                covs = state.cov[cols[:, :, None], cols[:, None, :]]
+            if (frame + 1) % self.objects_every == 0 or last:
+                ids, means, covs = state.full_map()  # in the state and retired, by id
+            else:
+                ids = np.zeros(0, dtype=np.int64)
+            if ids.size:
                 if self.sphere_diameter is None:
-                    extent = float(np.ptp(state.objects, axis=0).max())
+                    extent = float(np.ptp(means, axis=0).max())
                     self.sphere_diameter = 0.01 * extent if extent > 0 else 1.0
                 markers = m.object_markers(
-                    state.object_ids,
-                    state.objects,
+                    ids,
+                    means,
                     covs,
                     stamp,
                     self.robot,
