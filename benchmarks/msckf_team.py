@@ -165,7 +165,10 @@ def scaling(robots, steps, window):
     first = None
     for n in robots:
         ds = lissajous_team(robots=n, steps=steps, seed=0)
-        graph = random_geometric(n, seed=0)
+        # a radius that keeps the expected degree fixed (above the connectivity threshold
+        # ~ln n): the neighbourhood, not the team, sets a robot's work
+        degree = max(6.0, 2.0 * np.log(n))
+        graph = random_geometric(n, radius=float(np.sqrt(degree / (np.pi * n))), seed=0)
         cfg = config_for(ds, window=window)
         result = run_team(ds, cfg, graph=graph, consensus=True, progress=False)
         times = 1e3 * np.concatenate([f[1:] for f in result.frame_times])
