@@ -17,7 +17,6 @@ step latency (median and p95 over robots' steps), links lost and wall time, and 
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import tempfile
@@ -28,7 +27,9 @@ import numpy as np
 
 from teamslam.datasets import save_dataset
 from teamslam.eval.metrics import team_metrics
+from teamslam.eval.outputs import json_safe
 from teamslam.graph import complete
+from teamslam.msckf.settings import parse_assignments
 from teamslam.runtime.agent_process import load_robot_result
 from teamslam.runtime.launch import agent_command, gather
 from teamslam.runtime.netns import EmulatedNetwork, unavailable_reason
@@ -57,7 +58,7 @@ def _run(args, dataset, data_dir: Path, work: Path, net: EmulatedNetwork | None)
         shared_memory=False,
         timeout_s=args.timeout_s,
         message_delay_ms=args.delay_ms,
-        filter={"window": args.window, **dict(args.set)},
+        filter={"window": args.window, **json_safe(parse_assignments(args.set))},
     )
     out = work / "out"
     begin = time.perf_counter()
@@ -91,16 +92,6 @@ def _run(args, dataset, data_dir: Path, work: Path, net: EmulatedNetwork | None)
     }
 
 
-def _setting(text: str) -> tuple[str, object]:
-    key, sep, value = text.partition("=")
-    if not sep:
-        raise argparse.ArgumentTypeError(f"{text!r} is not KEY=VALUE")
-    try:
-        return key, json.loads(value)
-    except json.JSONDecodeError:
-        return key, value
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", type=int, default=5)
@@ -113,7 +104,6 @@ def main() -> None:
     parser.add_argument("--plain", action="store_true", help="TCP instead of mutual TLS")
     parser.add_argument(
         "--set",
-        type=_setting,
         action="append",
         default=[],
         metavar="KEY=VALUE",
