@@ -37,9 +37,15 @@ def team():
     return lissajous_team(robots=2, steps=40, seed=4, landmarks=10)
 
 
-def test_a_loss_that_never_bites_is_the_gaussian_update(team):
+@pytest.fixture(scope="module")
+def gaussian(team):
+    """The objects-only settings and the separate run with Gaussian object updates."""
     base = config_for(team, window=8, use_geometric_features=False)
-    gaussian = run_team(team, base, consensus=False, progress=False)
+    return base, run_team(team, base, consensus=False, progress=False)
+
+
+def test_a_loss_that_never_bites_is_the_gaussian_update(team, gaussian):
+    base, gaussian = gaussian
     wide = run_team(
         team,
         base.with_(object_loss="huber", object_loss_scale=1e9),
@@ -51,9 +57,8 @@ def test_a_loss_that_never_bites_is_the_gaussian_update(team):
     assert all(c["objects_downweighted"] == 0 for c in wide.counters)
 
 
-def test_down_weighted_updates_move_the_estimate_less(team):
-    base = config_for(team, window=8, use_geometric_features=False)
-    gaussian = run_team(team, base, consensus=False, progress=False)
+def test_down_weighted_updates_move_the_estimate_less(team, gaussian):
+    base, gaussian = gaussian
     tight = run_team(
         team,
         base.with_(object_loss="cauchy", object_loss_scale=0.5),

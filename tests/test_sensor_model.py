@@ -223,7 +223,7 @@ def test_health_nis_is_the_normalised_innovation_squared():
     s = a @ np.swapaxes(a, 1, 2) + np.eye(4)
     r = rng.normal(size=(50, 4))
     health = SensorHealth(record=True)
-    accepted = health.test("objects", r, s, 1.0, stats.chi2.ppf(0.95, 4))
+    accepted, _ = health.test("objects", r, s, 1.0, stats.chi2.ppf(0.95, 4))
     nis = np.array([ri @ np.linalg.solve(si, ri) for ri, si in zip(r, s, strict=True)])
     np.testing.assert_array_equal(accepted, nis < stats.chi2.ppf(0.95, 4))
     summary = health.summary()

@@ -394,7 +394,7 @@ class MsckfAgent:
                 zs[ok],
                 variance,
             )
-            accepted = self.health.test(
+            accepted, _ = self.health.test(
                 "features", r0, s, variance, float(self.config.gate(4 * n - 3))
             )
             self.counters["rejected_features_gate"] += int((~accepted).sum())
@@ -472,14 +472,12 @@ class MsckfAgent:
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
         local_p = self.state.cov[local_cols[:, :, None], local_cols[:, None, :]]
         s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + variance * np.eye(4)
-        accepted = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
+        accepted, nis = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
         self.counters["object_updates"] += int(accepted.sum())
         noise = np.full(int(accepted.sum()), variance)
         if self.config.object_loss != "none":  # one M-estimator reweighting step
-            ra = r[accepted]
-            nis = np.einsum("gi,gi->g", ra, np.linalg.solve(s[accepted], ra[..., None])[..., 0])
-            weight = self.config.robust_weight(np.sqrt(nis))
+            weight = self.config.robust_weight(np.sqrt(nis[accepted]))
             self.counters["objects_downweighted"] += int((weight < 1).sum())
             noise = noise / weight
         return MeasurementRows(

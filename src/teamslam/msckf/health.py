@@ -142,13 +142,13 @@ class SensorHealth:
         innovation_cov: np.ndarray,
         variance: float,
         threshold: np.ndarray | float,
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, np.ndarray]:
         """χ² test of ``G`` innovations ``(G, d)`` with covariances ``(G, d, d)``; returns the
-        acceptance mask and accumulates their NIS."""
+        acceptance mask and each innovation's NIS, and accumulates the NIS."""
         residual = np.asarray(residual, dtype=float)
         g = residual.shape[0]
         if g == 0:
-            return np.zeros(0, dtype=bool)
+            return np.zeros(0, dtype=bool), np.zeros(0)
         nis = np.einsum(
             "gi,gi->g", residual, np.linalg.solve(innovation_cov, residual[..., None])[..., 0]
         )
@@ -163,7 +163,7 @@ class SensorHealth:
             rec = self.records[sensor]
             rec.c2.extend(c2)
             rec.lam.extend(np.maximum(lam - variance, 0.0))
-        return accepted
+        return accepted, nis
 
     def odometry(self, second_moment: np.ndarray, assumed_var: np.ndarray) -> None:
         """Add one step's smoothed ``ê² + diag Σₑ`` (lag 1 of :func:`odometry_lag_residuals`)."""
