@@ -195,7 +195,9 @@ def test_moved_flags_equal_per_neighbour_kl():
     rng = np.random.default_rng(1)
     state = _random_state(rng, poses=3, objects=12)
     agent = SimpleNamespace(
-        robot=0, state=state, config=SimpleNamespace(consensus_kl_threshold=1e-3)
+        robot=0,
+        state=state,
+        config=SimpleNamespace(consensus_kl_threshold=1e-3, consensus_hybrid=False),
     )
     protocol = ConsensusProtocol(agent, [1, 2, 3, 4])
     protocol.requests(1)

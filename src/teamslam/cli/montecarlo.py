@@ -14,6 +14,7 @@ from teamslam.eval.team_montecarlo import (
     run_montecarlo,
     table,
 )
+from teamslam.msckf.settings import parse_assignments
 
 __all__ = ["register"]
 
@@ -32,6 +33,7 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
         objects_only=args.objects_only,
         seed=args.seed,
         window=args.window,
+        settings=tuple(parse_assignments(args.set).items()),
     )
     begin = time.perf_counter()
     summary = run_montecarlo(spec, args.workers)
@@ -55,8 +57,9 @@ def register(subparsers) -> None:
         help="Monte Carlo NEES and RMSE of the 3D team filter: linearisation × team mode",
         description="Run N noise realisations of one simulated stereo team through every "
         "chosen linearisation (std, fej, ideal, oc) and team mode (separate, consensus, "
-        "centralised); report the average NEES of the current pose and of the objects with "
-        "the χ² band, RMSE of position and heading, and write montecarlo.json and figures.",
+        "hybrid consensus, centralised); report the average NEES of the current pose and of "
+        "the objects with the χ² band, RMSE of position and heading, and write "
+        "montecarlo.json and figures.",
     )
     mc.add_argument("--robots", type=positive_int, default=5, help="team size")
     mc.add_argument("--steps", type=positive_int, default=200, help="motion steps per robot")
@@ -68,6 +71,13 @@ def register(subparsers) -> None:
     mc.add_argument("--objects-only", action="store_true", help="ignore geometric features")
     mc.add_argument("--seed", type=non_negative_int, default=0, help="seed of paths and map")
     mc.add_argument("--window", type=positive_int, default=10, help="MSCKF window size")
+    mc.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a filter setting for every run (repeatable; linearization comes from --filters)",
+    )
     mc.add_argument("--workers", type=positive_int, default=None, help="processes (all cores)")
     mc.add_argument("--json", action="store_true", help="print the summary as JSON")
     mc.add_argument("--out", type=Path, required=True, help="directory for JSON and figures")

@@ -3,9 +3,11 @@
 ``N`` noise realisations of one simulated team (same paths and map, fresh odometry and
 measurement noise, :func:`~teamslam.sim.lissajous_team` with ``noise_seed``), each run through
 every linearisation policy (:mod:`teamslam.msckf.linearization`) and every mode — ``separate``
-filters, ``consensus`` (the distributed MSCKF on a complete graph) and ``centralised``
-(:mod:`teamslam.msckf.centralised`). Runs are spread over processes
-(:func:`~teamslam.eval.montecarlo.run_parallel`, BLAS pinned to one thread per worker).
+filters, ``consensus`` (the distributed MSCKF on a complete graph), ``hybrid`` (the same with
+hybrid consensus, ``consensus_hybrid``: new information at full weight,
+:mod:`teamslam.msckf.consensus`) and ``centralised`` (:mod:`teamslam.msckf.centralised`).
+Runs are spread over processes (:func:`~teamslam.eval.montecarlo.run_parallel`, BLAS pinned
+to one thread per worker).
 
 Per filter and mode:
 
@@ -35,7 +37,7 @@ from teamslam.geometry import se3
 
 __all__ = ["MODES", "MonteCarloSpec", "plot", "run_montecarlo", "summarise", "table"]
 
-MODES = ("separate", "consensus", "centralised")
+MODES = ("separate", "consensus", "hybrid", "centralised")
 FILTERS = ("std", "fej", "ideal", "oc")
 
 
@@ -50,23 +52,26 @@ class MonteCarloSpec:
     filters
         Linearisation policies (``std``, ``fej``, ``ideal``, ``oc``).
     modes
-        Team modes (``separate``, ``consensus``, ``centralised``).
+        Team modes (``separate``, ``consensus``, ``hybrid``, ``centralised``).
     objects_only
         Ignore geometric features.
     seed
         Seed of the team (paths and map); run ``k`` draws its noise from ``(seed, k)``.
     window
         MSCKF window size.
+    settings
+        Further filter settings for every run (``(name, value)`` pairs, as ``--set`` gives).
     """
 
     robots: int = 5
     steps: int = 200
     runs: int = 20
     filters: tuple[str, ...] = ("std", "fej", "ideal")
-    modes: tuple[str, ...] = MODES
+    modes: tuple[str, ...] = ("separate", "consensus", "centralised")
     objects_only: bool = False
     seed: int = 0
     window: int = 10
+    settings: tuple[tuple[str, object], ...] = ()
 
     def __post_init__(self) -> None:
         from teamslam.errors import InputError
@@ -105,15 +110,19 @@ def one_run(run: int, spec: MonteCarloSpec) -> dict:
     truth = np.stack([r.T_world_body for r in team.robots])  # (R, T + 1, 4, 4)
     out: dict = {}
     for filt in spec.filters:
-        config = config_for(
-            team,
-            window=spec.window,
-            linearization=filt,
-            use_geometric_features=not spec.objects_only,
-        )
+        settings = {
+            "window": spec.window,
+            "use_geometric_features": not spec.objects_only,
+            **dict(spec.settings),
+            "linearization": filt,
+        }
+        config = config_for(team, **settings)
         for mode in spec.modes:
             if mode == "centralised":
                 result = run_centralised(team, config, progress=False)
+            elif mode == "hybrid":
+                hybrid = config_for(team, **{**settings, "consensus_hybrid": True})
+                result = run_team(team, hybrid, consensus=True, progress=False)
             else:
                 result = run_team(team, config, consensus=mode == "consensus", progress=False)
             poses = np.stack(result.poses)

@@ -73,6 +73,13 @@ class MsckfConfig:
         harmless: a message goes in float32 only when the rounded marginal is within
         :data:`~teamslam.msckf.consensus.FLOAT32_MAX_KL` (1e-4 nats) of the exact one, else in
         float64 (:func:`~teamslam.msckf.consensus.common_marginal_message`).
+    consensus_hybrid
+        Hybrid consensus: the new information each robot gathered since its last exchange
+        enters the neighbours' averages at full weight instead of the Metropolis weight (after
+        HCMCI, Battistelli et al. 2015), with gains that never count one robot's new
+        information twice; the plain average (``False``, the paper's) is conservative by about
+        the number of robots averaging. Joint marginals, lock-step exchanges only;
+        :mod:`teamslam.msckf.consensus`.
     linearization
         Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates)
         ``ideal`` (ground truth, simulation only) or ``oc`` (observability-constrained);
@@ -104,6 +111,7 @@ class MsckfConfig:
     consensus_kl_threshold: float = 1e-3
     consensus_per_object: bool = False
     consensus_float32: bool = True
+    consensus_hybrid: bool = False
     linearization: str = "std"
     object_retire_after: int = 0
     debug: bool = False
@@ -127,6 +135,11 @@ class MsckfConfig:
         threshold = self.consensus_kl_threshold
         if isinstance(threshold, bool) or not (np.isfinite(threshold) and threshold >= 0):
             raise InputError("consensus_kl_threshold must be a number ≥ 0 (nats)")
+        if self.consensus_hybrid and self.consensus_per_object:
+            raise InputError(
+                "consensus_hybrid needs joint marginals: it cannot be used with "
+                "consensus_per_object"
+            )
         if self.object_loss not in ("none", "huber", "cauchy"):
             raise InputError(f"object_loss must be none, huber or cauchy, not {self.object_loss!r}")
         scale = self.object_loss_scale

@@ -30,6 +30,14 @@ new objects and objects observed since are always averaged. A robot records an e
 once its neighbour's marginal arrived, so a lost message never hides a change. With
 ``kl_threshold = 0`` (or in asynchronous mode) every common object is averaged at every step.
 
+**Hybrid consensus** (``consensus_hybrid``, lock-step only): the new information each robot
+gathered since its last exchange enters the average at full weight instead of ``A_ij`` — its
+round-2 marginals are scaled with the gain ``1 + d_i``, its own with ``1 / (1 − Σ_j A_ij)``
+over the marginals that arrived, and its prior is renewed after every step in which it sent or
+averaged (:mod:`teamslam.msckf.consensus`). In asynchronous mode a neighbour's newest marginal
+may be used at several steps, which would count its new information again, so there the plain
+average is used.
+
 Only objects in the filter state take part: objects retired to the persistent map
 (``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
 averaged until they are observed again and re-enter the state.
@@ -48,14 +56,18 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from teamslam.errors import InputError
-from teamslam.gaussian import kl_divergence
+from teamslam.gaussian import kl_divergence, spd_inverse
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus import (
     ReceivedMarginal,
+    SharedPrior,
     common_marginal_message,
     consensus_average,
+    hybrid_marginal,
     object_marginals,
+    prior_information,
     receive_marginal,
+    shared_prior,
 )
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
 
@@ -105,6 +117,9 @@ class ConsensusProtocol:
         self._moved: dict[int, np.ndarray] = {}
         self._pending: dict[int, np.ndarray] = {}
         self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        # hybrid consensus: our joint marginal of the objects after the last exchange
+        self.hybrid = bool(agent.config.consensus_hybrid) and self.max_age == 0
+        self._prior: SharedPrior | None = shared_prior(agent.state) if self.hybrid else None
         self.step = -1
         self.heard: set[int] = set()
         self.expected: set[int] = set()
@@ -226,7 +241,11 @@ class ConsensusProtocol:
                 share = np.intersect1d(np.intersect1d(their_ids, own), flagged)
             if share.size == 0:
                 continue
-            config = self.agent.config
+            self._pending[j] = share
+            self.expected.add(j)
+        source = self._hybrid_source() if self.hybrid and self._pending else None
+        config = self.agent.config
+        for j, share in self._pending.items():
             reply = common_marginal_message(
                 self.agent.state,
                 self.robot,
@@ -236,12 +255,25 @@ class ConsensusProtocol:
                 len(self.heard),
                 per_object=config.consensus_per_object,
                 float32=config.consensus_float32,
+                source=source,
             )
             replies.append(reply)
-            self._pending[j] = share
-            self.expected.add(j)
         self.spent += time.perf_counter() - begin
         return replies
+
+    def _hybrid_source(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Our joint marginal of every object we send, new information scaled by ``1 + d_i``."""
+        ids = np.unique(np.concatenate(list(self._pending.values())))
+        state = self.agent.state
+        cols = state.object_columns(state.object_slots(ids)).ravel()
+        mean = state.objects[state.object_slots(ids)].ravel()
+        info = spd_inverse(state.cov[np.ix_(cols, cols)], "own marginal covariance")
+        gain = 1.0 + len(self.heard)
+        hybrid = hybrid_marginal(mean, info, *prior_information(self._prior, ids), gain)
+        if hybrid is None:
+            self.agent.counters["hybrid_fallbacks"] += 1
+            return None
+        return ids, hybrid[0], hybrid[1]
 
     def weights(self, degrees: dict[int, int]) -> tuple[float, dict[int, float]]:
         """``(A_ii, {j: A_ij})`` for the neighbours heard, given each one's degree."""
@@ -284,9 +316,18 @@ class ConsensusProtocol:
             degrees[m.sender] = int(m.degree)
         self_weight, weights = self.weights(degrees)
         self.averaged_with = sorted(marginals)
+        used = [(weights[j], marginals[j]) for j in sorted(marginals)]
+        kept = 1.0 - sum(w for w, _ in used)  # our weight, with the marginals that did not come
         averaged = consensus_average(
-            self.agent.state, self_weight, [(weights[j], marginals[j]) for j in sorted(marginals)]
+            self.agent.state,
+            self_weight,
+            used,
+            prior=self._prior if self.hybrid else None,
+            own_gain=1.0 / kept if self.hybrid and kept > 0 else 1.0,
+            counters=self.agent.counters,
         )
+        if self.hybrid and (self.expected or averaged):
+            self._prior = shared_prior(self.agent.state)
         if self._own is not None:
             for j in marginals:
                 if j in self._pending:
