@@ -54,8 +54,13 @@ def _threads_over_memory(team_path, out, links, n):
     assert not any(t.is_alive() for t in threads)
 
 
-@pytest.mark.parametrize(("graph", "loss"), [("complete", 0.0), ("complete", 0.4), ("ring", 0.3)])
-def test_process_driver_equals_in_process_runner_under_link_loss(team4, tmp_path, graph, loss):
+@pytest.mark.parametrize(
+    ("graph", "loss", "hybrid"),
+    [("complete", 0.0, False), ("complete", 0.4, False), ("ring", 0.3, False), ("ring", 0.3, True)],
+)
+def test_process_driver_equals_in_process_runner_under_link_loss(
+    team4, tmp_path, graph, loss, hybrid
+):
     dataset, directory = team4
     n = dataset.n_robots
     g = complete(n) if graph == "complete" else ring(n)
@@ -63,7 +68,7 @@ def test_process_driver_equals_in_process_runner_under_link_loss(team4, tmp_path
     schedule = [draws.step()[0] for _ in range(dataset.robots[0].frames)]
     if loss > 0:
         assert any(not np.array_equal(a, g.adjacency) for a in schedule[1:])
-    config = config_for(dataset, window=8)
+    config = config_for(dataset, window=8, consensus_hybrid=hybrid)
     reference = run_team(dataset, config, graph=g, loss=loss, seed=5, progress=False)
     team_path = write_team_file(
         tmp_path / "team.yaml",
@@ -71,7 +76,7 @@ def test_process_driver_equals_in_process_runner_under_link_loss(team4, tmp_path
         directory,
         g.adjacency,
         timeout_s=60.0,
-        filter={"window": 8},
+        filter={"window": 8, "consensus_hybrid": hybrid},
     )
     _threads_over_memory(team_path, tmp_path / "out", lambda t: schedule[t], n)
     for r in range(n):
