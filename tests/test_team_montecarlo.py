@@ -83,8 +83,30 @@ def test_one_run_nees_is_the_pose_error_in_the_filters_own_metric():
     assert np.all(out["nees_pose"] >= 0) and out["heading_error"][0, 0] < 1e-6
 
 
+def test_hybrid_mode_is_consistent_and_less_conservative_than_consensus(tmp_path, capsys):
+    """The ideal filter isolates what consensus does: plain averaging is conservative (object
+    NEES well below 1), hybrid consensus brings it back without leaving the band."""
+    argv = ["montecarlo", "--robots", "3", "--steps", "50", "--runs", "3", "--filters", "ideal"]
+    argv += ["--modes", "consensus,hybrid", "--objects-only", "--workers", "1", "--json"]
+    argv += ["--set", "window=6", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    ideal = json.loads(capsys.readouterr().out)["results"]["ideal"]
+    lo, hi = ideal["hybrid"]["band"]
+    assert lo < ideal["hybrid"]["anees_pose"] < hi
+    assert ideal["hybrid"]["anees_object"] > 1.15 * ideal["consensus"]["anees_object"]
+    lo, hi = ideal["hybrid"]["band_object"]
+    assert lo < ideal["hybrid"]["anees_object"] < hi
+
+
 @pytest.mark.parametrize(
-    "bad", [["--filters", "std,best"], ["--modes", "everyone"], ["--filters", ","]]
+    "bad",
+    [
+        ["--filters", "std,best"],
+        ["--modes", "everyone"],
+        ["--filters", ","],
+        ["--set", "no_such_setting=1"],
+        ["--set", "consensus_hybrid=maybe"],
+    ],
 )
 def test_bad_arguments_exit_2(tmp_path, bad):
     assert main(["montecarlo", *bad, "--out", str(tmp_path)]) == 2
