@@ -4,11 +4,12 @@ Run on demand (BLAS pinned to one thread; needs ``../shared/data`` beside the re
 ``--data``)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/kitti_consistency.py \\
-        [--variants std fej oc std+huber std+cauchy oc+huber] [--modes separate consensus]
+        [--variants std fej oc std+huber std+cauchy oc+huber] [--modes separate consensus hybrid]
 
 Each variant is a linearisation policy (``std``, ``fej``, ``oc``), optionally with a robust
 object loss (``+huber``, ``+cauchy``), on top of the settings ``teamslam run`` resolves for the
-data (its sensor model, else a calibration from the data). Prints per variant and mode the
+data (its sensor model, else a calibration from the data). Mode ``hybrid`` is consensus with
+``consensus_hybrid`` (new information at full weight). Prints per variant and mode the
 trajectory RMSE and object error (team averages, metres), each robot's mean and median pose
 NEES/6 over its frames (the χ² expectation is 1) and the object NIS per degree of freedom.
 """
@@ -27,6 +28,7 @@ from teamslam.eval.metrics import team_metrics
 from teamslam.msckf import run_team
 from teamslam.msckf.settings import resolve_config
 
+MODES = ("separate", "consensus", "hybrid")
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
@@ -41,7 +43,9 @@ def main() -> None:
     parser.add_argument(
         "--variants", nargs="+", default=["std", "fej", "oc", "std+huber", "std+cauchy", "oc+huber"]
     )
-    parser.add_argument("--modes", nargs="+", default=["separate", "consensus"])
+    parser.add_argument(
+        "--modes", nargs="+", default=["separate", "consensus"], choices=MODES, metavar="MODE"
+    )
     args = parser.parse_args()
     if not args.data.is_dir():
         raise SystemExit(f"no KITTI 00 data at {args.data} (see the data README)")
@@ -59,7 +63,11 @@ def main() -> None:
         configs = [replace(c, **_settings(variant)) for c in base]
         for mode in args.modes:
             begin = time.perf_counter()
-            result = run_team(dataset, configs, consensus=mode == "consensus", progress=False)
+            run_configs = configs
+            if mode == "hybrid":
+                run_configs = [replace(c, consensus_hybrid=True) for c in configs]
+            consensus = mode in ("consensus", "hybrid")
+            result = run_team(dataset, run_configs, consensus=consensus, progress=False)
             m = team_metrics(dataset, result)
             means = " ".join(f"{v:5.1f}" for v in m["nees_pose_avg"])
             medians = " ".join(f"{v:5.1f}" for v in m["nees_pose_median"])

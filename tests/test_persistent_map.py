@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.linalg import block_diag
 
 from teamslam.errors import InputError
 from teamslam.msckf import MsckfConfig, config_for
@@ -63,6 +64,37 @@ def test_retirement_and_reentry_keep_the_marginals_exactly():
     np.testing.assert_array_equal(state.cov[np.ix_(rest, rest)], cov0[np.ix_(keep, keep)])
     assert state.object_last_seen[slot] == 9
     np.linalg.cholesky(state.cov)
+
+
+@pytest.mark.parametrize("per_object", [False, True])
+def test_a_late_marginal_naming_retired_objects_is_marginalised_to_the_state(per_object):
+    """Asynchronous exchanges can deliver a marginal older than a retirement."""
+    from teamslam.msckf.consensus import receive_marginal
+    from teamslam.msckf.messages import CommonMarginalMessage
+
+    state = _random_state(2, 5, seed=3)
+    ids = np.sort(state.object_ids)
+    rng = np.random.default_rng(4)
+    a = rng.standard_normal((15, 15))
+    cov = a @ a.T / 15 + np.eye(15)
+    mean = rng.standard_normal(15)
+    if per_object:
+        cov = np.stack([cov[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in range(5)])
+    message = CommonMarginalMessage(7, 0, 3, ids, mean, cov, 1)
+    state.retire_objects(state.object_slots(ids[[1, 3]]))
+    problem, marginal = receive_marginal(state, message)
+    assert problem is None
+    keep = np.array([0, 2, 4])
+    np.testing.assert_array_equal(marginal.ids, ids[keep])
+    coords = (3 * keep[:, None] + np.arange(3)).ravel()
+    sub = block_diag(*cov[keep]) if per_object else cov[np.ix_(coords, coords)]
+    np.testing.assert_allclose(np.linalg.inv(marginal.info), sub, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(marginal.info @ mean[coords], marginal.info_vector, rtol=1e-12)
+    # only retired objects: nothing to average; an id never held: unusable
+    state.retire_objects(state.object_slots(ids[[0, 2, 4]]))
+    assert "retired" in receive_marginal(state, message)[0]
+    other = CommonMarginalMessage(7, 0, 3, np.append(ids[:4], 5000), mean, cov, 1)
+    assert receive_marginal(state, other)[0] == "ids not in this robot's map"
 
 
 def test_the_persistent_map_reuses_rows_and_grows_by_doubling():

@@ -292,6 +292,8 @@ def receive_marginal(
 ) -> tuple[str | None, ReceivedMarginal | None]:
     """Check a neighbour's marginal against our map and factorise it once.
 
+    Objects that have left our state for the persistent map since the neighbour asked (an
+    asynchronous message) are marginalised out of it; an object we never had makes it unusable.
     Returns ``(None, marginal)`` when it can be used, ``(reason, None)`` when it cannot.
     """
     ids = np.asarray(message.ids)
@@ -306,11 +308,23 @@ def receive_marginal(
     cov = np.asarray(message.cov, dtype=float)
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
         return "non-finite mean or covariance", None
-    if np.any(state.object_slots(ids) < 0):
-        return "ids not in this robot's map", None
     cov_t = np.swapaxes(cov, -1, -2)
     if np.abs(cov - cov_t).max() > 1e-9 * np.abs(cov).max() + 1e-12:
         return "covariance is not symmetric", None
+    absent = state.object_slots(ids) < 0
+    if absent.any():
+        # an asynchronous message may be older than our last retirement: objects that left our
+        # state for the persistent map are marginalised out of it (exact for a Gaussian);
+        # objects we never had make the message unusable
+        if not state.retired.contains(ids[absent]).all():
+            return "ids not in this robot's map", None
+        if absent.all():
+            return "every object of the marginal has retired from this robot's state", None
+        keep = np.flatnonzero(~absent)
+        coords = (3 * keep[:, None] + np.arange(3)).ravel()
+        ids, mean, k = ids[keep], mean[coords], keep.size
+        cov = cov[keep] if per_object else cov[np.ix_(coords, coords)]
+        cov_t = np.swapaxes(cov, -1, -2)
     try:
         info = spd_inverse(0.5 * (cov + cov_t), "covariance")
     except NotPositiveDefiniteError:

@@ -28,7 +28,10 @@ averaged: it keeps the marginal it retired with until it re-enters, and then tak
 in state). The consequence: a neighbour's information gathered while the object is retired
 here reaches this robot only after re-entry, and information this robot holds about an object
 it retired reaches nobody until then — consensus agreement is over the objects the robots are
-currently working with, which is where it matters for their poses.
+currently working with, which is where it matters for their poses. In asynchronous mode a
+neighbour's marginal may be older than a retirement here: the retired objects are then
+marginalised out of it (:func:`~teamslam.msckf.consensus.receive_marginal`) and the rest is
+averaged as usual.
 
 **Cost.** Ids are found with a dict; rows live in arrays that double their capacity when full
 and reuse freed rows, so storing or re-entering ``k`` objects costs ``O(k)`` whatever the size
