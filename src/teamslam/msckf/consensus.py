@@ -18,26 +18,29 @@ The protocol around it — who sends what, which messages are accepted, the weig
 **Hybrid consensus: new information at full weight.** Eq. 19 averages whole marginals, so
 information that robot ``j`` gathered since the last exchange enters robot ``i``'s estimate with
 the weight ``A_ij``: on a complete graph of ``N`` robots one average keeps ``1/N`` of the team's
-new information, and the filter ends up markedly conservative (pose ANEES ≈ 0.7, object ANEES
-≈ 0.25 where the centralised filter gives 1). After Battistelli, Chisci, Mugnai, Farina and
+new information, and the filter ends up markedly conservative (pose ANEES ≈ 0.7, object ANEES ≈
+0.25 where the centralised filter gives 1). After Battistelli, Chisci, Mugnai, Farina and
 Graziano's hybrid consensus on measurements and on information (HCMCI, IEEE TAC 2015), each
-marginal is split into the prior ``P`` — the robot's marginal right after its last exchange —
-and the new information ``Δ = Ω − P`` gathered since (``Ω`` its marginal information now;
-objects initialised since have ``P = 0``), and the new part is scaled by a gain ``γ``:
+marginal is split into the prior ``P`` — the robot's marginal right after its last exchange — and
+the new information ``Δ = Ω − P`` gathered since (``Ω`` its marginal information now; objects
+initialised since have ``P = 0``), and the new part is scaled by a gain ``γ``:
 
     ``Ω' = P + γ Δ = Ω + (γ − 1)(Ω − P)``,  ``η' = η + (γ − 1)(η − η_P)``.
 
-The average of these is eq. 19 on the priors plus ``γ`` times eq. 19 on the new information.
-The gains are the largest that never count one robot's new information more than once in any
-estimate: a sender scales what it sends by ``γ = 1 + d_i`` (``d_i`` the neighbours it heard this
-step), which a receiver weighs with ``A_ji = 1/(1 + max(d_i, d_j)) ≤ 1/(1 + d_i)``; its own
-marginal is scaled by ``1/a`` with ``a = 1 − Σ_j A_ij`` the weight it keeps (over the marginals
-that arrived), so ``aγ = 1``. On a complete graph with every link up (``A_ij = 1/N``) this sums
-the new information of all robots — for the common objects, one exchange then equals
-centralised fusion of everyone's new information (tested on a linear model). The new
-information is a difference of two marginals; when it is not positive semi-definite enough for
-``Ω'`` to stay positive definite (after relinearisation, or an object re-entering from the
-persistent map) the plain marginal is used (``hybrid_fallbacks``).
+The average of these is eq. 19 on the priors plus ``γ`` times eq. 19 on the new information. The
+gains are the largest that never count one robot's new information more than once in any estimate:
+a sender scales what it sends by ``γ = 1 + d_i`` (``d_i`` the neighbours it heard this step), which
+a receiver weighs with ``A_ji = 1/(1 + max(d_i, d_j)) ≤ 1/(1 + d_i)``; its own marginal is scaled
+by ``1/a`` with ``a = 1 − Σ_j A_ij`` the weight it keeps over the marginals that arrived, so that
+its own new information has weight ``aγ = 1`` — but only when each of those marginals holds every
+object it averages: a message that lacks an object is completed with the robot's own conditional
+(eq. 42), which carries its new information into that term as well, and then its own marginal is
+used unscaled. On a complete graph with every link up (``A_ij = 1/N``) this sums the new
+information of all robots — for the common objects, one exchange then equals centralised fusion of
+everyone's new information (tested on a linear model). The new information is a difference of two
+marginals; when it is not positive semi-definite enough for ``Ω'`` to stay positive definite (after
+relinearisation, or an object re-entering from the persistent map) the plain marginal is used
+(``hybrid_fallbacks``).
 
 A message with unknown ids, wrong sizes, or a covariance that is not symmetric positive definite
 is rejected; the estimate is unaffected.
@@ -349,7 +352,6 @@ def consensus_average(
     self_weight: float,
     received: Sequence[tuple[float, ReceivedMarginal | CommonMarginalMessage]],
     prior: SharedPrior | None = None,
-    own_gain: float = 1.0,
     counters: MutableMapping[str, int] | None = None,
 ) -> int:
     """Average the common objects with the neighbours' marginals and rebuild the joint.
@@ -368,12 +370,15 @@ def consensus_average(
     received
         ``(A_ij, marginal)`` for every usable neighbour marginal (a message is checked with
         :func:`receive_marginal` first and raises ``ValueError`` if it cannot be used).
-    prior, own_gain
-        Hybrid consensus (module docstring): our own marginal enters the average with its new
-        information since ``prior`` scaled by ``own_gain``; the rebuild (Prop. 2) still uses
-        our actual conditional. Joint marginals only. ``counters["hybrid_fallbacks"]`` is
-        incremented when the scaled marginal is not positive definite and the plain one is
-        used instead.
+    prior
+        Hybrid consensus (module docstring): when every neighbour marginal holds every object
+        of ``y``, our own marginal enters the average with its new information since ``prior``
+        scaled by ``1 / (1 − Σ_j A_ij)``; otherwise our own marginal is used as it is (a
+        message that lacks an object is completed with our own conditional, eq. 42, which
+        carries our new information into that term too, so no gain above 1 is safe there —
+        tested). The rebuild (Prop. 2) still uses our actual conditional. Joint marginals only.
+        ``counters["hybrid_fallbacks"]`` is incremented when the scaled
+        marginal is not positive definite and the plain one is used instead.
 
     Returns
     -------
@@ -417,7 +422,10 @@ def consensus_average(
         # Σʸ⁻¹ serves the average (our own information) and the rebuild (A = Σˣʸ Σʸ⁻¹)
         own_info = spd_inverse(own_cov, "own marginal covariance")
         mean_y, cov_y, info_y = own_mean, own_cov, own_info
-        if prior is not None and own_gain != 1.0:
+        if prior is not None:
+            # our own new information is scaled only when every message holds all of y
+            everywhere = all(sub.size == y_ids.size * 3 for _, sub, _, _ in terms)
+            own_gain = 1.0 / (1.0 - sum(weights)) if everywhere else 1.0
             hybrid = hybrid_marginal(own_mean, own_info, *prior_information(prior, y_ids), own_gain)
             if hybrid is not None:
                 mean_y, cov_y, info_y = hybrid
