@@ -8,6 +8,7 @@ Run on demand (BLAS pinned to one thread)::
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py speed [--robots 5 15]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py scaling [--robots 5 10 25 50 100]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py messages --steps 150 [--robots 5]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py hybrid --steps 150 [--robots 5]
 
 ``accuracy`` and ``loss`` use the simulator with the full filter (geometric features and
 objects) unless ``--objects-only``; they print separate vs consensus trajectory RMSE and object
@@ -16,6 +17,9 @@ per stage (frame 0 excluded) and the accuracy of the run; ``kitti`` also prints 
 ``scaling`` runs teams of growing size on a random geometric graph (each robot talks to the
 robots near it, so its neighbourhood does not grow with the team) and prints the median time
 per robot per frame, overall and for consensus, and its ratio to the smallest team.
+``hybrid`` compares the plain average with hybrid consensus (``consensus_hybrid``) on the
+complete graph (one realisation) and on a ring with 30% link loss and the ideal filter (means
+over ``--seeds`` noise realisations): accuracy, mean pose NEES/6, bytes and consensus time.
 """
 
 from __future__ import annotations
@@ -219,10 +223,54 @@ def messages(robots, steps, window):
         )
 
 
+def hybrid(robots, steps, window, seeds):
+    """Plain vs hybrid consensus: accuracy, consistency, bytes, consensus time."""
+    from teamslam.graph import complete, ring
+
+    n = robots[0]
+    print(
+        f"{'team':<34} {'consensus':<9} {'RMSE':>7} {'obj err':>8} {'disagree':>9} "
+        f"{'NEES/6':>7} {'B/robot-step':>13} {'consensus ms':>13}"
+    )
+    cases = [
+        ("complete, std, 1 realisation", complete(n), 0.0, "std", [None]),
+        (f"ring, 30% loss, ideal, {seeds} realisations", ring(n), 0.3, "ideal", range(seeds)),
+    ]
+    for label, graph, loss, policy, realisations in cases:
+        for hybrid_on in (False, True):
+            rows = []
+            for k in realisations:
+                ds = lissajous_team(robots=n, steps=steps, seed=0, noise_seed=k)
+                cfg = config_for(
+                    ds, window=window, linearization=policy, consensus_hybrid=hybrid_on
+                )
+                result = run_team(ds, cfg, graph=graph, loss=loss, seed=k or 0, progress=False)
+                m = team_metrics(ds, result)
+                sent = sum(c["bytes"] for c in result.counters) / (n * (ds.robots[0].frames - 1))
+                cons = 1e3 * np.median(np.concatenate([f[1:, 0] for f in result.frame_times]))
+                rows.append(
+                    [
+                        m["trajectory_rmse_avg_m"],
+                        m["object_error_avg_m"],
+                        m["object_disagreement_avg_m"],
+                        np.mean(m["nees_pose_avg"]),
+                        sent,
+                        cons,
+                    ]
+                )
+            r = np.mean(rows, axis=0)
+            print(
+                f"{label:<34} {'hybrid' if hybrid_on else 'plain':<9} {r[0]:7.4f} {r[1]:8.4f} "
+                f"{r[2]:9.4f} {r[3]:7.2f} {r[4]:13.0f} {r[5]:13.2f}",
+                flush=True,
+            )
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "what", choices=("accuracy", "loss", "kitti", "speed", "scaling", "messages")
+        "what",
+        choices=("accuracy", "loss", "kitti", "speed", "scaling", "messages", "hybrid"),
     )
     parser.add_argument("--robots", type=int, nargs="+", default=None)
     parser.add_argument("--seeds", type=int, default=3)
@@ -240,6 +288,8 @@ def main():
         kitti(args.window)
     elif args.what == "messages":
         messages(args.robots or [5], args.steps, args.window)
+    elif args.what == "hybrid":
+        hybrid(args.robots or [5], args.steps, args.window, args.seeds)
     elif args.what == "scaling":
         scaling(args.robots or [5, 10, 25, 50, 100], args.steps, args.window)
     else:
