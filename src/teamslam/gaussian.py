@@ -296,6 +296,7 @@ def completed_geometric_average(
     terms: Sequence[tuple[float, np.ndarray, np.ndarray, np.ndarray]],
     info: np.ndarray | None = None,
     block: int | None = None,
+    extra: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 19 in information form, each neighbour's term completed by our own conditional.
 
@@ -326,6 +327,9 @@ def completed_geometric_average(
         definite) — and the joint keeps our own correlation structure:
         ``Σ̄ = T Σ Tᵀ`` with ``T = blockdiag(L̄_b L_b⁻¹)`` (``L`` the Cholesky factors of the
         blocks before and after), whose diagonal blocks are exactly the averaged ones.
+    extra
+        ``(ΔΩ, Δη)`` added to the averaged information and information vector before they are
+        inverted (hybrid consensus, :mod:`teamslam.msckf.consensus`); joint averages only.
 
     Returns
     -------
@@ -333,6 +337,8 @@ def completed_geometric_average(
         The averaged marginal of ``y``.
     """
     if block is not None:
+        if extra is not None:
+            raise InputError("extra information applies to joint averages only")
         return _per_block_average(mean, cov, terms, block)
     own_info = spd_inverse(cov, "own marginal covariance") if info is None else info
     info_bar = own_info.copy()
@@ -346,6 +352,9 @@ def completed_geometric_average(
             own_sub = _marginal_information(own_info, cov, sub, _complement(sub, d))
         info_bar[np.ix_(sub, sub)] += weight * (m_info - own_sub)
         eta_bar[sub] += weight * (m_eta - own_sub @ mean[sub])
+    if extra is not None:
+        info_bar += extra[0]
+        eta_bar += extra[1]
     new_cov = spd_inverse(info_bar, "averaged information")
     return new_cov @ eta_bar, new_cov
 

@@ -421,16 +421,26 @@ def consensus_average(
     else:
         # Σʸ⁻¹ serves the average (our own information) and the rebuild (A = Σˣʸ Σʸ⁻¹)
         own_info = spd_inverse(own_cov, "own marginal covariance")
-        mean_y, cov_y, info_y = own_mean, own_cov, own_info
+        extra = None
         if prior is not None:
-            # our own new information is scaled only when every message holds all of y
-            everywhere = all(sub.size == y_ids.size * 3 for _, sub, _, _ in terms)
-            own_gain = 1.0 / (1.0 - sum(weights)) if everywhere else 1.0
-            hybrid = hybrid_marginal(own_mean, own_info, *prior_information(prior, y_ids), own_gain)
-            if hybrid is not None:
-                mean_y, cov_y, info_y = hybrid
-            elif counters is not None:
+            # our own new information Δ, added with the weight of the messages that hold all
+            # of y (its weight elsewhere is already that of the messages lacking an object)
+            full = sum(w for w, sub, _, _ in terms if sub.size == own_mean.size)
+            if full > 0:
+                prior_info, prior_eta = prior_information(prior, y_ids)
+                extra = (
+                    full * (own_info - prior_info),
+                    full * (own_info @ own_mean - prior_eta),
+                )
+        try:
+            mean, cov = completed_geometric_average(
+                own_mean, own_cov, terms, info=own_info, extra=extra
+            )
+        except NotPositiveDefiniteError:
+            if extra is None:
+                raise
+            if counters is not None:
                 counters["hybrid_fallbacks"] += 1
-        mean, cov = completed_geometric_average(mean_y, cov_y, terms, info=info_y)
+            mean, cov = completed_geometric_average(own_mean, own_cov, terms, info=own_info)
         state.replace_marginal(cols, mean, cov, info=own_info)
     return int(y_ids.size)
