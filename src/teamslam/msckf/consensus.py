@@ -28,19 +28,21 @@ initialised since have ``P = 0``), and the new part is scaled by a gain ``γ``:
     ``Ω' = P + γ Δ = Ω + (γ − 1)(Ω − P)``,  ``η' = η + (γ − 1)(η − η_P)``.
 
 The average of these is eq. 19 on the priors plus ``γ`` times eq. 19 on the new information. The
-gains are the largest that never count one robot's new information more than once in any estimate:
-a sender scales what it sends by ``γ = 1 + d_i`` (``d_i`` the neighbours it heard this step), which
-a receiver weighs with ``A_ji = 1/(1 + max(d_i, d_j)) ≤ 1/(1 + d_i)``; its own marginal is scaled
-by ``1/a`` with ``a = 1 − Σ_j A_ij`` the weight it keeps over the marginals that arrived, so that
-its own new information has weight ``aγ = 1`` — but only when each of those marginals holds every
-object it averages: a message that lacks an object is completed with the robot's own conditional
-(eq. 42), which carries its new information into that term as well, and then its own marginal is
-used unscaled. On a complete graph with every link up (``A_ij = 1/N``) this sums the new
-information of all robots — for the common objects, one exchange then equals centralised fusion of
-everyone's new information (tested on a linear model). The new information is a difference of two
-marginals; when it is not positive semi-definite enough for ``Ω'`` to stay positive definite (after
-relinearisation, or an object re-entering from the persistent map) the plain marginal is used
-(``hybrid_fallbacks``).
+gains are the largest that never count one robot's new information more than once in any estimate.
+A sender scales what it sends by ``γ = 1 + d_i`` (``d_i`` the neighbours it heard this step), which
+a receiver weighs with ``A_ji = 1/(1 + max(d_i, d_j)) ≤ 1/(1 + d_i)``. In its own average (eq. 42)
+a robot's own marginal already enters with its own weight and, on the objects a neighbour's message
+lacks, with that neighbour's weight (the completion by its own conditional); so it adds its new
+information ``Ω − P`` (and ``η − η_P``) once more with the total weight of the messages that hold
+every averaged object, which brings that weight to one where every message holds the object and
+never above one elsewhere. On a complete graph with every link up (``A_ij = 1/N``) this sums the
+new information of all robots — for the common objects, one exchange then equals centralised fusion
+of everyone's new information; on a sparse graph with partial maps no robot ever holds more
+information than the centralised filter (both tested on a linear model; scaling the own marginal
+before the average, even with the largest gain that counts it once per object, fails the second
+test). The new information is a difference of two marginals; when it is not positive semi-definite
+enough for the result to stay positive definite (after relinearisation, or an object re-entering
+from the persistent map) the plain marginal is used (``hybrid_fallbacks``).
 
 A message with unknown ids, wrong sizes, or a covariance that is not symmetric positive definite
 is rejected; the estimate is unaffected.
@@ -371,14 +373,11 @@ def consensus_average(
         ``(A_ij, marginal)`` for every usable neighbour marginal (a message is checked with
         :func:`receive_marginal` first and raises ``ValueError`` if it cannot be used).
     prior
-        Hybrid consensus (module docstring): when every neighbour marginal holds every object
-        of ``y``, our own marginal enters the average with its new information since ``prior``
-        scaled by ``1 / (1 − Σ_j A_ij)``; otherwise our own marginal is used as it is (a
-        message that lacks an object is completed with our own conditional, eq. 42, which
-        carries our new information into that term too, so no gain above 1 is safe there —
-        tested). The rebuild (Prop. 2) still uses our actual conditional. Joint marginals only.
-        ``counters["hybrid_fallbacks"]`` is incremented when the scaled
-        marginal is not positive definite and the plain one is used instead.
+        Hybrid consensus (module docstring): our own new information since ``prior`` is added to the
+        average once more, with the total weight of the neighbour marginals that hold every object
+        of ``y``. The rebuild (Prop. 2) still uses our actual conditional. Joint marginals only.
+        ``counters["hybrid_fallbacks"]`` is incremented when the result is not positive definite
+        and the plain average is used instead.
 
     Returns
     -------

@@ -32,11 +32,11 @@ once its neighbour's marginal arrived, so a lost message never hides a change. W
 
 **Hybrid consensus** (``consensus_hybrid``, lock-step only): the new information each robot
 gathered since its last exchange enters the average at full weight instead of ``A_ij`` — its
-round-2 marginals are scaled with the gain ``1 + d_i``, its own in the average with the largest
-gain that counts it at most once on every object, and its prior is renewed after every step in
-which it sent or averaged (:mod:`teamslam.msckf.consensus`). In asynchronous mode a neighbour's
-newest marginal may be used at several steps, which would count its new information again, so there
-the plain average is used.
+round-2 marginals are scaled with the gain ``1 + d_i``, its own new information is added once more
+with the weight of the marginals that hold every averaged object, and its prior is renewed after
+every step in which it sent or averaged (:mod:`teamslam.msckf.consensus`). In asynchronous mode a
+neighbour's newest marginal may be used at several steps, which would count its new information
+again, so there the plain average is used.
 
 Only objects in the filter state take part: objects retired to the persistent map
 (``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
