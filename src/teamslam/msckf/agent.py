@@ -456,21 +456,21 @@ class MsckfAgent:
                 self.truth.objects(ids) if self.policy.needs_truth else None,
             ),
         )
+        # each object's 9 columns (current pose + object) and their covariance
+        obj_cols = self.state.object_columns(slots)  # (k, 3)
+        pose_cols = np.broadcast_to(self.state.pose_columns(self.state.n_poses - 1), (k, 6))
+        local_cols = np.concatenate([pose_cols, obj_cols], axis=1)
+        local_p = self.state.cov[local_cols[:, :, None], local_cols[:, None, :]]
         d_pose, d_point = self.policy.constrain(
-            d_pose, d_point, state.pose_fe[-1], state.object_fe[slots]
+            d_pose, d_point, state.pose_fe[-1], state.object_fe[slots], local_p
         )
         dim = self.state.dim
         h = np.zeros((k, 4, dim))
         h[:, :, self.state.pose_columns(self.state.n_poses - 1)] = d_pose
-        obj_cols = self.state.object_columns(slots)  # (k, 3)
         h[np.arange(k)[:, None, None], np.arange(4)[None, :, None], obj_cols[:, None, :]] = d_point
         r = zk - pred
         variance = self.config.object_std**2
-        # each object's innovation covariance from its 9 columns (current pose + object)
-        pose_cols = np.broadcast_to(self.state.pose_columns(self.state.n_poses - 1), (k, 6))
-        local_cols = np.concatenate([pose_cols, obj_cols], axis=1)
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
-        local_p = self.state.cov[local_cols[:, :, None], local_cols[:, None, :]]
         s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + variance * np.eye(4)
         accepted, nis = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
