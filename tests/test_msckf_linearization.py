@@ -77,7 +77,8 @@ def test_jacobians_are_analytic_derivatives_at_the_policys_point(
     slots = state.object_slots(ids)
     seen = ids[slots >= 0]
     rows = agent._object_rows(t0)
-    assert rows.rows > 0 and len(calls) == 1
+    # fej also evaluates the current-estimate Jacobians, for its compensation noise
+    assert rows.rows > 0 and len(calls) == (2 if linearization == "fej" else 1)
     pose_at, points_at = calls[0]
     slots = state.object_slots(seen)
     expected_pose = {
@@ -94,6 +95,7 @@ def test_jacobians_are_analytic_derivatives_at_the_policys_point(
     accepted = rows.rows // 4
     assert accepted >= 1
     h = rows.jacobian.reshape(accepted, 4, -1)
+    cfg_var = agent.config.object_std**2
     cam = small_team.calibration.camera
     checked = 0
     for p in points_at:
@@ -108,14 +110,18 @@ def test_jacobians_are_analytic_derivatives_at_the_policys_point(
         if not rows_k:
             continue  # rejected by the gate
         if linearization == "fej":
+            # compensated to annihilate N at the first estimates (least change in the
+            # covariance metric), rows whitened by σ²I + ΔH P ΔHᵀ
             slot = slots[match[0]]
             cols = np.r_[np.arange(new_cols.start, new_cols.stop), state.object_columns(slot)]
             u = unobservable_directions(state.pose_fe[-1], state.object_fe[slot][None])
-            num = annihilate(
-                np.concatenate([num_pose, num_point], axis=1)[None],
-                u,
-                state.cov[np.ix_(cols, cols)][None],
-            )[0]
+            local_p = state.cov[np.ix_(cols, cols)]
+            current = np.concatenate([num_pose, num_point], axis=1)
+            used = annihilate(current[None], u, local_p[None])[0]
+            change = used - current
+            noise = cfg_var * np.eye(4) + change @ local_p @ change.T
+            chol = np.linalg.cholesky(noise / cfg_var)
+            num = np.linalg.solve(chol, used)
             num_pose, num_point = num[:, :6], num[:, 6:]
         np.testing.assert_allclose(rows_k[0][:, new_cols], num_pose, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(

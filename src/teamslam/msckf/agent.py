@@ -471,7 +471,16 @@ class MsckfAgent:
         r = zk - pred
         variance = self.config.object_std**2
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
-        s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + variance * np.eye(4)
+        noise_cov = variance * np.eye(4)
+        if self.policy.compensates:
+            # the rows are not the current-estimate Jacobians: their difference, times the
+            # state error, is part of the residual (linearisation.py, FEJ2 compensation)
+            _, c_pose, c_point = observe_jacobians(
+                self.camera, self.T_cam_body, state.current_pose, state.objects[slots]
+            )
+            current_h = np.concatenate([c_pose, c_point], axis=2)
+            noise_cov = noise_cov + self.policy.linearization_noise(local_h, current_h, local_p)
+        s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + noise_cov
         accepted, nis = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
         self.counters["object_updates"] += int(accepted.sum())
@@ -480,11 +489,13 @@ class MsckfAgent:
             weight = self.config.robust_weight(np.sqrt(nis[accepted]))
             self.counters["objects_downweighted"] += int((weight < 1).sum())
             noise = noise / weight
-        return MeasurementRows(
-            h[accepted].reshape(-1, dim),
-            r[accepted].ravel(),
-            np.repeat(noise, 4),
-        )
+        h, r = h[accepted], r[accepted]
+        if self.policy.compensates:
+            # whiten each object's rows by its 4 × 4 noise: L⁻¹H, L⁻¹r with LLᵀ = noise
+            chol = np.linalg.cholesky(noise_cov[accepted] / variance)
+            h = np.linalg.solve(chol, h)
+            r = np.linalg.solve(chol, r[..., None])[..., 0]
+        return MeasurementRows(h.reshape(-1, dim), r.ravel(), np.repeat(noise, 4))
 
     def _initialise_objects(self, t: int) -> None:
         cfg = self.config

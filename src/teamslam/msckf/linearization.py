@@ -194,6 +194,18 @@ class LinearizationPolicy:
         """Geometric feature points ``(k, 3)`` for ``H``."""
         return triangulated
 
+    #: whether :meth:`linearization_noise` adds to the object rows' noise
+    compensates = False
+
+    def linearization_noise(
+        self, h_used: np.ndarray, h_current: np.ndarray, cov: np.ndarray
+    ) -> np.ndarray:
+        """``(k, 4, 4)`` covariance added to the object rows' noise for using ``h_used``
+        instead of the current-estimate Jacobians ``h_current`` (both ``(k, 4, 9)``, pose
+        then object columns; ``cov`` their ``(k, 9, 9)`` covariance): zero unless the policy
+        :attr:`compensates`."""
+        return np.zeros((*h_used.shape[:-1], h_used.shape[-2]))
+
     def constrain(
         self,
         d_pose: np.ndarray,
@@ -248,8 +260,15 @@ class FirstEstimate(LinearizationPolicy):
     def objects(self, current, first, truth):
         return current
 
+    compensates = True
+
     def constrain(self, d_pose, d_point, pose_first, object_first, cov=None):
         return _annihilate_rows(d_pose, d_point, pose_first, object_first, cov)
+
+    def linearization_noise(self, h_used, h_current, cov):
+        change = h_used - h_current
+        noise = change @ cov @ np.swapaxes(change, -1, -2)
+        return 0.5 * (noise + np.swapaxes(noise, -1, -2))
 
 
 class Ideal(LinearizationPolicy):
@@ -332,6 +351,7 @@ class ObservabilityConstrained(FirstEstimate):
     estimates (OC-EKF)."""
 
     name = "oc"
+    compensates = False
 
     def constrain(self, d_pose, d_point, pose_first, object_first, cov=None):
         return _annihilate_rows(d_pose, d_point, pose_first, object_first, None)
