@@ -7,8 +7,9 @@ neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.ste
 3. updates with the geometric features whose tracks ended (or span the pose about to leave the
    window) — MSCKF null-space rows (eq. 24) — and with the objects already in the map, in one
    stacked Kalman update (eqs. 26–28), each feature or object chi-square gated;
-4. initialises objects seen often enough inside the window by QR (eqs. 29–30), then uses the
-   rest of their rows to update the poses;
+4. initialises objects seen often enough inside the window by QR (eqs. 29–30) — once their
+   initial position is certain enough relative to their distance
+   (``object_init_max_relative_std``) — then uses the rest of their rows to update the poses;
 
 and finally slides the window. With ``object_retire_after = N > 0`` objects unobserved for
 ``N`` frames then leave the state for the persistent map, and a retired object observed again
@@ -563,6 +564,14 @@ class MsckfAgent:
         position = point + r_p_inv @ z1
         cov_ps = -(r_p_inv @ h_s1) @ state.cov[cols, :]  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
         cov_pp = r_p_inv @ (h_s1 @ cov_cc @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
+        limit = self.config.object_init_max_relative_std
+        if limit > 0:
+            # still uncertain relative to its distance: wait for more observations (the state is
+            # untouched, the observations stay in the history)
+            distance = np.linalg.norm(position - state.current_pose[:3, 3])
+            if np.linalg.eigvalsh(cov_pp)[-1] > (limit * distance) ** 2:
+                self.counters["object_init_deferred"] += 1
+                return
         state.add_object(oid, position, cov_pp, cov_ps)
         self.counters["objects_initialised"] += 1
         jac = np.zeros((4 * n - 3, state.dim))
