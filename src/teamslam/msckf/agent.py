@@ -55,6 +55,12 @@ __all__ = ["MsckfAgent"]
 
 log = logging.getLogger(__name__)
 
+#: Gauss–Newton iterations of an object's triangulation before it enters the state: to
+#: convergence, so that its first estimate is the least-squares point of its observations (a far
+#: object seen from a few frames has a flat cost along its depth, where 8 iterations — enough
+#: for geometric features, which are projected out — can stop metres short)
+OBJECT_GAUSS_NEWTON_ITERATIONS = 32
+
 
 class MsckfAgent:
     """One robot's filter over its own sequence.
@@ -520,18 +526,42 @@ class MsckfAgent:
         for n, members in by_length.items():
             widx = np.stack([m[1] for m in members])
             zs = np.stack([m[2] for m in members])
-            points, ok, rms = triangulate(self.camera, self.T_cam_body, self.state.poses[widx], zs)
+            points, ok, rms = triangulate(
+                self.camera,
+                self.T_cam_body,
+                self.state.poses[widx],
+                zs,
+                iterations=OBJECT_GAUSS_NEWTON_ITERATIONS,
+            )
             depth = np.linalg.norm(points - self.state.current_pose[:3, 3], axis=1)
             ok &= (depth > cfg.object_min_depth) & (depth < cfg.object_max_depth)
             ok &= rms < 3.0 * cfg.object_std
             self.counters["rejected_object_init"] += int((~ok).sum())
+            moved = False
             for j in np.flatnonzero(ok):
-                self._add_object(members[j][0], points[j], widx[j], zs[j], variance, n)
+                point = points[j]
+                if moved:
+                    # an earlier object's update moved the poses: the least-squares point at
+                    # the poses its rows are formed at, so that it enters at the optimum
+                    again, good, _ = triangulate(
+                        self.camera,
+                        self.T_cam_body,
+                        self.state.poses[widx[j]][None],
+                        zs[j][None],
+                        iterations=OBJECT_GAUSS_NEWTON_ITERATIONS,
+                    )
+                    if not good[0]:
+                        self.counters["rejected_object_init"] += 1
+                        continue
+                    point = again[0]
+                moved |= self._add_object(members[j][0], point, widx[j], zs[j], variance, n)
 
     def _add_object(
         self, oid: int, point: np.ndarray, widx: np.ndarray, zs: np.ndarray, variance: float, n: int
-    ) -> None:
-        """QR initialisation (eqs. 29–30), then an update with the landmark-free rows."""
+    ) -> bool:
+        """QR initialisation (eqs. 29–30), then an update with the landmark-free rows.
+
+        Returns whether the object entered the state (and the state was updated)."""
         state = self.state
         pred = observe(self.camera, self.T_cam_body, state.poses[widx], point[None])
         true_point = self.truth.objects(np.array([oid]))[0] if self.policy.needs_truth else None
@@ -559,7 +589,7 @@ class MsckfAgent:
         # measures the triangulation as much as the noise
         if z2 @ np.linalg.solve(s2, z2) > self.config.gate(4 * n - 3):
             self.counters["rejected_object_init"] += 1
-            return
+            return False
         r_p_inv = np.linalg.inv(r_p)
         position = point + r_p_inv @ z1
         cov_ps = -(r_p_inv @ h_s1) @ state.cov[cols, :]  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
@@ -571,12 +601,13 @@ class MsckfAgent:
             distance = np.linalg.norm(position - state.current_pose[:3, 3])
             if np.linalg.eigvalsh(cov_pp)[-1] > (limit * distance) ** 2:
                 self.counters["object_init_deferred"] += 1
-                return
+                return False
         state.add_object(oid, position, cov_pp, cov_ps)
         self.counters["objects_initialised"] += 1
         jac = np.zeros((4 * n - 3, state.dim))
         jac[:, cols] = h_s2
         state.update(jac, z2, variance * np.eye(4 * n - 3))
+        return True
 
     def _prune_histories(self) -> None:
         first = self.state.frames[0]
