@@ -52,7 +52,7 @@ def test_objects_enter_at_the_least_squares_point_once_certain(team, monkeypatch
     Jacobians, so there within a quarter of a standard deviation) and only with a
     position std at most ``object_init_max_relative_std`` of its distance; less certain ones
     wait (for more observations), so without the limit less certain objects enter."""
-    agent, entered = _run(team, monkeypatch, linearization)
+    agent, entered = _run(team, monkeypatch, linearization, object_init_max_relative_std=0.1)
     limit = agent.config.object_init_max_relative_std
     assert limit == 0.1
     assert len(entered) >= 5 and agent.counters["object_init_deferred"] > 0
@@ -70,7 +70,7 @@ def test_objects_enter_at_the_least_squares_point_once_certain(team, monkeypatch
         else:
             d = position - ref
             assert np.sqrt(d @ np.linalg.solve(cov_pp, d)) < 0.25
-    eager, entered_eager = _run(team, monkeypatch, linearization, object_init_max_relative_std=0.0)
+    eager, entered_eager = _run(team, monkeypatch, linearization)  # default: no wait
     assert eager.counters["object_init_deferred"] == 0
     ratios = [
         np.sqrt(np.linalg.eigvalsh(c)[-1]) / np.linalg.norm(p - cur[:3, 3])

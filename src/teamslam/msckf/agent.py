@@ -7,8 +7,8 @@ neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.ste
 3. updates with the geometric features whose tracks ended (or span the pose about to leave the
    window) — MSCKF null-space rows (eq. 24) — and with the objects already in the map, in one
    stacked Kalman update (eqs. 26–28), each feature or object chi-square gated;
-4. initialises objects seen often enough inside the window by QR (eqs. 29–30) — once their
-   initial position is certain enough relative to their distance
+4. initialises objects seen often enough inside the window by QR (eqs. 29–30) — optionally
+   once their initial position is certain enough relative to their distance
    (``object_init_max_relative_std``) — then uses the rest of their rows to update the poses;
 
 and finally slides the window. With ``object_retire_after = N > 0`` objects unobserved for
