@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 import teamslam.msckf.agent as agent_module
+from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry import se3
 from teamslam.msckf import MsckfAgent, MsckfState, config_for, run_team
-from teamslam.msckf.linearization import GroundTruth, unobservable_directions
+from teamslam.msckf.linearization import GroundTruth, annihilate, unobservable_directions
 from teamslam.msckf.models import observe, observe_jacobians
 from teamslam.sim import lissajous_team
 from teamslam.sim.lissajous import T_CAM_BODY
@@ -35,7 +36,8 @@ def test_jacobians_are_analytic_derivatives_at_the_policys_point(
     small_team, linearization, monkeypatch
 ):
     """Propagation and object rows: the filter's Jacobians equal finite differences of the
-    models, evaluated at the current estimate (std), the first estimates (fej) or the truth."""
+    models, evaluated at the current estimate (std), the first-estimate poses and the current
+    objects, compensated to annihilate the first estimates' directions (fej), or the truth."""
     agent = _agent(small_team, linearization)
     t0 = 20
     for t in range(t0):
@@ -75,7 +77,8 @@ def test_jacobians_are_analytic_derivatives_at_the_policys_point(
     slots = state.object_slots(ids)
     seen = ids[slots >= 0]
     rows = agent._object_rows(t0)
-    assert rows.rows > 0 and len(calls) == 1
+    # fej also evaluates the current-estimate Jacobians, for its compensation noise
+    assert rows.rows > 0 and len(calls) == (2 if linearization == "fej" else 1)
     pose_at, points_at = calls[0]
     slots = state.object_slots(seen)
     expected_pose = {
@@ -85,13 +88,14 @@ def test_jacobians_are_analytic_derivatives_at_the_policys_point(
     }[linearization]
     expected_points = {
         "std": state.objects[slots],
-        "fej": state.object_fe[slots],
+        "fej": state.objects[slots],
         "ideal": small_team.object_position(seen),
     }[linearization]
     np.testing.assert_allclose(pose_at, expected_pose)
     accepted = rows.rows // 4
     assert accepted >= 1
     h = rows.jacobian.reshape(accepted, 4, -1)
+    cfg_var = agent.config.object_std**2
     cam = small_team.calibration.camera
     checked = 0
     for p in points_at:
@@ -105,6 +109,20 @@ def test_jacobians_are_analytic_derivatives_at_the_policys_point(
         rows_k = [r for r in h if np.any(r[:, state.object_columns(slots[match[0]])] != 0)]
         if not rows_k:
             continue  # rejected by the gate
+        if linearization == "fej":
+            # compensated to annihilate N at the first estimates (least change in the
+            # covariance metric), rows whitened by σ²I + ΔH P ΔHᵀ
+            slot = slots[match[0]]
+            cols = np.r_[np.arange(new_cols.start, new_cols.stop), state.object_columns(slot)]
+            u = unobservable_directions(state.pose_fe[-1], state.object_fe[slot][None])
+            local_p = state.cov[np.ix_(cols, cols)]
+            current = np.concatenate([num_pose, num_point], axis=1)
+            used = annihilate(current[None], u, local_p[None])[0]
+            change = used - current
+            noise = cfg_var * np.eye(4) + change @ local_p @ change.T
+            chol = np.linalg.cholesky(noise / cfg_var)
+            num = np.linalg.solve(chol, used)
+            num_pose, num_point = num[:, :6], num[:, 6:]
         np.testing.assert_allclose(rows_k[0][:, new_cols], num_pose, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(
             rows_k[0][:, state.object_columns(slots[match[0]])], num_point, rtol=1e-5, atol=1e-7
@@ -200,3 +218,78 @@ def test_first_estimate_equals_standard_on_a_noise_free_run(exact_pair):
             np.testing.assert_allclose(a, b, atol=1e-9)
         for a, b in zip(runs["std"].pose_covs, runs[lin].pose_covs, strict=True):
             np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-14)
+
+
+def test_annihilate_is_the_least_change_in_the_covariance_metric():
+    """``H* = annihilate(H, U, P)``: ``H* U = 0``; the change ``Δ`` satisfies the optimality
+    condition of ``min tr(Δ P Δᵀ)`` (``Δ P`` in the row span of ``Uᵀ``), so any other
+    ``H*`` + ``Z`` with ``Z U = 0`` costs more; ``P = I`` is the Frobenius minimum (OC-EKF)."""
+    rng = np.random.default_rng(11)
+    k = 5
+    h = rng.normal(size=(k, 4, 9))
+    u = rng.normal(size=(k, 9, 6))
+    a = rng.normal(size=(k, 9, 9))
+    cov = a @ np.swapaxes(a, 1, 2) + 0.1 * np.eye(9)
+    out = annihilate(h, u, cov)
+    np.testing.assert_allclose(out @ u, 0.0, atol=1e-10 * np.abs(h).max())
+    change = out - h
+    # Δ P = Λ Uᵀ: its projection off the row span of Uᵀ vanishes
+    dp = change @ cov
+    off = dp - dp @ u @ np.linalg.pinv(u)
+    np.testing.assert_allclose(off, 0.0, atol=1e-9 * np.abs(dp).max())
+
+    def cost(d):
+        return np.einsum("kij,kjl,kil->k", d, cov, d)
+
+    # a feasible competitor: add rows that annihilate U (project random rows off span U)
+    z = rng.normal(size=(k, 4, 9))
+    z = z - z @ u @ np.linalg.pinv(u)
+    np.testing.assert_allclose(z @ u, 0.0, atol=1e-10)
+    assert np.all(cost(change + 0.1 * z) > cost(change))
+    # identity metric: the unweighted projection
+    frob = annihilate(h, u)
+    np.testing.assert_allclose(frob, h - h @ u @ np.linalg.pinv(u), atol=1e-10)
+    # rows that already annihilate U are left alone, with any metric
+    np.testing.assert_allclose(annihilate(out, u, cov), out, atol=1e-10)
+    np.testing.assert_allclose(annihilate(frob, u, cov), frob, atol=1e-10)
+    bad = cov.copy()
+    bad[0] = -np.eye(9)
+    with pytest.raises(NotPositiveDefiniteError):
+        annihilate(h, u, bad)
+
+
+def test_first_estimate_object_rows_annihilate_first_estimate_directions(small_team):
+    """The fej object rows: current-estimate Jacobians, changed by the least amount in the
+    covariance metric so that they annihilate the directions at the first estimates."""
+    agent = _agent(small_team, "fej")
+    for t in range(21):
+        agent.step(t)
+    state = agent.state
+    assert np.abs(state.objects - state.object_fe).max() > 1e-2  # the objects have moved
+    cam = small_team.calibration.camera
+    _, d_pose, d_point = observe_jacobians(cam, T_CAM_BODY, state.poses[-1], state.objects)
+    fe_pose, fe_points = state.pose_fe[-1], state.object_fe
+    cols = np.concatenate(
+        [
+            np.broadcast_to(state.pose_columns(state.n_poses - 1), (state.n_objects, 6)),
+            state.object_columns(np.arange(state.n_objects)),
+        ],
+        axis=1,
+    )
+    cov = state.cov[cols[:, :, None], cols[:, None, :]]
+    c_pose, c_point = agent.policy.constrain(d_pose, d_point, fe_pose, fe_points, cov)
+    h = np.concatenate([c_pose, c_point], axis=-1)
+    h0 = np.concatenate([d_pose, d_point], axis=-1)
+    u = unobservable_directions(fe_pose, fe_points)
+    np.testing.assert_allclose(h @ u, 0.0, atol=1e-9 * np.abs(h0).max())
+    assert np.abs(h0 @ u).max() > 1e-6 * np.abs(h0).max()  # the unconstrained rows do not
+    dp = (h - h0) @ cov
+    np.testing.assert_allclose(dp - dp @ u @ np.linalg.pinv(u), 0.0, atol=1e-8 * np.abs(dp).max())
+    # a smaller change in that metric than the unweighted (oc) projection
+    frob = np.concatenate(agent.policy.constrain(d_pose, d_point, fe_pose, fe_points), axis=-1)
+    assert not np.allclose(frob, h)
+
+    def cost(d):
+        return np.einsum("kij,kjl,kil->k", d, cov, d)
+
+    assert np.all(cost(h - h0) <= cost(frob - h0) * (1 + 1e-9))

@@ -58,3 +58,31 @@ def test_ranks_standard_vs_first_estimate_vs_ideal(camera, robots):
     translation = np.linalg.norm(m["std"] @ at_first[:, :3], 2) / norm
     rotation = np.linalg.norm(m["std"] @ at_first[:, 3:], 2) / norm
     assert rotation > translation
+
+
+def test_first_estimate_rank_does_not_depend_on_the_metric_of_the_compensation(camera):
+    """The fej object rows are compensated in the metric of the filter's covariance; whatever
+    that covariance, the observability matrix keeps exactly the six rigid motions at the first
+    estimates unobservable (and the rows differ from the unweighted compensation)."""
+    poses, objects = team_scenario(2, 6, 4)
+    values = estimates_like_a_filter(poses, objects, np.random.default_rng(5))
+    rng = np.random.default_rng(6)
+    base = linearization_policy("fej")
+
+    class Weighted(type(base)):
+        def constrain(self, d_pose, d_point, pose_first, object_first, cov=None):
+            a = rng.normal(size=(d_pose.shape[0], 9, 9))
+            cov = a @ np.swapaxes(a, 1, 2) + 1e-3 * np.eye(9)
+            return super().constrain(d_pose, d_point, pose_first, object_first, cov)
+
+    weighted = observability_matrix(Weighted(), values, camera, T_CAM_BODY)
+    plain = observability_matrix(base, values, camera, T_CAM_BODY)
+    assert not np.allclose(weighted, plain)
+    dim = 6 * 2 + 3 * 4
+    assert rank(weighted) == dim - 6
+    at_first = unobservable_basis(values.prior_poses[:, 0], values.objects[0])
+    null = nullspace(weighted)
+    assert null.shape[1] == 6
+    np.testing.assert_allclose(null @ (null.T @ at_first), at_first, atol=1e-8)
+    singular, _ = falsely_observable(weighted, at_first)
+    assert singular.max() < 1e-12

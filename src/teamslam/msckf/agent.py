@@ -7,8 +7,9 @@ neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.ste
 3. updates with the geometric features whose tracks ended (or span the pose about to leave the
    window) — MSCKF null-space rows (eq. 24) — and with the objects already in the map, in one
    stacked Kalman update (eqs. 26–28), each feature or object chi-square gated;
-4. initialises objects seen often enough inside the window by QR (eqs. 29–30), then uses the
-   rest of their rows to update the poses;
+4. initialises objects seen often enough inside the window by QR (eqs. 29–30) — optionally
+   once their initial position is certain enough relative to their distance
+   (``object_init_max_relative_std``) — then uses the rest of their rows to update the poses;
 
 and finally slides the window. With ``object_retire_after = N > 0`` objects unobserved for
 ``N`` frames then leave the state for the persistent map, and a retired object observed again
@@ -53,6 +54,12 @@ from teamslam.msckf.update import (
 __all__ = ["MsckfAgent"]
 
 log = logging.getLogger(__name__)
+
+#: Gauss–Newton iterations of an object's triangulation before it enters the state: to
+#: convergence, so that its first estimate is the least-squares point of its observations (a far
+#: object seen from a few frames has a flat cost along its depth, where 8 iterations — enough
+#: for geometric features, which are projected out — can stop metres short)
+OBJECT_GAUSS_NEWTON_ITERATIONS = 32
 
 
 class MsckfAgent:
@@ -456,22 +463,31 @@ class MsckfAgent:
                 self.truth.objects(ids) if self.policy.needs_truth else None,
             ),
         )
+        # each object's 9 columns (current pose + object) and their covariance
+        obj_cols = self.state.object_columns(slots)  # (k, 3)
+        pose_cols = np.broadcast_to(self.state.pose_columns(self.state.n_poses - 1), (k, 6))
+        local_cols = np.concatenate([pose_cols, obj_cols], axis=1)
+        local_p = self.state.cov[local_cols[:, :, None], local_cols[:, None, :]]
         d_pose, d_point = self.policy.constrain(
-            d_pose, d_point, state.pose_fe[-1], state.object_fe[slots]
+            d_pose, d_point, state.pose_fe[-1], state.object_fe[slots], local_p
         )
         dim = self.state.dim
         h = np.zeros((k, 4, dim))
         h[:, :, self.state.pose_columns(self.state.n_poses - 1)] = d_pose
-        obj_cols = self.state.object_columns(slots)  # (k, 3)
         h[np.arange(k)[:, None, None], np.arange(4)[None, :, None], obj_cols[:, None, :]] = d_point
         r = zk - pred
         variance = self.config.object_std**2
-        # each object's innovation covariance from its 9 columns (current pose + object)
-        pose_cols = np.broadcast_to(self.state.pose_columns(self.state.n_poses - 1), (k, 6))
-        local_cols = np.concatenate([pose_cols, obj_cols], axis=1)
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
-        local_p = self.state.cov[local_cols[:, :, None], local_cols[:, None, :]]
-        s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + variance * np.eye(4)
+        noise_cov = variance * np.eye(4)
+        if self.policy.compensates:
+            # the rows are not the current-estimate Jacobians: their difference, times the
+            # state error, is part of the residual (linearisation.py, FEJ2 compensation)
+            _, c_pose, c_point = observe_jacobians(
+                self.camera, self.T_cam_body, state.current_pose, state.objects[slots]
+            )
+            current_h = np.concatenate([c_pose, c_point], axis=2)
+            noise_cov = noise_cov + self.policy.linearization_noise(local_h, current_h, local_p)
+        s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + noise_cov
         accepted, nis = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
         self.counters["object_updates"] += int(accepted.sum())
@@ -480,11 +496,13 @@ class MsckfAgent:
             weight = self.config.robust_weight(np.sqrt(nis[accepted]))
             self.counters["objects_downweighted"] += int((weight < 1).sum())
             noise = noise / weight
-        return MeasurementRows(
-            h[accepted].reshape(-1, dim),
-            r[accepted].ravel(),
-            np.repeat(noise, 4),
-        )
+        h, r = h[accepted], r[accepted]
+        if self.policy.compensates:
+            # whiten each object's rows by its 4 × 4 noise: L⁻¹H, L⁻¹r with LLᵀ = noise
+            chol = np.linalg.cholesky(noise_cov[accepted] / variance)
+            h = np.linalg.solve(chol, h)
+            r = np.linalg.solve(chol, r[..., None])[..., 0]
+        return MeasurementRows(h.reshape(-1, dim), r.ravel(), np.repeat(noise, 4))
 
     def _initialise_objects(self, t: int) -> None:
         cfg = self.config
@@ -508,18 +526,42 @@ class MsckfAgent:
         for n, members in by_length.items():
             widx = np.stack([m[1] for m in members])
             zs = np.stack([m[2] for m in members])
-            points, ok, rms = triangulate(self.camera, self.T_cam_body, self.state.poses[widx], zs)
+            points, ok, rms = triangulate(
+                self.camera,
+                self.T_cam_body,
+                self.state.poses[widx],
+                zs,
+                iterations=OBJECT_GAUSS_NEWTON_ITERATIONS,
+            )
             depth = np.linalg.norm(points - self.state.current_pose[:3, 3], axis=1)
             ok &= (depth > cfg.object_min_depth) & (depth < cfg.object_max_depth)
             ok &= rms < 3.0 * cfg.object_std
             self.counters["rejected_object_init"] += int((~ok).sum())
+            moved = False
             for j in np.flatnonzero(ok):
-                self._add_object(members[j][0], points[j], widx[j], zs[j], variance, n)
+                point = points[j]
+                if moved:
+                    # an earlier object's update moved the poses: the least-squares point at
+                    # the poses its rows are formed at, so that it enters at the optimum
+                    again, good, _ = triangulate(
+                        self.camera,
+                        self.T_cam_body,
+                        self.state.poses[widx[j]][None],
+                        zs[j][None],
+                        iterations=OBJECT_GAUSS_NEWTON_ITERATIONS,
+                    )
+                    if not good[0]:
+                        self.counters["rejected_object_init"] += 1
+                        continue
+                    point = again[0]
+                moved |= self._add_object(members[j][0], point, widx[j], zs[j], variance, n)
 
     def _add_object(
         self, oid: int, point: np.ndarray, widx: np.ndarray, zs: np.ndarray, variance: float, n: int
-    ) -> None:
-        """QR initialisation (eqs. 29–30), then an update with the landmark-free rows."""
+    ) -> bool:
+        """QR initialisation (eqs. 29–30), then an update with the landmark-free rows.
+
+        Returns whether the object entered the state (and the state was updated)."""
         state = self.state
         pred = observe(self.camera, self.T_cam_body, state.poses[widx], point[None])
         true_point = self.truth.objects(np.array([oid]))[0] if self.policy.needs_truth else None
@@ -547,16 +589,25 @@ class MsckfAgent:
         # measures the triangulation as much as the noise
         if z2 @ np.linalg.solve(s2, z2) > self.config.gate(4 * n - 3):
             self.counters["rejected_object_init"] += 1
-            return
+            return False
         r_p_inv = np.linalg.inv(r_p)
         position = point + r_p_inv @ z1
         cov_ps = -(r_p_inv @ h_s1) @ state.cov[cols, :]  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
         cov_pp = r_p_inv @ (h_s1 @ cov_cc @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
+        limit = self.config.object_init_max_relative_std
+        if limit > 0:
+            # still uncertain relative to its distance: wait for more observations (the state is
+            # untouched, the observations stay in the history)
+            distance = np.linalg.norm(position - state.current_pose[:3, 3])
+            if np.linalg.eigvalsh(cov_pp)[-1] > (limit * distance) ** 2:
+                self.counters["object_init_deferred"] += 1
+                return False
         state.add_object(oid, position, cov_pp, cov_ps)
         self.counters["objects_initialised"] += 1
         jac = np.zeros((4 * n - 3, state.dim))
         jac[:, cols] = h_s2
         state.update(jac, z2, variance * np.eye(4 * n - 3))
+        return True
 
     def _prune_histories(self) -> None:
         first = self.state.frames[0]
