@@ -201,6 +201,14 @@ MESSAGE_VARIANTS = {
 }
 
 
+def _bytes_and_consensus_ms(dataset, result):
+    """Consensus bytes sent per robot per step, and the median consensus time per robot-step."""
+    steps = dataset.n_robots * (dataset.robots[0].frames - 1)
+    sent = sum(c["bytes"] for c in result.counters) / steps
+    cons = 1e3 * np.median(np.concatenate([f[1:, 0] for f in result.frame_times]))
+    return sent, cons
+
+
 def messages(robots, steps, window):
     """Accuracy and bytes of each kind of consensus message on one team."""
     n = robots[0]
@@ -213,8 +221,7 @@ def messages(robots, steps, window):
         cfg = config_for(ds, window=window, **settings)
         result = run_team(ds, cfg, consensus=True, progress=False)
         m = team_metrics(ds, result)
-        sent = sum(c["bytes"] for c in result.counters) / (n * (ds.robots[0].frames - 1))
-        cons = 1e3 * np.median(np.concatenate([f[1:, 0] for f in result.frame_times]))
+        sent, cons = _bytes_and_consensus_ms(ds, result)
         print(
             f"{name:<40} {m['trajectory_rmse_avg_m']:7.4f} {m['object_error_avg_m']:8.4f} "
             f"{m['object_disagreement_avg_m']:9.4f} {np.mean(m['nees_pose_avg']):7.2f} "
@@ -246,8 +253,7 @@ def hybrid(robots, steps, window, seeds):
                 )
                 result = run_team(ds, cfg, graph=graph, loss=loss, seed=k or 0, progress=False)
                 m = team_metrics(ds, result)
-                sent = sum(c["bytes"] for c in result.counters) / (n * (ds.robots[0].frames - 1))
-                cons = 1e3 * np.median(np.concatenate([f[1:, 0] for f in result.frame_times]))
+                sent, cons = _bytes_and_consensus_ms(ds, result)
                 rows.append(
                     [
                         m["trajectory_rmse_avg_m"],

@@ -121,7 +121,7 @@ def one_run(run: int, spec: MonteCarloSpec) -> dict:
             if mode == "centralised":
                 result = run_centralised(team, config, progress=False)
             elif mode == "hybrid":
-                hybrid = config_for(team, **{**settings, "consensus_hybrid": True})
+                hybrid = config.with_(consensus_hybrid=True)
                 result = run_team(team, hybrid, consensus=True, progress=False)
             else:
                 result = run_team(team, config, consensus=mode == "consensus", progress=False)

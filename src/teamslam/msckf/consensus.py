@@ -51,7 +51,7 @@ is rejected; the estimate is unaffected.
 from __future__ import annotations
 
 from collections.abc import MutableMapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import lapack, solve_triangular
@@ -98,6 +98,9 @@ class SharedPrior:
     ids: np.ndarray
     mean: np.ndarray
     cov: np.ndarray
+    # the last marginal asked of :func:`prior_information` (both rounds of a step usually ask
+    # for the same objects): ids bytes → (P, η_P)
+    _last: dict = field(default_factory=dict, repr=False, compare=False)
 
 
 def shared_prior(state: MsckfState) -> SharedPrior:
@@ -115,9 +118,19 @@ def prior_information(prior: SharedPrior, ids: np.ndarray) -> tuple[np.ndarray, 
     """Information ``P`` and vector ``η_P`` of the prior's marginal of ``ids`` (increasing).
 
     Objects the prior does not hold (initialised since) get zero information: all they carry
-    is new.
+    is new. The result of the last call is kept on ``prior`` and returned again for the same
+    ids; callers must not modify it.
     """
     ids = np.asarray(ids, dtype=np.int64)
+    key = ids.tobytes()
+    if key not in prior._last:
+        prior._last.clear()
+        prior._last[key] = _prior_information(prior, ids)
+    return prior._last[key]
+
+
+def _prior_information(prior: SharedPrior, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`prior_information`, computed."""
     k = ids.size
     info = np.zeros((3 * k, 3 * k))
     eta = np.zeros(3 * k)

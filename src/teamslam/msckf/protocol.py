@@ -265,8 +265,9 @@ class ConsensusProtocol:
         """Our joint marginal of every object we send, new information scaled by ``1 + d_i``."""
         ids = np.unique(np.concatenate(list(self._pending.values())))
         state = self.agent.state
-        cols = state.object_columns(state.object_slots(ids)).ravel()
-        mean = state.objects[state.object_slots(ids)].ravel()
+        slots = state.object_slots(ids)
+        cols = state.object_columns(slots).ravel()
+        mean = state.objects[slots].ravel()
         info = spd_inverse(state.cov[np.ix_(cols, cols)], "own marginal covariance")
         gain = 1.0 + len(self.heard)
         hybrid = hybrid_marginal(mean, info, *prior_information(self._prior, ids), gain)
