@@ -76,7 +76,7 @@ def test_jacobians_are_analytic_derivatives_at_the_policys_point(
     ids, _ = small_team.robots[0].objects.frame(t0)
     slots = state.object_slots(ids)
     seen = ids[slots >= 0]
-    rows = agent._object_rows(t0)
+    rows, _ = agent._object_rows(t0)
     # fej also evaluates the current-estimate Jacobians, for its compensation noise
     assert rows.rows > 0 and len(calls) == (2 if linearization == "fej" else 1)
     pose_at, points_at = calls[0]

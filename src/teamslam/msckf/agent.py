@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import defaultdict
+from collections.abc import Callable
 
 import numpy as np
 
@@ -242,11 +243,23 @@ class MsckfAgent:
         rows = MeasurementRows.empty(self.state.dim)
         if self.config.use_geometric_features:
             rows = rows.extend(self._feature_rows(t))
+        object_rows, object_rows_at = MeasurementRows.empty(self.state.dim), None
         if self.config.use_objects:
-            rows = rows.extend(self._object_rows(t))
+            object_rows, object_rows_at = self._object_rows(t)
+        iterated = self.config.object_update_iterations > 1 and object_rows_at is not None
+        if not iterated:
+            rows = rows.extend(object_rows)
         if rows.rows:
             rows = compress(rows)
             self.state.update(rows.jacobian, rows.residual, np.diag(rows.variance))
+            self.counters["updates"] += 1
+        if iterated:
+            # features first (their null-space rows are linear in the error state), then the
+            # objects by an iterated EKF from the updated estimate
+            _, used = self.state.iterated_update(
+                object_rows_at, self.config.object_update_iterations
+            )
+            self.counters["object_linearizations"] += used
             self.counters["updates"] += 1
         after_update = time.perf_counter()
         if self.config.use_objects:
@@ -430,7 +443,11 @@ class MsckfAgent:
             self.state.retire_objects(np.flatnonzero(stale))
             self.counters["objects_retired"] += int(stale.sum())
 
-    def _object_rows(self, t: int) -> MeasurementRows:
+    def _object_rows(self, t: int) -> tuple[MeasurementRows, Callable[[], tuple] | None]:
+        """The gated object rows at the current estimate, and a function that linearises the
+        same rows again at whatever the state's mean then is (for the iterated update;
+        ``None`` when there are no rows)."""
+        empty = MeasurementRows.empty(self.state.dim), None
         ids, z = self._finite_observations("objects", t)
         for i, row in zip(ids.tolist(), z, strict=True):
             self.object_history[i].append((t, row))
@@ -438,7 +455,7 @@ class MsckfAgent:
         known = slots >= 0
         self.state.mark_seen(slots[known], t)
         if not known.any():
-            return MeasurementRows.empty(self.state.dim)
+            return empty
         slots, zk, ids = slots[known], z[known], ids[known]
         # an object the estimate puts (nearly) behind the camera has no usable projection
         _, p_cam = points_in_camera(
@@ -448,10 +465,43 @@ class MsckfAgent:
         if not in_front.all():
             self.reject("object_behind_camera", int((~in_front).sum()), "object behind the camera")
             slots, zk, ids = slots[in_front], zk[in_front], ids[in_front]
-        k = slots.size
-        if k == 0:
-            return MeasurementRows.empty(self.state.dim)
+        if slots.size == 0:
+            return empty
+        h, r, local_h, local_p, noise_cov = self._object_linearization(slots, zk, ids)
+        variance = self.config.object_std**2
+        s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + noise_cov
+        accepted, nis = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
+        self.counters["rejected_objects_gate"] += int((~accepted).sum())
+        self.counters["object_updates"] += int(accepted.sum())
+        if not accepted.any():
+            return empty
+        noise = np.full(int(accepted.sum()), variance)
+        if self.config.object_loss != "none":  # one M-estimator reweighting step
+            weight = self.config.robust_weight(np.sqrt(nis[accepted]))
+            self.counters["objects_downweighted"] += int((weight < 1).sum())
+            noise = noise / weight
+        slots, zk, ids = slots[accepted], zk[accepted], ids[accepted]
+        rows = self._object_measurement_rows(h[accepted], r[accepted], noise_cov[accepted], noise)
+
+        def rows_at() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            h, r, _, _, noise_cov = self._object_linearization(slots, zk, ids)
+            again = self._object_measurement_rows(h, r, noise_cov, noise)
+            return again.jacobian, again.residual, again.variance
+
+        return rows, rows_at
+
+    def _object_linearization(
+        self, slots: np.ndarray, z: np.ndarray, ids: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Rows of the objects ``slots`` observed as ``z``, at the state's current mean.
+
+        Returns ``H`` ``(k, 4, dim)``, the residuals ``(k, 4)``, each object's local Jacobian
+        ``(k, 4, 9)`` over the current pose and the object and the covariance of those columns
+        ``(k, 9, 9)``, and each object's ``(k, 4, 4)`` measurement noise (with the policy's
+        linearisation noise when it compensates).
+        """
         state = self.state
+        k = slots.size
         pred = observe(self.camera, self.T_cam_body, state.current_pose, state.objects[slots])
         _, d_pose, d_point = observe_jacobians(
             self.camera,
@@ -464,21 +514,18 @@ class MsckfAgent:
             ),
         )
         # each object's 9 columns (current pose + object) and their covariance
-        obj_cols = self.state.object_columns(slots)  # (k, 3)
-        pose_cols = np.broadcast_to(self.state.pose_columns(self.state.n_poses - 1), (k, 6))
+        obj_cols = state.object_columns(slots)  # (k, 3)
+        pose_cols = np.broadcast_to(state.pose_columns(state.n_poses - 1), (k, 6))
         local_cols = np.concatenate([pose_cols, obj_cols], axis=1)
-        local_p = self.state.cov[local_cols[:, :, None], local_cols[:, None, :]]
+        local_p = state.cov[local_cols[:, :, None], local_cols[:, None, :]]
         d_pose, d_point = self.policy.constrain(
             d_pose, d_point, state.pose_fe[-1], state.object_fe[slots], local_p
         )
-        dim = self.state.dim
-        h = np.zeros((k, 4, dim))
-        h[:, :, self.state.pose_columns(self.state.n_poses - 1)] = d_pose
+        h = np.zeros((k, 4, state.dim))
+        h[:, :, state.pose_columns(state.n_poses - 1)] = d_pose
         h[np.arange(k)[:, None, None], np.arange(4)[None, :, None], obj_cols[:, None, :]] = d_point
-        r = zk - pred
-        variance = self.config.object_std**2
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
-        noise_cov = variance * np.eye(4)
+        noise_cov = np.broadcast_to(self.config.object_std**2 * np.eye(4), (k, 4, 4))
         if self.policy.compensates:
             # the rows are not the current-estimate Jacobians: their difference, times the
             # state error, is part of the residual (linearisation.py, FEJ2 compensation)
@@ -487,19 +534,16 @@ class MsckfAgent:
             )
             current_h = np.concatenate([c_pose, c_point], axis=2)
             noise_cov = noise_cov + self.policy.linearization_noise(local_h, current_h, local_p)
-        s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + noise_cov
-        accepted, nis = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
-        self.counters["rejected_objects_gate"] += int((~accepted).sum())
-        self.counters["object_updates"] += int(accepted.sum())
-        noise = np.full(int(accepted.sum()), variance)
-        if self.config.object_loss != "none":  # one M-estimator reweighting step
-            weight = self.config.robust_weight(np.sqrt(nis[accepted]))
-            self.counters["objects_downweighted"] += int((weight < 1).sum())
-            noise = noise / weight
-        h, r = h[accepted], r[accepted]
+        return h, z - pred, local_h, local_p, noise_cov
+
+    def _object_measurement_rows(
+        self, h: np.ndarray, r: np.ndarray, noise_cov: np.ndarray, noise: np.ndarray
+    ) -> MeasurementRows:
+        """Stacked rows of accepted objects with per-object noise variance ``noise``."""
+        dim = self.state.dim
         if self.policy.compensates:
             # whiten each object's rows by its 4 × 4 noise: L⁻¹H, L⁻¹r with LLᵀ = noise
-            chol = np.linalg.cholesky(noise_cov[accepted] / variance)
+            chol = np.linalg.cholesky(noise_cov / self.config.object_std**2)
             h = np.linalg.solve(chol, h)
             r = np.linalg.solve(chol, r[..., None])[..., 0]
         return MeasurementRows(h.reshape(-1, dim), r.ravel(), np.repeat(noise, 4))

@@ -20,6 +20,8 @@ One state can hold the windows of several robots (the centralised filter,
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.linalg
 
@@ -423,6 +425,68 @@ class MsckfState:
         self.correct(delta)
         self._check("update")
         return delta
+
+    def iterated_update(
+        self,
+        rows_at: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
+        iterations: int,
+        tolerance: float = 1e-2,
+    ) -> tuple[np.ndarray, int]:
+        """Iterated EKF update: Gauss–Newton on the prior and a nonlinear measurement.
+
+        ``rows_at()`` returns ``(H, r, σ²)`` — Jacobian over the error state, residual ``z −
+        h(x)`` and per-row noise variance — linearised at the state's current mean; it must
+        return the same rows (same measurements, same order) every time. With ``x₀`` the prior
+        mean, ``P`` its covariance and ``δᵢ`` the error of iterate ``xᵢ = x₀ ⊞ δᵢ`` (``δ₀ = 0``),
+
+            ``δᵢ₊₁ = Kᵢ (rᵢ + Hᵢ δᵢ)``,  ``Kᵢ = P Hᵢᵀ (Hᵢ P Hᵢᵀ + R)⁻¹``,
+
+        (Bell and Cathey 1993: the Gauss–Newton step on ``‖δ‖²_P⁻¹ + ‖z − h(x₀ ⊞ δ)‖²_R⁻¹``); the
+        mean moves to ``x₀ ⊞ δ`` and the covariance is ``(I − K H) P`` with the last
+        linearisation. One iteration is the EKF update (:meth:`update`). It stops early once no
+        predicted measurement moves by more than ``tolerance`` of its noise std between
+        linearisations. Only the mean is moved between linearisations; the covariance is
+        touched once.
+
+        Returns
+        -------
+        delta, linearisations
+            The applied correction (``x₀ ⊞ delta`` is the new mean) and how many
+            linearisations were used.
+        """
+        poses, objects = self.poses, self.objects
+        jacobian, residual, variance = rows_at()
+        delta = np.zeros(self.dim)
+        used = 1
+        try:
+            for _ in range(iterations - 1):
+                if residual.size == 0:
+                    break
+                cols = np.flatnonzero(np.any(jacobian != 0.0, axis=0))
+                h = jacobian[:, cols]
+                pht = self.cov[:, cols] @ h.T
+                innovation_cov = h @ pht[cols] + np.diag(variance)
+                try:
+                    factor = scipy.linalg.cho_factor(0.5 * (innovation_cov + innovation_cov.T))
+                except np.linalg.LinAlgError:
+                    raise NotPositiveDefiniteError(
+                        "innovation covariance is not positive definite"
+                    ) from None
+                step = pht @ scipy.linalg.cho_solve(factor, residual + jacobian @ delta)
+                moved = np.abs(jacobian @ (step - delta)) / np.sqrt(variance)
+                delta = step
+                self.poses, self.objects = poses, objects
+                self.correct(delta)
+                jacobian, residual, variance = rows_at()
+                used += 1
+                if moved.max() <= tolerance:
+                    break
+        finally:
+            self.poses, self.objects = poses, objects
+        applied = np.zeros(self.dim)
+        if residual.size:
+            applied = self.update(jacobian, residual + jacobian @ delta, np.diag(variance))
+        return applied, used
 
     def replace_marginal(
         self,
