@@ -4,14 +4,16 @@ Run on demand (BLAS pinned to one thread; needs ``../shared/data`` beside the re
 ``--data``)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/kitti_consistency.py \\
-        [--variants std fej oc std+huber std+cauchy oc+huber] [--modes separate consensus hybrid]
+        [--variants std fej oc std+huber std+cauchy oc+huber] [--modes separate consensus hybrid] \\
+        [--set object_update_iterations=3]
 
 Each variant is a linearisation policy (``std``, ``fej``, ``oc``), optionally with a robust
 object loss (``+huber``, ``+cauchy``), on top of the settings ``teamslam run`` resolves for the
-data (its sensor model, else a calibration from the data). Mode ``hybrid`` is consensus with
-``consensus_hybrid`` (new information at full weight). Prints per variant and mode the
-trajectory RMSE and object error (team averages, metres), each robot's mean and median pose
-NEES/6 over its frames (the χ² expectation is 1) and the object NIS per degree of freedom.
+data (its sensor model, else a calibration from the data) and any ``--set KEY=VALUE``. Mode
+``hybrid`` is consensus with ``consensus_hybrid`` (new information at full weight). Prints per
+variant and mode the trajectory RMSE and object error (team averages, metres), each robot's mean
+and median pose NEES/6 over its frames (the χ² expectation is 1) and the object NIS per degree
+of freedom.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy as np
 from teamslam.datasets import import_reference
 from teamslam.eval.metrics import team_metrics
 from teamslam.msckf import run_team
-from teamslam.msckf.settings import resolve_config
+from teamslam.msckf.settings import parse_assignments, resolve_config
 
 MODES = ("separate", "consensus", "hybrid")
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -46,14 +48,22 @@ def main() -> None:
     parser.add_argument(
         "--modes", nargs="+", default=["separate", "consensus"], choices=MODES, metavar="MODE"
     )
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a filter setting for every robot and variant (repeatable)",
+    )
     args = parser.parse_args()
+    settings = parse_assignments(args.set)
     if not args.data.is_dir():
         raise SystemExit(f"no KITTI 00 data at {args.data} (see the data README)")
     dataset = import_reference(args.data)
-    base = resolve_config(dataset).robots
+    base = [replace(c, **settings) for c in resolve_config(dataset).robots]
     print(
         f"KITTI 00, {dataset.n_robots} robots, window {base[0].window}, "
-        f"object σ {base[0].object_std:.2f} px"
+        f"object σ {base[0].object_std:.2f} px" + "".join(f", {k}={v}" for k, v in settings.items())
     )
     print(
         f"{'variant':<11} {'mode':<10} {'RMSE m':>7} {'obj m':>6} {'NEES/6 mean per robot':>24} "

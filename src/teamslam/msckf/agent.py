@@ -6,7 +6,9 @@ neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.ste
 2. propagates with the odometry ``t − 1 → t`` (eqs. 22–23);
 3. updates with the geometric features whose tracks ended (or span the pose about to leave the
    window) — MSCKF null-space rows (eq. 24) — and with the objects already in the map, in one
-   stacked Kalman update (eqs. 26–28), each feature or object chi-square gated;
+   stacked Kalman update (eqs. 26–28), each feature or object chi-square gated (with
+   ``object_update_iterations > 1``: the features first, then the objects by an iterated EKF,
+   :meth:`~teamslam.msckf.state.MsckfState.iterated_update`);
 4. initialises objects seen often enough inside the window by QR (eqs. 29–30) — optionally
    once their initial position is certain enough relative to their distance
    (``object_init_max_relative_std``) — then uses the rest of their rows to update the poses;

@@ -109,13 +109,13 @@ class MsckfConfig:
         updates with the features first, then with the objects by an iterated EKF (Gauss–Newton
         on the prior and the object measurements, :meth:`MsckfState.iterated_update`): the
         object rows are linearised again at the updated estimate up to ``k − 1`` times, until
-        no predicted measurement moves by more than a hundredth of its noise std. Where a
-        robot's first observation of an object comes from a viewpoint far from those that
-        placed it (another robot's, in the centralised filter), the prior linearisation point
-        is far from where the update lands and the EKF is overconfident in the objects;
-        iterating removes most of that. Every row keeps the linearisation policy's pose
-        Jacobians (first estimates for ``fej``); with ``std``, whose current-estimate pose
-        Jacobians are what makes it inconsistent, iterating makes it worse.
+        no predicted measurement moves by more than a hundredth of its noise std. Every row
+        keeps the linearisation policy's pose Jacobians (first estimates for ``fej``). Measured
+        (README, "Consistency of the 3D team filter"): with ``fej`` it brings the centralised
+        filter's object ANEES into the χ² band (5.4 → 1.1, 20 runs) and the KITTI 00 object NIS
+        to 1.0; with ``std`` and ``oc``, which lack ``fej``'s linearisation noise, it makes both
+        filters markedly more overconfident; on small simulated teams it moved ``fej``'s RMSE
+        either way by up to 58%; a KITTI 00 run takes about 3× as long. Off by default.
     """
 
     window: int = 20
