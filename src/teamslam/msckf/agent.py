@@ -572,13 +572,7 @@ class MsckfAgent:
         for n, members in by_length.items():
             widx = np.stack([m[1] for m in members])
             zs = np.stack([m[2] for m in members])
-            points, ok, rms = triangulate(
-                self.camera,
-                self.T_cam_body,
-                self.state.poses[widx],
-                zs,
-                iterations=OBJECT_GAUSS_NEWTON_ITERATIONS,
-            )
+            points, ok, rms = self._triangulate_objects(widx, zs)
             depth = np.linalg.norm(points - self.state.current_pose[:3, 3], axis=1)
             ok &= (depth > cfg.object_min_depth) & (depth < cfg.object_max_depth)
             ok &= rms < 3.0 * cfg.object_std
@@ -589,18 +583,25 @@ class MsckfAgent:
                 if moved:
                     # an earlier object's update moved the poses: the least-squares point at
                     # the poses its rows are formed at, so that it enters at the optimum
-                    again, good, _ = triangulate(
-                        self.camera,
-                        self.T_cam_body,
-                        self.state.poses[widx[j]][None],
-                        zs[j][None],
-                        iterations=OBJECT_GAUSS_NEWTON_ITERATIONS,
-                    )
+                    again, good, _ = self._triangulate_objects(widx[j][None], zs[j][None])
                     if not good[0]:
                         self.counters["rejected_object_init"] += 1
                         continue
                     point = again[0]
                 moved |= self._add_object(members[j][0], point, widx[j], zs[j], variance, n)
+
+    def _triangulate_objects(
+        self, window_index: np.ndarray, zs: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Least-squares points of objects observed as ``zs`` (``(k, n, 4)``) from the window
+        poses ``window_index`` (``(k, n)``): :func:`triangulate` to convergence."""
+        return triangulate(
+            self.camera,
+            self.T_cam_body,
+            self.state.poses[window_index],
+            zs,
+            iterations=OBJECT_GAUSS_NEWTON_ITERATIONS,
+        )
 
     def _add_object(
         self, oid: int, point: np.ndarray, widx: np.ndarray, zs: np.ndarray, variance: float, n: int

@@ -400,14 +400,11 @@ class MsckfState:
         self.poses = self.poses @ se3.exp(delta[: 6 * c].reshape(c, 6))
         self.objects = self.objects + delta[6 * c :].reshape(-1, 3)
 
-    def update(
-        self, jacobian: np.ndarray, residual: np.ndarray, noise_cov: np.ndarray
-    ) -> np.ndarray:
-        """Kalman update (eqs. 26–28, ``S = 0``) with a Cholesky-factored innovation covariance.
-
-        Returns the applied correction.
-        """
-        # work only on the columns the rows touch (feature rows touch only window poses)
+    def _innovation_factor(
+        self, jacobian: np.ndarray, noise_cov: np.ndarray
+    ) -> tuple[np.ndarray, tuple[np.ndarray, bool]]:
+        """``P Hᵀ`` and the Cholesky factor of ``S = H P Hᵀ + R``, on the columns the rows
+        touch only (feature rows touch only window poses)."""
         cols = np.flatnonzero(np.any(jacobian != 0.0, axis=0))
         h = jacobian[:, cols]
         pht = self.cov[:, cols] @ h.T
@@ -418,6 +415,16 @@ class MsckfState:
             raise NotPositiveDefiniteError(
                 "innovation covariance is not positive definite"
             ) from None
+        return pht, factor
+
+    def update(
+        self, jacobian: np.ndarray, residual: np.ndarray, noise_cov: np.ndarray
+    ) -> np.ndarray:
+        """Kalman update (eqs. 26–28, ``S = 0``) with a Cholesky-factored innovation covariance.
+
+        Returns the applied correction.
+        """
+        pht, factor = self._innovation_factor(jacobian, noise_cov)
         gain = scipy.linalg.cho_solve(factor, pht.T).T
         delta = gain @ residual
         self.cov = self.cov - gain @ pht.T
@@ -462,16 +469,7 @@ class MsckfState:
             for _ in range(iterations - 1):
                 if residual.size == 0:
                     break
-                cols = np.flatnonzero(np.any(jacobian != 0.0, axis=0))
-                h = jacobian[:, cols]
-                pht = self.cov[:, cols] @ h.T
-                innovation_cov = h @ pht[cols] + np.diag(variance)
-                try:
-                    factor = scipy.linalg.cho_factor(0.5 * (innovation_cov + innovation_cov.T))
-                except np.linalg.LinAlgError:
-                    raise NotPositiveDefiniteError(
-                        "innovation covariance is not positive definite"
-                    ) from None
+                pht, factor = self._innovation_factor(jacobian, np.diag(variance))
                 step = pht @ scipy.linalg.cho_solve(factor, residual + jacobian @ delta)
                 moved = np.abs(jacobian @ (step - delta)) / np.sqrt(variance)
                 delta = step
