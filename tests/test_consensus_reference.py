@@ -9,6 +9,7 @@ correction ``Σ + G (Σ̄ʸ − Σʸ) Gᵀ``, ``G = Σ[:, y] Σʸ⁻¹``, and th
 
 from __future__ import annotations
 
+import copy
 from types import SimpleNamespace
 
 import numpy as np
@@ -104,6 +105,32 @@ def test_consensus_average_equals_dense_reference(seed):
     np.testing.assert_allclose(state.objects, objects, rtol=0, atol=1e-9 * np.abs(objects).max())
     np.testing.assert_allclose(state.cov, cov, rtol=0, atol=1e-9 * np.abs(cov).max())
     assert np.array_equal(state.cov, state.cov.T)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_completion_with_the_information_the_sender_kept_equals_the_reference(seed):
+    """Our own information of each set we sent (kept by ``common_marginal_message``) completes
+    the neighbour's marginal of that set: the result is the dense reference's, and the kept
+    matrices are what is used (a wrong one changes the result)."""
+    from teamslam.msckf.consensus import common_marginal_message
+
+    rng = np.random.default_rng(40 + seed)
+    state = _random_state(rng, poses=3, objects=int(rng.integers(8, 20)))
+    received, kept = [], {}
+    for j in range(3):
+        ids = np.sort(rng.choice(state.object_ids, int(rng.integers(1, 5)), replace=False))
+        common_marginal_message(state, 0, j + 1, 1, ids, information=True, keep=kept)
+        received.append((0.25, _neighbour(rng, state, ids, j + 1)))
+    assert len(kept) == 3
+    poses, objects, cov = _reference_consensus(state, 0.25, received)
+    wrong = copy.deepcopy(state)
+    consensus_average(state, 0.25, received, own_information=kept)
+    np.testing.assert_allclose(state.poses, poses, rtol=0, atol=1e-9 * np.abs(poses).max())
+    np.testing.assert_allclose(state.objects, objects, rtol=0, atol=1e-9 * np.abs(objects).max())
+    np.testing.assert_allclose(state.cov, cov, rtol=0, atol=1e-9 * np.abs(cov).max())
+    doubled = {key: 2.0 * value for key, value in kept.items()}
+    consensus_average(wrong, 0.25, received, own_information=doubled)
+    assert not np.allclose(wrong.objects, objects, rtol=0, atol=1e-6)
 
 
 @pytest.mark.parametrize("with_info", [False, True])

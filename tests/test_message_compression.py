@@ -156,3 +156,37 @@ def test_the_joint_bound_is_above_the_divergence_and_close_to_it():
         assert exact <= bound <= 1e4 * exact
     not_pd = -np.eye(3)
     assert rounding_divergence_bound(np.zeros(3), not_pd, np.zeros(3), not_pd) == np.inf
+
+
+def test_the_information_form_bound_is_above_the_divergence():
+    """Rounding a marginal's information matrix and mean to float32: the O(d²) bound is never
+    below the divergence (second order, ``¼‖Lᵀ ΔΩ L‖²_F + ½ Δμᵀ Ω Δμ`` with ``Σ = L Lᵀ``) and
+    not wildly above it; a marginal too ill-conditioned for float32 is caught."""
+    from teamslam.msckf.consensus import information_rounding_bound
+
+    rng = np.random.default_rng(9)
+    for d in (6, 30, 90):
+        a = rng.normal(size=(d, d))
+        cov = a @ a.T / d + np.diag(rng.uniform(1e-4, 1.0, d))
+        info = np.linalg.inv(cov)
+        info = 0.5 * (info + info.T)
+        mean = 30 * rng.normal(size=d)
+        info32 = info.astype(np.float32).astype(float)
+        mean32 = mean.astype(np.float32).astype(float)
+        lower = np.linalg.cholesky(cov)
+        whitened = lower.T @ (info32 - info) @ lower
+        exact = 0.25 * np.sum(whitened**2) + 0.5 * (mean32 - mean) @ info @ (mean32 - mean)
+        # the same divergence through the moment form (the rounded information inverted)
+        cov32 = np.linalg.inv(info32)
+        assert rounding_divergence(mean, cov, mean32, 0.5 * (cov32 + cov32.T)) == pytest.approx(
+            exact, rel=0.05
+        )
+        bound = information_rounding_bound(mean, cov, info, mean32, info32)
+        assert exact <= bound <= 1e4 * exact
+    u = rng.normal(size=(12, 2))
+    tight = u @ u.T + 1e-9 * np.eye(12)
+    info = np.linalg.inv(tight)
+    rounded = info.astype(np.float32).astype(float)
+    assert information_rounding_bound(np.zeros(12), tight, info, np.zeros(12), rounded) > (
+        FLOAT32_MAX_KL
+    )

@@ -242,6 +242,25 @@ def test_bad_neighbour_messages_are_named():
     for reason, msg in cases.items():
         problem = validate_marginal(state, msg)
         assert problem is not None and reason in problem, (reason, problem)
+    # the same checks for a marginal in information form, named as such
+    ids = np.array([3, 5])
+    for reason, info in {
+        "information matrix is not positive definite": -good_cov,
+        "information matrix is not symmetric": good_cov + np.triu(np.ones((6, 6)), 1),
+        "non-finite mean or information matrix": np.full((6, 6), np.inf),
+        "mean/information matrix sizes": np.eye(9),
+    }.items():
+        msg = CommonMarginalMessage(1, 0, 1, ids, np.zeros(6), None, info=info)
+        problem = validate_marginal(state, msg)
+        assert problem is not None and reason in problem, (reason, problem)
+    assert (
+        validate_marginal(
+            state, CommonMarginalMessage(1, 0, 1, ids, np.zeros(6), None, info=good_cov)
+        )
+        is None
+    )
+    with pytest.raises(ValueError, match="either a covariance or an information matrix"):
+        CommonMarginalMessage(1, 0, 1, ids, np.zeros(6), good_cov, info=good_cov)
 
 
 def test_gate_rejects_about_its_false_alarm_rate():

@@ -129,6 +129,8 @@ def test_protocol_weights_are_metropolis_of_the_links_heard(team4):
     for i in range(n):
         heard = ends[i].collect(15, MapIdsMessage, set(range(n)) - {i}, 0.0)
         replies[i] = protocols[i].answer(heard)
+        # joint marginals travel in information form, what the receiver averages
+        assert all(m.info is not None and m.cov is None for m in replies[i])
         for m in replies[i]:
             ends[i].send(m)
     want = metropolis_weights(adjacency)
@@ -170,6 +172,11 @@ def test_protocol_rejects_what_is_not_for_it_and_leaves_the_state_alone(team4):
     )
     assert averaged == 0
     assert agents[0].counters["rejected_messages"] == 5
+    # map ids that are not strictly increasing (repeated or out of order) are refused
+    assert ids.size == 2
+    for bad in (np.sort(ids)[::-1], np.repeat(ids[:1], 2)):
+        assert protocol.answer([MapIdsMessage(1, 0, 15, bad)]) == []
+    assert agents[0].counters["rejected_messages"] == 7
     np.testing.assert_array_equal(state.cov, before[0])
     np.testing.assert_array_equal(state.objects, before[1])
     np.testing.assert_array_equal(state.poses, before[2])
@@ -259,9 +266,11 @@ def test_consensus_on_what_moved_equals_full_averaging_on_a_team():
         assert metrics[1e-2][key] == pytest.approx(metrics[0.0][key], rel=0.02), key
 
 
-@pytest.mark.parametrize("per_object", [False, True])
+@pytest.mark.parametrize(
+    ("per_object", "information"), [(False, False), (True, False), (False, True)]
+)
 @pytest.mark.parametrize("float32", [False, True])
-def test_compact_marginals_cross_the_wire_exactly(team4, per_object, float32):
+def test_compact_marginals_cross_the_wire_exactly(team4, per_object, float32, information):
     from teamslam.msckf.consensus import common_marginal_message, receive_marginal
     from teamslam.msckf.messages import encoded_ids_size
     from teamslam.runtime.wire import decode, encode, team_id
@@ -270,13 +279,34 @@ def test_compact_marginals_cross_the_wire_exactly(team4, per_object, float32):
     agents = _agents(dataset, 1)
     state = agents[0].state
     ids = state.object_ids[-4:]
-    msg = common_marginal_message(state, 0, 1, 15, ids, 2, per_object, float32)
+    kept = {}
+    msg = common_marginal_message(
+        state, 0, 1, 15, ids, 2, per_object, float32, information=information, keep=kept
+    )
     assert msg.per_object == per_object and msg.single_precision == float32
+    assert (msg.info is not None) == information and (msg.cov is None) == information
     data = encode(msg, team_id("w"))
     assert len(data) == msg.nbytes()
     back = decode(data, team_id("w"), 2)
     np.testing.assert_array_equal(back.mean, msg.mean)
-    np.testing.assert_array_equal(back.cov, msg.cov)
+    np.testing.assert_array_equal(back.matrix, msg.matrix)
+    assert (back.info is not None) == information
+    if information:
+        # the information matrix is the inverse of the moment-form marginal; the sender keeps
+        # the exact one (not rounded) under the message's ids
+        moment = common_marginal_message(state, 0, 1, 15, ids, 2)
+        exact = kept[msg.ids.astype(np.int64).tobytes()]
+        np.testing.assert_allclose(exact @ moment.cov, np.eye(exact.shape[0]), atol=1e-8)
+        if not float32:
+            np.testing.assert_array_equal(msg.info, exact)
+        # received in either form, the neighbour's marginal is the same
+        _, from_info = receive_marginal(state, back)
+        _, from_cov = receive_marginal(state, moment)
+        scale = np.abs(from_cov.info).max()
+        tol = (1e-5 if float32 else 1e-9) * scale
+        np.testing.assert_allclose(from_info.info, from_cov.info, rtol=0, atol=tol)
+    else:
+        assert kept == {}
     k = ids.size
     full = 36 + encoded_ids_size(back.ids) + 8 * (3 * k + 3 * k * (3 * k + 1) // 2)
     assert len(data) < full or not (per_object or float32)

@@ -28,6 +28,7 @@ from teamslam.msckf.health import (
     SensorHealth,
     health_warnings,
     odometry_lag_residuals,
+    odometry_step_residual,
 )
 from teamslam.msckf.settings import (
     ConfigError,
@@ -274,6 +275,22 @@ def test_odometry_lag_design_predicts_the_composed_noise():
         moments.append(moment)
     predicted = design @ sigma**2
     np.testing.assert_allclose(np.mean(moments, axis=0), predicted, rtol=0.06)
+
+
+def test_one_step_odometry_residual_is_lag_one_of_the_window_statistic():
+    """The agent's per-step statistic equals lag 1 of :func:`odometry_lag_residuals`, with a
+    covariance that correlates the two poses (so every term of ``J Σ Jᵀ`` counts)."""
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        poses = se3.exp(rng.normal(size=(2, 6)))
+        odometry = se3.inverse(poses[0]) @ poses[1] @ se3.exp(0.05 * rng.normal(size=6))
+        root = rng.normal(size=(12, 12))
+        cov = root @ root.T + 0.1 * np.eye(12)
+        want, _ = odometry_lag_residuals(poses, odometry[None], cov)
+        got = odometry_step_residual(poses, odometry, cov)
+        np.testing.assert_allclose(got, want[0], rtol=1e-12, atol=1e-14)
+        # the covariance terms matter: a wrong cross term would move the result
+        assert not np.allclose(got, odometry_step_residual(poses, odometry, np.diag(np.diag(cov))))
 
 
 def test_health_warnings_name_the_sensor_and_the_cause():

@@ -293,7 +293,7 @@ def _marginal_information(
 def completed_geometric_average(
     mean: np.ndarray,
     cov: np.ndarray,
-    terms: Sequence[tuple[float, np.ndarray, np.ndarray, np.ndarray]],
+    terms: Sequence[tuple],
     info: np.ndarray | None = None,
     block: int | None = None,
     extra: tuple[np.ndarray, np.ndarray] | None = None,
@@ -316,7 +316,9 @@ def completed_geometric_average(
     mean, cov
         Our marginal of ``y``.
     terms
-        ``(w_j, index_j, M_j, m_j)`` per neighbour.
+        ``(w_j, index_j, M_j, m_j)`` per neighbour, or ``(w_j, index_j, M_j, m_j, Ω_{C_j})``
+        with the information of our own marginal of ``C_j`` when it is already known
+        (``None`` there: computed here).
     info
         ``cov⁻¹`` if already known.
     block
@@ -344,10 +346,12 @@ def completed_geometric_average(
     info_bar = own_info.copy()
     eta_bar = own_info @ mean
     d = mean.size
-    for weight, index, m_info, m_eta in terms:
+    for weight, index, m_info, m_eta, *known in terms:
         sub = np.asarray(index, dtype=np.intp)
         if sub.size == d and np.array_equal(sub, np.arange(d)):
             own_sub = own_info
+        elif known and known[0] is not None:
+            own_sub = known[0]
         else:
             own_sub = _marginal_information(own_info, cov, sub, _complement(sub, d))
         info_bar[np.ix_(sub, sub)] += weight * (m_info - own_sub)
@@ -374,7 +378,7 @@ def _per_block_average(
     means = mean.reshape(-1, block)
     info = own_info.copy()
     eta = np.einsum("kij,kj->ki", own_info, means)
-    for weight, index, m_info, m_eta in terms:
+    for weight, index, m_info, m_eta, *_ in terms:
         sub = np.asarray(index, dtype=np.intp).reshape(-1, block)
         which = sub[:, 0] // block
         local = np.arange(sub.size).reshape(-1, block)

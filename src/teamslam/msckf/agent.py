@@ -42,7 +42,7 @@ from teamslam.errors import EstimationError, InputError
 from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry import se3
 from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.health import SensorHealth, odometry_lag_residuals
+from teamslam.msckf.health import SensorHealth, odometry_lag_residuals, odometry_step_residual
 from teamslam.msckf.linearization import GroundTruth, linearization_policy
 from teamslam.msckf.models import observe, observe_jacobians, points_in_camera
 from teamslam.msckf.state import MsckfState, RobotWindow
@@ -316,14 +316,12 @@ class MsckfAgent:
         first = int(state.frames[index])
         if state.frames[index + 1] != first + 1 or first in self._odometry_rejected:
             return
-        cols = np.concatenate(state.pose_columns(np.array([index, index + 1])))
-        moment, _ = odometry_lag_residuals(
-            state.poses[index : index + 2],
-            self.sequence.odometry[first : first + 1],
-            state.cov[np.ix_(cols, cols)],
+        cols = slice(6 * index, 6 * index + 12)  # poses index and index + 1
+        moment = odometry_step_residual(
+            state.poses[index : index + 2], self.sequence.odometry[first], state.cov[cols, cols]
         )
         assumed = np.square(self.config.odometry_std)
-        self.health.odometry(moment[0], assumed)
+        self.health.odometry(moment, assumed)
         if self.health.record and index == 0:
             # every lag of the window (consecutive frames, no rejected step) for calibration
             frames = state.frames

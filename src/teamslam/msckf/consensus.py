@@ -50,7 +50,7 @@ is rejected; the estimate is unaffected.
 
 from __future__ import annotations
 
-from collections.abc import MutableMapping, Sequence
+from collections.abc import Mapping, MutableMapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,6 +68,7 @@ __all__ = [
     "common_marginal_message",
     "consensus_average",
     "hybrid_marginal",
+    "information_rounding_bound",
     "object_marginals",
     "prior_information",
     "receive_marginal",
@@ -183,6 +184,8 @@ def common_marginal_message(
     per_object: bool = False,
     float32: bool = False,
     source: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    information: bool = False,
+    keep: MutableMapping[bytes, np.ndarray] | None = None,
 ) -> CommonMarginalMessage | None:
     """The marginal of the objects ``ids`` (those the sender holds), or ``None`` if none.
 
@@ -194,7 +197,12 @@ def common_marginal_message(
     rounds every number to single precision (what the wire then carries exactly) where that is
     safe: when the rounded marginal is within :data:`FLOAT32_MAX_KL` nats of the exact one
     (:func:`rounding_divergence` per object, :func:`rounding_divergence_bound` for a joint
-    marginal); otherwise the message stays in double precision.
+    marginal, :func:`information_rounding_bound` in information form); otherwise the message
+    stays in double precision.
+
+    ``information`` sends a joint marginal in information form (``info = Σ⁻¹``); ``keep``, a
+    mapping, then receives the exact (unrounded) ``Σ⁻¹`` under the key ``ids.tobytes()`` of
+    the message's ids (``int64``), for :func:`consensus_average`'s ``own_information``.
     """
     ids = np.unique(np.asarray(ids, dtype=np.int64))  # increasing, as messages carry them
     slots = state.object_slots(ids)
@@ -217,6 +225,19 @@ def common_marginal_message(
     else:
         flat = cols.ravel()
         cov = full_cov[np.ix_(flat, flat)]
+    if information and not per_object:
+        info = spd_inverse(cov, "own marginal covariance")
+        if keep is not None:
+            keep[ids[held].tobytes()] = info
+        message_info = info
+        if float32:
+            mean32 = mean.astype(np.float32).astype(float)
+            info32 = info.astype(np.float32).astype(float)
+            if information_rounding_bound(mean, cov, info, mean32, info32) <= FLOAT32_MAX_KL:
+                mean, message_info = mean32, info32
+        return CommonMarginalMessage(
+            sender, receiver, step, ids[held].copy(), mean, None, int(degree), info=message_info
+        )
     if float32:
         mean32 = mean.astype(np.float32).astype(float)
         cov32 = cov.astype(np.float32).astype(float)
@@ -257,6 +278,28 @@ def rounding_divergence_bound(
     d_cov = float(np.sum((cov_rounded - cov) ** 2))
     d_mean = float(np.sum((mean_rounded - mean) ** 2))
     return 0.25 * inverse_norm**2 * d_cov + 0.5 * inverse_norm * d_mean
+
+
+def information_rounding_bound(
+    mean: np.ndarray,
+    cov: np.ndarray,
+    info: np.ndarray,
+    mean_rounded: np.ndarray,
+    info_rounded: np.ndarray,
+) -> float:
+    """An upper estimate of ``KL(N(mean_rounded, info_rounded⁻¹) ‖ N(mean, cov))`` for a
+    marginal sent in information form (``info = cov⁻¹``), in ``O(d²)``: no factorisation.
+
+    To second order the divergence is ``¼‖E‖²_F + ½ Δμᵀ Ω Δμ`` with ``E = Σ^½ ΔΩ Σ^½``
+    (``ΔΩ`` the rounding of the information matrix, ``Δμ`` of the mean); ``‖E‖_F ≤ ‖Σ‖₂ ‖ΔΩ‖_F``
+    and ``Δμᵀ Ω Δμ ≤ ‖Ω‖₂ ‖Δμ‖²``, and for a symmetric matrix ``‖·‖₂ ≤ ‖·‖₁`` (the largest
+    column sum of absolute values).
+    """
+    cov_norm = float(np.abs(cov).sum(axis=0).max())
+    info_norm = float(np.abs(info).sum(axis=0).max())
+    d_info = float(np.sum((info_rounded - info) ** 2))
+    d_mean = float(np.sum((mean_rounded - mean) ** 2))
+    return 0.25 * cov_norm**2 * d_info + 0.5 * info_norm * d_mean
 
 
 def rounding_divergence(
@@ -310,6 +353,8 @@ def receive_marginal(
 ) -> tuple[str | None, ReceivedMarginal | None]:
     """Check a neighbour's marginal against our map and factorise it once.
 
+    A marginal in moment form is inverted (its Cholesky factor gives the information matrix);
+    one in information form is checked to be positive definite by its Cholesky factorisation.
     Objects that have left our state for the persistent map since the neighbour asked (an
     asynchronous message) are marginalised out of it; an object we never had makes it unusable.
     Returns ``(None, marginal)`` when it can be used, ``(reason, None)`` when it cannot.
@@ -318,17 +363,20 @@ def receive_marginal(
     k = ids.size
     if ids.ndim != 1 or k == 0 or np.unique(ids).size != k:
         return "ids must be a non-empty list without repeats", None
-    per_object = np.ndim(message.cov) == 3
+    information = message.info is not None
+    name = "information matrix" if information else "covariance"
+    per_object = not information and np.ndim(message.cov) == 3
     shape = (k, 3, 3) if per_object else (3 * k, 3 * k)
-    if np.shape(message.mean) != (3 * k,) or np.shape(message.cov) != shape:
-        return "mean/covariance sizes do not match the ids", None
+    if np.shape(message.mean) != (3 * k,) or np.shape(message.matrix) != shape:
+        return f"mean/{name} sizes do not match the ids", None
     mean = np.asarray(message.mean, dtype=float)
-    cov = np.asarray(message.cov, dtype=float)
-    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
-        return "non-finite mean or covariance", None
-    cov_t = np.swapaxes(cov, -1, -2)
-    if np.abs(cov - cov_t).max() > 1e-9 * np.abs(cov).max() + 1e-12:
-        return "covariance is not symmetric", None
+    matrix = np.asarray(message.matrix, dtype=float)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(matrix))):
+        return f"non-finite mean or {name}", None
+    transposed = np.swapaxes(matrix, -1, -2)
+    if np.abs(matrix - transposed).max() > 1e-9 * np.abs(matrix).max() + 1e-12:
+        return f"{name} is not symmetric", None
+    matrix = 0.5 * (matrix + transposed)
     absent = state.object_slots(ids) < 0
     if absent.any():
         # an asynchronous message may be older than our last retirement: objects that left our
@@ -338,15 +386,26 @@ def receive_marginal(
             return "ids not in this robot's map", None
         if absent.all():
             return "every object of the marginal has retired from this robot's state", None
+        if information:  # marginalise in moment form (a rare path)
+            try:
+                matrix = spd_inverse(matrix, name)
+            except NotPositiveDefiniteError:
+                return f"{name} is not positive definite", None
+            information = False
         keep = np.flatnonzero(~absent)
         coords = (3 * keep[:, None] + np.arange(3)).ravel()
         ids, mean, k = ids[keep], mean[coords], keep.size
-        cov = cov[keep] if per_object else cov[np.ix_(coords, coords)]
-        cov_t = np.swapaxes(cov, -1, -2)
-    try:
-        info = spd_inverse(0.5 * (cov + cov_t), "covariance")
-    except NotPositiveDefiniteError:
-        return "covariance is not positive definite", None
+        matrix = matrix[keep] if per_object else matrix[np.ix_(coords, coords)]
+    if information:
+        _, failed = lapack.dpotrf(matrix, lower=1)
+        if failed != 0:
+            return f"{name} is not positive definite", None
+        info = matrix
+    else:
+        try:
+            info = spd_inverse(matrix, name)
+        except NotPositiveDefiniteError:
+            return f"{name} is not positive definite", None
     if per_object:  # block-diagonal information of the per-object marginals
         blocks = info
         info = np.zeros((3 * k, 3 * k))
@@ -368,6 +427,7 @@ def consensus_average(
     received: Sequence[tuple[float, ReceivedMarginal | CommonMarginalMessage]],
     prior: SharedPrior | None = None,
     counters: MutableMapping[str, int] | None = None,
+    own_information: Mapping[bytes, np.ndarray] | None = None,
 ) -> int:
     """Average the common objects with the neighbours' marginals and rebuild the joint.
 
@@ -391,6 +451,12 @@ def consensus_average(
         of ``y``. The rebuild (Prop. 2) still uses our actual conditional. Joint marginals only.
         ``counters["hybrid_fallbacks"]`` is incremented when the result is not positive definite
         and the plain average is used instead.
+    own_information
+        Our own information matrices of object sets already inverted this step (by
+        :func:`common_marginal_message` with ``keep``), under the key ``ids.tobytes()``
+        (``int64``, increasing): a neighbour marginal over such a set is completed with it
+        instead of inverting our marginal of the set again. The state must not have changed
+        since they were computed.
 
     Returns
     -------
@@ -426,7 +492,8 @@ def consensus_average(
     for w, m in zip(weights, marginals, strict=True):
         position = np.searchsorted(y_ids, m.ids)
         sub = (3 * position[:, None] + np.arange(3)).ravel()
-        terms.append((w, sub, m.info, m.info_vector))
+        own_sub = None if own_information is None else own_information.get(m.ids.tobytes())
+        terms.append((w, sub, m.info, m.info_vector, own_sub))
     if per_object.pop():
         mean, cov = completed_geometric_average(own_mean, own_cov, terms, block=3)
         state.replace_marginal(cols, mean, cov)
@@ -437,7 +504,7 @@ def consensus_average(
         if prior is not None:
             # our own new information Δ, added with the weight of the messages that hold all
             # of y (its weight elsewhere is already that of the messages lacking an object)
-            full = sum(w for w, sub, _, _ in terms if sub.size == own_mean.size)
+            full = sum(term[0] for term in terms if term[1].size == own_mean.size)
             if full > 0:
                 prior_info, prior_eta = prior_information(prior, y_ids)
                 extra = (

@@ -41,6 +41,7 @@ __all__ = [
     "SensorHealth",
     "health_warnings",
     "odometry_lag_residuals",
+    "odometry_step_residual",
 ]
 
 SENSORS = ("features", "objects")
@@ -111,6 +112,36 @@ def odometry_lag_residuals(
     cross = np.einsum("lab,lba->la", jac_first, p0l)
     var = a_p00 - 2.0 * cross + np.einsum("laa->la", pll)
     return residual**2 + var, design
+
+
+def odometry_step_residual(poses: np.ndarray, odometry: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Lag 1 of :func:`odometry_lag_residuals` alone: ``ê² + diag(J Σ Jᵀ)`` for one step.
+
+    Parameters
+    ----------
+    poses
+        ``(2, 4, 4)`` two smoothed window poses of consecutive frames.
+    odometry
+        ``(4, 4)`` the odometry between them.
+    cov
+        ``(12, 12)`` their joint covariance.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(6,)`` the diagonal of ``E[ν νᵀ | data]``, the same numbers as row 0 of the second
+        moment of :func:`odometry_lag_residuals` without the design matrices the lags need.
+    """
+    relative = se3.inverse(poses[0]) @ poses[1]  # Δ̂
+    to_first = se3.inverse(relative)
+    residual = se3.log(to_first @ odometry)
+    jac_first = se3.adjoint(to_first)  # J = [Ad(Δ̂⁻¹), −I]
+    var = (
+        np.einsum("ab,bc,ac->a", jac_first, cov[:6, :6], jac_first)
+        - 2.0 * np.einsum("ab,ba->a", jac_first, cov[:6, 6:])
+        + np.diagonal(cov[6:, 6:])
+    )
+    return residual**2 + var
 
 
 class SensorHealth:

@@ -41,9 +41,12 @@ def _varint_values(ids: np.ndarray) -> np.ndarray:
     return np.concatenate([zigzag, steps])
 
 
+# a value below 2^(7g) takes g bytes (at least one): the lengths by one binary search
+_VARINT_LIMITS = np.left_shift(np.uint64(1), 7 * np.arange(1, _VARINT_GROUPS, dtype=np.uint64))
+
+
 def _varint_lengths(values: np.ndarray) -> np.ndarray:
-    groups = values[:, None] >> (7 * np.arange(_VARINT_GROUPS, dtype=np.uint64))
-    return np.maximum(1, np.count_nonzero(groups, axis=1))
+    return 1 + np.searchsorted(_VARINT_LIMITS, values, side="right")
 
 
 def encode_ids(ids: np.ndarray) -> bytes:
@@ -138,16 +141,24 @@ class MapIdsMessage:
 class CommonMarginalMessage:
     """Round 2: the sender's marginal of the objects it shares with the receiver (eq. 19).
 
+    The marginal travels in moment form (``cov``) or in information form (``info``, exactly
+    one of the two is given). The information form is what eq. 19 averages: a receiver then
+    only checks it (one Cholesky factorisation) instead of inverting it, and the sender has
+    inverted its own marginal of these objects anyway, for its own average (eq. 42).
+
     Attributes
     ----------
     ids
         The shared objects' ids, strictly increasing.
-    mean, cov
-        Their marginal, ``3·len(ids)`` long, in the order of ``ids``: ``cov`` is the joint
-        ``(3k, 3k)`` covariance, or ``(k, 3, 3)`` — each object's own block — for a
-        per-object message.
+    mean
+        Their marginal mean, ``3·len(ids)`` long, in the order of ``ids``.
+    cov
+        Moment form: the joint ``(3k, 3k)`` covariance, or ``(k, 3, 3)`` — each object's own
+        block — for a per-object message; ``None`` in information form.
     degree
         How many neighbours the sender heard from in round 1 of this step.
+    info
+        Information form: ``Σ⁻¹`` of the joint marginal, ``(3k, 3k)``; ``None`` in moment form.
     """
 
     sender: int
@@ -155,25 +166,39 @@ class CommonMarginalMessage:
     step: int
     ids: np.ndarray
     mean: np.ndarray
-    cov: np.ndarray
+    cov: np.ndarray | None
     degree: int = 0
+    info: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if (self.cov is None) == (self.info is None):
+            raise ValueError(
+                "a marginal message holds either a covariance or an information matrix"
+            )
+        if self.info is not None and np.ndim(self.info) != 2:
+            raise ValueError("an information-form marginal is joint: info must be (3k, 3k)")
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The matrix the message carries: ``cov``, or ``info`` in information form."""
+        return self.cov if self.info is None else self.info
 
     @property
     def per_object(self) -> bool:
         """Whether ``cov`` holds each object's own 3×3 block only."""
-        return np.ndim(self.cov) == 3
+        return np.ndim(self.matrix) == 3
 
     @property
     def single_precision(self) -> bool:
         """Whether every number is exactly a float32 (sent in 4 bytes)."""
-        mean, cov = np.asarray(self.mean), np.asarray(self.cov)
+        mean, matrix = np.asarray(self.mean), np.asarray(self.matrix)
         return bool(
             np.array_equal(mean.astype(np.float32), mean)
-            and np.array_equal(cov.astype(np.float32), cov)
+            and np.array_equal(matrix.astype(np.float32), matrix)
         )
 
     def nbytes(self) -> int:
-        """Payload size on a wire: ids, mean and the covariance's upper triangle(s)."""
+        """Payload size on a wire: ids, mean and the matrix's upper triangle(s)."""
         d = int(np.size(self.mean))
         k = int(np.size(self.ids))
         upper = 6 * k if self.per_object else d * (d + 1) // 2

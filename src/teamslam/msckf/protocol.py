@@ -116,6 +116,9 @@ class ConsensusProtocol:
         self._agreed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._moved: dict[int, np.ndarray] = {}
         self._pending: dict[int, np.ndarray] = {}
+        # our own information of each object set we sent this step (ids bytes → Σ⁻¹), which
+        # completes the neighbour's marginal of the same set in the average (eq. 42)
+        self._own_information: dict[bytes, np.ndarray] = {}
         self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         # hybrid consensus: our joint marginal of the objects after the last exchange
         self.hybrid = bool(agent.config.consensus_hybrid) and self.max_age == 0
@@ -153,6 +156,7 @@ class ConsensusProtocol:
         self.averaged_with = []
         self._moved = {}
         self._pending = {}
+        self._own_information = {}
         order = np.argsort(self.agent.state.object_ids)
         ids = self.agent.state.object_ids[order]  # increasing, as messages carry them
         if self.kl_threshold > 0:
@@ -225,26 +229,33 @@ class ConsensusProtocol:
             if m.moved is not None and np.shape(m.moved) != np.shape(m.ids):
                 self.agent.reject("messages", reason="moved flags do not match the ids")
                 continue
+            ids = np.asarray(m.ids)
+            if ids.ndim != 1 or np.any(ids[1:] <= ids[:-1]):
+                self.agent.reject("messages", reason="map ids are not strictly increasing")
+                continue
             requests[m.sender] = m
         self.heard = set(requests)
         replies = []
-        own = self.agent.state.object_ids
+        own = np.sort(self.agent.state.object_ids)
         for j in sorted(requests):
             their_ids = np.asarray(requests[j].ids, dtype=np.int64)
+            # ours ∩ theirs, flagged by either side: masks over their (increasing) ids
+            shared = _members(their_ids, own)
             mine_moved = self._moved_for(j)
             theirs_moved = requests[j].moved
-            if mine_moved is None or theirs_moved is None:
-                share = np.intersect1d(their_ids, own)
-            else:  # the flags refer to our map as it was in round 1
-                theirs_moved = np.asarray(theirs_moved, dtype=bool)
-                flagged = np.union1d(their_ids[theirs_moved], self._own[0][mine_moved])
-                share = np.intersect1d(np.intersect1d(their_ids, own), flagged)
+            if mine_moved is not None and theirs_moved is not None:
+                # the flags refer to our map as it was in round 1
+                shared &= np.asarray(theirs_moved, dtype=bool) | _members(
+                    their_ids, self._own[0][mine_moved]
+                )
+            share = their_ids[shared]
             if share.size == 0:
                 continue
             self._pending[j] = share
             self.expected.add(j)
         source = self._hybrid_source() if self.hybrid and self._pending else None
         config = self.agent.config
+        self._own_information = {}
         for j, share in self._pending.items():
             reply = common_marginal_message(
                 self.agent.state,
@@ -256,6 +267,8 @@ class ConsensusProtocol:
                 per_object=config.consensus_per_object,
                 float32=config.consensus_float32,
                 source=source,
+                information=not config.consensus_per_object,
+                keep=self._own_information if source is None else None,
             )
             replies.append(reply)
         self.spent += time.perf_counter() - begin
@@ -324,7 +337,9 @@ class ConsensusProtocol:
             used,
             prior=self._prior if self.hybrid else None,
             counters=self.agent.counters,
+            own_information=self._own_information,
         )
+        self._own_information = {}  # the state has moved
         if self.hybrid and (self.expected or averaged):
             self._prior = shared_prior(self.agent.state)
         if self._own is not None:

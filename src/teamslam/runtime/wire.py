@@ -4,9 +4,10 @@ Every message is a fixed little-endian header followed by a payload::
 
     offset size field
     0      4    magic b"TSLM"
-    4      1    format version (3)
-    5      1    kind: 1 = map ids; a common marginal: 2 = joint, float64; 3 = joint, float32;
-                4 = per object, float64; 5 = per object, float32
+    4      1    format version (4)
+    5      1    kind: 1 = map ids; a common marginal: 2 = joint covariance, float64; 3 = joint
+                covariance, float32; 4 = per object, float64; 5 = per object, float32;
+                6 = joint information matrix, float64; 7 = joint information matrix, float32
     6      2    marginal: the sender's degree this step (neighbours heard); map ids: 0
     8      8    team id (64-bit hash of the team name)
     16     2    sender robot
@@ -19,12 +20,13 @@ Every message is a fixed little-endian header followed by a payload::
     36     ...  the n ids in c bytes (strictly increasing: LEB128 varints of the first id,
                 zigzag-coded, then of each difference — about one byte per id); then for map
                 ids b bytes of moved flags (one bit per id, little bit order); for a marginal
-                d mean values, then the covariance upper triangle (row-major): of the joint
-                (d (d + 1) / 2 values) or of each object's 3×3 block (6 n values); values
-                float64 or float32 by kind
+                d mean values, then the upper triangle (row-major) of the joint covariance
+                or information matrix (d (d + 1) / 2 values) or of each object's 3×3
+                covariance block (6 n values); values float64 or float32 by kind
 
 Version 2 added the moved flags and the degree (consensus on what changed, one weighting
-rule); version 3 the variable-length ids. Older versions are refused by name.
+rule); version 3 the variable-length ids; version 4 marginals in information form (what
+robots send by default). Older versions are refused by name.
 
 No pickle, no code: :func:`decode` checks the magic, version, kind, team, robots, sizes (the
 byte length must match the header exactly and stay under a limit), ids without repeats and
@@ -51,10 +53,18 @@ from teamslam.msckf.messages import (
 __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
 
 MAGIC = b"TSLM"
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 KIND_IDS = 1
 KIND_MARGINAL = 2  # joint float64; 3 joint float32; 4 per object float64; 5 per object float32
-_MARGINAL_KINDS = {(False, False): 2, (False, True): 3, (True, False): 4, (True, True): 5}
+# (per object, float32, information form) → kind
+_MARGINAL_KINDS = {
+    (False, False, False): 2,
+    (False, True, False): 3,
+    (True, False, False): 4,
+    (True, True, False): 5,
+    (False, False, True): 6,
+    (False, True, True): 7,
+}
 _TRIU3 = np.triu_indices(3)
 HEADER = struct.Struct("<4sBBHQHHIIII")  # HEADER_BYTES long
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024
@@ -99,15 +109,16 @@ def encode(message: Message, team: int) -> bytes:
         )
         return header + id_bytes + flags
     per_object, single = message.per_object, message.single_precision
+    information = message.info is not None
     dtype = "<f4" if single else "<f8"
     mean = np.ascontiguousarray(message.mean, dtype=dtype)
     d = mean.size
-    cov = np.asarray(message.cov, dtype=dtype)
-    upper = cov[:, _TRIU3[0], _TRIU3[1]].ravel() if per_object else cov[np.triu_indices(d)]
+    matrix = np.asarray(message.matrix, dtype=dtype)
+    upper = matrix[:, _TRIU3[0], _TRIU3[1]].ravel() if per_object else matrix[np.triu_indices(d)]
     header = HEADER.pack(
         MAGIC,
         FORMAT_VERSION,
-        _MARGINAL_KINDS[per_object, single],
+        _MARGINAL_KINDS[per_object, single, information],
         min(int(message.degree), 0xFFFF),
         team,
         message.sender,
@@ -155,7 +166,8 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
     elif kind in _MARGINAL_KINDS.values():
         if d != 3 * n_ids or n_ids == 0:
             raise WireError(f"marginal of {n_ids} objects with mean length {d}")
-        per_object, width = kind >= 4, 4 if kind in (3, 5) else 8
+        per_object, width = kind in (4, 5), 4 if kind in (3, 5, 7) else 8
+        information = kind in (6, 7)
         upper = 6 * n_ids if per_object else d * (d + 1) // 2
         expected = HEADER.size + c + width * (d + upper)
     else:
@@ -180,13 +192,18 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
     values = np.frombuffer(data, dtype=dtype, count=upper, offset=offset + width * d)
     values = values.astype(float)
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(values))):
-        raise WireError("non-finite mean or covariance")
+        raise WireError(
+            "non-finite mean or " + ("information matrix" if information else "covariance")
+        )
     if per_object:
-        cov = np.zeros((n_ids, 3, 3))
-        cov[:, _TRIU3[0], _TRIU3[1]] = values.reshape(n_ids, 6)
-        cov = cov + np.triu(cov, 1).swapaxes(-1, -2)
+        matrix = np.zeros((n_ids, 3, 3))
+        matrix[:, _TRIU3[0], _TRIU3[1]] = values.reshape(n_ids, 6)
+        matrix = matrix + np.triu(matrix, 1).swapaxes(-1, -2)
     else:
-        cov = np.zeros((d, d))
-        cov[np.triu_indices(d)] = values
-        cov = cov + np.triu(cov, 1).T
-    return CommonMarginalMessage(int(sender), int(receiver), int(step), ids, mean, cov, int(degree))
+        matrix = np.zeros((d, d))
+        matrix[np.triu_indices(d)] = values
+        matrix = matrix + np.triu(matrix, 1).T
+    head = (int(sender), int(receiver), int(step), ids, mean)
+    if information:
+        return CommonMarginalMessage(*head, None, int(degree), info=matrix)
+    return CommonMarginalMessage(*head, matrix, int(degree))
