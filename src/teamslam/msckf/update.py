@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from teamslam.geometry.camera import StereoCamera
 from teamslam.msckf.kernels import gauss_newton_points
@@ -218,7 +219,12 @@ def compress(rows: MeasurementRows) -> MeasurementRows:
     if rows.rows <= cols.size:
         return rows
     scale = 1.0 / np.sqrt(rows.variance)
-    q, r = np.linalg.qr(rows.jacobian[:, cols] * scale[:, None], mode="reduced")
-    jac = np.zeros((r.shape[0], rows.jacobian.shape[1]))
-    jac[:, cols] = r
-    return MeasurementRows(jac, q.T @ (rows.residual * scale), np.ones(r.shape[0]))
+    # one Householder QR of [H r] (Q never formed): its first |cols| rows are [R  Q₁ᵀ r]
+    augmented = np.column_stack([rows.jacobian[:, cols], rows.residual]) * scale[:, None]
+    factored, _, _, info = scipy.linalg.lapack.dgeqrf(augmented, overwrite_a=True)
+    if info != 0:
+        raise ValueError(f"QR of the stacked measurement rows failed (LAPACK info {info})")
+    n = cols.size
+    jac = np.zeros((n, rows.jacobian.shape[1]))
+    jac[:, cols] = np.triu(factored[:n, :n])
+    return MeasurementRows(jac, factored[:n, n].copy(), np.ones(n))
