@@ -60,7 +60,9 @@ class MsckfState:
         self.object_fe = np.zeros((0, 3))
         self.object_last_seen = np.zeros(0, dtype=np.int64)
         self.retired = PersistentMap()
-        self.cov = np.asarray(pose_cov, dtype=float).reshape(6, 6).copy()
+        # every edit below keeps the covariance exactly symmetric; it starts so
+        pose_cov = np.asarray(pose_cov, dtype=float).reshape(6, 6)
+        self.cov = 0.5 * (pose_cov + pose_cov.T)
         self.debug = debug
 
     # ------------------------------------------------------------------ snapshot
@@ -409,8 +411,8 @@ class MsckfState:
         h = jacobian[:, cols]
         pht = self.cov[:, cols] @ h.T
         innovation_cov = h @ pht[cols] + noise_cov
-        try:
-            factor = scipy.linalg.cho_factor(0.5 * (innovation_cov + innovation_cov.T))
+        try:  # upper factor: S = Uᵀ U
+            factor = scipy.linalg.cho_factor(0.5 * (innovation_cov + innovation_cov.T), lower=False)
         except np.linalg.LinAlgError:
             raise NotPositiveDefiniteError(
                 "innovation covariance is not positive definite"
@@ -424,11 +426,13 @@ class MsckfState:
 
         Returns the applied correction.
         """
-        pht, factor = self._innovation_factor(jacobian, noise_cov)
-        gain = scipy.linalg.cho_solve(factor, pht.T).T
-        delta = gain @ residual
-        self.cov = self.cov - gain @ pht.T
-        self.cov = 0.5 * (self.cov + self.cov.T)
+        pht, (upper, _) = self._innovation_factor(jacobian, noise_cov)
+        # S = Uᵀ U: with W = U⁻ᵀ (P Hᵀ)ᵀ the gain is K = Wᵀ U⁻ᵀ and P⁺ = P − Wᵀ W, one
+        # symmetric rank-k product (BLAS syrk): exactly symmetric, half the flops of K (P Hᵀ)ᵀ
+        whitened = scipy.linalg.solve_triangular(upper, pht.T, trans="T", check_finite=False)
+        step = scipy.linalg.solve_triangular(upper, residual, trans="T", check_finite=False)
+        delta = whitened.T @ step
+        self.cov = self.cov - whitened.T @ whitened
         self.correct(delta)
         self._check("update")
         return delta

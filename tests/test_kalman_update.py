@@ -1,10 +1,12 @@
-"""QR compression of stacked measurement rows (MSCKF): the same update with fewer rows."""
+"""The MSCKF Kalman update against the textbook formula, and QR compression of its rows."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from teamslam.geometry import se3
+from teamslam.msckf.state import MsckfState
 from teamslam.msckf.update import MeasurementRows, compress
 
 
@@ -42,3 +44,37 @@ def test_fewer_rows_than_columns_are_left_as_they_are():
     rng = np.random.default_rng(7)
     rows = MeasurementRows(rng.normal(size=(5, 12)), rng.normal(size=5), np.full(5, 2.0))
     assert compress(rows) is rows
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_state_update_is_the_kalman_update_and_exactly_symmetric(seed):
+    """``MsckfState.update`` (syrk downdate through the Cholesky factor of ``S``) equals
+    ``P − P Hᵀ S⁻¹ H P`` and the mean shift ``P Hᵀ S⁻¹ r``, and leaves ``P`` exactly symmetric."""
+    rng = np.random.default_rng(20 + seed)
+    poses, objects = 4, 5
+    state = MsckfState(np.eye(4), 0, np.eye(6))
+    state.poses = se3.exp(0.3 * rng.normal(size=(poses, 6)))
+    state.pose_fe = state.poses.copy()
+    state.frames = np.arange(poses, dtype=np.int64)
+    state.robots = np.zeros(poses, dtype=np.int64)
+    state.object_ids = np.arange(objects, dtype=np.int64)
+    state.objects = rng.normal(size=(objects, 3))
+    state.object_fe = state.objects.copy()
+    dim = 6 * poses + 3 * objects
+    root = rng.normal(size=(dim, dim))
+    state.cov = root @ root.T / dim + 0.05 * np.eye(dim)
+    prior_cov, prior_objects = state.cov.copy(), state.objects.copy()
+    rows = 7
+    jacobian = np.zeros((rows, dim))
+    touched = rng.choice(dim, 12, replace=False)  # the update works on these columns only
+    jacobian[:, touched] = rng.normal(size=(rows, 12))
+    residual = rng.normal(size=rows)
+    noise = np.diag(rng.uniform(0.1, 1.0, rows))
+    delta = state.update(jacobian, residual, noise)
+    s = jacobian @ prior_cov @ jacobian.T + noise
+    gain = prior_cov @ jacobian.T @ np.linalg.inv(s)
+    np.testing.assert_allclose(delta, gain @ residual, rtol=0, atol=1e-12)
+    want = prior_cov - gain @ jacobian @ prior_cov
+    np.testing.assert_allclose(state.cov, want, rtol=0, atol=1e-12)
+    assert np.array_equal(state.cov, state.cov.T)
+    np.testing.assert_allclose(state.objects, prior_objects + delta[6 * poses :].reshape(-1, 3))
