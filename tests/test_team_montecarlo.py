@@ -67,6 +67,24 @@ def test_montecarlo_command_json_figures_and_ideal_consistency(tmp_path, capsys)
             np.testing.assert_allclose(r["band"], [lo, hi])
             assert 0 <= r["runs_above_band"] <= 3
             assert len(r["anees_pose_per_frame"]) == 20
+    for r in (
+        summary["results"][f][m] for f in ("ideal", "std") for m in ("separate", "centralised")
+    ):
+        per_run = np.asarray(r["position_rmse_per_run_m"])
+        assert per_run.shape == (3,)
+        # every run has the same robots and frames: the RMSE over runs is the runs' RMS
+        assert r["position_rmse_m"] == pytest.approx(np.sqrt(np.mean(per_run**2)), rel=1e-12)
+    for mode in ("separate", "centralised"):
+        paired = summary["paired_rmse"]["ideal-std"][mode]
+        diff = np.subtract(
+            summary["results"]["ideal"][mode]["position_rmse_per_run_m"],
+            summary["results"]["std"][mode]["position_rmse_per_run_m"],
+        )
+        assert paired["mean_difference_m"] == pytest.approx(diff.mean(), abs=1e-15)
+        low, high = paired["interval_m"]
+        half = stats.t.ppf(0.975, 2) * diff.std(ddof=1) / np.sqrt(3)
+        assert (low, high) == pytest.approx((diff.mean() - half, diff.mean() + half))
+        assert paired["runs_lower"] == int(np.sum(diff < 0))
     ideal = summary["results"]["ideal"]
     for mode in ("separate", "centralised"):
         # the ideal filter is consistent: its average pose NEES inside the band of 3 runs

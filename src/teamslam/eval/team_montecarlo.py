@@ -21,7 +21,15 @@ Per filter and mode:
   position error and of the rotation angle of ``R_estᵀ R_true``;
 * ``median_run`` — the run whose own average pose NEES is the median, with that value;
   ``runs_above_band`` — the runs whose own average pose NEES exceeds the upper band edge;
-* ``anees_pose_per_frame``, ``position_rmse_per_frame_m`` — the curves of the figures.
+* ``anees_pose_per_frame``, ``position_rmse_per_frame_m`` — the curves of the figures;
+* ``position_rmse_per_run_m`` — each run's own position RMSE (over robots and frames).
+
+Every filter and mode sees the same ``N`` noise realisations, so filters can be compared run by
+run: ``paired_rmse["<filter>-std"][mode]`` (for every filter besides ``std``, when ``std`` is
+in the study) holds the mean over runs of the difference of the per-run position RMSEs, its
+95 % Student-t confidence interval, the same relative to ``std``'s mean, and in how many runs
+the filter was the more accurate one. A difference whose interval contains 0 is one this many
+runs cannot tell from noise.
 """
 
 from __future__ import annotations
@@ -31,11 +39,20 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 from teamslam.eval.montecarlo import chi2_band, run_parallel
 from teamslam.geometry import se3
 
-__all__ = ["MODES", "MonteCarloSpec", "plot", "run_montecarlo", "summarise", "table"]
+__all__ = [
+    "MODES",
+    "MonteCarloSpec",
+    "paired_difference",
+    "plot",
+    "run_montecarlo",
+    "summarise",
+    "table",
+]
 
 MODES = ("separate", "consensus", "hybrid", "centralised")
 FILTERS = ("std", "fej", "ideal", "oc")
@@ -177,8 +194,49 @@ def summarise(spec: MonteCarloSpec, runs: list[dict]) -> dict:
                 ),
                 "anees_pose_per_frame": nees.mean(axis=(0, 1)).tolist(),
                 "position_rmse_per_frame_m": np.sqrt(np.mean(pos**2, axis=(0, 1))).tolist(),
+                "position_rmse_per_run_m": np.sqrt(np.mean(pos**2, axis=(1, 2))).tolist(),
             }
-    return {**asdict(spec), "results": results}
+    paired: dict = {}
+    if "std" in results:
+        for filt in results:
+            if filt == "std":
+                continue
+            paired[f"{filt}-std"] = {
+                mode: paired_difference(
+                    results[filt][mode]["position_rmse_per_run_m"],
+                    results["std"][mode]["position_rmse_per_run_m"],
+                )
+                for mode in spec.modes
+            }
+    return {**asdict(spec), "results": results, "paired_rmse": paired}
+
+
+def paired_difference(
+    values: list[float] | np.ndarray, reference: list[float] | np.ndarray, probability: float = 0.95
+) -> dict:
+    """Mean of ``values − reference`` over paired runs, with its Student-t confidence interval.
+
+    Returns ``mean_difference_m``, ``interval_m`` (``[low, high]``, NaN with fewer than two
+    runs), ``relative`` (the mean difference over the reference's mean) and ``runs_lower``
+    (runs in which ``values`` is below ``reference``).
+    """
+    values = np.asarray(values, dtype=float)
+    reference = np.asarray(reference, dtype=float)
+    if values.shape != reference.shape or values.ndim != 1 or values.size == 0:
+        raise ValueError(f"paired runs of different shapes {values.shape} and {reference.shape}")
+    difference = values - reference
+    n = difference.size
+    mean = float(difference.mean())
+    if n > 1:
+        half = stats.t.ppf(0.5 + probability / 2, n - 1) * difference.std(ddof=1) / np.sqrt(n)
+    else:
+        half = float("nan")
+    return {
+        "mean_difference_m": mean,
+        "interval_m": [mean - float(half), mean + float(half)],
+        "relative": mean / float(reference.mean()),
+        "runs_lower": int(np.sum(difference < 0)),
+    }
 
 
 def run_montecarlo(
@@ -208,6 +266,15 @@ def table(summary: dict) -> str:
                 f"{filt:<7}{mode:<13}{r['anees_pose']:>11.2f}{r['anees_object']:>11.2f}"
                 f"{r['position_rmse_m']:>12.3f}{r['heading_rmse_rad']:>11.4f}"
                 f"{r['median_run']['anees_pose']:>11.2f}{r['runs_above_band']:>11d}"
+            )
+    for pair, modes in summary.get("paired_rmse", {}).items():
+        lines.append(f"per-run position RMSE, {pair.replace('-', ' − ')} (95% interval):")
+        for mode, p in modes.items():
+            low, high = p["interval_m"]
+            lines.append(
+                f"  {mode:<12}{p['mean_difference_m']:+.4f} m [{low:+.4f}, {high:+.4f}] "
+                f"({100 * p['relative']:+.1f}%), lower in {p['runs_lower']} of "
+                f"{summary['runs']} runs"
             )
     return "\n".join(lines)
 
