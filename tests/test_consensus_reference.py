@@ -107,8 +107,9 @@ def test_consensus_average_equals_dense_reference(seed):
     assert np.array_equal(state.cov, state.cov.T)
 
 
+@pytest.mark.parametrize("neighbours", [1, 3])
 @pytest.mark.parametrize("seed", range(3))
-def test_completion_with_the_information_the_sender_kept_equals_the_reference(seed):
+def test_completion_with_the_information_the_sender_kept_equals_the_reference(seed, neighbours):
     """Our own information of each set we sent (kept by ``common_marginal_message``) completes
     the neighbour's marginal of that set: the result is the dense reference's, and the kept
     matrices are what is used (a wrong one changes the result)."""
@@ -117,19 +118,20 @@ def test_completion_with_the_information_the_sender_kept_equals_the_reference(se
     rng = np.random.default_rng(40 + seed)
     state = _random_state(rng, poses=3, objects=int(rng.integers(8, 20)))
     received, kept = [], {}
-    for j in range(3):
+    for j in range(neighbours):
         ids = np.sort(rng.choice(state.object_ids, int(rng.integers(1, 5)), replace=False))
         common_marginal_message(state, 0, j + 1, 1, ids, information=True, keep=kept)
         received.append((0.25, _neighbour(rng, state, ids, j + 1)))
-    assert len(kept) == 3
-    poses, objects, cov = _reference_consensus(state, 0.25, received)
+    assert len(kept) == neighbours  # with one neighbour its set is y: our Σʸ⁻¹ comes from it
+    weight = 1.0 - 0.25 * neighbours
+    poses, objects, cov = _reference_consensus(state, weight, received)
     wrong = copy.deepcopy(state)
-    consensus_average(state, 0.25, received, own_information=kept)
+    consensus_average(state, weight, received, own_information=kept)
     np.testing.assert_allclose(state.poses, poses, rtol=0, atol=1e-9 * np.abs(poses).max())
     np.testing.assert_allclose(state.objects, objects, rtol=0, atol=1e-9 * np.abs(objects).max())
     np.testing.assert_allclose(state.cov, cov, rtol=0, atol=1e-9 * np.abs(cov).max())
     doubled = {key: 2.0 * value for key, value in kept.items()}
-    consensus_average(wrong, 0.25, received, own_information=doubled)
+    consensus_average(wrong, weight, received, own_information=doubled)
     assert not np.allclose(wrong.objects, objects, rtol=0, atol=1e-6)
 
 

@@ -3,7 +3,9 @@
 The protocol around it — who sends what, which messages are accepted, the weights — is
 :mod:`teamslam.msckf.protocol`. This module holds what it does to the state:
 
-* :func:`common_marginal_message` — our marginal of the objects a neighbour asked about;
+* :func:`common_marginal_message` — our marginal of the objects a neighbour asked about, in
+  information form by default (we invert it anyway for our own average; the neighbour then
+  only checks it);
 * :func:`receive_marginal` — a neighbour's marginal checked against our map and factorised once
   (its information matrix is what the average uses);
 * :func:`consensus_average` — agent ``i`` forms one weighted geometric average (eq. 19) over
@@ -455,8 +457,9 @@ def consensus_average(
         Our own information matrices of object sets already inverted this step (by
         :func:`common_marginal_message` with ``keep``), under the key ``ids.tobytes()``
         (``int64``, increasing): a neighbour marginal over such a set is completed with it
-        instead of inverting our marginal of the set again. The state must not have changed
-        since they were computed.
+        instead of inverting our marginal of the set again (and when the set is ``y``, our own
+        information of ``y`` is taken from it too). The state must not have changed since they
+        were computed.
 
     Returns
     -------
@@ -498,8 +501,11 @@ def consensus_average(
         mean, cov = completed_geometric_average(own_mean, own_cov, terms, block=3)
         state.replace_marginal(cols, mean, cov)
     else:
-        # Σʸ⁻¹ serves the average (our own information) and the rebuild (A = Σˣʸ Σʸ⁻¹)
-        own_info = spd_inverse(own_cov, "own marginal covariance")
+        # Σʸ⁻¹ serves the average (our own information) and the rebuild (A = Σˣʸ Σʸ⁻¹); when
+        # every neighbour's set is the one we sent (y itself), we inverted it already
+        own_info = None if own_information is None else own_information.get(y_ids.tobytes())
+        if own_info is None:
+            own_info = spd_inverse(own_cov, "own marginal covariance")
         extra = None
         if prior is not None:
             # our own new information Δ, added with the weight of the messages that hold all

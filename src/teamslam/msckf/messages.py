@@ -3,9 +3,10 @@
 Two rounds per step:
 
 1. :class:`MapIdsMessage` — the ids of the objects in the sender's map;
-2. :class:`CommonMarginalMessage` — the sender's marginal (mean and covariance) of the objects it
-   shares with the receiver, plus the number of neighbours the sender heard in round 1 (its
-   degree this step), from which both ends compute the same Metropolis–Hastings weight.
+2. :class:`CommonMarginalMessage` — the sender's marginal (mean, and information matrix or
+   covariance) of the objects it shares with the receiver, plus the number of neighbours the
+   sender heard in round 1 (its degree this step), from which both ends compute the same
+   Metropolis–Hastings weight.
 
 Messages are plain data. How they travel is a :class:`~teamslam.msckf.transport.Transport`;
 their byte layout on a network is :mod:`teamslam.runtime.wire`, which writes the ids — always

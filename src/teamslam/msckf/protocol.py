@@ -44,7 +44,10 @@ averaged until they are observed again and re-enter the state.
 
 Every received message is checked here once: kind, step (``step − max_age ≤ s ≤ step``), a
 sender that is a neighbour, and for a marginal the ids, sizes, finiteness and one Cholesky
-factorisation that also gives the information matrix used by the average. A rejected message is
+factorisation (of the information matrix a joint marginal carries, or of a covariance, which it
+then inverts). Joint marginals are sent in information form: the sender keeps the inverse of its
+own marginal of each set it sent and completes the neighbour's marginal of that set with it
+(eq. 42) instead of inverting it again. A rejected message is
 counted on the agent (``rejected_messages``, first reason logged) and never reaches the state.
 """
 
