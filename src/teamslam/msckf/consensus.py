@@ -293,15 +293,20 @@ def information_rounding_bound(
     marginal sent in information form (``info = cov⁻¹``), in ``O(d²)``: no factorisation.
 
     To second order the divergence is ``¼‖E‖²_F + ½ Δμᵀ Ω Δμ`` with ``E = Σ^½ ΔΩ Σ^½``
-    (``ΔΩ`` the rounding of the information matrix, ``Δμ`` of the mean); ``‖E‖_F ≤ ‖Σ‖₂ ‖ΔΩ‖_F``
-    and ``Δμᵀ Ω Δμ ≤ ‖Ω‖₂ ‖Δμ‖²``, and for a symmetric matrix ``‖·‖₂ ≤ ‖·‖₁`` (the largest
-    column sum of absolute values).
+    (``ΔΩ`` the rounding of the information matrix, ``Δμ`` of the mean). With ``D`` the
+    standard deviations (``Σ = D C D``, ``C`` the correlations) ``‖E‖²_F = tr(C F C F)`` with
+    ``F = D ΔΩ D``, so ``‖E‖_F ≤ ‖C‖₂ ‖F‖_F``, and ``Δμᵀ Ω Δμ ≤ ‖D Ω D‖₂ ‖D⁻¹ Δμ‖²``; for a
+    symmetric matrix ``‖·‖₂ ≤ ‖·‖₁`` (the largest column sum of absolute values). Scaling by
+    ``D`` first keeps the estimate independent of units and of how differently the objects
+    are known.
     """
-    cov_norm = float(np.abs(cov).sum(axis=0).max())
-    info_norm = float(np.abs(info).sum(axis=0).max())
-    d_info = float(np.sum((info_rounded - info) ** 2))
-    d_mean = float(np.sum((mean_rounded - mean) ** 2))
-    return 0.25 * cov_norm**2 * d_info + 0.5 * info_norm * d_mean
+    std = np.sqrt(np.diagonal(cov))
+    scale = np.outer(std, std)
+    correlation_norm = float((np.abs(cov) / scale).sum(axis=0).max())
+    scaled_info_norm = float((np.abs(info) * scale).sum(axis=0).max())
+    d_info = float(np.sum(((info_rounded - info) * scale) ** 2))
+    d_mean = float(np.sum(((mean_rounded - mean) / std) ** 2))
+    return 0.25 * correlation_norm**2 * d_info + 0.5 * scaled_info_norm * d_mean
 
 
 def rounding_divergence(
