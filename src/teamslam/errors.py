@@ -13,7 +13,7 @@ from "the filter failed" without parsing messages.
 
 from __future__ import annotations
 
-__all__ = ["EXIT_FAILURE", "EXIT_USAGE", "EstimationError", "InputError"]
+__all__ = ["EXIT_FAILURE", "EXIT_USAGE", "EstimationError", "InputError", "InternalError"]
 
 EXIT_USAGE = 2
 EXIT_FAILURE = 1
@@ -25,3 +25,7 @@ class InputError(ValueError):
 
 class EstimationError(ArithmeticError):
     """A numerical failure of an estimator on valid input; the text names robot and frame."""
+
+
+class InternalError(RuntimeError):
+    """A broken invariant of teamslam itself (a bug): the text says which; please report it."""
