@@ -13,7 +13,14 @@ from "the filter failed" without parsing messages.
 
 from __future__ import annotations
 
-__all__ = ["EXIT_FAILURE", "EXIT_USAGE", "EstimationError", "InputError", "InternalError"]
+__all__ = [
+    "EXIT_FAILURE",
+    "EXIT_USAGE",
+    "EstimationError",
+    "InputError",
+    "InternalError",
+    "OutputError",
+]
 
 EXIT_USAGE = 2
 EXIT_FAILURE = 1
@@ -29,3 +36,7 @@ class EstimationError(ArithmeticError):
 
 class InternalError(RuntimeError):
     """A broken invariant of teamslam itself (a bug): the text says which; please report it."""
+
+
+class OutputError(OSError):
+    """A result could not be written; the text names the path (exit 1, not a usage error)."""
