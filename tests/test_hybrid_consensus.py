@@ -17,7 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from teamslam.errors import InputError
+from teamslam.errors import InputError, InternalError
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.consensus import hybrid_marginal, prior_information, shared_prior
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
@@ -193,7 +193,7 @@ def test_hybrid_marginal_scales_the_new_information_and_refuses_a_negative_one()
     np.testing.assert_allclose(same[0], mean, atol=1e-12)
     # information lost since the prior, scaled up, is not a Gaussian: refused
     assert hybrid_marginal(mean, prior, info + 5 * np.eye(6), prior_eta, 4.0) is None
-    with pytest.raises(InputError, match="at least 1"):
+    with pytest.raises(InternalError, match="at least 1"):
         hybrid_marginal(mean, info, prior, prior_eta, 0.5)
 
 

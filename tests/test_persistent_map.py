@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.linalg import block_diag
 
-from teamslam.errors import InputError
+from teamslam.errors import InputError, InternalError
 from teamslam.msckf import MsckfConfig, config_for
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.persistent_map import PersistentMap
@@ -114,7 +114,7 @@ def test_the_persistent_map_reuses_rows_and_grows_by_doubling():
     assert store.capacity == 8  # freed rows reused
     np.testing.assert_array_equal(store.contains(np.array([0, 1, 10, 99])), [0, 1, 1, 0])
     np.testing.assert_array_equal(store.arrays()["ids"], [1, 2, 4, 10, 11])
-    with pytest.raises(InputError, match="not in the persistent map"):
+    with pytest.raises(InternalError, match="not in the persistent map"):
         store.take(np.array([3]))
 
 

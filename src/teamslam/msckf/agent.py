@@ -38,7 +38,7 @@ from collections.abc import Callable
 import numpy as np
 
 from teamslam.datasets.model import Calibration, RobotSequence
-from teamslam.errors import EstimationError, InputError
+from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry import se3
 from teamslam.msckf.config import MsckfConfig
@@ -114,7 +114,11 @@ class MsckfAgent:
             state
             if state is not None
             else MsckfState(
-                sequence.T_world_body[0], 0, np.eye(6) * config.initial_pose_std**2, config.debug
+                sequence.T_world_body[0],
+                0,
+                np.eye(6) * config.initial_pose_std**2,
+                config.debug,
+                robot=robot,
             )
         )
         self.tracks: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
@@ -225,11 +229,16 @@ class MsckfAgent:
         Raises
         ------
         EstimationError
-            The filter failed numerically (a covariance lost positive definiteness); the text
-            names the robot and the frame.
+            The filter failed numerically (a covariance lost positive definiteness, a
+            non-finite measurement row); the text names the robot and the frame.
+        InternalError
+            Frames out of order (a driver bug).
         """
         if t != self.frame + 1:
-            raise InputError(f"robot {self.robot}: frames must be processed in order (got {t})")
+            raise InternalError(
+                f"robot {self.robot}: frames must be processed in order (got {t} after "
+                f"{self.frame})"
+            )
         try:
             self._step(t)
         except NotPositiveDefiniteError as exc:
@@ -635,6 +644,8 @@ class MsckfAgent:
         if z2 @ np.linalg.solve(s2, z2) > self.config.gate(4 * n - 3):
             self.counters["rejected_object_init"] += 1
             return False
+        # the rows enter the state below: non-finite ones stop the run before any edit
+        state.check_finite(f"initialisation rows of object {oid}", r_p, projected)
         r_p_inv = np.linalg.inv(r_p)
         position = point + r_p_inv @ z1
         cov_ps = -(r_p_inv @ h_s1) @ state.cov[cols, :]  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ

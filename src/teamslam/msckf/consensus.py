@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import lapack, solve_triangular
 
-from teamslam.errors import InputError
+from teamslam.errors import InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError, completed_geometric_average, spd_inverse
 from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
@@ -165,7 +165,7 @@ def hybrid_marginal(
     ``Ω − P`` is then too far from positive semi-definite to be scaled).
     """
     if not gain >= 1:
-        raise InputError(f"the hybrid gain must be at least 1, not {gain}")
+        raise InternalError(f"the hybrid gain must be at least 1, not {gain}")
     extra = gain - 1.0
     eta = info @ mean
     info_h = info + extra * (info - prior_info)
@@ -219,7 +219,7 @@ def common_marginal_message(
         source_ids, source_mean, full_cov = source
         pos = np.minimum(np.searchsorted(source_ids, ids[held]), source_ids.size - 1)
         if source_ids.size == 0 or np.any(source_ids[pos] != ids[held]):
-            raise InputError("the source marginal does not hold every object asked for")
+            raise InternalError("the source marginal does not hold every object asked for")
         cols = 3 * pos[:, None] + np.arange(3)
         mean = source_mean[cols.ravel()].copy()
     if per_object:
@@ -475,7 +475,7 @@ def consensus_average(
         return 0
     weights = [float(w) for w, _ in received]
     if self_weight < -1e-12 or min(weights) < 0 or self_weight + sum(weights) > 1 + 1e-9:
-        raise InputError(
+        raise InternalError(
             f"consensus weights must be non-negative with a sum of at most one "
             f"(self {self_weight}, neighbours {weights})"
         )
@@ -488,7 +488,7 @@ def consensus_average(
         marginals.append(m)
     per_object = {m.per_object for m in marginals}
     if len(per_object) > 1:
-        raise InputError("neighbour marginals mix joint and per-object messages")
+        raise InternalError("neighbour marginals mix joint and per-object messages")
     # y: every object shared with a neighbour heard; one eq. 19 average and one Prop. 2
     # rebuild for all neighbours together
     y_ids = np.unique(np.concatenate([m.ids for m in marginals]))

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from teamslam.errors import InputError
+from teamslam.errors import InputError, InternalError
 
 __all__ = ["PersistentMap"]
 
@@ -117,7 +117,7 @@ class PersistentMap:
         try:
             rows = np.array([self._row.pop(i) for i in ids.tolist()], dtype=np.int64)
         except KeyError as exc:
-            raise InputError(f"object {exc.args[0]} is not in the persistent map") from None
+            raise InternalError(f"object {exc.args[0]} is not in the persistent map") from None
         self._free.extend(rows.tolist())
         return self._means[rows].copy(), self._covs[rows].copy(), self._fe[rows].copy()
 

@@ -54,11 +54,12 @@ counted on the agent (``rejected_messages``, first reason logged) and never reac
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 
 import numpy as np
 
-from teamslam.errors import InputError
+from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import kl_divergence, spd_inverse
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus import (
@@ -133,6 +134,17 @@ class ConsensusProtocol:
         self.spent = 0.0
 
     # ------------------------------------------------------------------ checks
+    @contextmanager
+    def _named(self) -> Iterator[None]:
+        """Errors of a consensus round name this robot and the frame (the step)."""
+        try:
+            yield
+        except (EstimationError, InternalError) as exc:
+            where = f"robot {self.robot}, frame {self.step}"
+            if str(exc).startswith(where):
+                raise
+            raise type(exc)(f"{where}: consensus: {exc}") from exc
+
     def _acceptable(self, message: object, kind: type) -> bool:
         if not isinstance(message, kind):
             self.agent.reject("messages", reason="unexpected message kind")
@@ -151,9 +163,19 @@ class ConsensusProtocol:
 
     # ------------------------------------------------------------------ rounds
     def requests(self, step: int, to: Iterable[int] | None = None) -> list[MapIdsMessage]:
-        """Round 1 of ``step``: our map ids (and which moved) for each neighbour in ``to``."""
-        begin = time.perf_counter()
+        """Round 1 of ``step``: our map ids (and which moved) for each neighbour in ``to``.
+
+        Raises
+        ------
+        EstimationError
+            A marginal of ours that is not positive definite; robot and frame are named.
+        """
         self.step = int(step)
+        with self._named():
+            return self._requests(to)
+
+    def _requests(self, to: Iterable[int] | None) -> list[MapIdsMessage]:
+        begin = time.perf_counter()
         self.heard = set()
         self.expected = set()
         self.averaged_with = []
@@ -223,7 +245,16 @@ class ConsensusProtocol:
         Those are the objects we share that moved on either side (all we share with a
         threshold of 0). Records who was heard (our degree this step) and whose marginal to
         expect back.
+
+        Raises
+        ------
+        EstimationError
+            A marginal of ours that is not positive definite; robot and frame are named.
         """
+        with self._named():
+            return self._answer(received)
+
+    def _answer(self, received: Sequence[Message]) -> list[CommonMarginalMessage]:
         begin = time.perf_counter()
         requests = {}
         for m in received:
@@ -303,7 +334,20 @@ class ConsensusProtocol:
 
         Returns the number of objects averaged; adds it to the agent's ``objects_averaged``
         counter and the time spent this step to its ``consensus`` timing.
+
+        Raises
+        ------
+        EstimationError
+            The average or the rebuilt joint is not positive definite (or not finite); robot
+            and frame are named and the state is left as it was.
+        InternalError
+            A broken invariant of the average (weights, mixed message kinds); robot and frame
+            are named.
         """
+        with self._named():
+            return self._average(received)
+
+    def _average(self, received: Sequence[Message]) -> int:
         begin = time.perf_counter()
         marginals: dict[int, ReceivedMarginal] = {}
         degrees: dict[int, int] = {}

@@ -25,7 +25,7 @@ from collections.abc import Callable
 import numpy as np
 import scipy.linalg
 
-from teamslam.errors import InputError
+from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError, replace_marginal_shift
 from teamslam.geometry import se3
 from teamslam.msckf.persistent_map import PersistentMap
@@ -46,10 +46,18 @@ class MsckfState:
         Its 6×6 covariance.
     debug
         Check the covariance after every edit.
+    robot
+        The robot whose state this is, named in errors (``None``: a team state, whose errors
+        name the robot of the edit when it is known).
     """
 
     def __init__(
-        self, T_world_body: np.ndarray, frame: int, pose_cov: np.ndarray, debug: bool = False
+        self,
+        T_world_body: np.ndarray,
+        frame: int,
+        pose_cov: np.ndarray,
+        debug: bool = False,
+        robot: int | None = None,
     ) -> None:
         self.poses = np.asarray(T_world_body, dtype=float).reshape(1, 4, 4).copy()
         self.frames = np.array([frame], dtype=np.int64)
@@ -64,6 +72,7 @@ class MsckfState:
         pose_cov = np.asarray(pose_cov, dtype=float).reshape(6, 6)
         self.cov = 0.5 * (pose_cov + pose_cov.T)
         self.debug = debug
+        self.robot = robot
 
     # ------------------------------------------------------------------ snapshot
     def snapshot(self) -> dict[str, np.ndarray]:
@@ -158,10 +167,57 @@ class MsckfState:
         state.cov = np.kron(np.eye(n), np.asarray(pose_cov, dtype=float).reshape(6, 6))
         return state
 
+    @classmethod
+    def from_arrays(
+        cls,
+        T_world_body: np.ndarray,
+        frames: np.ndarray,
+        object_ids: np.ndarray,
+        objects: np.ndarray,
+        cov: np.ndarray,
+        *,
+        robots: np.ndarray | None = None,
+        robot: int | None = None,
+        debug: bool = False,
+        check: bool = True,
+    ) -> MsckfState:
+        """A state holding these window poses ``(c, 4, 4)`` (with their frames and, for a team
+        state, robots), objects ``(m, 3)`` with their ids, and joint covariance; first estimates
+        are the estimates, every object last seen at the newest frame.
+
+        ``check=False`` takes the arrays as they are (a state that already failed, for tests of
+        what follows); otherwise they are checked as :meth:`restore` checks a snapshot.
+        """
+        poses = np.asarray(T_world_body, dtype=float).reshape(-1, 4, 4)
+        c = poses.shape[0]
+        frames = np.asarray(frames, dtype=np.int64).reshape(c)
+        objects = np.asarray(objects, dtype=float).reshape(-1, 3)
+        state = cls(poses[0], int(frames[0]), np.eye(6), debug, robot)
+        snapshot = {
+            "window_poses": poses,
+            "window_frames": frames,
+            "window_robots": np.zeros(c, np.int64) if robots is None else np.asarray(robots),
+            "window_pose_fe": poses.copy(),
+            "object_ids": np.asarray(object_ids, dtype=np.int64),
+            "objects": objects,
+            "object_fe": objects.copy(),
+            "cov": np.asarray(cov, dtype=float),
+        }
+        if check:
+            state.restore(snapshot)
+            return state
+        state.poses, state.frames = poses.copy(), frames.copy()
+        state.robots = snapshot["window_robots"].astype(np.int64)
+        state.pose_fe, state.object_ids = poses.copy(), snapshot["object_ids"].copy()
+        state.objects, state.object_fe = objects.copy(), objects.copy()
+        state.object_last_seen = np.full(objects.shape[0], int(frames.max()), dtype=np.int64)
+        state.cov = snapshot["cov"].copy()
+        return state
+
     def window(self, robot: int) -> RobotWindow:
         """Robot ``robot``'s window as a state of its own (shares this state's arrays)."""
         if not np.any(self.robots == robot):
-            raise ValueError(f"robot {robot} has no pose in this state")
+            raise InternalError(f"robot {robot} has no pose in this state")
         return RobotWindow(self, robot)
 
     # ------------------------------------------------------------------ layout
@@ -219,6 +275,20 @@ class MsckfState:
         s = slice(6 * (self.n_poses - 1), 6 * self.n_poses)
         return self.cov[s, s]
 
+    def covariance(self, columns: np.ndarray | slice) -> np.ndarray:
+        """The covariance of error-state ``columns``: ``(k, k)`` for a list or a slice, ``(…, k,
+        k)`` for a stack of lists ``(…, k)`` (a copy)."""
+        if isinstance(columns, slice):
+            return self.cov[columns, columns].copy()
+        columns = np.asarray(columns)
+        if columns.ndim == 1:
+            return self.cov[np.ix_(columns, columns)]
+        return self.cov[columns[..., :, None], columns[..., None, :]]
+
+    def cross_covariance(self, columns: np.ndarray) -> np.ndarray:
+        """``(k, dim)``: the covariance of error-state ``columns`` with the whole state."""
+        return self.cov[np.asarray(columns), :]
+
     def object_covs(self) -> np.ndarray:
         """``(m, 3, 3)`` marginal covariance of each object."""
         cols = self.object_columns(np.arange(self.n_objects))
@@ -245,6 +315,26 @@ class MsckfState:
             raise NotPositiveDefiniteError(
                 f"covariance not positive definite after {what}"
             ) from None
+
+    def where(self, robot: int | None = None) -> str:
+        """``"robot r, frame t"`` of the newest frame, for error messages (``robot`` defaults
+        to the state's own robot; a team state without one names the frame only)."""
+        frames = self.frames
+        if robot is not None and self.robot is None and np.any(self.robots == robot):
+            frames = frames[self.robots == robot]  # a robot's window in a team state
+        robot = self.robot if robot is None else robot
+        frame = f"frame {int(frames.max())}"
+        return frame if robot is None else f"robot {int(robot)}, {frame}"
+
+    def check_finite(self, what: str, *arrays: np.ndarray, robot: int | None = None) -> None:
+        """Raise :class:`~teamslam.errors.EstimationError` naming robot, frame and ``what``
+        unless every entry of ``arrays`` is finite (call it before any edit: the estimate is then
+        left as it was)."""
+        for a in arrays:
+            if not np.all(np.isfinite(a)):
+                raise EstimationError(
+                    f"{self.where(robot)}: non-finite {what}; the estimate is left as it was"
+                )
 
     # ------------------------------------------------------------------ edits
     def augment(
@@ -274,7 +364,7 @@ class MsckfState:
         odometry = np.asarray(odometry, dtype=float)
         mine = np.flatnonzero(self.robots == robot)
         if mine.size == 0:
-            raise ValueError(f"robot {robot} has no pose in this state")
+            raise InternalError(f"robot {robot} has no pose in this state")
         last_index = int(mine[-1])
         new_pose = self.poses[last_index] @ odometry
         step = odometry if jacobian_step is None else np.asarray(jacobian_step, dtype=float)
@@ -321,13 +411,27 @@ class MsckfState:
         self._check("marginalisation")
 
     def add_object(
-        self, object_id: int, position: np.ndarray, cov_pp: np.ndarray, cov_ps: np.ndarray
+        self,
+        object_id: int,
+        position: np.ndarray,
+        cov_pp: np.ndarray,
+        cov_ps: np.ndarray,
+        robot: int | None = None,
     ) -> None:
         """Append an object with its covariance and cross-covariance with the state (eq. 30).
 
         ``position`` is also the object's first estimate; it counts as observed at the newest
         window frame.
+
+        Raises
+        ------
+        EstimationError
+            Non-finite position or covariances (named with robot and frame); the state is left
+            as it was.
         """
+        self.check_finite(
+            f"initialisation of object {int(object_id)}", position, cov_pp, cov_ps, robot=robot
+        )
         n = self.dim
         cov = np.empty((n + 3, n + 3))
         cov[:n, :n] = self.cov
@@ -420,18 +524,34 @@ class MsckfState:
         return pht, factor
 
     def update(
-        self, jacobian: np.ndarray, residual: np.ndarray, noise_cov: np.ndarray
+        self,
+        jacobian: np.ndarray,
+        residual: np.ndarray,
+        noise_cov: np.ndarray,
+        robot: int | None = None,
     ) -> np.ndarray:
         """Kalman update (eqs. 26–28, ``S = 0``) with a Cholesky-factored innovation covariance.
 
         Returns the applied correction.
+
+        Raises
+        ------
+        EstimationError
+            A non-finite Jacobian, residual or noise (named with robot — ``robot``, else the
+            state's own — and frame); the state is left exactly as it was.
+        NotPositiveDefiniteError
+            The innovation covariance is not positive definite (state left as it was).
         """
+        self.check_finite("measurement Jacobian", jacobian, robot=robot)
+        self.check_finite("measurement residual", residual, robot=robot)
+        self.check_finite("measurement noise", noise_cov, robot=robot)
         pht, (upper, _) = self._innovation_factor(jacobian, noise_cov)
         # S = Uᵀ U: with W = U⁻ᵀ (P Hᵀ)ᵀ the gain is K = Wᵀ U⁻ᵀ and P⁺ = P − Wᵀ W, one
         # symmetric rank-k product (BLAS syrk): exactly symmetric, half the flops of K (P Hᵀ)ᵀ
         whitened = scipy.linalg.solve_triangular(upper, pht.T, trans="T", check_finite=False)
         step = scipy.linalg.solve_triangular(upper, residual, trans="T", check_finite=False)
         delta = whitened.T @ step
+        self.check_finite("correction of the update", delta, robot=robot)
         self.cov = self.cov - whitened.T @ whitened
         self.correct(delta)
         self._check("update")
@@ -442,6 +562,7 @@ class MsckfState:
         rows_at: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
         iterations: int,
         tolerance: float = 1e-2,
+        robot: int | None = None,
     ) -> tuple[np.ndarray, int]:
         """Iterated EKF update: Gauss–Newton on the prior and a nonlinear measurement.
 
@@ -464,9 +585,16 @@ class MsckfState:
         delta, linearisations
             The applied correction (``x₀ ⊞ delta`` is the new mean) and how many
             linearisations were used.
+
+        Raises
+        ------
+        EstimationError
+            Non-finite rows at any linearisation (robot and frame named); the state is left as
+            it was.
         """
         poses, objects = self.poses, self.objects
         jacobian, residual, variance = rows_at()
+        self.check_finite("measurement rows", jacobian, residual, variance, robot=robot)
         delta = np.zeros(self.dim)
         used = 1
         try:
@@ -480,6 +608,7 @@ class MsckfState:
                 self.poses, self.objects = poses, objects
                 self.correct(delta)
                 jacobian, residual, variance = rows_at()
+                self.check_finite("measurement rows", jacobian, residual, variance, robot=robot)
                 used += 1
                 if moved.max() <= tolerance:
                     break
@@ -487,7 +616,9 @@ class MsckfState:
             self.poses, self.objects = poses, objects
         applied = np.zeros(self.dim)
         if residual.size:
-            applied = self.update(jacobian, residual + jacobian @ delta, np.diag(variance))
+            applied = self.update(
+                jacobian, residual + jacobian @ delta, np.diag(variance), robot=robot
+            )
         return applied, used
 
     def replace_marginal(
@@ -504,18 +635,24 @@ class MsckfState:
         estimates are left as they were (why: :mod:`teamslam.msckf.linearization`). ``info``
         is the inverse of the block's current covariance when the caller already has it.
         The joint is rebuilt block by block (:func:`~teamslam.gaussian.replace_marginal_shift`).
+
+        Raises
+        ------
+        EstimationError
+            A non-finite new marginal; the state is left as it was.
+        InternalError
+            Coordinates that are not objects', or sizes that do not match.
         """
         index = np.asarray(index, dtype=np.int64)
         slot_cols = index - 6 * self.n_poses
         if np.any(slot_cols < 0):
-            raise InputError("consensus may only replace object coordinates")
+            raise InternalError("consensus may only replace object coordinates")
         mean = np.asarray(mean, dtype=float)
         cov = np.asarray(cov, dtype=float)
         k = index.size
         if mean.shape != (k,) or cov.shape != (k, k):
-            raise InputError(f"new marginal {mean.shape}, {cov.shape} for {k} coordinates")
-        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
-            raise InputError("new marginal has non-finite values")
+            raise InternalError(f"new marginal {mean.shape}, {cov.shape} for {k} coordinates")
+        self.check_finite("consensus marginal", mean, cov)
         shift_y = mean - self.objects.ravel()[slot_cols]
         delta, self.cov = replace_marginal_shift(self.cov, index, shift_y, cov, info)
         self.correct(delta)
@@ -610,3 +747,28 @@ class RobotWindow:
     def marginalize_oldest(self) -> None:
         """:meth:`MsckfState.marginalize_oldest` of this robot's window."""
         self.state.marginalize_oldest(self.robot)
+
+    def update(
+        self, jacobian: np.ndarray, residual: np.ndarray, noise_cov: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`MsckfState.update` of the shared state, errors naming this robot."""
+        return self.state.update(jacobian, residual, noise_cov, robot=self.robot)
+
+    def iterated_update(
+        self,
+        rows_at: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
+        iterations: int,
+        tolerance: float = 1e-2,
+    ) -> tuple[np.ndarray, int]:
+        """:meth:`MsckfState.iterated_update` of the shared state, errors naming this robot."""
+        return self.state.iterated_update(rows_at, iterations, tolerance, robot=self.robot)
+
+    def add_object(
+        self, object_id: int, position: np.ndarray, cov_pp: np.ndarray, cov_ps: np.ndarray
+    ) -> None:
+        """:meth:`MsckfState.add_object` to the shared state, errors naming this robot."""
+        self.state.add_object(object_id, position, cov_pp, cov_ps, robot=self.robot)
+
+    def check_finite(self, what: str, *arrays: np.ndarray) -> None:
+        """:meth:`MsckfState.check_finite`, naming this robot."""
+        self.state.check_finite(what, *arrays, robot=self.robot)
