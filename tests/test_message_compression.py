@@ -116,6 +116,10 @@ class _State:
     def object_columns(self, slots):
         return 3 * np.asarray(slots)[..., None] + np.arange(3)
 
+    def covariance(self, columns):
+        columns = np.asarray(columns)
+        return self.cov[columns[..., :, None], columns[..., None, :]]
+
 
 def test_float32_only_where_rounding_is_harmless():
     from teamslam.msckf.consensus import common_marginal_message

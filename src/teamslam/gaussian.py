@@ -32,6 +32,7 @@ __all__ = [
     "Gaussian",
     "InformationGaussian",
     "NotPositiveDefiniteError",
+    "add_weighted_difference",
     "average_common_marginal",
     "completed_geometric_average",
     "geometric_average",
@@ -213,8 +214,7 @@ def replace_marginal_shift(
         sigma_xy = cov.take(iy, axis=1).take(ix, axis=0)
     if info_y is None:
         sigma_y = cov.take(iy, axis=0).take(iy, axis=1)
-        factor = scipy.linalg.cho_factor(_spd(sigma_y, "replace_marginal: old marginal Σʸ"))
-        gain = scipy.linalg.cho_solve(factor, sigma_xy.T).T
+        gain = _regression_gain(sigma_xy, sigma_y, "replace_marginal: old marginal Σʸ")
     else:
         gain = sigma_xy @ info_y
     shift[ix] = gain @ shift_y
@@ -262,6 +262,60 @@ def _spd(matrix: np.ndarray, what: str) -> np.ndarray:
     return matrix
 
 
+def _regression_gain(sigma_xy: np.ndarray, sigma_y: np.ndarray, what: str) -> np.ndarray:
+    """``A = Σˣʸ Σʸ⁻¹`` (Cholesky solve): the gain of ``x`` on ``y`` of Prop. 2 and of the
+    conditional ``p(x | y)``."""
+    factor = scipy.linalg.cho_factor(_spd(sigma_y, what))
+    return scipy.linalg.cho_solve(factor, sigma_xy.T).T
+
+
+def _schur_complement(
+    info: np.ndarray, iy: np.ndarray, ix: np.ndarray, vector: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The marginal of ``iy`` in information form, by the Schur complement of ``ix``:
+    ``Λʸʸ − Λʸˣ (Λˣˣ)⁻¹ Λˣʸ`` and, with ``vector`` (``η``), ``ηʸ − Λʸˣ (Λˣˣ)⁻¹ ηˣ``."""
+    rows_x = info.take(ix, axis=0)
+    factor = scipy.linalg.cho_factor(_spd(rows_x.take(ix, axis=1), "information block Λˣˣ"))
+    cross = rows_x.take(iy, axis=1)
+    marginal = info.take(iy, axis=0).take(iy, axis=1) - cross.T @ scipy.linalg.cho_solve(
+        factor, cross
+    )
+    if vector is None:
+        return marginal, None
+    return marginal, vector[iy] - cross.T @ scipy.linalg.cho_solve(factor, vector[ix])
+
+
+def add_weighted_difference(
+    info: np.ndarray,
+    eta: np.ndarray,
+    matrix_index: tuple | np.ndarray,
+    vector_index: np.ndarray,
+    weight: float,
+    their: tuple[np.ndarray, np.ndarray],
+    own: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """One neighbour's term of eq. 19 in information form (App. B, eq. 42), in place:
+
+        ``Ω[C, C] += w (M_j − Ω_C)``,  ``η[C] += w (m_j − η_C)``
+
+    with ``their = (M_j, m_j)`` the neighbour's marginal information of the block ``C`` and
+    ``own = (Ω_C, η_C)`` ours. Every information-form average of the package (the joint and
+    per-object consensus averages, the distributed mirror descent) is a sum of these terms.
+
+    Parameters
+    ----------
+    info, eta
+        The information matrix and vector being averaged (edited in place).
+    matrix_index, vector_index
+        Where ``C`` sits in ``info`` (e.g. ``np.ix_(c, c)``, or the first axis of a stack of
+        blocks) and in ``eta``.
+    weight
+        ``w_j``.
+    """
+    info[matrix_index] += weight * (their[0] - own[0])
+    eta[vector_index] += weight * (their[1] - own[1])
+
+
 def marginal_information(
     info: np.ndarray, cov: np.ndarray | None, index_y: IndexLike
 ) -> np.ndarray:
@@ -284,10 +338,7 @@ def _marginal_information(
         return info.take(iy, axis=0).take(iy, axis=1)
     if cov is not None and ix.size >= iy.size:
         return spd_inverse(cov.take(iy, axis=0).take(iy, axis=1), "marginal covariance Σʸʸ")
-    rows_x = info.take(ix, axis=0)
-    factor = scipy.linalg.cho_factor(_spd(rows_x.take(ix, axis=1), "information block Λˣˣ"))
-    cross = rows_x.take(iy, axis=1)
-    return info.take(iy, axis=0).take(iy, axis=1) - cross.T @ scipy.linalg.cho_solve(factor, cross)
+    return _schur_complement(info, iy, ix)[0]
 
 
 def completed_geometric_average(
@@ -354,8 +405,15 @@ def completed_geometric_average(
             own_sub = known[0]
         else:
             own_sub = _marginal_information(own_info, cov, sub, _complement(sub, d))
-        info_bar[np.ix_(sub, sub)] += weight * (m_info - own_sub)
-        eta_bar[sub] += weight * (m_eta - own_sub @ mean[sub])
+        add_weighted_difference(
+            info_bar,
+            eta_bar,
+            np.ix_(sub, sub),
+            sub,
+            weight,
+            (m_info, m_eta),
+            (own_sub, own_sub @ mean[sub]),
+        )
     if extra is not None:
         info_bar += extra[0]
         eta_bar += extra[1]
@@ -383,9 +441,14 @@ def _per_block_average(
         which = sub[:, 0] // block
         local = np.arange(sub.size).reshape(-1, block)
         their = m_info[local[:, :, None], local[:, None, :]]
-        info[which] += weight * (their - own_info[which])
-        eta[which] += weight * (
-            m_eta.reshape(-1, block) - np.einsum("kij,kj->ki", own_info[which], means[which])
+        add_weighted_difference(
+            info,
+            eta,
+            which,
+            which,
+            weight,
+            (their, m_eta.reshape(-1, block)),
+            (own_info[which], np.einsum("kij,kj->ki", own_info[which], means[which])),
         )
     new_blocks = spd_inverse(info, "averaged per-block information")
     new_mean = np.einsum("kij,kj->ki", new_blocks, eta).ravel()
@@ -512,8 +575,9 @@ class Gaussian:
         value_y = np.asarray(value_y, dtype=float)
         if value_y.shape != (iy.size,):
             raise InputError(f"Gaussian.conditional: value has shape {value_y.shape}")
-        factor = scipy.linalg.cho_factor(_spd(self.cov[np.ix_(iy, iy)], "Gaussian.conditional: Σʸ"))
-        gain = scipy.linalg.cho_solve(factor, self.cov[np.ix_(ix, iy)].T).T
+        gain = _regression_gain(
+            self.cov[np.ix_(ix, iy)], self.cov[np.ix_(iy, iy)], "Gaussian.conditional: Σʸ"
+        )
         mean = self.mean[ix] + gain @ (value_y - self.mean[iy])
         cov = self.cov[np.ix_(ix, ix)] - gain @ self.cov[np.ix_(iy, ix)]
         return Gaussian(mean, cov)
@@ -566,12 +630,7 @@ class InformationGaussian:
         lam = self.info_matrix
         if ix.size == 0:
             return InformationGaussian(self.info_vector[iy], lam[np.ix_(iy, iy)])
-        factor = scipy.linalg.cho_factor(_spd(lam[np.ix_(ix, ix)], "information block Λˣˣ"))
-        solved = scipy.linalg.cho_solve(
-            factor, np.column_stack([lam[np.ix_(ix, iy)], self.info_vector[ix]])
-        )
-        info = lam[np.ix_(iy, iy)] - lam[np.ix_(iy, ix)] @ solved[:, :-1]
-        eta = self.info_vector[iy] - lam[np.ix_(iy, ix)] @ solved[:, -1]
+        info, eta = _schur_complement(lam, iy, ix, self.info_vector)
         return InformationGaussian(eta, info)
 
     def conditional(self, index_y: IndexLike, value_y: np.ndarray) -> InformationGaussian:

@@ -33,6 +33,7 @@ from teamslam.errors import InputError
 from teamslam.gaussian import (
     Gaussian,
     InformationGaussian,
+    add_weighted_difference,
     geometric_average,
     spd_inverse,
 )
@@ -176,23 +177,32 @@ def mirror_descent_step(
         Step size ``α_k > 0``.
     """
     marginals = [s.marginal(common_index) for s in states]
+    block = np.ix_(common_index, common_index)
     out = []
     for i, (state, loc) in enumerate(zip(states, local, strict=True)):
-        neighbours = np.flatnonzero(weights[i])
-        avg_matrix = sum(weights[i, j] * marginals[j].info_matrix for j in neighbours)
-        avg_vector = sum(weights[i, j] * marginals[j].info_vector for j in neighbours)
         omega = state.info_matrix.copy()
         eta = state.info_vector.copy()
-        block = np.ix_(common_index, common_index)
-        omega[block] += avg_matrix - marginals[i].info_matrix
-        eta[common_index] += avg_vector - marginals[i].info_vector
-        out.append(
-            InformationGaussian(
-                eta + alpha * (loc.info_vector - state.info_vector),
-                omega + alpha * (loc.info_matrix - state.info_matrix),
-            )
-        )
+        own = (marginals[i].info_matrix, marginals[i].info_vector)
+        for j in np.flatnonzero(weights[i]):
+            if j != i:  # with weights summing to one, our own term is zero
+                their = (marginals[j].info_matrix, marginals[j].info_vector)
+                add_weighted_difference(omega, eta, block, common_index, weights[i, j], their, own)
+        out.append(_descent(eta, omega, state, loc, alpha))
     return out
+
+
+def _descent(
+    eta: np.ndarray,
+    omega: np.ndarray,
+    state: InformationGaussian,
+    loc: InformationGaussian,
+    alpha: float,
+) -> InformationGaussian:
+    """Eq. 16 after the average ``(η, Ω)``: ``(η, Ω) + α (local − state)``."""
+    return InformationGaussian(
+        eta + alpha * (loc.info_vector - state.info_vector),
+        omega + alpha * (loc.info_matrix - state.info_matrix),
+    )
 
 
 def mirror_descent_step_moment(
@@ -210,14 +220,8 @@ def mirror_descent_step_moment(
         average = geometric_average(
             [moments[j].marginal(common_index) for j in neighbours], weights[i, neighbours]
         )
-        rebuilt: Gaussian = moments[i].replace_marginal(common_index, average)
-        rebuilt_info = rebuilt.information()
-        out.append(
-            InformationGaussian(
-                rebuilt_info.info_vector + alpha * (loc.info_vector - state.info_vector),
-                rebuilt_info.info_matrix + alpha * (loc.info_matrix - state.info_matrix),
-            )
-        )
+        rebuilt = moments[i].replace_marginal(common_index, average).information()
+        out.append(_descent(rebuilt.info_vector, rebuilt.info_matrix, state, loc, alpha))
     return out
 
 

@@ -42,13 +42,14 @@ Only objects in the filter state take part: objects retired to the persistent ma
 (``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
 averaged until they are observed again and re-enter the state.
 
-Every received message is checked here once: kind, step (``step − max_age ≤ s ≤ step``), a
-sender that is a neighbour, and for a marginal the ids, sizes, finiteness and one Cholesky
-factorisation (of the information matrix a joint marginal carries, or of a covariance, which it
-then inverts). Joint marginals are sent in information form: the sender keeps the inverse of its
-own marginal of each set it sent and completes the neighbour's marginal of that set with it
-(eq. 42) instead of inverting it again. A rejected message is
-counted on the agent (``rejected_messages``, first reason logged) and never reaches the state.
+Every received message is checked once, by one function
+(:func:`~teamslam.msckf.consensus_checks.check_message`): kind, step (``step − max_age ≤ s ≤
+step``), a sender that is a neighbour, and for a marginal the ids, sizes, finiteness and one
+Cholesky factorisation (of the information matrix a joint marginal carries, or of a covariance,
+which it then inverts). Joint marginals are sent in information form: the sender keeps the
+inverse of its own marginal of each set it sent and completes the neighbour's marginal of that
+set with it (eq. 42) instead of inverting it again. A rejected message is counted on the agent
+(``rejected_messages``, first reason logged) and never reaches the state.
 """
 
 from __future__ import annotations
@@ -70,9 +71,9 @@ from teamslam.msckf.consensus import (
     hybrid_marginal,
     object_marginals,
     prior_information,
-    receive_marginal,
     shared_prior,
 )
+from teamslam.msckf.consensus_checks import check_message
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
 
 __all__ = ["ConsensusProtocol", "metropolis_weight"]
@@ -145,21 +146,25 @@ class ConsensusProtocol:
                 raise
             raise type(exc)(f"{where}: consensus: {exc}") from exc
 
-    def _acceptable(self, message: object, kind: type) -> bool:
-        if not isinstance(message, kind):
-            self.agent.reject("messages", reason="unexpected message kind")
-            return False
-        if not self.step - self.max_age <= message.step <= self.step:
-            self.agent.reject("messages", reason=f"message of step {message.step} at {self.step}")
-            return False
-        if message.sender not in self.neighbours or message.receiver != self.robot:
-            self.agent.reject(
-                "messages",
-                reason=f"message from robot {message.sender} (not a neighbour) "
-                f"to robot {message.receiver}",
-            )
-            return False
-        return True
+    def _check(self, message: object, kind: type, taken: dict, heard: set | None = None):
+        """The message's usable content (:func:`~teamslam.msckf.consensus_checks.check_message`),
+        or ``None``: ignored (a second message of a sender in ``taken``) or rejected (counted on
+        the agent with its reason)."""
+        problem, usable = check_message(
+            message,
+            kind,
+            self.step,
+            self.max_age,
+            self.robot,
+            self.neighbours,
+            self.agent.state,
+            self.agent.config.consensus_per_object,
+            taken.keys(),
+            heard,
+        )
+        if problem is not None:
+            self.agent.reject("messages", reason=problem)
+        return usable
 
     # ------------------------------------------------------------------ rounds
     def requests(self, step: int, to: Iterable[int] | None = None) -> list[MapIdsMessage]:
@@ -258,16 +263,8 @@ class ConsensusProtocol:
         begin = time.perf_counter()
         requests = {}
         for m in received:
-            if not self._acceptable(m, MapIdsMessage) or m.sender in requests:
-                continue
-            if m.moved is not None and np.shape(m.moved) != np.shape(m.ids):
-                self.agent.reject("messages", reason="moved flags do not match the ids")
-                continue
-            ids = np.asarray(m.ids)
-            if ids.ndim != 1 or np.any(ids[1:] <= ids[:-1]):
-                self.agent.reject("messages", reason="map ids are not strictly increasing")
-                continue
-            requests[m.sender] = m
+            if self._check(m, MapIdsMessage, requests) is not None:
+                requests[m.sender] = m
         self.heard = set(requests)
         replies = []
         own = np.sort(self.agent.state.object_ids)
@@ -315,7 +312,7 @@ class ConsensusProtocol:
         slots = state.object_slots(ids)
         cols = state.object_columns(slots).ravel()
         mean = state.objects[slots].ravel()
-        info = spd_inverse(state.cov[np.ix_(cols, cols)], "own marginal covariance")
+        info = spd_inverse(state.covariance(cols), "own marginal covariance")
         gain = 1.0 + len(self.heard)
         hybrid = hybrid_marginal(mean, info, *prior_information(self._prior, ids), gain)
         if hybrid is None:
@@ -352,26 +349,10 @@ class ConsensusProtocol:
         marginals: dict[int, ReceivedMarginal] = {}
         degrees: dict[int, int] = {}
         for m in received:
-            if not self._acceptable(m, CommonMarginalMessage) or m.sender in marginals:
-                continue
-            if m.sender not in self.heard:
-                # asynchronous mode: a marginal from a neighbour whose ids we did not hear this
-                # step still counts as heard (the link works)
-                if self.max_age == 0:
-                    self.agent.reject("messages", reason=f"robot {m.sender} not heard in round 1")
-                    continue
-                self.heard.add(m.sender)
-            if m.per_object != self.agent.config.consensus_per_object:
-                kinds = ("joint", "per-object")
-                self.agent.reject(
-                    "messages",
-                    reason=f"a {kinds[m.per_object]} marginal from robot {m.sender}; this "
-                    f"robot exchanges {kinds[self.agent.config.consensus_per_object]} marginals",
-                )
-                continue
-            problem, marginal = receive_marginal(self.agent.state, m)
+            # asynchronous mode: a marginal from a neighbour whose ids we did not hear this
+            # step still counts as heard (the link works)
+            marginal = self._check(m, CommonMarginalMessage, marginals, self.heard)
             if marginal is None:
-                self.agent.reject("messages", reason=problem)
                 continue
             marginals[m.sender] = marginal
             degrees[m.sender] = int(m.degree)

@@ -1,0 +1,198 @@
+"""Consensus, checking messages: every received message is checked here, once.
+
+:func:`check_message` is the one check of what a robot receives in a consensus round: the
+kind, the step (``step − max_age ≤ s ≤ step``), a sender that is a neighbour and a receiver that
+is us; for round-1 map ids, moved flags that match the ids and ids strictly increasing; for a
+round-2 marginal, the kind of marginal this robot exchanges (joint or per object), then ids,
+sizes, finiteness, symmetry and one Cholesky factorisation (:func:`receive_marginal`). A message
+that fails is described by a reason and never reaches the state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import MutableSet
+from collections.abc import Set as AbstractSet
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import lapack
+
+from teamslam.gaussian import NotPositiveDefiniteError, spd_inverse
+from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.state import MsckfState
+
+__all__ = [
+    "ReceivedMarginal",
+    "check_message",
+    "receive_marginal",
+    "validate_marginal",
+]
+
+
+def check_message(
+    message: object,
+    kind: type,
+    step: int,
+    max_age: int,
+    robot: int,
+    neighbours: AbstractSet[int],
+    state: MsckfState | None = None,
+    per_object: bool = False,
+    taken: AbstractSet[int] = frozenset(),
+    heard: MutableSet[int] | None = None,
+) -> tuple[str | None, MapIdsMessage | ReceivedMarginal | None]:
+    """Whether a received message can be used in this step of consensus.
+
+    Parameters
+    ----------
+    message
+        What arrived.
+    kind
+        What this round expects: :class:`~teamslam.msckf.messages.MapIdsMessage` (round 1) or
+        :class:`~teamslam.msckf.messages.CommonMarginalMessage` (round 2).
+    step, max_age
+        The current step and the oldest one accepted (``step − max_age``).
+    robot, neighbours
+        The receiver and the robots it may hear from.
+    state
+        The receiver's state (round 2: the marginal is checked against its map).
+    per_object
+        Whether the receiver exchanges per-object marginals (round 2).
+    taken
+        Senders whose message of this round was already used: a second one is ignored.
+    heard
+        Round 2: the senders heard in round 1. In lock-step (``max_age = 0``) a marginal from
+        a robot not heard is rejected; asynchronously its sender is added to ``heard`` (the
+        link works), whether or not the marginal is then usable.
+
+    Returns
+    -------
+    reason, usable
+        ``(None, message)`` for usable map ids, ``(None, marginal)`` for a usable marginal
+        (:class:`ReceivedMarginal`, factorised once), ``(reason, None)`` for a rejected message
+        and ``(None, None)`` for one ignored (a sender already in ``taken``).
+    """
+    if not isinstance(message, kind):
+        return "unexpected message kind", None
+    if not step - max_age <= message.step <= step:
+        return f"message of step {message.step} at {step}", None
+    if message.sender not in neighbours or message.receiver != robot:
+        return (
+            f"message from robot {message.sender} (not a neighbour) to robot {message.receiver}",
+            None,
+        )
+    if message.sender in taken:
+        return None, None
+    if isinstance(message, MapIdsMessage):
+        if message.moved is not None and np.shape(message.moved) != np.shape(message.ids):
+            return "moved flags do not match the ids", None
+        ids = np.asarray(message.ids)
+        if ids.ndim != 1 or np.any(ids[1:] <= ids[:-1]):
+            return "map ids are not strictly increasing", None
+        return None, message
+    if heard is not None and message.sender not in heard:
+        if max_age == 0:
+            return f"robot {message.sender} not heard in round 1", None
+        heard.add(message.sender)
+    if message.per_object != per_object:
+        kinds = ("joint", "per-object")
+        return (
+            f"a {kinds[message.per_object]} marginal from robot {message.sender}; this "
+            f"robot exchanges {kinds[per_object]} marginals",
+            None,
+        )
+    return receive_marginal(state, message)
+
+
+@dataclass(frozen=True)
+class ReceivedMarginal:
+    """A neighbour's marginal that passed every check, in information form.
+
+    Attributes
+    ----------
+    sender
+        Who sent it.
+    ids
+        Its objects (all in our map, no repeats).
+    info, info_vector
+        ``Σ⁻¹`` and ``Σ⁻¹ μ`` of the neighbour's marginal.
+    """
+
+    sender: int
+    ids: np.ndarray
+    info: np.ndarray
+    info_vector: np.ndarray
+    per_object: bool = False
+
+
+def receive_marginal(
+    state: MsckfState, message: CommonMarginalMessage
+) -> tuple[str | None, ReceivedMarginal | None]:
+    """Check a neighbour's marginal against our map and factorise it once.
+
+    A marginal in moment form is inverted (its Cholesky factor gives the information matrix);
+    one in information form is checked to be positive definite by its Cholesky factorisation.
+    Objects that have left our state for the persistent map since the neighbour asked (an
+    asynchronous message) are marginalised out of it; an object we never had makes it unusable.
+    Returns ``(None, marginal)`` when it can be used, ``(reason, None)`` when it cannot.
+    """
+    ids = np.asarray(message.ids)
+    k = ids.size
+    if ids.ndim != 1 or k == 0 or np.unique(ids).size != k:
+        return "ids must be a non-empty list without repeats", None
+    information = message.info is not None
+    name = "information matrix" if information else "covariance"
+    per_object = not information and np.ndim(message.cov) == 3
+    shape = (k, 3, 3) if per_object else (3 * k, 3 * k)
+    if np.shape(message.mean) != (3 * k,) or np.shape(message.matrix) != shape:
+        return f"mean/{name} sizes do not match the ids", None
+    mean = np.asarray(message.mean, dtype=float)
+    matrix = np.asarray(message.matrix, dtype=float)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(matrix))):
+        return f"non-finite mean or {name}", None
+    transposed = np.swapaxes(matrix, -1, -2)
+    if np.abs(matrix - transposed).max() > 1e-9 * np.abs(matrix).max() + 1e-12:
+        return f"{name} is not symmetric", None
+    matrix = 0.5 * (matrix + transposed)
+    absent = state.object_slots(ids) < 0
+    if absent.any():
+        # an asynchronous message may be older than our last retirement: objects that left our
+        # state for the persistent map are marginalised out of it (exact for a Gaussian);
+        # objects we never had make the message unusable
+        if not state.retired.contains(ids[absent]).all():
+            return "ids not in this robot's map", None
+        if absent.all():
+            return "every object of the marginal has retired from this robot's state", None
+        if information:  # marginalise in moment form (a rare path)
+            try:
+                matrix = spd_inverse(matrix, name)
+            except NotPositiveDefiniteError:
+                return f"{name} is not positive definite", None
+            information = False
+        keep = np.flatnonzero(~absent)
+        coords = (3 * keep[:, None] + np.arange(3)).ravel()
+        ids, mean, k = ids[keep], mean[coords], keep.size
+        matrix = matrix[keep] if per_object else matrix[np.ix_(coords, coords)]
+    if information:
+        _, failed = lapack.dpotrf(matrix, lower=1)
+        if failed != 0:
+            return f"{name} is not positive definite", None
+        info = matrix
+    else:
+        try:
+            info = spd_inverse(matrix, name)
+        except NotPositiveDefiniteError:
+            return f"{name} is not positive definite", None
+    if per_object:  # block-diagonal information of the per-object marginals
+        blocks = info
+        info = np.zeros((3 * k, 3 * k))
+        index = 3 * np.arange(k)[:, None] + np.arange(3)
+        info[index[:, :, None], index[:, None, :]] = blocks
+    return None, ReceivedMarginal(
+        int(message.sender), ids.astype(np.int64), info, info @ mean, per_object
+    )
+
+
+def validate_marginal(state: MsckfState, message: CommonMarginalMessage) -> str | None:
+    """Why a received marginal cannot be used (``None`` when it can)."""
+    return receive_marginal(state, message)[0]
