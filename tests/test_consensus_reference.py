@@ -37,17 +37,11 @@ def _spd(rng: np.random.Generator, n: int, scale: float = 1.0) -> np.ndarray:
 
 
 def _random_state(rng: np.random.Generator, poses: int, objects: int) -> MsckfState:
-    state = MsckfState(np.eye(4), 0, np.eye(6))
     xi = 0.3 * rng.standard_normal((poses, 6))
-    state.poses = se3.exp(xi)
-    state.pose_fe = state.poses.copy()
-    state.frames = np.arange(poses, dtype=np.int64)
-    state.robots = np.zeros(poses, dtype=np.int64)
-    state.object_ids = rng.permutation(np.arange(100, 100 + 2 * objects))[:objects]
-    state.objects = rng.standard_normal((objects, 3))
-    state.object_fe = state.objects.copy()
-    state.cov = _spd(rng, 6 * poses + 3 * objects, 0.1)
-    return state
+    ids = rng.permutation(np.arange(100, 100 + 2 * objects))[:objects]
+    means = rng.standard_normal((objects, 3))
+    cov = _spd(rng, 6 * poses + 3 * objects, 0.1)
+    return MsckfState.from_arrays(se3.exp(xi), np.arange(poses), ids, means, cov)
 
 
 def _neighbour(rng, state, ids, sender):

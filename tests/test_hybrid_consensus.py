@@ -33,14 +33,11 @@ def _agent(
     """A robot with one window pose (independent of the map) and the objects ``held`` (all)."""
     held = np.arange(OBJECTS) if held is None else np.asarray(held)
     coords = (3 * held[:, None] + np.arange(3)).ravel()
-    state = MsckfState(np.eye(4), 0, 1e-2 * np.eye(6))
-    state.object_ids = (10 + held).astype(np.int64)
-    state.objects = mean[coords].reshape(-1, 3).copy()
-    state.object_fe = state.objects.copy()
     full = np.zeros((6 + coords.size, 6 + coords.size))
     full[:6, :6] = 1e-2 * np.eye(6)
     full[6:, 6:] = cov[np.ix_(coords, coords)]
-    state.cov = full
+    ids = (10 + held).astype(np.int64)
+    state = MsckfState.from_arrays(np.eye(4), [0], ids, mean[coords].reshape(-1, 3), full)
     config = MsckfConfig(
         consensus_kl_threshold=0.0, consensus_float32=False, consensus_hybrid=hybrid
     )

@@ -119,13 +119,13 @@ def test_agent_iterated_update_lowers_the_posterior_cost_every_frame(linearizati
         return float(delta @ cho_solve(factor, delta) + np.sum(residual**2 / variance))
 
     def checked(state, rows_at, iterations, tolerance=1e-2):
-        poses, objects, cov = state.poses, state.objects, state.cov.copy()
-        factor = cho_factor(cov)
+        poses, objects, before = state.poses, state.objects, state.snapshot()
+        factor = cho_factor(state.cov)
         steps = {}
         for n in (1, iterations):
             ekf_delta, _ = original(state, rows_at, n, 0.0)
             steps[n] = cost(state, rows_at, ekf_delta, factor, poses, objects)
-            state.poses, state.objects, state.cov = poses, objects, cov.copy()
+            state.restore(before)
         costs.append((steps[1], steps[iterations]))
         return original(state, rows_at, iterations, tolerance)
 

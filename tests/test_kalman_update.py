@@ -52,17 +52,12 @@ def test_state_update_is_the_kalman_update_and_exactly_symmetric(seed):
     ``P − P Hᵀ S⁻¹ H P`` and the mean shift ``P Hᵀ S⁻¹ r``, and leaves ``P`` exactly symmetric."""
     rng = np.random.default_rng(20 + seed)
     poses, objects = 4, 5
-    state = MsckfState(np.eye(4), 0, np.eye(6))
-    state.poses = se3.exp(0.3 * rng.normal(size=(poses, 6)))
-    state.pose_fe = state.poses.copy()
-    state.frames = np.arange(poses, dtype=np.int64)
-    state.robots = np.zeros(poses, dtype=np.int64)
-    state.object_ids = np.arange(objects, dtype=np.int64)
-    state.objects = rng.normal(size=(objects, 3))
-    state.object_fe = state.objects.copy()
     dim = 6 * poses + 3 * objects
+    T = se3.exp(0.3 * rng.normal(size=(poses, 6)))
+    means = rng.normal(size=(objects, 3))
     root = rng.normal(size=(dim, dim))
-    state.cov = root @ root.T / dim + 0.05 * np.eye(dim)
+    cov = root @ root.T / dim + 0.05 * np.eye(dim)
+    state = MsckfState.from_arrays(T, np.arange(poses), np.arange(objects), means, cov)
     prior_cov, prior_objects = state.cov.copy(), state.objects.copy()
     rows = 7
     jacobian = np.zeros((rows, dim))

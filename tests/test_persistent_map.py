@@ -16,19 +16,19 @@ from teamslam.sim import lissajous_team, long_route_team
 
 def _random_state(n_poses: int, n_objects: int, seed: int = 0) -> MsckfState:
     rng = np.random.default_rng(seed)
-    state = MsckfState(np.eye(4), 0, np.eye(6))
     dim = 6 * n_poses + 3 * n_objects
     a = rng.standard_normal((dim, dim))
-    state.poses = np.tile(np.eye(4), (n_poses, 1, 1))
-    state.pose_fe = state.poses.copy()
-    state.frames = np.arange(n_poses, dtype=np.int64)
-    state.robots = np.zeros(n_poses, dtype=np.int64)
-    state.object_ids = rng.permutation(1000)[:n_objects].astype(np.int64)
-    state.objects = rng.standard_normal((n_objects, 3))
-    state.object_fe = state.objects + 0.1
-    state.object_last_seen = np.zeros(n_objects, dtype=np.int64)
-    state.cov = a @ a.T / dim + np.eye(dim)
-    return state
+    ids = rng.permutation(1000)[:n_objects].astype(np.int64)
+    objects = rng.standard_normal((n_objects, 3))
+    return MsckfState.from_arrays(
+        np.tile(np.eye(4), (n_poses, 1, 1)),
+        np.arange(n_poses),
+        ids,
+        objects,
+        a @ a.T / dim + np.eye(dim),
+        object_fe=objects + 0.1,
+        object_last_seen=np.zeros(n_objects, dtype=np.int64),
+    )
 
 
 def test_retirement_and_reentry_keep_the_marginals_exactly():

@@ -325,9 +325,9 @@ class MsckfAgent:
         first = int(state.frames[index])
         if state.frames[index + 1] != first + 1 or first in self._odometry_rejected:
             return
-        cols = slice(6 * index, 6 * index + 12)  # poses index and index + 1
+        cols = state.pose_columns(np.array([index, index + 1])).ravel()
         moment = odometry_step_residual(
-            state.poses[index : index + 2], self.sequence.odometry[first], state.cov[cols, cols]
+            state.poses[index : index + 2], self.sequence.odometry[first], state.covariance(cols)
         )
         assumed = np.square(self.config.odometry_std)
         self.health.odometry(moment, assumed)
@@ -346,7 +346,7 @@ class MsckfAgent:
                 moment, design = odometry_lag_residuals(
                     state.poses[:last],
                     self.sequence.odometry[first : first + last - 1],
-                    state.cov[np.ix_(cols, cols)],
+                    state.covariance(cols),
                 )
                 self.health.odometry_lags(moment, design, assumed)
 
@@ -414,7 +414,7 @@ class MsckfAgent:
                 self.policy.feature_points(points[ok], true_points)[:, None, :],
             )
             r0, h0, s = null_space_rows(
-                self.state.cov[block, block],
+                self.state.covariance(block),
                 6 * widx[ok][..., None] + np.arange(6),
                 pose_dim,
                 pred,
@@ -526,7 +526,7 @@ class MsckfAgent:
         obj_cols = state.object_columns(slots)  # (k, 3)
         pose_cols = np.broadcast_to(state.pose_columns(state.n_poses - 1), (k, 6))
         local_cols = np.concatenate([pose_cols, obj_cols], axis=1)
-        local_p = state.cov[local_cols[:, :, None], local_cols[:, None, :]]
+        local_p = state.covariance(local_cols)
         d_pose, d_point = self.policy.constrain(
             d_pose, d_point, state.pose_fe[-1], state.object_fe[slots], local_p
         )
@@ -636,7 +636,7 @@ class MsckfAgent:
         r_p, projected = upper[0], projected[0]
         z1, z2 = projected[:3, 0], projected[3:, 0]
         h_s1, h_s2 = projected[:3, 1:], projected[3:, 1:]
-        cov_cc = state.cov[np.ix_(cols, cols)]
+        cov_cc = state.covariance(cols)
         # gate the landmark-free part before touching the state
         s2 = h_s2 @ cov_cc @ h_s2.T + variance * np.eye(4 * n - 3)
         # not a sensor-health innovation: it is linearised at a fresh triangulation, so its NIS
@@ -648,7 +648,7 @@ class MsckfAgent:
         state.check_finite(f"initialisation rows of object {oid}", r_p, projected)
         r_p_inv = np.linalg.inv(r_p)
         position = point + r_p_inv @ z1
-        cov_ps = -(r_p_inv @ h_s1) @ state.cov[cols, :]  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
+        cov_ps = -(r_p_inv @ h_s1) @ state.cross_covariance(cols)  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
         cov_pp = r_p_inv @ (h_s1 @ cov_cc @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
         limit = self.config.object_init_max_relative_std
         if limit > 0:

@@ -70,7 +70,7 @@ class MsckfState:
         self.retired = PersistentMap()
         # every edit below keeps the covariance exactly symmetric; it starts so
         pose_cov = np.asarray(pose_cov, dtype=float).reshape(6, 6)
-        self.cov = 0.5 * (pose_cov + pose_cov.T)
+        self._cov = 0.5 * (pose_cov + pose_cov.T)
         self.debug = debug
         self.robot = robot
 
@@ -88,7 +88,7 @@ class MsckfState:
             "object_ids": self.object_ids.copy(),
             "objects": self.objects.copy(),
             "object_fe": self.object_fe.copy(),
-            "cov": self.cov.copy(),
+            "cov": self._cov.copy(),
             "object_last_seen": self.object_last_seen.copy(),
             **{f"retired_{k}": v for k, v in retired.items()},
         }
@@ -149,7 +149,7 @@ class MsckfState:
         self.poses, self.frames, self.object_ids, self.objects = poses, frames, ids, objects
         self.robots, self.pose_fe, self.object_fe = robots, pose_fe, object_fe
         self.object_last_seen, self.retired = last_seen, retired
-        self.cov = 0.5 * (cov + cov.T)
+        self._cov = 0.5 * (cov + cov.T)
 
     @classmethod
     def team(
@@ -164,7 +164,7 @@ class MsckfState:
         state.pose_fe = first.copy()
         state.frames = np.full(n, frame, dtype=np.int64)
         state.robots = np.arange(n, dtype=np.int64)
-        state.cov = np.kron(np.eye(n), np.asarray(pose_cov, dtype=float).reshape(6, 6))
+        state._cov = np.kron(np.eye(n), np.asarray(pose_cov, dtype=float).reshape(6, 6))
         return state
 
     @classmethod
@@ -177,13 +177,16 @@ class MsckfState:
         cov: np.ndarray,
         *,
         robots: np.ndarray | None = None,
+        object_fe: np.ndarray | None = None,
+        object_last_seen: np.ndarray | None = None,
         robot: int | None = None,
         debug: bool = False,
         check: bool = True,
     ) -> MsckfState:
         """A state holding these window poses ``(c, 4, 4)`` (with their frames and, for a team
         state, robots), objects ``(m, 3)`` with their ids, and joint covariance; first estimates
-        are the estimates, every object last seen at the newest frame.
+        are the estimates (objects': ``object_fe`` if given), every object last seen at the
+        newest frame (or at ``object_last_seen``).
 
         ``check=False`` takes the arrays as they are (a state that already failed, for tests of
         what follows); otherwise they are checked as :meth:`restore` checks a snapshot.
@@ -200,8 +203,13 @@ class MsckfState:
             "window_pose_fe": poses.copy(),
             "object_ids": np.asarray(object_ids, dtype=np.int64),
             "objects": objects,
-            "object_fe": objects.copy(),
+            "object_fe": objects.copy() if object_fe is None else np.asarray(object_fe, float),
             "cov": np.asarray(cov, dtype=float),
+            "object_last_seen": (
+                np.full(objects.shape[0], int(frames.max()), dtype=np.int64)
+                if object_last_seen is None
+                else np.asarray(object_last_seen, dtype=np.int64)
+            ),
         }
         if check:
             state.restore(snapshot)
@@ -209,9 +217,9 @@ class MsckfState:
         state.poses, state.frames = poses.copy(), frames.copy()
         state.robots = snapshot["window_robots"].astype(np.int64)
         state.pose_fe, state.object_ids = poses.copy(), snapshot["object_ids"].copy()
-        state.objects, state.object_fe = objects.copy(), objects.copy()
-        state.object_last_seen = np.full(objects.shape[0], int(frames.max()), dtype=np.int64)
-        state.cov = snapshot["cov"].copy()
+        state.objects, state.object_fe = objects.copy(), snapshot["object_fe"].reshape(-1, 3)
+        state.object_last_seen = snapshot["object_last_seen"].copy()
+        state._cov = snapshot["cov"].copy()
         return state
 
     def window(self, robot: int) -> RobotWindow:
@@ -221,6 +229,14 @@ class MsckfState:
         return RobotWindow(self, robot)
 
     # ------------------------------------------------------------------ layout
+    @property
+    def cov(self) -> np.ndarray:
+        """The joint covariance of the error state, read-only (a view: every edit goes
+        through this class; :meth:`covariance` gives the block of some columns)."""
+        view = self._cov.view()
+        view.flags.writeable = False
+        return view
+
     @property
     def n_poses(self) -> int:
         """Poses in the window."""
@@ -276,23 +292,23 @@ class MsckfState:
         return self.cov[s, s]
 
     def covariance(self, columns: np.ndarray | slice) -> np.ndarray:
-        """The covariance of error-state ``columns``: ``(k, k)`` for a list or a slice, ``(…, k,
-        k)`` for a stack of lists ``(…, k)`` (a copy)."""
+        """The covariance of error-state ``columns``: ``(k, k)`` for a list or a slice (a
+        read-only view), ``(…, k, k)`` for a stack of lists ``(…, k)`` (a copy)."""
         if isinstance(columns, slice):
-            return self.cov[columns, columns].copy()
+            return self.cov[columns, columns]
         columns = np.asarray(columns)
         if columns.ndim == 1:
-            return self.cov[np.ix_(columns, columns)]
-        return self.cov[columns[..., :, None], columns[..., None, :]]
+            return self._cov[np.ix_(columns, columns)]
+        return self._cov[columns[..., :, None], columns[..., None, :]]
 
     def cross_covariance(self, columns: np.ndarray) -> np.ndarray:
         """``(k, dim)``: the covariance of error-state ``columns`` with the whole state."""
-        return self.cov[np.asarray(columns), :]
+        return self._cov[np.asarray(columns), :]
 
     def object_covs(self) -> np.ndarray:
         """``(m, 3, 3)`` marginal covariance of each object."""
         cols = self.object_columns(np.arange(self.n_objects))
-        return self.cov[cols[:, :, None], cols[:, None, :]]
+        return self._cov[cols[:, :, None], cols[:, None, :]]
 
     def full_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every object the robot has mapped — in the state and retired — sorted by id: ids,
@@ -307,10 +323,10 @@ class MsckfState:
     def _check(self, what: str) -> None:
         if not self.debug:
             return
-        if not np.allclose(self.cov, self.cov.T, atol=1e-9 * max(1.0, np.abs(self.cov).max())):
+        if not np.allclose(self._cov, self._cov.T, atol=1e-9 * max(1.0, np.abs(self._cov).max())):
             raise NotPositiveDefiniteError(f"covariance lost symmetry after {what}")
         try:
-            np.linalg.cholesky(self.cov)
+            np.linalg.cholesky(self._cov)
         except np.linalg.LinAlgError:
             raise NotPositiveDefiniteError(
                 f"covariance not positive definite after {what}"
@@ -371,23 +387,23 @@ class MsckfState:
         jac = se3.adjoint(se3.inverse(step))
         last = slice(6 * last_index, 6 * last_index + 6)
         split = 6 * (last_index + 1)
-        cross = jac @ self.cov[last, :]  # (6, dim): new pose with everything
-        block = jac @ self.cov[last, last] @ jac.T + odometry_cov
+        cross = jac @ self._cov[last, :]  # (6, dim): new pose with everything
+        block = jac @ self._cov[last, last] @ jac.T + odometry_cov
         n = self.dim
         cov = np.empty((n + 6, n + 6))
         # the new pose goes after the robot's newest pose: four block copies
         new = slice(split, split + 6)
         after = slice(split + 6, n + 6)
-        cov[:split, :split] = self.cov[:split, :split]
-        cov[:split, after] = self.cov[:split, split:]
-        cov[after, :split] = self.cov[split:, :split]
-        cov[after, after] = self.cov[split:, split:]
+        cov[:split, :split] = self._cov[:split, :split]
+        cov[:split, after] = self._cov[:split, split:]
+        cov[after, :split] = self._cov[split:, :split]
+        cov[after, after] = self._cov[split:, split:]
         cov[new, :split] = cross[:, :split]
         cov[new, after] = cross[:, split:]
         cov[:split, new] = cross[:, :split].T
         cov[after, new] = cross[:, split:].T
         cov[new, new] = 0.5 * (block + block.T)
-        self.cov = cov
+        self._cov = cov
         at = last_index + 1
         self.poses = np.insert(self.poses, at, new_pose, axis=0)
         self.pose_fe = np.insert(self.pose_fe, at, new_pose, axis=0)
@@ -399,11 +415,11 @@ class MsckfState:
         """Drop the robot's oldest window pose (its rows and columns of the covariance)."""
         first = int(np.flatnonzero(self.robots == robot)[0])
         if first == 0:
-            self.cov = self.cov[6:, 6:].copy()
+            self._cov = self._cov[6:, 6:].copy()
         else:
             keep = np.ones(self.dim, dtype=bool)
             keep[6 * first : 6 * first + 6] = False
-            self.cov = self.cov[np.ix_(keep, keep)]
+            self._cov = self._cov[np.ix_(keep, keep)]
         self.poses = np.delete(self.poses, first, axis=0)
         self.pose_fe = np.delete(self.pose_fe, first, axis=0)
         self.frames = np.delete(self.frames, first)
@@ -434,11 +450,11 @@ class MsckfState:
         )
         n = self.dim
         cov = np.empty((n + 3, n + 3))
-        cov[:n, :n] = self.cov
+        cov[:n, :n] = self._cov
         cov[n:, :n] = cov_ps
         cov[:n, n:] = cov_ps.T
         cov[n:, n:] = 0.5 * (cov_pp + cov_pp.T)
-        self.cov = cov
+        self._cov = cov
         self.object_ids = np.append(self.object_ids, int(object_id))
         self.objects = np.vstack([self.objects, np.asarray(position, dtype=float)])
         self.object_fe = np.vstack([self.object_fe, np.asarray(position, dtype=float)])
@@ -462,12 +478,12 @@ class MsckfState:
         self.retired.store(
             self.object_ids[slots],
             self.objects[slots],
-            self.cov[cols[:, :, None], cols[:, None, :]],
+            self._cov[cols[:, :, None], cols[:, None, :]],
             self.object_fe[slots],
         )
         keep = np.ones(self.dim, dtype=bool)
         keep[cols.ravel()] = False
-        self.cov = self.cov[np.ix_(keep, keep)]
+        self._cov = self._cov[np.ix_(keep, keep)]
         kept = np.ones(self.n_objects, dtype=bool)
         kept[slots] = False
         self.object_ids = self.object_ids[kept]
@@ -488,10 +504,10 @@ class MsckfState:
         means, covs, fe = self.retired.take(ids)
         n, k = self.dim, ids.size
         cov = np.zeros((n + 3 * k, n + 3 * k))
-        cov[:n, :n] = self.cov
+        cov[:n, :n] = self._cov
         rows = n + 3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]
         cov[rows, np.swapaxes(rows, 1, 2)] = 0.5 * (covs + np.swapaxes(covs, 1, 2))
-        self.cov = cov
+        self._cov = cov
         self.object_ids = np.concatenate([self.object_ids, ids])
         self.objects = np.vstack([self.objects, means])
         self.object_fe = np.vstack([self.object_fe, fe])
@@ -513,7 +529,7 @@ class MsckfState:
         touch only (feature rows touch only window poses)."""
         cols = np.flatnonzero(np.any(jacobian != 0.0, axis=0))
         h = jacobian[:, cols]
-        pht = self.cov[:, cols] @ h.T
+        pht = self._cov[:, cols] @ h.T
         innovation_cov = h @ pht[cols] + noise_cov
         try:  # upper factor: S = Uᵀ U
             factor = scipy.linalg.cho_factor(0.5 * (innovation_cov + innovation_cov.T), lower=False)
@@ -552,7 +568,7 @@ class MsckfState:
         step = scipy.linalg.solve_triangular(upper, residual, trans="T", check_finite=False)
         delta = whitened.T @ step
         self.check_finite("correction of the update", delta, robot=robot)
-        self.cov = self.cov - whitened.T @ whitened
+        self._cov = self._cov - whitened.T @ whitened
         self.correct(delta)
         self._check("update")
         return delta
@@ -654,7 +670,7 @@ class MsckfState:
             raise InternalError(f"new marginal {mean.shape}, {cov.shape} for {k} coordinates")
         self.check_finite("consensus marginal", mean, cov)
         shift_y = mean - self.objects.ravel()[slot_cols]
-        delta, self.cov = replace_marginal_shift(self.cov, index, shift_y, cov, info)
+        delta, self._cov = replace_marginal_shift(self._cov, index, shift_y, cov, info)
         self.correct(delta)
         self._check("consensus")
 
@@ -663,16 +679,120 @@ class RobotWindow:
     """One robot's window inside a (team) :class:`MsckfState`, with the single-robot interface.
 
     Window quantities (``poses``, ``pose_fe``, ``frames``, ``n_poses``, ``current_pose``,
-    column maps, :meth:`augment`, :meth:`marginalize_oldest`) are the robot's; everything else
-    (objects, ``cov``, ``dim``, :meth:`~MsckfState.update`, …) is the shared state's.
+    column maps, :meth:`augment`, :meth:`marginalize_oldest`) are the robot's; the map, the
+    covariance and the updates are the shared state's, each named below (nothing else is
+    forwarded); errors of the updates name this robot.
     """
 
     def __init__(self, state: MsckfState, robot: int) -> None:
         self.state = state
         self.robot = int(robot)
 
-    def __getattr__(self, name: str):
-        return getattr(self.state, name)
+    # the shared state's map and covariance
+    @property
+    def cov(self) -> np.ndarray:
+        """The shared joint covariance (read-only)."""
+        return self.state.cov
+
+    @property
+    def dim(self) -> int:
+        """Error-state dimension of the shared state."""
+        return self.state.dim
+
+    @property
+    def debug(self) -> bool:
+        """Whether the shared state checks its covariance after every edit."""
+        return self.state.debug
+
+    @property
+    def objects(self) -> np.ndarray:
+        """The shared map's objects ``(m, 3)``."""
+        return self.state.objects
+
+    @property
+    def object_ids(self) -> np.ndarray:
+        """The shared map's object ids."""
+        return self.state.object_ids
+
+    @property
+    def object_fe(self) -> np.ndarray:
+        """First estimates of the shared map's objects."""
+        return self.state.object_fe
+
+    @property
+    def object_last_seen(self) -> np.ndarray:
+        """Frame at which each object of the shared map was last observed."""
+        return self.state.object_last_seen
+
+    @property
+    def retired(self) -> PersistentMap:
+        """The shared persistent map."""
+        return self.state.retired
+
+    @property
+    def n_objects(self) -> int:
+        """Objects in the shared map."""
+        return self.state.n_objects
+
+    def object_slots(self, ids: np.ndarray) -> np.ndarray:
+        """:meth:`MsckfState.object_slots`."""
+        return self.state.object_slots(ids)
+
+    def object_columns(self, slots: np.ndarray) -> np.ndarray:
+        """:meth:`MsckfState.object_columns`."""
+        return self.state.object_columns(slots)
+
+    def covariance(self, columns: np.ndarray | slice) -> np.ndarray:
+        """:meth:`MsckfState.covariance`."""
+        return self.state.covariance(columns)
+
+    def cross_covariance(self, columns: np.ndarray) -> np.ndarray:
+        """:meth:`MsckfState.cross_covariance`."""
+        return self.state.cross_covariance(columns)
+
+    def object_covs(self) -> np.ndarray:
+        """:meth:`MsckfState.object_covs`."""
+        return self.state.object_covs()
+
+    def full_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`MsckfState.full_map` of the shared map."""
+        return self.state.full_map()
+
+    def mark_seen(self, slots: np.ndarray, frame: int) -> None:
+        """:meth:`MsckfState.mark_seen`."""
+        self.state.mark_seen(slots, frame)
+
+    def retire_objects(self, slots: np.ndarray) -> None:
+        """:meth:`MsckfState.retire_objects` of the shared map."""
+        self.state.retire_objects(slots)
+
+    def reenter_objects(self, ids: np.ndarray, frame: int) -> None:
+        """:meth:`MsckfState.reenter_objects` into the shared map."""
+        self.state.reenter_objects(ids, frame)
+
+    def replace_marginal(
+        self,
+        index: np.ndarray,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        info: np.ndarray | None = None,
+    ) -> None:
+        """:meth:`MsckfState.replace_marginal` of the shared state."""
+        self.state.replace_marginal(index, mean, cov, info)
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """:meth:`MsckfState.snapshot` of the shared state."""
+        return self.state.snapshot()
+
+    def restore(self, snapshot: dict[str, np.ndarray]) -> None:
+        """:meth:`MsckfState.restore` of the shared state."""
+        self.state.restore(snapshot)
+
+    def where(self) -> str:
+        """``"robot r, frame t"`` of this robot's newest frame."""
+        return self.state.where(self.robot)
+
+    # the robot's own window
 
     def _range(self) -> tuple[int, int]:
         robots = self.state.robots
