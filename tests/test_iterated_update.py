@@ -114,7 +114,8 @@ def test_agent_iterated_update_lowers_the_posterior_cost_every_frame(linearizati
     def cost(state, rows_at, delta, factor, poses, objects):
         state.poses, state.objects = poses, objects
         state.correct(delta)
-        _, residual, variance = rows_at()
+        rows = rows_at()
+        residual, variance = rows.residual, rows.variance
         state.poses, state.objects = poses, objects
         return float(delta @ cho_solve(factor, delta) + np.sum(residual**2 / variance))
 

@@ -251,18 +251,17 @@ class MsckfAgent:
         if self.config.use_objects and len(self.state.retired):
             self._reenter_objects(t)
         after_propagation = time.perf_counter()
-        rows = MeasurementRows.empty(self.state.dim)
+        rows = MeasurementRows.empty()
         if self.config.use_geometric_features:
             rows = rows.extend(self._feature_rows(t))
-        object_rows, object_rows_at = MeasurementRows.empty(self.state.dim), None
+        object_rows, object_rows_at = MeasurementRows.empty(), None
         if self.config.use_objects:
             object_rows, object_rows_at = self._object_rows(t)
         iterated = self.config.object_update_iterations > 1 and object_rows_at is not None
         if not iterated:
             rows = rows.extend(object_rows)
         if rows.rows:
-            rows = compress(rows)
-            self.state.update(rows.jacobian, rows.residual, np.diag(rows.variance))
+            self.state.update_rows(compress(rows))
             self.counters["updates"] += 1
         if iterated:
             # features first (their null-space rows are linear in the error state), then the
@@ -390,10 +389,10 @@ class MsckfAgent:
                         i,
                     )
                 )
-        rows = MeasurementRows.empty(self.state.dim)
+        rows = MeasurementRows.empty()
         variance = self.config.feature_std**2
-        block = self.state.window_columns
-        pose_dim = 6 * self.state.n_poses
+        block = self.state.window_columns  # the rows are compact over the window poses
+        window = np.arange(block.start, block.stop)
         for n, members in groups.items():
             widx = np.stack([w for w, _, _ in members])
             zs = np.stack([zz for _, zz, _ in members])
@@ -415,8 +414,8 @@ class MsckfAgent:
             )
             r0, h0, s = null_space_rows(
                 self.state.covariance(block),
-                6 * widx[ok][..., None] + np.arange(6),
-                pose_dim,
+                self.state.pose_columns(widx[ok]) - block.start,
+                window.size,
                 pred,
                 d_pose,
                 d_point,
@@ -427,11 +426,9 @@ class MsckfAgent:
                 "features", r0, s, variance, float(self.config.gate(4 * n - 3))
             )
             self.counters["rejected_features_gate"] += int((~accepted).sum())
-            h0 = h0[accepted].reshape(-1, pose_dim)
-            full = np.zeros((h0.shape[0], self.state.dim))
-            full[:, block] = h0
+            h0 = h0[accepted].reshape(-1, window.size)
             rows = rows.extend(
-                MeasurementRows(full, r0[accepted].ravel(), np.full(h0.shape[0], variance))
+                MeasurementRows(h0, r0[accepted].ravel(), np.full(h0.shape[0], variance), window)
             )
         return rows
 
@@ -456,7 +453,7 @@ class MsckfAgent:
         """The gated object rows at the current estimate, and a function that linearises the
         same rows again at whatever the state's mean then is (for the iterated update;
         ``None`` when there are no rows)."""
-        empty = MeasurementRows.empty(self.state.dim), None
+        empty = MeasurementRows.empty(), None
         ids, z = self._finite_observations("objects", t)
         for i, row in zip(ids.tolist(), z, strict=True):
             self.object_history[i].append((t, row))
@@ -476,7 +473,7 @@ class MsckfAgent:
             slots, zk, ids = slots[in_front], zk[in_front], ids[in_front]
         if slots.size == 0:
             return empty
-        h, r, local_h, local_p, noise_cov = self._object_linearization(slots, zk, ids)
+        r, local_h, local_p, noise_cov = self._object_linearization(slots, zk, ids)
         variance = self.config.object_std**2
         s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + noise_cov
         accepted, nis = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
@@ -490,24 +487,25 @@ class MsckfAgent:
             self.counters["objects_downweighted"] += int((weight < 1).sum())
             noise = noise / weight
         slots, zk, ids = slots[accepted], zk[accepted], ids[accepted]
-        rows = self._object_measurement_rows(h[accepted], r[accepted], noise_cov[accepted], noise)
+        rows = self._object_measurement_rows(
+            slots, local_h[accepted], r[accepted], noise_cov[accepted], noise
+        )
 
-        def rows_at() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            h, r, _, _, noise_cov = self._object_linearization(slots, zk, ids)
-            again = self._object_measurement_rows(h, r, noise_cov, noise)
-            return again.jacobian, again.residual, again.variance
+        def rows_at() -> MeasurementRows:
+            r, local_h, _, noise_cov = self._object_linearization(slots, zk, ids)
+            return self._object_measurement_rows(slots, local_h, r, noise_cov, noise)
 
         return rows, rows_at
 
     def _object_linearization(
         self, slots: np.ndarray, z: np.ndarray, ids: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Rows of the objects ``slots`` observed as ``z``, at the state's current mean.
 
-        Returns ``H`` ``(k, 4, dim)``, the residuals ``(k, 4)``, each object's local Jacobian
-        ``(k, 4, 9)`` over the current pose and the object and the covariance of those columns
-        ``(k, 9, 9)``, and each object's ``(k, 4, 4)`` measurement noise (with the policy's
-        linearisation noise when it compensates).
+        Returns the residuals ``(k, 4)``, each object's local Jacobian ``(k, 4, 9)`` over the
+        current pose and the object and the covariance of those columns ``(k, 9, 9)``, and each
+        object's ``(k, 4, 4)`` measurement noise (with the policy's linearisation noise when it
+        compensates).
         """
         state = self.state
         k = slots.size
@@ -530,9 +528,6 @@ class MsckfAgent:
         d_pose, d_point = self.policy.constrain(
             d_pose, d_point, state.pose_fe[-1], state.object_fe[slots], local_p
         )
-        h = np.zeros((k, 4, state.dim))
-        h[:, :, state.pose_columns(state.n_poses - 1)] = d_pose
-        h[np.arange(k)[:, None, None], np.arange(4)[None, :, None], obj_cols[:, None, :]] = d_point
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
         noise_cov = np.broadcast_to(self.config.object_std**2 * np.eye(4), (k, 4, 4))
         if self.policy.compensates:
@@ -543,19 +538,35 @@ class MsckfAgent:
             )
             current_h = np.concatenate([c_pose, c_point], axis=2)
             noise_cov = noise_cov + self.policy.linearization_noise(local_h, current_h, local_p)
-        return h, z - pred, local_h, local_p, noise_cov
+        return z - pred, local_h, local_p, noise_cov
 
     def _object_measurement_rows(
-        self, h: np.ndarray, r: np.ndarray, noise_cov: np.ndarray, noise: np.ndarray
+        self,
+        slots: np.ndarray,
+        local_h: np.ndarray,
+        r: np.ndarray,
+        noise_cov: np.ndarray,
+        noise: np.ndarray,
     ) -> MeasurementRows:
-        """Stacked rows of accepted objects with per-object noise variance ``noise``."""
-        dim = self.state.dim
+        """Stacked rows of accepted objects ``slots`` (local Jacobians ``(k, 4, 9)`` over the
+        current pose and the object) with per-object noise variance ``noise``, compact over the
+        current pose's and the objects' columns."""
         if self.policy.compensates:
             # whiten each object's rows by its 4 × 4 noise: L⁻¹H, L⁻¹r with LLᵀ = noise
             chol = np.linalg.cholesky(noise_cov / self.config.object_std**2)
-            h = np.linalg.solve(chol, h)
+            local_h = np.linalg.solve(chol, local_h)
             r = np.linalg.solve(chol, r[..., None])[..., 0]
-        return MeasurementRows(h.reshape(-1, dim), r.ravel(), np.repeat(noise, 4))
+        state = self.state
+        k = slots.size
+        held, position = np.unique(slots, return_inverse=True)  # an object seen twice: once
+        columns = np.concatenate(
+            [state.pose_columns(state.n_poses - 1), state.object_columns(held).ravel()]
+        )
+        h = np.zeros((k, 4, columns.size))
+        h[:, :, :6] = local_h[:, :, :6]
+        object_at = 6 + 3 * position.reshape(k)[:, None, None] + np.arange(3)[None, None, :]
+        h[np.arange(k)[:, None, None], np.arange(4)[None, :, None], object_at] = local_h[:, :, 6:]
+        return MeasurementRows(h.reshape(4 * k, -1), r.ravel(), np.repeat(noise, 4), columns)
 
     def _initialise_objects(self, t: int) -> None:
         cfg = self.config
@@ -660,9 +671,8 @@ class MsckfAgent:
                 return False
         state.add_object(oid, position, cov_pp, cov_ps)
         self.counters["objects_initialised"] += 1
-        jac = np.zeros((4 * n - 3, state.dim))
-        jac[:, cols] = h_s2
-        state.update(jac, z2, variance * np.eye(4 * n - 3))
+        # the landmark-free rows, compact over the poses of the observations
+        state.update(h_s2, z2, variance * np.eye(4 * n - 3), columns=cols)
         return True
 
     def _prune_histories(self) -> None:

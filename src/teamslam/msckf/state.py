@@ -29,6 +29,7 @@ from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError, replace_marginal_shift
 from teamslam.geometry import se3
 from teamslam.msckf.persistent_map import PersistentMap
+from teamslam.msckf.update import MeasurementRows
 
 __all__ = ["MsckfState", "RobotWindow"]
 
@@ -523,12 +524,21 @@ class MsckfState:
         self.objects = self.objects + delta[6 * c :].reshape(-1, 3)
 
     def _innovation_factor(
-        self, jacobian: np.ndarray, noise_cov: np.ndarray
-    ) -> tuple[np.ndarray, tuple[np.ndarray, bool]]:
+        self, jacobian: np.ndarray, noise_cov: np.ndarray, columns: np.ndarray | None = None
+    ) -> tuple[np.ndarray, tuple[np.ndarray, bool], np.ndarray]:
         """``P Hᵀ`` and the Cholesky factor of ``S = H P Hᵀ + R``, on the columns the rows
-        touch only (feature rows touch only window poses)."""
-        cols = np.flatnonzero(np.any(jacobian != 0.0, axis=0))
-        h = jacobian[:, cols]
+        touch only (feature rows touch only window poses), and those columns.
+
+        ``jacobian`` is over the error-state ``columns`` (default: all, in order); its columns
+        that are exactly zero are left out.
+        """
+        touched = np.any(jacobian != 0.0, axis=0)
+        if columns is None:
+            cols = np.flatnonzero(touched)
+            h = jacobian[:, cols]
+        else:
+            cols = np.asarray(columns)[touched]
+            h = jacobian[:, touched]
         pht = self._cov[:, cols] @ h.T
         innovation_cov = h @ pht[cols] + noise_cov
         try:  # upper factor: S = Uᵀ U
@@ -537,7 +547,7 @@ class MsckfState:
             raise NotPositiveDefiniteError(
                 "innovation covariance is not positive definite"
             ) from None
-        return pht, factor
+        return pht, factor, h
 
     def update(
         self,
@@ -545,10 +555,13 @@ class MsckfState:
         residual: np.ndarray,
         noise_cov: np.ndarray,
         robot: int | None = None,
+        columns: np.ndarray | None = None,
     ) -> np.ndarray:
         """Kalman update (eqs. 26–28, ``S = 0``) with a Cholesky-factored innovation covariance.
 
-        Returns the applied correction.
+        ``jacobian`` is compact over the error-state ``columns`` (increasing; OpenVINS'
+        ``H_order``, e.g. :class:`~teamslam.msckf.update.MeasurementRows`), or full width
+        (``columns=None``). Returns the applied correction.
 
         Raises
         ------
@@ -561,7 +574,7 @@ class MsckfState:
         self.check_finite("measurement Jacobian", jacobian, robot=robot)
         self.check_finite("measurement residual", residual, robot=robot)
         self.check_finite("measurement noise", noise_cov, robot=robot)
-        pht, (upper, _) = self._innovation_factor(jacobian, noise_cov)
+        pht, (upper, _), _ = self._innovation_factor(jacobian, noise_cov, columns)
         # S = Uᵀ U: with W = U⁻ᵀ (P Hᵀ)ᵀ the gain is K = Wᵀ U⁻ᵀ and P⁺ = P − Wᵀ W, one
         # symmetric rank-k product (BLAS syrk): exactly symmetric, half the flops of K (P Hᵀ)ᵀ
         whitened = scipy.linalg.solve_triangular(upper, pht.T, trans="T", check_finite=False)
@@ -573,19 +586,27 @@ class MsckfState:
         self._check("update")
         return delta
 
+    def update_rows(self, rows: MeasurementRows, robot: int | None = None) -> np.ndarray:
+        """:meth:`update` with stacked rows (compact or full width)."""
+        return self.update(
+            rows.jacobian, rows.residual, np.diag(rows.variance), robot=robot, columns=rows.columns
+        )
+
     def iterated_update(
         self,
-        rows_at: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
+        rows_at: Callable[[], MeasurementRows | tuple[np.ndarray, np.ndarray, np.ndarray]],
         iterations: int,
         tolerance: float = 1e-2,
         robot: int | None = None,
     ) -> tuple[np.ndarray, int]:
         """Iterated EKF update: Gauss–Newton on the prior and a nonlinear measurement.
 
-        ``rows_at()`` returns ``(H, r, σ²)`` — Jacobian over the error state, residual ``z −
-        h(x)`` and per-row noise variance — linearised at the state's current mean; it must
-        return the same rows (same measurements, same order) every time. With ``x₀`` the prior
-        mean, ``P`` its covariance and ``δᵢ`` the error of iterate ``xᵢ = x₀ ⊞ δᵢ`` (``δ₀ = 0``),
+        ``rows_at()`` returns the rows — :class:`~teamslam.msckf.update.MeasurementRows`
+        (compact over their columns) or ``(H, r, σ²)`` over the whole error state: Jacobian,
+        residual ``z − h(x)`` and per-row noise variance — linearised at the state's current
+        mean; it must return the same rows (same measurements, same order) every time. With
+        ``x₀`` the prior mean, ``P`` its covariance and ``δᵢ`` the error of iterate
+        ``xᵢ = x₀ ⊞ δᵢ`` (``δ₀ = 0``),
 
             ``δᵢ₊₁ = Kᵢ (rᵢ + Hᵢ δᵢ)``,  ``Kᵢ = P Hᵢᵀ (Hᵢ P Hᵢᵀ + R)⁻¹``,
 
@@ -608,32 +629,49 @@ class MsckfState:
             Non-finite rows at any linearisation (robot and frame named); the state is left as
             it was.
         """
+
+        def linearise() -> MeasurementRows:
+            got = rows_at()
+            rows = got if isinstance(got, MeasurementRows) else MeasurementRows(*got)
+            self.check_finite(
+                "measurement rows", rows.jacobian, rows.residual, rows.variance, robot=robot
+            )
+            return rows
+
         poses, objects = self.poses, self.objects
-        jacobian, residual, variance = rows_at()
-        self.check_finite("measurement rows", jacobian, residual, variance, robot=robot)
+        rows = linearise()
         delta = np.zeros(self.dim)
         used = 1
         try:
             for _ in range(iterations - 1):
-                if residual.size == 0:
+                if rows.rows == 0:
                     break
-                pht, factor = self._innovation_factor(jacobian, np.diag(variance))
-                step = pht @ scipy.linalg.cho_solve(factor, residual + jacobian @ delta)
-                moved = np.abs(jacobian @ (step - delta)) / np.sqrt(variance)
+                cols = rows.state_columns()
+                pht, factor, _ = self._innovation_factor(
+                    rows.jacobian, np.diag(rows.variance), rows.columns
+                )
+                step = pht @ scipy.linalg.cho_solve(
+                    factor, rows.residual + rows.jacobian @ delta[cols]
+                )
+                moved = np.abs(rows.jacobian @ (step - delta)[cols]) / np.sqrt(rows.variance)
                 delta = step
                 self.poses, self.objects = poses, objects
                 self.correct(delta)
-                jacobian, residual, variance = rows_at()
-                self.check_finite("measurement rows", jacobian, residual, variance, robot=robot)
+                rows = linearise()
                 used += 1
                 if moved.max() <= tolerance:
                     break
         finally:
             self.poses, self.objects = poses, objects
         applied = np.zeros(self.dim)
-        if residual.size:
+        if rows.rows:
+            cols = rows.state_columns()
             applied = self.update(
-                jacobian, residual + jacobian @ delta, np.diag(variance), robot=robot
+                rows.jacobian,
+                rows.residual + rows.jacobian @ delta[cols],
+                np.diag(rows.variance),
+                robot=robot,
+                columns=rows.columns,
             )
         return applied, used
 
@@ -869,14 +907,22 @@ class RobotWindow:
         self.state.marginalize_oldest(self.robot)
 
     def update(
-        self, jacobian: np.ndarray, residual: np.ndarray, noise_cov: np.ndarray
+        self,
+        jacobian: np.ndarray,
+        residual: np.ndarray,
+        noise_cov: np.ndarray,
+        columns: np.ndarray | None = None,
     ) -> np.ndarray:
         """:meth:`MsckfState.update` of the shared state, errors naming this robot."""
-        return self.state.update(jacobian, residual, noise_cov, robot=self.robot)
+        return self.state.update(jacobian, residual, noise_cov, robot=self.robot, columns=columns)
+
+    def update_rows(self, rows: MeasurementRows) -> np.ndarray:
+        """:meth:`MsckfState.update_rows` of the shared state, errors naming this robot."""
+        return self.state.update_rows(rows, robot=self.robot)
 
     def iterated_update(
         self,
-        rows_at: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
+        rows_at: Callable[[], MeasurementRows | tuple[np.ndarray, np.ndarray, np.ndarray]],
         iterations: int,
         tolerance: float = 1e-2,
     ) -> tuple[np.ndarray, int]:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from teamslam.errors import EstimationError, InternalError
 from teamslam.geometry.camera import StereoCamera
 from teamslam.msckf.kernels import gauss_newton_points
 from teamslam.msckf.models import points_in_camera
@@ -30,28 +31,75 @@ __all__ = [
 
 @dataclass
 class MeasurementRows:
-    """Stacked residuals and Jacobians over the error state, with per-row noise variance."""
+    """Stacked residuals and Jacobians with per-row noise variance, built compact.
+
+    ``jacobian`` holds only the error-state ``columns`` the rows may touch (increasing; OpenVINS'
+    ``H_order``): ``jacobian[:, j]`` is the derivative with respect to error-state column
+    ``columns[j]``, every other column of the full Jacobian is zero. ``columns=None`` means the
+    Jacobian is full width (every column of the state, in order).
+    """
 
     jacobian: np.ndarray
     residual: np.ndarray
     variance: np.ndarray
+    columns: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.columns is None:
+            return
+        columns = np.asarray(self.columns, dtype=np.int64).ravel()
+        if columns.size != self.jacobian.shape[1]:
+            raise InternalError(
+                f"{self.jacobian.shape[1]} Jacobian columns for {columns.size} state columns"
+            )
+        if np.any(columns[1:] <= columns[:-1]):  # put the columns in increasing order
+            order = np.argsort(columns, kind="stable")
+            columns = columns[order]
+            if np.any(columns[1:] == columns[:-1]):
+                raise InternalError("a state column appears twice in a Jacobian")
+            self.jacobian = self.jacobian[:, order]
+        self.columns = columns
 
     @classmethod
-    def empty(cls, dim: int) -> MeasurementRows:
-        """No rows."""
-        return cls(np.zeros((0, dim)), np.zeros(0), np.zeros(0))
+    def empty(cls, dim: int | None = None) -> MeasurementRows:
+        """No rows (compact: no columns; ``dim`` is accepted for the full-width form)."""
+        return cls(np.zeros((0, 0)), np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64))
 
     @property
     def rows(self) -> int:
         """Number of rows."""
         return self.residual.size
 
+    def state_columns(self) -> np.ndarray:
+        """The error-state columns of ``jacobian``'s columns."""
+        if self.columns is None:
+            return np.arange(self.jacobian.shape[1])
+        return self.columns
+
+    def full(self, dim: int) -> np.ndarray:
+        """The full-width ``(rows, dim)`` Jacobian (for checks; the filter never forms it)."""
+        out = np.zeros((self.rows, dim))
+        out[:, self.state_columns()] = self.jacobian
+        return out
+
     def extend(self, other: MeasurementRows) -> MeasurementRows:
-        """Both sets of rows."""
+        """Both sets of rows, over the union of their columns."""
+        if self.columns is None and other.columns is None:
+            return MeasurementRows(
+                np.vstack([self.jacobian, other.jacobian]),
+                np.concatenate([self.residual, other.residual]),
+                np.concatenate([self.variance, other.variance]),
+            )
+        mine, theirs = self.state_columns(), other.state_columns()
+        columns = np.union1d(mine, theirs)
+        jacobian = np.zeros((self.rows + other.rows, columns.size))
+        jacobian[: self.rows, np.searchsorted(columns, mine)] = self.jacobian
+        jacobian[self.rows :, np.searchsorted(columns, theirs)] = other.jacobian
         return MeasurementRows(
-            np.vstack([self.jacobian, other.jacobian]),
+            jacobian,
             np.concatenate([self.residual, other.residual]),
             np.concatenate([self.variance, other.variance]),
+            columns,
         )
 
 
@@ -212,19 +260,23 @@ def compress(rows: MeasurementRows) -> MeasurementRows:
     """QR-compress when there are more rows than state columns the rows touch.
 
     Rows are whitened (``r/σ``, ``H/σ``); with ``H = Q₁ R`` the update with ``(Q₁ᵀ r, R)`` and unit
-    noise equals the update with ``(r, H)``. Only the touched columns are factored, so many
-    feature rows (which touch only the window poses) shrink to at most ``6c`` rows.
+    noise equals the update with ``(r, H)``. Only the touched columns are factored (those of
+    the compact Jacobian that are not exactly zero), so many feature rows (which touch only the
+    window poses) shrink to at most ``6c`` rows; the result is compact over those columns.
     """
-    cols = np.flatnonzero(np.any(rows.jacobian != 0.0, axis=0))
-    if rows.rows <= cols.size:
+    touched = np.flatnonzero(np.any(rows.jacobian != 0.0, axis=0))
+    if rows.rows <= touched.size:
         return rows
     scale = 1.0 / np.sqrt(rows.variance)
     # one Householder QR of [H r] (Q never formed): its first |cols| rows are [R  Q₁ᵀ r]
-    augmented = np.column_stack([rows.jacobian[:, cols], rows.residual]) * scale[:, None]
+    augmented = np.column_stack([rows.jacobian[:, touched], rows.residual]) * scale[:, None]
     factored, _, _, info = scipy.linalg.lapack.dgeqrf(augmented, overwrite_a=True)
     if info != 0:
-        raise ValueError(f"QR of the stacked measurement rows failed (LAPACK info {info})")
-    n = cols.size
-    jac = np.zeros((n, rows.jacobian.shape[1]))
-    jac[:, cols] = np.triu(factored[:n, :n])
-    return MeasurementRows(jac, factored[:n, n].copy(), np.ones(n))
+        raise EstimationError(f"QR of the stacked measurement rows failed (LAPACK info {info})")
+    n = touched.size
+    return MeasurementRows(
+        np.triu(factored[:n, :n]),
+        factored[:n, n].copy(),
+        np.ones(n),
+        rows.state_columns()[touched],
+    )
