@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -113,8 +115,8 @@ class _State:
     def object_slots(self, ids):
         return np.where(np.isin(ids, self.object_ids), np.asarray(ids) // 3, -1)
 
-    def object_columns(self, slots):
-        return 3 * np.asarray(slots)[..., None] + np.arange(3)
+    def object(self, slots):
+        return SimpleNamespace(columns=3 * np.asarray(slots)[..., None] + np.arange(3))
 
     def covariance(self, columns):
         columns = np.asarray(columns)

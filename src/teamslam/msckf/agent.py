@@ -324,9 +324,9 @@ class MsckfAgent:
         first = int(state.frames[index])
         if state.frames[index + 1] != first + 1 or first in self._odometry_rejected:
             return
-        cols = state.pose_columns(np.array([index, index + 1])).ravel()
+        pair = state.pose(np.array([index, index + 1]))
         moment = odometry_step_residual(
-            state.poses[index : index + 2], self.sequence.odometry[first], state.covariance(cols)
+            state.poses[index : index + 2], self.sequence.odometry[first], state.covariance(pair)
         )
         assumed = np.square(self.config.odometry_std)
         self.health.odometry(moment, assumed)
@@ -341,11 +341,10 @@ class MsckfAgent:
             ):
                 last += 1
             if last > 2:
-                cols = state.pose_columns(np.arange(last)).ravel()
                 moment, design = odometry_lag_residuals(
                     state.poses[:last],
                     self.sequence.odometry[first : first + last - 1],
-                    state.covariance(cols),
+                    state.covariance(state.pose(np.arange(last))),
                 )
                 self.health.odometry_lags(moment, design, assumed)
 
@@ -414,7 +413,7 @@ class MsckfAgent:
             )
             r0, h0, s = null_space_rows(
                 self.state.covariance(block),
-                self.state.pose_columns(widx[ok]) - block.start,
+                self.state.pose(widx[ok]).columns - block.start,
                 window.size,
                 pred,
                 d_pose,
@@ -521,9 +520,8 @@ class MsckfAgent:
             ),
         )
         # each object's 9 columns (current pose + object) and their covariance
-        obj_cols = state.object_columns(slots)  # (k, 3)
-        pose_cols = np.broadcast_to(state.pose_columns(state.n_poses - 1), (k, 6))
-        local_cols = np.concatenate([pose_cols, obj_cols], axis=1)
+        pose_cols = np.broadcast_to(state.newest_pose().columns, (k, 6))
+        local_cols = np.concatenate([pose_cols, state.object(slots).columns], axis=1)
         local_p = state.covariance(local_cols)
         d_pose, d_point = self.policy.constrain(
             d_pose, d_point, state.pose_fe[-1], state.object_fe[slots], local_p
@@ -559,9 +557,7 @@ class MsckfAgent:
         state = self.state
         k = slots.size
         held, position = np.unique(slots, return_inverse=True)  # an object seen twice: once
-        columns = np.concatenate(
-            [state.pose_columns(state.n_poses - 1), state.object_columns(held).ravel()]
-        )
+        columns = np.concatenate([state.newest_pose().columns, state.object(held).columns.ravel()])
         h = np.zeros((k, 4, columns.size))
         h[:, :, :6] = local_h[:, :, :6]
         object_at = 6 + 3 * position.reshape(k)[:, None, None] + np.arange(3)[None, None, :]
@@ -637,7 +633,7 @@ class MsckfAgent:
             self.policy.feature_points(point, true_point)[None],
         )
         # the rows touch only the poses of the observations: work on those 6n columns
-        cols = state.pose_columns(widx).ravel()
+        cols = state.pose(widx).columns.ravel()
         h_s = np.zeros((n, 4, n, 6))
         h_s[np.arange(n), :, np.arange(n), :] = d_pose
         h_s = h_s.reshape(4 * n, 6 * n)

@@ -85,11 +85,11 @@ class SharedPrior:
 def shared_prior(state: MsckfState) -> SharedPrior:
     """The robot's joint marginal of every object in its state, as the next hybrid prior."""
     order = np.argsort(state.object_ids)
-    cols = state.object_columns(order).ravel()
+    objects = state.object(order)
     return SharedPrior(
         state.object_ids[order].copy(),
         state.objects[order].ravel().copy(),
-        state.covariance(cols),
+        state.covariance(objects),
     )
 
 
@@ -229,7 +229,7 @@ def consensus_average(
     # rebuild for all neighbours together
     y_ids = np.unique(np.concatenate([m.ids for m in marginals]))
     slots = state.object_slots(y_ids)
-    cols = state.object_columns(slots).ravel()
+    cols = state.object(slots).columns.ravel()
     own_mean = state.objects[slots].ravel()
     own_cov = state.covariance(cols)
     terms = []

@@ -75,7 +75,7 @@ def common_marginal_message(
     if not held.any():
         return None
     if source is None:
-        cols = state.object_columns(slots[held])
+        cols = state.object(slots[held]).columns
         mean = state.objects[slots[held]].ravel().copy()
         cov = state.covariance(cols if per_object else cols.ravel())
     else:

@@ -310,9 +310,8 @@ class ConsensusProtocol:
         ids = np.unique(np.concatenate(list(self._pending.values())))
         state = self.agent.state
         slots = state.object_slots(ids)
-        cols = state.object_columns(slots).ravel()
         mean = state.objects[slots].ravel()
-        info = spd_inverse(state.covariance(cols), "own marginal covariance")
+        info = spd_inverse(state.covariance(state.object(slots)), "own marginal covariance")
         gain = 1.0 + len(self.heard)
         hybrid = hybrid_marginal(mean, info, *prior_information(self._prior, ids), gain)
         if hybrid is None:

@@ -21,6 +21,8 @@ One state can hold the windows of several robots (the centralised filter,
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import scipy.linalg
@@ -31,7 +33,52 @@ from teamslam.geometry import se3
 from teamslam.msckf.persistent_map import PersistentMap
 from teamslam.msckf.update import MeasurementRows
 
-__all__ = ["MsckfState", "RobotWindow"]
+__all__ = ["MsckfState", "ObjectHandle", "PoseHandle", "RobotWindow"]
+
+
+@dataclass(frozen=True)
+class PoseHandle:
+    """Window poses of a state as a typed handle (OpenVINS' ``Type``): which poses they are and
+    where their error-state columns are.
+
+    A handle describes the layout at the time it was taken: it is valid until the window or the
+    map changes (augment, marginalisation, object initialisation or retirement).
+
+    Attributes
+    ----------
+    window_index
+        Positions in the state's window (over all robots of a team state).
+    frames
+        Their frame indices.
+    columns
+        ``(…, 6)`` error-state columns ``(ρ, φ)`` of each pose.
+    """
+
+    window_index: np.ndarray
+    frames: np.ndarray
+    columns: np.ndarray
+    size: ClassVar[int] = 6
+
+
+@dataclass(frozen=True)
+class ObjectHandle:
+    """Object landmarks of a state as a typed handle: their slots in the map, ids and error-state
+    columns (valid until the window or the map changes, as :class:`PoseHandle`).
+
+    Attributes
+    ----------
+    slots
+        Positions in the state's map.
+    ids
+        Their object ids.
+    columns
+        ``(…, 3)`` error-state columns of each object.
+    """
+
+    slots: np.ndarray
+    ids: np.ndarray
+    columns: np.ndarray
+    size: ClassVar[int] = 3
 
 
 class MsckfState:
@@ -261,6 +308,20 @@ class MsckfState:
         """Error-state columns ``(k, 3)`` of object slots."""
         return 6 * self.n_poses + 3 * np.asarray(slots)[..., None] + np.arange(3)
 
+    def pose(self, window_index: np.ndarray | int) -> PoseHandle:
+        """Handle of the window poses at ``window_index`` (positions in the window)."""
+        index = np.asarray(window_index, dtype=np.int64)
+        return PoseHandle(index, self.frames[index], self.pose_columns(index))
+
+    def newest_pose(self) -> PoseHandle:
+        """Handle of the newest window pose."""
+        return self.pose(self.n_poses - 1)
+
+    def object(self, slots: np.ndarray | int) -> ObjectHandle:
+        """Handle of the objects in map ``slots``."""
+        slots = np.asarray(slots, dtype=np.int64)
+        return ObjectHandle(slots, self.object_ids[slots], self.object_columns(slots))
+
     def object_slots(self, ids: np.ndarray) -> np.ndarray:
         """Slots of object ids in the map (``-1`` where absent)."""
         ids = np.asarray(ids, dtype=np.int64)
@@ -292,9 +353,12 @@ class MsckfState:
         s = slice(6 * (self.n_poses - 1), 6 * self.n_poses)
         return self.cov[s, s]
 
-    def covariance(self, columns: np.ndarray | slice) -> np.ndarray:
+    def covariance(self, columns: np.ndarray | slice | PoseHandle | ObjectHandle) -> np.ndarray:
         """The covariance of error-state ``columns``: ``(k, k)`` for a list or a slice (a
-        read-only view), ``(…, k, k)`` for a stack of lists ``(…, k)`` (a copy)."""
+        read-only view), ``(…, k, k)`` for a stack of lists ``(…, k)`` (a copy); a handle
+        gives the joint covariance of all its columns."""
+        if isinstance(columns, PoseHandle | ObjectHandle):
+            columns = columns.columns.ravel()
         if isinstance(columns, slice):
             return self.cov[columns, columns]
         columns = np.asarray(columns)
@@ -779,6 +843,20 @@ class RobotWindow:
     def object_columns(self, slots: np.ndarray) -> np.ndarray:
         """:meth:`MsckfState.object_columns`."""
         return self.state.object_columns(slots)
+
+    def object(self, slots: np.ndarray | int) -> ObjectHandle:
+        """:meth:`MsckfState.object`."""
+        return self.state.object(slots)
+
+    def pose(self, window_index: np.ndarray | int) -> PoseHandle:
+        """Handle of the robot's window poses at ``window_index`` (positions in its window)."""
+        a, _ = self._range()
+        index = a + np.asarray(window_index, dtype=np.int64)
+        return PoseHandle(index, self.state.frames[index], self.state.pose_columns(index))
+
+    def newest_pose(self) -> PoseHandle:
+        """Handle of the robot's newest pose."""
+        return self.pose(self.n_poses - 1)
 
     def covariance(self, columns: np.ndarray | slice) -> np.ndarray:
         """:meth:`MsckfState.covariance`."""
