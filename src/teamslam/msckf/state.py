@@ -9,6 +9,15 @@ this class**: :meth:`augment` (propagation, eqs. 22–23), :meth:`marginalize_ol
 :meth:`reenter_objects` (the persistent map, :mod:`teamslam.msckf.persistent_map`). With
 ``debug=True`` each edit checks that the covariance stays symmetric positive definite.
 
+Callers reach the layout through **handles** (OpenVINS' ``Type``): :meth:`MsckfState.pose`
+and :meth:`MsckfState.object` give :class:`PoseHandle` and :class:`ObjectHandle`, which know
+their window positions or map slots and their error-state columns; measurement Jacobians are
+built compact over those columns (:class:`~teamslam.msckf.update.MeasurementRows`, OpenVINS'
+``H_order``) and :meth:`MsckfState.update` takes the column list. ``cov`` is a read-only view;
+:meth:`MsckfState.covariance` gives the block of some columns or handles. A measurement that is
+not finite is refused before any edit (:class:`~teamslam.errors.EstimationError` naming robot
+and frame).
+
 The state also keeps each window pose's and each object's **first estimate** (the pose as it
 entered the window, the object as it was initialised) for first-estimate Jacobians
 (:mod:`teamslam.msckf.linearization`); consensus and updates never change it.
@@ -802,11 +811,6 @@ class RobotWindow:
         return self.state.dim
 
     @property
-    def debug(self) -> bool:
-        """Whether the shared state checks its covariance after every edit."""
-        return self.state.debug
-
-    @property
     def objects(self) -> np.ndarray:
         """The shared map's objects ``(m, 3)``."""
         return self.state.objects
@@ -840,10 +844,6 @@ class RobotWindow:
         """:meth:`MsckfState.object_slots`."""
         return self.state.object_slots(ids)
 
-    def object_columns(self, slots: np.ndarray) -> np.ndarray:
-        """:meth:`MsckfState.object_columns`."""
-        return self.state.object_columns(slots)
-
     def object(self, slots: np.ndarray | int) -> ObjectHandle:
         """:meth:`MsckfState.object`."""
         return self.state.object(slots)
@@ -866,10 +866,6 @@ class RobotWindow:
         """:meth:`MsckfState.cross_covariance`."""
         return self.state.cross_covariance(columns)
 
-    def object_covs(self) -> np.ndarray:
-        """:meth:`MsckfState.object_covs`."""
-        return self.state.object_covs()
-
     def full_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`MsckfState.full_map` of the shared map."""
         return self.state.full_map()
@@ -885,16 +881,6 @@ class RobotWindow:
     def reenter_objects(self, ids: np.ndarray, frame: int) -> None:
         """:meth:`MsckfState.reenter_objects` into the shared map."""
         self.state.reenter_objects(ids, frame)
-
-    def replace_marginal(
-        self,
-        index: np.ndarray,
-        mean: np.ndarray,
-        cov: np.ndarray,
-        info: np.ndarray | None = None,
-    ) -> None:
-        """:meth:`MsckfState.replace_marginal` of the shared state."""
-        self.state.replace_marginal(index, mean, cov, info)
 
     def snapshot(self) -> dict[str, np.ndarray]:
         """:meth:`MsckfState.snapshot` of the shared state."""

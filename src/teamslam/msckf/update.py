@@ -4,7 +4,9 @@ Distributed MSCKF paper, §V-D and §V-E. Geometric features are grouped by trac
 group is one stack of arrays: Gauss–Newton triangulation, residuals and Jacobians of every
 stereo observation (4 rows each), the left null space of each feature's point Jacobian by one
 batched QR (eq. 24), and a chi-square gate with the residual's own degrees of freedom. The
-accepted rows of all features are stacked, and QR-compressed when taller than the state.
+accepted rows of all features are stacked, and QR-compressed when taller than the state. Rows
+are compact: a Jacobian holds only the error-state columns it may touch, with their list
+(:class:`MeasurementRows`).
 """
 
 from __future__ import annotations
