@@ -719,14 +719,14 @@ class MsckfState:
             for _ in range(iterations - 1):
                 if rows.rows == 0:
                     break
-                cols = rows.state_columns()
+                # H δ as a full-width product: the sum over every column keeps the arithmetic
+                # (and the results, bit for bit) of full-width rows; P Hᵀ and S stay compact
+                wide = rows.full(self.dim)
                 pht, factor, _ = self._innovation_factor(
                     rows.jacobian, np.diag(rows.variance), rows.columns
                 )
-                step = pht @ scipy.linalg.cho_solve(
-                    factor, rows.residual + rows.jacobian @ delta[cols]
-                )
-                moved = np.abs(rows.jacobian @ (step - delta)[cols]) / np.sqrt(rows.variance)
+                step = pht @ scipy.linalg.cho_solve(factor, rows.residual + wide @ delta)
+                moved = np.abs(wide @ (step - delta)) / np.sqrt(rows.variance)
                 delta = step
                 self.poses, self.objects = poses, objects
                 self.correct(delta)
@@ -738,10 +738,9 @@ class MsckfState:
             self.poses, self.objects = poses, objects
         applied = np.zeros(self.dim)
         if rows.rows:
-            cols = rows.state_columns()
             applied = self.update(
                 rows.jacobian,
-                rows.residual + rows.jacobian @ delta[cols],
+                rows.residual + rows.full(self.dim) @ delta,
                 np.diag(rows.variance),
                 robot=robot,
                 columns=rows.columns,

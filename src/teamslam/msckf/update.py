@@ -79,7 +79,8 @@ class MeasurementRows:
         return self.columns
 
     def full(self, dim: int) -> np.ndarray:
-        """The full-width ``(rows, dim)`` Jacobian (for checks; the filter never forms it)."""
+        """The full-width ``(rows, dim)`` Jacobian (for checks, and for ``H δ`` of the iterated
+        update; the Kalman update itself works on the compact columns)."""
         out = np.zeros((self.rows, dim))
         out[:, self.state_columns()] = self.jacobian
         return out
