@@ -785,6 +785,11 @@ class MsckfState:
         self._check("consensus")
 
 
+def _shared(name: str, doc: str) -> property:
+    """A read-only attribute of :class:`RobotWindow` that is the shared state's ``name``."""
+    return property(lambda window: getattr(window.state, name), doc=doc)
+
+
 class RobotWindow:
     """One robot's window inside a (team) :class:`MsckfState`, with the single-robot interface.
 
@@ -798,54 +803,29 @@ class RobotWindow:
         self.state = state
         self.robot = int(robot)
 
-    # the shared state's map and covariance
-    @property
-    def cov(self) -> np.ndarray:
-        """The shared joint covariance (read-only)."""
-        return self.state.cov
+    # the shared state's map and covariance, by name (nothing else is forwarded)
+    cov = _shared("cov", "The shared joint covariance (read-only).")
+    dim = _shared("dim", "Error-state dimension of the shared state.")
+    objects = _shared("objects", "The shared map's objects ``(m, 3)``.")
+    object_ids = _shared("object_ids", "The shared map's object ids.")
+    object_fe = _shared("object_fe", "First estimates of the shared map's objects.")
+    object_last_seen = _shared("object_last_seen", "Frame each object was last observed.")
+    retired = _shared("retired", "The shared persistent map.")
+    n_objects = _shared("n_objects", "Objects in the shared map.")
+    object_slots = _shared("object_slots", ":meth:`MsckfState.object_slots`.")
+    object = _shared("object", ":meth:`MsckfState.object`.")
+    covariance = _shared("covariance", ":meth:`MsckfState.covariance`.")
+    cross_covariance = _shared("cross_covariance", ":meth:`MsckfState.cross_covariance`.")
+    full_map = _shared("full_map", ":meth:`MsckfState.full_map` of the shared map.")
+    mark_seen = _shared("mark_seen", ":meth:`MsckfState.mark_seen`.")
+    retire_objects = _shared("retire_objects", ":meth:`MsckfState.retire_objects`.")
+    reenter_objects = _shared("reenter_objects", ":meth:`MsckfState.reenter_objects`.")
+    snapshot = _shared("snapshot", ":meth:`MsckfState.snapshot` of the shared state.")
+    restore = _shared("restore", ":meth:`MsckfState.restore` of the shared state.")
 
-    @property
-    def dim(self) -> int:
-        """Error-state dimension of the shared state."""
-        return self.state.dim
-
-    @property
-    def objects(self) -> np.ndarray:
-        """The shared map's objects ``(m, 3)``."""
-        return self.state.objects
-
-    @property
-    def object_ids(self) -> np.ndarray:
-        """The shared map's object ids."""
-        return self.state.object_ids
-
-    @property
-    def object_fe(self) -> np.ndarray:
-        """First estimates of the shared map's objects."""
-        return self.state.object_fe
-
-    @property
-    def object_last_seen(self) -> np.ndarray:
-        """Frame at which each object of the shared map was last observed."""
-        return self.state.object_last_seen
-
-    @property
-    def retired(self) -> PersistentMap:
-        """The shared persistent map."""
-        return self.state.retired
-
-    @property
-    def n_objects(self) -> int:
-        """Objects in the shared map."""
-        return self.state.n_objects
-
-    def object_slots(self, ids: np.ndarray) -> np.ndarray:
-        """:meth:`MsckfState.object_slots`."""
-        return self.state.object_slots(ids)
-
-    def object(self, slots: np.ndarray | int) -> ObjectHandle:
-        """:meth:`MsckfState.object`."""
-        return self.state.object(slots)
+    def where(self) -> str:
+        """``"robot r, frame t"`` of this robot's newest frame."""
+        return self.state.where(self.robot)
 
     def pose(self, window_index: np.ndarray | int) -> PoseHandle:
         """Handle of the robot's window poses at ``window_index`` (positions in its window)."""
@@ -856,42 +836,6 @@ class RobotWindow:
     def newest_pose(self) -> PoseHandle:
         """Handle of the robot's newest pose."""
         return self.pose(self.n_poses - 1)
-
-    def covariance(self, columns: np.ndarray | slice) -> np.ndarray:
-        """:meth:`MsckfState.covariance`."""
-        return self.state.covariance(columns)
-
-    def cross_covariance(self, columns: np.ndarray) -> np.ndarray:
-        """:meth:`MsckfState.cross_covariance`."""
-        return self.state.cross_covariance(columns)
-
-    def full_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`MsckfState.full_map` of the shared map."""
-        return self.state.full_map()
-
-    def mark_seen(self, slots: np.ndarray, frame: int) -> None:
-        """:meth:`MsckfState.mark_seen`."""
-        self.state.mark_seen(slots, frame)
-
-    def retire_objects(self, slots: np.ndarray) -> None:
-        """:meth:`MsckfState.retire_objects` of the shared map."""
-        self.state.retire_objects(slots)
-
-    def reenter_objects(self, ids: np.ndarray, frame: int) -> None:
-        """:meth:`MsckfState.reenter_objects` into the shared map."""
-        self.state.reenter_objects(ids, frame)
-
-    def snapshot(self) -> dict[str, np.ndarray]:
-        """:meth:`MsckfState.snapshot` of the shared state."""
-        return self.state.snapshot()
-
-    def restore(self, snapshot: dict[str, np.ndarray]) -> None:
-        """:meth:`MsckfState.restore` of the shared state."""
-        self.state.restore(snapshot)
-
-    def where(self) -> str:
-        """``"robot r, frame t"`` of this robot's newest frame."""
-        return self.state.where(self.robot)
 
     # the robot's own window
 
