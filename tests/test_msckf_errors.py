@@ -160,3 +160,25 @@ def test_consensus_errors_name_robot_and_frame():
     request = MapIdsMessage(1, 3, 37, state.object_ids.copy())
     with pytest.raises(NotPositiveDefiniteError, match="robot 3, frame 37: consensus: "):
         protocol.answer([request])
+
+
+@pytest.mark.parametrize("error", [NotPositiveDefiniteError, InternalError])
+def test_an_average_that_fails_names_robot_and_frame(monkeypatch, error):
+    import teamslam.msckf.protocol as protocol_module
+
+    def failing(*args, **kwargs):
+        raise error("averaged information is not positive definite")
+
+    monkeypatch.setattr(protocol_module, "consensus_average", failing)
+    agent = SimpleNamespace(
+        robot=4,
+        state=_state(np.random.default_rng(8), robot=4),
+        config=MsckfConfig(consensus_kl_threshold=0.0),
+        counters={},
+        timings={"consensus": 0.0},
+        reject=lambda *a, **k: None,
+    )
+    protocol = ConsensusProtocol(agent, [1])
+    protocol.requests(12)
+    with pytest.raises(error, match=r"^robot 4, frame 12: consensus: averaged information"):
+        protocol.average([])

@@ -140,11 +140,18 @@ class ConsensusProtocol:
         """Errors of a consensus round name this robot and the frame (the step)."""
         try:
             yield
-        except (EstimationError, InternalError) as exc:
+        except (EstimationError, InternalError, InputError) as exc:
             where = f"robot {self.robot}, frame {self.step}"
             if str(exc).startswith(where):
                 raise
-            raise type(exc)(f"{where}: consensus: {exc}") from exc
+            try:  # the same kind of error, now naming robot and frame
+                named = type(exc)(f"{where}: consensus: {exc}")
+            except TypeError:  # a subclass with another signature: its base kind
+                base = next(
+                    k for k in (EstimationError, InternalError, InputError) if isinstance(exc, k)
+                )
+                named = base(f"{where}: consensus: {exc}")
+            raise named from exc
 
     def _check(self, message: object, kind: type, taken: dict, heard: set | None = None):
         """The message's usable content (:func:`~teamslam.msckf.consensus_checks.check_message`),
