@@ -182,3 +182,31 @@ def test_an_average_that_fails_names_robot_and_frame(monkeypatch, error):
     protocol.requests(12)
     with pytest.raises(error, match=r"^robot 4, frame 12: consensus: averaged information"):
         protocol.average([])
+
+
+def test_a_nan_mid_run_stops_the_robot_naming_it_and_leaves_its_estimate_as_before_the_update(
+    monkeypatch,
+):
+    import teamslam.msckf.agent as agent_module
+    from teamslam.msckf import config_for
+    from teamslam.msckf.agent import MsckfAgent
+    from teamslam.sim import lissajous_team
+
+    team = lissajous_team(robots=2, steps=12, seed=3)
+    agent = MsckfAgent(1, team.calibration, team.robots[1], config_for(team, window=6))
+    original = agent_module.compress
+    before = {}
+
+    def poisoned(rows):
+        out = original(rows)
+        if agent.frame + 1 == 9:  # the update of frame 9
+            before.update(_arrays(agent.state))
+            out.residual[0] = np.nan
+        return out
+
+    monkeypatch.setattr(agent_module, "compress", poisoned)
+    for t in range(9):
+        agent.step(t)
+    with pytest.raises(EstimationError, match="robot 1, frame 9: non-finite measurement residual"):
+        agent.step(9)
+    assert before and _arrays(agent.state) == before
