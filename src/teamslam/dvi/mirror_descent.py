@@ -180,13 +180,17 @@ def mirror_descent_step(
     block = np.ix_(common_index, common_index)
     out = []
     for i, (state, loc) in enumerate(zip(states, local, strict=True)):
+        neighbours = np.flatnonzero(weights[i])
+        # every agent holds all of y: eq. 19 is the weighted sum of the marginals (ours
+        # included), which replaces our own marginal — one term of eq. 42 with weight one
+        average = (
+            sum(weights[i, j] * marginals[j].info_matrix for j in neighbours),
+            sum(weights[i, j] * marginals[j].info_vector for j in neighbours),
+        )
+        own = (marginals[i].info_matrix, marginals[i].info_vector)
         omega = state.info_matrix.copy()
         eta = state.info_vector.copy()
-        own = (marginals[i].info_matrix, marginals[i].info_vector)
-        for j in np.flatnonzero(weights[i]):
-            if j != i:  # with weights summing to one, our own term is zero
-                their = (marginals[j].info_matrix, marginals[j].info_vector)
-                add_weighted_difference(omega, eta, block, common_index, weights[i, j], their, own)
+        add_weighted_difference(omega, eta, block, common_index, 1.0, average, own)
         out.append(_descent(eta, omega, state, loc, alpha))
     return out
 
