@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import threading
 
 import numpy as np
 import pytest
@@ -32,6 +31,7 @@ from teamslam.runtime.agent_process import load_robot_result, run_agent
 from teamslam.runtime.launch import agent_command
 from teamslam.runtime.team_file import load_team_file, write_team_file
 from teamslam.sim import lissajous_team
+from test_protocol import _threads_over_memory  # the robot-process driver in threads
 
 
 @pytest.fixture(scope="module")
@@ -45,28 +45,6 @@ def team3(tmp_path_factory):
 def _port(offset: int) -> int:
     """Loopback ports below the ephemeral range, distinct per test (offsets 0–15)."""
     return 27000 + (os.getpid() % 300) * 16 + offset
-
-
-def _threads_over_memory(team_path, out, links, n):
-    """Every robot's process driver in a thread, over an in-memory network."""
-    team = load_team_file(team_path)
-    network = MemoryNetwork(n, links=links)
-    errors = []
-
-    def one(robot):
-        try:
-            # a neighbour reported lost is no longer awaited: threads would then race
-            run_agent(team, robot, out, lost_after=10**6, transport=network.endpoint(robot))
-        except BaseException as exc:  # surfaced below
-            errors.append(exc)
-
-    threads = [threading.Thread(target=one, args=(r,)) for r in range(n)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(timeout=600)
-    assert not errors, errors
-    assert not any(t.is_alive() for t in threads)
 
 
 @pytest.mark.parametrize("linearization", ["ideal", "fej"])

@@ -71,6 +71,20 @@ __all__ = [
 
 #: Per-robot arrays of a :class:`TeamResult` as :func:`save_result` names them.
 ARRAYS = ("poses", "pose_covs", "object_ids", "objects", "object_covs", "frame_times")
+#: The other fields of a :class:`TeamResult`, in ``result.json``.
+FIELDS = (
+    "robots",
+    "counters",
+    "timings",
+    "consensus",
+    "graph",
+    "loss",
+    "wall_seconds",
+    "extra",
+    "health",
+    "sensor_health",
+    "complete",
+)
 
 
 @dataclass
@@ -437,19 +451,8 @@ def save_result(result: TeamResult, directory: str | Path) -> Path:
         for k in range(len(result.poses))
         if k < len(getattr(result, name))
     }
-    payload = {
-        "robots": result.robots or list(range(len(result.poses))),
-        "counters": result.counters,
-        "timings": result.timings,
-        "consensus": result.consensus,
-        "graph": result.graph,
-        "loss": result.loss,
-        "wall_seconds": result.wall_seconds,
-        "extra": result.extra,
-        "health": result.health,
-        "sensor_health": result.sensor_health,
-        "complete": result.complete,
-    }
+    payload = {name: getattr(result, name) for name in FIELDS}
+    payload["robots"] = result.robots or list(range(len(result.poses)))
     try:
         directory.mkdir(parents=True, exist_ok=True)
         tmp = directory / (RESULT_ARRAYS + ".tmp.npz")
@@ -491,17 +494,7 @@ def load_result(directory: str | Path) -> TeamResult:
     return TeamResult(
         **per_robot,
         object_covs=[] if any(c is None for c in covs) else covs,
-        counters=payload["counters"],
-        timings=payload["timings"],
-        consensus=payload["consensus"],
-        graph=payload["graph"],
-        loss=payload["loss"],
-        wall_seconds=payload["wall_seconds"],
-        extra=payload["extra"],
-        health=payload["health"],
-        sensor_health=payload["sensor_health"],
-        robots=payload["robots"],
-        complete=payload["complete"],
+        **{name: payload[name] for name in FIELDS},
     )
 
 

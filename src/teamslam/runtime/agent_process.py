@@ -38,6 +38,7 @@ import numpy as np
 from teamslam.datasets import SensorModel, TeamDataset, load_dataset
 from teamslam.errors import EstimationError, InputError
 from teamslam.eval.estimates import has_ground_truth
+from teamslam.eval.outputs import writing
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.linearization import GroundTruth, linearization_policy
@@ -59,14 +60,16 @@ __all__ = ["load_robot_result", "robot_setup", "run_agent"]
 
 
 def _atomic_json(path: Path, payload: dict) -> None:
-    write_atomic(path, json.dumps(payload, indent=1, sort_keys=True))
+    with writing(path):
+        write_atomic(path, json.dumps(payload, indent=1, sort_keys=True))
 
 
 def _save_checkpoint(path: Path, driver: RobotDriver, t: int) -> None:
     tmp = path / "checkpoint.tmp.npz"
     arrays = driver.agent.snapshot()
-    np.savez_compressed(tmp, poses=driver.poses[: t + 1], covs=driver.covs[: t + 1], **arrays)
-    os.replace(tmp, path / "checkpoint.npz")
+    with writing(tmp):
+        np.savez_compressed(tmp, poses=driver.poses[: t + 1], covs=driver.covs[: t + 1], **arrays)
+        os.replace(tmp, path / "checkpoint.npz")
     _atomic_json(path / "checkpoint.json", {"frame": t})  # which frame the checkpoint holds
 
 
@@ -157,9 +160,10 @@ def run_agent(
     """
     from teamslam.runtime.zenoh_transport import ZenohTransport
 
+    dataset, index, config = robot_setup(team, robot)  # a configuration error: nothing written
     out = Path(out) / f"robot_{robot}"
-    out.mkdir(parents=True, exist_ok=True)
-    dataset, index, config = robot_setup(team, robot)
+    with writing(out):
+        out.mkdir(parents=True, exist_ok=True)
     sequence = dataset.robots[index]
     # the ideal linearisation linearises at the truth: this robot's and the team's map
     agent = MsckfAgent(
