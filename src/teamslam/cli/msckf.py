@@ -75,7 +75,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         source=args.dataset,
     )
     if args.json:
-        print(json.dumps(calibration_json(dataset, result), indent=2))
+        print(json.dumps(json_safe(calibration_json(dataset, result)), indent=2))
     else:
         print(calibration_table(dataset, result))
         if args.write:

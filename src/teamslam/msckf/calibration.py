@@ -355,12 +355,10 @@ def calibrate(
 
 def calibration_json(dataset: TeamDataset, result: CalibrationResult) -> dict:
     """What ``teamslam calibrate --json`` prints: the result and the dataset's sensor model."""
-    from teamslam.eval.outputs import json_safe
-
     payload = result.to_json()
     if dataset.sensor_model is not None:
         payload["dataset_sensor_model"] = dataset.sensor_model.to_json()
-    return json_safe(payload)
+    return payload
 
 
 def calibration_table(dataset: TeamDataset, result: CalibrationResult) -> str:

@@ -67,6 +67,7 @@ __all__ = [
     "run_lockstep",
     "run_team",
     "save_result",
+    "write_atomic",
 ]
 
 #: Per-robot arrays of a :class:`TeamResult` as :func:`save_result` names them.
@@ -455,20 +456,29 @@ def save_result(result: TeamResult, directory: str | Path) -> Path:
     payload["robots"] = result.robots or list(range(len(result.poses)))
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        tmp = directory / (RESULT_ARRAYS + ".tmp.npz")
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, directory / RESULT_ARRAYS)
-        write_atomic(directory / RESULT_JSON, json.dumps(payload, indent=1, sort_keys=True))
     except OSError as exc:
-        raise OutputError(f"{directory}: cannot write the result ({exc})") from exc
+        raise OutputError(f"cannot write {directory}: {exc.strerror or exc}") from exc
+    write_atomic(directory / RESULT_ARRAYS, lambda tmp: np.savez_compressed(tmp, **arrays))
+    text = json.dumps(payload, indent=1, sort_keys=True)
+    write_atomic(directory / RESULT_JSON, lambda tmp: tmp.write_text(text))
     return directory
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file (``OSError`` passes through)."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
+    """``write(tmp)`` a temporary file beside ``path``, then put it in its place: a partial file
+    never replaces a complete one.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (named).
+    """
+    tmp = path.with_name(f"{path.name}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
 
 
 def load_result(directory: str | Path) -> TeamResult:

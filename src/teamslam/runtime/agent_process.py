@@ -36,9 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from teamslam.datasets import SensorModel, TeamDataset, load_dataset
-from teamslam.errors import EstimationError, InputError
-from teamslam.eval.estimates import has_ground_truth
-from teamslam.eval.outputs import writing
+from teamslam.errors import EstimationError, InputError, OutputError
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.linearization import GroundTruth, linearization_policy
@@ -60,16 +58,14 @@ __all__ = ["load_robot_result", "robot_setup", "run_agent"]
 
 
 def _atomic_json(path: Path, payload: dict) -> None:
-    with writing(path):
-        write_atomic(path, json.dumps(payload, indent=1, sort_keys=True))
+    text = json.dumps(payload, indent=1, sort_keys=True)
+    write_atomic(path, lambda tmp: tmp.write_text(text))
 
 
 def _save_checkpoint(path: Path, driver: RobotDriver, t: int) -> None:
-    tmp = path / "checkpoint.tmp.npz"
-    arrays = driver.agent.snapshot()
-    with writing(tmp):
-        np.savez_compressed(tmp, poses=driver.poses[: t + 1], covs=driver.covs[: t + 1], **arrays)
-        os.replace(tmp, path / "checkpoint.npz")
+    arrays = {"poses": driver.poses[: t + 1], "covs": driver.covs[: t + 1]}
+    arrays.update(driver.agent.snapshot())
+    write_atomic(path / "checkpoint.npz", lambda tmp: np.savez_compressed(tmp, **arrays))
     _atomic_json(path / "checkpoint.json", {"frame": t})  # which frame the checkpoint holds
 
 
@@ -113,7 +109,9 @@ def robot_setup(
         dataset, robots=[dataset.robots[index]], sensor_model=_own_sensor_model(dataset, index)
     )
     config = resolve_config(own, file_values=team.filter_settings, calibrate=calibrate).config
-    if linearization_policy(config.linearization).needs_truth and not has_ground_truth(dataset):
+    # an imported bag may have no ground truth (its metadata says so)
+    has_truth = bool(dataset.metadata.get("ground_truth", True))
+    if linearization_policy(config.linearization).needs_truth and not has_truth:
         raise ConfigError(
             f"robot {robot}: linearization={config.linearization} needs ground truth, and "
             f"{dataset_path} has none"
@@ -162,8 +160,10 @@ def run_agent(
 
     dataset, index, config = robot_setup(team, robot)  # a configuration error: nothing written
     out = Path(out) / f"robot_{robot}"
-    with writing(out):
+    try:
         out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot write {out}: {exc.strerror or exc}") from exc
     sequence = dataset.robots[index]
     # the ideal linearisation linearises at the truth: this robot's and the team's map
     agent = MsckfAgent(
