@@ -47,6 +47,19 @@ def _port(offset: int) -> int:
     return 27000 + (os.getpid() % 300) * 16 + offset
 
 
+def _ring_team(tmp_path, directory, port: int, timeout_s: float = 5.0, **settings):
+    """A team file of the 3-robot ring on loopback (``port``: offset), filter window 6."""
+    return write_team_file(
+        tmp_path / "team.yaml",
+        f"driver-{os.getpid()}-{port}",
+        directory,
+        ring(3).adjacency,
+        base_port=_port(port),
+        timeout_s=timeout_s,
+        filter={"window": 6, **settings},
+    )
+
+
 @pytest.mark.parametrize("linearization", ["ideal", "fej"])
 def test_process_driver_gives_the_in_process_result_with_object_covariances(
     team3, tmp_path, linearization
@@ -58,14 +71,7 @@ def test_process_driver_gives_the_in_process_result_with_object_covariances(
     schedule = [draws.step()[0] for _ in range(dataset.robots[0].frames)]
     config = config_for(dataset, window=6, linearization=linearization)
     reference = run_team(dataset, config, graph=graph, loss=loss, seed=3, progress=False)
-    team_path = write_team_file(
-        tmp_path / "team.yaml",
-        "memory",
-        directory,
-        graph.adjacency,
-        timeout_s=60.0,
-        filter={"window": 6, "linearization": linearization},
-    )
+    team_path = _ring_team(tmp_path, directory, 0, timeout_s=60.0, linearization=linearization)
     _threads_over_memory(team_path, tmp_path / "out", lambda t: schedule[t], n)
     parts = [load_result(tmp_path / "out" / f"robot_{r}") for r in range(n)]
     for r, part in enumerate(parts):
@@ -93,15 +99,7 @@ def test_process_driver_gives_the_in_process_result_with_object_covariances(
 def test_robot_processes_keep_object_covariances_and_run_ideal(team3, tmp_path):
     """Real processes over Zenoh on loopback, launched and gathered by the library."""
     dataset, directory = team3
-    team_path = write_team_file(
-        tmp_path / "team.yaml",
-        f"ideal-{os.getpid()}",
-        directory,
-        ring(3).adjacency,
-        base_port=_port(0),
-        timeout_s=20.0,
-        filter={"window": 6, "linearization": "ideal"},
-    )
+    team_path = _ring_team(tmp_path, directory, 0, timeout_s=20.0, linearization="ideal")
     run = api.launch(team_path, tmp_path / "out", progress=False)
     assert run.exit_status == 0, run.notes
     reference = run_team(
@@ -131,14 +129,7 @@ def test_a_configuration_error_exits_2_in_process_and_with_processes(team3, tmp_
         assert len(err.strip().splitlines()) == 1 and "window" in err
         assert not (out / "robot_0.log").exists()  # refused before any process started
     # a team file whose filter settings no robot can use: refused before launching ...
-    team_path = write_team_file(
-        tmp_path / "team.yaml",
-        f"bad-{os.getpid()}",
-        directory,
-        ring(3).adjacency,
-        base_port=_port(6),
-        filter={"window": 1},
-    )
+    team_path = _ring_team(tmp_path, directory, 6, window=1)
     assert main(["team", "launch", str(team_path), "--out", str(tmp_path / "team")]) == 2
     assert "window" in capsys.readouterr().err
     assert not (tmp_path / "team" / "robot_0.log").exists()
