@@ -79,7 +79,9 @@ class Run:
     exit_codes
         Per robot process its exit status (runs as processes only).
     notes
-        What the user should know (robots that failed, lost neighbours), one line each.
+        What the user should know (robots that ran alone, lost neighbours), one line each.
+    warnings
+        What went wrong without stopping the run (robot processes that failed), one line each.
     source
         The dataset's directory, when the run was given one.
     written
@@ -93,6 +95,7 @@ class Run:
     loss: float = 0.0
     exit_codes: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
     source: Path | None = None
     written: dict = field(default_factory=dict)
 
@@ -238,7 +241,9 @@ def run(
     if processes:
         if path is None:
             raise InputError("processes need the dataset's directory, not a dataset object")
-        return _run_processes(path, dataset, effective, comm, loss, Path(out), base_port, secure)
+        result = _run_processes(path, dataset, effective, comm, loss, Path(out), base_port, secure)
+        result.source = Path(path)
+        return result
     result = Run(dataset, graph=comm.name, loss=loss, source=None if path is None else Path(path))
     for name in MODES[mode]:
         try:
@@ -427,7 +432,7 @@ def launch(team_path: str | Path, out: str | Path, settings=None, progress=None)
     finished = [r for r, c in sorted(codes.items()) if c == 0]
     result = Run(None, graph=f"team file {team.team}", loss=team.message_loss, exit_codes=codes)
     if len(finished) < team.n:
-        result.notes.append(f"{exit_summary(codes)} (see {out}/robot_N.log)")
+        result.warnings.append(f"{exit_summary(codes)} (see {out}/robot_N.log)")
     if not finished:
         return result
     if team.dataset is None or any(r.dataset for r in team.robots):
@@ -440,6 +445,11 @@ def launch(team_path: str | Path, out: str | Path, settings=None, progress=None)
             f"robots {', '.join(str(r) for r in finished)} finished; metrics cover them only"
         )
         dataset = dataset.subset(finished)
+    result.notes.extend(
+        f"robot {s['robot']} lost neighbour(s) {s['lost_neighbours']}"
+        for s in gathered.extra["per_robot"]
+        if s["lost_neighbours"]
+    )
     metrics = _metrics_of_team(dataset, gathered, settings)
     result.dataset = dataset
     result.results = {"consensus": gathered}
@@ -459,16 +469,6 @@ def _metrics_of_team(dataset, result, settings) -> dict:
     if settings is not None:
         metrics.update(settings.to_json())
     return metrics
-
-
-def lost_neighbour_notes(run: Run) -> list[str]:
-    """One line per robot process that reported neighbours lost."""
-    return [
-        f"robot {s['robot']} lost neighbour(s) {s['lost_neighbours']}"
-        for r in run.results.values()
-        for s in r.extra.get("per_robot", [])
-        if s["lost_neighbours"]
-    ]
 
 
 def run_robot(

@@ -147,6 +147,8 @@ def print_run(run, out: Path | None = None) -> None:
     """The table of a :class:`teamslam.api.Run`, its health warnings, notes and files."""
     from teamslam.eval.tables import team_table
 
+    for warning in run.warnings:
+        print(f"teamslam: {warning}", file=sys.stderr)
     for note in run.notes:
         print(note)
     if not run.by_mode:

@@ -522,9 +522,10 @@ def run_drivers(
     try:
         wall = run_lockstep(drivers, before, progress)
     except EstimationError as exc:
-        done = min(d.done for d in drivers)
-        for d in drivers:  # the frames every robot finished
-            d.done = min(d.done, done)
+        # the frame that failed: robots whose sequence had ended keep every frame
+        failed = min(d.done for d in drivers if d.done < d.frames)
+        for d in drivers:  # the frames every running robot finished
+            d.done = min(d.done, failed)
         partial = assemble_result(
             drivers,
             graph,
