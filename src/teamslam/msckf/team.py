@@ -59,11 +59,13 @@ from teamslam.msckf.transport import MemoryNetwork, Transport
 __all__ = [
     "Asynchronous",
     "LockStep",
+    "PartialRunError",
     "RobotDriver",
     "TeamResult",
     "assemble_result",
     "load_result",
     "merge_results",
+    "run_drivers",
     "run_lockstep",
     "run_team",
     "save_result",
@@ -157,7 +159,7 @@ class LockStep:
     """Wait for this step's messages from every neighbour still awaited, up to ``timeout`` s."""
 
     timeout: float = 5.0
-    max_age = 0
+    max_age = 0  # only this step's messages are accepted
 
 
 @dataclass(frozen=True)
