@@ -30,6 +30,7 @@ __all__ = [
     "drop_edges",
     "from_edges",
     "make",
+    "metropolis_weight",
     "metropolis_weights",
     "path",
     "random_geometric",
@@ -106,6 +107,15 @@ def _is_connected(adjacency: np.ndarray) -> bool:
     return bool(reached.all())
 
 
+def metropolis_weight(degree_i, degree_j):
+    """``A_ij = 1 / (1 + max(d_i, d_j))`` for a link between robots of degrees ``d_i``, ``d_j``.
+
+    The one place the weight is written: :func:`metropolis_weights` applies it to a whole
+    graph; scalars or arrays (broadcast) are accepted.
+    """
+    return 1.0 / (1.0 + np.maximum(degree_i, degree_j))
+
+
 def metropolis_weights(adjacency: np.ndarray) -> np.ndarray:
     """Doubly-stochastic Metropolis–Hastings weights of an undirected graph.
 
@@ -122,7 +132,7 @@ def metropolis_weights(adjacency: np.ndarray) -> np.ndarray:
     """
     adjacency = np.asarray(adjacency, dtype=bool)
     degree = adjacency.sum(axis=1)
-    weights = np.where(adjacency, 1.0 / (1.0 + np.maximum.outer(degree, degree)), 0.0)
+    weights = np.where(adjacency, metropolis_weight(degree[:, None], degree[None, :]), 0.0)
     np.fill_diagonal(weights, 1.0 - weights.sum(axis=1))
     return weights
 

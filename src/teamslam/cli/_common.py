@@ -21,6 +21,8 @@ __all__ = [
     "positive_float",
     "positive_int",
     "print_health",
+    "print_mcap_summary",
+    "print_run",
     "rate",
     "save_and_describe",
     "settings_arguments",
@@ -108,18 +110,17 @@ def settings_arguments(parser: argparse.ArgumentParser, calibration_flags: bool 
 
 def effective_settings(args: argparse.Namespace, dataset, calibrate: str | None = None):
     """The effective settings of a run: dataset, calibration, ``--config``, flags."""
-    from teamslam.msckf.settings import load_config_file, parse_assignments, resolve_config
+    from teamslam.api import resolve_settings
 
-    file_values = load_config_file(args.config) if args.config is not None else {}
-    flags = parse_assignments(args.set or [])
+    flags = list(args.set or [])
     if getattr(args, "window", None):
-        flags["window"] = args.window
+        flags.append(f"window={args.window}")
     if getattr(args, "objects_only", False):
-        flags["use_geometric_features"] = False
-    return resolve_config(
+        flags.append("use_geometric_features=false")
+    return resolve_settings(
         dataset,
-        file_values,
         flags,
+        args.config,
         calibrate=calibrate or args.calibrate,
         calibration_frames=getattr(args, "calibration_frames", None),
     )
@@ -142,7 +143,39 @@ def settings_line(dataset, effective) -> str:
     return "sensor model: none in the dataset and calibration off; camera-scaled defaults"
 
 
+def print_run(run, out: Path | None = None) -> None:
+    """The table of a :class:`teamslam.api.Run`, its health warnings, notes and files."""
+    from teamslam.eval.tables import team_table
+
+    for warning in run.warnings:
+        print(f"teamslam: {warning}", file=sys.stderr)
+    for note in run.notes:
+        print(note)
+    if not run.by_mode:
+        return
+    print(team_table(run.by_mode))
+    for name, m in run.by_mode.items():
+        if "nis" in m:
+            print_health(name, m)
+    if out is None:
+        return
+    print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")
+    if run.written.get("mcap"):
+        print_mcap_summary(run.written["mcap"])
+    if run.written.get("report"):
+        print(f"report: {run.written['report']}")
+
+
+def print_mcap_summary(summary: dict) -> None:
+    """One line: what an MCAP export wrote."""
+    print(
+        f"wrote {summary['path']}: {summary['messages']} messages on {len(summary['topics'])} "
+        f"topics, {summary['bytes'] / 1e6:.2f} MB in {summary['seconds']:.2f} s"
+    )
+
+
 def print_health(name: str, metrics: dict) -> None:
+    """The health warnings of a run's metrics, on standard error."""
     from teamslam.msckf.health import health_warnings
 
     for line in health_warnings(

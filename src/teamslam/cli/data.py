@@ -59,41 +59,38 @@ def _cmd_data_import_reference(args: argparse.Namespace) -> int:
 
 def _check_params(dataset, path: Path) -> None:
     """Compare a params file's noise levels with a calibration from the data; warn on a gap."""
-    from teamslam.msckf.calibration import calibrate
-    from teamslam.msckf.settings import calibration_start, resolve_config
-
-    model = dataset.sensor_model.team
-    start = calibration_start(dataset, resolve_config(dataset, calibrate="never").config)
-    estimate = calibrate(dataset, start).sensor_model.team
-
-    def pick(noise, label):
-        odometry = noise.odometry_std
-        return {
-            "odometry σ translation (m)": None if odometry is None else max(odometry[:3]),
-            "odometry σ rotation (rad)": None if odometry is None else max(odometry[3:]),
-            "feature σ": noise.feature_std,
-            "object σ": noise.object_std,
-        }[label]
+    from teamslam.msckf.calibration import params_check, params_warning
 
     print(f"\nsensor model from {dataset.sensor_model.note}")
     print(f"{'':<28}{'params file':>14}{'the data say':>14}")
-    for label in (
-        "odometry σ translation (m)",
-        "odometry σ rotation (rad)",
-        "feature σ",
-        "object σ",
-    ):
-        given, found = pick(model, label), pick(estimate, label)
-        if given is None or found is None:
-            continue
+    for label, given, found in params_check(dataset):
         print(f"{label:<28}{given:>14.4g}{found:>14.4g}")
-        if not 1 / 3 <= given / found <= 3:
-            print(
-                f"warning: the params file's {label} ({given:.4g}) is {given / found:.2g}× "
-                f"what the data show ({found:.4g}); `teamslam calibrate {path} --write` "
-                "replaces it",
-                file=sys.stderr,
-            )
+        warning = params_warning(label, given, found, path)
+        if warning is not None:
+            print(f"warning: {warning}", file=sys.stderr)
+
+
+def _cmd_import_bag(args: argparse.Namespace) -> int:
+    from teamslam.ros2.bags import import_bag, parse_robot_spec
+
+    dataset = import_bag(
+        args.bag,
+        [parse_robot_spec(s) for s in args.robot],
+        observations=args.observations,
+        camera=args.camera,
+        tolerance=args.tolerance,
+    )
+    save_and_describe(dataset, args.out)
+    return 0
+
+
+def _cmd_export_bag(args: argparse.Namespace) -> int:
+    from teamslam.datasets import load_dataset
+    from teamslam.ros2.bags import export_bag
+
+    summary = export_bag(load_dataset(args.dataset), args.out, camera=args.camera)
+    print(f"wrote {summary['path']}: {summary['messages']} messages, {summary['bytes']} bytes")
+    return 0
 
 
 def register(sub) -> None:
@@ -152,3 +149,42 @@ def register(sub) -> None:
         "dataset's sensor model, checked against a calibration from the data",
     )
     imp.set_defaults(handler=_cmd_data_import_reference)
+    bag = data_sub.add_parser(
+        "import-bag",
+        help="a team dataset from a rosbag2 bag or MCAP file",
+        description="Odometry (nav_msgs/Odometry), optional ground truth "
+        "(PoseStamped/Odometry) and stereo observations (teamslam_msgs/StereoObservations) "
+        "per robot, associated by stamps.",
+    )
+    bag.add_argument("bag", type=Path, help="rosbag2 directory or .mcap/.db3 file")
+    bag.add_argument(
+        "--robot",
+        action="append",
+        required=True,
+        metavar="NAME:ODOM_TOPIC[:GT_TOPIC]",
+        help="one robot (repeat per robot, in team order)",
+    )
+    bag.add_argument(
+        "--observations",
+        required=True,
+        metavar="TEMPLATE",
+        help="observation topic, {name} replaced by the robot's NAME "
+        "(e.g. /{name}/stereo_observations)",
+    )
+    bag.add_argument("--camera", type=Path, required=True, help="stereo calibration (JSON or YAML)")
+    bag.add_argument(
+        "--tolerance",
+        type=float,
+        default=None,
+        help="largest stamp difference (s) between an observation and its odometry "
+        "(default: half the smallest odometry period)",
+    )
+    bag.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    bag.set_defaults(handler=_cmd_import_bag)
+    exp = data_sub.add_parser("export-bag", help="a team dataset as a ROS 2 MCAP bag")
+    exp.add_argument("dataset", type=Path, help="dataset directory (teamslam format)")
+    exp.add_argument("--out", type=Path, required=True, help="MCAP file to write")
+    exp.add_argument(
+        "--camera", type=Path, default=None, help="also write the calibration file here"
+    )
+    exp.set_defaults(handler=_cmd_export_bag)

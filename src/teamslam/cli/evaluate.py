@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from pathlib import Path
 
@@ -24,16 +23,6 @@ from teamslam.cli._common import non_negative_float, positive_float
 from teamslam.errors import InputError
 
 __all__ = ["register"]
-
-
-def _json_safe(value):
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    return value
 
 
 def _evaluation_arguments(parser: argparse.ArgumentParser) -> None:
@@ -133,36 +122,17 @@ def _options(args: argparse.Namespace) -> dict:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
-    from teamslam.eval.report import evaluate_runs, evaluation_table, unique_names
-    from teamslam.eval.runs import load_runs
+    from teamslam import api
+    from teamslam.eval.outputs import json_safe
+    from teamslam.eval.report import evaluation_table
 
-    runs = [run for spec in args.runs for run in load_runs(spec)]
-    evaluations = evaluate_runs(runs, _references(args), **_options(args))
-    names = unique_names(runs)
-    stats = [ev.statistics() for ev in evaluations]
-    payload = {"runs": {n: s for n, s in zip(names, stats, strict=True)}}
+    result = api.evaluate(args.runs, _references(args), args.out, **_options(args))
     if args.json:
-        print(json.dumps(_json_safe(payload), indent=2, sort_keys=True))
+        print(json.dumps(json_safe({"runs": result["runs"]}), indent=2, sort_keys=True))
     else:
-        print(evaluation_table(names, stats))
-    if args.out is not None:
-        from teamslam.eval.figures import (
-            ape_over_time_figure,
-            ape_path_figure,
-            save_figure,
-            trajectories_figure,
-        )
-
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        tmp = out / "eval.json.tmp"
-        tmp.write_text(json.dumps(_json_safe(payload), indent=2, sort_keys=True) + "\n")
-        tmp.replace(out / "eval.json")
-        save_figure(trajectories_figure(names, evaluations), out / "trajectories.png")
-        save_figure(ape_over_time_figure(names, evaluations), out / "ape_over_time.png")
-        save_figure(ape_path_figure(names, evaluations), out / "ape_path.png")
-        if not args.json:
-            print(f"\nwrote {out}/eval.json, trajectories.png, ape_over_time.png, ape_path.png")
+        print(evaluation_table(result["names"], result["statistics"]))
+    if args.out is not None and not args.json:
+        print(f"\nwrote {args.out}/eval.json, trajectories.png, ape_over_time.png, ape_path.png")
     return 0
 
 

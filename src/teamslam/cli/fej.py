@@ -6,102 +6,33 @@ import argparse
 import json
 from pathlib import Path
 
-from teamslam.cli._common import Parser, UsageError, default_data, non_negative_int, positive_int
-from teamslam.eval.outputs import write_json
+from teamslam.cli._common import Parser, default_data, non_negative_int, positive_int
 
 __all__ = ["register"]
 
 
-def _fej_environment(args: argparse.Namespace):
-    from teamslam.ekf2d.environments import environment, load_environment, load_matlab_environment
-
-    if not args.environment:
-        return environment(args.env, args.features)
-    files = [Path(f) for f in args.environment]
-    for f in files:
-        if not f.is_file():
-            raise UsageError(f"environment file {f} does not exist")
-    if len(files) == 1 and files[0].suffix == ".json":
-        env = load_environment(files[0])
-    else:
-        base = environment(args.env, 20)  # the chosen environment's noise levels
-        env = load_matlab_environment(
-            files,
-            odometry_std=base.odometry_std,
-            observation_std=base.observation_std,
-            name="+".join(f.stem for f in files),
-        )
-    return env
-
-
 def _cmd_fej_table(args: argparse.Namespace) -> int:
-    from teamslam.ekf2d.experiments import format_table, monte_carlo
+    from teamslam import api
+    from teamslam.ekf2d.experiments import format_table
 
-    env = _fej_environment(args)
-    result = monte_carlo(env, runs=args.runs, seed=args.seed, workers=args.workers)
+    env = api.fej_environment(args.env, args.features, args.environment or ())
+    result = api.fej_table(env, args.runs, args.seed, args.workers, args.out)
     if args.json:
         print(json.dumps(result.table, indent=2))
     else:
         print(format_table(result))
-    if args.out is not None:
-        from teamslam.eval.plots import plot_monte_carlo, plot_sigma_bounds
-
-        out = Path(args.out)
-        write_json(
-            out / "table.json",
-            {
-                "environment": env.name,
-                "runs": args.runs,
-                "steps": result.steps,
-                "filters": result.table,
-            },
-        )
-        plot_monte_carlo(result, out / "nees_rmse.png")
-        plot_sigma_bounds(result, out / "sigma_bounds.png")
-        if not args.json:
-            print(f"\nwrote {out}/table.json, nees_rmse.png, sigma_bounds.png")
+        if args.out is not None:
+            print(f"\nwrote {args.out}/table.json, nees_rmse.png, sigma_bounds.png")
     return 0
 
 
 def _cmd_fej_victoria_park(args: argparse.Namespace) -> int:
-    from teamslam.datasets.victoria_park import load_victoria_park
-    from teamslam.ekf2d.victoria_park import run_victoria_park
-    from teamslam.eval.plots import plot_planar_map
+    from teamslam import api
 
-    split = load_victoria_park(args.data)
-    results = {p: run_victoria_park(split, p, args.per_measurement_noise) for p in ("std", "fej")}
-    head = (
-        f"{'EKF':<6} {'R1 pos RMSE':>12} {'R2 pos RMSE':>12} {'R1 head':>9} {'R2 head':>9} "
-        f"{'feat RMSE':>10} {'time [s]':>9}"
-    )
-    print("Victoria Park, two-robot split (poses 719–3264 and 3265–5810), errors against the")
-    print("reference batch Gauss–Newton solution:")
-    print(head)
-    print("-" * len(head))
-    summary = {}
-    for name, r in results.items():
-        print(
-            f"{name:<6} {r.position_rmse[0]:12.3f} {r.position_rmse[1]:12.3f} "
-            f"{r.heading_rmse[0]:9.4f} {r.heading_rmse[1]:9.4f} {r.feature_rmse:10.3f} "
-            f"{r.seconds:9.2f}"
-        )
-        summary[name] = {
-            "position_rmse_m": r.position_rmse.tolist(),
-            "heading_rmse_rad": r.heading_rmse.tolist(),
-            "feature_rmse_m": r.feature_rmse,
-            "seconds": r.seconds,
-        }
+    summary = api.victoria_park(args.data, args.per_measurement_noise, args.out)
+    print(api.victoria_park_table(summary))
     if args.out is not None:
-        out = Path(args.out)
-        write_json(out / "metrics.json", summary)
-        trajectories = {"reference (Gauss–Newton)": [r.reference_poses for r in split.robots]}
-        features = {"reference (Gauss–Newton)": split.reference_features}
-        for name, r in results.items():
-            label = {"std": "Std-EKF", "fej": "FEJ-EKF"}[name]
-            trajectories[label] = [r.poses[:, i] for i in range(r.poses.shape[1])]
-            features[label] = r.features
-        plot_planar_map(trajectories, features, out / "victoria_park.png", "Victoria Park")
-        print(f"\nwrote {out}/metrics.json, victoria_park.png")
+        print(f"\nwrote {args.out}/metrics.json, victoria_park.png")
     return 0
 
 

@@ -4,17 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 from teamslam.cli._common import non_negative_int, positive_int
-from teamslam.eval.team_montecarlo import (
-    MonteCarloSpec,
-    plot,
-    run_montecarlo,
-    table,
-)
-from teamslam.msckf.settings import parse_assignments
 
 __all__ = ["register"]
 
@@ -24,6 +16,9 @@ def _names(text: str) -> tuple[str, ...]:
 
 
 def _cmd_montecarlo(args: argparse.Namespace) -> int:
+    from teamslam.eval.team_montecarlo import MonteCarloSpec, table, write_montecarlo
+    from teamslam.msckf.settings import parse_assignments
+
     spec = MonteCarloSpec(
         robots=args.robots,
         steps=args.steps,
@@ -35,12 +30,7 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
         window=args.window,
         settings=tuple(parse_assignments(args.set).items()),
     )
-    begin = time.perf_counter()
-    summary = run_montecarlo(spec, args.workers)
-    summary["wall_seconds"] = time.perf_counter() - begin
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "montecarlo.json").write_text(json.dumps(summary, indent=2))
-    figures = plot(summary, args.out)
+    summary, figures = write_montecarlo(spec, args.out, args.workers)
     if args.json:
         print(json.dumps(summary))
     else:

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shutil
 from pathlib import Path
 
 from teamslam.cli._common import (
@@ -14,170 +12,75 @@ from teamslam.cli._common import (
     effective_settings,
     non_negative_int,
     positive_int,
-    print_health,
+    print_run,
     rate,
     settings_arguments,
     settings_line,
 )
-from teamslam.cli.team import launch_and_report
-from teamslam.eval.outputs import json_safe, write_team_outputs
-from teamslam.eval.tables import team_table
+from teamslam.eval.outputs import json_safe
 
 __all__ = ["register"]
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from teamslam import api
     from teamslam.datasets import load_dataset
-    from teamslam.eval.metrics import team_metrics
-    from teamslam.graph import make
-    from teamslam.msckf import run_team
 
-    dataset = load_dataset(args.dataset)
-    effective = effective_settings(args, dataset)
-    print(settings_line(dataset, effective))
     if args.mcap is not None and args.out is None:
         raise UsageError("--mcap needs --out (the run's result directory)")
     if args.secure and not args.processes:
         raise UsageError("--secure needs --processes (robots as processes on loopback)")
-    if args.processes:
-        if args.out is None or args.compare or args.separate or args.centralised:
-            raise UsageError("--processes needs --out and runs consensus only")
-        return _run_processes(args, dataset, effective)
-    graph = make(args.graph, dataset.n_robots, seed=args.seed)
-    modes = (
-        {"separate": False, "consensus": True}
-        if args.compare
-        else ({"separate": False} if args.separate else {"consensus": True})
+    if args.processes and (args.out is None or args.compare or args.separate or args.centralised):
+        raise UsageError("--processes needs --out and runs consensus only")
+    dataset = load_dataset(args.dataset)
+    effective = effective_settings(args, dataset)
+    print(settings_line(dataset, effective))
+    mode = next(
+        (m for m in ("compare", "separate", "centralised") if getattr(args, m)), "consensus"
     )
-    if args.centralised:
-        modes = {"centralised": None}
-    results, metrics = {}, {}
-    for name, consensus in modes.items():
-        if consensus is None:
-            from teamslam.msckf.centralised import run_centralised
-
-            results[name] = run_centralised(dataset, effective.robots)
-        else:
-            results[name] = run_team(
-                dataset, effective.robots, graph, consensus, args.loss, args.seed
-            )
-        metrics[name] = {**team_metrics(dataset, results[name]), **effective.to_json()}
-    print(f"{dataset.name}: {dataset.n_robots} robots, graph {graph.name}, loss {args.loss}")
-    print(team_table(metrics))
-    for name, m in metrics.items():
-        print_health(name, m)
-    if args.out is not None:
-        out = Path(args.out)
-        write_team_outputs(out, dataset, results, metrics, report=False)
-        if args.mcap is not None:
-            from teamslam.cli.ros2 import print_mcap_summary
-            from teamslam.ros2.mcap_export import export_mcap
-
-            target = out / "run.mcap" if args.mcap == "" else Path(args.mcap)
-            print_mcap_summary(export_mcap(out, target))
-        if not args.no_report:
-            from teamslam.eval.report import write_run_report
-
-            print(f"report: {write_run_report(out, dataset, results)}")
-    return 0
-
-
-def _run_processes(args: argparse.Namespace, dataset, effective) -> int:
-    """``run --processes [--secure]``: write a loopback team file, launch it, report."""
-    from teamslam.graph import make
-    from teamslam.runtime.team_file import write_team_file
-
-    out = Path(args.out)
-    name = f"run-{os.getpid()}"
-    adjacency = make(args.graph, dataset.n_robots, seed=args.seed).adjacency
-    settings = {
-        "base_port": args.base_port,
-        "message_loss": args.loss,
-        "filter": effective.config.to_json(),
-    }
-    if not args.secure:
-        team_path = write_team_file(out / "team.yaml", name, args.dataset, adjacency, **settings)
-        return launch_and_report(team_path, out, effective)
-    from teamslam.runtime.security import SecuritySection, make_team_certificates
-
-    keys = out / "certs"
-    robots = {i: (f"robot-{i}", "127.0.0.1") for i in range(dataset.n_robots)}
-    written = make_team_certificates(name, robots, keys, days=1, reuse_ca=False)
-    try:
-        security = SecuritySection(written.ca_certificate, written.robots)
-        team_path = write_team_file(
-            out / "team.yaml", name, args.dataset, adjacency, security=security, **settings
-        )
-        print(f"secured team: mutual TLS, access control; throw-away certificates in {keys}")
-        return launch_and_report(team_path, out, effective)
-    finally:
-        shutil.rmtree(keys, ignore_errors=True)
+    run = api.run(
+        dataset,
+        mode,
+        args.graph,
+        args.loss,
+        args.seed,
+        settings=effective,
+        out=args.out,
+        report=not args.no_report,
+        mcap=None if args.mcap is None else (args.mcap or True),
+        processes=args.processes,
+        base_port=args.base_port,
+        secure=args.secure,
+        source=args.dataset,
+    )
+    if not args.processes:
+        print(f"{dataset.name}: {dataset.n_robots} robots, graph {run.graph}, loss {args.loss}")
+    print_run(run, args.out)
+    return run.exit_status
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from teamslam.datasets import load_dataset, save_dataset
-    from teamslam.msckf.calibration import calibrate
-    from teamslam.msckf.settings import calibration_start
+    from teamslam import api
+    from teamslam.datasets import load_dataset
+    from teamslam.msckf.calibration import calibration_json, calibration_table
 
     dataset = load_dataset(args.dataset)
-    # every setting from the usual layers, but the estimated noise levels start from the
-    # camera-scaled defaults, not from what the dataset already says
-    start = calibration_start(dataset, effective_settings(args, dataset, calibrate="never").config)
-    result = calibrate(dataset, start, frames=args.frames, odometry_per_axis=args.odometry_per_axis)
-    payload = result.to_json()
-    if dataset.sensor_model is not None:
-        payload["dataset_sensor_model"] = dataset.sensor_model.to_json()
+    result = api.calibrate(
+        dataset,
+        list(args.set or []),
+        args.config,
+        frames=args.frames,
+        odometry_per_axis=args.odometry_per_axis,
+        write=args.write,
+        source=args.dataset,
+    )
     if args.json:
-        print(json.dumps(json_safe(payload), indent=2))
+        print(json.dumps(json_safe(calibration_json(dataset, result)), indent=2))
     else:
-        print(_calibration_table(dataset, result))
-    if args.write:
-        from dataclasses import replace
-
-        model = result.sensor_model
-        if dataset.sensor_model is not None:  # keep what calibration does not estimate
-            model = replace(model, team=dataset.sensor_model.team.merged(model.team))
-        save_dataset(replace(dataset, sensor_model=model), args.dataset)
-        if not args.json:
+        print(calibration_table(dataset, result))
+        if args.write:
             print(f"\nwrote the calibrated sensor model into {args.dataset}")
     return 0
-
-
-def _calibration_table(dataset, result) -> str:
-    from teamslam.textio import format_value
-
-    noise = result.sensor_model.team
-    old = dataset.sensor_model.team if dataset.sensor_model is not None else None
-    lines = [
-        f"{dataset.name}: calibrated from {result.frames} frames per robot in "
-        f"{result.seconds:.1f} s, {len(result.iterations)} filter passes"
-        f"{'' if result.converged else ' (not converged)'}",
-        f"{'':<22}{'calibrated':>44}"
-        + (f"  {'dataset (' + dataset.sensor_model.origin + ')':>44}" if old else ""),
-    ]
-
-    for label, key in (
-        ("odometry σ (m, rad)", "odometry_std"),
-        ("feature σ (K units)", "feature_std"),
-        ("object σ (K units)", "object_std"),
-        ("object depth (m)", "object_depth_range"),  # not calibrated: shown for reference
-    ):
-        row = f"{label:<22}{format_value(getattr(noise, key)):>44}"
-        if old is not None:
-            row += f"  {format_value(getattr(old, key)):>44}"
-        lines.append(row)
-    start = result.start
-    for sensor in ("features", "objects"):
-        bound = start.get(f"{sensor}_epipolar_std")
-        if bound is not None:
-            lines.append(
-                f"{sensor} left/right-independent noise (epipolar residual): {bound:.4g} K units"
-            )
-    last = result.iterations[-1]
-    health = ", ".join(f"{s} NIS/dof {v:.2f}" for s, v in last["nis"].items() if v is not None)
-    if health:
-        lines.append(f"last pass: {health}")
-    return "\n".join(lines)
 
 
 def _cmd_config_show(args: argparse.Namespace) -> int:

@@ -1,58 +1,25 @@
-"""``teamslam agent`` and ``teamslam team``: robots as processes."""
+"""``teamslam agent`` (optionally publishing ROS 2 topics) and ``teamslam team``: robots as
+processes."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import yaml
 
-from teamslam.cli._common import Parser, UsageError, print_health
-from teamslam.eval.outputs import write_team_outputs
-from teamslam.eval.tables import team_table
+from teamslam.cli._common import Parser, number, print_run
 
-__all__ = ["launch_and_report", "register"]
-
-
-def launch_and_report(team_path: Path, out: Path, effective=None) -> int:
-    from teamslam.datasets import load_dataset
-    from teamslam.eval.metrics import team_metrics
-    from teamslam.runtime.launch import exit_summary, gather, launch_team
-    from teamslam.runtime.team_file import load_team_file
-
-    team = load_team_file(team_path)
-    codes = launch_team(team, team_path, out)
-    finished = [r for r, c in sorted(codes.items()) if c == 0]
-    if len(finished) < team.n:
-        sys.stderr.write(f"teamslam team: {exit_summary(codes)} (see {out}/robot_N.log)\n")
-    if not finished:
-        return 1
-    if team.dataset is None or any(r.dataset for r in team.robots):
-        print("robots ran on their own datasets; per-robot results are in", out)
-        return 0 if len(finished) == team.n else 1
-    dataset = load_dataset(team.dataset)
-    result = gather(team, out, finished)
-    if len(finished) < team.n:
-        print(f"robots {', '.join(str(r) for r in finished)} finished; metrics cover them only")
-        dataset = dataset.subset(finished)
-    metrics = {"consensus": team_metrics(dataset, result)}
-    for summary in result.extra["per_robot"]:
-        if summary["lost_neighbours"]:
-            print(f"robot {summary['robot']} lost neighbour(s) {summary['lost_neighbours']}")
-    metrics["consensus"]["transport"] = result.extra["per_robot"]
-    if effective is not None:
-        metrics["consensus"].update(effective.to_json())
-    print(team_table(metrics))
-    if "nis" in metrics["consensus"]:
-        print_health("consensus", metrics["consensus"])
-    write_team_outputs(out, dataset, {"consensus": result}, metrics)
-    return 0 if len(finished) == team.n else 1
+__all__ = ["register"]
 
 
 def _cmd_team_launch(args: argparse.Namespace) -> int:
-    return launch_and_report(Path(args.team_file), Path(args.out))
+    from teamslam import api
+
+    run = api.launch(args.team_file, args.out)
+    print_run(run, args.out)
+    return run.exit_status
 
 
 def _cmd_team_certs(args: argparse.Namespace) -> int:
@@ -74,17 +41,17 @@ def _cmd_team_certs(args: argparse.Namespace) -> int:
 
 
 def _cmd_agent(args: argparse.Namespace) -> int:
-    from teamslam.runtime.agent_process import run_agent
-    from teamslam.runtime.team_file import load_team_file
+    from teamslam import api
 
-    team = load_team_file(args.team)
-    if not 0 <= args.robot < team.n:
-        raise UsageError(f"--robot must lie in 0..{team.n - 1}")
-    if team.security is not None:
-        from teamslam.runtime.security import check_credentials
-
-        check_credentials(team.security, args.robot)  # one line naming a missing/unreadable key
-    summary = run_agent(team, args.robot, Path(args.out), resume=args.resume)
+    options = {
+        "domain_id": args.domain_id,
+        "connect": args.ros2_connect,
+        "listen": args.ros2_listen,
+        "period": args.period,
+    }
+    summary = api.run_robot(
+        args.team, args.robot, args.out, args.resume, ros2=args.ros2, ros2_options=options
+    )
     print(json.dumps({k: summary[k] for k in ("robot", "frames", "lost_neighbours")}))
     return 0
 
@@ -96,6 +63,38 @@ def register(sub) -> None:
     agent.add_argument("--robot", type=int, required=True, help="robot id in the team file")
     agent.add_argument("--out", type=Path, default=Path("results/team"), help="output directory")
     agent.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
+    agent.add_argument(
+        "--ros2",
+        action="store_true",
+        help="publish pose, path and objects as ROS 2 topics over rmw_zenoh (also on when "
+        "the team file has a ros2 section)",
+    )
+    agent.add_argument(
+        "--domain-id",
+        type=number(int, lambda v: 0 <= v <= 232, "a ROS domain id in 0..232"),
+        default=None,
+        help="ROS_DOMAIN_ID (default: the team file's ros2.domain_id, else 0)",
+    )
+    agent.add_argument(
+        "--period",
+        type=float,
+        default=None,
+        help="seconds between frames, for stamps when the dataset has no timestamps (default 1)",
+    )
+    agent.add_argument(
+        "--ros2-connect",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="Zenoh router to connect to (default tcp/localhost:7447, rmw_zenohd's)",
+    )
+    agent.add_argument(
+        "--ros2-listen",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="endpoint the ROS 2 session listens on (default tcp/localhost:0)",
+    )
     agent.set_defaults(handler=_cmd_agent)
 
     team_cmd = sub.add_parser("team", help="run a team of robot processes")

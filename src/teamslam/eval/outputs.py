@@ -1,12 +1,30 @@
-"""Writing a team run's results: metrics.json, TUM trajectories and figures."""
+"""Writing a team run's results: metrics.json, TUM trajectories, estimates, results, figures.
+
+A run directory holds ``metrics.json`` and, per run (the directory itself, or ``separate/`` and
+``consensus/`` for a comparison): ``robot_k.tum`` and ``robot_k_groundtruth.tum`` per robot,
+``estimates.npz`` (:mod:`teamslam.eval.estimates`) and the run's
+:class:`~teamslam.msckf.team.TeamResult` (``result.npz``, ``result.json``,
+:func:`~teamslam.msckf.team.save_result`); then the top-view and error figures.
+"""
 
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["json_safe", "write_json", "write_team_outputs"]
+from teamslam.errors import OutputError
+
+__all__ = [
+    "json_safe",
+    "run_prefix",
+    "write_json",
+    "write_partial_outputs",
+    "write_team_outputs",
+    "writing",
+]
 
 
 def json_safe(value):
@@ -20,43 +38,86 @@ def json_safe(value):
     return value
 
 
+@contextmanager
+def writing(path: Path) -> Iterator[None]:
+    """Turn an ``OSError`` while writing ``path`` into an :class:`OutputError` naming it."""
+    try:
+        yield
+    except OutputError:
+        raise
+    except OSError as exc:
+        where = exc.filename or path
+        raise OutputError(f"cannot write {where}: {exc.strerror or exc}") from exc
+
+
 def write_json(path: Path, payload: dict) -> None:
-    """Write JSON atomically: a partial file never replaces a complete one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(json_safe(payload), indent=2, sort_keys=True) + "\n")
-    tmp.replace(path)
+    """Write JSON atomically: a partial file never replaces a complete one.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (named).
+    """
+    with writing(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text(json.dumps(json_safe(payload), indent=2, sort_keys=True) + "\n")
+        tmp.replace(path)
 
 
-def write_team_outputs(
-    out: Path, dataset, results: dict, metrics: dict, report: bool = True
-) -> None:
-    """metrics.json, per-robot TUM trajectories (estimate and truth), estimates.npz, the
-    top-view and error figures and (unless ``report`` is false) report.html, whose path is
-    printed last."""
+def run_prefix(out: Path, name: str, names: list[str]) -> Path:
+    """Where run ``name`` of the runs ``names`` writes its files in the directory ``out``."""
+    return out if len(names) == 1 else out / name
+
+
+def _write_trajectories(prefix: Path, dataset, result) -> None:
+    """Each robot's estimate and ground truth over the frames the result holds."""
     from teamslam.datasets import write_tum
+
+    for i, robot in enumerate(dataset.robots):
+        n = min(robot.frames, len(result.poses[i]))
+        if n == 0:
+            continue
+        stamps = None if robot.timestamps is None else robot.timestamps[:n]
+        write_tum(prefix / f"robot_{i + 1}.tum", result.poses[i][:n], stamps)
+        write_tum(prefix / f"robot_{i + 1}_groundtruth.tum", robot.T_world_body[:n], stamps)
+
+
+def write_team_outputs(out: Path, dataset, results: dict, payload: dict) -> None:
+    """``metrics.json`` (``payload``), per run its TUM trajectories (estimate and truth),
+    ``estimates.npz`` and result files, and the top-view and error figures.
+
+    Raises
+    ------
+    OutputError
+        Something cannot be written (named).
+    """
     from teamslam.eval.estimates import save_estimates
     from teamslam.eval.plots import plot_team_errors, plot_team_topview
+    from teamslam.msckf.team import save_result
 
-    names = list(results)
-    payload = (
-        metrics[names[0]]
-        if len(names) == 1
-        else {**metrics["consensus"], "separate": metrics["separate"]}
-    )
+    out = Path(out)
     write_json(out / "metrics.json", payload)
-    for name, result in results.items():
-        prefix = out if len(names) == 1 else out / name
-        save_estimates(prefix / "estimates.npz", dataset, result)
-        for i, robot in enumerate(dataset.robots):
-            write_tum(prefix / f"robot_{i + 1}.tum", result.poses[i], robot.timestamps)
-            write_tum(
-                prefix / f"robot_{i + 1}_groundtruth.tum", robot.T_world_body, robot.timestamps
-            )
-    plot_team_topview(dataset, results, out / "topview.png")
-    plot_team_errors(dataset, results, out / "errors.png")
-    print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")
-    if report:
-        from teamslam.eval.report import write_run_report
+    names = list(results)
+    with writing(out):
+        for name, result in results.items():
+            prefix = run_prefix(out, name, names)
+            save_estimates(prefix / "estimates.npz", dataset, result)
+            _write_trajectories(prefix, dataset, result)
+            save_result(result, prefix)
+        plot_team_topview(dataset, results, out / "topview.png")
+        plot_team_errors(dataset, results, out / "errors.png")
 
-        print(f"report: {write_run_report(out, dataset, results)}")
+
+def write_partial_outputs(out: Path, dataset, results: dict, names: list[str]) -> None:
+    """What runs that stopped early computed: per run its result files (``complete: false``)
+    and the TUM trajectories of the frames done; ``names`` are every run that was asked for
+    (so the layout is that of the full run)."""
+    from teamslam.msckf.team import save_result
+
+    out = Path(out)
+    with writing(out):
+        for name, result in results.items():
+            prefix = run_prefix(out, name, names)
+            save_result(result, prefix)
+            _write_trajectories(prefix, dataset, result)

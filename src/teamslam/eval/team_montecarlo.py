@@ -35,6 +35,7 @@ runs cannot tell from noise.
 from __future__ import annotations
 
 import functools
+import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -52,6 +53,7 @@ __all__ = [
     "run_montecarlo",
     "summarise",
     "table",
+    "write_montecarlo",
 ]
 
 MODES = ("separate", "consensus", "hybrid", "centralised")
@@ -246,6 +248,32 @@ def run_montecarlo(
     job = functools.partial(one_run, spec=spec)
     runs = run_parallel(job, list(range(spec.runs)), workers, progress, "Monte Carlo runs")
     return summarise(spec, runs)
+
+
+def write_montecarlo(
+    spec: MonteCarloSpec, out: Path, workers: int | None = None, progress: bool | None = None
+) -> tuple[dict, list[Path]]:
+    """Run the study (:func:`run_montecarlo`, with its ``wall_seconds``) and write
+    ``montecarlo.json`` and the figures (:func:`plot`) into ``out``; the summary and the
+    figures' paths.
+
+    Raises
+    ------
+    OutputError
+        Something cannot be written (named).
+    """
+    import time
+
+    from teamslam.eval.outputs import writing
+
+    begin = time.perf_counter()
+    summary = run_montecarlo(spec, workers, progress)
+    summary["wall_seconds"] = time.perf_counter() - begin
+    out = Path(out)
+    with writing(out):
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "montecarlo.json").write_text(json.dumps(summary, indent=2))
+        return summary, plot(summary, out)
 
 
 def table(summary: dict) -> str:

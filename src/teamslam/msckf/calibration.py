@@ -67,9 +67,13 @@ from teamslam.msckf.update import stereo_point
 __all__ = [
     "CalibrationResult",
     "calibrate",
+    "calibration_json",
+    "calibration_table",
     "default_frames",
     "epipolar_noise",
     "nis_ratio",
+    "params_check",
+    "params_warning",
 ]
 
 log = logging.getLogger(__name__)
@@ -346,4 +350,86 @@ def calibrate(
         seconds,
         frames,
         start,
+    )
+
+
+def calibration_json(dataset: TeamDataset, result: CalibrationResult) -> dict:
+    """What ``teamslam calibrate --json`` prints: the result and the dataset's sensor model."""
+    payload = result.to_json()
+    if dataset.sensor_model is not None:
+        payload["dataset_sensor_model"] = dataset.sensor_model.to_json()
+    return payload
+
+
+def calibration_table(dataset: TeamDataset, result: CalibrationResult) -> str:
+    """The calibrated noise levels beside the dataset's, and the last pass's NIS."""
+    from teamslam.textio import format_value
+
+    noise = result.sensor_model.team
+    old = dataset.sensor_model.team if dataset.sensor_model is not None else None
+    lines = [
+        f"{dataset.name}: calibrated from {result.frames} frames per robot in "
+        f"{result.seconds:.1f} s, {len(result.iterations)} filter passes"
+        f"{'' if result.converged else ' (not converged)'}",
+        f"{'':<22}{'calibrated':>44}"
+        + (f"  {'dataset (' + dataset.sensor_model.origin + ')':>44}" if old else ""),
+    ]
+
+    for label, key in (
+        ("odometry σ (m, rad)", "odometry_std"),
+        ("feature σ (K units)", "feature_std"),
+        ("object σ (K units)", "object_std"),
+        ("object depth (m)", "object_depth_range"),  # not calibrated: shown for reference
+    ):
+        row = f"{label:<22}{format_value(getattr(noise, key)):>44}"
+        if old is not None:
+            row += f"  {format_value(getattr(old, key)):>44}"
+        lines.append(row)
+    start = result.start
+    for sensor in ("features", "objects"):
+        bound = start.get(f"{sensor}_epipolar_std")
+        if bound is not None:
+            lines.append(
+                f"{sensor} left/right-independent noise (epipolar residual): {bound:.4g} K units"
+            )
+    last = result.iterations[-1]
+    health = ", ".join(f"{s} NIS/dof {v:.2f}" for s, v in last["nis"].items() if v is not None)
+    if health:
+        lines.append(f"last pass: {health}")
+    return "\n".join(lines)
+
+
+def params_check(dataset: TeamDataset) -> list[tuple[str, float, float]]:
+    """A params file's noise levels (the dataset's sensor model) beside a calibration from
+    the data: ``(label, given, found)`` per level both give."""
+    from teamslam.msckf.settings import calibration_start, resolve_config
+
+    start = calibration_start(dataset, resolve_config(dataset, calibrate="never").config)
+    found_noise = calibrate(dataset, start).sensor_model.team
+    given_noise = dataset.sensor_model.team
+
+    def pick(noise) -> dict:
+        odometry = noise.odometry_std
+        return {
+            "odometry σ translation (m)": None if odometry is None else max(odometry[:3]),
+            "odometry σ rotation (rad)": None if odometry is None else max(odometry[3:]),
+            "feature σ": noise.feature_std,
+            "object σ": noise.object_std,
+        }
+
+    given, found = pick(given_noise), pick(found_noise)
+    return [
+        (label, given[label], found[label])
+        for label in given
+        if given[label] is not None and found[label] is not None
+    ]
+
+
+def params_warning(label: str, given: float, found: float, path) -> str | None:
+    """The warning when a params file's level is off by more than 3× from the data's."""
+    if 1 / 3 <= given / found <= 3:
+        return None
+    return (
+        f"the params file's {label} ({given:.4g}) is {given / found:.2g}× what the data show "
+        f"({found:.4g}); `teamslam calibrate {path} --write` replaces it"
     )

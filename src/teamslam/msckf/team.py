@@ -1,27 +1,52 @@
-"""The team runner: N distributed-MSCKF agents over a team dataset, in lock-step.
+"""The team driver: one robot's frame loop, the lock-step schedule of a team, one result.
 
-At each frame, every robot still running first takes part in consensus over the links that
-survive this frame's loss, then processes the frame
-(:meth:`~teamslam.msckf.agent.MsckfAgent.step`). The consensus protocol — messages, checks,
-weights, the average — is :class:`~teamslam.msckf.protocol.ConsensusProtocol`, the same object
-the robot processes run; this runner only schedules its two rounds over an in-memory
-:class:`~teamslam.msckf.transport.MemoryNetwork` whose links follow the loss draws. The weights
-are therefore the Metropolis–Hastings weights of the surviving links among the robots still
-running. The filtered estimate of frame ``k`` (after its update) is what is recorded.
+Every way of running the filter goes through the same per-frame code, :class:`RobotDriver`:
+
+* a robot first takes part in consensus (from the second frame on, when it has a
+  :class:`~teamslam.msckf.protocol.ConsensusProtocol`): round 1 sends its map ids, round 2
+  answers the requests heard with the marginals of the common objects, round 3 averages the
+  marginals heard (:meth:`RobotDriver.requests`, :meth:`RobotDriver.answer`,
+  :meth:`RobotDriver.average`);
+* then it processes the frame (:meth:`RobotDriver.step`) and records the filtered pose of
+  frame ``k`` and its covariance (:meth:`RobotDriver.record`).
+
+Messages move through a :class:`~teamslam.msckf.transport.Transport` — the in-memory
+:class:`~teamslam.msckf.transport.MemoryNetwork` or Zenoh — and the waiting follows a policy:
+:class:`LockStep` (wait for the messages of this step, up to a timeout) or :class:`Asynchronous`
+(never wait; use each neighbour's newest message no older than ``max_age`` steps). A neighbour
+silent for ``lost_after`` frames in a row is reported lost and no longer awaited (it is awaited
+again as soon as it speaks); each neighbour silent in a frame counts as a link lost.
+
+The robot process runs one driver to the end (:meth:`RobotDriver.frame` per frame); a team in
+one process runs every robot's driver phase by phase (:func:`run_lockstep`): all requests go
+out before anyone answers, all answers before anyone averages, and every robot steps before
+any pose is recorded — which is what the centralised filter (robots sharing one state) needs;
+a robot whose sequence has ended is no longer anyone's neighbour (not a lost link).
+The in-process team (:func:`run_team`) schedules its drivers over a memory network whose links
+follow the loss draws; the weights are therefore the Metropolis–Hastings weights of the links
+that work among the robots still running.
+
+:func:`assemble_result` builds the one :class:`TeamResult` of any run from its drivers;
+:func:`save_result` and :func:`load_result` write and read it (the robot processes write
+theirs, one robot each, and :func:`merge_results` joins them).
 """
 
 from __future__ import annotations
 
+import json
+import os
 import sys
 import time
-from collections.abc import Sequence
+from collections import defaultdict
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from teamslam.datasets.model import TeamDataset
-from teamslam.errors import InputError
+from teamslam.errors import EstimationError, InputError, OutputError
 from teamslam.graph import CommunicationGraph, EdgeLoss, complete
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
@@ -29,9 +54,40 @@ from teamslam.msckf.health import SensorHealth
 from teamslam.msckf.linearization import GroundTruth
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.protocol import ConsensusProtocol
-from teamslam.msckf.transport import MemoryNetwork
+from teamslam.msckf.transport import MemoryNetwork, Transport
 
-__all__ = ["TeamResult", "run_team"]
+__all__ = [
+    "Asynchronous",
+    "LockStep",
+    "PartialRunError",
+    "RobotDriver",
+    "TeamResult",
+    "assemble_result",
+    "load_result",
+    "merge_results",
+    "run_drivers",
+    "run_lockstep",
+    "run_team",
+    "save_result",
+    "write_atomic",
+]
+
+#: Per-robot arrays of a :class:`TeamResult` as :func:`save_result` names them.
+ARRAYS = ("poses", "pose_covs", "object_ids", "objects", "object_covs", "frame_times")
+#: The other fields of a :class:`TeamResult`, in ``result.json``.
+FIELDS = (
+    "robots",
+    "counters",
+    "timings",
+    "consensus",
+    "graph",
+    "loss",
+    "wall_seconds",
+    "extra",
+    "health",
+    "sensor_health",
+    "complete",
+)
 
 
 @dataclass
@@ -41,7 +97,8 @@ class TeamResult:
     Attributes
     ----------
     poses
-        Per robot ``(N_i + 1, 4, 4)`` filtered ``T_world_body`` of every frame.
+        Per robot ``(N_i + 1, 4, 4)`` filtered ``T_world_body`` of every frame (of the frames
+        done, when the run stopped early).
     pose_covs
         Per robot ``(N_i + 1, 6, 6)`` covariance of that pose (right perturbation).
     object_ids, objects
@@ -49,8 +106,8 @@ class TeamResult:
     object_covs
         Per robot ``(m, 3, 3)`` marginal covariances of those positions (empty when unknown).
     counters
-        Per robot counts (updates, rejected measurements, objects initialised, …) plus
-        ``messages`` and ``bytes`` sent.
+        Per robot counts (updates, rejected measurements, objects initialised, links lost, …)
+        plus ``messages`` and ``bytes`` sent.
     timings
         Per robot seconds per stage (``consensus``, ``propagation``, ``update``,
         ``initialisation``).
@@ -61,6 +118,13 @@ class TeamResult:
     health
         Sensor health (:meth:`~teamslam.msckf.health.SensorHealth.summary`): ``team`` over
         every robot, ``robots`` per robot.
+    sensor_health
+        Per robot :meth:`~teamslam.msckf.health.SensorHealth.to_json`, to combine results
+        computed apart (:func:`merge_results`).
+    robots
+        The robots' ids (default: ``0 … n − 1``).
+    complete
+        ``False`` when the run stopped early (the arrays hold the frames done).
     """
 
     poses: list[np.ndarray]
@@ -77,6 +141,403 @@ class TeamResult:
     extra: dict = field(default_factory=dict)
     health: dict = field(default_factory=dict)
     object_covs: list[np.ndarray] = field(default_factory=list)
+    sensor_health: list[dict] = field(default_factory=list)
+    robots: list[int] = field(default_factory=list)
+    complete: bool = True
+
+
+class PartialRunError(EstimationError):
+    """The estimate failed mid-run; ``result`` holds what every robot computed before."""
+
+    def __init__(self, cause: EstimationError, result: TeamResult) -> None:
+        super().__init__(str(cause))
+        self.result = result
+
+
+@dataclass(frozen=True)
+class LockStep:
+    """Wait for this step's messages from every neighbour still awaited, up to ``timeout`` s."""
+
+    timeout: float = 5.0
+    max_age = 0  # only this step's messages are accepted
+
+
+@dataclass(frozen=True)
+class Asynchronous:
+    """Never wait: use each neighbour's newest message no older than ``max_age`` steps."""
+
+    max_age: int = 3
+
+
+class RobotDriver:
+    """One robot's frame loop: consensus over a transport, the filter step, the record.
+
+    Parameters
+    ----------
+    agent
+        The robot's filter.
+    transport
+        Its endpoint (``None``: a robot that talks to nobody).
+    neighbours
+        The robots it may hear from; consensus runs when there is a transport and
+        ``consensus`` is true.
+    wait
+        :class:`LockStep` or :class:`Asynchronous`.
+    lost_after
+        Silent frames in a row after which a neighbour is reported lost.
+    consensus
+        ``False``: the filter runs alone even with neighbours.
+    """
+
+    def __init__(
+        self,
+        agent: MsckfAgent,
+        transport: Transport | None = None,
+        neighbours: Sequence[int] = (),
+        wait: LockStep | Asynchronous = LockStep(),
+        lost_after: int = 3,
+        consensus: bool = True,
+    ) -> None:
+        self.agent = agent
+        self.transport = transport
+        self.neighbours = {int(j) for j in neighbours}
+        self.wait = wait
+        self.lost_after = lost_after
+        self.protocol = (
+            ConsensusProtocol(agent, self.neighbours, max_age=wait.max_age)
+            if consensus and transport is not None
+            else None
+        )
+        frames = agent.sequence.frames
+        self.poses = np.zeros((frames, 4, 4))
+        self.covs = np.zeros((frames, 6, 6))
+        self.consensus_times = np.zeros(frames)
+        self.done = 0  # frames recorded
+        self.silent = dict.fromkeys(self.neighbours, 0)
+        self.lost_reported: set[int] = set()
+        self.lost_steps: list[int] = []
+        self.averaged_with: dict[int, list[int]] = defaultdict(list)
+
+    @property
+    def frames(self) -> int:
+        """Frames in the robot's sequence."""
+        return self.agent.sequence.frames
+
+    def exchanges(self, t: int) -> bool:
+        """Whether the robot takes part in consensus at frame ``t``."""
+        return t > 0 and self.protocol is not None
+
+    # ------------------------------------------------------------------ consensus rounds
+    def requests(self, t: int) -> None:
+        """Round 1: send our map ids to every neighbour the transport can reach."""
+        reachable = self.transport.reachable(t, self.neighbours)
+        for message in self.protocol.requests(t, reachable):
+            self.transport.send(message)
+
+    def answer(self, t: int) -> None:
+        """Round 2: take the neighbours' ids, answer each with our common marginal."""
+        if isinstance(self.wait, LockStep):
+            waiting = {j for j in self.neighbours if self.silent[j] < self.lost_after}
+            heard = self.transport.collect(
+                t, MapIdsMessage, waiting, self.wait.timeout, also=self.neighbours - waiting
+            )
+        else:
+            heard = self.transport.newest(MapIdsMessage, self.neighbours, self.wait.max_age, t)
+        for reply in self.protocol.answer(heard):
+            self.transport.send(reply)
+        for j in self.neighbours:
+            self.silent[j] = 0 if j in self.protocol.heard else self.silent[j] + 1
+            if self.silent[j] >= self.lost_after and j not in self.lost_reported:
+                self.lost_reported.add(j)
+                self.agent.counters["neighbours_lost"] += 1
+
+    def average(self, t: int) -> None:
+        """Round 3: take the marginals we expect, average (eq. 19, Prop. 2)."""
+        if isinstance(self.wait, LockStep):
+            heard = self.transport.collect(
+                t, CommonMarginalMessage, self.protocol.expected, self.wait.timeout
+            )
+        else:
+            heard = self.transport.newest(
+                CommonMarginalMessage, self.neighbours, self.wait.max_age, t
+            )
+        silent = self.neighbours - self.protocol.heard
+        if silent:
+            self.agent.counters["links_lost"] += len(silent)
+            self.lost_steps.append(t)
+        self.protocol.average(heard)
+        for j in self.protocol.averaged_with:
+            self.averaged_with[j].append(t)
+        self.consensus_times[t] = self.protocol.spent
+
+    # ------------------------------------------------------------------ filter
+    def step(self, t: int) -> None:
+        """Process frame ``t`` (Algorithm 1, steps 2–4)."""
+        self.agent.step(t)
+
+    def record(self, t: int) -> None:
+        """Keep the filtered pose of frame ``t`` and its covariance."""
+        self.poses[t] = self.agent.state.current_pose
+        self.covs[t] = self.agent.state.current_pose_cov()
+        self.done = t + 1
+
+    def frame(self, t: int) -> None:
+        """Everything of frame ``t`` for this robot alone (the robot process's loop body)."""
+        if self.exchanges(t):
+            self.requests(t)
+            self.answer(t)
+            self.average(t)
+        self.step(t)
+        self.record(t)
+
+    def restore(self, poses: np.ndarray, covs: np.ndarray) -> None:
+        """Continue after the frames of a checkpoint (the agent restored already)."""
+        self.done = poses.shape[0]
+        self.poses[: self.done] = poses
+        self.covs[: self.done] = covs
+
+    def summary(self) -> dict:
+        """Lost neighbours, steps with lost links and with whom the robot averaged when."""
+        return {
+            "lost_neighbours": sorted(self.lost_reported),
+            "steps_with_lost_links": list(self.lost_steps),
+            "averaged_with": {str(j): s for j, s in sorted(self.averaged_with.items())},
+        }
+
+
+def run_lockstep(
+    drivers: Sequence[RobotDriver],
+    before: Callable[[int, list[int]], None] | None = None,
+    progress: bool | None = None,
+) -> float:
+    """Run every driver over its frames, phase by phase; the wall seconds it took.
+
+    Parameters
+    ----------
+    drivers
+        One per robot; a robot runs until its sequence ends.
+    before
+        Called as ``before(t, running)`` at the start of frame ``t`` with the robots still
+        running (e.g. to draw this frame's link losses).
+    progress
+        Show a progress bar (default: when standard error is a terminal).
+
+    Raises
+    ------
+    PartialRunError
+        A robot's filter failed; the error carries the result of the frames done.
+    """
+    frames = [d.frames for d in drivers]
+    show = sys.stderr.isatty() if progress is None else progress
+    begin = time.perf_counter()
+    for t in tqdm(range(max(frames)), desc="frames", disable=not show, leave=False):
+        running = [i for i, f in enumerate(frames) if t < f]
+        ended = {i for i, f in enumerate(frames) if f == t}
+        for i in running:  # a robot whose sequence ended is no neighbour, not a lost link
+            drivers[i].neighbours -= ended
+        if before is not None:
+            before(t, running)
+        talking = [drivers[i] for i in running if drivers[i].exchanges(t)]
+        for phase in (RobotDriver.requests, RobotDriver.answer, RobotDriver.average):
+            for d in talking:
+                phase(d, t)
+        for i in running:
+            drivers[i].step(t)
+        for i in running:  # after every robot's update of this frame
+            drivers[i].record(t)
+    return time.perf_counter() - begin
+
+
+def assemble_result(
+    drivers: Sequence[RobotDriver],
+    graph: str,
+    loss: float,
+    wall_seconds: float = 0.0,
+    robots: Sequence[int] | None = None,
+    maps: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    complete: bool = True,
+    consensus: bool | None = None,
+) -> TeamResult:
+    """The :class:`TeamResult` of a run from its drivers (after their last frame).
+
+    Parameters
+    ----------
+    maps
+        Per robot ``(ids, means, covs)`` of its final map (default: each agent's
+        ``state.full_map()`` — in the state and retired, by id).
+    complete
+        ``False`` for the frames done of a run that stopped early (no odometry health of the
+        window is added then).
+    consensus
+        Whether consensus ran (default: whether any driver has a protocol).
+    """
+    agents = [d.agent for d in drivers]
+    if complete:
+        for a in agents:
+            a.flush_odometry_health()
+    maps = [a.state.full_map() for a in agents] if maps is None else maps
+    counters = []
+    for d in drivers:
+        c = dict(d.agent.counters)
+        c["messages"] = int(d.transport.messages_sent) if d.transport is not None else 0
+        c["bytes"] = int(d.transport.bytes_sent) if d.transport is not None else 0
+        counters.append(c)
+    return TeamResult(
+        poses=[d.poses[: d.done] for d in drivers],
+        pose_covs=[d.covs[: d.done] for d in drivers],
+        object_ids=[m[0] for m in maps],
+        objects=[m[1] for m in maps],
+        object_covs=[m[2] for m in maps],
+        counters=counters,
+        timings=[dict(a.timings) for a in agents],
+        frame_times=[
+            np.column_stack(
+                [d.consensus_times[: d.done], np.array(d.agent.frame_times)[: d.done]]
+            ).reshape(-1, 4)
+            for d in drivers
+        ],
+        consensus=any(d.protocol is not None for d in drivers) if consensus is None else consensus,
+        graph=graph,
+        loss=loss,
+        wall_seconds=wall_seconds,
+        health={
+            "team": SensorHealth.combine([a.health for a in agents]).summary(),
+            "robots": [a.health.summary() for a in agents],
+        },
+        sensor_health=[a.health.to_json() for a in agents],
+        robots=list(range(len(drivers)) if robots is None else robots),
+        complete=complete,
+    )
+
+
+def merge_results(parts: Sequence[TeamResult], graph: str, loss: float) -> TeamResult:
+    """One :class:`TeamResult` of robots whose results were computed apart (in order)."""
+    per_robot = [(p, k) for p in parts for k in range(len(p.poses))]
+    health = [SensorHealth.from_json(p.sensor_health[k]) for p, k in per_robot]
+    return TeamResult(
+        **{name: [getattr(p, name)[k] for p, k in per_robot] for name in ARRAYS},
+        counters=[p.counters[k] for p, k in per_robot],
+        timings=[p.timings[k] for p, k in per_robot],
+        consensus=any(p.consensus for p in parts),
+        graph=graph,
+        loss=loss,
+        wall_seconds=max((p.wall_seconds for p in parts), default=0.0),
+        extra={"per_robot": [s for p in parts for s in p.extra.get("per_robot", [])]},
+        health={
+            "team": SensorHealth.combine(health).summary(),
+            "robots": [h.summary() for h in health],
+        },
+        sensor_health=[p.sensor_health[k] for p, k in per_robot],
+        robots=[(p.robots or list(range(len(p.poses))))[k] for p, k in per_robot],
+        complete=all(p.complete for p in parts),
+    )
+
+
+RESULT_ARRAYS = "result.npz"
+RESULT_JSON = "result.json"
+
+
+def save_result(result: TeamResult, directory: str | Path) -> Path:
+    """Write ``result.npz`` (per robot ``k``: ``robot_<k>_<array>``) and ``result.json``.
+
+    Both are replaced atomically: a partial file never replaces a complete one.
+
+    Raises
+    ------
+    OutputError
+        The directory or a file cannot be written (named).
+    """
+    directory = Path(directory)
+    arrays = {
+        f"robot_{k}_{name}": np.asarray(getattr(result, name)[k])
+        for name in ARRAYS
+        for k in range(len(result.poses))
+        if k < len(getattr(result, name))
+    }
+    payload = {name: getattr(result, name) for name in FIELDS}
+    payload["robots"] = result.robots or list(range(len(result.poses)))
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot write {directory}: {exc.strerror or exc}") from exc
+    write_atomic(directory / RESULT_ARRAYS, lambda tmp: np.savez_compressed(tmp, **arrays))
+    text = json.dumps(payload, indent=1, sort_keys=True)
+    write_atomic(directory / RESULT_JSON, lambda tmp: tmp.write_text(text))
+    return directory
+
+
+def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
+    """``write(tmp)`` a temporary file beside ``path``, then put it in its place: a partial file
+    never replaces a complete one.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (named).
+    """
+    tmp = path.with_name(f"{path.name}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
+def load_result(directory: str | Path) -> TeamResult:
+    """The :class:`TeamResult` :func:`save_result` wrote; a missing or malformed file raises
+    :class:`~teamslam.errors.InputError` naming it."""
+    directory = Path(directory)
+    try:
+        payload = json.loads((directory / RESULT_JSON).read_text())
+        with np.load(directory / RESULT_ARRAYS, allow_pickle=False) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{directory}: no readable result ({exc})") from None
+    n = len(payload["robots"])
+    try:
+        per_robot = {
+            name: [arrays[f"robot_{k}_{name}"] for k in range(n)]
+            for name in ARRAYS
+            if name != "object_covs"
+        }
+    except KeyError as exc:
+        raise InputError(f"{directory / RESULT_ARRAYS}: lacks {exc.args[0]}") from None
+    covs = [arrays.get(f"robot_{k}_object_covs") for k in range(n)]
+    return TeamResult(
+        **per_robot,
+        object_covs=[] if any(c is None for c in covs) else covs,
+        **{name: payload[name] for name in FIELDS},
+    )
+
+
+def run_drivers(
+    drivers: Sequence[RobotDriver],
+    graph: str,
+    loss: float,
+    before: Callable[[int, list[int]], None] | None = None,
+    progress: bool | None = None,
+    maps: Callable[[], list] | None = None,
+) -> TeamResult:
+    """:func:`run_lockstep` then :func:`assemble_result`; a failing filter raises
+    :class:`PartialRunError` with the result of the frames every robot finished."""
+    begin = time.perf_counter()
+    try:
+        wall = run_lockstep(drivers, before, progress)
+    except EstimationError as exc:
+        # the frame that failed: robots whose sequence had ended keep every frame
+        failed = min(d.done for d in drivers if d.done < d.frames)
+        for d in drivers:  # the frames every running robot finished
+            d.done = min(d.done, failed)
+        partial = assemble_result(
+            drivers,
+            graph,
+            loss,
+            time.perf_counter() - begin,
+            maps=None if maps is None else maps(),
+            complete=False,
+        )
+        raise PartialRunError(exc, partial) from exc
+    return assemble_result(drivers, graph, loss, wall, maps=None if maps is None else maps())
 
 
 def run_team(
@@ -108,6 +569,12 @@ def run_team(
         Seed of the link-loss draws.
     progress
         Show a progress bar (default: when standard error is a terminal).
+
+    Raises
+    ------
+    PartialRunError
+        A filter failed (an :class:`~teamslam.errors.EstimationError` naming robot and frame);
+        its ``result`` holds the frames done.
     """
     from teamslam.msckf.settings import team_configs  # settings calibrate with a team run
 
@@ -116,74 +583,25 @@ def run_team(
     graph = graph or complete(n)
     if graph.n != n:
         raise InputError(f"graph has {graph.n} robots, dataset has {n}")
-    agents = [
-        MsckfAgent(i, dataset.calibration, r, c, truth=GroundTruth(r.T_world_body, dataset))
-        for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))
-    ]
     edge_loss = EdgeLoss(graph, loss, seed)
     links: dict[int, np.ndarray] = {}
     network = MemoryNetwork(n, links=links.__getitem__)
-    endpoints = [network.endpoint(i) for i in range(n)]
-    neighbours = [np.flatnonzero(graph.adjacency[i]) for i in range(n)]
-    protocols = [ConsensusProtocol(agents[i], neighbours[i]) for i in range(n)]
-    frames = [r.frames for r in dataset.robots]
-    poses = [np.zeros((f, 4, 4)) for f in frames]
-    covs = [np.zeros((f, 6, 6)) for f in frames]
-    consensus_times = [np.zeros(f) for f in frames]
-    show = sys.stderr.isatty() if progress is None else progress
-    begin = time.perf_counter()
-    for t in tqdm(range(max(frames)), desc="frames", disable=not show, leave=False):
-        running = [i for i in range(n) if t < frames[i]]
+    drivers = [
+        RobotDriver(
+            MsckfAgent(i, dataset.calibration, r, c, truth=GroundTruth(r.T_world_body, dataset)),
+            network.endpoint(i),
+            graph.neighbours(i),
+            LockStep(timeout=0.0),
+            consensus=consensus,
+        )
+        for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))
+    ]
+
+    def draw_links(t: int, running: list[int]) -> None:
         active, _ = edge_loss.step()
-        if consensus and t > 0:
-            mask = np.zeros(n, dtype=bool)
-            mask[running] = True
-            links.clear()
-            links[t] = active & mask[:, None] & mask[None, :]
-            for i in running:
-                for message in protocols[i].requests(t, np.flatnonzero(links[t][i])):
-                    endpoints[i].send(message)
-            # every robot answers only once all requests are out, so the rounds never mix
-            for i in running:
-                heard = endpoints[i].collect(t, MapIdsMessage, set(neighbours[i]), 0.0)
-                for reply in protocols[i].answer(heard):
-                    endpoints[i].send(reply)
-            for i in running:
-                heard = endpoints[i].collect(t, CommonMarginalMessage, set(neighbours[i]), 0.0)
-                protocols[i].average(heard)
-                consensus_times[i][t] = protocols[i].spent
-        for i in running:
-            agents[i].step(t)
-            poses[i][t] = agents[i].state.current_pose
-            covs[i][t] = agents[i].state.current_pose_cov()
-    wall = time.perf_counter() - begin
-    for a in agents:
-        a.flush_odometry_health()
-    counters = []
-    for i, a in enumerate(agents):
-        c = dict(a.counters)
-        c["messages"] = int(endpoints[i].messages_sent)
-        c["bytes"] = int(endpoints[i].bytes_sent)
-        counters.append(c)
-    maps = [a.state.full_map() for a in agents]  # in the state and retired, by id
-    return TeamResult(
-        poses=poses,
-        pose_covs=covs,
-        object_ids=[m[0] for m in maps],
-        objects=[m[1] for m in maps],
-        object_covs=[m[2] for m in maps],
-        counters=counters,
-        timings=[dict(a.timings) for a in agents],
-        frame_times=[
-            np.column_stack([c, np.array(a.frame_times).reshape(-1, 3)])
-            for c, a in zip(consensus_times, agents, strict=True)
-        ],
-        consensus=consensus,
-        graph=graph.name,
-        loss=loss,
-        wall_seconds=wall,
-        health={
-            "team": SensorHealth.combine([a.health for a in agents]).summary(),
-            "robots": [a.health.summary() for a in agents],
-        },
-    )
+        mask = np.zeros(n, dtype=bool)
+        mask[running] = True
+        links.clear()
+        links[t] = active & mask[:, None] & mask[None, :]
+
+    return run_drivers(drivers, graph.name, loss, draw_links, progress)

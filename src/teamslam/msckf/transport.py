@@ -66,6 +66,9 @@ class Transport(Protocol):
     def wait_for_peers(self, count: int, timeout: float) -> int:
         """Block until ``count`` neighbours are reachable (or ``timeout``); how many are."""
 
+    def reachable(self, step: int, robots: set[int]) -> set[int]:
+        """Which of ``robots`` a message of ``step`` may reach (all, when it cannot be known)."""
+
     def statistics(self) -> dict:
         """Figures of the link layer: ``injected_drops``, ``rejected_wire`` (messages dropped
         before decoding), ``latencies`` (seconds, one per message received) where known."""
@@ -209,6 +212,10 @@ class MemoryTransport:
     def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
         """See :meth:`Transport.newest`."""
         return self.network.mailboxes[self.robot].newest(kind, senders, max_age, step)
+
+    def reachable(self, step: int, robots: set[int]) -> set[int]:
+        """The robots whose link from this one works at ``step``."""
+        return {j for j in robots if self.network.link_up(self.robot, j, step)}
 
     def wait_for_peers(self, count: int, timeout: float) -> int:
         """Every robot of the network is reachable at once."""

@@ -12,12 +12,17 @@ through a :class:`~teamslam.runtime.zenoh_transport.ZenohTransport`:
 * **async** — it never waits: it answers any ids request it has, and averages with each
   neighbour's newest marginal no older than ``max_age_steps``.
 
-What is sent, what is accepted, the weights and the average are
-:class:`~teamslam.msckf.protocol.ConsensusProtocol`, the object the in-process runner schedules
-too; this driver adds only the waiting (lock-step or asynchronous), lost-neighbour bookkeeping,
-checkpoints and result files.
-Results (trajectory, covariances, map, counters, timings, transport figures) are written
-atomically at the end; a checkpoint every ``checkpoint_every`` frames lets ``--resume`` continue.
+Each frame is :meth:`teamslam.msckf.team.RobotDriver.frame` — the per-frame code of every run
+(in-process team, centralised filter): what is sent, what is accepted, the weights and the
+average are :class:`~teamslam.msckf.protocol.ConsensusProtocol`, the waiting and the
+lost-neighbour bookkeeping the driver's. This module adds the robot's settings (the team file's
+``filter`` over the dataset's sensor model; ground truth for the ``ideal`` linearisation, as in
+the in-process run), checkpoints and result files. The result (trajectory, covariances, map
+with object covariances, counters, timings, transport figures) is a one-robot
+:class:`~teamslam.msckf.team.TeamResult`, written atomically by
+:func:`~teamslam.msckf.team.save_result` at the end — or, when the filter fails, with the frames
+done before the error is raised; a checkpoint every ``checkpoint_every`` frames lets
+``--resume`` continue.
 """
 
 from __future__ import annotations
@@ -25,50 +30,51 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from teamslam.datasets import SensorModel, TeamDataset, load_dataset
-from teamslam.errors import InputError
+from teamslam.errors import EstimationError, InputError, OutputError
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
-from teamslam.msckf.protocol import ConsensusProtocol
-from teamslam.msckf.settings import resolve_config
+from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.linearization import GroundTruth, linearization_policy
+from teamslam.msckf.settings import ConfigError, resolve_config
+from teamslam.msckf.team import (
+    ARRAYS,
+    Asynchronous,
+    LockStep,
+    RobotDriver,
+    assemble_result,
+    load_result,
+    save_result,
+    write_atomic,
+)
 from teamslam.msckf.transport import Transport
 from teamslam.runtime.team_file import TeamFile
 
-__all__ = ["load_robot_result", "run_agent"]
-
-
-def _atomic_savez(path: Path, **arrays) -> None:
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **arrays)
-    os.replace(tmp, path)
+__all__ = ["load_robot_result", "robot_setup", "run_agent"]
 
 
 def _atomic_json(path: Path, payload: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=1, sort_keys=True))
-    os.replace(tmp, path)
+    text = json.dumps(payload, indent=1, sort_keys=True)
+    write_atomic(path, lambda tmp: tmp.write_text(text))
 
 
-def _save_checkpoint(path: Path, agent: MsckfAgent, poses, covs, t: int) -> None:
-    _atomic_savez(
-        path / "checkpoint.npz", poses=poses[: t + 1], covs=covs[: t + 1], **agent.snapshot()
-    )
+def _save_checkpoint(path: Path, driver: RobotDriver, t: int) -> None:
+    arrays = {"poses": driver.poses[: t + 1], "covs": driver.covs[: t + 1]}
+    arrays.update(driver.agent.snapshot())
+    write_atomic(path / "checkpoint.npz", lambda tmp: np.savez_compressed(tmp, **arrays))
     _atomic_json(path / "checkpoint.json", {"frame": t})  # which frame the checkpoint holds
 
 
-def _load_checkpoint(path: Path, agent: MsckfAgent, poses, covs) -> int:
+def _load_checkpoint(path: Path, driver: RobotDriver) -> int:
     with np.load(path / "checkpoint.npz", allow_pickle=False) as c:
         snapshot = {k: c[k] for k in c.files}
-    agent.restore(snapshot)
-    t = agent.frame
-    poses[: t + 1] = snapshot["poses"]
-    covs[: t + 1] = snapshot["covs"]
+    driver.agent.restore(snapshot)
+    t = driver.agent.frame
+    driver.restore(snapshot["poses"][: t + 1], snapshot["covs"][: t + 1])
     return t
 
 
@@ -78,6 +84,39 @@ def _own_sensor_model(dataset: TeamDataset, index: int) -> SensorModel | None:
     if model is None:
         return None
     return SensorModel(model.for_robot(index), origin=model.origin, note=model.note)
+
+
+def robot_setup(
+    team: TeamFile, robot: int, calibrate: str = "auto"
+) -> tuple[TeamDataset, int, MsckfConfig]:
+    """Robot ``robot``'s dataset, its index there and its filter settings.
+
+    The team file's settings win over the dataset's sensor model; noise levels neither gives
+    are calibrated from this robot's own data (``calibrate="never"``: not, e.g. to check the
+    settings before launching).
+
+    Raises
+    ------
+    InputError
+        The dataset has no such robot, or the settings are wrong (a
+        :class:`~teamslam.msckf.settings.ConfigError`): a configuration error.
+    """
+    dataset_path, index = team.dataset_of(robot)
+    dataset = load_dataset(dataset_path)
+    if not 0 <= index < dataset.n_robots:
+        raise InputError(f"robot {robot}: dataset {dataset_path} has no robot {index}")
+    own = replace(
+        dataset, robots=[dataset.robots[index]], sensor_model=_own_sensor_model(dataset, index)
+    )
+    config = resolve_config(own, file_values=team.filter_settings, calibrate=calibrate).config
+    # an imported bag may have no ground truth (its metadata says so)
+    has_truth = bool(dataset.metadata.get("ground_truth", True))
+    if linearization_policy(config.linearization).needs_truth and not has_truth:
+        raise ConfigError(
+            f"robot {robot}: linearization={config.linearization} needs ground truth, and "
+            f"{dataset_path} has none"
+        )
+    return dataset, index, config
 
 
 def run_agent(
@@ -108,133 +147,108 @@ def run_agent(
     publisher
         Optional; gets ``publish(t, poses[: t + 1], state)`` after every frame, e.g. a
         :class:`~teamslam.ros2.rmw_zenoh.Ros2Publisher`.
+
+    Raises
+    ------
+    InputError
+        A configuration error (before anything runs).
+    EstimationError
+        The filter failed (naming robot and frame); the result of the frames done is written
+        first (``complete: false``).
     """
     from teamslam.runtime.zenoh_transport import ZenohTransport
 
+    dataset, index, config = robot_setup(team, robot)  # a configuration error: nothing written
     out = Path(out) / f"robot_{robot}"
-    out.mkdir(parents=True, exist_ok=True)
-    dataset_path, index = team.dataset_of(robot)
-    dataset = load_dataset(dataset_path)
-    if not 0 <= index < dataset.n_robots:
-        raise InputError(f"robot {robot}: dataset {dataset_path} has no robot {index}")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot write {out}: {exc.strerror or exc}") from exc
     sequence = dataset.robots[index]
-    # the team file's settings win over the dataset's sensor model; noise levels neither gives
-    # are calibrated from this robot's own data
-    own = replace(dataset, robots=[sequence], sensor_model=_own_sensor_model(dataset, index))
-    config = resolve_config(own, file_values=team.filter_settings).config
-    agent = MsckfAgent(robot, dataset.calibration, sequence, config)
+    # the ideal linearisation linearises at the truth: this robot's and the team's map
+    agent = MsckfAgent(
+        robot,
+        dataset.calibration,
+        sequence,
+        config,
+        truth=GroundTruth(sequence.T_world_body, dataset),
+    )
+    transport = transport or ZenohTransport(team, robot)
+    neighbours = team.robots[robot].neighbours
+    wait = LockStep(team.timeout_s) if team.sync == "lockstep" else Asynchronous(team.max_age_steps)
+    driver = RobotDriver(agent, transport, neighbours, wait, lost_after, consensus=bool(neighbours))
     frames = sequence.frames
-    poses = np.zeros((frames, 4, 4))
-    covs = np.zeros((frames, 6, 6))
     start = 0
     if resume and (out / "checkpoint.npz").exists():
-        start = _load_checkpoint(out, agent, poses, covs) + 1
-    transport = transport or ZenohTransport(team, robot)
-    neighbours = set(team.robots[robot].neighbours)
-    lockstep = team.sync == "lockstep"
-    protocol = ConsensusProtocol(agent, neighbours, max_age=0 if lockstep else team.max_age_steps)
-    silent = dict.fromkeys(neighbours, 0)
-    lost_reported: set[int] = set()
-    consensus_times = np.zeros(frames)
+        start = _load_checkpoint(out, driver) + 1
     step_latency = []
-    lost_steps: list[int] = []
-    averaged_with: dict[int, list[int]] = defaultdict(list)
     _atomic_json(out / "progress.json", {"frame": start - 1, "frames": frames, "pid": os.getpid()})
     try:
         # a first run waits for every neighbour; a resumed robot only for its links to form
         transport.wait_for_peers(len(neighbours), team.timeout_s if start == 0 else 1.0)
         for t in range(start, frames):
             step_begin = time.perf_counter()
-            if t > 0 and neighbours:
-                waiting = {j for j in neighbours if silent[j] < lost_after}
-                for message in protocol.requests(t):
-                    transport.send(message)
-                if lockstep:
-                    requests = transport.collect(
-                        t, MapIdsMessage, waiting, team.timeout_s, also=neighbours - waiting
-                    )
-                else:
-                    requests = transport.newest(MapIdsMessage, neighbours, team.max_age_steps, t)
-                for reply in protocol.answer(requests):
-                    transport.send(reply)
-                for j in neighbours:
-                    silent[j] = 0 if j in protocol.heard else silent[j] + 1
-                    if silent[j] >= lost_after and j not in lost_reported:
-                        lost_reported.add(j)
-                        agent.counters["neighbours_lost"] += 1
-                if lockstep:
-                    replies = transport.collect(
-                        t, CommonMarginalMessage, protocol.expected, team.timeout_s
-                    )
-                else:
-                    replies = transport.newest(
-                        CommonMarginalMessage, neighbours, team.max_age_steps, t
-                    )
-                if neighbours - protocol.heard:
-                    agent.counters["links_lost"] += len(neighbours - protocol.heard)
-                    lost_steps.append(t)
-                protocol.average(replies)
-                for j in protocol.averaged_with:
-                    averaged_with[j].append(t)
-                consensus_times[t] = protocol.spent
-            agent.step(t)
-            poses[t] = agent.state.current_pose
-            covs[t] = agent.state.current_pose_cov()
+            driver.frame(t)
             if publisher is not None:
-                publisher.publish(t, poses[: t + 1], agent.state)
+                publisher.publish(t, driver.poses[: t + 1], agent.state)
             step_latency.append(time.perf_counter() - step_begin)
             if team.checkpoint_every and (t + 1) % team.checkpoint_every == 0:
-                _save_checkpoint(out, agent, poses, covs, t)
+                _save_checkpoint(out, driver, t)
             if t % 5 == 0 or t == frames - 1:
                 _atomic_json(
                     out / "progress.json", {"frame": t, "frames": frames, "pid": os.getpid()}
                 )
+    except EstimationError:
+        _save(out, driver, transport, robot, team, step_latency, complete=False)
+        raise
     finally:
         transport.close()
-    agent.flush_odometry_health()
-    frame_times = np.column_stack([consensus_times, np.array(agent.frame_times).reshape(-1, 3)])
-    full_map = agent.state.full_map()  # in the state and retired, by id
-    _atomic_savez(
-        out / "result.npz",
-        poses=poses,
-        covs=covs,
-        object_ids=full_map[0],
-        objects=full_map[1],
-        frame_times=frame_times,
+    return _save(out, driver, transport, robot, team, step_latency, complete=True)
+
+
+def _latency_ms(seconds) -> dict:
+    seconds = np.asarray(seconds, dtype=float)
+    return {
+        "median": float(np.median(seconds) * 1e3) if seconds.size else None,
+        "p95": float(np.percentile(seconds, 95) * 1e3) if seconds.size else None,
+    }
+
+
+def _save(out, driver, transport, robot, team, step_latency, complete: bool) -> dict:
+    """Write the robot's result (a one-robot :class:`TeamResult`); its summary."""
+    result = assemble_result(
+        [driver],
+        f"team file {team.team}",
+        team.message_loss,
+        robots=[robot],
+        complete=complete,
+        consensus=True,
     )
-    counters = dict(agent.counters)
+    counters = result.counters[0]
     network = transport.statistics()
-    counters["messages"] = int(transport.messages_sent)
-    counters["bytes"] = int(transport.bytes_sent)
     counters["injected_drops"] = int(network.get("injected_drops", 0))
     counters["rejected_wire"] = int(network.get("rejected_wire", 0))
-    latencies = np.asarray(network.get("latencies", []), dtype=float)
+    frames = driver.frames
     summary = {
         "robot": robot,
         "frames": frames,
         "counters": counters,
-        "timings": dict(agent.timings),
-        "health": agent.health.to_json(),
-        "lost_neighbours": sorted(lost_reported),
-        "steps_with_lost_links": lost_steps,
-        "averaged_with": {str(j): steps for j, steps in sorted(averaged_with.items())},
+        "timings": result.timings[0],
+        "health": result.sensor_health[0],
+        **driver.summary(),
         "bytes_per_step": counters["bytes"] / max(frames - 1, 1),
-        "message_latency_ms": {
-            "median": float(np.median(latencies) * 1e3) if latencies.size else None,
-            "p95": float(np.percentile(latencies, 95) * 1e3) if latencies.size else None,
-        },
-        "step_latency_ms": {
-            "median": float(np.median(step_latency) * 1e3) if step_latency else None,
-            "p95": float(np.percentile(step_latency, 95) * 1e3) if step_latency else None,
-        },
+        "message_latency_ms": _latency_ms(network.get("latencies", [])),
+        "step_latency_ms": _latency_ms(step_latency),
     }
-    _atomic_json(out / "result.json", summary)
+    result.extra["per_robot"] = [summary]
+    save_result(result, out)
     return summary
 
 
 def load_robot_result(out: Path, robot: int) -> tuple[dict, dict]:
-    """``(arrays, summary)`` written by :func:`run_agent`."""
-    base = Path(out) / f"robot_{robot}"
-    with np.load(base / "result.npz", allow_pickle=False) as npz:
-        arrays = {k: npz[k] for k in npz.files}
-    return arrays, json.loads((base / "result.json").read_text())
+    """``(arrays, summary)`` of robot ``robot`` written by :func:`run_agent`: ``poses``,
+    ``covs``, ``object_ids``, ``objects``, ``object_covs``, ``frame_times``."""
+    result = load_result(Path(out) / f"robot_{robot}")
+    arrays = {name: getattr(result, name)[0] for name in ARRAYS if getattr(result, name)}
+    arrays["covs"] = arrays.pop("pose_covs")
+    return arrays, result.extra["per_robot"][0]

@@ -18,9 +18,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from teamslam.msckf.health import SensorHealth
-from teamslam.msckf.team import TeamResult
-from teamslam.runtime.agent_process import load_robot_result
+from teamslam.msckf.team import TeamResult, load_result, merge_results
 from teamslam.runtime.team_file import TeamFile
 
 __all__ = ["agent_command", "gather", "launch_team"]
@@ -100,31 +98,8 @@ def launch_team(
 def gather(team: TeamFile, out: Path, robots: list[int] | None = None) -> TeamResult:
     """Collect the per-robot results of a launched team into one :class:`TeamResult`."""
     robots = list(range(team.n)) if robots is None else robots
-    arrays, summaries = zip(*(load_robot_result(out, r) for r in robots), strict=True)
-    return TeamResult(
-        poses=[a["poses"] for a in arrays],
-        pose_covs=[a["covs"] for a in arrays],
-        object_ids=[a["object_ids"] for a in arrays],
-        objects=[a["objects"] for a in arrays],
-        counters=[s["counters"] for s in summaries],
-        timings=[s["timings"] for s in summaries],
-        frame_times=[a["frame_times"] for a in arrays],
-        consensus=True,
-        graph=f"team file {team.team}",
-        loss=team.message_loss,
-        extra={"per_robot": list(summaries)},
-        health=_health(summaries),
-    )
-
-
-def _health(summaries) -> dict:
-    parts = [SensorHealth.from_json(s["health"]) for s in summaries if "health" in s]
-    if len(parts) != len(summaries):
-        return {}
-    return {
-        "team": SensorHealth.combine(parts).summary(),
-        "robots": [p.summary() for p in parts],
-    }
+    parts = [load_result(Path(out) / f"robot_{r}") for r in robots]
+    return merge_results(parts, f"team file {team.team}", team.message_loss)
 
 
 def exit_summary(codes: dict[int, int]) -> str:

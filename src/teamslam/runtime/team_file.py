@@ -40,9 +40,13 @@ A secured team (mutual TLS and access control, :mod:`teamslam.runtime.security`)
 and every endpoint is then a ``tls/HOST:PORT`` endpoint (``teamslam team certs`` writes both).
 
 Each agent listens on its own endpoint and connects to its neighbours' (Zenoh peer mode, no
-router, multicast scouting off so it runs on closed networks). Consensus weights are the
-Metropolis–Hastings weights of the neighbour graph, which every robot can compute for its own
-row from the file alone. Loading validates everything and names the first problem.
+router, multicast scouting off so it runs on closed networks). The consensus weights are not
+fixed by the file: at each step they are the Metropolis–Hastings weights of the links that
+worked, ``A_ij = 1 / (1 + max(d_i, d_j))`` with ``d_i`` the neighbours robot ``i`` heard that
+step (its degree travels in its marginals), as in the in-process run
+(:class:`~teamslam.msckf.protocol.ConsensusProtocol`, :func:`teamslam.graph.metropolis_weight`).
+Loading validates everything and names the first problem; the ``filter`` settings are checked
+for every robot again before a launch (:func:`teamslam.api.launch`).
 """
 
 from __future__ import annotations

@@ -146,6 +146,10 @@ class ZenohTransport:
                     continue
         return alive & set(self.team.robots[self.robot].neighbours)
 
+    def reachable(self, step: int, robots: set[int]) -> set[int]:
+        """Every robot asked for: whether a message arrives is known only afterwards."""
+        return set(robots)
+
     def wait_for_peers(self, count: int, timeout: float) -> int:
         """Block until ``count`` neighbours are alive (or ``timeout``); returns how many are.
 

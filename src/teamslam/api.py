@@ -1,0 +1,756 @@
+"""The workflows of ``teamslam``, as library calls: the command line only parses and prints.
+
+* :func:`run` — the distributed MSCKF (or separate MSCKFs, both, or the centralised filter)
+  over a team dataset, in this process or one process per robot; returns a :class:`Run` whose
+  ``metrics`` are what ``metrics.json`` holds, and writes the run directory when given one;
+* :func:`write_run` / :func:`load_run` — that directory (``metrics.json``, TUM trajectories,
+  estimates, results, figures, report) and back;
+* :func:`launch` — a team file's robots as processes, gathered into a :class:`Run`;
+  :func:`run_robot` — one of them (``teamslam agent``);
+* :func:`calibrate` — a dataset's sensor model from its data;
+* :func:`evaluate` — APE/RPE of runs against ground truth;
+* :func:`export` — a run directory as MCAP.
+
+Example::
+
+    import teamslam
+
+    run = teamslam.run("results/team5", mode="compare", settings={"window": 10})
+    teamslam.write_run(run, "results/team5-run")
+    print(run.metrics["trajectory_rmse_avg_m"])
+
+When a filter fails mid-run (:class:`~teamslam.errors.EstimationError`, naming robot and frame),
+what was computed is not lost: with an output directory the frames done are written first
+(result files marked ``complete: false``, TUM trajectories), then the error is raised.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from teamslam.errors import EstimationError, InputError
+
+__all__ = [
+    "MODES",
+    "Run",
+    "calibrate",
+    "evaluate",
+    "export",
+    "launch",
+    "load_run",
+    "resolve_settings",
+    "run",
+    "run_robot",
+    "write_run",
+]
+
+#: Runs of :func:`run`'s ``mode``: which filters it runs, by the name of their column.
+MODES = {
+    "consensus": ("consensus",),
+    "separate": ("separate",),
+    "compare": ("separate", "consensus"),
+    "centralised": ("centralised",),
+}
+RUN_FILE = "run.json"
+
+
+@dataclass
+class Run:
+    """A run of the filter over a team dataset.
+
+    Attributes
+    ----------
+    dataset
+        The team dataset (``None`` when a loaded run's dataset is not at hand).
+    results
+        :class:`~teamslam.msckf.team.TeamResult` per filter: ``consensus``, ``separate``,
+        ``centralised``.
+    by_mode
+        Per filter its metrics (:func:`~teamslam.eval.metrics.team_metrics` and the effective
+        settings): a row of the table.
+    graph, loss
+        The communication graph's name and the link loss.
+    exit_codes
+        Per robot process its exit status (runs as processes only).
+    notes
+        What the user should know (robots that ran alone, lost neighbours), one line each.
+    warnings
+        What went wrong without stopping the run (robot processes that failed), one line each.
+    source
+        The dataset's directory, when the run was given one.
+    written
+        What :func:`write_run` wrote: ``directory``, ``report``, ``mcap`` (its summary).
+    """
+
+    dataset: Any
+    results: dict = field(default_factory=dict)
+    by_mode: dict = field(default_factory=dict)
+    graph: str = ""
+    loss: float = 0.0
+    exit_codes: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    source: Path | None = None
+    written: dict = field(default_factory=dict)
+
+    @property
+    def metrics(self) -> dict:
+        """What ``metrics.json`` holds: one filter's metrics, or with ``compare`` the
+        consensus run's with the separate run's under ``"separate"``."""
+        if len(self.by_mode) == 1:
+            return next(iter(self.by_mode.values()))
+        return {**self.by_mode["consensus"], "separate": self.by_mode["separate"]}
+
+    @property
+    def exit_status(self) -> int:
+        """0 when every robot finished; 2 when one stopped on a configuration error; else 1."""
+        codes = set(self.exit_codes.values())
+        if codes <= {0}:
+            return 0
+        return 2 if 2 in codes else 1
+
+
+def _dataset(dataset):
+    from teamslam.datasets import load_dataset
+
+    return load_dataset(dataset) if isinstance(dataset, str | os.PathLike) else dataset
+
+
+def resolve_settings(
+    dataset,
+    settings: dict | Sequence[str] | None = None,
+    config_file: str | Path | None = None,
+    calibrate: str = "auto",
+    calibration_frames: int | None = None,
+):
+    """The effective settings of a run (:class:`~teamslam.msckf.settings.EffectiveConfig`).
+
+    Parameters
+    ----------
+    settings
+        Filter settings on top of everything else: a ``{name: value}`` dict or
+        ``["name=value", …]`` (as ``--set``).
+    config_file
+        YAML file of settings (below ``settings``).
+    calibrate, calibration_frames
+        See :func:`~teamslam.msckf.settings.resolve_config`.
+
+    Raises
+    ------
+    ConfigError
+        A setting that does not exist or has a wrong value (an
+        :class:`~teamslam.errors.InputError`).
+    """
+    from teamslam.msckf.settings import (
+        coerce_settings,
+        load_config_file,
+        parse_assignments,
+        resolve_config,
+    )
+
+    file_values = load_config_file(config_file) if config_file is not None else {}
+    if settings is None or isinstance(settings, dict):
+        flags = coerce_settings(dict(settings or {}), "settings")
+    else:
+        flags = parse_assignments(list(settings))
+    return resolve_config(
+        _dataset(dataset), file_values, flags, calibrate, calibration_frames=calibration_frames
+    )
+
+
+def run(
+    dataset,
+    mode: str = "consensus",
+    graph: str = "complete",
+    loss: float = 0.0,
+    seed: int = 0,
+    settings=None,
+    out: str | Path | None = None,
+    report: bool = True,
+    mcap: str | Path | bool | None = None,
+    processes: bool = False,
+    base_port: int = 17400,
+    secure: bool = False,
+    progress: bool | None = None,
+    source: str | Path | None = None,
+) -> Run:
+    """Run the filter over a team dataset: what ``teamslam run`` computes.
+
+    Parameters
+    ----------
+    dataset
+        A :class:`~teamslam.datasets.model.TeamDataset` or its directory (a directory is
+        needed with ``processes``).
+    mode
+        One of :data:`MODES`.
+    graph
+        Communication graph kind (:data:`teamslam.graph.GRAPH_KINDS`).
+    loss
+        Per-frame link loss rate (injected message loss with ``processes``).
+    seed
+        Seed of the link loss and of a random graph.
+    settings
+        An :class:`~teamslam.msckf.settings.EffectiveConfig` (:func:`resolve_settings`), or
+        settings for it (``{name: value}`` or ``["name=value", …]``), or ``None`` (the
+        dataset's sensor model; a calibration where it lacks noise levels).
+    out
+        Run directory to write (:func:`write_run`); also where the frames done go when a
+        filter fails.
+    report, mcap
+        With ``out``: write ``report.html``; write MCAP (``True``: ``out/run.mcap``).
+    processes
+        One process per robot over Zenoh on loopback (consensus only; needs ``out``).
+    base_port, secure
+        With ``processes``: the first TCP port; mutual TLS with throw-away certificates.
+    progress
+        Show a progress bar (default: when standard error is a terminal).
+    source
+        The directory of a ``dataset`` given loaded (what ``processes`` need).
+
+    Raises
+    ------
+    InputError
+        A wrong argument or setting (exit status 2), found before anything runs.
+    EstimationError
+        A filter failed (naming robot and frame); with ``out`` what was computed is written
+        first.
+    """
+    from teamslam.graph import make
+    from teamslam.msckf.settings import EffectiveConfig
+
+    if mode not in MODES:
+        raise InputError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if mcap and out is None:
+        raise InputError("MCAP output needs a run directory (out)")
+    if secure and not processes:
+        raise InputError("secure needs processes (robots as processes on loopback)")
+    if processes and (out is None or mode != "consensus"):
+        raise InputError("processes need a run directory (out) and run consensus only")
+    path = dataset if isinstance(dataset, str | os.PathLike) else source
+    dataset = _dataset(dataset)
+    effective = (
+        settings if isinstance(settings, EffectiveConfig) else resolve_settings(dataset, settings)
+    )
+    comm = make(graph, dataset.n_robots, seed=seed)
+    if processes:
+        if path is None:
+            raise InputError("processes need the dataset's directory, not a dataset object")
+        result = _run_processes(path, dataset, effective, comm, loss, Path(out), base_port, secure)
+        result.source = Path(path)
+        return result
+    result = Run(dataset, graph=comm.name, loss=loss, source=None if path is None else Path(path))
+    for name in MODES[mode]:
+        try:
+            result.results[name] = _run_one(name, dataset, effective, comm, loss, seed, progress)
+        except EstimationError as exc:
+            if out is not None:
+                _write_partial(Path(out), dataset, result.results, exc, MODES[mode])
+            raise
+        result.by_mode[name] = _metrics(dataset, result.results[name], effective)
+    if out is not None:
+        write_run(result, out, report=report, mcap=mcap)
+    return result
+
+
+def _run_one(name, dataset, effective, graph, loss, seed, progress):
+    from teamslam.msckf.team import run_team
+
+    if name == "centralised":
+        from teamslam.msckf.centralised import run_centralised
+
+        return run_centralised(dataset, effective.robots, progress=progress)
+    return run_team(
+        dataset, effective.robots, graph, name == "consensus", loss, seed, progress=progress
+    )
+
+
+def _metrics(dataset, result, effective) -> dict:
+    from teamslam.eval.metrics import team_metrics
+
+    return {**team_metrics(dataset, result), **effective.to_json()}
+
+
+def _write_partial(out: Path, dataset, done: dict, exc: EstimationError, names) -> None:
+    from teamslam.eval.outputs import write_partial_outputs
+    from teamslam.msckf.team import PartialRunError
+
+    results = dict(done)
+    if isinstance(exc, PartialRunError):
+        results[next(n for n in names if n not in done)] = exc.result
+    write_partial_outputs(out, dataset, results, list(names))
+
+
+def write_run(
+    run: Run, directory: str | Path, report: bool = True, mcap: str | Path | bool | None = None
+) -> dict:
+    """Write a run directory: ``metrics.json``, per filter TUM trajectories, ``estimates.npz``
+    and result files, the figures, ``run.json``, then MCAP and ``report.html`` if asked.
+
+    Returns ``{"directory", "mcap", "report"}`` (also kept as ``run.written``).
+
+    Raises
+    ------
+    OutputError
+        Something cannot be written (named).
+    """
+    from teamslam.eval.outputs import write_json, write_team_outputs
+
+    out = Path(directory)
+    write_team_outputs(out, run.dataset, run.results, run.metrics)
+    write_json(
+        out / RUN_FILE,
+        {
+            "dataset": run.dataset.name,
+            "dataset_path": None if run.source is None else str(run.source),
+            "modes": list(run.results),
+            "graph": run.graph,
+            "loss": run.loss,
+        },
+    )
+    written: dict[str, Any] = {"directory": out, "mcap": None, "report": None}
+    if mcap:
+        target = out / "run.mcap" if mcap is True or mcap == "" else Path(mcap)
+        written["mcap"] = export(out, target)
+    if report:
+        from teamslam.eval.report import write_run_report
+
+        written["report"] = write_run_report(out, run.dataset, run.results)
+    run.written = written
+    return written
+
+
+def load_run(directory: str | Path, dataset=None) -> Run:
+    """The :class:`Run` :func:`write_run` wrote (``dataset``: the team dataset, if at hand).
+
+    Raises
+    ------
+    InputError
+        Not a run directory, or a file in it cannot be read (named).
+    """
+    from teamslam.msckf.team import load_result
+
+    out = Path(directory)
+    try:
+        meta = json.loads((out / RUN_FILE).read_text())
+        metrics = json.loads((out / "metrics.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{out}: not a run directory written by teamslam ({exc})") from None
+    names = meta["modes"]
+    results = {n: load_result(out if len(names) == 1 else out / n) for n in names}
+    if len(names) == 1:
+        by_mode = {names[0]: metrics}
+    else:
+        by_mode = {
+            "separate": metrics["separate"],
+            "consensus": {k: v for k, v in metrics.items() if k != "separate"},
+        }
+    source = meta.get("dataset_path")
+    return Run(
+        None if dataset is None else _dataset(dataset),
+        results,
+        by_mode,
+        meta.get("graph", ""),
+        meta.get("loss", 0.0),
+        source=None if source is None else Path(source),
+        written={"directory": out},
+    )
+
+
+# ---------------------------------------------------------------------- processes
+def _run_processes(path, dataset, effective, graph, loss, out, base_port, secure) -> Run:
+    """Write a loopback team file, launch it, gather."""
+    from teamslam.runtime.team_file import write_team_file
+
+    name = f"run-{os.getpid()}"
+    settings = {
+        "base_port": base_port,
+        "message_loss": loss,
+        "filter": effective.config.to_json(),
+    }
+    if not secure:
+        team_path = write_team_file(out / "team.yaml", name, path, graph.adjacency, **settings)
+        return launch(team_path, out, effective)
+    from teamslam.runtime.security import SecuritySection, make_team_certificates
+
+    keys = out / "certs"
+    robots = {i: (f"robot-{i}", "127.0.0.1") for i in range(dataset.n_robots)}
+    written = make_team_certificates(name, robots, keys, days=1, reuse_ca=False)
+    try:
+        security = SecuritySection(written.ca_certificate, written.robots)
+        team_path = write_team_file(
+            out / "team.yaml", name, path, graph.adjacency, security=security, **settings
+        )
+        result = launch(team_path, out, effective)
+        result.notes.insert(
+            0, f"secured team: mutual TLS, access control; throw-away certificates in {keys}"
+        )
+        return result
+    finally:
+        shutil.rmtree(keys, ignore_errors=True)
+
+
+def validate_team(team) -> None:
+    """Every robot's settings as its process will resolve them, without calibrating.
+
+    Raises
+    ------
+    InputError
+        The first robot whose dataset or settings are wrong (named).
+    """
+    from teamslam.runtime.agent_process import robot_setup
+
+    for r in team.robots:
+        robot_setup(team, r.id, calibrate="never")
+
+
+def launch(team_path: str | Path, out: str | Path, settings=None, progress=None) -> Run:
+    """Run every robot of a team file as its own process; gather their results.
+
+    The settings are checked for every robot before anything starts. Metrics cover the robots
+    that finished (on the team's dataset); ``exit_codes`` says how each process ended and
+    :attr:`Run.exit_status` sums it up.
+
+    Parameters
+    ----------
+    settings
+        The :class:`~teamslam.msckf.settings.EffectiveConfig` to report with the metrics.
+    """
+    from teamslam.eval.outputs import write_team_outputs
+    from teamslam.runtime.launch import exit_summary, gather, launch_team
+    from teamslam.runtime.team_file import load_team_file
+
+    team_path, out = Path(team_path), Path(out)
+    team = load_team_file(team_path)
+    validate_team(team)
+    codes = launch_team(team, team_path, out, progress=progress)
+    finished = [r for r, c in sorted(codes.items()) if c == 0]
+    result = Run(None, graph=f"team file {team.team}", loss=team.message_loss, exit_codes=codes)
+    if len(finished) < team.n:
+        result.warnings.append(f"{exit_summary(codes)} (see {out}/robot_N.log)")
+    if not finished:
+        return result
+    if team.dataset is None or any(r.dataset for r in team.robots):
+        result.notes.append(f"robots ran on their own datasets; per-robot results are in {out}")
+        return result
+    dataset = _dataset(team.dataset)
+    gathered = gather(team, out, finished)
+    if len(finished) < team.n:
+        result.notes.append(
+            f"robots {', '.join(str(r) for r in finished)} finished; metrics cover them only"
+        )
+        dataset = dataset.subset(finished)
+    result.notes.extend(
+        f"robot {s['robot']} lost neighbour(s) {s['lost_neighbours']}"
+        for s in gathered.extra["per_robot"]
+        if s["lost_neighbours"]
+    )
+    metrics = _metrics_of_team(dataset, gathered, settings)
+    result.dataset = dataset
+    result.results = {"consensus": gathered}
+    result.by_mode = {"consensus": metrics}
+    write_team_outputs(out, dataset, result.results, result.metrics)
+    from teamslam.eval.report import write_run_report
+
+    result.written = {"directory": out, "report": write_run_report(out, dataset, result.results)}
+    return result
+
+
+def _metrics_of_team(dataset, result, settings) -> dict:
+    from teamslam.eval.metrics import team_metrics
+
+    metrics = team_metrics(dataset, result)
+    metrics["transport"] = result.extra["per_robot"]
+    if settings is not None:
+        metrics.update(settings.to_json())
+    return metrics
+
+
+def run_robot(
+    team_path: str | Path,
+    robot: int,
+    out: str | Path,
+    resume: bool = False,
+    ros2: bool = False,
+    ros2_options: dict | None = None,
+) -> dict:
+    """Run one robot of a team file in this process (``teamslam agent``); its summary.
+
+    Parameters
+    ----------
+    ros2
+        Publish ROS 2 topics over rmw_zenoh (also done when the team file has a ``ros2``
+        section).
+    ros2_options
+        Overrides of the team file's ``ros2`` section (``domain_id``, ``connect``, ``listen``,
+        ``period``; ``None`` values are ignored).
+
+    Raises
+    ------
+    InputError
+        A wrong robot id, credentials or settings (exit status 2), before anything runs.
+    EstimationError
+        The filter failed; the frames done are written first.
+    """
+    from teamslam.runtime.agent_process import run_agent
+    from teamslam.runtime.team_file import load_team_file
+
+    team = load_team_file(team_path)
+    if not 0 <= robot < team.n:
+        raise InputError(f"robot must lie in 0..{team.n - 1}, got {robot}")
+    if team.security is not None:
+        from teamslam.runtime.security import check_credentials
+
+        check_credentials(team.security, robot)  # one line naming a missing/unreadable key
+    if not ros2 and team.ros2 is None:
+        return run_agent(team, robot, Path(out), resume=resume)
+    publisher = _ros2_publisher(team, robot, ros2_options or {})
+    try:
+        return run_agent(team, robot, Path(out), resume=resume, publisher=publisher)
+    finally:
+        publisher.close()
+
+
+def _ros2_publisher(team, robot: int, options: dict):
+    from teamslam.datasets import load_dataset
+    from teamslam.eval.estimates import stamps_ns
+    from teamslam.ros2.rmw_zenoh import Ros2Publisher, ros2_settings
+
+    settings = ros2_settings(team.ros2, **options)
+    dataset_path, index = team.dataset_of(robot)
+    sequence = load_dataset(dataset_path).robots[index]
+    return Ros2Publisher(
+        robot=robot,
+        stamps_ns=stamps_ns(sequence.timestamps, sequence.frames, settings["period"]),
+        domain_id=settings["domain_id"],
+        connect=settings["connect"],
+        listen=settings["listen"],
+        path_every=settings["path_every"],
+        objects_every=settings["objects_every"],
+        wait_s=settings["wait_s"],
+    )
+
+
+# ---------------------------------------------------------------------- other workflows
+def calibrate(
+    dataset,
+    settings=None,
+    config_file: str | Path | None = None,
+    frames: int | None = None,
+    odometry_per_axis: bool = False,
+    write: bool = False,
+    source: str | Path | None = None,
+):
+    """Estimate a dataset's sensor model from its data (no ground truth).
+
+    Every setting comes from the usual layers, but the estimated noise levels start from the
+    camera-scaled defaults, not from what the dataset says. With ``write`` the result becomes
+    the dataset's sensor model (what calibration does not estimate is kept); the dataset must
+    then be given as its directory (or ``source``, the directory of a loaded one).
+
+    Returns
+    -------
+    CalibrationResult
+        :class:`~teamslam.msckf.calibration.CalibrationResult`.
+    """
+    from teamslam.datasets import save_dataset
+    from teamslam.msckf.calibration import calibrate as run_calibration
+    from teamslam.msckf.settings import calibration_start
+
+    path = dataset if isinstance(dataset, str | os.PathLike) else source
+    dataset = _dataset(dataset)
+    effective = resolve_settings(dataset, settings, config_file, calibrate="never")
+    start = calibration_start(dataset, effective.config)
+    result = run_calibration(dataset, start, frames=frames, odometry_per_axis=odometry_per_axis)
+    if write:
+        if path is None:
+            raise InputError("write needs the dataset's directory, not a dataset object")
+        model = result.sensor_model
+        if dataset.sensor_model is not None:  # keep what calibration does not estimate
+            model = replace(model, team=dataset.sensor_model.team.merged(model.team))
+        save_dataset(replace(dataset, sensor_model=model), path)
+    return result
+
+
+def evaluate(runs: Sequence[str | Path], references=None, out: str | Path | None = None, **options):
+    """APE/RPE of runs (run directories, trajectory files) against ground truth.
+
+    Parameters
+    ----------
+    runs
+        What ``teamslam eval`` takes: run directories, trajectory files, files joined by
+        commas.
+    references
+        Per robot reference trajectories (default: what each run recorded).
+    out
+        Directory for ``eval.json`` and the figures.
+    options
+        ``align``, ``scope``, ``rpe_delta``, ``rpe_unit``, ``max_time_diff``
+        (:func:`teamslam.eval.report.evaluate_runs`).
+
+    Returns
+    -------
+    dict
+        ``{"runs": {name: statistics}}`` (what ``eval.json`` holds) and, not written,
+        ``names``, ``statistics`` and ``evaluations``.
+    """
+    from teamslam.eval.outputs import write_json, writing
+    from teamslam.eval.report import evaluate_runs, unique_names
+    from teamslam.eval.runs import load_runs
+
+    loaded = [r for spec in runs for r in load_runs(spec)]
+    evaluations = evaluate_runs(loaded, references, **options)
+    names = unique_names(loaded)
+    stats = [ev.statistics() for ev in evaluations]
+    payload = {"runs": dict(zip(names, stats, strict=True))}
+    if out is not None:
+        from teamslam.eval.figures import (
+            ape_over_time_figure,
+            ape_path_figure,
+            save_figure,
+            trajectories_figure,
+        )
+
+        out = Path(out)
+        write_json(out / "eval.json", payload)
+        with writing(out):
+            save_figure(trajectories_figure(names, evaluations), out / "trajectories.png")
+            save_figure(ape_over_time_figure(names, evaluations), out / "ape_over_time.png")
+            save_figure(ape_path_figure(names, evaluations), out / "ape_path.png")
+    return {**payload, "names": names, "statistics": stats, "evaluations": evaluations}
+
+
+def export(result_dir: str | Path, out: str | Path, path_messages: int = 100) -> dict:
+    """Write a run directory as one MCAP file with ROS 2 schemas; a summary of what was
+    written (``path``, ``messages``, ``topics``, ``bytes``, ``seconds``)."""
+    from teamslam.eval.outputs import writing
+    from teamslam.ros2.mcap_export import export_mcap
+
+    with writing(Path(out)):
+        return export_mcap(result_dir, out, path_messages=path_messages)
+
+
+# ---------------------------------------------------------------------- planar FEJ-EKF
+def fej_environment(env: int = 1, features: int = 20, files: Sequence[str | Path] = ()):
+    """The planar environment of ``teamslam fej table``: generated (``env``, ``features``),
+    or from files — one teamslam JSON file, or the published MATLAB pair (waypoints file and
+    features file; the noise levels of environment ``env``)."""
+    from teamslam.ekf2d.environments import environment, load_environment, load_matlab_environment
+
+    if not files:
+        return environment(env, features)
+    paths = [Path(f) for f in files]
+    for f in paths:
+        if not f.is_file():
+            raise InputError(f"environment file {f} does not exist")
+    if len(paths) == 1 and paths[0].suffix == ".json":
+        return load_environment(paths[0])
+    base = environment(env, 20)  # the chosen environment's noise levels
+    return load_matlab_environment(
+        paths,
+        odometry_std=base.odometry_std,
+        observation_std=base.observation_std,
+        name="+".join(f.stem for f in paths),
+    )
+
+
+def fej_table(environment, runs: int = 100, seed: int = 0, workers=None, out=None):
+    """Monte Carlo NEES/RMSE of the standard, first-estimate and ideal planar EKFs; with
+    ``out`` also ``table.json``, ``nees_rmse.png`` and ``sigma_bounds.png``.
+
+    Returns
+    -------
+    MonteCarloResult
+        :class:`~teamslam.ekf2d.experiments.MonteCarloResult` (``table``: per filter).
+    """
+    from teamslam.ekf2d.experiments import monte_carlo
+    from teamslam.eval.outputs import write_json, writing
+
+    result = monte_carlo(environment, runs=runs, seed=seed, workers=workers)
+    if out is not None:
+        from teamslam.eval.plots import plot_monte_carlo, plot_sigma_bounds
+
+        out = Path(out)
+        write_json(
+            out / "table.json",
+            {
+                "environment": environment.name,
+                "runs": runs,
+                "steps": result.steps,
+                "filters": result.table,
+            },
+        )
+        with writing(out):
+            plot_monte_carlo(result, out / "nees_rmse.png")
+            plot_sigma_bounds(result, out / "sigma_bounds.png")
+    return result
+
+
+VICTORIA_PARK_LABELS = {"std": "Std-EKF", "fej": "FEJ-EKF"}
+
+
+def victoria_park(data: str | Path, per_measurement_noise: bool = False, out=None) -> dict:
+    """The two-robot split of Victoria Park with the standard and the first-estimate EKF,
+    against the reference batch solution; with ``out`` also ``metrics.json`` and the map.
+
+    Returns
+    -------
+    dict
+        Per filter (``std``, ``fej``): ``position_rmse_m`` and ``heading_rmse_rad`` per robot,
+        ``feature_rmse_m``, ``seconds`` — what ``metrics.json`` holds.
+    """
+    from teamslam.datasets.victoria_park import load_victoria_park
+    from teamslam.ekf2d.victoria_park import run_victoria_park
+    from teamslam.eval.outputs import write_json, writing
+
+    split = load_victoria_park(data)
+    results = {p: run_victoria_park(split, p, per_measurement_noise) for p in ("std", "fej")}
+    summary = {
+        name: {
+            "position_rmse_m": r.position_rmse.tolist(),
+            "heading_rmse_rad": r.heading_rmse.tolist(),
+            "feature_rmse_m": r.feature_rmse,
+            "seconds": r.seconds,
+        }
+        for name, r in results.items()
+    }
+    if out is not None:
+        from teamslam.eval.plots import plot_planar_map
+
+        out = Path(out)
+        write_json(out / "metrics.json", summary)
+        trajectories = {"reference (Gauss–Newton)": [r.reference_poses for r in split.robots]}
+        features = {"reference (Gauss–Newton)": split.reference_features}
+        for name, r in results.items():
+            label = VICTORIA_PARK_LABELS[name]
+            trajectories[label] = [r.poses[:, i] for i in range(r.poses.shape[1])]
+            features[label] = r.features
+        with writing(out):
+            plot_planar_map(trajectories, features, out / "victoria_park.png", "Victoria Park")
+    return summary
+
+
+def victoria_park_table(summary: dict) -> str:
+    """The table ``teamslam fej victoria-park`` prints of :func:`victoria_park`'s summary."""
+    head = (
+        f"{'EKF':<6} {'R1 pos RMSE':>12} {'R2 pos RMSE':>12} {'R1 head':>9} {'R2 head':>9} "
+        f"{'feat RMSE':>10} {'time [s]':>9}"
+    )
+    lines = [
+        "Victoria Park, two-robot split (poses 719–3264 and 3265–5810), errors against the",
+        "reference batch Gauss–Newton solution:",
+        head,
+        "-" * len(head),
+    ]
+    for name, r in summary.items():
+        pos, heading = r["position_rmse_m"], r["heading_rmse_rad"]
+        lines.append(
+            f"{name:<6} {pos[0]:12.3f} {pos[1]:12.3f} {heading[0]:9.4f} {heading[1]:9.4f} "
+            f"{r['feature_rmse_m']:10.3f} {r['seconds']:9.2f}"
+        )
+    return "\n".join(lines)
