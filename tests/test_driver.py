@@ -271,12 +271,6 @@ def test_a_robot_process_failing_mid_run_keeps_its_frames(team3, tmp_path, monke
     assert not load_result(tmp_path / "out" / "robot_1").complete
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="needs the finiteness check of measurements entering the state "
-    "(MsckfState.update raising EstimationError); without it the NaN enters the estimate "
-    "and a later step fails in numpy (LinAlgError: SVD did not converge)",
-)
 def test_a_nan_measurement_mid_run_exits_1_naming_robot_and_frame(
     team3, tmp_path, capsys, monkeypatch
 ):

@@ -79,11 +79,6 @@ from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Messag
 __all__ = ["ConsensusProtocol", "metropolis_weight"]
 
 
-def metropolis_weight(degree_i: int, degree_j: int) -> float:
-    """``A_ij = 1 / (1 + max(d_i, d_j))`` for a link heard by both ends."""
-    return 1.0 / (1.0 + max(degree_i, degree_j))
-
-
 class ConsensusProtocol:
     """One robot's side of consensus.
 
