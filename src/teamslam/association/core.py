@@ -130,7 +130,9 @@ class AssociationSettings:
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
                 raise InputError(f"association setting {name} must be an integer ≥ {low}")
         if not (np.isfinite(self.distinctness) and self.distinctness >= 0.0):
-            raise InputError(f"association setting distinctness must be ≥ 0, got {self.distinctness}")
+            raise InputError(
+                f"association setting distinctness must be ≥ 0, got {self.distinctness}"
+            )
         if self.descriptor_matches > self.neighbours:
             raise InputError("association setting descriptor_matches exceeds neighbours")
 
@@ -223,9 +225,7 @@ def _distances(means: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.ndar
     return dist, along + along.T
 
 
-def _descriptors(
-    dist: np.ndarray, var: np.ndarray, k: int
-) -> tuple[np.ndarray, np.ndarray]:
+def _descriptors(dist: np.ndarray, var: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Distances to the ``k`` nearest neighbours (ascending) and their variances."""
     n = dist.shape[0]
     k = min(k, n - 1)
@@ -299,8 +299,10 @@ def consistency_graph(
     dist_b, var_b = geo_b
     d1 = dist_a[np.ix_(ia, ia)]
     d2 = dist_b[np.ix_(ib, ib)]
-    var = var_a[np.ix_(ia, ia)] + var_b[np.ix_(ib, ib)] + settings.drift_ratio**2 * (
-        0.25 * (d1 + d2) ** 2
+    var = (
+        var_a[np.ix_(ia, ia)]
+        + var_b[np.ix_(ib, ib)]
+        + settings.drift_ratio**2 * (0.25 * (d1 + d2) ** 2)
     )
     diff = d1 - d2
     graph = diff * diff <= settings.consistency_threshold * var
@@ -470,9 +472,7 @@ def associate(
     return _associate(first.sorted(), second.sorted(), settings)
 
 
-def _no_answer(
-    a: ObjectSummary, b: ObjectSummary, status: str, **counts
-) -> AssociationResult:
+def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> AssociationResult:
     return AssociationResult(a.robot, b.robot, np.zeros((0, 2), np.int64), None, status, **counts)
 
 
