@@ -307,10 +307,10 @@ def import_reference(
 
     truth = safe_unpickle(source / "obj_features_gt")
     if isinstance(truth, Mapping):
-        object_ids = np.array([int(i) for i in truth], dtype=np.int64)
+        truth_ids = np.array([int(i) for i in truth], dtype=np.int64)
         object_positions = np.array([np.asarray(v, dtype=float).ravel() for v in truth.values()])
     elif isinstance(truth, np.ndarray) and truth.ndim == 2 and truth.shape[1] == 3:
-        object_ids = np.arange(truth.shape[0], dtype=np.int64)
+        truth_ids = np.arange(truth.shape[0], dtype=np.int64)
         object_positions = truth.astype(float)
     else:
         raise DatasetError(f"{source / 'obj_features_gt'}: expected a dict or an (M, 3) array")
@@ -327,7 +327,7 @@ def import_reference(
         name=name or source.name,
         calibration=calibration,
         robots=sequences,
-        object_ids=object_ids,
+        object_ids=truth_ids,
         object_positions=object_positions.reshape(-1, 3),
         metadata={
             "source": "distributed-MSCKF published data",
