@@ -25,17 +25,16 @@ import numpy as np
 __all__ = ["maximum_clique"]
 
 
-def _greedy(adjacency: np.ndarray, degree: np.ndarray, start: int, floor: int) -> list[int]:
-    """A clique grown from ``start``: add the candidate with the most neighbours among the rest."""
+def _greedy(adjacency: np.ndarray, rank: np.ndarray, start: int, floor: int) -> list[int]:
+    """A clique grown from ``start``: add candidates in order of degree (Pattabiraman et al.)."""
     clique = [start]
-    candidates = np.flatnonzero(adjacency[start] & (degree >= floor))
+    candidates = rank[adjacency[start, rank]]  # neighbours of start, highest degree first
     while candidates.size:
-        sub = adjacency[np.ix_(candidates, candidates)]
-        inner = sub.sum(axis=1)
-        best = int(np.argmax(inner))  # first maximum: the lowest index among ties
-        v = int(candidates[best])
+        v = int(candidates[0])
         clique.append(v)
-        candidates = candidates[sub[best]]
+        candidates = candidates[1:][adjacency[v, candidates[1:]]]
+        if len(clique) + candidates.size <= floor:
+            return []  # cannot beat the best any more
     return sorted(clique)
 
 
@@ -90,11 +89,12 @@ def maximum_clique(
     degree = adjacency.sum(axis=1)
     best: list[int] = [int(np.argmax(degree))] if lower_bound < 1 else []
     # heuristic: grow a clique from each vertex that could still beat the best (high degree first)
-    for v in np.lexsort((np.arange(m), -degree))[:starts]:
+    rank = np.lexsort((np.arange(m), -degree))  # highest degree first, ties by index
+    for v in rank[:starts]:
         size = max(len(best), lower_bound)
         if degree[v] < size:  # a vertex in a larger clique has at least `size` neighbours
             break
-        clique = _greedy(adjacency, degree, int(v), size)
+        clique = _greedy(adjacency, rank[degree[rank] >= size], int(v), size)
         if len(clique) > len(best):
             best = clique
     # exact search on the vertices that could be in a larger clique

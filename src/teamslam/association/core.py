@@ -105,7 +105,7 @@ class AssociationSettings:
     candidates_per_object: int = 4
     min_inliers: int = 3
     ambiguity_ratio: float = 0.75
-    clique_budget: int = 20_000
+    clique_budget: int = 2_000
     distinctness: float = 2.0
 
     def __post_init__(self) -> None:
