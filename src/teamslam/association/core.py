@@ -102,7 +102,7 @@ class AssociationSettings:
     drift_ratio: float = 0.05
     neighbours: int = 6
     descriptor_matches: int = 2
-    candidates_per_object: int = 4
+    candidates_per_object: int = 3
     min_inliers: int = 3
     ambiguity_ratio: float = 0.75
     clique_budget: int = 2_000
@@ -243,19 +243,29 @@ def _candidates(
     settings: AssociationSettings,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Candidate pairs ``(index in first, index in second)`` by descriptor agreement."""
-    chi2 = settings.consistency_threshold
-    rho2 = settings.drift_ratio**2
-    da, va = _descriptors(*geo_a, settings.neighbours)
-    db, vb = _descriptors(*geo_b, settings.neighbours)
-    diff = da[:, None, :, None] - db[None, :, None, :]
-    mean_d = 0.5 * (da[:, None, :, None] + db[None, :, None, :])
-    var = va[:, None, :, None] + vb[None, :, None, :] + rho2 * mean_d**2
-    agree = diff * diff <= chi2 * var
-    found_a = agree.any(axis=3).sum(axis=2)
-    found_b = agree.any(axis=2).sum(axis=2)
+    chi2 = np.float32(settings.consistency_threshold)
+    rho2 = np.float32(settings.drift_ratio**2)
+    da, va = (x.astype(np.float32) for x in _descriptors(*geo_a, settings.neighbours))
+    db, vb = (x.astype(np.float32) for x in _descriptors(*geo_b, settings.neighbours))
+
+    def nearest(dx, vx, dy, vy) -> np.ndarray:
+        """For every pair (x, y) and each neighbour distance of x: the smallest normalised
+        squared difference to any neighbour distance of y, ``(n_x, n_y, k)``."""
+        best = np.full((dx.shape[0], dy.shape[0], dx.shape[1]), np.inf, dtype=np.float32)
+        for j in range(dy.shape[1]):  # k passes over (n_x, n_y, k): no reduction over a tiny axis
+            d = dx[:, None, :] - dy[None, :, j, None]
+            m = dx[:, None, :] + dy[None, :, j, None]
+            z = d * d / (vx[:, None, :] + vy[None, :, j, None] + (0.25 * rho2) * m * m)
+            np.minimum(best, z, out=best)
+        return best
+
+    z_a = nearest(da, va, db, vb)  # a's neighbour distances found around b
+    z_b = nearest(db, vb, da, va).transpose(1, 0, 2)  # b's found around a
+    found_a = np.count_nonzero(z_a <= chi2, axis=2)
+    found_b = np.count_nonzero(z_b <= chi2, axis=2)
     score = np.minimum(found_a, found_b)
     # a finer key for ranking among equal counts: the mean normalised descriptor mismatch
-    closeness = -np.where(agree, diff * diff / var, chi2).min(axis=3).mean(axis=2)
+    closeness = -0.5 * (np.minimum(z_a, chi2).mean(axis=2) + np.minimum(z_b, chi2).mean(axis=2))
     if first.classes is not None and second.classes is not None:
         score = np.where(first.classes[:, None] == second.classes[None, :], score, 0)
     eligible = score >= max(settings.descriptor_matches, 1)
