@@ -273,3 +273,41 @@ def test_scores_count_right_and_wrong_pairs():
     assert score.precision == pytest.approx(2 / 3) and score.recall == pytest.approx(2 / 3)
     with pytest.raises(InputError, match="does not hold"):
         score_correspondences(np.array([[9, 11]]), truth_a[0], truth_b[0], truth_a, truth_b)
+
+
+def test_extend_grows_the_table_identically_on_both_ends():
+    from dataclasses import replace
+
+    a, b, truth_a, truth_b = _two_maps(seed=0, yaw=30.0, shift=(20.0, 0.0, 0.0))
+    full = associate(a, b)
+    assert full.matched and len(full.pairs) == 40
+    start = replace(full, pairs=full.pairs[:8])  # the maps held only a few of them at first
+    mine = CorrespondenceTable(a.robot, b.robot)
+    theirs = CorrespondenceTable(b.robot, a.robot)
+    mine.merge(start, a, b, step=0)
+    theirs.merge(start.swapped(), b, a, step=0)
+    added = mine.extend(a, b, step=1)
+    added_there = theirs.extend(b, a, step=1)
+    assert len(added) >= 28  # most of the 32 others, and (below) none wrong
+    assert np.array_equal(theirs.pairs(), mine.pairs()[np.argsort(mine.pairs()[:, 1])][:, ::-1])
+    assert np.array_equal(added_there[np.argsort(added_there[:, 1])][:, ::-1], added)
+    score = score_correspondences(mine.pairs(), a.ids, b.ids, truth_a, truth_b)
+    assert score.wrong == 0 and score.correct == 8 + len(added)
+    # a revoked pair does not come back through extend either
+    own_id, their_id = full.pairs[20]
+    mine.revoke(own_id, their_id, step=2)
+    again = mine.extend(a, b, step=3)
+    assert (own_id, their_id) not in mine
+    assert [own_id, their_id] not in again.tolist()
+    score = score_correspondences(mine.pairs(), a.ids, b.ids, truth_a, truth_b)
+    assert score.wrong == 0
+
+
+def test_extend_needs_three_held_pairs():
+    from dataclasses import replace
+
+    a, b, *_ = _two_maps(seed=3)
+    full = associate(a, b)
+    table = CorrespondenceTable(a.robot, b.robot)
+    table.merge(replace(full, pairs=full.pairs[:2]), a, b)
+    assert table.extend(a, b).size == 0 and len(table) == 2

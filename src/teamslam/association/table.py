@@ -17,7 +17,14 @@ from __future__ import annotations
 import numpy as np
 import scipy.stats
 
-from teamslam.association.core import AssociationResult, AssociationSettings, fit_transform
+from teamslam.association.core import (
+    AssociationResult,
+    AssociationSettings,
+    _assign,
+    _distinct,
+    fit_transform,
+    gate_pairs,
+)
 from teamslam.association.summary import ObjectSummary
 from teamslam.errors import InputError
 
@@ -246,6 +253,57 @@ class CorrespondenceTable:
         self.accepted += len(new)
         return np.array(new, dtype=np.int64).reshape(-1, 2)
 
+    def extend(
+        self, own: ObjectSummary, their: ObjectSummary, step: int | None = None
+    ) -> np.ndarray:
+        """Grow the held pairs without a full association (cheap: one gate, one assignment).
+
+        The objects neither end has matched yet are gated under the transform of the held pairs
+        (:func:`~teamslam.association.core.gate_pairs`, drift allowance from the nearest held
+        pair), assigned one to one, and kept when distinct (no other object of either map fits
+        nearly as well, held pairs included). Computed in the canonical order of the two robots,
+        like :func:`~teamslam.association.associate`, so both ends add the same pairs.
+
+        Parameters
+        ----------
+        own, their
+            The current summaries of the two maps.
+        step
+            The current step (for the hold-off of revoked pairs).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(k, 2)`` the pairs added; none while fewer than ``min_inliers`` held pairs are in
+            the summaries.
+        """
+        if own.robot != self.own or their.robot != self.neighbour:
+            raise InputError(
+                f"summaries of robots {own.robot}→{their.robot} given to the table of link "
+                f"{self.own}→{self.neighbour}"
+            )
+        held = self.pairs()
+        if self._canonical_first():
+            found = _extend(own.sorted(), their.sorted(), held, self.settings)
+        else:
+            found = _extend(their.sorted(), own.sorted(), held[:, ::-1], self.settings)[:, ::-1]
+        self.proposed += len(found)
+        new = [
+            (int(a), int(b))
+            for a, b in found
+            if int(a) not in self._theirs
+            and int(b) not in self._ours
+            and not self._blocked((int(a), int(b)), step)
+        ]
+        for a, b in new:
+            self._theirs[a] = b
+            self._ours[b] = a
+        self.accepted += len(new)
+        return np.array(new, dtype=np.int64).reshape(-1, 2)
+
+    def _canonical_first(self) -> bool:
+        return self.own <= self.neighbour
+
     def revoke(self, own_id: int, their_id: int, step: int | None = None) -> bool:
         """Drop a held pair (its consensus innovation failed); it is not re-added.
 
@@ -271,3 +329,44 @@ class CorrespondenceTable:
             "revoked": self.revoked,
             "held": len(self),
         }
+
+
+def _extend(
+    a: ObjectSummary, b: ObjectSummary, held: np.ndarray, settings: AssociationSettings
+) -> np.ndarray:
+    """New pairs of unmatched objects of ``a`` and ``b`` under the held pairs' transform."""
+    ia = np.searchsorted(a.ids, held[:, 0]) if held.size else np.zeros(0, np.int64)
+    ib = np.searchsorted(b.ids, held[:, 1]) if held.size else np.zeros(0, np.int64)
+    ia = np.minimum(ia, max(len(a) - 1, 0))
+    ib = np.minimum(ib, max(len(b) - 1, 0))
+    present = (
+        (a.ids[ia] == held[:, 0]) & (b.ids[ib] == held[:, 1])
+        if held.size and len(a) and len(b)
+        else np.zeros(0, bool)
+    )
+    ia, ib = ia[present], ib[present]
+    if ia.size < settings.min_inliers:
+        return np.zeros((0, 2), np.int64)
+    t = fit_transform(a.means[ia], b.means[ib], a.covs[ia], b.covs[ib])
+    cost, passed = gate_pairs(a, b, t, a.means[ia], b.means[ib], settings)
+    free_a = np.ones(len(a), bool)
+    free_a[ia] = False
+    free_b = np.ones(len(b), bool)
+    free_b[ib] = False
+    passed &= free_a[:, None] & free_b[None, :]
+    rows, cols = _assign(cost, passed)
+    if rows.size:
+        # once more with the new pairs as anchors too, as in the association: a new pair must
+        # then fit the refitted transform within its own covariances
+        ra, rb = np.concatenate([ia, rows]), np.concatenate([ib, cols])
+        t = fit_transform(a.means[ra], b.means[rb], a.covs[ra], b.covs[rb])
+        cost, passed = gate_pairs(a, b, t, a.means[ra], b.means[rb], settings)
+        passed &= free_a[:, None] & free_b[None, :]
+        rows, cols = _assign(cost, passed)
+    # distinct against every object, the held pairs counting as assigned
+    all_rows = np.concatenate([ia, rows])
+    all_cols = np.concatenate([ib, cols])
+    keep_rows, keep_cols = _distinct(cost, all_rows, all_cols, settings.distinctness)
+    added = free_a[keep_rows]
+    pairs = np.column_stack([a.ids[keep_rows[added]], b.ids[keep_cols[added]]])
+    return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
