@@ -17,6 +17,10 @@ three, ``time.process_time``).
 * ``sim`` — a simulated team (``teamslam simulate --robots 5 --steps 150 --seed 0``);
 
 and both again with the second robot's whole map shifted 20 m and turned 30° about the vertical.
+Last, a correspondence table per link is kept over the growing maps (the truncated ones, then
+the final ones), as a robot would at run time: extended under its transform
+(:meth:`~teamslam.association.CorrespondenceTable.extend`), then merged with a full association;
+it prints the table's precision and recall and the CPU time of both calls.
 """
 
 from __future__ import annotations
@@ -28,7 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from teamslam.association import ObjectSummary, associate, score_correspondences
+from teamslam.association import (
+    CorrespondenceTable,
+    ObjectSummary,
+    associate,
+    score_correspondences,
+)
 from teamslam.datasets import import_reference
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.geometry import so3
@@ -93,15 +102,55 @@ def _header() -> None:
     print(f"{'maps':<26} pair  objects   status    shared correct wrong precision recall  cpu ms")
 
 
+def _growing(label: str, dataset, checkpoints: list[tuple[str, list[ObjectSummary]]]) -> None:
+    """A correspondence table per link kept over growing maps, as at run time: at each
+    checkpoint the table is first extended under its transform, then a full association is
+    merged into it."""
+    n = dataset.n_robots
+    tables = {(i, j): CorrespondenceTable(i, j) for i in range(n) for j in range(i + 1, n)}
+    for name, summaries in checkpoints:
+        correct = wrong = shared = 0
+        t_extend, t_full = [], []
+        for (i, j), table in tables.items():
+            a, b = summaries[i], summaries[j]
+            begin = time.process_time()
+            table.extend(a, b)
+            t_extend.append(time.process_time() - begin)
+            begin = time.process_time()
+            result = associate(a, b)
+            t_full.append(time.process_time() - begin)
+            table.merge(result, a, b)
+            score = score_correspondences(
+                table.pairs(), a.ids, b.ids, dataset.true_objects(i), dataset.true_objects(j)
+            )
+            correct, wrong, shared = (
+                correct + score.correct,
+                wrong + score.wrong,
+                shared + score.shared,
+            )
+        held = correct + wrong
+        print(
+            f"{label + ' table at ' + name:<34} shared {shared:4d}  correct {correct:4d}  "
+            f"wrong {wrong:3d}  precision {correct / held if held else 1.0:6.3f}  "
+            f"recall {correct / shared if shared else 1.0:6.3f}  "
+            f"extend {np.median(t_extend) * 1e3:6.1f} cpu ms  "
+            f"associate {np.median(t_full) * 1e3:6.1f} cpu ms"
+        )
+
+
 def _evaluate(label: str, dataset, configs, frames: list[int]) -> None:
     result = run_team(dataset, config=configs, consensus=False, progress=False)
     summaries = _summaries(dataset, result)
     _table(f"{label} final", dataset, summaries, drift=False)
     _table(f"{label} final, 20 m 30°", dataset, summaries, drift=True)
+    checkpoints = []
     for f in frames:
         head = dataset.head(f)
         partial = run_team(head, config=configs, consensus=False, progress=False)
         _table(f"{label} frame {f}", head, _summaries(head, partial), drift=False)
+        checkpoints.append((f"frame {f}", _summaries(head, partial)))
+    checkpoints.append(("the end", summaries))
+    _growing(label, dataset, checkpoints)
 
 
 def kitti(frames: list[int]) -> None:
