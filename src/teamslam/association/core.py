@@ -501,32 +501,32 @@ def _associate(
     if clique.size < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
     ca, cb = ia[clique], ib[clique]
-    t = fit_transform(a.means[ca], b.means[cb], a.covs[ca], b.covs[cb])
-    cost, passed = gate_pairs(a, b, t, a.means[ca], b.means[cb], settings)
-    # the rival: the largest consistent set among the candidates this answer rejects
+    rows, cols, t, passed = _support(a, b, ca, cb, settings)
+    # the rival: the largest consistent set among the candidates this answer rejects, judged
+    # like the answer by the pairs its own transform gathers
     others = ~passed[ia, ib]
     others[clique] = False
-    floor = int(np.ceil(settings.ambiguity_ratio * clique.size)) - 1
     rival, rival_exact = maximum_clique(
-        graph[np.ix_(others, others)], settings.clique_budget, lower_bound=max(floor, 0)
+        graph[np.ix_(others, others)], settings.clique_budget, lower_bound=need - 1
     )
     exact = exact and rival_exact
-    counts["rival"] = int(rival.size)
+    counts["rival"] = 0
+    if rival.size >= need:
+        ra, rb = ia[others][rival], ib[others][rival]
+        rival_rows, rival_cols = _support(a, b, ra, rb, settings)[:2]
+        # only what contradicts the answer counts: pairs it does not hold itself
+        held = set(zip(rows.tolist(), cols.tolist(), strict=True))
+        counts["rival"] = sum(
+            (r, c) not in held
+            for r, c in zip(rival_rows.tolist(), rival_cols.tolist(), strict=True)
+        )
     clique_pairs = np.column_stack([a.ids[ca], b.ids[cb]])
-    if rival.size >= max(settings.ambiguity_ratio * clique.size, need):
+    if counts["rival"] >= max(settings.ambiguity_ratio * rows.size, need):
         return _no_answer(a, b, "ambiguous", exact=exact, **counts)
-    rows, cols = _assign(cost, passed)
-    if rows.size >= need:
-        # once more with every gated pair as an anchor: the drift allowance shrinks near them
-        t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
-        cost, passed = gate_pairs(a, b, t, a.means[rows], b.means[cols], settings)
-        rows, cols = _assign(cost, passed)
-        rows, cols = _distinct(cost, rows, cols, settings.distinctness)
     if rows.size < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
     pairs = np.column_stack([a.ids[rows], b.ids[cols]])
     pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
-    t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
     return AssociationResult(
         a.robot,
         b.robot,
@@ -537,3 +537,70 @@ def _associate(
         clique_pairs=clique_pairs[np.argsort(clique_pairs[:, 0], kind="stable")],
         **counts,
     )
+
+
+def _support(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    ca: np.ndarray,
+    cb: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs a consistent set gathers: its transform, the gate, one to one, and again.
+
+    Returns
+    -------
+    rows, cols, T_first_second, passed
+        Indices of the matched objects, the transform they imply, and the first gate (anchored
+        on the set) — what the set's transform accepts.
+    """
+    # distances alone let a few wrong pairs into a consistent set; keep its rigid core
+    core_a, core_b = _core(a, b, ca, cb, settings)
+    if core_a.size >= settings.min_inliers:
+        ca, cb = core_a, core_b
+    t = fit_transform(a.means[ca], b.means[cb], a.covs[ca], b.covs[cb])
+    cost, passed = gate_pairs(a, b, t, a.means[ca], b.means[cb], settings)
+    first_gate = passed
+    rows, cols = _assign(cost, passed)
+    need = settings.min_inliers
+    if rows.size >= need:
+        # the core: the gated pairs that fit their refitted transform within their own
+        # covariances (each is its own nearest anchor: no drift allowance)
+        rows, cols = _core(a, b, rows, cols, settings)
+    if rows.size >= need:
+        # every pair gated again, the drift allowance growing with the distance from the core
+        t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
+        cost, passed = gate_pairs(a, b, t, a.means[rows], b.means[cols], settings)
+        rows, cols = _assign(cost, passed)
+        rows, cols = _distinct(cost, rows, cols, settings.distinctness)
+        if rows.size >= need:
+            t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
+    return rows, cols, t, first_gate
+
+
+def _core(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs that fit their own rigid transform within their covariances (no allowance).
+
+    Trimmed refitting: fit, drop the pairs far outside the gate (four times its threshold) or
+    else the worst one, refit, until every pair left passes — a few wrong pairs in the
+    consistent set cannot drag the transform away from the right ones.
+    """
+    gate = settings.gate_threshold
+    while rows.size >= settings.min_inliers:
+        t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
+        r = t[:3, :3]
+        nu = a.means[rows] - (b.means[cols] @ r.T + t[:3, 3])
+        s = a.covs[rows] + r @ b.covs[cols] @ r.T
+        nis = np.einsum("ki,ki->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+        if nis.max() <= gate:
+            break
+        far = nis > 4.0 * gate
+        keep = ~far if far.any() and not far.all() else np.arange(rows.size) != np.argmax(nis)
+        rows, cols = rows[keep], cols[keep]
+    return rows, cols
