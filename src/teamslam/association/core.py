@@ -18,17 +18,31 @@ stages:
    ``(ρ · d)²``: a unit-free ratio ``ρ`` (:attr:`AssociationSettings.drift_ratio`) of the
    distance — a map's deformation grows with the distance covered, no constant in metres.
 3. **The largest mutually consistent set**: the maximum clique of the consistency graph
-   (:func:`~teamslam.association.clique.maximum_clique`, PCM's solver).
+   (:func:`~teamslam.association.clique.maximum_clique`, PCM's solver). Distances alone let a
+   few wrong pairs into it (among clustered objects many distances agree by chance), so its
+   *rigid core* is kept: trimmed refitting drops the pairs that do not fit the set's rigid
+   transform within their covariances.
 4. **The relative transform** it implies: weighted Horn / Umeyama (no scale), ``SE(3)``.
 5. **Every pair gated under that transform**: Mahalanobis distance with both covariances plus
-   the drift allowance ``ρ ·`` (distance to the nearest clique member), ``χ²₃`` gate, one to one
-   with :func:`scipy.optimize.linear_sum_assignment`.
+   the drift allowance ``ρ² (rₐ² + r_b²) / 2`` (``r`` the distance to the nearest anchor pair in
+   its own map: the transform holds near the pairs it was fitted on), ``χ²₃`` gate, one to one
+   with :func:`scipy.optimize.linear_sum_assignment`. The gated pairs' rigid core becomes the
+   anchors of a second gate and assignment, whose pairs are kept when *distinct*: no other
+   object of either map fits within :attr:`AssociationSettings.distinctness` of the pair's
+   Mahalanobis distance (unless that object fits its own partner clearly better).
 
-Never guess: fewer than :attr:`AssociationSettings.min_inliers` consistent pairs, or a *rival*
-— the largest consistent set among the candidates that the answer's transform rejects — at least
-:attr:`AssociationSettings.ambiguity_ratio` times as large as the answer, give no
-correspondence. A regular grid of objects, a row of evenly parked cars, two maps of different
-places all end there.
+Never guess: fewer than :attr:`AssociationSettings.min_inliers` pairs, or a *rival* — the
+largest consistent set among the candidates that the answer's transform rejects, taken through
+stages 3–5 — whose pairs contradicting the answer number at least
+:attr:`AssociationSettings.ambiguity_ratio` times the answer's, give no correspondence. A
+regular grid of objects, a row of evenly parked cars, two maps of different places all end
+there.
+
+Cost: all pairs of objects within each map, ``n_a · n_b · k²`` descriptor comparisons, and
+``m²`` consistency tests for ``m`` candidates (a few per object) — tens of milliseconds for maps
+of a hundred or two objects. At run time a link runs it when its table holds no pair yet or the
+maps have grown markedly since the last run, and grows its table in between with
+:meth:`~teamslam.association.table.CorrespondenceTable.extend` (one gate and one assignment).
 
 Both ends of a link hold the same correspondences
 -------------------------------------------------
@@ -88,8 +102,8 @@ class AssociationSettings:
     min_inliers
         Fewest mutually consistent pairs that give an answer.
     ambiguity_ratio
-        A rival consistent set at least this fraction of the answer's size makes the answer
-        ambiguous (no correspondence).
+        A rival consistent set gathering at least this fraction of the answer's pair count in
+        pairs that contradict the answer makes it ambiguous (no correspondence).
     clique_budget
         Search nodes of the exact maximum-clique search (beyond it, the best clique found).
     distinctness
@@ -169,7 +183,9 @@ class AssociationResult:
     clique
         Size of the largest consistent set.
     rival
-        Size of the largest consistent set the answer's transform rejects.
+        Pairs gathered by the best rival set (the largest consistent set among the candidates
+        the answer's transform rejects) that contradict the answer; 0 when no rival set has
+        ``min_inliers`` members.
     exact
         Whether the clique searches finished within their budget.
     """

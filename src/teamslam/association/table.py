@@ -211,42 +211,21 @@ class CorrespondenceTable:
         if not new:
             return np.zeros((0, 2), np.int64)
         held = self.pairs()
-        own_index = {int(i): k for k, i in enumerate(own.ids)}
-        their_index = {int(i): k for k, i in enumerate(their.ids)}
-        present = [
-            (own_index[a], their_index[b])
-            for a, b in held
-            if int(a) in own_index and int(b) in their_index
-        ]
-        candidates = [(own_index.get(a), their_index.get(b)) for a, b in new]
-        if any(i is None or j is None for i, j in candidates):
-            raise InputError("the association result names an object its summaries do not hold")
-        if len(present) >= 3:
-            ia = np.array([i for i, _ in present])
-            ib = np.array([j for _, j in present])
-            t = fit_transform(own.means[ia], their.means[ib], own.covs[ia], their.covs[ib])
-            ca = np.array([i for i, _ in candidates])
-            cb = np.array([j for _, j in candidates])
-            # the drift allowance grows with the distance from the nearest held pair
-            near_a = np.min(
-                np.linalg.norm(own.means[ca][:, None] - own.means[ia][None], axis=2), axis=1
-            )
-            near_b = np.min(
-                np.linalg.norm(their.means[cb][:, None] - their.means[ib][None], axis=2), axis=1
-            )
-            extra = 0.5 * self.settings.drift_ratio**2 * (near_a**2 + near_b**2)
-            nis = pair_innovation_nis(
-                own.means[ca],
-                own.covs[ca] + extra[:, None, None] * np.eye(3),
-                their.means[cb],
-                their.covs[cb],
-                t,
-            )
-            ok = nis <= self.settings.gate_threshold
-            new = [p for p, keep in zip(new, ok, strict=True) if keep]
+        proposal = np.array(new, dtype=np.int64).reshape(-1, 2)
+        for ids, summary in ((proposal[:, 0], own), (proposal[:, 1], their)):
+            if not np.isin(ids, summary.ids).all():
+                raise InputError("the association result names an object its summaries do not hold")
+        # computed in the canonical order of the two robots, so both ends decide alike
+        if self._canonical_first():
+            ok, t = _merge_gate(own, their, held, proposal, self.settings)
+        else:
+            ok, t = _merge_gate(their, own, held[:, ::-1], proposal[:, ::-1], self.settings)
+            t = None if t is None else np.linalg.inv(t)
+        if t is not None:
             self.T_own_their = t
         elif result.T_first_second is not None:
             self.T_own_their = result.T_first_second
+        new = [p for p, keep in zip(new, ok, strict=True) if keep]
         for a, b in new:
             self._theirs[a] = b
             self._ours[b] = a
@@ -370,3 +349,36 @@ def _extend(
     added = free_a[keep_rows]
     pairs = np.column_stack([a.ids[keep_rows[added]], b.ids[keep_cols[added]]])
     return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
+
+
+def _merge_gate(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    held: np.ndarray,
+    proposal: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Which proposed pairs pass the ``χ²₃`` gate under the held pairs' transform (all of them
+    while fewer than three held pairs are in the summaries), and that transform."""
+    index_a = {int(i): k for k, i in enumerate(a.ids)}
+    index_b = {int(i): k for k, i in enumerate(b.ids)}
+    present = [
+        (index_a[int(x)], index_b[int(y)])
+        for x, y in held
+        if int(x) in index_a and int(y) in index_b
+    ]
+    if len(present) < 3:
+        return np.ones(len(proposal), bool), None
+    ia = np.array([i for i, _ in present])
+    ib = np.array([j for _, j in present])
+    t = fit_transform(a.means[ia], b.means[ib], a.covs[ia], b.covs[ib])
+    ca = np.array([index_a[int(x)] for x in proposal[:, 0]])
+    cb = np.array([index_b[int(y)] for y in proposal[:, 1]])
+    # the drift allowance grows with the distance from the nearest held pair
+    near_a = np.min(np.linalg.norm(a.means[ca][:, None] - a.means[ia][None], axis=2), axis=1)
+    near_b = np.min(np.linalg.norm(b.means[cb][:, None] - b.means[ib][None], axis=2), axis=1)
+    extra = 0.5 * settings.drift_ratio**2 * (near_a**2 + near_b**2)
+    nis = pair_innovation_nis(
+        a.means[ca], a.covs[ca] + extra[:, None, None] * np.eye(3), b.means[cb], b.covs[cb], t
+    )
+    return nis <= settings.gate_threshold, t
