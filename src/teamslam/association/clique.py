@@ -103,12 +103,8 @@ def maximum_clique(
     if keep.size <= floor:
         return np.asarray(best, dtype=np.int64), True
     sub = adjacency[np.ix_(keep, keep)]
-    bits = [0] * keep.size
-    for i in range(keep.size):
-        row = 0
-        for j in np.flatnonzero(sub[i]).tolist():
-            row |= 1 << j
-        bits[i] = row
+    packed = np.packbits(sub, axis=1, bitorder="little")  # row i as the bit set of its neighbours
+    bits = [int.from_bytes(row.tobytes(), "little") for row in packed]
     state: dict = {"best": [], "nodes": 0}
     best_size = [max(len(best), lower_bound)]
     exhausted = [False]
