@@ -106,6 +106,10 @@ class AssociationSettings:
         pairs that contradict the answer makes it ambiguous (no correspondence).
     clique_budget
         Search nodes of the exact maximum-clique search (beyond it, the best clique found).
+    rivals
+        Consistent sets examined after the first (each among the candidates the earlier ones'
+        transforms reject); the one gathering the most pairs is the answer, the others its
+        rivals.
     distinctness
         A matched pair is kept only when no other object fits within this many units of
         squared Mahalanobis distance (a likelihood ratio of ``exp(distinctness / 2)``).
@@ -117,10 +121,11 @@ class AssociationSettings:
     neighbours: int = 6
     descriptor_matches: int = 2
     candidates_per_object: int = 3
-    min_inliers: int = 3
-    ambiguity_ratio: float = 0.75
+    min_inliers: int = 6
+    ambiguity_ratio: float = 0.5
     clique_budget: int = 2_000
     distinctness: float = 2.0
+    rivals: int = 3
 
     def __post_init__(self) -> None:
         for name in ("consistency_probability", "gate_probability"):
@@ -139,6 +144,7 @@ class AssociationSettings:
             ("candidates_per_object", 1),
             ("min_inliers", 3),
             ("clique_budget", 1),
+            ("rivals", 1),
         ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
@@ -188,6 +194,9 @@ class AssociationResult:
         ``min_inliers`` members.
     exact
         Whether the clique searches finished within their budget.
+    clique_pairs
+        ``(c, 2)`` the pairs of the largest consistent set (for diagnostics; the answer is
+        :attr:`pairs`).
     """
 
     first: int
@@ -510,31 +519,47 @@ def _associate(
     geo_b = _distances(b.means, b.covs)
     ia, ib = _candidates(a, b, geo_a, geo_b, settings)
     graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
-    clique, exact = maximum_clique(graph, settings.clique_budget)
-    counts = {"candidates": int(ia.size), "clique": int(clique.size)}
-    if clique.size < need:
-        return _no_answer(a, b, "too-few", exact=exact, **counts)
-    ca, cb = ia[clique], ib[clique]
-    rows, cols, t, passed = _support(a, b, ca, cb, settings)
-    # the rival: the largest consistent set among the candidates this answer rejects, judged
-    # like the answer by the pairs its own transform gathers
-    others = ~passed[ia, ib]
-    others[clique] = False
-    rival, rival_exact = maximum_clique(
-        graph[np.ix_(others, others)], settings.clique_budget, lower_bound=need - 1
-    )
-    exact = exact and rival_exact
-    counts["rival"] = 0
-    if rival.size >= need:
-        ra, rb = ia[others][rival], ib[others][rival]
-        rival_rows, rival_cols = _support(a, b, ra, rb, settings)[:2]
-        # only what contradicts the answer counts: pairs it does not hold itself
-        held = set(zip(rows.tolist(), cols.tolist(), strict=True))
-        counts["rival"] = sum(
-            (r, c) not in held
-            for r, c in zip(rival_rows.tolist(), rival_cols.tolist(), strict=True)
+    # the largest consistent sets, one after another: each next one among the candidates that
+    # the transforms of the earlier ones reject; each judged by the pairs its transform gathers
+    pool = np.ones(ia.size, dtype=bool)
+    found = []  # (rows, cols, transform, clique pairs)
+    exact = True
+    for _ in range(settings.rivals + 1):
+        index = np.flatnonzero(pool)
+        clique, done = maximum_clique(
+            graph[np.ix_(index, index)], settings.clique_budget, lower_bound=need - 1
         )
-    clique_pairs = np.column_stack([a.ids[ca], b.ids[cb]])
+        exact = exact and done
+        if clique.size < need:
+            break
+        ca, cb = ia[index[clique]], ib[index[clique]]
+        rows, cols, t, passed = _support(a, b, ca, cb, settings)
+        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]])))
+        pool[index[clique]] = False
+        pool &= ~passed[ia, ib]
+    counts = {
+        "candidates": int(ia.size),
+        "clique": int(found[0][3].shape[0]) if found else 0,
+    }
+    if not found:
+        return _no_answer(a, b, "too-few", exact=exact, **counts)
+    # the answer: the set gathering the most pairs (the first found among equals)
+    best = max(range(len(found)), key=lambda k: (found[k][0].size, -k))
+    rows, cols, t, clique_pairs = found[best]
+    counts["clique"] = int(clique_pairs.shape[0])
+    held = set(zip(rows.tolist(), cols.tolist(), strict=True))
+    # a rival: another set whose pairs contradict the answer's (pairs it does not hold)
+    counts["rival"] = max(
+        (
+            sum(
+                (r, c) not in held
+                for r, c in zip(other[0].tolist(), other[1].tolist(), strict=True)
+            )
+            for k, other in enumerate(found)
+            if k != best
+        ),
+        default=0,
+    )
     if counts["rival"] >= max(settings.ambiguity_ratio * rows.size, need):
         return _no_answer(a, b, "ambiguous", exact=exact, **counts)
     if rows.size < need:
