@@ -153,9 +153,10 @@ def test_too_few_shared_objects_give_no_correspondence():
     world = _scene(rng, 42, extent=300.0)
     a = _summary(0, np.arange(20), world[np.r_[0:2, 2:20]], rng)
     b = _summary(1, np.arange(22) + 100, world[np.r_[0:2, 20:40]], rng)
-    result = associate(a, b)
-    assert not result.matched
-    assert result.pairs.size == 0
+    for settings in (AssociationSettings(), AssociationSettings(min_inliers=3)):
+        result = associate(a, b, settings)
+        assert not result.matched
+        assert result.pairs.size == 0
 
 
 def test_maps_of_different_places_give_no_correspondence():
@@ -164,6 +165,17 @@ def test_maps_of_different_places_give_no_correspondence():
     b = _summary(1, np.arange(60) + 100, _scene(rng, 60), rng)
     result = associate(a, b)
     assert not result.matched, (result.status, result.pairs)
+
+
+def test_half_shared_maps_are_matched_with_high_precision_and_recall():
+    # 20 shared objects among 20 more in each map that the other does not hold, drifted map
+    correct = wrong = shared = 0
+    for seed in range(11, 16):
+        a, b, truth_a, truth_b = _two_maps(seed=seed, shared=20, own=20, yaw=30.0, shift=(20, 0, 0))
+        score = score_correspondences(associate(a, b).pairs, a.ids, b.ids, truth_a, truth_b)
+        correct, wrong, shared = correct + score.correct, wrong + score.wrong, shared + score.shared
+    assert shared == 100
+    assert correct >= 90 and wrong <= 5
 
 
 def test_classes_forbid_matching_objects_of_different_kinds():
