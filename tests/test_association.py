@@ -323,3 +323,16 @@ def test_extend_needs_three_held_pairs():
     table = CorrespondenceTable(a.robot, b.robot)
     table.merge(replace(full, pairs=full.pairs[:2]), a, b)
     assert table.extend(a, b).size == 0 and len(table) == 2
+
+
+def test_a_full_association_is_due_first_and_when_a_map_has_grown():
+    a, b, *_ = _two_maps()
+    table = CorrespondenceTable(a.robot, b.robot)
+    assert table.due(len(a), len(b))
+    table.merge(associate(a, b), a, b)
+    assert not table.due(len(a), len(b))
+    assert not table.due(len(a) + 10, len(b))  # 60 → 70: less than 25 % more
+    assert table.due(len(a) + 15, len(b))
+    assert table.due(len(a), 2 * len(b))
+    with pytest.raises(InputError, match="growth"):
+        table.due(1, 1, growth=1.0)

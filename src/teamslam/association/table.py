@@ -2,14 +2,18 @@
 
 A robot holds one :class:`CorrespondenceTable` per neighbour. Each association result
 (:func:`~teamslam.association.associate`) is *merged*: pairs already held stay; a new pair is
-added only when it is consistent with the transform of the pairs already held (a ``χ²₃`` gate,
-:func:`pair_innovation_consistent`), when neither of its objects is already matched to another
-object, and when it was not revoked before. Consensus then checks every matched pair's
-innovation; a pair whose innovation fails its ``χ²`` test is :meth:`~CorrespondenceTable.revoke` d
+added only when it is consistent with the transform of the pairs already held (a ``χ²₃`` gate
+with the drift allowance), when neither of its objects is already matched to another object,
+and when it was not revoked before. Consensus then checks every matched pair's innovation
+(:func:`pair_innovation_consistent`); a pair that fails is :meth:`~CorrespondenceTable.revoke` d
 and never re-added (or, with a hold-off, not before that many steps have passed).
 
-Both ends of a link merge the same results in the same order, so their tables stay mirror
-images of each other (own ↔ neighbour ids swapped).
+At run time a robot runs the full association when the table says it is
+:meth:`~CorrespondenceTable.due` (nothing merged yet, or a map grown by a quarter since the last
+one) and grows the table in between with :meth:`~CorrespondenceTable.extend` (one gate, one
+assignment). Both ends of a link merge the same results in the same order and compute every
+decision in the canonical order of the two robots, so their tables stay mirror images of each
+other (own ↔ neighbour ids swapped).
 """
 
 from __future__ import annotations
@@ -135,6 +139,7 @@ class CorrespondenceTable:
         self.accepted = 0
         self.revoked = 0
         self.T_own_their: np.ndarray | None = None
+        self._sizes: tuple[int, int] | None = None  # map sizes at the last full association
 
     def __len__(self) -> int:
         return len(self._theirs)
@@ -202,6 +207,7 @@ class CorrespondenceTable:
             for a, b in result.pairs
             if self._theirs.get(int(a)) != int(b)  # not already held
         ]
+        self._sizes = (len(own), len(their))
         self.proposed += len(new)
         new = [
             p
@@ -282,6 +288,22 @@ class CorrespondenceTable:
 
     def _canonical_first(self) -> bool:
         return self.own <= self.neighbour
+
+    def due(self, own_objects: int, their_objects: int, growth: float = 1.25) -> bool:
+        """Whether a full association is worth running now.
+
+        Yes when none was merged yet, or when either map has grown by the factor ``growth``
+        since the last one; in between, :meth:`extend` grows the table for the cost of one
+        gate. (A full association of maps of a hundred or two objects costs tens of
+        milliseconds; with ``growth = 1.25`` a map growing from 10 to 200 objects is associated
+        about 14 times.)
+        """
+        if growth <= 1.0:
+            raise InputError(f"growth must be > 1, got {growth}")
+        if self._sizes is None:
+            return True
+        own0, their0 = self._sizes
+        return own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1)
 
     def revoke(self, own_id: int, their_id: int, step: int | None = None) -> bool:
         """Drop a held pair (its consensus innovation failed); it is not re-added.
