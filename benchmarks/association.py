@@ -141,6 +141,10 @@ def _growing(label: str, dataset, checkpoints: list[tuple[str, list[ObjectSummar
 def _evaluate(label: str, dataset, configs, frames: list[int]) -> None:
     result = run_team(dataset, config=configs, consensus=False, progress=False)
     summaries = _summaries(dataset, result)
+    print(
+        f"{label}: summary sent to a neighbour at the end: "
+        + ", ".join(f"robot {s.robot} {len(s)} objects {s.nbytes:,} B" for s in summaries)
+    )
     _table(f"{label} final", dataset, summaries, drift=False)
     _table(f"{label} final, 20 m 30°", dataset, summaries, drift=True)
     checkpoints = []
