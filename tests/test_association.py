@@ -199,6 +199,9 @@ def test_summary_errors_name_the_field():
         ObjectSummary(0, [1, 2], np.zeros((2, 3)), np.stack([np.eye(3), np.zeros((3, 3))]))
     with pytest.raises(InputError, match="drift_ratio"):
         AssociationSettings(drift_ratio=-1.0)
+    one = ObjectSummary(3, [1], np.zeros((1, 3)), np.eye(3)[None])
+    with pytest.raises(InputError, match="both are robot 3's"):
+        associate(one, one)
 
 
 def test_fit_transform_recovers_a_rigid_motion():

@@ -473,8 +473,8 @@ def _distinct(
     return rows[keep], cols[keep]
 
 
-def _canonical_key(summary: ObjectSummary) -> tuple:
-    return (summary.robot, len(summary), summary.ids.tobytes())
+def _canonical_key(summary: ObjectSummary) -> int:
+    return summary.robot
 
 
 def associate(
@@ -505,6 +505,10 @@ def associate(
     settings = settings or AssociationSettings()
     if not isinstance(first, ObjectSummary) or not isinstance(second, ObjectSummary):
         raise InputError("associate takes two ObjectSummary")
+    if first.robot == second.robot:
+        raise InputError(
+            f"associate needs the summaries of two robots, both are robot {first.robot}'s"
+        )
     if _canonical_key(second) < _canonical_key(first):
         return _associate(second.sorted(), first.sorted(), settings).swapped()
     return _associate(first.sorted(), second.sorted(), settings)
