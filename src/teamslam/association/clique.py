@@ -99,7 +99,15 @@ def maximum_clique(
             best = clique
     # exact search on the vertices that could be in a larger clique
     floor = max(len(best), lower_bound)
-    keep = np.flatnonzero(degree >= floor)
+    # peel to the floor-core: a vertex of a larger clique has ≥ floor neighbours in that core
+    alive = degree >= floor
+    while True:
+        inner = np.count_nonzero(adjacency[:, alive], axis=1)
+        peeled = alive & (inner >= floor)
+        if np.array_equal(peeled, alive):
+            break
+        alive = peeled
+    keep = np.flatnonzero(alive)
     if keep.size <= floor:
         return np.asarray(best, dtype=np.int64), True
     sub = adjacency[np.ix_(keep, keep)]
