@@ -80,7 +80,7 @@ def test_sensor_model_errors_name_the_field(section, message):
 def test_dataset_round_trip_keeps_the_sensor_model(tmp_path, small_team):
     save_dataset(small_team, tmp_path / "team")
     manifest = json.loads((tmp_path / "team" / "manifest.json").read_text())
-    assert manifest["version"] == 2
+    assert manifest["version"] >= 2  # the version that added the sensor model, or later
     assert manifest["sensor_model"]["origin"] == "simulation"
     back = load_dataset(tmp_path / "team")
     assert back.sensor_model == small_team.sensor_model

@@ -27,7 +27,19 @@ from teamslam.geometry.camera import StereoCamera
 if TYPE_CHECKING:
     from teamslam.datasets.sensor_model import SensorModel
 
-__all__ = ["Calibration", "DatasetError", "FrameObservations", "RobotSequence", "TeamDataset"]
+__all__ = [
+    "OBJECT_ID_SCOPES",
+    "Calibration",
+    "DatasetError",
+    "FrameObservations",
+    "RobotSequence",
+    "TeamDataset",
+]
+
+#: What an object id means: ``global`` — the same object has the same id in every robot's data
+#: (ids from an oracle, e.g. instance annotations); ``per-robot`` — each robot numbers its own
+#: objects, and equal ids of two robots say nothing.
+OBJECT_ID_SCOPES = ("global", "per-robot")
 
 
 class DatasetError(InputError):
@@ -191,6 +203,9 @@ class RobotSequence:
         Object detections (box centres) per frame, keyed by object id.
     timestamps
         ``(N + 1,)`` seconds, or ``None``.
+    object_classes
+        ``(C, 2)`` int64 rows ``(object id, class label)`` from the robot's detector, or
+        ``None`` when it gives no class. Filter-visible, like the detections themselves.
     """
 
     T_world_body: np.ndarray
@@ -198,12 +213,18 @@ class RobotSequence:
     features: FrameObservations
     objects: FrameObservations
     timestamps: np.ndarray | None = None
+    object_classes: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "T_world_body", np.asarray(self.T_world_body, dtype=float))
         object.__setattr__(self, "odometry", np.asarray(self.odometry, dtype=float))
         if self.timestamps is not None:
             object.__setattr__(self, "timestamps", np.asarray(self.timestamps, dtype=float))
+        if self.object_classes is not None:
+            classes = np.asarray(self.object_classes)
+            if classes.dtype.kind not in "iu" or classes.size % 2:
+                raise DatasetError("object_classes must be integer rows (object id, class)")
+            object.__setattr__(self, "object_classes", classes.astype(np.int64).reshape(-1, 2))
 
     @property
     def frames(self) -> int:
@@ -220,6 +241,7 @@ class RobotSequence:
             features=self.features.head(frames),
             objects=self.objects.head(frames),
             timestamps=None if self.timestamps is None else self.timestamps[:frames],
+            object_classes=self.object_classes,
         )
 
     def validate(self, where: str) -> None:
@@ -251,6 +273,12 @@ class RobotSequence:
                 raise DatasetError(f"{where}.timestamps must be ({n + 1},) finite")
             if np.any(np.diff(ts) <= 0):
                 raise DatasetError(f"{where}.timestamps must increase")
+        if self.object_classes is not None:
+            classes = self.object_classes
+            if np.unique(classes[:, 0]).size != len(classes):
+                raise DatasetError(f"{where}.object_classes names an object twice")
+            if np.any(classes[:, 1] < 0):
+                raise DatasetError(f"{where}.object_classes: class labels must be ≥ 0")
 
 
 @dataclass
@@ -278,6 +306,14 @@ class TeamDataset:
     sensor_model
         The noise of the team's sensors (:class:`~teamslam.datasets.sensor_model.SensorModel`),
         or ``None`` when unknown (then ``teamslam run`` calibrates it from the data).
+    object_id_scope
+        ``"global"`` (an object has the same id in every robot's data) or ``"per-robot"``
+        (each robot's own numbering); see :data:`OBJECT_ID_SCOPES`.
+    object_identity
+        Ground truth for ``per-robot`` ids, like the object positions: ``(K, 3)`` int64 rows
+        ``(robot, the robot's object id, team object id)`` — rows with equal team object ids
+        are the same object. For evaluation only, never read by a filter; empty when unknown
+        and always empty for ``global`` ids (an id is its own team object id).
     """
 
     name: str
@@ -290,6 +326,8 @@ class TeamDataset:
     track_landmarks: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     metadata: dict = field(default_factory=dict)
     sensor_model: SensorModel | None = None
+    object_id_scope: str = "global"
+    object_identity: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
 
     def __post_init__(self) -> None:
         self.object_ids = np.asarray(self.object_ids, dtype=np.int64)
@@ -297,6 +335,7 @@ class TeamDataset:
         self.landmark_ids = np.asarray(self.landmark_ids, dtype=np.int64)
         self.landmark_positions = np.asarray(self.landmark_positions, dtype=float).reshape(-1, 3)
         self.track_landmarks = np.asarray(self.track_landmarks, dtype=np.int64).reshape(-1, 2)
+        self.object_identity = np.asarray(self.object_identity, dtype=np.int64).reshape(-1, 3)
         self.validate()
 
     def validate(self) -> None:
@@ -319,10 +358,51 @@ class TeamDataset:
                 raise DatasetError(f"{name}_positions contain NaN or infinite values")
         if np.unique(self.track_landmarks[:, 0]).size != len(self.track_landmarks):
             raise DatasetError("track_landmarks names a track twice")
+        self._validate_identity()
         if self.sensor_model is not None:
             extra = [i for i in self.sensor_model.robots if i >= self.n_robots]
             if extra:
                 raise DatasetError(f"sensor_model.robots names robot {extra[0]}, not in the team")
+
+    def _validate_identity(self) -> None:
+        if self.object_id_scope not in OBJECT_ID_SCOPES:
+            raise DatasetError(
+                f"object_id_scope must be one of {', '.join(OBJECT_ID_SCOPES)}, "
+                f"got {self.object_id_scope!r}"
+            )
+        identity = self.object_identity
+        if identity.ndim != 2 or identity.shape[1] != 3:
+            raise DatasetError(f"object_identity must be (K, 3), got {identity.shape}")
+        if not identity.size:
+            return
+        if self.object_id_scope == "global":
+            raise DatasetError("object_identity is for per-robot object ids; these ids are global")
+        robots = identity[:, 0]
+        if np.any((robots < 0) | (robots >= self.n_robots)):
+            bad = int(robots[(robots < 0) | (robots >= self.n_robots)][0])
+            raise DatasetError(f"object_identity names robot {bad}, not in the team")
+        if np.unique(identity[:, :2], axis=0).shape[0] != len(identity):
+            raise DatasetError("object_identity names one robot's object twice")
+        if np.any(identity[:, 2] < 0):
+            raise DatasetError("object_identity: team object ids must be ≥ 0")
+
+    def true_objects(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
+        """Which team object each of ``robot``'s object ids is (ground truth, evaluation only).
+
+        Returns
+        -------
+        ids, team_ids
+            The robot's object ids and their team object ids: the robot's observed ids mapped
+            to themselves for ``global`` ids, the rows of :attr:`object_identity` otherwise
+            (empty when the dataset has no identity truth).
+        """
+        if not 0 <= robot < self.n_robots:
+            raise DatasetError(f"robot {robot} is not in a team of {self.n_robots}")
+        if self.object_id_scope == "global":
+            ids = np.unique(self.robots[robot].objects.ids)
+            return ids, ids.copy()
+        rows = self.object_identity[self.object_identity[:, 0] == robot]
+        return rows[:, 1].copy(), rows[:, 2].copy()
 
     def head(self, frames: int) -> TeamDataset:
         """The first ``frames`` frames of every robot (truth, map and sensor model kept)."""
@@ -336,7 +416,18 @@ class TeamDataset:
         if model is not None:
             own = {new: model.robots[old] for new, old in enumerate(robots) if old in model.robots}
             model = replace(model, robots=own)
-        return replace(self, robots=[self.robots[r] for r in robots], sensor_model=model)
+        identity = self.object_identity
+        if identity.size:
+            new_of = np.full(self.n_robots, -1, dtype=np.int64)
+            new_of[np.asarray(robots)] = np.arange(len(robots))
+            identity = identity[np.isin(identity[:, 0], robots)].copy()
+            identity[:, 0] = new_of[identity[:, 0]]
+        return replace(
+            self,
+            robots=[self.robots[r] for r in robots],
+            sensor_model=model,
+            object_identity=identity,
+        )
 
     @property
     def n_robots(self) -> int:

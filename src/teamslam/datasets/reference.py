@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from teamslam.datasets.model import (
+    OBJECT_ID_SCOPES,
     Calibration,
     DatasetError,
     FrameObservations,
@@ -237,6 +238,8 @@ def import_reference(
     inverted_odometry: bool = False,
     name: str | None = None,
     params: str | Path | None = None,
+    object_ids: str = "global",
+    seed: int = 0,
 ) -> TeamDataset:
     """Read a published distributed-MSCKF data directory into a :class:`TeamDataset`.
 
@@ -254,7 +257,18 @@ def import_reference(
         A publisher's parameter file: its noise levels become the dataset's sensor model
         (origin ``params file``; :func:`read_reference_params`). Without it the dataset has
         no sensor model, and ``teamslam run`` calibrates one from the data.
+    object_ids
+        ``"global"`` (default): the published ids are team-wide, as the publishers made them
+        (instance annotations). ``"per-robot"``: each robot's objects are renumbered on their
+        own (:func:`~teamslam.datasets.identity.strip_object_ids`), and which of them are the
+        same object is kept as ground truth only.
+    seed
+        Seed of the renumbering with ``object_ids="per-robot"``.
     """
+    if object_ids not in OBJECT_ID_SCOPES:
+        raise DatasetError(
+            f"object_ids must be one of {', '.join(OBJECT_ID_SCOPES)}, got {object_ids!r}"
+        )
     source = Path(source)
     if not source.is_dir():
         raise DatasetError(f"{source}: not a directory")
@@ -293,10 +307,10 @@ def import_reference(
 
     truth = safe_unpickle(source / "obj_features_gt")
     if isinstance(truth, Mapping):
-        object_ids = np.array([int(i) for i in truth], dtype=np.int64)
+        truth_ids = np.array([int(i) for i in truth], dtype=np.int64)
         object_positions = np.array([np.asarray(v, dtype=float).ravel() for v in truth.values()])
     elif isinstance(truth, np.ndarray) and truth.ndim == 2 and truth.shape[1] == 3:
-        object_ids = np.arange(truth.shape[0], dtype=np.int64)
+        truth_ids = np.arange(truth.shape[0], dtype=np.int64)
         object_positions = truth.astype(float)
     else:
         raise DatasetError(f"{source / 'obj_features_gt'}: expected a dict or an (M, 3) array")
@@ -309,11 +323,11 @@ def import_reference(
         except DatasetError as exc:
             raise DatasetError(f"{source}: {exc}") from None
         sequences.append(seq)
-    return TeamDataset(
+    dataset = TeamDataset(
         name=name or source.name,
         calibration=calibration,
         robots=sequences,
-        object_ids=object_ids,
+        object_ids=truth_ids,
         object_positions=object_positions.reshape(-1, 3),
         metadata={
             "source": "distributed-MSCKF published data",
@@ -323,3 +337,8 @@ def import_reference(
         },
         sensor_model=sensor_model,
     )
+    if object_ids == "per-robot":
+        from teamslam.datasets.identity import strip_object_ids
+
+        dataset = strip_object_ids(dataset, seed=seed)
+    return dataset

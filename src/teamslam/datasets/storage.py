@@ -4,10 +4,10 @@ A dataset is a directory::
 
     manifest.json        format name, version, calibration, sensor model, robots, metadata
     robot_000.npz        T_world_body, odometry, feature_{offsets,ids,measurements},
-    robot_001.npz        object_{offsets,ids,measurements}, [timestamps]
+    robot_001.npz        object_{offsets,ids,measurements}, [timestamps], [object_classes]
     ...
     map.npz              object_ids, object_positions, landmark_ids, landmark_positions,
-                         track_landmarks
+                         track_landmarks, [object_identity]
 
 Arrays are compressed numpy ``.npz`` files read with ``allow_pickle=False``; ragged per-frame
 observations are flat arrays plus offsets. Floats in the manifest are written with Python's
@@ -18,6 +18,12 @@ sees half a dataset).
 Versions: 2 adds the ``sensor_model`` section (:mod:`~teamslam.datasets.sensor_model`; absent
 when unknown). Version 1 datasets still load: without a sensor model, except that a simulated
 team's recorded generator noise (``metadata.simulation``) becomes its sensor model.
+3 adds what object ids mean: the manifest's ``object_ids`` is ``"global"`` (the same object has
+the same id in every robot's data — what every dataset of versions 1 and 2 meant, and the
+default) or ``"per-robot"``; ``map.npz`` may hold ``object_identity``, ``(K, 3)`` rows ``(robot,
+the robot's object id, team object id)`` — ground truth of which per-robot ids are the same
+object, for evaluation only; a robot file may hold ``object_classes``, ``(C, 2)`` rows
+``(object id, class label)`` from the robot's detector.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from teamslam.datasets.model import (
+    OBJECT_ID_SCOPES,
     Calibration,
     DatasetError,
     FrameObservations,
@@ -43,8 +50,8 @@ from teamslam.geometry.camera import StereoCamera
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "load_dataset", "save_dataset"]
 
 FORMAT_NAME = "teamslam-team-dataset"
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 MANIFEST = "manifest.json"
 
 
@@ -82,6 +89,7 @@ def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
             },
             "robots": [],
             "map": "map.npz",
+            "object_ids": dataset.object_id_scope,
             "metadata": dataset.metadata,
         }
         if dataset.sensor_model is not None:
@@ -99,6 +107,8 @@ def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
             }
             if robot.timestamps is not None:
                 arrays["timestamps"] = robot.timestamps
+            if robot.object_classes is not None:
+                arrays["object_classes"] = robot.object_classes
             np.savez_compressed(staging / _robot_file(i), **arrays)
             manifest["robots"].append(
                 {
@@ -107,14 +117,16 @@ def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
                     "timestamps": robot.timestamps is not None,
                 }
             )
-        np.savez_compressed(
-            staging / "map.npz",
-            object_ids=dataset.object_ids,
-            object_positions=dataset.object_positions,
-            landmark_ids=dataset.landmark_ids,
-            landmark_positions=dataset.landmark_positions,
-            track_landmarks=dataset.track_landmarks,
-        )
+        truth = {
+            "object_ids": dataset.object_ids,
+            "object_positions": dataset.object_positions,
+            "landmark_ids": dataset.landmark_ids,
+            "landmark_positions": dataset.landmark_positions,
+            "track_landmarks": dataset.track_landmarks,
+        }
+        if dataset.object_identity.size:
+            truth["object_identity"] = dataset.object_identity
+        np.savez_compressed(staging / "map.npz", **truth)
         (staging / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
         if directory.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{directory.name}.old.", dir=directory.parent))
@@ -241,6 +253,7 @@ def load_dataset(directory: str | Path) -> TeamDataset:
         "object_ids": "i",
         "object_measurements": "f",
         "timestamps": "f",
+        "object_classes": "i",
     }
     robots = []
     for i, meta in enumerate(robots_meta):
@@ -252,7 +265,13 @@ def load_dataset(directory: str | Path) -> TeamDataset:
                 f"{manifest_path}: robots[{i}].file {name!r} is not a plain file name"
             )
         path = directory / name
-        arrays = _load_npz(path, robot_fields, optional=("timestamps",))
+        arrays = _load_npz(path, robot_fields, optional=("timestamps", "object_classes"))
+        classes = arrays.get("object_classes")
+        if classes is not None and (classes.ndim != 2 or classes.shape[1] != 2):
+            raise DatasetError(
+                f"{path}: field 'object_classes' must be (C, 2) rows (object id, class), "
+                f"got shape {classes.shape}"
+            )
         try:
             robot = RobotSequence(
                 T_world_body=arrays["T_world_body"],
@@ -260,6 +279,7 @@ def load_dataset(directory: str | Path) -> TeamDataset:
                 features=_observations(arrays, "feature"),
                 objects=_observations(arrays, "object"),
                 timestamps=arrays.get("timestamps"),
+                object_classes=classes,
             )
             robot.validate(f"robot {i}")
         except DatasetError as exc:
@@ -282,6 +302,12 @@ def load_dataset(directory: str | Path) -> TeamDataset:
     elif version == 1:
         sensor_model = _version1_simulation_noise(metadata)
 
+    scope = manifest.get("object_ids", "global")
+    if scope not in OBJECT_ID_SCOPES:
+        raise DatasetError(
+            f"{manifest_path}: object_ids must be one of {', '.join(OBJECT_ID_SCOPES)}, "
+            f"got {scope!r}"
+        )
     map_path = directory / str(map_file)
     m = _load_npz(
         map_path,
@@ -291,8 +317,16 @@ def load_dataset(directory: str | Path) -> TeamDataset:
             "landmark_ids": "i",
             "landmark_positions": "f",
             "track_landmarks": "i",
+            "object_identity": "i",
         },
+        optional=("object_identity",),
     )
+    identity = m.get("object_identity", np.zeros((0, 3), np.int64))
+    if identity.ndim != 2 or identity.shape[1] != 3:
+        raise DatasetError(
+            f"{map_path}: field 'object_identity' must be (K, 3) rows (robot, object id, "
+            f"team object id), got shape {identity.shape}"
+        )
     try:
         return TeamDataset(
             name=str(manifest.get("name", directory.name)),
@@ -305,6 +339,8 @@ def load_dataset(directory: str | Path) -> TeamDataset:
             track_landmarks=m["track_landmarks"],
             metadata=metadata,
             sensor_model=sensor_model,
+            object_id_scope=scope,
+            object_identity=identity,
         )
     except DatasetError as exc:
         raise DatasetError(f"{map_path}: {exc}") from None

@@ -1,0 +1,190 @@
+"""Association between robots' separate maps without shared ids: precision, recall, time.
+
+Run on demand (BLAS pinned to one thread)::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/association.py [kitti] [sim] [--frames 500 1000 1500]
+
+Each team's object ids are first made per robot (:func:`~teamslam.datasets.identity.
+strip_object_ids`: no id in common across robots; which ids are the same object is kept as
+ground truth), then every robot runs its own filter (``--separate``). For each robot pair the
+final maps — ids, positions, marginal covariances — are associated
+(:func:`~teamslam.association.associate`) and scored against the objects both maps hold:
+correct, wrong, precision, recall, with the CPU time of one association call (median of
+three, ``time.process_time``).
+
+* ``kitti`` — KITTI 00 (three robots): the final maps, and the maps at ``--frames`` (each robot's
+  filter run over its first F frames: what a robot holds while its map grows);
+* ``sim`` — a simulated team (``teamslam simulate --robots 5 --steps 150 --seed 0``);
+
+and both again with the second robot's whole map shifted 20 m and turned 30° about the vertical.
+Last, a correspondence table per link is kept over the growing maps (the truncated ones, then
+the final ones), as a robot would at run time: extended under its transform
+(:meth:`~teamslam.association.CorrespondenceTable.extend`), then merged with a full association;
+it prints the table's precision and recall and the CPU time of both calls.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from teamslam.association import (
+    CorrespondenceTable,
+    ObjectSummary,
+    associate,
+    score_correspondences,
+)
+from teamslam.datasets import import_reference
+from teamslam.datasets.identity import strip_object_ids
+from teamslam.geometry import so3
+from teamslam.msckf import run_team
+from teamslam.msckf.settings import team_configs
+from teamslam.sim import lissajous_team
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("TEAMSLAM_DATA", ROOT.parent / "shared" / "data"))
+
+
+def _drift(yaw_deg: float = 30.0, shift: float = 20.0) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = so3.exp(np.array([0.0, 0.0, np.deg2rad(yaw_deg)]))
+    t[:3, 3] = [shift, 0.0, 0.0]
+    return t
+
+
+def _summaries(dataset, result) -> list[ObjectSummary]:
+    return [
+        ObjectSummary(i, result.object_ids[i], result.objects[i], result.object_covs[i])
+        for i in range(dataset.n_robots)
+    ]
+
+
+def _table(label: str, dataset, summaries: list[ObjectSummary], drift: bool) -> dict:
+    totals = {"correct": 0, "wrong": 0, "shared": 0, "times": []}
+    for i in range(len(summaries)):
+        for j in range(i + 1, len(summaries)):
+            a, b = summaries[i], summaries[j]
+            if drift:
+                b = b.transformed(_drift())
+            times = []
+            for _ in range(3):  # CPU time of this process: robust to other load on the machine
+                begin = time.process_time()
+                result = associate(a, b)
+                times.append(time.process_time() - begin)
+            score = score_correspondences(
+                result.pairs, a.ids, b.ids, dataset.true_objects(i), dataset.true_objects(j)
+            )
+            t = float(np.median(times))
+            totals["times"].append(t)
+            for k in ("correct", "wrong", "shared"):
+                totals[k] += getattr(score, k)
+            print(
+                f"{label:<26} {i}-{j}  {len(a):4d} {len(b):4d}  {result.status:<9} "
+                f"{score.shared:6d} {score.correct:7d} {score.wrong:5d} "
+                f"{score.precision:9.3f} {score.recall:6.3f} {t * 1e3:8.1f}"
+            )
+    n = totals["correct"] + totals["wrong"]
+    precision = totals["correct"] / n if n else 1.0
+    recall = totals["correct"] / totals["shared"] if totals["shared"] else 1.0
+    print(
+        f"{label:<26} all  {'':9}  {'':9} {totals['shared']:6d} {totals['correct']:7d} "
+        f"{totals['wrong']:5d} {precision:9.3f} {recall:6.3f} "
+        f"{np.median(totals['times']) * 1e3:8.1f}"
+    )
+    return totals
+
+
+def _header() -> None:
+    print(f"{'maps':<26} pair  objects   status    shared correct wrong precision recall  cpu ms")
+
+
+def _growing(label: str, dataset, checkpoints: list[tuple[str, list[ObjectSummary]]]) -> None:
+    """A correspondence table per link kept over growing maps, as at run time: at each
+    checkpoint the table is first extended under its transform, then a full association is
+    merged into it."""
+    n = dataset.n_robots
+    tables = {(i, j): CorrespondenceTable(i, j) for i in range(n) for j in range(i + 1, n)}
+    for name, summaries in checkpoints:
+        correct = wrong = shared = 0
+        t_extend, t_full = [], []
+        for (i, j), table in tables.items():
+            a, b = summaries[i], summaries[j]
+            begin = time.process_time()
+            table.extend(a, b)
+            t_extend.append(time.process_time() - begin)
+            begin = time.process_time()
+            result = associate(a, b)
+            t_full.append(time.process_time() - begin)
+            table.merge(result, a, b)
+            score = score_correspondences(
+                table.pairs(), a.ids, b.ids, dataset.true_objects(i), dataset.true_objects(j)
+            )
+            correct, wrong, shared = (
+                correct + score.correct,
+                wrong + score.wrong,
+                shared + score.shared,
+            )
+        held = correct + wrong
+        print(
+            f"{label + ' table at ' + name:<34} shared {shared:4d}  correct {correct:4d}  "
+            f"wrong {wrong:3d}  precision {correct / held if held else 1.0:6.3f}  "
+            f"recall {correct / shared if shared else 1.0:6.3f}  "
+            f"extend {np.median(t_extend) * 1e3:6.1f} cpu ms  "
+            f"associate {np.median(t_full) * 1e3:6.1f} cpu ms"
+        )
+
+
+def _evaluate(label: str, dataset, configs, frames: list[int]) -> None:
+    result = run_team(dataset, config=configs, consensus=False, progress=False)
+    summaries = _summaries(dataset, result)
+    print(
+        f"{label}: summary sent to a neighbour at the end: "
+        + ", ".join(f"robot {s.robot} {len(s)} objects {s.nbytes:,} B" for s in summaries)
+    )
+    _table(f"{label} final", dataset, summaries, drift=False)
+    _table(f"{label} final, 20 m 30°", dataset, summaries, drift=True)
+    checkpoints = []
+    for f in frames:
+        head = dataset.head(f)
+        partial = run_team(head, config=configs, consensus=False, progress=False)
+        _table(f"{label} frame {f}", head, _summaries(head, partial), drift=False)
+        checkpoints.append((f"frame {f}", _summaries(head, partial)))
+    checkpoints.append(("the end", summaries))
+    _growing(label, dataset, checkpoints)
+
+
+def kitti(frames: list[int]) -> None:
+    src = DATA / "distributed-msckf" / "kitti00"
+    if not src.is_dir():
+        print(f"KITTI 00 not found at {src}")
+        return
+    dataset = import_reference(src, object_ids="per-robot", seed=0)
+    configs = team_configs(dataset, None)  # calibrated once, reused for the shorter runs
+    _evaluate("kitti00", dataset, configs, frames)
+
+
+def sim(frames: list[int]) -> None:
+    dataset = strip_object_ids(lissajous_team(robots=5, steps=150, seed=0), seed=0)
+    configs = team_configs(dataset, None)
+    _evaluate("sim 5x150", dataset, configs, [f for f in frames if f < 151])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("what", nargs="*", default=["kitti", "sim"], choices=("kitti", "sim"))
+    parser.add_argument("--frames", type=int, nargs="*", default=[500, 1000, 1500])
+    parser.add_argument("--sim-frames", type=int, nargs="*", default=[50, 100])
+    args = parser.parse_args()
+    _header()
+    if "kitti" in args.what:
+        kitti(args.frames)
+    if "sim" in args.what:
+        sim(args.sim_frames)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,654 @@
+"""Which objects of two robots' maps are the same, without shared ids.
+
+Two neighbours exchange :class:`~teamslam.association.summary.ObjectSummary` s (id, mean,
+marginal covariance, optional class per object). Each robot's map is off by its own drift, so
+positions alone do not match (on KITTI 00 the separate maps are ~8 m off while parked cars stand
+~5 m apart); the *shape* of a group of objects survives drift. :func:`associate` works in five
+stages:
+
+1. **Candidates.** Each object gets a drift-invariant descriptor: the distances to its ``k``
+   nearest neighbours in its own map. Two objects are a candidate pair when enough of their
+   neighbour distances agree within their uncertainty (and their classes agree when both maps
+   have classes); each object keeps its best few candidates, so the consistency graph stays far
+   smaller than all pairs.
+2. **Pairwise consistency** (Mangelson et al., "Pairwise Consistency Maximization for Robust
+   Multi-Robot Map Merging", ICRA 2018). Correspondences ``(a, b)`` and ``(a', b')`` are
+   consistent when ``(‖a − a'‖ − ‖b − b'‖)² / σ² ≤ χ²₁(p)``, where ``σ²`` is the variance of the
+   two distances along their directions from both maps' covariances plus a drift allowance
+   ``(ρ · d)²``: a unit-free ratio ``ρ`` (:attr:`AssociationSettings.drift_ratio`) of the
+   distance — a map's deformation grows with the distance covered, no constant in metres.
+3. **The largest mutually consistent sets**: the maximum clique of the consistency graph
+   (:func:`~teamslam.association.clique.maximum_clique`, PCM's solver), then the maximum clique
+   among the candidates its transform rejects, and so on (:attr:`AssociationSettings.rivals`
+   more); each goes through stages 4–5, and the one gathering the most pairs is the answer.
+   Distances alone let a
+   few wrong pairs into it (among clustered objects many distances agree by chance), so its
+   *rigid core* is kept: trimmed refitting drops the pairs that do not fit the set's rigid
+   transform within their covariances.
+4. **The relative transform** it implies: weighted Horn / Umeyama (no scale), ``SE(3)``.
+5. **Every pair gated under that transform**: Mahalanobis distance with both covariances plus
+   the drift allowance ``ρ² (rₐ² + r_b²) / 2`` (``r`` the distance to the nearest anchor pair in
+   its own map: the transform holds near the pairs it was fitted on), ``χ²₃`` gate, one to one
+   with :func:`scipy.optimize.linear_sum_assignment`. The gated pairs' rigid core becomes the
+   anchors of a second gate and assignment, whose pairs are kept when *distinct*: no other
+   object of either map fits within :attr:`AssociationSettings.distinctness` of the pair's
+   Mahalanobis distance (unless that object fits its own partner clearly better).
+
+Never guess: fewer than :attr:`AssociationSettings.min_inliers` pairs, or a *rival* — another
+of the sets of stage 3 — whose pairs contradicting the answer number at least
+:attr:`AssociationSettings.ambiguity_ratio` times the answer's, give no correspondence. A
+regular grid of objects, a row of evenly parked cars, two maps of different places all end
+there. Three pairs fix a transform, but in maps as dense and uncertain as KITTI 00's (objects
+~5 m apart, marginal standard deviations of metres) chance sets of several pairs (nine seen)
+fit one within their covariances; they come with rivals of about their size, so the default
+rival threshold is half the answer, and the default minimum six pairs.
+
+Cost: all pairs of objects within each map, ``n_a · n_b · k²`` descriptor comparisons, and
+``m²`` consistency tests for ``m`` candidates (a few per object) — tens of milliseconds for maps
+of a hundred or two objects. At run time a link runs it when its table holds no pair yet or the
+maps have grown markedly since the last run, and grows its table in between with
+:meth:`~teamslam.association.table.CorrespondenceTable.extend` (one gate and one assignment).
+
+Both ends of a link hold the same correspondences
+-------------------------------------------------
+The rule is a deterministic function of the two summaries, computed in a canonical order: the
+summary of the robot with the smaller id always plays the first role, objects are sorted by id,
+and every tie (candidate ranking, clique search, assignment) is broken by index. So
+``associate(S_i, S_j)`` equals ``associate(S_j, S_i)`` with each pair swapped, bit for bit, and
+both robots reach the same table without a further message. A propose/accept exchange would need
+a third message round per link and per step, would have to handle a proposal or an acceptance
+lost on a lossy link (the two ends then disagree until the next exchange), and would let the
+proposing end's choices decide; the shared rule costs only the summaries, which both ends need
+anyway, and cannot disagree as long as both ends hold the same two summaries.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import scipy.optimize
+import scipy.stats
+
+from teamslam.association.clique import maximum_clique
+from teamslam.association.summary import ObjectSummary
+from teamslam.errors import InputError
+
+__all__ = [
+    "AssociationResult",
+    "AssociationSettings",
+    "associate",
+    "consistency_graph",
+    "fit_transform",
+    "gate_pairs",
+]
+
+
+@dataclass(frozen=True)
+class AssociationSettings:
+    """Settings of :func:`associate` (all unit-free).
+
+    Attributes
+    ----------
+    consistency_probability
+        Probability of the ``χ²₁`` test of pairwise distance consistency (and of the descriptor
+        comparison).
+    gate_probability
+        Probability of the ``χ²₃`` Mahalanobis gate of a pair under the relative transform.
+    drift_ratio
+        Standard deviation of a map's deformation per unit of distance: two objects ``d`` apart
+        in one map may be ``d ± ρ·d`` apart in the other beyond what their covariances say.
+    neighbours
+        Length ``k`` of the nearest-neighbour distance descriptor.
+    descriptor_matches
+        Neighbour distances two objects must have in common to be a candidate pair.
+    candidates_per_object
+        Each object keeps at most this many candidates (its best by descriptor agreement).
+    min_inliers
+        Fewest pairs that give an answer (at least 3, which fix a transform).
+    ambiguity_ratio
+        A rival consistent set gathering at least this fraction of the answer's pair count in
+        pairs that contradict the answer makes it ambiguous (no correspondence).
+    clique_budget
+        Search nodes of the exact maximum-clique search (beyond it, the best clique found).
+    rivals
+        Consistent sets examined after the first (each among the candidates the earlier ones'
+        transforms reject); the one gathering the most pairs is the answer, the others its
+        rivals.
+    distinctness
+        A matched pair is kept only when no other object fits within this many units of
+        squared Mahalanobis distance (a likelihood ratio of ``exp(distinctness / 2)``).
+    """
+
+    consistency_probability: float = 0.99
+    gate_probability: float = 0.99
+    drift_ratio: float = 0.05
+    neighbours: int = 6
+    descriptor_matches: int = 2
+    candidates_per_object: int = 3
+    min_inliers: int = 6
+    ambiguity_ratio: float = 0.5
+    clique_budget: int = 2_000
+    distinctness: float = 2.0
+    rivals: int = 3
+
+    def __post_init__(self) -> None:
+        for name in ("consistency_probability", "gate_probability"):
+            value = getattr(self, name)
+            if not 0.0 < value < 1.0:
+                raise InputError(f"association setting {name} must be in (0, 1), got {value}")
+        if not (np.isfinite(self.drift_ratio) and self.drift_ratio >= 0.0):
+            raise InputError(f"association setting drift_ratio must be ≥ 0, got {self.drift_ratio}")
+        if not 0.0 < self.ambiguity_ratio <= 1.0:
+            raise InputError(
+                f"association setting ambiguity_ratio must be in (0, 1], got {self.ambiguity_ratio}"
+            )
+        for name, low in (
+            ("neighbours", 1),
+            ("descriptor_matches", 0),
+            ("candidates_per_object", 1),
+            ("min_inliers", 3),
+            ("clique_budget", 1),
+            ("rivals", 1),
+        ):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
+                raise InputError(f"association setting {name} must be an integer ≥ {low}")
+        if not (np.isfinite(self.distinctness) and self.distinctness >= 0.0):
+            raise InputError(
+                f"association setting distinctness must be ≥ 0, got {self.distinctness}"
+            )
+        if self.descriptor_matches > self.neighbours:
+            raise InputError("association setting descriptor_matches exceeds neighbours")
+
+    @property
+    def consistency_threshold(self) -> float:
+        """``χ²₁`` quantile of :attr:`consistency_probability`."""
+        return float(scipy.stats.chi2.ppf(self.consistency_probability, 1))
+
+    @property
+    def gate_threshold(self) -> float:
+        """``χ²₃`` quantile of :attr:`gate_probability`."""
+        return float(scipy.stats.chi2.ppf(self.gate_probability, 3))
+
+
+@dataclass(frozen=True)
+class AssociationResult:
+    """The correspondences between two summaries, as seen from the first.
+
+    Attributes
+    ----------
+    first, second
+        Robot ids of the two summaries (``first`` is the caller's own).
+    pairs
+        ``(k, 2)`` int64 rows ``(first's id, second's id)``, sorted by the first column; empty
+        when there is no answer.
+    T_first_second
+        ``4 × 4`` transform taking the second map's coordinates into the first's
+        (``p_first = T · p_second``), or ``None`` without an answer.
+    status
+        ``"matched"``, ``"too-few"`` (fewer than ``min_inliers`` consistent pairs) or
+        ``"ambiguous"`` (a rival set nearly as large).
+    candidates
+        Number of candidate pairs in the consistency graph.
+    clique
+        Size of the largest consistent set.
+    rival
+        Pairs gathered by the best rival set (the largest consistent set among the candidates
+        the answer's transform rejects) that contradict the answer; 0 when no rival set has
+        ``min_inliers`` members.
+    exact
+        Whether the clique searches finished within their budget.
+    clique_pairs
+        ``(c, 2)`` the pairs of the largest consistent set (for diagnostics; the answer is
+        :attr:`pairs`).
+    """
+
+    first: int
+    second: int
+    pairs: np.ndarray
+    T_first_second: np.ndarray | None
+    status: str
+    candidates: int = 0
+    clique: int = 0
+    rival: int = 0
+    exact: bool = True
+    clique_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+
+    def swapped(self) -> AssociationResult:
+        """The same result seen from the second robot."""
+
+        def flip(pairs: np.ndarray) -> np.ndarray:
+            out = pairs[:, ::-1].copy()
+            return out[np.argsort(out[:, 0], kind="stable")] if out.size else out
+
+        t = self.T_first_second
+        return replace(
+            self,
+            first=self.second,
+            second=self.first,
+            pairs=flip(self.pairs),
+            clique_pairs=flip(self.clique_pairs),
+            T_first_second=None if t is None else _inverse(t),
+        )
+
+    @property
+    def matched(self) -> bool:
+        """Whether the association gave correspondences."""
+        return self.status == "matched"
+
+
+def _inverse(t: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = t[:3, :3].T
+    out[:3, 3] = -t[:3, :3].T @ t[:3, 3]
+    return out
+
+
+def _distances(means: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All distances within one map and their variances along their directions."""
+    delta = means[:, None, :] - means[None, :, :]
+    dist = np.linalg.norm(delta, axis=2)
+    unit = delta / np.maximum(dist, np.finfo(float).tiny)[..., None]
+    # uᵀ Σₐ u for every ordered pair, then the variance of ‖a − a'‖ is uᵀ (Σₐ + Σₐ') u
+    along = np.einsum("abi,aij,abj->ab", unit, covs, unit)
+    return dist, along + along.T
+
+
+def _descriptors(dist: np.ndarray, var: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Distances to the ``k`` nearest neighbours (ascending) and their variances."""
+    n = dist.shape[0]
+    k = min(k, n - 1)
+    masked = dist + np.diag(np.full(n, np.inf))
+    nearest = np.argsort(masked, axis=1, kind="stable")[:, :k]
+    rows = np.arange(n)[:, None]
+    return dist[rows, nearest], var[rows, nearest]
+
+
+def _candidates(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    geo_a: tuple[np.ndarray, np.ndarray],
+    geo_b: tuple[np.ndarray, np.ndarray],
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate pairs ``(index in first, index in second)`` by descriptor agreement."""
+    chi2 = np.float32(settings.consistency_threshold)
+    rho2 = np.float32(settings.drift_ratio**2)
+    da, va = (x.astype(np.float32) for x in _descriptors(*geo_a, settings.neighbours))
+    db, vb = (x.astype(np.float32) for x in _descriptors(*geo_b, settings.neighbours))
+
+    def nearest(dx, vx, dy, vy) -> np.ndarray:
+        """For every pair (x, y) and each neighbour distance of x: the smallest normalised
+        squared difference to any neighbour distance of y, ``(n_x, n_y, k)``."""
+        best = np.full((dx.shape[0], dy.shape[0], dx.shape[1]), np.inf, dtype=np.float32)
+        for j in range(dy.shape[1]):  # k passes over (n_x, n_y, k): no reduction over a tiny axis
+            d = dx[:, None, :] - dy[None, :, j, None]
+            m = dx[:, None, :] + dy[None, :, j, None]
+            z = d * d / (vx[:, None, :] + vy[None, :, j, None] + (0.25 * rho2) * m * m)
+            np.minimum(best, z, out=best)
+        return best
+
+    z_a = nearest(da, va, db, vb)  # a's neighbour distances found around b
+    z_b = nearest(db, vb, da, va).transpose(1, 0, 2)  # b's found around a
+    found_a = np.count_nonzero(z_a <= chi2, axis=2)
+    found_b = np.count_nonzero(z_b <= chi2, axis=2)
+    score = np.minimum(found_a, found_b)
+    # a finer key for ranking among equal counts: the mean normalised descriptor mismatch
+    closeness = -0.5 * (np.minimum(z_a, chi2).mean(axis=2) + np.minimum(z_b, chi2).mean(axis=2))
+    if first.classes is not None and second.classes is not None:
+        score = np.where(first.classes[:, None] == second.classes[None, :], score, 0)
+    eligible = score >= max(settings.descriptor_matches, 1)
+    key = score + closeness / (chi2 + 1.0)  # count first, closeness within a count
+    key = np.where(eligible, key, -np.inf)
+    keep = np.zeros_like(eligible)
+    top = settings.candidates_per_object
+    rows = np.argsort(-key, axis=1, kind="stable")[:, :top]
+    keep[np.arange(key.shape[0])[:, None], rows] = True
+    cols = np.argsort(-key, axis=0, kind="stable")[:top, :]
+    keep[cols, np.arange(key.shape[1])[None, :]] = True
+    ia, ib = np.nonzero(keep & eligible)
+    return ia, ib
+
+
+def consistency_graph(
+    ia: np.ndarray,
+    ib: np.ndarray,
+    geo_a: tuple[np.ndarray, np.ndarray],
+    geo_b: tuple[np.ndarray, np.ndarray],
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Pairwise consistency of candidate correspondences ``(ia[p], ib[p])``.
+
+    Parameters
+    ----------
+    ia, ib
+        Indices of each candidate's objects in the first and the second map.
+    geo_a, geo_b
+        ``(distances, variances)`` within each map (all pairs of its objects).
+    settings
+        The ``χ²₁`` probability and the drift ratio.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(m, m)`` boolean, true where candidates ``p`` and ``q`` are consistent: they name four
+        different objects and ``(dₐ − d_b)² ≤ χ²₁ · (σₐ² + σ_b² + ρ² d̄²)``.
+    """
+    dist_a, var_a = (x.astype(np.float32) for x in geo_a)  # m² gathers: half the memory
+    dist_b, var_b = (x.astype(np.float32) for x in geo_b)
+    d1 = dist_a[np.ix_(ia, ia)]
+    d2 = dist_b[np.ix_(ib, ib)]
+    var = var_a[np.ix_(ia, ia)] + var_b[np.ix_(ib, ib)]
+    mean = d1 + d2
+    var += np.float32(0.25 * settings.drift_ratio**2) * (mean * mean)
+    diff = d1 - d2
+    graph = diff * diff <= np.float32(settings.consistency_threshold) * var
+    graph &= ia[:, None] != ia[None, :]
+    graph &= ib[:, None] != ib[None, :]
+    return graph
+
+
+def fit_transform(
+    means_first: np.ndarray,
+    means_second: np.ndarray,
+    covs_first: np.ndarray | None = None,
+    covs_second: np.ndarray | None = None,
+) -> np.ndarray:
+    """Weighted Horn / Umeyama: the rigid ``T_first_second`` with ``first ≈ T · second``.
+
+    Weights are the inverse mean variances of each pair (``3 / tr(Σ₁ + Σ₂)``); no scale.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``4 × 4`` transform in ``SE(3)``.
+    """
+    a = np.asarray(means_first, dtype=float).reshape(-1, 3)
+    b = np.asarray(means_second, dtype=float).reshape(-1, 3)
+    if a.shape != b.shape or a.shape[0] < 3:
+        raise InputError(f"fit_transform needs ≥ 3 matched points, got {a.shape} and {b.shape}")
+    if covs_first is not None and covs_second is not None:
+        tr = np.trace(covs_first, axis1=1, axis2=2) + np.trace(covs_second, axis1=1, axis2=2)
+        w = 3.0 / np.maximum(tr, np.finfo(float).tiny)
+    else:
+        w = np.ones(a.shape[0])
+    w = w / w.sum()
+    ca = w @ a
+    cb = w @ b
+    h = ((b - cb) * w[:, None]).T @ (a - ca)
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    out = np.eye(4)
+    out[:3, :3] = r
+    out[:3, 3] = ca - r @ cb
+    return out
+
+
+def gate_pairs(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    T_first_second: np.ndarray,
+    anchors_first: np.ndarray,
+    anchors_second: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mahalanobis distances of every pair under a transform, and which pass the ``χ²₃`` gate.
+
+    The innovation covariance of pair ``(a, b)`` is ``Σₐ + R Σ_b Rᵀ + ρ² (rₐ² + r_b²) / 2 · I``,
+    with ``rₐ`` (``r_b``) the distance from ``a`` (``b``) to the nearest anchor — a matched
+    object — in its own map: the transform holds near the objects it was fitted on, and a map
+    deforms with the distance from them.
+
+    Returns
+    -------
+    mahalanobis, passed
+        ``(n_first, n_second)`` squared Mahalanobis distances (``inf`` where not computed) and
+        the gate.
+    """
+    r = T_first_second[:3, :3]
+    b_in_a = second.means @ r.T + T_first_second[:3, 3]
+    covs_b = r @ second.covs @ r.T
+    rho2 = settings.drift_ratio**2
+    ra = np.min(np.linalg.norm(first.means[:, None] - anchors_first[None], axis=2), axis=1)
+    rb = np.min(np.linalg.norm(second.means[:, None] - anchors_second[None], axis=2), axis=1)
+    extra = 0.5 * rho2 * (ra[:, None] ** 2 + rb[None, :] ** 2)
+    chi2 = settings.gate_threshold
+    delta = first.means[:, None, :] - b_in_a[None, :, :]
+    sq = np.einsum("abi,abi->ab", delta, delta)
+    top_a = np.linalg.eigvalsh(first.covs)[:, -1]
+    top_b = np.linalg.eigvalsh(covs_b)[:, -1]
+    bound = top_a[:, None] + top_b[None, :] + extra  # largest eigenvalue of the sum, at most
+    near = sq <= chi2 * bound
+    out = np.full(sq.shape, np.inf)
+    ia, ib = np.nonzero(near)
+    if ia.size:
+        s = first.covs[ia] + covs_b[ib] + extra[ia, ib][:, None, None] * np.eye(3)
+        d = delta[ia, ib]
+        out[ia, ib] = np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0])
+    if first.classes is not None and second.classes is not None:
+        out[first.classes[:, None] != second.classes[None, :]] = np.inf
+    return out, out <= chi2
+
+
+def _assign(cost: np.ndarray, passed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one pairs among the gated ones, minimising the total Mahalanobis distance."""
+    rows = np.flatnonzero(passed.any(axis=1))
+    cols = np.flatnonzero(passed.any(axis=0))
+    if rows.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    sub = cost[np.ix_(rows, cols)]
+    ok = passed[np.ix_(rows, cols)]
+    big = 1e6 * (1.0 + np.max(sub[ok]))
+    r, c = scipy.optimize.linear_sum_assignment(np.where(ok, sub, big))
+    good = ok[r, c]
+    return rows[r[good]], cols[c[good]]
+
+
+def _distinct(
+    cost: np.ndarray, rows: np.ndarray, cols: np.ndarray, margin: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the assigned pairs with no close competitor (never guess between two objects).
+
+    Pair ``(a, b)`` is dropped when another object ``b'`` of the second map has a cost within
+    ``margin`` of ``(a, b)``'s — unless ``b'`` is itself assigned to an object it fits better
+    by at least ``margin`` — and likewise for the objects of the first map competing for ``b``.
+    """
+    if rows.size == 0 or margin <= 0:
+        return rows, cols
+    best = cost[rows, cols]
+    own_col = np.full(cost.shape[1], np.inf)
+    own_col[cols] = best
+    own_row = np.full(cost.shape[0], np.inf)
+    own_row[rows] = best
+    k = np.arange(rows.size)
+    across = cost[rows]  # rivals for each assigned row: (k, n_second)
+    rival = (across < best[:, None] + margin) & ~(own_col[None, :] + margin <= across)
+    rival[k, cols] = False
+    down = cost[:, cols].T  # rivals for each assigned column: (k, n_first)
+    rival_col = (down < best[:, None] + margin) & ~(own_row[None, :] + margin <= down)
+    rival_col[k, rows] = False
+    keep = ~rival.any(axis=1) & ~rival_col.any(axis=1)
+    return rows[keep], cols[keep]
+
+
+def _canonical_key(summary: ObjectSummary) -> int:
+    return summary.robot
+
+
+def associate(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    settings: AssociationSettings | None = None,
+) -> AssociationResult:
+    """Correspondences between two robots' objects, from their summaries alone.
+
+    See the module docstring for the method. The result depends only on the two summaries, not
+    on their order: ``associate(b, a)`` is ``associate(a, b).swapped()``.
+
+    Parameters
+    ----------
+    first
+        The caller's own summary.
+    second
+        The neighbour's summary.
+    settings
+        Thresholds (default :class:`AssociationSettings`).
+
+    Returns
+    -------
+    AssociationResult
+        Pairs ``(first's id, second's id)`` and the transform they imply, or no pair with the
+        reason (``too-few``, ``ambiguous``).
+    """
+    settings = settings or AssociationSettings()
+    if not isinstance(first, ObjectSummary) or not isinstance(second, ObjectSummary):
+        raise InputError("associate takes two ObjectSummary")
+    if first.robot == second.robot:
+        raise InputError(
+            f"associate needs the summaries of two robots, both are robot {first.robot}'s"
+        )
+    if _canonical_key(second) < _canonical_key(first):
+        return _associate(second.sorted(), first.sorted(), settings).swapped()
+    return _associate(first.sorted(), second.sorted(), settings)
+
+
+def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> AssociationResult:
+    return AssociationResult(a.robot, b.robot, np.zeros((0, 2), np.int64), None, status, **counts)
+
+
+def _associate(
+    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings
+) -> AssociationResult:
+    need = settings.min_inliers
+    if len(a) < need or len(b) < need:
+        return _no_answer(a, b, "too-few")
+    geo_a = _distances(a.means, a.covs)
+    geo_b = _distances(b.means, b.covs)
+    ia, ib = _candidates(a, b, geo_a, geo_b, settings)
+    graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
+    # the largest consistent sets, one after another: each next one among the candidates that
+    # the transforms of the earlier ones reject; each judged by the pairs its transform gathers
+    pool = np.ones(ia.size, dtype=bool)
+    found = []  # (rows, cols, transform, clique pairs)
+    exact = True
+    for _ in range(settings.rivals + 1):
+        index = np.flatnonzero(pool)
+        clique, done = maximum_clique(
+            graph[np.ix_(index, index)], settings.clique_budget, lower_bound=need - 1
+        )
+        exact = exact and done
+        if clique.size < need:
+            break
+        ca, cb = ia[index[clique]], ib[index[clique]]
+        rows, cols, t, passed = _support(a, b, ca, cb, settings)
+        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]])))
+        pool[index[clique]] = False
+        pool &= ~passed[ia, ib]
+    counts = {
+        "candidates": int(ia.size),
+        "clique": int(found[0][3].shape[0]) if found else 0,
+    }
+    if not found:
+        return _no_answer(a, b, "too-few", exact=exact, **counts)
+    # the answer: the set gathering the most pairs (the first found among equals)
+    best = max(range(len(found)), key=lambda k: (found[k][0].size, -k))
+    rows, cols, t, clique_pairs = found[best]
+    counts["clique"] = int(clique_pairs.shape[0])
+    held = set(zip(rows.tolist(), cols.tolist(), strict=True))
+    # a rival: another set whose pairs contradict the answer's (pairs it does not hold)
+    counts["rival"] = max(
+        (
+            sum(
+                (r, c) not in held
+                for r, c in zip(other[0].tolist(), other[1].tolist(), strict=True)
+            )
+            for k, other in enumerate(found)
+            if k != best
+        ),
+        default=0,
+    )
+    if counts["rival"] >= max(settings.ambiguity_ratio * rows.size, need):
+        return _no_answer(a, b, "ambiguous", exact=exact, **counts)
+    if rows.size < need:
+        return _no_answer(a, b, "too-few", exact=exact, **counts)
+    pairs = np.column_stack([a.ids[rows], b.ids[cols]])
+    pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
+    return AssociationResult(
+        a.robot,
+        b.robot,
+        pairs,
+        t,
+        "matched",
+        exact=exact,
+        clique_pairs=clique_pairs[np.argsort(clique_pairs[:, 0], kind="stable")],
+        **counts,
+    )
+
+
+def _support(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    ca: np.ndarray,
+    cb: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs a consistent set gathers: its transform, the gate, one to one, and again.
+
+    Returns
+    -------
+    rows, cols, T_first_second, passed
+        Indices of the matched objects, the transform they imply, and the first gate (anchored
+        on the set) — what the set's transform accepts.
+    """
+    # distances alone let a few wrong pairs into a consistent set; keep its rigid core
+    core_a, core_b = _core(a, b, ca, cb, settings)
+    if core_a.size >= settings.min_inliers:
+        ca, cb = core_a, core_b
+    t = fit_transform(a.means[ca], b.means[cb], a.covs[ca], b.covs[cb])
+    cost, passed = gate_pairs(a, b, t, a.means[ca], b.means[cb], settings)
+    first_gate = passed
+    rows, cols = _assign(cost, passed)
+    need = settings.min_inliers
+    if rows.size >= need:
+        # the core: the gated pairs that fit their refitted transform within their own
+        # covariances (each is its own nearest anchor: no drift allowance)
+        rows, cols = _core(a, b, rows, cols, settings)
+    if rows.size >= need:
+        # every pair gated again, the drift allowance growing with the distance from the core
+        t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
+        cost, passed = gate_pairs(a, b, t, a.means[rows], b.means[cols], settings)
+        rows, cols = _assign(cost, passed)
+        rows, cols = _distinct(cost, rows, cols, settings.distinctness)
+        if rows.size >= need:
+            t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
+    return rows, cols, t, first_gate
+
+
+def _core(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs that fit their own rigid transform within their covariances (no allowance).
+
+    Trimmed refitting: fit, drop the pairs far outside the gate (four times its threshold) or
+    else the worst one, refit, until every pair left passes — a few wrong pairs in the
+    consistent set cannot drag the transform away from the right ones.
+    """
+    gate = settings.gate_threshold
+    while rows.size >= settings.min_inliers:
+        t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
+        r = t[:3, :3]
+        nu = a.means[rows] - (b.means[cols] @ r.T + t[:3, 3])
+        s = a.covs[rows] + r @ b.covs[cols] @ r.T
+        nis = np.einsum("ki,ki->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+        if nis.max() <= gate:
+            break
+        far = nis > 4.0 * gate
+        keep = ~far if far.any() and not far.all() else np.arange(rows.size) != np.argmax(nis)
+        rows, cols = rows[keep], cols[keep]
+    return rows, cols

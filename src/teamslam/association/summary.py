@@ -1,0 +1,118 @@
+"""What neighbours exchange to find their common objects: a compact summary of each map."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from teamslam.errors import InputError
+from teamslam.gaussian import symmetrize
+
+__all__ = ["ObjectSummary"]
+
+#: Bytes per object on the wire: id (8), mean (3 × 8), upper triangle of the covariance
+#: (6 × 8), and a class label (8) when the map has classes.
+BYTES_PER_OBJECT = 8 + 3 * 8 + 6 * 8
+BYTES_PER_CLASS = 8
+
+
+@dataclass(frozen=True)
+class ObjectSummary:
+    """One robot's objects as its neighbours see them: ids, means and marginal covariances.
+
+    Attributes
+    ----------
+    robot
+        The robot's id in the team; it orders the two sides of a link so that both ends
+        compute the same association (see :func:`~teamslam.association.associate`).
+    ids
+        ``(n,)`` int64, the robot's own object ids (unique; unrelated to its neighbours' ids).
+    means
+        ``(n, 3)`` positions in the robot's world frame.
+    covs
+        ``(n, 3, 3)`` marginal covariances (symmetric positive definite).
+    classes
+        ``(n,)`` int64 class labels, or ``None`` when the robot's detector gives none.
+        Objects of different classes are never matched.
+    """
+
+    robot: int
+    ids: np.ndarray
+    means: np.ndarray
+    covs: np.ndarray
+    classes: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        where = f"object summary of robot {self.robot}"
+        try:
+            ids = np.asarray(self.ids, dtype=np.int64).reshape(-1)
+            means = np.asarray(self.means, dtype=float)
+            covs = np.asarray(self.covs, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{where}: not numeric arrays ({exc})") from None
+        n = ids.size
+        means = means.reshape(n, 3) if means.size == 3 * n else means
+        covs = covs.reshape(n, 3, 3) if covs.size == 9 * n else covs
+        if means.shape != (n, 3):
+            raise InputError(f"{where}: means must be ({n}, 3) for {n} ids, got {means.shape}")
+        if covs.shape != (n, 3, 3):
+            raise InputError(f"{where}: covs must be ({n}, 3, 3) for {n} ids, got {covs.shape}")
+        if np.unique(ids).size != n:
+            raise InputError(f"{where}: ids contain duplicates")
+        if not (np.all(np.isfinite(means)) and np.all(np.isfinite(covs))):
+            raise InputError(f"{where}: means or covs are not finite")
+        covs = symmetrize(covs)
+        if n and np.min(np.linalg.eigvalsh(covs)[:, 0]) <= 0:
+            bad = int(np.argmin(np.linalg.eigvalsh(covs)[:, 0]))
+            raise InputError(f"{where}: covariance of object {ids[bad]} is not positive definite")
+        classes = self.classes
+        if classes is not None:
+            classes = np.asarray(classes, dtype=np.int64).reshape(-1)
+            if classes.shape != (n,):
+                raise InputError(f"{where}: classes must be ({n},), got {classes.shape}")
+        object.__setattr__(self, "ids", ids)
+        object.__setattr__(self, "means", means)
+        object.__setattr__(self, "covs", covs)
+        object.__setattr__(self, "classes", classes)
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+    @property
+    def nbytes(self) -> int:
+        """Size of the summary on the wire (see :data:`BYTES_PER_OBJECT`)."""
+        per = BYTES_PER_OBJECT + (BYTES_PER_CLASS if self.classes is not None else 0)
+        return len(self) * per
+
+    def sorted(self) -> ObjectSummary:
+        """The same summary with its objects in increasing id order."""
+        order = np.argsort(self.ids, kind="stable")
+        return self.take(order)
+
+    def take(self, index: np.ndarray) -> ObjectSummary:
+        """The objects at positions ``index`` (in that order)."""
+        index = np.asarray(index, dtype=np.int64)
+        return ObjectSummary(
+            self.robot,
+            self.ids[index],
+            self.means[index],
+            self.covs[index],
+            None if self.classes is None else self.classes[index],
+        )
+
+    def select(self, ids: np.ndarray) -> ObjectSummary:
+        """The objects whose ids are in ``ids`` (in this summary's order)."""
+        return self.take(np.flatnonzero(np.isin(self.ids, np.asarray(ids, dtype=np.int64))))
+
+    def transformed(self, T_new_old: np.ndarray) -> ObjectSummary:
+        """The summary expressed in another frame: ``p_new = T_new_old · p_old``."""
+        t = np.asarray(T_new_old, dtype=float)
+        r = t[:3, :3]
+        return ObjectSummary(
+            self.robot,
+            self.ids,
+            self.means @ r.T + t[:3, 3],
+            r @ self.covs @ r.T,
+            self.classes,
+        )

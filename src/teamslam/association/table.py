@@ -1,0 +1,406 @@
+"""The correspondences of one link, kept across steps: grown, checked, revoked.
+
+A robot holds one :class:`CorrespondenceTable` per neighbour. Each association result
+(:func:`~teamslam.association.associate`) is *merged*: pairs already held stay; a new pair is
+added only when it is consistent with the transform of the pairs already held (a ``χ²₃`` gate
+with the drift allowance), when neither of its objects is already matched to another object,
+and when it was not revoked before. Consensus then checks every matched pair's innovation
+(:func:`pair_innovation_consistent`); a pair that fails is :meth:`~CorrespondenceTable.revoke` d
+and never re-added (or, with a hold-off, not before that many steps have passed).
+
+At run time a robot runs the full association when the table says it is
+:meth:`~CorrespondenceTable.due` (nothing merged yet, or a map grown by a quarter since the last
+one) and grows the table in between with :meth:`~CorrespondenceTable.extend` (one gate, one
+assignment). Both ends of a link merge the same results in the same order and compute every
+decision in the canonical order of the two robots, so their tables stay mirror images of each
+other (own ↔ neighbour ids swapped).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.stats
+
+from teamslam.association.core import (
+    AssociationResult,
+    AssociationSettings,
+    _assign,
+    _distinct,
+    fit_transform,
+    gate_pairs,
+)
+from teamslam.association.summary import ObjectSummary
+from teamslam.errors import InputError
+
+__all__ = ["CorrespondenceTable", "pair_innovation_consistent", "pair_innovation_nis"]
+
+
+def pair_innovation_nis(
+    mean_own: np.ndarray,
+    cov_own: np.ndarray,
+    mean_their: np.ndarray,
+    cov_their: np.ndarray,
+    T_own_their: np.ndarray | None = None,
+) -> np.ndarray:
+    """Normalised innovation squared of matched pairs: ``νᵀ S⁻¹ ν``.
+
+    ``ν = μ_own − (R μ_their + t)``, ``S = Σ_own + R Σ_their Rᵀ`` (Cholesky solves).
+
+    Parameters
+    ----------
+    mean_own, cov_own
+        ``(k, 3)`` / ``(k, 3, 3)`` (or a single ``(3,)`` / ``(3, 3)``) the own marginals.
+    mean_their, cov_their
+        The neighbour's marginals of the same objects, in the neighbour's frame.
+    T_own_their
+        ``4 × 4`` transform from the neighbour's frame to the own one (identity when ``None``:
+        both maps in the same world frame).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k,)`` values, ``χ²`` with 3 degrees of freedom when both marginals are right.
+    """
+    mo = np.asarray(mean_own, dtype=float).reshape(-1, 3)
+    mt = np.asarray(mean_their, dtype=float).reshape(-1, 3)
+    co = np.asarray(cov_own, dtype=float).reshape(-1, 3, 3)
+    ct = np.asarray(cov_their, dtype=float).reshape(-1, 3, 3)
+    if not (mo.shape == mt.shape and co.shape == ct.shape == (mo.shape[0], 3, 3)):
+        raise InputError("pair innovation: means and covariances of the two sides disagree")
+    t = np.eye(4) if T_own_their is None else np.asarray(T_own_their, dtype=float)
+    r = t[:3, :3]
+    nu = mo - (mt @ r.T + t[:3, 3])
+    s = co + r @ ct @ r.T
+    s = 0.5 * (s + np.swapaxes(s, 1, 2))
+    try:
+        chol = np.linalg.cholesky(s)
+    except np.linalg.LinAlgError:
+        raise InputError("pair innovation: a covariance is not positive definite") from None
+    # ‖L⁻¹ ν‖² with a batched triangular solve
+    w = np.linalg.solve(chol, nu[:, :, None])[:, :, 0]
+    return np.einsum("ki,ki->k", w, w)
+
+
+def pair_innovation_consistent(
+    mean_own: np.ndarray,
+    cov_own: np.ndarray,
+    mean_their: np.ndarray,
+    cov_their: np.ndarray,
+    T_own_their: np.ndarray | None = None,
+    probability: float = 0.999,
+) -> np.ndarray:
+    """Whether each matched pair's innovation passes the ``χ²₃`` test at ``probability``.
+
+    See :func:`pair_innovation_nis` for the arguments; returns a ``(k,)`` boolean array.
+    """
+    if not 0.0 < probability < 1.0:
+        raise InputError(f"probability must be in (0, 1), got {probability}")
+    nis = pair_innovation_nis(mean_own, cov_own, mean_their, cov_their, T_own_their)
+    return nis <= scipy.stats.chi2.ppf(probability, 3)
+
+
+class CorrespondenceTable:
+    """The matched objects of one link, seen from one end: own id ↔ neighbour id.
+
+    Parameters
+    ----------
+    own, neighbour
+        Robot ids of the two ends.
+    settings
+        Gate probability and drift ratio of the merge (default :class:`AssociationSettings`).
+    hold_off
+        Steps a revoked pair stays out; ``None`` (default) keeps it out for good.
+
+    Attributes
+    ----------
+    proposed, accepted, revoked
+        Pairs the association proposed (new ones only), pairs added, pairs revoked.
+    T_own_their
+        Transform of the held pairs (from the last merge that had at least three), or ``None``.
+    """
+
+    def __init__(
+        self,
+        own: int,
+        neighbour: int,
+        settings: AssociationSettings | None = None,
+        hold_off: int | None = None,
+    ) -> None:
+        if hold_off is not None and (isinstance(hold_off, bool) or int(hold_off) < 0):
+            raise InputError(f"hold_off must be a number of steps ≥ 0 or None, got {hold_off}")
+        self.own = int(own)
+        self.neighbour = int(neighbour)
+        self.settings = settings or AssociationSettings()
+        self.hold_off = None if hold_off is None else int(hold_off)
+        self._theirs: dict[int, int] = {}  # own id → neighbour id
+        self._ours: dict[int, int] = {}  # neighbour id → own id
+        self._revoked: dict[tuple[int, int], int] = {}  # pair → step it was revoked
+        self.proposed = 0
+        self.accepted = 0
+        self.revoked = 0
+        self.T_own_their: np.ndarray | None = None
+        self._sizes: tuple[int, int] | None = None  # map sizes at the last full association
+
+    def __len__(self) -> int:
+        return len(self._theirs)
+
+    def __contains__(self, pair: tuple[int, int]) -> bool:
+        own_id, their_id = (int(v) for v in pair)
+        return self._theirs.get(own_id) == their_id
+
+    def pairs(self) -> np.ndarray:
+        """``(k, 2)`` int64 rows ``(own id, neighbour id)``, sorted by own id."""
+        if not self._theirs:
+            return np.zeros((0, 2), np.int64)
+        own = np.fromiter(self._theirs, dtype=np.int64, count=len(self._theirs))
+        own.sort()
+        return np.column_stack([own, [self._theirs[int(i)] for i in own]]).astype(np.int64)
+
+    def theirs(self, own_ids: np.ndarray) -> np.ndarray:
+        """The neighbour's ids of ``own_ids`` (-1 where unmatched)."""
+        ids = np.asarray(own_ids, dtype=np.int64).reshape(-1)
+        return np.array([self._theirs.get(int(i), -1) for i in ids], dtype=np.int64)
+
+    def ours(self, their_ids: np.ndarray) -> np.ndarray:
+        """Our ids of the neighbour's ``their_ids`` (-1 where unmatched)."""
+        ids = np.asarray(their_ids, dtype=np.int64).reshape(-1)
+        return np.array([self._ours.get(int(i), -1) for i in ids], dtype=np.int64)
+
+    def _blocked(self, pair: tuple[int, int], step: int | None) -> bool:
+        if pair not in self._revoked:
+            return False
+        if self.hold_off is None or step is None:
+            return True
+        return step - self._revoked[pair] < self.hold_off
+
+    def merge(
+        self,
+        result: AssociationResult,
+        own: ObjectSummary,
+        their: ObjectSummary,
+        step: int | None = None,
+    ) -> np.ndarray:
+        """Add the new pairs of ``result`` that agree with the pairs already held.
+
+        Parameters
+        ----------
+        result
+            :func:`~teamslam.association.associate` of ``own`` against ``their`` (seen from this
+            end: ``result.first`` is :attr:`own`).
+        own, their
+            The summaries the result was computed from.
+        step
+            The current step (for the hold-off of revoked pairs).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(k, 2)`` the pairs added.
+        """
+        if result.first != self.own or result.second != self.neighbour:
+            raise InputError(
+                f"association of robots {result.first}→{result.second} merged into the table of "
+                f"link {self.own}→{self.neighbour}"
+            )
+        new = [
+            (int(a), int(b))
+            for a, b in result.pairs
+            if self._theirs.get(int(a)) != int(b)  # not already held
+        ]
+        self._sizes = (len(own), len(their))
+        self.proposed += len(new)
+        new = [
+            p
+            for p in new
+            if p[0] not in self._theirs and p[1] not in self._ours and not self._blocked(p, step)
+        ]
+        if not new:
+            return np.zeros((0, 2), np.int64)
+        held = self.pairs()
+        proposal = np.array(new, dtype=np.int64).reshape(-1, 2)
+        for ids, summary in ((proposal[:, 0], own), (proposal[:, 1], their)):
+            if not np.isin(ids, summary.ids).all():
+                raise InputError("the association result names an object its summaries do not hold")
+        # computed in the canonical order of the two robots, so both ends decide alike
+        if self._canonical_first():
+            ok, t = _merge_gate(own, their, held, proposal, self.settings)
+        else:
+            ok, t = _merge_gate(their, own, held[:, ::-1], proposal[:, ::-1], self.settings)
+            t = None if t is None else np.linalg.inv(t)
+        if t is not None:
+            self.T_own_their = t
+        elif result.T_first_second is not None:
+            self.T_own_their = result.T_first_second
+        new = [p for p, keep in zip(new, ok, strict=True) if keep]
+        for a, b in new:
+            self._theirs[a] = b
+            self._ours[b] = a
+        self.accepted += len(new)
+        return np.array(new, dtype=np.int64).reshape(-1, 2)
+
+    def extend(
+        self, own: ObjectSummary, their: ObjectSummary, step: int | None = None
+    ) -> np.ndarray:
+        """Grow the held pairs without a full association (cheap: one gate, one assignment).
+
+        The objects neither end has matched yet are gated under the transform of the held pairs
+        (:func:`~teamslam.association.core.gate_pairs`, drift allowance from the nearest held
+        pair), assigned one to one, and kept when distinct (no other object of either map fits
+        nearly as well, held pairs included). Computed in the canonical order of the two robots,
+        like :func:`~teamslam.association.associate`, so both ends add the same pairs.
+
+        Parameters
+        ----------
+        own, their
+            The current summaries of the two maps.
+        step
+            The current step (for the hold-off of revoked pairs).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(k, 2)`` the pairs added; none while fewer than ``min_inliers`` held pairs are in
+            the summaries.
+        """
+        if own.robot != self.own or their.robot != self.neighbour:
+            raise InputError(
+                f"summaries of robots {own.robot}→{their.robot} given to the table of link "
+                f"{self.own}→{self.neighbour}"
+            )
+        held = self.pairs()
+        if self._canonical_first():
+            found = _extend(own.sorted(), their.sorted(), held, self.settings)
+        else:
+            found = _extend(their.sorted(), own.sorted(), held[:, ::-1], self.settings)[:, ::-1]
+        self.proposed += len(found)
+        new = [
+            (int(a), int(b))
+            for a, b in found
+            if int(a) not in self._theirs
+            and int(b) not in self._ours
+            and not self._blocked((int(a), int(b)), step)
+        ]
+        for a, b in new:
+            self._theirs[a] = b
+            self._ours[b] = a
+        self.accepted += len(new)
+        return np.array(new, dtype=np.int64).reshape(-1, 2)
+
+    def _canonical_first(self) -> bool:
+        return self.own <= self.neighbour
+
+    def due(self, own_objects: int, their_objects: int, growth: float = 1.25) -> bool:
+        """Whether a full association is worth running now.
+
+        Yes when none was merged yet, or when either map has grown by the factor ``growth``
+        since the last one; in between, :meth:`extend` grows the table for the cost of one
+        gate. (A full association of maps of a hundred or two objects costs tens of
+        milliseconds; with ``growth = 1.25`` a map growing from 10 to 200 objects is associated
+        about 14 times.)
+        """
+        if growth <= 1.0:
+            raise InputError(f"growth must be > 1, got {growth}")
+        if self._sizes is None:
+            return True
+        own0, their0 = self._sizes
+        return own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1)
+
+    def revoke(self, own_id: int, their_id: int, step: int | None = None) -> bool:
+        """Drop a held pair (its consensus innovation failed); it is not re-added.
+
+        Returns
+        -------
+        bool
+            Whether the pair was held.
+        """
+        own_id, their_id = int(own_id), int(their_id)
+        if self._theirs.get(own_id) != their_id:
+            return False
+        del self._theirs[own_id]
+        del self._ours[their_id]
+        self._revoked[(own_id, their_id)] = -1 if step is None else int(step)
+        self.revoked += 1
+        return True
+
+    def counts(self) -> dict[str, int]:
+        """``proposed``, ``accepted``, ``revoked`` and ``held`` pairs."""
+        return {
+            "proposed": self.proposed,
+            "accepted": self.accepted,
+            "revoked": self.revoked,
+            "held": len(self),
+        }
+
+
+def _extend(
+    a: ObjectSummary, b: ObjectSummary, held: np.ndarray, settings: AssociationSettings
+) -> np.ndarray:
+    """New pairs of unmatched objects of ``a`` and ``b`` under the held pairs' transform."""
+    ia = np.searchsorted(a.ids, held[:, 0]) if held.size else np.zeros(0, np.int64)
+    ib = np.searchsorted(b.ids, held[:, 1]) if held.size else np.zeros(0, np.int64)
+    ia = np.minimum(ia, max(len(a) - 1, 0))
+    ib = np.minimum(ib, max(len(b) - 1, 0))
+    present = (
+        (a.ids[ia] == held[:, 0]) & (b.ids[ib] == held[:, 1])
+        if held.size and len(a) and len(b)
+        else np.zeros(0, bool)
+    )
+    ia, ib = ia[present], ib[present]
+    if ia.size < settings.min_inliers:
+        return np.zeros((0, 2), np.int64)
+    t = fit_transform(a.means[ia], b.means[ib], a.covs[ia], b.covs[ib])
+    cost, passed = gate_pairs(a, b, t, a.means[ia], b.means[ib], settings)
+    free_a = np.ones(len(a), bool)
+    free_a[ia] = False
+    free_b = np.ones(len(b), bool)
+    free_b[ib] = False
+    passed &= free_a[:, None] & free_b[None, :]
+    rows, cols = _assign(cost, passed)
+    if rows.size:
+        # once more with the new pairs as anchors too, as in the association: a new pair must
+        # then fit the refitted transform within its own covariances
+        ra, rb = np.concatenate([ia, rows]), np.concatenate([ib, cols])
+        t = fit_transform(a.means[ra], b.means[rb], a.covs[ra], b.covs[rb])
+        cost, passed = gate_pairs(a, b, t, a.means[ra], b.means[rb], settings)
+        passed &= free_a[:, None] & free_b[None, :]
+        rows, cols = _assign(cost, passed)
+    # distinct against every object, the held pairs counting as assigned
+    all_rows = np.concatenate([ia, rows])
+    all_cols = np.concatenate([ib, cols])
+    keep_rows, keep_cols = _distinct(cost, all_rows, all_cols, settings.distinctness)
+    added = free_a[keep_rows]
+    pairs = np.column_stack([a.ids[keep_rows[added]], b.ids[keep_cols[added]]])
+    return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
+
+
+def _merge_gate(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    held: np.ndarray,
+    proposal: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Which proposed pairs pass the ``χ²₃`` gate under the held pairs' transform (all of them
+    while fewer than three held pairs are in the summaries), and that transform."""
+    index_a = {int(i): k for k, i in enumerate(a.ids)}
+    index_b = {int(i): k for k, i in enumerate(b.ids)}
+    present = [
+        (index_a[int(x)], index_b[int(y)])
+        for x, y in held
+        if int(x) in index_a and int(y) in index_b
+    ]
+    if len(present) < 3:
+        return np.ones(len(proposal), bool), None
+    ia = np.array([i for i, _ in present])
+    ib = np.array([j for _, j in present])
+    t = fit_transform(a.means[ia], b.means[ib], a.covs[ia], b.covs[ib])
+    ca = np.array([index_a[int(x)] for x in proposal[:, 0]])
+    cb = np.array([index_b[int(y)] for y in proposal[:, 1]])
+    # the drift allowance grows with the distance from the nearest held pair
+    near_a = np.min(np.linalg.norm(a.means[ca][:, None] - a.means[ia][None], axis=2), axis=1)
+    near_b = np.min(np.linalg.norm(b.means[cb][:, None] - b.means[ib][None], axis=2), axis=1)
+    extra = 0.5 * settings.drift_ratio**2 * (near_a**2 + near_b**2)
+    nis = pair_innovation_nis(
+        a.means[ca], a.covs[ca] + extra[:, None, None] * np.eye(3), b.means[cb], b.covs[cb], t
+    )
+    return nis <= settings.gate_threshold, t

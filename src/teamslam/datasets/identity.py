@@ -1,0 +1,104 @@
+"""Object ids without an oracle: give each robot its own numbering, keep the identity as truth.
+
+Team datasets from instance annotations or from a simulator carry *global* object ids: an object
+seen by three robots has the same id in all three. A real team has no such oracle — each robot's
+tracker numbers its own objects. :func:`strip_object_ids` turns a global-id dataset into one with
+*per-robot* ids: every robot's objects get fresh ids, and which per-robot ids are the same object
+is kept in :attr:`~teamslam.datasets.model.TeamDataset.object_identity` — ground truth, like the
+object positions, for evaluation only.
+
+The fresh ids are drawn at random (seeded) from a range far larger than the number of objects
+and are *disjoint across robots*: a filter that still matched objects by equal ids finds nothing
+in common (instead of averaging unrelated objects), and the ground-truth map keyed by id stays
+unambiguous — it holds one row per per-robot id, and equal positions mean the same object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from teamslam.datasets.model import DatasetError, FrameObservations, TeamDataset
+
+__all__ = ["strip_object_ids"]
+
+#: Fresh ids are drawn from ``[1, ID_RANGE_FACTOR · objects)`` (at least ``[1, 10⁶)``).
+ID_RANGE_FACTOR = 1000
+
+
+def strip_object_ids(dataset: TeamDataset, to: str = "per-robot", seed: int = 0) -> TeamDataset:
+    """The same team with each robot's objects renumbered on their own.
+
+    Parameters
+    ----------
+    dataset
+        A dataset with ``global`` object ids.
+    to
+        The new scope; only ``"per-robot"``.
+    seed
+        Seed of the fresh ids (the same seed gives the same dataset).
+
+    Returns
+    -------
+    TeamDataset
+        Observations and class labels under the new ids (no id shared by two robots), the
+        ground-truth map keyed by the new ids, ``object_id_scope = "per-robot"`` and the identity
+        ``(robot, new id, old id)`` in ``object_identity``.
+
+    Raises
+    ------
+    DatasetError
+        When ``to`` is not ``"per-robot"`` or the ids are not global.
+    """
+    if to != "per-robot":
+        raise DatasetError(f"strip_object_ids can only renumber to 'per-robot' ids, not {to!r}")
+    if dataset.object_id_scope != "global":
+        raise DatasetError(
+            f"object ids are already {dataset.object_id_scope!r}; only global ids can be stripped"
+        )
+    rng = np.random.default_rng(seed)
+    own = [np.unique(r.objects.ids) for r in dataset.robots]
+    total = sum(ids.size for ids in own)
+    high = max(ID_RANGE_FACTOR * total, 10**6)
+    fresh = rng.choice(high - 1, size=total, replace=False).astype(np.int64) + 1
+    robots, identity = [], []
+    start = 0
+    for i, (robot, old) in enumerate(zip(dataset.robots, own, strict=True)):
+        new = fresh[start : start + old.size]
+        start += old.size
+        # old ids are sorted, new ones random: the order of the new ids says nothing either
+        renumber = _renumber(old, new)
+        obs = robot.objects
+        objects = FrameObservations(obs.offsets, renumber(obs.ids), obs.measurements)
+        classes = robot.object_classes
+        if classes is not None:
+            classes = classes[np.isin(classes[:, 0], old)]
+            classes = np.column_stack([renumber(classes[:, 0]), classes[:, 1]])
+        robots.append(replace(robot, objects=objects, object_classes=classes))
+        identity.append(np.column_stack([np.full(old.size, i), new, old]))
+    identity_rows = np.concatenate(identity).astype(np.int64).reshape(-1, 3)
+    truth = dataset.object_position(identity_rows[:, 2])
+    known = np.all(np.isfinite(truth), axis=1)
+    metadata = dict(dataset.metadata)
+    metadata["object_ids"] = {"stripped_from": "global", "seed": int(seed)}
+    return replace(
+        dataset,
+        robots=robots,
+        object_ids=identity_rows[known, 1],
+        object_positions=truth[known],
+        metadata=metadata,
+        object_id_scope="per-robot",
+        object_identity=identity_rows,
+    )
+
+
+def _renumber(old: np.ndarray, new: np.ndarray):
+    """A function mapping ids of ``old`` (sorted, unique) to the ``new`` id at the same place."""
+
+    def apply(ids: np.ndarray) -> np.ndarray:
+        ids = np.asarray(ids, dtype=np.int64)
+        pos = np.searchsorted(old, ids)
+        return new[pos].astype(np.int64) if ids.size else ids.copy()
+
+    return apply

@@ -1,0 +1,341 @@
+"""Association of two robots' objects without shared ids: consistency, drift, symmetry, no guess."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from teamslam.association import (
+    AssociationSettings,
+    CorrespondenceTable,
+    ObjectSummary,
+    associate,
+    consistency_graph,
+    fit_transform,
+    maximum_clique,
+    pair_innovation_consistent,
+    score_correspondences,
+)
+from teamslam.association.core import _distances
+from teamslam.errors import InputError
+from teamslam.geometry import so3
+
+SIGMA = 0.1
+
+
+def _scene(rng: np.random.Generator, n: int, extent: float = 120.0, spacing: float = 4.0):
+    """``n`` objects on the ground spread over ``extent`` metres, at least ``spacing`` apart."""
+    points = []
+    while len(points) < n:
+        p = np.array([*rng.uniform(0, extent, 2), rng.uniform(0, 2)])
+        if all(np.linalg.norm(p - q) >= spacing for q in points):
+            points.append(p)
+    return np.array(points)
+
+
+def _pose(yaw_deg: float, shift) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = so3.exp(np.array([0.0, 0.0, np.deg2rad(yaw_deg)]))
+    t[:3, 3] = shift
+    return t
+
+
+def _summary(robot, ids, truth, rng, T_map_world=None, sigma=SIGMA):
+    means = truth + rng.normal(0, sigma, truth.shape)
+    covs = np.repeat((sigma**2 * np.eye(3))[None], len(ids), axis=0)
+    s = ObjectSummary(robot, ids, means, covs)
+    return s if T_map_world is None else s.transformed(T_map_world)
+
+
+def _two_maps(seed=0, shared=40, own=20, yaw=0.0, shift=(0.0, 0.0, 0.0)):
+    """Two robots' summaries over one scene; ids unrelated; truth: own id → object index."""
+    rng = np.random.default_rng(seed)
+    world = _scene(rng, shared + 2 * own)
+    in_a = np.arange(0, shared + own)
+    in_b = np.concatenate([np.arange(shared), np.arange(shared + own, shared + 2 * own)])
+    ids_a = rng.permutation(1000)[: in_a.size] + 5000
+    ids_b = rng.permutation(1000)[: in_b.size] + 9000
+    a = _summary(1, ids_a, world[in_a], rng)
+    b = _summary(2, ids_b, world[in_b], rng, _pose(yaw, shift))
+    return a, b, (ids_a, in_a), (ids_b, in_b)
+
+
+def test_pairwise_consistency_of_a_known_configuration():
+    rng = np.random.default_rng(1)
+    pts = np.array([[0.0, 0, 0], [10, 0, 0], [0, 20, 0], [30, 30, 1]])
+    covs = np.repeat((0.01 * np.eye(3))[None], 4, axis=0)
+    moved = pts @ so3.exp(np.array([0.1, -0.2, 0.7])).T + [5.0, -3.0, 2.0]
+    geo_a = _distances(pts, covs)
+    geo_b = _distances(moved + rng.normal(0, 0.01, moved.shape), covs)
+    settings = AssociationSettings(drift_ratio=0.0)
+    # candidates: the four true pairs, and object 0 wrongly paired with 3
+    ia = np.array([0, 1, 2, 3, 0])
+    ib = np.array([0, 1, 2, 3, 3])
+    graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
+    assert graph[:4, :4].sum() == 12  # every two true pairs are consistent
+    assert not graph[4, 1] and not graph[4, 2]  # |0-1| = 10 vs |3-1| ≈ 36: inconsistent
+    assert not graph[4, 0] and not graph[4, 3]  # pairs sharing an object never are
+    assert np.array_equal(graph, graph.T)
+    clique, exact = maximum_clique(graph)
+    assert exact and clique.tolist() == [0, 1, 2, 3]
+
+
+def test_drift_allowance_is_relative_to_distance():
+    pts = np.array([[0.0, 0, 0], [100.0, 0, 0]])
+    covs = np.repeat((1e-4 * np.eye(3))[None], 2, axis=0)
+    stretched = pts * 1.02  # a 2 % deformation
+    geo_a, geo_b = _distances(pts, covs), _distances(stretched, covs)
+    ia = ib = np.array([0, 1])
+    strict = consistency_graph(ia, ib, geo_a, geo_b, AssociationSettings(drift_ratio=0.0))
+    loose = consistency_graph(ia, ib, geo_a, geo_b, AssociationSettings(drift_ratio=0.02))
+    assert not strict[0, 1] and loose[0, 1]
+
+
+def test_maximum_clique_is_exact_on_a_planted_clique():
+    rng = np.random.default_rng(3)
+    m = 60
+    adj = rng.random((m, m)) < 0.2
+    adj = np.triu(adj, 1)
+    adj = adj | adj.T
+    planted = np.sort(rng.choice(m, 12, replace=False))
+    adj[np.ix_(planted, planted)] = True
+    np.fill_diagonal(adj, False)
+    clique, exact = maximum_clique(adj)
+    assert exact
+    assert clique.tolist() == planted.tolist()
+    assert adj[np.ix_(clique, clique)].sum() == 12 * 11
+
+
+@pytest.mark.parametrize(("yaw", "shift"), [(0.0, (0, 0, 0)), (30.0, (20.0, 0.0, 0.0))])
+def test_shifted_and_rotated_map_is_matched_correctly(yaw, shift):
+    a, b, (ids_a, in_a), (ids_b, in_b) = _two_maps(yaw=yaw, shift=shift)
+    result = associate(a, b)
+    assert result.matched, result.status
+    truth_a = (ids_a, in_a)
+    truth_b = (ids_b, in_b)
+    score = score_correspondences(result.pairs, a.ids, b.ids, truth_a, truth_b)
+    assert score.shared == 40
+    assert score.wrong == 0
+    assert score.correct == 40
+    # the transform is the one applied to the second map, inverted
+    expected = np.linalg.inv(_pose(yaw, shift))
+    assert np.allclose(result.T_first_second[:3, :3], expected[:3, :3], atol=0.01)
+    assert np.allclose(result.T_first_second[:3, 3], expected[:3, 3], atol=0.3)
+
+
+def test_the_rule_is_the_same_on_both_ends():
+    a, b, *_ = _two_maps(seed=5, yaw=30.0, shift=(20.0, -5.0, 0.0))
+    forward = associate(a, b)
+    rng = np.random.default_rng(9)
+    # the other end holds the same summaries, perhaps in another order
+    backward = associate(b.take(rng.permutation(len(b))), a.take(rng.permutation(len(a))))
+    assert forward.matched and backward.matched
+    assert np.array_equal(backward.swapped().pairs, forward.pairs)
+    assert np.array_equal(backward.pairs, forward.swapped().pairs)
+    assert np.allclose(backward.T_first_second @ forward.T_first_second, np.eye(4), atol=1e-9)
+
+
+def test_a_regular_grid_gives_no_correspondence():
+    # every object of a grid looks like every other: shifting by a cell is as good an answer
+    x, y = np.meshgrid(np.arange(8) * 5.0, np.arange(8) * 5.0)
+    grid = np.column_stack([x.ravel(), y.ravel(), np.zeros(64)])
+    rng = np.random.default_rng(2)
+    a = _summary(0, np.arange(64), grid, rng, sigma=0.05)
+    b = _summary(1, np.arange(64) + 100, grid, rng, _pose(0.0, (1.0, 2.0, 0.0)), sigma=0.05)
+    result = associate(a, b)
+    assert not result.matched
+    assert result.pairs.shape == (0, 2)
+    assert result.T_first_second is None
+
+
+def test_too_few_shared_objects_give_no_correspondence():
+    rng = np.random.default_rng(4)
+    world = _scene(rng, 42, extent=300.0)
+    a = _summary(0, np.arange(20), world[np.r_[0:2, 2:20]], rng)
+    b = _summary(1, np.arange(22) + 100, world[np.r_[0:2, 20:40]], rng)
+    for settings in (AssociationSettings(), AssociationSettings(min_inliers=3)):
+        result = associate(a, b, settings)
+        assert not result.matched
+        assert result.pairs.size == 0
+
+
+def test_maps_of_different_places_give_no_correspondence():
+    rng = np.random.default_rng(6)
+    a = _summary(0, np.arange(60), _scene(rng, 60), rng)
+    b = _summary(1, np.arange(60) + 100, _scene(rng, 60), rng)
+    result = associate(a, b)
+    assert not result.matched, (result.status, result.pairs)
+
+
+def test_half_shared_maps_are_matched_with_high_precision_and_recall():
+    # 20 shared objects among 20 more in each map that the other does not hold, drifted map
+    correct = wrong = shared = 0
+    for seed in range(11, 16):
+        a, b, truth_a, truth_b = _two_maps(seed=seed, shared=20, own=20, yaw=30.0, shift=(20, 0, 0))
+        score = score_correspondences(associate(a, b).pairs, a.ids, b.ids, truth_a, truth_b)
+        correct, wrong, shared = correct + score.correct, wrong + score.wrong, shared + score.shared
+    assert shared == 100
+    assert correct >= 90 and wrong <= 5
+
+
+def test_classes_forbid_matching_objects_of_different_kinds():
+    a, b, (ids_a, in_a), (ids_b, in_b) = _two_maps(seed=2)
+    classes_a = (in_a % 2).astype(np.int64)
+    classes_b = ((in_b + 1) % 2).astype(np.int64)  # every shared object gets the other class
+    ca = ObjectSummary(a.robot, a.ids, a.means, a.covs, classes_a)
+    cb = ObjectSummary(b.robot, b.ids, b.means, b.covs, classes_b)
+    assert associate(a, b).matched
+    result = associate(ca, cb)
+    score = score_correspondences(result.pairs, a.ids, b.ids, (ids_a, in_a), (ids_b, in_b))
+    assert score.correct == 0
+
+
+def test_summary_errors_name_the_field():
+    with pytest.raises(InputError, match="duplicates"):
+        ObjectSummary(0, [1, 1], np.zeros((2, 3)), np.repeat(np.eye(3)[None], 2, axis=0))
+    with pytest.raises(InputError, match="covs must be"):
+        ObjectSummary(0, [1, 2], np.zeros((2, 3)), np.eye(3))
+    with pytest.raises(InputError, match="object 2 is not positive definite"):
+        ObjectSummary(0, [1, 2], np.zeros((2, 3)), np.stack([np.eye(3), np.zeros((3, 3))]))
+    with pytest.raises(InputError, match="drift_ratio"):
+        AssociationSettings(drift_ratio=-1.0)
+    one = ObjectSummary(3, [1], np.zeros((1, 3)), np.eye(3)[None])
+    with pytest.raises(InputError, match="both are robot 3's"):
+        associate(one, one)
+
+
+def test_fit_transform_recovers_a_rigid_motion():
+    rng = np.random.default_rng(8)
+    pts = rng.normal(0, 10, (10, 3))
+    t = _pose(40.0, (3.0, -2.0, 1.0))
+    moved = pts @ t[:3, :3].T + t[:3, 3]
+    assert np.allclose(fit_transform(moved, pts), t, atol=1e-9)
+
+
+def _table_with_result(seed=0):
+    a, b, truth_a, truth_b = _two_maps(seed=seed)
+    result = associate(a, b)
+    table = CorrespondenceTable(a.robot, b.robot)
+    table.merge(result, a, b, step=0)
+    return table, result, a, b, truth_a, truth_b
+
+
+def test_table_keeps_pairs_and_maps_both_ways():
+    table, result, a, b, *_ = _table_with_result()
+    assert np.array_equal(table.pairs(), result.pairs)
+    assert table.counts() == {"proposed": 40, "accepted": 40, "revoked": 0, "held": 40}
+    own, their = result.pairs[3]
+    assert table.theirs([own])[0] == their and table.ours([their])[0] == own
+    assert table.theirs([-7])[0] == -1
+    # the same result again adds and proposes nothing
+    assert table.merge(result, a, b, step=1).size == 0
+    assert table.counts()["proposed"] == 40
+
+
+def test_a_wrong_pair_fails_its_innovation_test_and_is_revoked_for_good():
+    table, result, a, b, *_ = _table_with_result()
+    t = table.T_own_their
+    own_id, their_id = result.pairs[0]
+    ia = int(np.flatnonzero(a.ids == own_id)[0])
+    ib = int(np.flatnonzero(b.ids == their_id)[0])
+    ok = pair_innovation_consistent(a.means[ia], a.covs[ia], b.means[ib], b.covs[ib], t)
+    assert ok.tolist() == [True]
+    # the neighbour lies: 20 m off with a tiny covariance
+    lie = b.means[ib] + [20.0, 0.0, 0.0]
+    bad = pair_innovation_consistent(a.means[ia], a.covs[ia], lie, 1e-6 * np.eye(3), t)
+    assert bad.tolist() == [False]
+    assert table.revoke(own_id, their_id, step=3)
+    assert (own_id, their_id) not in table
+    assert not table.revoke(own_id, their_id)  # not held any more
+    table.merge(result, a, b, step=4)
+    assert (own_id, their_id) not in table  # never re-added
+    assert table.counts()["revoked"] == 1 and len(table) == 39
+
+
+def test_a_revoked_pair_may_return_after_the_hold_off():
+    a, b, *_ = _two_maps()
+    result = associate(a, b)
+    table = CorrespondenceTable(a.robot, b.robot, hold_off=5)
+    table.merge(result, a, b, step=0)
+    own_id, their_id = result.pairs[0]
+    table.revoke(own_id, their_id, step=10)
+    table.merge(result, a, b, step=12)
+    assert (own_id, their_id) not in table
+    table.merge(result, a, b, step=15)
+    assert (own_id, their_id) in table
+
+
+def test_table_refuses_a_pair_that_disagrees_with_the_held_transform():
+    table, result, a, b, *_ = _table_with_result()
+    # a result naming two unmatched objects 30 m apart under the held transform
+    own_free = np.setdiff1d(a.ids, table.pairs()[:, 0])[0]
+    their_free = np.setdiff1d(b.ids, table.pairs()[:, 1])[0]
+    ia = int(np.flatnonzero(a.ids == own_free)[0])
+    ib = int(np.flatnonzero(b.ids == their_free)[0])
+    gap = np.linalg.norm(a.means[ia] - b.transformed(table.T_own_their).means[ib])
+    assert gap > 3.0
+    fake = type(result)(a.robot, b.robot, np.array([[own_free, their_free]]), np.eye(4), "matched")
+    assert table.merge(fake, a, b, step=1).size == 0
+    assert table.counts()["proposed"] == 41 and table.counts()["accepted"] == 40
+
+
+def test_scores_count_right_and_wrong_pairs():
+    pairs = np.array([[1, 11], [2, 12], [3, 14]])
+    truth_a = (np.array([1, 2, 3, 4]), np.array([100, 200, 300, 400]))
+    truth_b = (np.array([11, 12, 13, 14]), np.array([100, 200, 300, 500]))
+    score = score_correspondences(pairs, truth_a[0], truth_b[0], truth_a, truth_b)
+    assert (score.correct, score.wrong, score.shared) == (2, 1, 3)
+    assert score.precision == pytest.approx(2 / 3) and score.recall == pytest.approx(2 / 3)
+    with pytest.raises(InputError, match="does not hold"):
+        score_correspondences(np.array([[9, 11]]), truth_a[0], truth_b[0], truth_a, truth_b)
+
+
+def test_extend_grows_the_table_identically_on_both_ends():
+    from dataclasses import replace
+
+    a, b, truth_a, truth_b = _two_maps(seed=0, yaw=30.0, shift=(20.0, 0.0, 0.0))
+    full = associate(a, b)
+    assert full.matched and len(full.pairs) == 40
+    start = replace(full, pairs=full.pairs[:8])  # the maps held only a few of them at first
+    mine = CorrespondenceTable(a.robot, b.robot)
+    theirs = CorrespondenceTable(b.robot, a.robot)
+    mine.merge(start, a, b, step=0)
+    theirs.merge(start.swapped(), b, a, step=0)
+    added = mine.extend(a, b, step=1)
+    added_there = theirs.extend(b, a, step=1)
+    assert len(added) >= 28  # most of the 32 others, and (below) none wrong
+    assert np.array_equal(theirs.pairs(), mine.pairs()[np.argsort(mine.pairs()[:, 1])][:, ::-1])
+    assert np.array_equal(added_there[np.argsort(added_there[:, 1])][:, ::-1], added)
+    score = score_correspondences(mine.pairs(), a.ids, b.ids, truth_a, truth_b)
+    assert score.wrong == 0 and score.correct == 8 + len(added)
+    # a revoked pair does not come back through extend either
+    own_id, their_id = full.pairs[20]
+    mine.revoke(own_id, their_id, step=2)
+    again = mine.extend(a, b, step=3)
+    assert (own_id, their_id) not in mine
+    assert [own_id, their_id] not in again.tolist()
+    score = score_correspondences(mine.pairs(), a.ids, b.ids, truth_a, truth_b)
+    assert score.wrong == 0
+
+
+def test_extend_needs_three_held_pairs():
+    from dataclasses import replace
+
+    a, b, *_ = _two_maps(seed=3)
+    full = associate(a, b)
+    table = CorrespondenceTable(a.robot, b.robot)
+    table.merge(replace(full, pairs=full.pairs[:2]), a, b)
+    assert table.extend(a, b).size == 0 and len(table) == 2
+
+
+def test_a_full_association_is_due_first_and_when_a_map_has_grown():
+    a, b, *_ = _two_maps()
+    table = CorrespondenceTable(a.robot, b.robot)
+    assert table.due(len(a), len(b))
+    table.merge(associate(a, b), a, b)
+    assert not table.due(len(a), len(b))
+    assert not table.due(len(a) + 10, len(b))  # 60 → 70: less than 25 % more
+    assert table.due(len(a) + 15, len(b))
+    assert table.due(len(a), 2 * len(b))
+    with pytest.raises(InputError, match="growth"):
+        table.due(1, 1, growth=1.0)
