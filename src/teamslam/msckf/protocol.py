@@ -62,6 +62,7 @@ import numpy as np
 
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import kl_divergence, spd_inverse
+from teamslam.graph import metropolis_weight
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus import (
     ReceivedMarginal,
@@ -76,7 +77,7 @@ from teamslam.msckf.consensus import (
 from teamslam.msckf.consensus_checks import check_message
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
 
-__all__ = ["ConsensusProtocol", "metropolis_weight"]
+__all__ = ["ConsensusProtocol"]
 
 
 class ConsensusProtocol:
