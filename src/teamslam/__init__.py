@@ -1,14 +1,41 @@
-"""teamslam: multi-robot SLAM by filtering, with consensus and consistency measured."""
+"""teamslam: multi-robot SLAM by filtering, with consensus and consistency measured.
 
-from importlib.metadata import PackageNotFoundError, version
+Importing the package is cheap: its subpackages and the names below are loaded the first time
+they are used (``teamslam.MsckfConfig`` imports :mod:`teamslam.msckf`, ``import teamslam.errors``
+loads no numerical library).
+"""
 
-try:
-    __version__ = version("teamslam")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
-    __version__ = "0+unknown"
+from __future__ import annotations
 
-from teamslam import datasets, dvi, ekf2d, gaussian, geometry, graph, msckf, sim
-from teamslam.msckf import MsckfConfig, run_team
+from typing import TYPE_CHECKING
+
+from teamslam._lazy import attach
+
+_SUBMODULES = (
+    "cli",
+    "datasets",
+    "dvi",
+    "ekf2d",
+    "errors",
+    "eval",
+    "gaussian",
+    "geometry",
+    "graph",
+    "linalg",
+    "msckf",
+    "ros2",
+    "runtime",
+    "sim",
+    "testing",
+    "textio",
+)
+_NAMES = {
+    "MsckfConfig": "teamslam.msckf",
+    "run_team": "teamslam.msckf",
+    "run": "teamslam.api",
+    "write_run": "teamslam.api",
+    "load_run": "teamslam.api",
+}
 
 __all__ = [
     "MsckfConfig",
@@ -19,7 +46,41 @@ __all__ = [
     "gaussian",
     "geometry",
     "graph",
+    "load_run",
     "msckf",
+    "run",
     "run_team",
     "sim",
+    "write_run",
 ]
+
+_getattr, _dir = attach(__name__, _SUBMODULES, _NAMES)
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("teamslam")
+    except PackageNotFoundError:  # pragma: no cover - a source tree without install
+        return "0+unknown"
+
+
+def __getattr__(name: str) -> object:
+    if name == "__version__":
+        global __version__
+        __version__ = _version()
+        return __version__
+    return _getattr(name)
+
+
+def __dir__() -> list[str]:
+    return sorted({*_dir(), "__version__"})
+
+
+if TYPE_CHECKING:  # what a type checker and an IDE see; nothing is imported at run time
+    from teamslam import datasets, dvi, ekf2d, gaussian, geometry, graph, msckf, sim
+    from teamslam.api import load_run, run, write_run
+    from teamslam.msckf import MsckfConfig, run_team
+
+    __version__: str
