@@ -49,10 +49,8 @@ def write_team_outputs(
         prefix = out if len(names) == 1 else out / name
         save_estimates(prefix / "estimates.npz", dataset, result)
         for i, robot in enumerate(dataset.robots):
-            write_tum(prefix / f"robot_{i + 1}.tum", result.poses[i], robot.timestamps)
-            write_tum(
-                prefix / f"robot_{i + 1}_groundtruth.tum", robot.T_world_body, robot.timestamps
-            )
+            write_tum(prefix / f"robot_{i}.tum", result.poses[i], robot.timestamps)
+            write_tum(prefix / f"robot_{i}_groundtruth.tum", robot.T_world_body, robot.timestamps)
     plot_team_topview(dataset, results, out / "topview.png")
     plot_team_errors(dataset, results, out / "errors.png")
     print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")
