@@ -41,7 +41,7 @@ def test_importing_the_package_or_its_errors_loads_no_numerical_library(code):
     modules = _loaded_after(code)["modules"]
     assert _heavy(modules) == []
     ours = sorted(m for m in modules if m.startswith("teamslam"))
-    assert set(ours) <= {"teamslam", "teamslam._lazy", "teamslam.errors"}, ours
+    assert set(ours) <= {"teamslam", "teamslam._lazy", "teamslam._version", "teamslam.errors"}, ours
 
 
 def test_version_on_the_command_line_imports_no_command_group():
@@ -128,3 +128,13 @@ def test_a_missing_defining_module_is_an_attribute_error_but_a_missing_dependenc
         getattr_("absent")
     with pytest.raises(ModuleNotFoundError, match="teamslam_no_such_dependency"):
         getattr_("value")
+
+
+def test_the_installed_metadata_carries_the_package_version():
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        installed = version("teamslam")
+    except PackageNotFoundError:
+        pytest.skip("teamslam is not installed (running from a source tree)")
+    assert installed == teamslam.__version__

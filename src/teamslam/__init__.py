@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from teamslam._lazy import attach
+from teamslam._version import __version__
 
 _SUBMODULES = (
     "cli",
@@ -54,33 +55,10 @@ __all__ = [
     "write_run",
 ]
 
-_getattr, _dir = attach(__name__, _SUBMODULES, _NAMES)
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("teamslam")
-    except PackageNotFoundError:  # pragma: no cover - a source tree without install
-        return "0+unknown"
-
-
-def __getattr__(name: str) -> object:
-    if name == "__version__":
-        global __version__
-        __version__ = _version()
-        return __version__
-    return _getattr(name)
-
-
-def __dir__() -> list[str]:
-    return sorted({*_dir(), "__version__"})
+__getattr__, __dir__ = attach(__name__, _SUBMODULES, _NAMES)
 
 
 if TYPE_CHECKING:  # what a type checker and an IDE see; nothing is imported at run time
     from teamslam import datasets, dvi, ekf2d, gaussian, geometry, graph, msckf, sim
     from teamslam.api import load_run, run, write_run
     from teamslam.msckf import MsckfConfig, run_team
-
-    __version__: str
