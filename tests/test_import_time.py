@@ -81,26 +81,55 @@ def test_public_names_resolve_on_first_access_to_the_defining_objects():
     ]
 
 
-def test_every_exported_name_of_every_package_resolves_and_dir_lists_it():
-    import importlib
+def _declared_origins(package) -> dict[str, str]:
+    """``{name: defining module}`` from the package's ``if TYPE_CHECKING:`` imports."""
+    import ast
 
-    for name in (
-        "teamslam.datasets",
-        "teamslam.dvi",
-        "teamslam.ekf2d",
-        "teamslam.geometry",
-        "teamslam.msckf",
-        "teamslam.runtime",
-        "teamslam.sim",
-    ):
+    origins = {}
+    tree = ast.parse(Path(package.__file__).read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module != package.__name__:
+            origins.update({alias.name: node.module for alias in node.names})
+    return origins
+
+
+SUBPACKAGES = (
+    "teamslam.datasets",
+    "teamslam.dvi",
+    "teamslam.ekf2d",
+    "teamslam.geometry",
+    "teamslam.msckf",
+    "teamslam.runtime",
+    "teamslam.sim",
+)
+
+
+def test_every_exported_name_is_the_defining_object_even_after_its_submodule_is_imported():
+    import importlib
+    import pkgutil
+
+    for name in SUBPACKAGES:
         package = importlib.import_module(name)
+        origins = _declared_origins(package)
+        assert set(package.__all__) <= set(origins) | {
+            m.name for m in pkgutil.iter_modules(package.__path__)
+        }
+        # importing every submodule must not replace a name by a module of the same name
+        for info in pkgutil.iter_modules(package.__path__):
+            importlib.import_module(f"{name}.{info.name}")
         for exported in package.__all__:
             value = getattr(package, exported)
-            assert value is not None, (name, exported)
+            if exported in origins and origins[exported] != "typing":
+                expected = getattr(importlib.import_module(origins[exported]), exported)
+                assert value is expected, (name, exported, value)
             assert exported in dir(package), (name, exported)
+    import teamslam.dvi
+
+    assert callable(teamslam.dvi.mirror_descent)  # the function, not the module of that name
     for exported in set(teamslam.__all__) - {"run", "write_run", "load_run"}:
         assert getattr(teamslam, exported) is not None
         assert exported in dir(teamslam)
+    assert teamslam.MsckfConfig is importlib.import_module("teamslam.msckf.config").MsckfConfig
     assert {"run", "write_run", "load_run"} <= set(dir(teamslam))
 
 

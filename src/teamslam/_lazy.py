@@ -31,7 +31,8 @@ def attach(
     names
         Re-exported names and the module that defines each (``{"run_team":
         "teamslam.msckf.team"}``); a name is imported from its module on first access and then
-        kept in the package's namespace.
+        kept in the package's namespace. A name that is also a submodule's is imported at
+        once.
 
     Returns
     -------
@@ -40,6 +41,12 @@ def attach(
     """
     submodules = frozenset(submodules)
     names = dict(names or {})
+    for name in sorted(submodules & names.keys()):
+        # A name that is also a submodule's (``dvi.mirror_descent``, the function, in the
+        # module ``dvi/mirror_descent.py``) would be replaced by the module the moment anything
+        # imports that submodule, so it is bound now, as an eager import would.
+        value = getattr(importlib.import_module(names[name]), name)
+        setattr(sys.modules[package], name, value)
 
     def __getattr__(name: str) -> object:
         if name in submodules:
