@@ -1,0 +1,197 @@
+"""Stereo camera files and rectification.
+
+A camera file is YAML (written by :func:`teamslam.sim.render.write_camera_file`)::
+
+    image_width: 640
+    image_height: 480
+    left:  {K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], distortion: [k1, k2, p1, p2, k3]}
+    right: {K: ..., distortion: ...}
+    T_left_right: 4×4 pose of the right camera in the left camera frame
+    T_cam_body: 4×4 body → left optical frame (optional; default: body x forward, y left,
+                z up, so T_cam_body maps it to optical x right, y down, z forward)
+
+A pair that is already rectified (no distortion, equal intrinsics, right camera translated
+along x only) is used as it is; otherwise OpenCV's ``stereoRectify`` gives the rectifying
+rotations and a common pinhole camera, and images are remapped. The rectified left frame is
+rotated from the original left frame, so ``T_cam_body`` is rotated with it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from teamslam.errors import InputError
+from teamslam.frontend._cv import require_cv2
+from teamslam.geometry.camera import StereoCamera
+
+__all__ = ["DEFAULT_T_CAM_BODY", "StereoRig", "load_camera"]
+
+DEFAULT_T_CAM_BODY = np.array(
+    [[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+)
+
+
+@dataclass
+class StereoRig:
+    """A calibrated stereo pair and its rectification.
+
+    Attributes
+    ----------
+    image_size
+        ``(width, height)`` of the raw images.
+    K_left, K_right, distortion_left, distortion_right
+        Raw intrinsics and OpenCV distortion coefficients.
+    T_left_right
+        Pose of the right camera in the raw left camera frame.
+    T_cam_body
+        Body → raw left optical frame.
+    """
+
+    image_size: tuple[int, int]
+    K_left: np.ndarray
+    K_right: np.ndarray
+    distortion_left: np.ndarray
+    distortion_right: np.ndarray
+    T_left_right: np.ndarray
+    T_cam_body: np.ndarray = field(default_factory=lambda: DEFAULT_T_CAM_BODY.copy())
+
+    def __post_init__(self) -> None:
+        self._maps = None
+        self._rectified = None
+
+    @property
+    def already_rectified(self) -> bool:
+        """No distortion, equal intrinsics, right camera along the left's x axis."""
+        t = self.T_left_right
+        return bool(
+            not np.any(self.distortion_left)
+            and not np.any(self.distortion_right)
+            and np.allclose(self.K_left, self.K_right)
+            and np.allclose(t[:3, :3], np.eye(3), atol=1e-12)
+            and np.allclose(t[1:3, 3], 0.0, atol=1e-12)
+            and t[0, 3] > 0
+        )
+
+    def _rectify_setup(self) -> None:
+        if self._rectified is not None:
+            return
+        if self.already_rectified:
+            self._rectified = (StereoCamera(self.K_left, self.T_left_right), np.eye(3))
+            return
+        cv2 = require_cv2()
+        T_right_left = np.linalg.inv(self.T_left_right)
+        r1, r2, p1, p2, *_ = cv2.stereoRectify(
+            self.K_left,
+            self.distortion_left,
+            self.K_right,
+            self.distortion_right,
+            self.image_size,
+            T_right_left[:3, :3],
+            T_right_left[:3, 3],
+            flags=cv2.CALIB_ZERO_DISPARITY,
+            alpha=0,
+        )
+        baseline = -p2[0, 3] / p2[0, 0]
+        if not baseline > 0:
+            raise InputError(
+                "camera: after rectification the right camera is not to the right of the left "
+                f"(baseline {baseline:.4g}); check T_left_right"
+            )
+        K = p1[:3, :3].copy()
+        self._rectified = (
+            StereoCamera.from_baseline(K[0, 0], K[1, 1], K[0, 2], K[1, 2], baseline),
+            r1,
+        )
+        size = self.image_size
+        self._maps = (
+            cv2.initUndistortRectifyMap(
+                self.K_left, self.distortion_left, r1, p1, size, cv2.CV_32FC1
+            ),
+            cv2.initUndistortRectifyMap(
+                self.K_right, self.distortion_right, r2, p2, size, cv2.CV_32FC1
+            ),
+        )
+
+    @property
+    def camera(self) -> StereoCamera:
+        """The rectified stereo camera the measurements are in."""
+        self._rectify_setup()
+        return self._rectified[0]
+
+    @property
+    def R_rect_left(self) -> np.ndarray:
+        """Rotation from the raw left frame to the rectified left frame."""
+        self._rectify_setup()
+        return self._rectified[1]
+
+    @property
+    def T_rect_body(self) -> np.ndarray:
+        """Body → rectified left optical frame."""
+        rot = np.eye(4)
+        rot[:3, :3] = self.R_rect_left
+        return rot @ self.T_cam_body
+
+    def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rectified images (the inputs themselves when the pair is already rectified)."""
+        self._rectify_setup()
+        if self._maps is None:
+            return left, right
+        cv2 = require_cv2()
+        (lx, ly), (rx, ry) = self._maps
+        return (
+            cv2.remap(left, lx, ly, cv2.INTER_LINEAR),
+            cv2.remap(right, rx, ry, cv2.INTER_LINEAR),
+        )
+
+
+def _matrix(data, key: str, shape: tuple[int, ...], where: str) -> np.ndarray:
+    try:
+        m = np.asarray(data[key], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{where}: missing or non-numeric {key}") from None
+    if m.shape != shape or not np.all(np.isfinite(m)):
+        raise InputError(f"{where}: {key} must be a finite {shape} array, got shape {m.shape}")
+    return m
+
+
+def load_camera(path: str | Path) -> StereoRig:
+    """Read a stereo camera file (see the module docstring); errors name the file and key."""
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise InputError(f"{path}: cannot read camera file ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: camera file must be a mapping")
+    where = str(path)
+    try:
+        size = (int(data["image_width"]), int(data["image_height"]))
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{path}: image_width and image_height are required integers") from None
+    if min(size) <= 0:
+        raise InputError(f"{path}: image size must be positive")
+    cams = []
+    for side in ("left", "right"):
+        sec = data.get(side)
+        if not isinstance(sec, dict):
+            raise InputError(f"{path}: section {side} (K, distortion) is required")
+        K = _matrix(sec, "K", (3, 3), f"{where}: {side}")
+        dist = np.asarray(sec.get("distortion", np.zeros(5)), dtype=float).ravel()
+        if dist.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(dist)):
+            raise InputError(f"{path}: {side}.distortion needs 4, 5, 8, 12 or 14 finite numbers")
+        cams.append((K, dist))
+    T_left_right = _matrix(data, "T_left_right", (4, 4), where)
+    T_cam_body = (
+        _matrix(data, "T_cam_body", (4, 4), where)
+        if "T_cam_body" in data
+        else DEFAULT_T_CAM_BODY.copy()
+    )
+    for name, t in (("T_left_right", T_left_right), ("T_cam_body", T_cam_body)):
+        if not np.allclose(t[:3, :3] @ t[:3, :3].T, np.eye(3), atol=1e-6):
+            raise InputError(f"{path}: {name} rotation is not orthonormal")
+    return StereoRig(size, cams[0][0], cams[1][0], cams[0][1], cams[1][1], T_left_right, T_cam_body)

@@ -1,0 +1,104 @@
+"""Feature tracks with persistent ids: Shi–Tomasi corners followed by pyramidal Lucas–Kanade.
+
+Every frame the previous frame's tracks are followed forward and then back again; a track is
+kept when it lands inside the image and the backward track returns within the
+forward–backward threshold. Where the image has no tracks (outside a disc of the feature
+spacing around each survivor) new corners are taken, with fresh ids, up to
+``max_features``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from teamslam.frontend._cv import require_cv2
+from teamslam.frontend.config import FrontendConfig
+
+__all__ = ["FeatureTracker"]
+
+
+class FeatureTracker:
+    """Tracks corners through a sequence of grey images.
+
+    Parameters
+    ----------
+    image_size
+        ``(width, height)`` of the images.
+    config
+        Front-end settings.
+    first_id
+        Id of the first new track (ids then count up; :attr:`next_id` is the next free one).
+    """
+
+    def __init__(
+        self, image_size: tuple[int, int], config: FrontendConfig | None = None, first_id: int = 0
+    ) -> None:
+        self.config = config or FrontendConfig()
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        self.px = self.config.pixels(self.image_size)
+        self.next_id = int(first_id)
+        self.ids = np.zeros(0, np.int64)
+        self.uv = np.zeros((0, 2), np.float32)
+        self._previous: np.ndarray | None = None
+
+    def _lk(self, a: np.ndarray, b: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cv2 = require_cv2()
+        win = self.px.lk_window
+        out, status, _ = cv2.calcOpticalFlowPyrLK(
+            a,
+            b,
+            pts.reshape(-1, 1, 2),
+            None,
+            winSize=(win, win),
+            maxLevel=self.config.lk_levels,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 0.001),
+        )
+        return out.reshape(-1, 2), status.ravel().astype(bool)
+
+    def _inside(self, uv: np.ndarray) -> np.ndarray:
+        w, h = self.image_size
+        return (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+
+    def track(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Follow the tracks into ``image`` (8-bit grey) and refill; return ``(ids, uv)``."""
+        cv2 = require_cv2()
+        if self._previous is not None and len(self.ids):
+            fwd, ok_f = self._lk(self._previous, image, self.uv)
+            back, ok_b = self._lk(image, self._previous, fwd)
+            fb = np.linalg.norm(back - self.uv, axis=1)
+            keep = ok_f & ok_b & (fb <= self.px.forward_backward) & self._inside(fwd)
+            self.ids, self.uv = self.ids[keep], fwd[keep].astype(np.float32)
+        elif self._previous is None:
+            self.ids, self.uv = np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
+        room = self.config.max_features - len(self.ids)
+        if room > 0:
+            mask = np.full(image.shape, 255, np.uint8)
+            radius = max(1, round(self.px.spacing))
+            for u, v in np.rint(self.uv).astype(int):
+                cv2.circle(mask, (int(u), int(v)), radius, 0, -1)
+            border = self.px.lk_window // 2
+            mask[:border], mask[-border:], mask[:, :border], mask[:, -border:] = 0, 0, 0, 0
+            corners = cv2.goodFeaturesToTrack(
+                image,
+                maxCorners=room,
+                qualityLevel=self.config.corner_quality,
+                minDistance=self.px.spacing,
+                mask=mask,
+                blockSize=self.px.corner_block,
+            )
+            if corners is not None:
+                new = corners.reshape(-1, 2).astype(np.float32)
+                win = max(2, self.px.corner_block // 2)
+                cv2.cornerSubPix(
+                    image,
+                    new,
+                    (win, win),
+                    (-1, -1),
+                    (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01),
+                )
+                fresh = self.next_id + np.arange(len(new), dtype=np.int64)
+                self.next_id += len(new)
+                self.ids = np.concatenate([self.ids, fresh])
+                self.uv = np.concatenate([self.uv, new])
+        self._previous = image
+        return self.ids.copy(), self.uv.astype(np.float64)
