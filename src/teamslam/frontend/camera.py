@@ -89,8 +89,8 @@ class StereoRig:
             self.K_right,
             self.distortion_right,
             self.image_size,
-            T_right_left[:3, :3],
-            T_right_left[:3, 3],
+            T_right_left[:3, :3].copy(),
+            T_right_left[:3, 3].reshape(3, 1).copy(),
             flags=cv2.CALIB_ZERO_DISPARITY,
             alpha=0,
         )

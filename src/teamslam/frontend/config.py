@@ -50,6 +50,11 @@ class FrontendConfig:
         Lucas–Kanade window (share of the diagonal) and pyramid levels.
     forward_backward_share
         Largest forward–backward tracking error kept, share of the diagonal.
+    affine_refinement, affine_iterations, template_ncc_min, refine_track_share
+        Align each track to its first appearance (affine warp with gain and offset, that many
+        Gauss–Newton steps); end a track whose aligned patch correlates below
+        ``template_ncc_min`` with its template, or moves more than ``refine_track_share`` of
+        the diagonal from the frame-to-frame track.
     min_depth, max_depth
         Depth range (metres) of stereo matches: the disparity search range is
         ``[fx·b / max_depth, fx·b / min_depth]``.
@@ -82,6 +87,10 @@ class FrontendConfig:
     lk_window_share: float = 0.026
     lk_levels: int = 3
     forward_backward_share: float = 0.0006
+    affine_refinement: bool = True
+    affine_iterations: int = 3
+    template_ncc_min: float = 0.85
+    refine_track_share: float = 0.0025
     min_depth: float = 0.5
     max_depth: float = 100.0
     ncc_window_share: float = 0.014
@@ -103,6 +112,8 @@ class FrontendConfig:
             raise InputError("max_features ≥ 1, lk_levels ≥ 0 and vo_min_inliers ≥ 4 needed")
         if not self.min_depth < self.max_depth:
             raise InputError("front-end: min_depth must be below max_depth")
+        if self.affine_iterations < 1 or self.template_ncc_min >= 1:
+            raise InputError("affine_iterations ≥ 1 and template_ncc_min < 1 needed")
         if self.corner_quality >= 1 or self.ncc_min >= 1 or self.uniqueness > 1:
             raise InputError("corner_quality and ncc_min must be < 1, uniqueness ≤ 1")
         if self.marker_dictionary is not None and self.marker_dictionary not in _DICTIONARIES:
@@ -122,9 +133,10 @@ class FrontendConfig:
         return PixelSettings(
             spacing=max(2.0, self.feature_spacing_share * diag),
             corner_block=odd(self.corner_block_share, 3),
-            lk_window=odd(self.lk_window_share, 7),
+            lk_window=odd(self.lk_window_share, 9),
             forward_backward=self.forward_backward_share * diag,
-            ncc_half=odd(self.ncc_window_share, 5) // 2,
+            refine_track=self.refine_track_share * diag,
+            ncc_half=odd(self.ncc_window_share, 9) // 2,
             left_right=self.left_right_share * diag,
             refine=self.refine_share * diag,
             marker_row=self.marker_row_share * diag,
@@ -148,6 +160,7 @@ class PixelSettings:
     corner_block: int
     lk_window: int
     forward_backward: float
+    refine_track: float
     ncc_half: int
     left_right: float
     refine: float

@@ -84,7 +84,10 @@ class MarkerDetector:
         row_tolerance: float,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Markers seen in both images of a rectified pair: ``(ids (M,), z (M, 4))``."""
-        a, b = self.detect(left), self.detect(right)
+        a = self.detect(left)
+        if a.ids.size == 0:
+            return np.zeros(0, np.int64), np.zeros((0, 4))
+        b = self.detect(right)
         ids, ia, ib = np.intersect1d(a.ids, b.ids, return_indices=True)
         z = np.concatenate([a.centres[ia], b.centres[ib]], axis=1).reshape(-1, 4)
         disparity = z[:, 0] - z[:, 2]

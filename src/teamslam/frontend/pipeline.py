@@ -66,6 +66,8 @@ class StereoFrontend:
         self.disparity_range = self.config.disparity_range(self.camera.fx_baseline)
         self.tracker = FeatureTracker(rig.image_size, self.config, first_id)
         self.markers = MarkerDetector(self.config)
+        self._last_ids = np.zeros(0, np.int64)
+        self._last_disparity = np.zeros(0)
 
     @property
     def next_id(self) -> int:
@@ -83,8 +85,12 @@ class StereoFrontend:
                 )
         left, right = self.rig.rectify(left, right)
         ids, uv = self.tracker.track(left)
-        m = match_stereo(left, right, uv, self.disparity_range, self.config, self.pixels)
+        guess = np.full(len(ids), np.nan)
+        _, i_now, i_last = np.intersect1d(ids, self._last_ids, return_indices=True)
+        guess[i_now] = self._last_disparity[i_last]
+        m = match_stereo(left, right, uv, self.disparity_range, self.config, self.pixels, guess)
         z = np.concatenate([uv, m.uv_right], axis=1)[m.accepted]
+        self._last_ids, self._last_disparity = ids[m.accepted], z[:, 0] - z[:, 2]
         obj_ids, obj_z = self.markers.detect_stereo(
             left, right, self.disparity_range, self.pixels.marker_row
         )

@@ -68,6 +68,7 @@ def match_stereo(
     disparity_range: tuple[float, float],
     config: FrontendConfig | None = None,
     pixels: PixelSettings | None = None,
+    disparity_guess: np.ndarray | None = None,
 ) -> StereoMatches:
     """Match left-image points into the right image of a rectified 8-bit grey pair.
 
@@ -82,6 +83,9 @@ def match_stereo(
         :meth:`FrontendConfig.disparity_range`).
     config, pixels
         Settings (``pixels`` defaults to ``config.pixels(image size)``).
+    disparity_guess
+        Optional ``(N,)`` expected disparities (NaN where unknown), e.g. a track's disparity
+        in the previous frame: the search then covers only ``guess ± max(3, 20 %)`` pixels.
     """
     cv2 = require_cv2()
     config = config or FrontendConfig()
@@ -97,16 +101,22 @@ def match_stereo(
     right_f = right.astype(np.float32)
     coarse = np.full(n, np.nan)
     searched = np.zeros(n, bool)
+    guess = np.full(n, np.nan) if disparity_guess is None else np.asarray(disparity_guess, float)
     for k, (u, v) in enumerate(uv_left):
         if not (r + 1 <= v <= h - r - 2 and r + 1 <= u <= w - r - 2):
             continue
-        d_hi = min(d_hi_all, int(np.floor(u - r - 1)))
-        if d_hi - d_lo < 4:
+        d_lo_k, d_hi_k = d_lo, d_hi_all
+        if np.isfinite(guess[k]):
+            margin = max(3.0, 0.2 * guess[k])
+            d_lo_k = max(d_lo, int(np.floor(guess[k] - margin)))
+            d_hi_k = min(d_hi_all, int(np.ceil(guess[k] + margin)))
+        d_hi = min(d_hi_k, int(np.floor(u - r - 1)))
+        if d_hi - d_lo_k < 4:
             continue
         searched[k] = True
         patch = cv2.getRectSubPix(left_f, (size, size), (float(u), float(v)))
-        span = d_hi - d_lo
-        centre = (float(u - (d_lo + d_hi) / 2.0), float(v))
+        span = d_hi - d_lo_k
+        centre = (float(u - (d_lo_k + d_hi) / 2.0), float(v))
         strip = cv2.getRectSubPix(right_f, (size + span, size), centre)
         scores = cv2.matchTemplate(strip, patch, cv2.TM_CCOEFF_NORMED).ravel()
         i, off, second = _best(scores)
@@ -116,15 +126,15 @@ def match_stereo(
         d = d_hi - (i + off)
         # left-right check: the right patch searched for in the left image
         u_r = u - d
-        back_hi = min(d_hi_all, int(np.floor(w - 2 - r - u_r)))
-        if back_hi - d_lo < 4:
+        back_hi = min(d_hi_k, int(np.floor(w - 2 - r - u_r)))
+        if back_hi - d_lo_k < 4:
             continue
         patch_r = cv2.getRectSubPix(right_f, (size, size), (float(u_r), float(v)))
-        centre_l = (float(u_r + (d_lo + back_hi) / 2.0), float(v))
-        strip_l = cv2.getRectSubPix(left_f, (size + back_hi - d_lo, size), centre_l)
+        centre_l = (float(u_r + (d_lo_k + back_hi) / 2.0), float(v))
+        strip_l = cv2.getRectSubPix(left_f, (size + back_hi - d_lo_k, size), centre_l)
         scores_l = cv2.matchTemplate(strip_l, patch_r, cv2.TM_CCOEFF_NORMED).ravel()
         j, off_l, _ = _best(scores_l)
-        d_back = d_lo + j + off_l
+        d_back = d_lo_k + j + off_l
         if abs(d_back - d) > px.left_right:
             continue
         coarse[k] = d
