@@ -102,7 +102,7 @@ def read_timestamps(path: str | Path) -> np.ndarray:
     if bad.size:
         k = int(bad[0]) + 1
         raise InputError(
-            f"{path}: stamp {stamps[k]!r} (line {k + 1}) is not after {stamps[k - 1]!r}"
+            f"{path}: stamp {float(stamps[k])!r} (line {k + 1}) is not after {float(stamps[k - 1])!r}"
         )
     return stamps
 
@@ -129,7 +129,9 @@ def _poses_at(path: Path, stamps: np.ndarray | None, frames: int, what: str) -> 
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         k = int(bad[0]) + 1
-        raise InputError(f"{path}: stamp {t[k]!r} (line {k + 1}) is not after {t[k - 1]!r}")
+        raise InputError(
+            f"{path}: stamp {float(t[k])!r} (line {k + 1}) is not after {float(t[k - 1])!r}"
+        )
     if stamps is None:
         if len(poses) != frames:
             raise InputError(
@@ -142,7 +144,7 @@ def _poses_at(path: Path, stamps: np.ndarray | None, frames: int, what: str) -> 
     if outside.size:
         s = stamps[outside[0]]
         raise InputError(
-            f"{path}: image stamp {s!r} lies outside the {what} trajectory [{t[0]!r}, {t[-1]!r}]"
+            f"{path}: image stamp {float(s)!r} lies outside the {what} trajectory [{float(t[0])!r}, {float(t[-1])!r}]"
         )
     q = np.clip(stamps, t[0], t[-1])
     out = np.tile(np.eye(4), (len(q), 1, 1))

@@ -457,8 +457,8 @@ def robot_paths(config: RenderConfig) -> list[np.ndarray]:
     half = np.array([X / 2 - config.wall_margin, Y / 2 - config.wall_margin])
     paths = []
     for _ in range(config.robots):
-        axes = half * rng.uniform(0.55, 0.9, 2)
-        centre = np.array([X / 2, Y / 2]) + (half - axes) * rng.uniform(-1, 1, 2)
+        axes = half * rng.uniform(0.55, 0.9, 2) / 1.08  # the wobble below reaches 8 %
+        centre = np.array([X / 2, Y / 2]) + (half - 1.08 * axes) * rng.uniform(-1, 1, 2)
         sense = rng.choice([-1.0, 1.0])
         phase = rng.uniform(0, 2 * np.pi)
         wobble_phase = rng.uniform(0, 2 * np.pi)
