@@ -102,7 +102,8 @@ def read_timestamps(path: str | Path) -> np.ndarray:
     if bad.size:
         k = int(bad[0]) + 1
         raise InputError(
-            f"{path}: stamp {float(stamps[k])!r} (line {k + 1}) is not after {float(stamps[k - 1])!r}"
+            f"{path}: stamp {float(stamps[k])!r} (line {k + 1}) "
+            f"is not after {float(stamps[k - 1])!r}"
         )
     return stamps
 
@@ -144,7 +145,8 @@ def _poses_at(path: Path, stamps: np.ndarray | None, frames: int, what: str) -> 
     if outside.size:
         s = stamps[outside[0]]
         raise InputError(
-            f"{path}: image stamp {float(s)!r} lies outside the {what} trajectory [{float(t[0])!r}, {float(t[-1])!r}]"
+            f"{path}: image stamp {float(s)!r} lies outside the {what} trajectory "
+            f"[{float(t[0])!r}, {float(t[-1])!r}]"
         )
     q = np.clip(stamps, t[0], t[-1])
     out = np.tile(np.eye(4), (len(q), 1, 1))
