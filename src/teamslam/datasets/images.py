@@ -26,7 +26,7 @@ from teamslam.datasets.model import Calibration, FrameObservations, RobotSequenc
 from teamslam.datasets.trajectory import read_tum
 from teamslam.errors import InputError
 from teamslam.frontend._cv import require_cv2
-from teamslam.frontend.camera import load_camera
+from teamslam.frontend.camera import StereoRig, load_camera
 from teamslam.frontend.config import FrontendConfig
 from teamslam.frontend.odometry import stereo_motion
 from teamslam.frontend.pipeline import StereoFrontend
@@ -240,75 +240,117 @@ def dataset_from_images(
     bar = tqdm(total=sum(len(p) for p in pairs), desc="images", disable=not progress)
     robots, info = [], []
     next_id = 0
-    px = config.pixels(rig.image_size)
     for i in range(n):
-        frontend = StereoFrontend(rig, config, first_id=next_id)
-        feats, objs = [], []
-        motions: list[np.ndarray | None] = []
-        prev = None
-        searched = rejected = 0
-        for k, (lp, rp) in enumerate(pairs[i]):
-            left = read_image(lp, rig.image_size)
-            right = read_image(rp, rig.image_size)
-            m = frontend.process(left, right, where=str(lp))
-            feats.append((m.feature_ids, m.features))
-            objs.append((m.object_ids, m.objects))
-            searched += m.searched
-            rejected += m.rejected
-            if odo_files[i] is None and k > 0:
-                motions.append(
-                    stereo_motion(
-                        frontend.camera,
-                        rig.T_rect_body,
-                        prev.feature_ids,
-                        prev.features,
-                        m.track_ids,
-                        m.track_uv,
-                        px.vo_reprojection,
-                        config.vo_min_inliers,
-                    )
-                )
-            prev = m
-            bar.update()
-        next_id = frontend.next_id
         frames = len(pairs[i])
-        record = {"name": names[i], "left": str(left_dirs[i]), "right": str(right_dirs[i])}
+        odo = None
         if odo_files[i] is not None:
-            odo_poses = _poses_at(Path(odo_files[i]), stamps[i], frames, "odometry")
-            odometry_rel = se3.inverse(odo_poses[:-1]) @ odo_poses[1:]
-            record["odometry"] = f"file {odo_files[i]}"
-        else:
-            odometry_rel, failed, last = np.tile(np.eye(4), (frames - 1, 1, 1)), 0, np.eye(4)
-            for k, motion in enumerate(motions):
-                if motion is None:  # too few inliers: assume the previous motion again
-                    failed += 1
-                    motion = last
-                odometry_rel[k] = motion
-                last = motion
-            record["odometry"] = "stereo visual odometry (PnP + RANSAC)"
-            record["visual_odometry_failures"] = failed
+            odo = _poses_at(Path(odo_files[i]), stamps[i], frames, "odometry")
+        truth = None
         if gt_files[i] is not None:
             truth = _poses_at(Path(gt_files[i]), stamps[i], frames, "ground-truth")
-            record["ground_truth"] = f"file {gt_files[i]}"
-        else:
-            truth = np.tile(np.eye(4), (frames, 1, 1))
-            for k in range(frames - 1):
-                truth[k + 1] = truth[k] @ odometry_rel[k]
-            record["ground_truth"] = "none: the poses stored as truth are dead-reckoned odometry"
-        features = FrameObservations.from_frames(feats)
-        record["stereo_observations_per_frame"] = float(features.counts().mean())
-        record["stereo_rejected_share"] = rejected / max(searched, 1)
-        info.append(record)
-        robots.append(
-            RobotSequence(
-                T_world_body=truth,
-                odometry=odometry_rel,
-                features=features,
-                objects=FrameObservations.from_frames(objs),
-                timestamps=stamps[i],
-            )
+        images = (
+            (read_image(lp, rig.image_size), read_image(rp, rig.image_size), str(lp))
+            for lp, rp in pairs[i]
         )
+        robot, record, next_id = _robot_sequence(
+            images, rig, config, next_id, odo, truth, stamps[i], bar
+        )
+        record.update(
+            {
+                "name": names[i],
+                "left": str(left_dirs[i]),
+                "right": str(right_dirs[i]),
+                "odometry": f"file {odo_files[i]}" if odo is not None else record["odometry"],
+                "ground_truth": (
+                    f"file {gt_files[i]}" if truth is not None else record["ground_truth"]
+                ),
+            }
+        )
+        robots.append(robot)
+        info.append(record)
     bar.close()
+    return _team(robots, info, rig, config, markers, name, {"camera": str(camera)})
+
+
+def _robot_sequence(
+    images,
+    rig: StereoRig,
+    config: FrontendConfig,
+    first_id: int,
+    odometry_poses: np.ndarray | None,
+    truth: np.ndarray | None,
+    stamps: np.ndarray | None,
+    bar,
+) -> tuple[RobotSequence, dict, int]:
+    """Run the front-end over ``(left, right, where)`` frames; build the robot's sequence."""
+    px = config.pixels(rig.image_size)
+    frontend = StereoFrontend(rig, config, first_id=first_id)
+    feats, objs, motions = [], [], []
+    prev = None
+    searched = rejected = 0
+    for k, (left, right, where) in enumerate(images):
+        m = frontend.process(left, right, where=where)
+        feats.append((m.feature_ids, m.features))
+        objs.append((m.object_ids, m.objects))
+        searched += m.searched
+        rejected += m.rejected
+        if odometry_poses is None and k > 0:
+            motions.append(
+                stereo_motion(
+                    frontend.camera,
+                    rig.T_rect_body,
+                    prev.feature_ids,
+                    prev.features,
+                    m.track_ids,
+                    m.track_uv,
+                    px.vo_reprojection,
+                    config.vo_min_inliers,
+                )
+            )
+        prev = m
+        bar.update()
+    frames = len(feats)
+    if frames == 0:
+        raise InputError("no stereo frames")
+    record: dict = {}
+    if odometry_poses is not None:
+        if len(odometry_poses) != frames:
+            raise InputError(f"{len(odometry_poses)} odometry poses for {frames} stereo frames")
+        odometry_rel = se3.inverse(odometry_poses[:-1]) @ odometry_poses[1:]
+        record["odometry"] = "given"
+    else:
+        odometry_rel, failed, last = np.tile(np.eye(4), (frames - 1, 1, 1)), 0, np.eye(4)
+        for k, motion in enumerate(motions):
+            if motion is None:  # too few inliers: assume the previous motion again
+                failed += 1
+                motion = last
+            odometry_rel[k] = motion
+            last = motion
+        record["odometry"] = "stereo visual odometry (PnP + RANSAC)"
+        record["visual_odometry_failures"] = failed
+    if truth is not None:
+        if len(truth) != frames:
+            raise InputError(f"{len(truth)} ground-truth poses for {frames} stereo frames")
+        record["ground_truth"] = "given"
+    else:
+        truth = np.tile(np.eye(4), (frames, 1, 1))
+        for k in range(frames - 1):
+            truth[k + 1] = truth[k] @ odometry_rel[k]
+        record["ground_truth"] = "none: the poses stored as truth are dead-reckoned odometry"
+    features = FrameObservations.from_frames(feats)
+    record["stereo_observations_per_frame"] = float(features.counts().mean())
+    record["stereo_rejected_share"] = rejected / max(searched, 1)
+    robot = RobotSequence(
+        T_world_body=truth,
+        odometry=odometry_rel,
+        features=features,
+        objects=FrameObservations.from_frames(objs),
+        timestamps=stamps,
+    )
+    return robot, record, frontend.next_id
+
+
+def _team(robots, info, rig, config, markers, name, source: dict) -> TeamDataset:
     if markers is not None:
         object_ids, object_positions = read_markers(markers)
     else:
@@ -320,9 +362,9 @@ def dataset_from_images(
         object_ids=object_ids,
         object_positions=object_positions,
         metadata={
-            "source": "teamslam.datasets.images.dataset_from_images",
+            "source": "teamslam.datasets.images",
             "images": {
-                "camera": str(camera),
+                **source,
                 "markers": None if markers is None else str(markers),
                 "frontend": asdict(config),
                 "robots": info,
