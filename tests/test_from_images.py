@@ -122,3 +122,46 @@ def test_odometry_must_cover_the_image_stamps(rendered, tmp_path):
             odometry=[d / "odometry.tum"],
             progress=False,
         )
+
+
+def test_the_bag_path_equals_the_folder_path(rendered, tmp_path):
+    from teamslam.datasets.images import (
+        ImageTopics,
+        dataset_from_bag,
+        images_to_bag,
+    )
+
+    _, out = rendered
+    inputs = rendered_team_inputs(out)
+    summary = images_to_bag(
+        inputs["left_dirs"],
+        inputs["right_dirs"],
+        inputs["camera"],
+        inputs["timestamps"],
+        tmp_path / "team.mcap",
+        odometry=inputs["odometry"],
+        ground_truth=inputs["ground_truth"],
+        robot_names=inputs["robot_names"],
+    )
+    assert summary["messages"] == 2 * (6 * 4 + 2)
+    from_folders = dataset_from_images(**inputs, progress=False)
+    from_bag = dataset_from_bag(
+        tmp_path / "team.mcap",
+        [ImageTopics.default(n) for n in inputs["robot_names"]],
+        markers=inputs["markers"],
+        progress=False,
+    )
+    np.testing.assert_allclose(
+        from_bag.calibration.camera.intrinsics, from_folders.calibration.camera.intrinsics
+    )
+    assert from_bag.calibration.camera.baseline == pytest.approx(0.2)
+    for a, b in zip(from_folders.robots, from_bag.robots, strict=True):
+        np.testing.assert_array_equal(a.features.ids, b.features.ids)
+        np.testing.assert_array_equal(a.features.measurements, b.features.measurements)
+        np.testing.assert_array_equal(a.objects.ids, b.objects.ids)
+        np.testing.assert_array_equal(a.objects.measurements, b.objects.measurements)
+        np.testing.assert_allclose(a.T_world_body, b.T_world_body, atol=1e-9)
+        np.testing.assert_allclose(a.odometry, b.odometry, atol=1e-9)
+        np.testing.assert_allclose(a.timestamps, b.timestamps, atol=1e-9)
+    with pytest.raises(InputError, match="no topic .*/robot_9/left/image_raw"):
+        dataset_from_bag(tmp_path / "team.mcap", [ImageTopics.default("robot_9")], progress=False)

@@ -27,7 +27,7 @@ from teamslam.errors import InputError
 from teamslam.frontend._cv import require_cv2
 from teamslam.geometry.camera import StereoCamera
 
-__all__ = ["DEFAULT_T_CAM_BODY", "StereoRig", "load_camera"]
+__all__ = ["DEFAULT_T_CAM_BODY", "StereoRig", "load_camera", "rig_from_camera_info"]
 
 DEFAULT_T_CAM_BODY = np.array(
     [[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
@@ -80,6 +80,7 @@ class StereoRig:
             return
         if self.already_rectified:
             self._rectified = (StereoCamera(self.K_left, self.T_left_right), np.eye(3))
+            self._R_right = np.eye(3)
             return
         cv2 = require_cv2()
         T_right_left = np.linalg.inv(self.T_left_right)
@@ -101,6 +102,7 @@ class StereoRig:
                 f"(baseline {baseline:.4g}); check T_left_right"
             )
         K = p1[:3, :3].copy()
+        self._R_right = r2
         self._rectified = (
             StereoCamera.from_baseline(K[0, 0], K[1, 1], K[0, 2], K[1, 2], baseline),
             r1,
@@ -126,6 +128,12 @@ class StereoRig:
         """Rotation from the raw left frame to the rectified left frame."""
         self._rectify_setup()
         return self._rectified[1]
+
+    @property
+    def R_rect_right(self) -> np.ndarray:
+        """Rotation from the raw right frame to the rectified right frame."""
+        self._rectify_setup()
+        return self._R_right
 
     @property
     def T_rect_body(self) -> np.ndarray:
@@ -155,6 +163,43 @@ def _matrix(data, key: str, shape: tuple[int, ...], where: str) -> np.ndarray:
     if m.shape != shape or not np.all(np.isfinite(m)):
         raise InputError(f"{where}: {key} must be a finite {shape} array, got shape {m.shape}")
     return m
+
+
+def rig_from_camera_info(left, right, T_cam_body: np.ndarray | None = None) -> StereoRig:
+    """A :class:`StereoRig` from a pair of ``sensor_msgs/CameraInfo`` messages.
+
+    ROS semantics: ``R`` rotates each raw camera frame into the common rectified frame and
+    the right ``P`` holds ``−fx · b`` in ``P[0, 3]``; so the raw right camera sits at
+    ``R_leftᵀ · (b, 0, 0)`` in the raw left frame, rotated by ``R_leftᵀ · R_right``.
+    """
+    mats = []
+    for side, info in (("left", left), ("right", right)):
+        K = np.asarray(info.k, dtype=float).reshape(3, 3)
+        R = np.asarray(info.r, dtype=float).reshape(3, 3)
+        P = np.asarray(info.p, dtype=float).reshape(3, 4)
+        D = np.asarray(info.d, dtype=float).ravel()
+        if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0):
+            raise InputError(f"camera info ({side}): K is not a camera matrix")
+        if not np.any(R):
+            R = np.eye(3)
+        mats.append((K, R, P, D if D.size else np.zeros(5)))
+    (K_l, R_l, _, D_l), (K_r, R_r, P_r, D_r) = mats
+    if not P_r[0, 0] > 0:
+        raise InputError("right camera info: P[0, 0] must be positive")
+    baseline = -P_r[0, 3] / P_r[0, 0]
+    if not baseline > 0:
+        raise InputError(
+            f"right camera info: P[0, 3] = {P_r[0, 3]} gives baseline {baseline}; "
+            "the right camera info must carry −fx·b"
+        )
+    T_left_right = np.eye(4)
+    T_left_right[:3, :3] = R_l.T @ R_r
+    T_left_right[:3, 3] = R_l.T @ np.array([baseline, 0.0, 0.0])
+    size = (int(left.width), int(left.height))
+    if (int(right.width), int(right.height)) != size:
+        raise InputError("left and right camera infos give different image sizes")
+    body = DEFAULT_T_CAM_BODY.copy() if T_cam_body is None else np.asarray(T_cam_body, float)
+    return StereoRig(size, K_l, K_r, D_l, D_r, T_left_right, body)
 
 
 def load_camera(path: str | Path) -> StereoRig:
