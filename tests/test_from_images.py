@@ -163,5 +163,5 @@ def test_the_bag_path_equals_the_folder_path(rendered, tmp_path):
         np.testing.assert_allclose(a.T_world_body, b.T_world_body, atol=1e-9)
         np.testing.assert_allclose(a.odometry, b.odometry, atol=1e-9)
         np.testing.assert_allclose(a.timestamps, b.timestamps, atol=1e-9)
-    with pytest.raises(InputError, match="no topic .*/robot_9/left/image_raw"):
+    with pytest.raises(InputError, match=r"no topic .*/robot_9/left/image_raw"):
         dataset_from_bag(tmp_path / "team.mcap", [ImageTopics.default("robot_9")], progress=False)
