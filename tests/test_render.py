@@ -119,3 +119,16 @@ def test_bad_render_settings():
         RenderConfig(dictionary="nope")
     with pytest.raises(InputError, match="camera_height"):
         RenderConfig(camera_height=5.0)
+
+
+def test_simulate_images_writes_folders_and_a_bag(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    from teamslam.sim.render import simulate_images
+
+    simulate_images(tmp_path / "sim", robots=1, steps=2, progress=False, image_size=(96, 72))
+    assert (tmp_path / "sim" / "robot_0" / "left" / "000002.png").is_file()
+    with AnyReader([tmp_path / "sim" / "images.mcap"]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts["/robot_0/left/image_raw"] == 3
+    assert counts["/robot_0/right/camera_info"] == 1
