@@ -87,7 +87,16 @@ class MarkerDetector:
         a = self.detect(left)
         if a.ids.size == 0:
             return np.zeros(0, np.int64), np.zeros((0, 4))
-        b = self.detect(right)
+        # the right image only where the left markers can appear: their rows, shifted left by
+        # up to the largest disparity (plus a margin of a marker's size)
+        h, w = right.shape
+        pad = float(np.ptp(a.corners, axis=1).max()) + row_tolerance
+        top = max(0, int(a.corners[..., 1].min() - pad))
+        bottom = min(h, int(np.ceil(a.corners[..., 1].max() + pad)) + 1)
+        first = max(0, int(a.corners[..., 0].min() - disparity_range[1] - pad))
+        last = min(w, int(np.ceil(a.corners[..., 0].max() + pad)) + 1)
+        b = self.detect(np.ascontiguousarray(right[top:bottom, first:last]))
+        b = Markers(b.ids, b.corners + [first, top], b.centres + [first, top])
         ids, ia, ib = np.intersect1d(a.ids, b.ids, return_indices=True)
         z = np.concatenate([a.centres[ia], b.centres[ib]], axis=1).reshape(-1, 4)
         disparity = z[:, 0] - z[:, 2]

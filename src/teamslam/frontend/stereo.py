@@ -50,15 +50,20 @@ class StereoMatches:
 
 def _best(scores: np.ndarray) -> tuple[int, float, float]:
     """Peak index, sub-pixel offset (parabola) and the best score away from the peak."""
-    i = int(np.argmax(scores))
+    i = int(scores.argmax())
+    n = scores.size
     offset = 0.0
-    if 0 < i < scores.size - 1:
-        a, b, c = scores[i - 1], scores[i], scores[i + 1]
+    if 0 < i < n - 1:
+        a, b, c = float(scores[i - 1]), float(scores[i]), float(scores[i + 1])
         den = a - 2 * b + c
         if den < 0:
-            offset = float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
-    away = np.concatenate([scores[: max(i - 2, 0)], scores[i + 3 :]])
-    return i, offset, float(away.max()) if away.size else -1.0
+            offset = min(0.5, max(-0.5, 0.5 * (a - c) / den))
+    second = -1.0
+    if i > 2:
+        second = float(scores[: i - 2].max())
+    if i + 3 < n:
+        second = max(second, float(scores[i + 3 :].max()))
+    return i, offset, second
 
 
 def match_stereo(
