@@ -14,7 +14,7 @@ OpenCV is the optional ``images`` extra (``pip install teamslam[images]``), impo
 when a function needs it.
 """
 
-from teamslam.frontend.camera import StereoRig, load_camera
+from teamslam.frontend.camera import StereoRig, load_camera, rig_from_camera_info
 from teamslam.frontend.config import FrontendConfig
 from teamslam.frontend.markers import MarkerDetector, Markers, diagonal_centre
 from teamslam.frontend.odometry import stereo_motion, triangulate
@@ -34,6 +34,7 @@ __all__ = [
     "diagonal_centre",
     "load_camera",
     "match_stereo",
+    "rig_from_camera_info",
     "stereo_motion",
     "triangulate",
 ]
