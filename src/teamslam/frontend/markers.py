@@ -96,7 +96,8 @@ class MarkerDetector:
         first = max(0, int(a.corners[..., 0].min() - disparity_range[1] - pad))
         last = min(w, int(np.ceil(a.corners[..., 0].max() + pad)) + 1)
         b = self.detect(np.ascontiguousarray(right[top:bottom, first:last]))
-        b = Markers(b.ids, b.corners + [first, top], b.centres + [first, top])
+        shift = np.array([first, top], dtype=float)
+        b = Markers(b.ids, b.corners + shift, b.centres + shift)
         ids, ia, ib = np.intersect1d(a.ids, b.ids, return_indices=True)
         z = np.concatenate([a.centres[ia], b.centres[ib]], axis=1).reshape(-1, 4)
         disparity = z[:, 0] - z[:, 2]
