@@ -89,7 +89,7 @@ class FrontendConfig:
     forward_backward_share: float = 0.0006
     affine_refinement: bool = True
     affine_iterations: int = 3
-    template_ncc_min: float = 0.85
+    template_ncc_min: float = 0.93
     refine_track_share: float = 0.0025
     min_depth: float = 0.5
     max_depth: float = 100.0
