@@ -96,7 +96,7 @@ def middlebury() -> dict:
     try:
         from skimage.data import stereo_motorcycle
     except ImportError:
-        return {"Middlebury": "scikit-image not installed"}
+        return {"Middlebury": "scikit-image not installed (pip install teamslam[bench])"}
     cv2 = require_cv2()
     left, right, disparity = stereo_motorcycle()
     left = cv2.cvtColor(left, cv2.COLOR_RGB2GRAY)
