@@ -5,11 +5,11 @@ Run on demand::
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py [--robots 3] [--steps 40]
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --exact-twin DIR
 
-``--exact-twin DIR`` takes a rendered team (``DIR/images``, written by ``simulate_images``)
-and the dataset the front-end built from it (``DIR/dataset``), measures the front-end's noise
-against the renderer's truth, and writes ``DIR/dataset-exact``: the same tracks and markers
-with the exact projections plus Gaussian noise of the measured size — the reference the
-end-to-end accuracy is compared with.
+``--exact-twin DIR`` takes a rendered team (``DIR/images``, written by
+``teamslam.api.simulate_images``) and the dataset the front-end built from it (``DIR/dataset``),
+measures the front-end's noise against the renderer's truth, and writes ``DIR/dataset-exact``:
+the same tracks and markers with the exact projections plus Gaussian noise of the measured size
+— the reference the end-to-end accuracy is compared with.
 
 Rendered team (vignetting, right-camera gain and offset, sensor noise, JPEG at quality 75):
 stereo observations per frame; the share of observations within 1 px of the truth in all four

@@ -125,11 +125,7 @@ def test_odometry_must_cover_the_image_stamps(rendered, tmp_path):
 
 
 def test_the_bag_path_equals_the_folder_path(rendered, tmp_path):
-    from teamslam.datasets.images import (
-        ImageTopics,
-        dataset_from_bag,
-        images_to_bag,
-    )
+    from teamslam.ros2.image_bags import ImageTopics, dataset_from_bag, images_to_bag
 
     _, out = rendered
     inputs = rendered_team_inputs(out)

@@ -124,7 +124,7 @@ def test_bad_render_settings():
 def test_simulate_images_writes_folders_and_a_bag(tmp_path):
     from rosbags.highlevel import AnyReader
 
-    from teamslam.sim.render import simulate_images
+    from teamslam.api import simulate_images
 
     simulate_images(tmp_path / "sim", robots=1, steps=2, progress=False, image_size=(96, 72))
     assert (tmp_path / "sim" / "robot_0" / "left" / "000002.png").is_file()

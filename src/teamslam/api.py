@@ -32,9 +32,12 @@ import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from teamslam.errors import EstimationError, InputError
+
+if TYPE_CHECKING:
+    from teamslam.sim.render import RenderedTeam
 
 __all__ = [
     "MODES",
@@ -47,6 +50,7 @@ __all__ = [
     "resolve_settings",
     "run",
     "run_robot",
+    "simulate_images",
     "write_run",
 ]
 
@@ -754,3 +758,52 @@ def victoria_park_table(summary: dict) -> str:
             f"{r['feature_rmse_m']:10.3f} {r['seconds']:9.2f}"
         )
     return "\n".join(lines)
+
+
+def simulate_images(
+    out: str | Path,
+    robots: int = 3,
+    steps: int = 200,
+    seed: int = 0,
+    bag: bool = True,
+    progress: bool = True,
+    **overrides,
+) -> RenderedTeam:
+    """Render a team as image folders (:func:`teamslam.sim.render.render_team`) and, with
+    ``bag``, also as a ROS 2 bag ``out/images.mcap``
+    (:func:`teamslam.ros2.image_bags.images_to_bag`, topics ``/robot_k/{left,right}/image_raw``,
+    ``…/camera_info``, ``/robot_k/odom``, ``/robot_k/ground_truth``).
+
+    Parameters
+    ----------
+    out
+        Output directory.
+    robots, steps, seed
+        Team size, motion steps per robot, seed.
+    bag
+        Also write the bag.
+    progress
+        Show progress bars.
+    **overrides
+        Any other :class:`~teamslam.sim.render.RenderConfig` field.
+    """
+    from teamslam.datasets.images import rendered_team_inputs
+    from teamslam.ros2.image_bags import images_to_bag
+    from teamslam.sim.render import RenderConfig, render_team
+
+    config = RenderConfig(robots=robots, steps=steps, seed=seed, **overrides)
+    team = render_team(config, out, progress=progress)
+    if bag:
+        inputs = rendered_team_inputs(out)
+        images_to_bag(
+            inputs["left_dirs"],
+            inputs["right_dirs"],
+            inputs["camera"],
+            inputs["timestamps"],
+            Path(out) / "images.mcap",
+            odometry=inputs["odometry"],
+            ground_truth=inputs["ground_truth"],
+            robot_names=inputs["robot_names"],
+            progress=progress,
+        )
+    return team

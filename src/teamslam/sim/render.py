@@ -20,7 +20,7 @@ corners are known in the world frame; robot paths are exact ``T_world_body``.
 :func:`render_team` writes, per robot, ``robot_k/left/000000.png``, ``robot_k/right/…``,
 ``camera.yaml``, ``timestamps.txt``, ``groundtruth.tum`` and ``odometry.tum`` (dead-reckoned
 noisy odometry), plus ``markers.txt`` (``id x y z``) and ``render.json`` (the configuration)
-at the top; :func:`simulate_images` also writes the team as a ROS 2 bag.
+at the top; :func:`teamslam.api.simulate_images` also writes the team as a ROS 2 bag.
 """
 
 from __future__ import annotations
@@ -46,7 +46,6 @@ __all__ = [
     "render_stereo",
     "render_team",
     "robot_paths",
-    "simulate_images",
     "write_camera_file",
 ]
 
@@ -675,50 +674,3 @@ def render_team(
 
 def _jsonable(d: dict) -> dict:
     return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
-
-
-def simulate_images(
-    out: str | Path,
-    robots: int = 3,
-    steps: int = 200,
-    seed: int = 0,
-    bag: bool = True,
-    progress: bool = True,
-    **overrides,
-) -> RenderedTeam:
-    """Render a team as image folders (:func:`render_team`) and, with ``bag``, also as a ROS 2
-    bag ``out/images.mcap`` (:func:`teamslam.datasets.images.images_to_bag`, topics
-    ``/robot_k/{left,right}/image_raw``, ``…/camera_info``, ``/robot_k/odom``,
-    ``/robot_k/ground_truth``).
-
-    Parameters
-    ----------
-    out
-        Output directory.
-    robots, steps, seed
-        Team size, motion steps per robot, seed.
-    bag
-        Also write the bag.
-    progress
-        Show progress bars.
-    **overrides
-        Any other :class:`RenderConfig` field.
-    """
-    from teamslam.datasets.images import images_to_bag, rendered_team_inputs
-
-    config = RenderConfig(robots=robots, steps=steps, seed=seed, **overrides)
-    team = render_team(config, out, progress=progress)
-    if bag:
-        inputs = rendered_team_inputs(out)
-        images_to_bag(
-            inputs["left_dirs"],
-            inputs["right_dirs"],
-            inputs["camera"],
-            inputs["timestamps"],
-            Path(out) / "images.mcap",
-            odometry=inputs["odometry"],
-            ground_truth=inputs["ground_truth"],
-            robot_names=inputs["robot_names"],
-            progress=progress,
-        )
-    return team
