@@ -451,13 +451,7 @@ class MsckfAgent:
         finite = np.all(np.isfinite(z), axis=1)
         if not finite.all():
             self.reject("object_measurements", int((~finite).sum()), "non-finite")
-            z = z[finite]
-            classes = None if classes is None else classes[finite]
         frame = self.tracker.assign(t, z, classes, self.state, self.config.odometry_cov())
-        if not finite.all():  # the log lists every detection of the frame
-            every = np.full(finite.size, -1, np.int64)
-            every[finite] = frame.ids
-            self.tracker.log[-1] = every
         for tid, frames, zs in frame.confirmed:
             self.object_history[tid].extend(
                 (int(f), row) for f, row in zip(frames.tolist(), zs, strict=True)

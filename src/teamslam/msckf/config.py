@@ -121,6 +121,12 @@ class MsckfConfig:
         a detection may be assigned to a predicted object or track only when its squared
         Mahalanobis distance under the filter's innovation covariance is at most this quantile
         of χ²(4).
+    track_birth_probability
+        An unassigned detection starts a tentative track only when it lies outside this
+        quantile of χ²(4) around every object of the state and of the persistent map (a
+        detection of a known object that missed the assignment gate, or lost it to another
+        detection, makes no second object). Set it to ``track_gate_probability`` or below to
+        let every unassigned detection start a track.
     track_confirm_hits, track_confirm_frames
         A tentative track is confirmed after ``M = track_confirm_hits`` detections within its
         first ``N = track_confirm_frames`` frames, and dropped otherwise; a confirmed track not
@@ -152,6 +158,7 @@ class MsckfConfig:
     object_init_max_relative_std: float = 0.0
     object_update_iterations: int = 1
     track_gate_probability: float = 0.99
+    track_birth_probability: float = 0.9999
     track_confirm_hits: int = 0
     track_confirm_frames: int = 0
 
@@ -214,8 +221,9 @@ class MsckfConfig:
         self._validate_tracking()
 
     def _validate_tracking(self) -> None:
-        if not 0 < self.track_gate_probability < 1:
-            raise InputError("track_gate_probability must lie in (0, 1)")
+        for name in ("track_gate_probability", "track_birth_probability"):
+            if not 0 < getattr(self, name) < 1:
+                raise InputError(f"{name} must lie in (0, 1)")
         for name in ("track_confirm_hits", "track_confirm_frames"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:

@@ -97,6 +97,7 @@ class ObjectTracker:
         self.hits_needed = config.track_confirm_hits or config.object_init_observations
         self.frames_allowed = config.track_confirm_frames or self.hits_needed + 2
         self.gate = float(_chi2(config.track_gate_probability, 4))
+        self.birth_gate = float(_chi2(config.track_birth_probability, 4))
         self.next_id = track_id_base(robot)
         # tracks, as arrays (one row per track)
         self.ids = np.zeros(0, np.int64)
@@ -107,7 +108,8 @@ class ObjectTracker:
         self.hits = np.zeros(0, np.int64)
         self.classes = np.zeros(0, np.int64)
         self.confirmed = np.zeros(0, bool)
-        self.history: dict[int, list[tuple[int, np.ndarray]]] = {}
+        # per track its detections: (frame, measurement, row of the frame's detections)
+        self.history: dict[int, list[tuple[int, np.ndarray, int]]] = {}
         # class label of every confirmed id (sorted by id)
         self._label_ids = np.zeros(0, np.int64)
         self._labels = np.zeros(0, np.int64)
@@ -117,8 +119,12 @@ class ObjectTracker:
             "tracks_dropped": 0,
             "detections_assigned": 0,
             "detections_rejected_depth": 0,
+            "detections_near_object": 0,
         }
+        #: per frame the id the filter used each detection as (``-1``: none); a track's
+        #: detections before its confirmation are named when it is confirmed
         self.log: list[np.ndarray] = []
+        self._first_logged: int | None = None
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -129,7 +135,7 @@ class ObjectTracker:
         state,
         odometry_cov: np.ndarray,
     ) -> TrackerFrame:
-        """Name the detections ``z`` (``(D, 4)``, finite) of frame ``t``.
+        """Name the detections ``z`` (``(D, 4)``; non-finite rows get no id) of frame ``t``.
 
         Parameters
         ----------
@@ -142,15 +148,22 @@ class ObjectTracker:
         odometry_cov
             ``W``, the odometry noise per frame (6×6).
         """
+        if self._first_logged is None:
+            self._first_logged = t
         self._forget_mapped(state)
+        every = np.full(z.shape[0], -1, np.int64)
+        index = np.flatnonzero(np.all(np.isfinite(z), axis=1))
+        z = z[index]
         d = z.shape[0]
         labels = np.full(d, -1, np.int64) if classes is None else np.asarray(classes, np.int64)
+        labels = labels[index] if classes is not None else labels
         out = np.full(d, -1, np.int64)
         kinds, target_ids, pred, s, h_point, in_front, target_labels = self._predict(
             t, state, odometry_cov
         )
         n_targets = target_ids.size
         assigned_target = np.full(d, -1, np.int64)
+        near_target = np.zeros(d, bool)
         if n_targets and d:
             chol = np.linalg.cholesky(s)  # (T, 4, 4)
             r = z[None, :, :] - pred[:, None, :]  # (T, D, 4)
@@ -161,6 +174,10 @@ class ObjectTracker:
                 (target_labels[:, None] < 0)
                 | (labels[None, :] < 0)
                 | (target_labels[:, None] == labels[None, :])
+            )
+            # a detection near an object it was not given starts no track: one object, one id
+            near_target = np.any(
+                (d2 <= self.birth_gate) & in_front[:, None] & (kinds < 2)[:, None], axis=0
             )
             rows_any, cols_any = allowed.any(axis=1), allowed.any(axis=0)
             if rows_any.any():
@@ -175,14 +192,19 @@ class ObjectTracker:
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
         out[mapped] = target_ids[assigned_target[mapped]]
         frame = TrackerFrame(out)
+        self.log.append(every)
         on_track = np.flatnonzero(hit & ~mapped)
         if on_track.size:
-            self._update_tracks(t, z, on_track, assigned_target, kinds, pred, s, h_point, frame)
-        new = np.flatnonzero(~hit)
+            self._update_tracks(
+                t, z, index, on_track, assigned_target, kinds, pred, s, h_point, frame
+            )
+        self.counters["detections_near_object"] += int((~hit & near_target).sum())
+        new = np.flatnonzero(~hit & ~near_target)
         if new.size:
-            self._start_tracks(t, z[new], labels[new], state)
+            self._start_tracks(t, z[new], index[new], labels[new], state)
         self._drop_stale(t)
-        self.log.append(frame.ids.copy())
+        every[index] = frame.ids
+        frame.ids = every
         return frame
 
     @property
@@ -277,8 +299,11 @@ class ObjectTracker:
             labels[kind == 2] = self.classes
         return kind, ids, pred, s, d_point, in_front, labels
 
-    def _update_tracks(self, t, z, detections, assigned, kinds, pred, s, h_point, frame) -> None:
-        """Kalman update of each assigned track's point; confirm the tracks with enough hits."""
+    def _update_tracks(
+        self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame
+    ) -> None:
+        """Kalman update of each assigned track's point; confirm the tracks with enough hits
+        (their earlier detections named in the log as the filter then uses them)."""
         targets = assigned[detections]
         rows = targets - int(np.flatnonzero(kinds == 2)[0])  # tracks come last
         hp = h_point[targets]  # (k, 4, 3)
@@ -299,16 +324,20 @@ class ObjectTracker:
             tid = int(self.ids[row])
             past = self.history.setdefault(tid, [])
             if new:
-                frames = np.array([f for f, _ in past], dtype=np.int64)
-                zs = np.array([zz for _, zz in past]).reshape(-1, 4)
+                frames = np.array([f for f, _, _ in past], dtype=np.int64)
+                zs = np.array([zz for _, zz, _ in past]).reshape(-1, 4)
+                for f, _, j in past:
+                    self.log[f - self._first_logged][j] = tid
                 frame.confirmed.append((tid, frames, zs))
                 self.counters["tracks_confirmed"] += 1
                 self._add_labels(np.array([tid]), self.classes[row : row + 1])
             if self.confirmed[row]:
                 frame.ids[det] = tid
-            past.append((t, z[det].copy()))
+            past.append((t, z[det].copy(), int(index[det])))
 
-    def _start_tracks(self, t: int, z: np.ndarray, labels: np.ndarray, state) -> None:
+    def _start_tracks(
+        self, t: int, z: np.ndarray, index: np.ndarray, labels: np.ndarray, state
+    ) -> None:
         """Tentative tracks from unassigned detections, stereo-triangulated at the current pose."""
         cfg = self.config
         pose = state.current_pose
@@ -319,7 +348,7 @@ class ObjectTracker:
         self.counters["detections_rejected_depth"] += int((~ok).sum())
         if not ok.any():
             return
-        points, z, labels = points[ok], z[ok], labels[ok]
+        points, z, labels, index = points[ok], z[ok], labels[ok], index[ok]
         _, _, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, points)
         info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.object_std**2
         covs = np.linalg.solve(info, np.broadcast_to(np.eye(3), info.shape))
@@ -334,8 +363,8 @@ class ObjectTracker:
         self.hits = np.concatenate([self.hits, np.ones(k, np.int64)])
         self.classes = np.concatenate([self.classes, labels])
         self.confirmed = np.concatenate([self.confirmed, np.zeros(k, bool)])
-        for tid, row in zip(ids.tolist(), z, strict=True):
-            self.history[tid] = [(t, row.copy())]
+        for tid, row, j in zip(ids.tolist(), z, index.tolist(), strict=True):
+            self.history[tid] = [(t, row.copy(), j)]
         self.counters["tracks_started"] += k
         if self.hits_needed <= 1:  # confirmed by its first detection
             self.confirmed[-k:] = True
