@@ -59,7 +59,8 @@ def strip_object_ids(dataset: TeamDataset, to: str = "per-robot", seed: int = 0)
         return _strip_to_none(dataset)
     if to != "per-robot":
         raise DatasetError(
-            f"strip_object_ids renumbers to 'per-robot' ids or removes them ('none'), not {to!r}"
+            f"strip_object_ids can only renumber to 'per-robot' ids or remove them ('none'), "
+            f"not {to!r}"
         )
     if dataset.object_id_scope != "global":
         raise DatasetError(
