@@ -25,7 +25,10 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    detections — the earlier ones at once — go to the filter under its id, where the object
    initialisation (eqs. 29–30) takes it into the state; from then on the state predicts it and
    the tracker forgets it. A confirmed track not taken into the state is dropped after ``N``
-   frames without a detection.
+   frames without a detection. An object unseen for more than ``N`` frames (or in the
+   persistent map) takes a detection only when the pair is unambiguous (no other detection in
+   its gate and no other target in the detection's): a drifted robot's wrong revisit would
+   pull its whole map, a second object for the same one only costs a loop closure.
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
@@ -120,6 +123,7 @@ class ObjectTracker:
             "detections_assigned": 0,
             "detections_rejected_depth": 0,
             "detections_near_object": 0,
+            "revisits_refused": 0,
         }
         #: per frame the id the filter used each detection as (``-1``: none); a track's
         #: detections before its confirmation are named when it is confirmed
@@ -161,6 +165,8 @@ class ObjectTracker:
         kinds, target_ids, pred, s, h_point, in_front, target_labels = self._predict(
             t, state, odometry_cov
         )
+        seen = np.zeros(target_ids.size, np.int64)
+        seen[: state.n_objects] = state.object_last_seen
         n_targets = target_ids.size
         assigned_target = np.full(d, -1, np.int64)
         near_target = np.zeros(d, bool)
@@ -187,6 +193,19 @@ class ObjectTracker:
                 ra, ca = linear_sum_assignment(cost)
                 keep = sub[ra, ca]
                 assigned_target[cols_idx[ca[keep]]] = rows_idx[ra[keep]]
+            # an object not seen for N frames (the state's or the persistent map's) is taken
+            # again only when unambiguous: no other detection in its gate, no other target in
+            # the detection's (a wrong revisit would pull the whole map; a new object is safe)
+            hit_idx = np.flatnonzero(assigned_target >= 0)
+            target = assigned_target[hit_idx]
+            stale = (kinds[target] == 1) | (
+                (kinds[target] == 0) & (t - seen[target] > self.frames_allowed)
+            )
+            ambiguous = (allowed[target].sum(axis=1) > 1) | (allowed[:, hit_idx].sum(axis=0) > 1)
+            refused = hit_idx[stale & ambiguous]
+            assigned_target[refused] = -1
+            near_target[refused] = False
+            self.counters["revisits_refused"] += int(refused.size)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
