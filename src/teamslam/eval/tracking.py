@@ -6,11 +6,15 @@ a team object id, or ``-1`` for a false detection). The ground-truth objects of 
 true objects detected in it (an object the detector missed cannot be tracked in that frame), and
 a hypothesis matches the true object of the detection it was given to. Then:
 
+The ids are those the filter used each detection as (:attr:`ObjectTracker.log
+<teamslam.msckf.tracking.ObjectTracker.log>`): a confirmed track's detections from before its
+confirmation count under its id, as the filter's object initialisation uses them.
+
 * **CLEAR-MOT** (Bernardin & Stiefelhagen 2008): ``MOTA = 1 − (FN + FP + IDSW) / GT`` with
-  ``FN`` true detections without an id (tentative or rejected), ``FP`` ids given to false
-  detections, ``IDSW`` identity switches (a true object matched to an id other than the one it
-  was last matched to); **fragmentations**: a true object's matched run interrupted and
-  resumed.
+  ``FN`` true detections without an id (of tracks never confirmed, or refused), ``FP`` ids
+  given to false detections, ``IDSW`` identity switches (a true object matched to an id
+  other than the one it was last matched to); **fragmentations**: a true object's matched run
+  interrupted and resumed.
 * **IDF1** (Ristani et al. 2016): the one-to-one map of true objects to ids maximising the
   detections on which they agree (``IDTP``); ``IDF1 = 2 IDTP / (GT + hypotheses)``.
 * **objects created vs true**: distinct ids given against distinct true objects detected; ids

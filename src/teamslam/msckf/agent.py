@@ -22,6 +22,11 @@ except the persistent map (15 numbers per distinct object retired) and the per-f
 times (allocated once for the whole sequence). Bad inputs (non-finite odometry or
 measurements) are rejected and counted; the estimate is left as it was.
 
+A robot whose data has detections without ids (``RobotSequence.detections`` and no object
+observation with an id) names them itself right after propagation
+(:mod:`teamslam.msckf.tracking`); everything above then reads the tracker's ids. With ids the
+tracker does not exist and nothing changes.
+
 Every Jacobian is evaluated where the configured linearisation policy says
 (:mod:`teamslam.msckf.linearization`: standard, first-estimate or ideal); residuals always at
 the current estimate. The agent's state may be its own or its window in a team state
