@@ -162,11 +162,9 @@ class ObjectTracker:
         labels = np.full(d, -1, np.int64) if classes is None else np.asarray(classes, np.int64)
         labels = labels[index] if classes is not None else labels
         out = np.full(d, -1, np.int64)
-        kinds, target_ids, pred, s, h_point, in_front, target_labels = self._predict(
+        kinds, target_ids, seen, pred, s, h_point, in_front, target_labels = self._predict(
             t, state, odometry_cov
         )
-        seen = np.zeros(target_ids.size, np.int64)
-        seen[: state.n_objects] = state.object_last_seen
         n_targets = target_ids.size
         assigned_target = np.full(d, -1, np.int64)
         near_target = np.zeros(d, bool)
@@ -247,7 +245,9 @@ class ObjectTracker:
     def _predict(self, t: int, state, odometry_cov: np.ndarray):
         """Every target's predicted measurement, innovation covariance and point Jacobian.
 
-        Returns kinds (0 state, 1 persistent map, 2 track), ids, predictions ``(T, 4)``,
+        Only targets in front of the camera and nearer than twice ``object_max_depth``.
+        Returns kinds (0 state, 1 persistent map, 2 track), ids, frame last seen, predictions
+        ``(T, 4)``,
         ``S`` ``(T, 4, 4)``, ``∂z/∂p`` ``(T, 4, 3)``, in front of the camera ``(T,)`` and class
         labels ``(T,)``.
         """
@@ -255,20 +255,28 @@ class ObjectTracker:
         pose = state.current_pose
         pose_cov = state.current_pose_cov()
         parts_ids, parts_points, parts_p, kinds = [], [], [], []
+        seen = []
+        reach = 2.0 * cfg.object_max_depth  # farther or behind: no detection can be theirs
         if state.n_objects:
-            slots = np.arange(state.n_objects)
+            _, p_cam = points_in_camera(pose, state.objects, self.T_cam_body)
+            slots = np.flatnonzero((p_cam[:, 2] > 0) & (p_cam[:, 2] < reach))
             k = slots.size
             cols = np.concatenate(
                 [np.broadcast_to(state.newest_pose().columns, (k, 6)), state.object(slots).columns],
                 axis=1,
             )
-            parts_ids.append(state.object_ids)
-            parts_points.append(state.objects)
+            parts_ids.append(state.object_ids[slots])
+            parts_points.append(state.objects[slots])
             parts_p.append(state.covariance(cols))
             kinds.append(np.zeros(k, np.int64))
+            seen.append(state.object_last_seen[slots])
         if len(state.retired):
             arrays = state.retired.arrays()
+            _, p_cam = points_in_camera(pose, arrays["means"], self.T_cam_body)
+            near = (p_cam[:, 2] > 0) & (p_cam[:, 2] < reach)
+            arrays = {key: value[near] for key, value in arrays.items()}
             k = arrays["ids"].size
+            seen.append(np.zeros(k, np.int64))
             p = np.zeros((k, 9, 9))
             p[:, :6, :6] = pose_cov
             p[:, 6:, 6:] = arrays["covs"]
@@ -286,9 +294,11 @@ class ObjectTracker:
             parts_points.append(self.points)
             parts_p.append(p)
             kinds.append(np.full(k, 2, np.int64))
-        if not parts_ids:
+            seen.append(self.last.copy())
+        if not parts_ids or sum(ids.size for ids in parts_ids) == 0:
             empty = np.zeros(0, np.int64)
             return (
+                empty,
                 empty,
                 empty,
                 np.zeros((0, 4)),
@@ -316,7 +326,7 @@ class ObjectTracker:
             labels[found] = self._labels[pos[found]]
         if self.ids.size:
             labels[kind == 2] = self.classes
-        return kind, ids, pred, s, d_point, in_front, labels
+        return kind, ids, np.concatenate(seen), pred, s, d_point, in_front, labels
 
     def _update_tracks(
         self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame
