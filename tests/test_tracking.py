@@ -226,3 +226,18 @@ def test_ids_path_is_untouched_by_detections(cluttered):
         runs.append(agent.state)
     np.testing.assert_array_equal(runs[0].poses, runs[1].poses)
     np.testing.assert_array_equal(runs[0].cov, runs[1].cov)
+
+
+def test_an_object_unseen_for_long_is_taken_again_only_unambiguously():
+    state = _state({1: A}, std=1.0)  # last seen at frame 0, uncertain by now
+    za = _z(state, [A])
+    two = np.stack([za[0] + [6.0, 0.0, 6.0, 0.0], za[0] - [6.0, 0.0, 6.0, 0.0]])
+    tracker = _tracker()
+    frame = tracker.assign(10, two, None, state, W)
+    assert frame.ids.tolist() == [-1, -1]
+    assert tracker.counters["revisits_refused"] == 1 and tracker.n_tracks == 2
+    # the same pair seen recently is no revisit: the nearer detection gets the object
+    recent = _tracker()
+    assert sorted(recent.assign(3, two, None, state, W).ids.tolist()) == [-1, 1]
+    # alone in its gate, the long-unseen object takes its detection
+    assert _tracker().assign(10, za, None, state, W).ids.tolist() == [1]

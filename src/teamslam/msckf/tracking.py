@@ -180,9 +180,8 @@ class ObjectTracker:
                 | (target_labels[:, None] == labels[None, :])
             )
             # a detection near an object it was not given starts no track: one object, one id
-            near_target = np.any(
-                (d2 <= self.birth_gate) & in_front[:, None] & (kinds < 2)[:, None], axis=0
-            )
+            blocking = in_front & (kinds < 2)
+            near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
             rows_any, cols_any = allowed.any(axis=1), allowed.any(axis=0)
             if rows_any.any():
                 rows_idx, cols_idx = np.flatnonzero(rows_any), np.flatnonzero(cols_any)
@@ -201,8 +200,11 @@ class ObjectTracker:
             )
             ambiguous = (allowed[target].sum(axis=1) > 1) | (allowed[:, hit_idx].sum(axis=0) > 1)
             refused = hit_idx[stale & ambiguous]
-            assigned_target[refused] = -1
-            near_target[refused] = False
+            if refused.size:
+                # nor does it block new tracks near it
+                blocking[assigned_target[refused]] = False
+                near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
+                assigned_target[refused] = -1
             self.counters["revisits_refused"] += int(refused.size)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
