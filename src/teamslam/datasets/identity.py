@@ -19,7 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from teamslam.datasets.model import DatasetError, FrameObservations, TeamDataset
+from teamslam.datasets.model import DatasetError, FrameDetections, FrameObservations, TeamDataset
 
 __all__ = ["strip_object_ids"]
 
@@ -35,7 +35,11 @@ def strip_object_ids(dataset: TeamDataset, to: str = "per-robot", seed: int = 0)
     dataset
         A dataset with ``global`` object ids.
     to
-        The new scope; only ``"per-robot"``.
+        The new scope: ``"per-robot"``, or ``"none"`` — no ids at all: every robot's object
+        observations become detections (:class:`~teamslam.datasets.model.FrameDetections`, the
+        class labels kept) whose ground truth is the team object id, and each robot's filter
+        tracks them itself (a dataset whose robots already carry detections, e.g. simulated
+        with clutter, keeps those).
     seed
         Seed of the fresh ids (the same seed gives the same dataset).
 
@@ -51,8 +55,13 @@ def strip_object_ids(dataset: TeamDataset, to: str = "per-robot", seed: int = 0)
     DatasetError
         When ``to`` is not ``"per-robot"`` or the ids are not global.
     """
+    if to == "none":
+        return _strip_to_none(dataset)
     if to != "per-robot":
-        raise DatasetError(f"strip_object_ids can only renumber to 'per-robot' ids, not {to!r}")
+        raise DatasetError(
+            f"strip_object_ids can only renumber to 'per-robot' ids or remove them ('none'), "
+            f"not {to!r}"
+        )
     if dataset.object_id_scope != "global":
         raise DatasetError(
             f"object ids are already {dataset.object_id_scope!r}; only global ids can be stripped"
@@ -90,6 +99,54 @@ def strip_object_ids(dataset: TeamDataset, to: str = "per-robot", seed: int = 0)
         metadata=metadata,
         object_id_scope="per-robot",
         object_identity=identity_rows,
+    )
+
+
+def _strip_to_none(dataset: TeamDataset) -> TeamDataset:
+    """Every robot's objects as detections without ids; the truth as team object ids."""
+    if dataset.object_id_scope == "none":
+        raise DatasetError("object ids are already removed ('none')")
+    robots = []
+    for i, robot in enumerate(dataset.robots):
+        detections = robot.detections
+        if detections is None:
+            ids, team = dataset.true_objects(i)
+            truth = robot.objects.ids.copy()
+            if dataset.object_id_scope == "per-robot":
+                truth = np.full(robot.objects.ids.shape, -1, dtype=np.int64)
+                if ids.size:
+                    order = np.argsort(ids)
+                    pos = np.clip(np.searchsorted(ids[order], robot.objects.ids), 0, ids.size - 1)
+                    hit = ids[order[pos]] == robot.objects.ids
+                    truth[hit] = team[order[pos[hit]]]
+            detections = FrameDetections.from_observations(
+                robot.objects, truth, robot.object_classes
+            )
+        robots.append(
+            replace(
+                robot,
+                objects=FrameObservations.empty(robot.frames),
+                object_classes=None,
+                detections=detections,
+            )
+        )
+    object_ids, positions = dataset.object_ids, dataset.object_positions
+    if dataset.object_id_scope == "per-robot" and dataset.object_identity.size:
+        # the map keyed by team object ids (the truth of the detections)
+        team, first = np.unique(dataset.object_identity[:, 2], return_index=True)
+        truth = dataset.object_position(dataset.object_identity[first, 1])
+        known = np.all(np.isfinite(truth), axis=1)
+        object_ids, positions = team[known], truth[known]
+    metadata = dict(dataset.metadata)
+    metadata["object_ids"] = {"stripped_from": dataset.object_id_scope, "to": "none"}
+    return replace(
+        dataset,
+        robots=robots,
+        object_ids=object_ids,
+        object_positions=positions,
+        metadata=metadata,
+        object_id_scope="none",
+        object_identity=np.zeros((0, 3), np.int64),
     )
 
 

@@ -31,6 +31,7 @@ __all__ = [
     "OBJECT_ID_SCOPES",
     "Calibration",
     "DatasetError",
+    "FrameDetections",
     "FrameObservations",
     "RobotSequence",
     "TeamDataset",
@@ -38,8 +39,9 @@ __all__ = [
 
 #: What an object id means: ``global`` — the same object has the same id in every robot's data
 #: (ids from an oracle, e.g. instance annotations); ``per-robot`` — each robot numbers its own
-#: objects, and equal ids of two robots say nothing.
-OBJECT_ID_SCOPES = ("global", "per-robot")
+#: objects, and equal ids of two robots say nothing; ``none`` — no ids at all: each robot has
+#: per-frame detections (:class:`FrameDetections`) and its filter tracks them itself.
+OBJECT_ID_SCOPES = ("global", "per-robot", "none")
 
 
 class DatasetError(InputError):
@@ -188,6 +190,127 @@ class FrameObservations:
 
 
 @dataclass(frozen=True)
+class FrameDetections:
+    """Ragged per-frame object detections without ids, as flat arrays.
+
+    Frame ``k`` holds rows ``offsets[k]:offsets[k+1]``. What a detector gives (filter-visible):
+    the stereo box centre ``(u_l, v_l, u_r, v_r)``, optionally a class label and a score. What
+    the detection truly is (:attr:`truth`) is ground truth, for evaluation only.
+
+    Attributes
+    ----------
+    offsets
+        ``(frames + 1,)`` int64, non-decreasing, ``offsets[0] = 0``, ``offsets[-1] = M``.
+    measurements
+        ``(M, 4)`` float64 stereo coordinates (non-finite rows are rejected by the filter).
+    classes
+        ``(M,)`` int64 class labels ``≥ 0``, or ``None`` when the detector gives none.
+    scores
+        ``(M,)`` float64 detector scores in ``[0, 1]``, or ``None``.
+    truth
+        ``(M,)`` int64 team object id of each detection, ``-1`` for a false one, or ``None``
+        when unknown. Never read by a filter.
+    """
+
+    offsets: np.ndarray
+    measurements: np.ndarray
+    classes: np.ndarray | None = None
+    scores: np.ndarray | None = None
+    truth: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "offsets", np.asarray(self.offsets, dtype=np.int64))
+        z = np.asarray(self.measurements, dtype=np.float64)
+        object.__setattr__(self, "measurements", z.reshape(-1, 4) if z.size == 0 else z)
+        for name, dtype in (("classes", np.int64), ("scores", np.float64), ("truth", np.int64)):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, np.asarray(value).astype(dtype).reshape(-1))
+        self.validate("detections")
+
+    def validate(self, where: str) -> None:
+        """Raise :class:`DatasetError` naming ``where`` and the field if inconsistent."""
+        o, z = self.offsets, self.measurements
+        if o.ndim != 1 or o.size < 1:
+            raise DatasetError(f"{where}: offsets must be a non-empty vector")
+        if z.ndim != 2 or z.shape[1] != 4:
+            raise DatasetError(f"{where}: measurements must be (M, 4), got {z.shape}")
+        if o[0] != 0 or o[-1] != len(z):
+            raise DatasetError(
+                f"{where}: offsets must start at 0 and end at the number of detections "
+                f"({len(z)}), got {o[0]}..{o[-1]}"
+            )
+        if np.any(np.diff(o) < 0):
+            raise DatasetError(f"{where}: offsets are not monotone")
+        for name in ("classes", "scores", "truth"):
+            value = getattr(self, name)
+            if value is not None and value.shape != (len(z),):
+                raise DatasetError(
+                    f"{where}.{name}: {value.shape[0]} entries for {len(z)} detections"
+                )
+        if self.classes is not None and np.any(self.classes < 0):
+            raise DatasetError(f"{where}.classes: class labels must be ≥ 0")
+        if self.scores is not None:
+            s = self.scores
+            if not np.all(np.isfinite(s) & (s >= 0) & (s <= 1)):
+                raise DatasetError(f"{where}.scores must lie in [0, 1]")
+        if self.truth is not None and np.any(self.truth < -1):
+            raise DatasetError(f"{where}.truth: object ids must be ≥ 0, or -1 for false ones")
+
+    @property
+    def frames(self) -> int:
+        """Number of frames."""
+        return self.offsets.size - 1
+
+    def frame(self, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(measurements, classes)`` of frame ``k`` (views; classes ``None`` when absent)."""
+        a, b = self.offsets[k], self.offsets[k + 1]
+        return self.measurements[a:b], None if self.classes is None else self.classes[a:b]
+
+    def head(self, frames: int) -> FrameDetections:
+        """The first ``frames`` frames."""
+        end = self.offsets[min(frames, self.frames)]
+
+        def cut(a):
+            return None if a is None else a[:end]
+
+        return FrameDetections(
+            self.offsets[: frames + 1],
+            self.measurements[:end],
+            cut(self.classes),
+            cut(self.scores),
+            cut(self.truth),
+        )
+
+    @classmethod
+    def from_observations(
+        cls,
+        objects: FrameObservations,
+        truth: np.ndarray | None = None,
+        classes: np.ndarray | None = None,
+    ) -> FrameDetections:
+        """The detections of ``objects`` with their ids dropped (same rows, same order).
+
+        ``truth`` gives each row's team object id (default: the ids themselves); ``classes``
+        the ``(C, 2)`` rows ``(object id, class)`` of the objects (rows without a class make
+        every detection class-less).
+        """
+        labels = None
+        if classes is not None and len(classes):
+            order = np.argsort(classes[:, 0])
+            pos = np.clip(np.searchsorted(classes[order, 0], objects.ids), 0, len(classes) - 1)
+            if np.all(classes[order[pos], 0] == objects.ids):
+                labels = classes[order[pos], 1]
+        return cls(
+            objects.offsets,
+            objects.measurements,
+            labels,
+            None,
+            objects.ids.copy() if truth is None else truth,
+        )
+
+
+@dataclass(frozen=True)
 class RobotSequence:
     """What one robot recorded, with its ground truth.
 
@@ -206,6 +329,10 @@ class RobotSequence:
     object_classes
         ``(C, 2)`` int64 rows ``(object id, class label)`` from the robot's detector, or
         ``None`` when it gives no class. Filter-visible, like the detections themselves.
+    detections
+        Object detections without ids (:class:`FrameDetections`), or ``None``. A robot whose
+        ``objects`` hold no observation and that has detections tracks them itself
+        (:mod:`teamslam.msckf.tracking`); with ids the detections are not read by the filter.
     """
 
     T_world_body: np.ndarray
@@ -214,6 +341,7 @@ class RobotSequence:
     objects: FrameObservations
     timestamps: np.ndarray | None = None
     object_classes: np.ndarray | None = None
+    detections: FrameDetections | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "T_world_body", np.asarray(self.T_world_body, dtype=float))
@@ -242,6 +370,7 @@ class RobotSequence:
             objects=self.objects.head(frames),
             timestamps=None if self.timestamps is None else self.timestamps[:frames],
             object_classes=self.object_classes,
+            detections=None if self.detections is None else self.detections.head(frames),
         )
 
     def validate(self, where: str) -> None:
@@ -266,6 +395,13 @@ class RobotSequence:
             if obs.frames != n + 1:
                 raise DatasetError(
                     f"{where}.{name}: {obs.frames} frames of observations for {n + 1} poses"
+                )
+        if self.detections is not None:
+            self.detections.validate(f"{where}.detections")
+            if self.detections.frames != n + 1:
+                raise DatasetError(
+                    f"{where}.detections: {self.detections.frames} frames of detections for "
+                    f"{n + 1} poses"
                 )
         if self.timestamps is not None:
             ts = self.timestamps
@@ -373,9 +509,18 @@ class TeamDataset:
         identity = self.object_identity
         if identity.ndim != 2 or identity.shape[1] != 3:
             raise DatasetError(f"object_identity must be (K, 3), got {identity.shape}")
+        if self.object_id_scope == "none":
+            missing = [
+                i for i, r in enumerate(self.robots) if r.detections is None or r.objects.ids.size
+            ]
+            if missing:
+                raise DatasetError(
+                    f"robot {missing[0]}: a dataset without object ids needs detections and no "
+                    "object observations with ids"
+                )
         if not identity.size:
             return
-        if self.object_id_scope == "global":
+        if self.object_id_scope != "per-robot":
             raise DatasetError("object_identity is for per-robot object ids; these ids are global")
         robots = identity[:, 0]
         if np.any((robots < 0) | (robots >= self.n_robots)):

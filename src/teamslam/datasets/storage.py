@@ -24,6 +24,12 @@ default) or ``"per-robot"``; ``map.npz`` may hold ``object_identity``, ``(K, 3)`
 the robot's object id, team object id)`` — ground truth of which per-robot ids are the same
 object, for evaluation only; a robot file may hold ``object_classes``, ``(C, 2)`` rows
 ``(object id, class label)`` from the robot's detector.
+4 adds detections without ids: a robot file may hold ``detection_offsets`` and
+``detection_measurements`` (``(M, 4)``), optionally ``detection_classes``, ``detection_scores``
+and (ground truth, evaluation only) ``detection_truth`` — the team object id of each detection,
+``-1`` for a false one; the manifest's ``object_ids`` may then be ``"none"`` (no ids at all:
+each robot tracks its detections itself). A dataset without detections is still written as
+version 3.
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ from teamslam.datasets.model import (
     OBJECT_ID_SCOPES,
     Calibration,
     DatasetError,
+    FrameDetections,
     FrameObservations,
     RobotSequence,
     TeamDataset,
@@ -50,8 +57,11 @@ from teamslam.geometry.camera import StereoCamera
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "load_dataset", "save_dataset"]
 
 FORMAT_NAME = "teamslam-team-dataset"
-FORMAT_VERSION = 3
-READABLE_VERSIONS = (1, 2, 3)
+FORMAT_VERSION = 4
+READABLE_VERSIONS = (1, 2, 3, 4)
+#: The version written when no robot carries detections (what that version holds is the same).
+_VERSION_WITHOUT_DETECTIONS = 3
+_DETECTION_FIELDS = ("classes", "scores", "truth")
 MANIFEST = "manifest.json"
 
 
@@ -79,7 +89,9 @@ def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
         cal = dataset.calibration
         manifest = {
             "format": FORMAT_NAME,
-            "version": FORMAT_VERSION,
+            "version": FORMAT_VERSION
+            if any(r.detections is not None for r in dataset.robots)
+            else _VERSION_WITHOUT_DETECTIONS,
             "name": dataset.name,
             "calibration": {
                 "K": cal.camera.intrinsics.tolist(),
@@ -109,6 +121,12 @@ def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
                 arrays["timestamps"] = robot.timestamps
             if robot.object_classes is not None:
                 arrays["object_classes"] = robot.object_classes
+            if robot.detections is not None:
+                arrays["detection_offsets"] = robot.detections.offsets
+                arrays["detection_measurements"] = robot.detections.measurements
+                for name in _DETECTION_FIELDS:
+                    if getattr(robot.detections, name) is not None:
+                        arrays[f"detection_{name}"] = getattr(robot.detections, name)
             np.savez_compressed(staging / _robot_file(i), **arrays)
             manifest["robots"].append(
                 {
@@ -190,6 +208,25 @@ def _observations(arrays: dict, prefix: str) -> FrameObservations:
         raise DatasetError(f"{prefix}_measurements: {exc}") from None
 
 
+def _detections(arrays: dict, version: int) -> FrameDetections | None:
+    present = [k for k in arrays if k.startswith("detection_")]
+    if not present:
+        return None
+    if version < 4:
+        raise DatasetError(f"{present[0]}: detections need format version 4, file is {version}")
+    for name in ("detection_offsets", "detection_measurements"):
+        if name not in arrays:
+            raise DatasetError(f"field {name!r} is missing (the file holds {present[0]!r})")
+    try:
+        return FrameDetections(
+            arrays["detection_offsets"],
+            arrays["detection_measurements"],
+            *(arrays.get(f"detection_{name}") for name in _DETECTION_FIELDS),
+        )
+    except DatasetError as exc:
+        raise DatasetError(f"detection_*: {exc}") from None
+
+
 def load_dataset(directory: str | Path) -> TeamDataset:
     """Read and validate a dataset written by :func:`save_dataset`.
 
@@ -254,7 +291,13 @@ def load_dataset(directory: str | Path) -> TeamDataset:
         "object_measurements": "f",
         "timestamps": "f",
         "object_classes": "i",
+        "detection_offsets": "i",
+        "detection_measurements": "f",
+        "detection_classes": "i",
+        "detection_scores": "f",
+        "detection_truth": "i",
     }
+    detection_fields = tuple(k for k in robot_fields if k.startswith("detection_"))
     robots = []
     for i, meta in enumerate(robots_meta):
         if not isinstance(meta, dict) or not isinstance(meta.get("file"), str):
@@ -265,7 +308,9 @@ def load_dataset(directory: str | Path) -> TeamDataset:
                 f"{manifest_path}: robots[{i}].file {name!r} is not a plain file name"
             )
         path = directory / name
-        arrays = _load_npz(path, robot_fields, optional=("timestamps", "object_classes"))
+        arrays = _load_npz(
+            path, robot_fields, optional=("timestamps", "object_classes", *detection_fields)
+        )
         classes = arrays.get("object_classes")
         if classes is not None and (classes.ndim != 2 or classes.shape[1] != 2):
             raise DatasetError(
@@ -280,6 +325,7 @@ def load_dataset(directory: str | Path) -> TeamDataset:
                 objects=_observations(arrays, "object"),
                 timestamps=arrays.get("timestamps"),
                 object_classes=classes,
+                detections=_detections(arrays, version),
             )
             robot.validate(f"robot {i}")
         except DatasetError as exc:

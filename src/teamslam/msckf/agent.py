@@ -22,6 +22,11 @@ except the persistent map (15 numbers per distinct object retired) and the per-f
 times (allocated once for the whole sequence). Bad inputs (non-finite odometry or
 measurements) are rejected and counted; the estimate is left as it was.
 
+A robot whose data has detections without ids (``RobotSequence.detections`` and no object
+observation with an id) names them itself right after propagation
+(:mod:`teamslam.msckf.tracking`); everything above then reads the tracker's ids. With ids the
+tracker does not exist and nothing changes.
+
 Every Jacobian is evaluated where the configured linearisation policy says
 (:mod:`teamslam.msckf.linearization`: standard, first-estimate or ideal); residuals always at
 the current estimate. The agent's state may be its own or its window in a team state
@@ -46,6 +51,7 @@ from teamslam.msckf.health import SensorHealth, odometry_lag_residuals, odometry
 from teamslam.msckf.linearization import GroundTruth, linearization_policy
 from teamslam.msckf.models import observe, observe_jacobians, points_in_camera
 from teamslam.msckf.state import MsckfState, RobotWindow
+from teamslam.msckf.tracking import ObjectTracker
 from teamslam.msckf.update import (
     MeasurementRows,
     compress,
@@ -130,6 +136,11 @@ class MsckfAgent:
         self._odometry_rejected: set[int] = set()
         self._frame_times = np.zeros((sequence.frames, 3))
         self.frame = -1
+        # detections without ids: the robot names its objects itself (tracking.py)
+        self.tracker: ObjectTracker | None = None
+        self._tracked: tuple[np.ndarray, np.ndarray] | None = None
+        if sequence.detections is not None and sequence.objects.ids.size == 0:
+            self.tracker = ObjectTracker(robot, self.camera, self.T_cam_body, config)
 
     # ------------------------------------------------------------------ bookkeeping
     def reject(self, what: str, count: int = 1, reason: str = "") -> None:
@@ -248,6 +259,8 @@ class MsckfAgent:
         begin = time.perf_counter()
         if t > 0:
             self._propagate(t)
+        if self.tracker is not None and self.config.use_objects:
+            self._track(t)
         if self.config.use_objects and len(self.state.retired):
             self._reenter_objects(t)
         after_propagation = time.perf_counter()
@@ -356,6 +369,8 @@ class MsckfAgent:
     # ------------------------------------------------------------------ geometric features
     def _finite_observations(self, kind: str, t: int) -> tuple[np.ndarray, np.ndarray]:
         """Frame ``t``'s ``features`` or ``objects``, rejecting (and counting) non-finite rows."""
+        if kind == "objects" and self._tracked is not None:
+            return self._tracked  # the tracker's, already finite
         ids, z = getattr(self.sequence, kind).frame(t)
         finite = np.all(np.isfinite(z), axis=1)
         if not finite.all():
@@ -432,9 +447,32 @@ class MsckfAgent:
         return rows
 
     # ------------------------------------------------------------------ objects
+    def _track(self, t: int) -> None:
+        """Name frame ``t``'s detections (:class:`ObjectTracker`): what the filter then reads as
+        this frame's object observations; the earlier detections of tracks confirmed now go
+        into the object histories first."""
+        begin = time.perf_counter()
+        z, classes = self.sequence.detections.frame(t)
+        finite = np.all(np.isfinite(z), axis=1)
+        if not finite.all():
+            self.reject("object_measurements", int((~finite).sum()), "non-finite")
+        frame = self.tracker.assign(t, z, classes, self.state, self.config.odometry_cov())
+        for tid, frames, zs in frame.confirmed:
+            self.object_history[tid].extend(
+                (int(f), row) for f, row in zip(frames.tolist(), zs, strict=True)
+            )
+        out = frame.ids >= 0
+        self._tracked = (frame.ids[out], z[out])
+        for name, value in self.tracker.counters.items():
+            self.counters[name] = value
+        self.timings["tracking"] += time.perf_counter() - begin
+
     def _reenter_objects(self, t: int) -> None:
         """Bring the retired objects observed at ``t`` back into the state (before the update)."""
-        ids, z = self.sequence.objects.frame(t)
+        if self._tracked is not None:
+            ids, z = self._tracked
+        else:
+            ids, z = self.sequence.objects.frame(t)
         ids = np.unique(ids[np.all(np.isfinite(z), axis=1)])
         back = ids[self.state.retired.contains(ids)]
         if back.size:

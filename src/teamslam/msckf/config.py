@@ -116,6 +116,22 @@ class MsckfConfig:
         to 1.0; with ``std`` and ``oc``, which lack ``fej``'s linearisation noise, it makes both
         filters markedly more overconfident; on small simulated teams it moved ``fej``'s RMSE
         either way by up to 58%; a KITTI 00 run takes about 3× as long. Off by default.
+    track_gate_probability
+        Object tracking (a robot with detections without ids, :mod:`teamslam.msckf.tracking`):
+        a detection may be assigned to a predicted object or track only when its squared
+        Mahalanobis distance under the filter's innovation covariance is at most this quantile
+        of χ²(4).
+    track_birth_probability
+        An unassigned detection starts a tentative track only when it lies outside this
+        quantile of χ²(4) around every object of the state and of the persistent map (a
+        detection of a known object that missed the assignment gate, or lost it to another
+        detection, makes no second object). Set it to ``track_gate_probability`` or below to
+        let every unassigned detection start a track.
+    track_confirm_hits, track_confirm_frames
+        A tentative track is confirmed after ``M = track_confirm_hits`` detections within its
+        first ``N = track_confirm_frames`` frames, and dropped otherwise; a confirmed track not
+        yet in the state is dropped after ``N`` frames without a detection. 0 takes the
+        defaults ``M = object_init_observations`` and ``N = M + 2``.
     """
 
     window: int = 20
@@ -141,6 +157,10 @@ class MsckfConfig:
     debug: bool = False
     object_init_max_relative_std: float = 0.0
     object_update_iterations: int = 1
+    track_gate_probability: float = 0.99
+    track_birth_probability: float = 0.9999
+    track_confirm_hits: int = 0
+    track_confirm_frames: int = 0
 
     def __post_init__(self) -> None:
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 2:
@@ -196,6 +216,23 @@ class MsckfConfig:
             raise InputError(
                 "object_init_max_relative_std must be a number ≥ 0 (a fraction of the distance; "
                 "0: no wait)"
+            )
+
+        self._validate_tracking()
+
+    def _validate_tracking(self) -> None:
+        for name in ("track_gate_probability", "track_birth_probability"):
+            if not 0 < getattr(self, name) < 1:
+                raise InputError(f"{name} must lie in (0, 1)")
+        for name in ("track_confirm_hits", "track_confirm_frames"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise InputError(f"{name} must be an integer ≥ 0 (0: the default)")
+        hits = self.track_confirm_hits or self.object_init_observations
+        frames = self.track_confirm_frames or hits + 2
+        if frames < hits:
+            raise InputError(
+                f"track_confirm_frames ({frames}) must be at least track_confirm_hits ({hits})"
             )
 
     @classmethod

@@ -25,7 +25,13 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from teamslam.datasets.model import Calibration, FrameObservations, RobotSequence, TeamDataset
+from teamslam.datasets.model import (
+    Calibration,
+    FrameDetections,
+    FrameObservations,
+    RobotSequence,
+    TeamDataset,
+)
 from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.errors import InputError
 from teamslam.geometry import se3
@@ -72,6 +78,18 @@ class SimulationConfig:
         Per-axis std of the SE(3) odometry perturbation (m, rad), per step.
     object_spread, landmark_spread
         Std ``(x, y, z)`` of the Gaussians that scatter objects / landmarks around the paths.
+    clutter, miss, classes
+        An imperfect object detector. ``miss``: probability that a visible object is not
+        detected in a frame. ``clutter``: false detections, per frame Poisson-distributed with
+        mean ``clutter`` times the robot's mean true detections per frame (the share of false
+        detections), each uniform in the image with a disparity of a depth uniform in
+        ``[min_depth, object_max_depth]``. ``classes``: number of class labels (0: none); each
+        object has one, drawn uniformly, and so has each false detection. When any of them is
+        set, every robot also records its detections without ids
+        (:class:`~teamslam.datasets.model.FrameDetections`, the truth of each: object id or
+        -1), while its object observations with ids hold the true, detected objects only (an
+        oracle's ids on the same detections). Drawn from generators of their own: the rest of
+        the team is the same as without them.
     """
 
     robots: int = 5
@@ -96,8 +114,17 @@ class SimulationConfig:
     odometry_rotation_noise: float = 0.004
     object_spread: tuple[float, float, float] = (5.0, 5.0, 1.5)
     landmark_spread: tuple[float, float, float] = (12.0, 12.0, 4.0)
+    clutter: float = 0.0
+    miss: float = 0.0
+    classes: int = 0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.clutter) and self.clutter >= 0):
+            raise InputError("clutter must be a finite number ≥ 0 (false per true detection)")
+        if not 0.0 <= self.miss < 1.0:
+            raise InputError("miss must be a probability in [0, 1)")
+        if isinstance(self.classes, bool) or not isinstance(self.classes, int) or self.classes < 0:
+            raise InputError("classes must be an integer ≥ 0 (0: no class labels)")
         if self.robots < 1 or self.steps < 1:
             raise InputError("robots and steps must be positive")
         if self.objects < 0 or self.landmarks < 0:
@@ -373,6 +400,11 @@ def simulate_team(
         )
         feat_frames, pairs, next_track = _tracks(feat_frames, next_track)
         track_pairs.extend(pairs)
+        detections, classes = None, None
+        if config.clutter > 0 or config.miss > 0 or config.classes > 0:
+            obj_frames, detections, classes = _detector(
+                config, obj_frames, len(object_positions), i
+            )
         sequences.append(
             RobotSequence(
                 T_world_body=path,
@@ -380,6 +412,8 @@ def simulate_team(
                 features=FrameObservations.from_frames(feat_frames),
                 objects=FrameObservations.from_frames(obj_frames),
                 timestamps=np.arange(steps + 1, dtype=float),
+                object_classes=classes,
+                detections=detections,
             )
         )
     return TeamDataset(
@@ -398,6 +432,62 @@ def simulate_team(
         metadata=metadata,
         sensor_model=config.sensor_model(),
     )
+
+
+def _detector(
+    config: SimulationConfig,
+    frames: list[tuple[np.ndarray, np.ndarray]],
+    objects: int,
+    robot: int,
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], FrameDetections, np.ndarray | None]:
+    """Misses, clutter and classes of robot ``robot``'s object detector.
+
+    Returns the detected true objects (ids kept), every detection without ids (true ones
+    then false ones shuffled within the frame) and the class rows of the objects.
+    """
+    rng = np.random.default_rng([config.seed, 25, robot])
+    label_rng = np.random.default_rng([config.seed, 25])  # one class per object, team-wide
+    object_class = label_rng.integers(0, max(config.classes, 1), objects)
+    camera, output = config.camera(), config.measurement_camera()
+    k = camera.intrinsics
+    w, h = config.image_size
+    kept = []
+    for idx, z in frames:
+        hit = rng.random(idx.size) >= config.miss
+        kept.append((idx[hit], z[hit]))
+    mean_true = np.mean([idx.size for idx, _ in kept]) if kept else 0.0
+    rows, truth, counts = [], [], []
+    for idx, z in kept:
+        n_false = rng.poisson(config.clutter * mean_true) if config.clutter > 0 else 0
+        u = rng.uniform(0.0, w, n_false)
+        v = rng.uniform(0.0, h, n_false)
+        depth = rng.uniform(config.min_depth, config.object_max_depth, n_false)
+        p_cam = np.stack(
+            [(u - k[0, 2]) / k[0, 0] * depth, (v - k[1, 2]) / k[1, 1] * depth, depth], axis=1
+        )
+        z_all = np.concatenate([z, output.project(p_cam).reshape(-1, 4)])
+        t_all = np.concatenate([idx, np.full(n_false, -1, dtype=np.int64)])
+        order = rng.permutation(t_all.size)
+        rows.append(z_all[order])
+        truth.append(t_all[order])
+        counts.append(t_all.size)
+    truth_all = np.concatenate(truth).astype(np.int64) if truth else np.zeros(0, np.int64)
+    labels = None
+    classes = None
+    if config.classes > 0:
+        false = truth_all < 0
+        labels = np.where(false, 0, object_class[np.maximum(truth_all, 0)])
+        labels[false] = rng.integers(0, config.classes, int(false.sum()))
+        seen = np.unique(np.concatenate([idx for idx, _ in kept]).astype(np.int64))
+        classes = np.column_stack([seen, object_class[seen]]).astype(np.int64)
+    detections = FrameDetections(
+        np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        np.concatenate(rows).reshape(-1, 4) if rows else np.zeros((0, 4)),
+        labels,
+        None,
+        truth_all,
+    )
+    return kept, detections, classes
 
 
 def _jsonable(d: dict) -> dict:

@@ -1,0 +1,124 @@
+"""Each robot tracking its own detections against oracle ids: accuracy, tracking quality, cost.
+
+For each case the same detections are run twice through separate filters (no consensus):
+with the dataset's ids (the oracle) and with the ids removed (``strip_object_ids(to="none")``,
+each robot's :mod:`teamslam.msckf.tracking` naming its detections). Printed: trajectory RMSE
+(mean over robots, as ``teamslam run``), its ratio to the oracle, CLEAR-MOT / IDF1
+(:mod:`teamslam.eval.tracking`), false objects confirmed per 1000 frames, and the tracking time
+as a share of the per-robot-step time.
+
+Usage::
+
+    python benchmarks/tracking.py [--kitti DATASET_DIR] [--robots 5 --steps 300] [--seeds 0 1]
+
+``DATASET_DIR`` is a dataset with ids (e.g. ``teamslam data import-reference … K``); its
+settings are resolved (calibrated when it has no sensor model) on the oracle dataset and used
+for both runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from teamslam.datasets.identity import strip_object_ids
+from teamslam.datasets.storage import load_dataset
+from teamslam.eval.metrics import trajectory_rmse
+from teamslam.eval.tracking import hypotheses_of, tracking_metrics
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.settings import config_for
+from teamslam.sim.lissajous import lissajous_team
+
+
+def run_separate(dataset, config) -> tuple[float, list, float]:
+    """Every robot's filter alone; mean trajectory RMSE, the agents and the wall time."""
+    agents, rmse = [], []
+    begin = time.perf_counter()
+    for i, robot in enumerate(dataset.robots):
+        agent = MsckfAgent(i, dataset.calibration, robot, config)
+        poses = np.empty((robot.frames, 4, 4))
+        for t in range(robot.frames):
+            agent.step(t)
+            poses[t] = agent.state.current_pose
+        rmse.append(trajectory_rmse(poses, robot.T_world_body))
+        agents.append(agent)
+    return float(np.mean(rmse)), agents, time.perf_counter() - begin
+
+
+def compare(name: str, dataset, config) -> dict:
+    """Oracle ids against own tracking on the same detections."""
+    oracle, _, oracle_s = run_separate(dataset, config)
+    stripped = strip_object_ids(dataset, to="none")
+    own, agents, own_s = run_separate(stripped, config)
+    metrics = tracking_metrics(stripped, hypotheses_of(agents))
+    tracking_s = sum(a.timings["tracking"] for a in agents)
+    steps = sum(sum(a.timings[k] for k in a.timings) for a in agents)
+    team = metrics["team"] if metrics else {}
+    return {
+        "case": name,
+        "oracle_rmse": oracle,
+        "own_rmse": own,
+        "ratio": own / oracle,
+        "idf1": team.get("idf1", float("nan")),
+        "mota": team.get("mota", float("nan")),
+        "id_switches": team.get("id_switches", 0),
+        "fragmentations": team.get("fragmentations", 0),
+        "objects": f"{team.get('objects_created', 0)}/{team.get('objects_true', 0)}",
+        "false_per_1000": metrics["false_objects_per_1000_frames"] if metrics else float("nan"),
+        "tracking_share": tracking_s / steps if steps else float("nan"),
+        "seconds": oracle_s + own_s,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--kitti", help="a dataset directory with ids (e.g. KITTI 00)")
+    parser.add_argument("--robots", type=int, default=5)
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--seeds", type=int, nargs="*", default=[0])
+    parser.add_argument("--clutter", type=float, default=0.05)
+    parser.add_argument("--miss", type=float, default=0.10)
+    parser.add_argument("--classes", type=int, default=0)
+    parser.add_argument("--no-sim", action="store_true")
+    args = parser.parse_args()
+    rows = []
+    if args.kitti:
+        dataset = load_dataset(args.kitti)
+        rows.append(compare(dataset.name, dataset, config_for(dataset)))
+        print_table(rows[-1:])
+    if not args.no_sim:
+        for seed in args.seeds:
+            team = lissajous_team(
+                robots=args.robots,
+                steps=args.steps,
+                seed=seed,
+                clutter=args.clutter,
+                miss=args.miss,
+                classes=args.classes,
+            )
+            name = f"sim {args.robots}r {args.steps}s seed {seed} c{args.clutter} m{args.miss}"
+            rows.append(compare(name, team, config_for(team, calibrate="never")))
+            print_table(rows[-1:])
+    print()
+    print_table(rows)
+
+
+def print_table(rows: list[dict]) -> None:
+    """One line per case."""
+    head = (
+        f"{'case':<44} {'oracle m':>9} {'own m':>8} {'ratio':>6} {'IDF1':>6} {'MOTA':>6} "
+        f"{'IDSW':>5} {'frag':>5} {'objects':>9} {'false/1k':>8} {'track %':>7}"
+    )
+    print(head)
+    for r in rows:
+        print(
+            f"{r['case']:<44} {r['oracle_rmse']:9.3f} {r['own_rmse']:8.3f} {r['ratio']:6.3f} "
+            f"{r['idf1']:6.3f} {r['mota']:6.3f} {r['id_switches']:5d} {r['fragmentations']:5d} "
+            f"{r['objects']:>9} {r['false_per_1000']:8.2f} {100 * r['tracking_share']:7.2f}"
+        )
+
+
+if __name__ == "__main__":
+    main()

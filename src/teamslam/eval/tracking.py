@@ -1,0 +1,150 @@
+"""How well each robot tracked its own object detections (against the truth of each detection).
+
+The tracker (:mod:`teamslam.msckf.tracking`) gives every detection an object id or none; the
+dataset says what each detection truly is (:attr:`~teamslam.datasets.model.FrameDetections.truth`:
+a team object id, or ``-1`` for a false detection). The ground-truth objects of a frame are the
+true objects detected in it (an object the detector missed cannot be tracked in that frame), and
+a hypothesis matches the true object of the detection it was given to. Then:
+
+The ids are those the filter used each detection as (:attr:`ObjectTracker.log
+<teamslam.msckf.tracking.ObjectTracker.log>`): a confirmed track's detections from before its
+confirmation count under its id, as the filter's object initialisation uses them.
+
+* **CLEAR-MOT** (Bernardin & Stiefelhagen 2008): ``MOTA = 1 − (FN + FP + IDSW) / GT`` with
+  ``FN`` true detections without an id (of tracks never confirmed, or refused), ``FP`` ids
+  given to false detections, ``IDSW`` identity switches (a true object matched to an id
+  other than the one it was last matched to); **fragmentations**: a true object's matched run
+  interrupted and resumed.
+* **IDF1** (Ristani et al. 2016): the one-to-one map of true objects to ids maximising the
+  detections on which they agree (``IDTP``); ``IDF1 = 2 IDTP / (GT + hypotheses)``.
+* **objects created vs true**: distinct ids given against distinct true objects detected; ids
+  given only to false detections (false objects) counted apart.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+__all__ = ["hypotheses_of", "mot_metrics", "tracking_metrics"]
+
+
+def mot_metrics(offsets: np.ndarray, truth: np.ndarray, hypothesis: np.ndarray) -> dict:
+    """CLEAR-MOT, IDF1 and object counts of one robot's detections.
+
+    Parameters
+    ----------
+    offsets
+        ``(frames + 1,)`` detection offsets per frame.
+    truth
+        ``(D,)`` team object id of each detection, ``-1`` for a false one.
+    hypothesis
+        ``(D,)`` object id the tracker gave each detection, ``-1`` for none.
+
+    Returns
+    -------
+    dict
+        ``gt``, ``fn``, ``fp``, ``id_switches``, ``fragmentations``, ``mota``, ``idtp``,
+        ``idf1``, ``objects_true``, ``objects_created``, ``false_objects`` (ids given only to
+        false detections), ``frames``.
+    """
+    offsets = np.asarray(offsets, dtype=np.int64)
+    truth = np.asarray(truth, dtype=np.int64)
+    hyp = np.asarray(hypothesis, dtype=np.int64)
+    if truth.shape != hyp.shape or offsets[-1] != truth.size:
+        raise ValueError(
+            f"{truth.size} truths, {hyp.size} hypotheses and {offsets[-1]} detections disagree"
+        )
+    frame = np.repeat(np.arange(offsets.size - 1), np.diff(offsets))
+    real, named = truth >= 0, hyp >= 0
+    gt = int(real.sum())
+    fn = int((real & ~named).sum())
+    fp = int((~real & named).sum())
+    # the true detections in the order of their object, then of time
+    order = np.lexsort((frame[real], truth[real]))
+    g, h = truth[real][order], hyp[real][order]
+    matched = h >= 0
+    same_object = np.concatenate([[False], g[1:] == g[:-1]])
+    # identity switches: between consecutive matched detections of one object
+    gm, hm = g[matched], h[matched]
+    switches = int(np.sum((gm[1:] == gm[:-1]) & (hm[1:] != hm[:-1])))
+    # fragmentations: matched runs of an object after its first one
+    run_start = matched & ~(same_object & np.concatenate([[False], matched[:-1]]))
+    starts_per_object = np.bincount(np.unique(g, return_inverse=True)[1], weights=run_start)
+    fragmentations = int(np.sum(np.maximum(starts_per_object - 1, 0)))
+    # IDF1: the best one-to-one map of true objects to ids
+    both = real & named
+    idtp = 0
+    if both.any():
+        gu, gi = np.unique(truth[both], return_inverse=True)
+        hu, hi = np.unique(hyp[both], return_inverse=True)
+        counts = np.zeros((gu.size, hu.size))
+        np.add.at(counts, (gi, hi), 1.0)
+        rows, cols = linear_sum_assignment(-counts)
+        idtp = int(counts[rows, cols].sum())
+    hypotheses = int(named.sum())
+    true_ids = set(np.unique(hyp[both]).tolist())
+    created = np.unique(hyp[named])
+    return {
+        "frames": int(offsets.size - 1),
+        "gt": gt,
+        "fn": fn,
+        "fp": fp,
+        "id_switches": switches,
+        "fragmentations": fragmentations,
+        "mota": float(1.0 - (fn + fp + switches) / gt) if gt else float("nan"),
+        "idtp": idtp,
+        "idf1": float(2 * idtp / (gt + hypotheses)) if gt + hypotheses else float("nan"),
+        "objects_true": int(np.unique(truth[real]).size),
+        "objects_created": int(created.size),
+        "false_objects": int(sum(1 for i in created.tolist() if i not in true_ids)),
+    }
+
+
+def tracking_metrics(dataset, hypotheses: list[np.ndarray]) -> dict | None:
+    """``metrics.json["tracking"]``: :func:`mot_metrics` per robot and over the team.
+
+    Parameters
+    ----------
+    dataset
+        The team dataset (each tracking robot's detections carry their truth).
+    hypotheses
+        Per robot the ids its tracker gave its detections (``(D_i,)``, ``-1`` for none; an
+        empty array for a robot that did not track), e.g. :func:`hypotheses_of` of the agents.
+
+    Returns
+    -------
+    dict or None
+        ``{"robots": [...], "team": {...}, "false_objects_per_1000_frames": x}``; ``None``
+        when no robot tracked detections with ground truth.
+    """
+    robots, parts = [], []
+    for robot, hyp in zip(dataset.robots, hypotheses, strict=True):
+        det = robot.detections
+        if det is None or det.truth is None or hyp is None or hyp.size != det.truth.size:
+            robots.append(None)
+            continue
+        robots.append(mot_metrics(det.offsets, det.truth, hyp))
+        parts.append(robots[-1])
+    if not parts:
+        return None
+    team = {k: sum(p[k] for p in parts) for k in parts[0] if k not in ("mota", "idf1")}
+    team["mota"] = float(1 - (team["fn"] + team["fp"] + team["id_switches"]) / team["gt"])
+    team["idf1"] = float(2 * team["idtp"] / (team["gt"] + team["gt"] - team["fn"] + team["fp"]))
+    return {
+        "robots": robots,
+        "team": team,
+        "false_objects_per_1000_frames": 1000.0 * team["false_objects"] / max(team["frames"], 1),
+    }
+
+
+def hypotheses_of(agents) -> list[np.ndarray]:
+    """Per agent the ids its tracker gave each detection so far (empty without a tracker)."""
+    out = []
+    for agent in agents:
+        tracker = getattr(agent, "tracker", None)
+        if tracker is None or not tracker.log:
+            out.append(np.zeros(0, np.int64))
+        else:
+            out.append(np.concatenate(tracker.log).astype(np.int64))
+    return out

@@ -1,0 +1,433 @@
+"""Each robot's own object tracker: detections without ids in, object ids out.
+
+A robot's detector gives, per frame, stereo box centres without ids — some false, some objects
+missed. Before the object update of Algorithm 1 the robot's filter names them itself
+(:meth:`ObjectTracker.assign`):
+
+1. **Predict** every target into the current stereo pair: the objects in the filter state
+   (their joint covariance with the current pose), the objects of the persistent map
+   (:mod:`teamslam.msckf.persistent_map`; their 3×3 marginal and the current pose's covariance)
+   and every track of the tracker itself (a stereo-triangulated point with its covariance, and
+   the odometry noise of the frames since its last detection).
+2. **Gate** each (target, detection) pair with the filter's own innovation covariance
+   ``S = H P Hᵀ + R``: the squared Mahalanobis distance of the detection from the prediction at
+   most the ``track_gate_probability`` quantile of χ²(4); class labels, when the detector gives
+   them, must agree.
+3. **Assign** one-to-one over the gated pairs by global nearest neighbour (the assignment of
+   least total squared distance among those of the most gated pairs,
+   :func:`scipy.optimize.linear_sum_assignment`).
+4. A detection assigned to an object of the state or the persistent map gets that object's id.
+   A detection assigned to a track updates the track's point (a Kalman update of the point).
+   An unassigned detection starts a **tentative** track, stereo-triangulated at the current
+   pose. A tentative track is **confirmed** after ``M`` detections within its first ``N``
+   frames (``track_confirm_hits``, ``track_confirm_frames``; default ``M`` =
+   ``object_init_observations``, ``N = M + 2``) and dropped otherwise. A confirmed track's
+   detections — the earlier ones at once — go to the filter under its id, where the object
+   initialisation (eqs. 29–30) takes it into the state; from then on the state predicts it and
+   the tracker forgets it. A confirmed track not taken into the state is dropped after ``N``
+   frames without a detection. An object unseen for more than ``N`` frames (or in the
+   persistent map) takes a detection only when the pair is unambiguous (no other detection in
+   its gate and no other target in the detection's): a drifted robot's wrong revisit would
+   pull its whole map, a second object for the same one only costs a loop closure.
+
+Only tentative tracks hold detections the filter has not seen: a false detection that no
+other detection confirms never reaches the filter state. Everything per frame is batched over
+targets and detections (one Cholesky factorisation per target, one triangular solve for all
+pairs); the tracks are kept as arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from teamslam.geometry.camera import StereoCamera
+from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.models import observe_jacobians, points_in_camera
+from teamslam.msckf.update import stereo_point
+
+__all__ = ["ObjectTracker", "TrackerFrame", "track_id_base"]
+
+#: Cost of a pair outside the gate in the assignment (never kept).
+_OUTSIDE = 1e12
+
+
+def track_id_base(robot: int) -> int:
+    """The first object id robot ``robot``'s tracker gives: ids of different robots never meet
+    (equal ids of two robots' own tracks would say nothing)."""
+    return (int(robot) + 1) * 10**9
+
+
+@dataclass
+class TrackerFrame:
+    """What the tracker decided for one frame.
+
+    Attributes
+    ----------
+    ids
+        ``(D,)`` object id given to each detection, ``-1`` for one the filter does not get
+        (a tentative track's, or a rejected one).
+    confirmed
+        Tracks confirmed this frame: ``(id, frames, measurements)`` of their earlier
+        detections, to go into the filter's object history before this frame's.
+    """
+
+    ids: np.ndarray
+    confirmed: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
+
+
+class ObjectTracker:
+    """One robot's tracker of its object detections (see the module docstring).
+
+    Parameters
+    ----------
+    robot
+        The robot (its ids start at :func:`track_id_base`).
+    camera, T_cam_body
+        The stereo rig.
+    config
+        The filter settings (noise, gate, depth range, ``track_*`` settings).
+    """
+
+    def __init__(
+        self, robot: int, camera: StereoCamera, T_cam_body: np.ndarray, config: MsckfConfig
+    ) -> None:
+        self.camera = camera
+        self.T_cam_body = T_cam_body
+        self.config = config
+        self.hits_needed = config.track_confirm_hits or config.object_init_observations
+        self.frames_allowed = config.track_confirm_frames or self.hits_needed + 2
+        self.gate = float(_chi2(config.track_gate_probability, 4))
+        self.birth_gate = float(_chi2(config.track_birth_probability, 4))
+        self.next_id = track_id_base(robot)
+        # tracks, as arrays (one row per track)
+        self.ids = np.zeros(0, np.int64)
+        self.points = np.zeros((0, 3))
+        self.covs = np.zeros((0, 3, 3))
+        self.first = np.zeros(0, np.int64)
+        self.last = np.zeros(0, np.int64)
+        self.hits = np.zeros(0, np.int64)
+        self.classes = np.zeros(0, np.int64)
+        self.confirmed = np.zeros(0, bool)
+        # per track its detections: (frame, measurement, row of the frame's detections)
+        self.history: dict[int, list[tuple[int, np.ndarray, int]]] = {}
+        # class label of every confirmed id (sorted by id)
+        self._label_ids = np.zeros(0, np.int64)
+        self._labels = np.zeros(0, np.int64)
+        self.counters: dict[str, int] = {
+            "tracks_started": 0,
+            "tracks_confirmed": 0,
+            "tracks_dropped": 0,
+            "detections_assigned": 0,
+            "detections_rejected_depth": 0,
+            "detections_near_object": 0,
+            "revisits_refused": 0,
+        }
+        #: per frame the id the filter used each detection as (``-1``: none); a track's
+        #: detections before its confirmation are named when it is confirmed
+        self.log: list[np.ndarray] = []
+        self._first_logged: int | None = None
+
+    # ------------------------------------------------------------------ public
+    def assign(
+        self,
+        t: int,
+        z: np.ndarray,
+        classes: np.ndarray | None,
+        state,
+        odometry_cov: np.ndarray,
+    ) -> TrackerFrame:
+        """Name the detections ``z`` (``(D, 4)``; non-finite rows get no id) of frame ``t``.
+
+        Parameters
+        ----------
+        t
+            The frame (after propagation to it).
+        z, classes
+            The detections and their class labels (``None``: no classes).
+        state
+            The robot's filter state (:class:`~teamslam.msckf.state.MsckfState` or its window).
+        odometry_cov
+            ``W``, the odometry noise per frame (6×6).
+        """
+        if self._first_logged is None:
+            self._first_logged = t
+        self._forget_mapped(state)
+        every = np.full(z.shape[0], -1, np.int64)
+        index = np.flatnonzero(np.all(np.isfinite(z), axis=1))
+        z = z[index]
+        d = z.shape[0]
+        labels = np.full(d, -1, np.int64) if classes is None else np.asarray(classes, np.int64)
+        labels = labels[index] if classes is not None else labels
+        out = np.full(d, -1, np.int64)
+        kinds, target_ids, seen, pred, s, h_point, in_front, target_labels = self._predict(
+            t, state, odometry_cov
+        )
+        n_targets = target_ids.size
+        assigned_target = np.full(d, -1, np.int64)
+        near_target = np.zeros(d, bool)
+        if n_targets and d:
+            chol = np.linalg.cholesky(s)  # (T, 4, 4)
+            r = z[None, :, :] - pred[:, None, :]  # (T, D, 4)
+            y = np.linalg.solve(chol[:, None], r[..., None])[..., 0]
+            d2 = np.einsum("tdi,tdi->td", y, y)
+            allowed = (d2 <= self.gate) & in_front[:, None]
+            allowed &= (
+                (target_labels[:, None] < 0)
+                | (labels[None, :] < 0)
+                | (target_labels[:, None] == labels[None, :])
+            )
+            # a detection near an object it was not given starts no track: one object, one id
+            blocking = in_front & (kinds < 2)
+            near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
+            rows_any, cols_any = allowed.any(axis=1), allowed.any(axis=0)
+            if rows_any.any():
+                rows_idx, cols_idx = np.flatnonzero(rows_any), np.flatnonzero(cols_any)
+                sub = allowed[np.ix_(rows_idx, cols_idx)]
+                cost = np.where(sub, d2[np.ix_(rows_idx, cols_idx)], _OUTSIDE)
+                ra, ca = linear_sum_assignment(cost)
+                keep = sub[ra, ca]
+                assigned_target[cols_idx[ca[keep]]] = rows_idx[ra[keep]]
+            # an object not seen for N frames (the state's or the persistent map's) is taken
+            # again only when unambiguous: no other detection in its gate, no other target in
+            # the detection's (a wrong revisit would pull the whole map; a new object is safe)
+            hit_idx = np.flatnonzero(assigned_target >= 0)
+            target = assigned_target[hit_idx]
+            stale = (kinds[target] == 1) | (
+                (kinds[target] == 0) & (t - seen[target] > self.frames_allowed)
+            )
+            ambiguous = (allowed[target].sum(axis=1) > 1) | (allowed[:, hit_idx].sum(axis=0) > 1)
+            refused = hit_idx[stale & ambiguous]
+            if refused.size:
+                # nor does it block new tracks near it
+                blocking[assigned_target[refused]] = False
+                near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
+                assigned_target[refused] = -1
+            self.counters["revisits_refused"] += int(refused.size)
+        hit = assigned_target >= 0
+        self.counters["detections_assigned"] += int(hit.sum())
+        mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
+        out[mapped] = target_ids[assigned_target[mapped]]
+        frame = TrackerFrame(out)
+        self.log.append(every)
+        on_track = np.flatnonzero(hit & ~mapped)
+        if on_track.size:
+            self._update_tracks(
+                t, z, index, on_track, assigned_target, kinds, pred, s, h_point, frame
+            )
+        self.counters["detections_near_object"] += int((~hit & near_target).sum())
+        new = np.flatnonzero(~hit & ~near_target)
+        if new.size:
+            self._start_tracks(t, z[new], index[new], labels[new], state)
+        self._drop_stale(t)
+        every[index] = frame.ids
+        frame.ids = every
+        return frame
+
+    @property
+    def n_tracks(self) -> int:
+        """Tracks held (tentative and confirmed not yet in the state)."""
+        return int(self.ids.size)
+
+    # ------------------------------------------------------------------ steps
+    def _forget_mapped(self, state) -> None:
+        """Tracks whose ids the filter took into its state (or retired) are its, not ours."""
+        if not self.ids.size:
+            return
+        held = state.object_slots(self.ids) >= 0
+        if len(state.retired):
+            held |= state.retired.contains(self.ids)
+        if held.any():
+            for i in self.ids[held].tolist():
+                self.history.pop(i, None)
+            self._keep(~held)
+
+    def _predict(self, t: int, state, odometry_cov: np.ndarray):
+        """Every target's predicted measurement, innovation covariance and point Jacobian.
+
+        Only targets in front of the camera and nearer than twice ``object_max_depth``.
+        Returns kinds (0 state, 1 persistent map, 2 track), ids, frame last seen, predictions
+        ``(T, 4)``,
+        ``S`` ``(T, 4, 4)``, ``∂z/∂p`` ``(T, 4, 3)``, in front of the camera ``(T,)`` and class
+        labels ``(T,)``.
+        """
+        cfg = self.config
+        pose = state.current_pose
+        pose_cov = state.current_pose_cov()
+        parts_ids, parts_points, parts_p, kinds = [], [], [], []
+        seen = []
+        reach = 2.0 * cfg.object_max_depth  # farther or behind: no detection can be theirs
+        if state.n_objects:
+            _, p_cam = points_in_camera(pose, state.objects, self.T_cam_body)
+            slots = np.flatnonzero((p_cam[:, 2] > 0) & (p_cam[:, 2] < reach))
+            k = slots.size
+            cols = np.concatenate(
+                [np.broadcast_to(state.newest_pose().columns, (k, 6)), state.object(slots).columns],
+                axis=1,
+            )
+            parts_ids.append(state.object_ids[slots])
+            parts_points.append(state.objects[slots])
+            parts_p.append(state.covariance(cols))
+            kinds.append(np.zeros(k, np.int64))
+            seen.append(state.object_last_seen[slots])
+        if len(state.retired):
+            arrays = state.retired.arrays()
+            _, p_cam = points_in_camera(pose, arrays["means"], self.T_cam_body)
+            near = (p_cam[:, 2] > 0) & (p_cam[:, 2] < reach)
+            arrays = {key: value[near] for key, value in arrays.items()}
+            k = arrays["ids"].size
+            seen.append(np.zeros(k, np.int64))
+            p = np.zeros((k, 9, 9))
+            p[:, :6, :6] = pose_cov
+            p[:, 6:, 6:] = arrays["covs"]
+            parts_ids.append(arrays["ids"])
+            parts_points.append(arrays["means"])
+            parts_p.append(p)
+            kinds.append(np.ones(k, np.int64))
+        if self.ids.size:
+            k = self.ids.size
+            p = np.zeros((k, 9, 9))
+            gap = np.maximum(t - self.last, 1).astype(float)
+            p[:, :6, :6] = gap[:, None, None] * odometry_cov
+            p[:, 6:, 6:] = self.covs
+            parts_ids.append(self.ids)
+            parts_points.append(self.points)
+            parts_p.append(p)
+            kinds.append(np.full(k, 2, np.int64))
+            seen.append(self.last.copy())
+        if not parts_ids or sum(ids.size for ids in parts_ids) == 0:
+            empty = np.zeros(0, np.int64)
+            return (
+                empty,
+                empty,
+                empty,
+                np.zeros((0, 4)),
+                np.zeros((0, 4, 4)),
+                np.zeros((0, 4, 3)),
+                np.zeros(0, bool),
+                empty,
+            )
+        ids = np.concatenate(parts_ids)
+        points = np.concatenate(parts_points)
+        p = np.concatenate(parts_p)
+        kind = np.concatenate(kinds)
+        _, p_cam = points_in_camera(pose, points, self.T_cam_body)
+        in_front = p_cam[:, 2] > max(cfg.object_min_depth, 1e-3 * self.camera.baseline) * 0.5
+        # a point behind the camera has no projection: evaluate it anywhere harmless
+        safe = np.where(in_front[:, None], points, pose[:3, 3] + pose[:3, :3] @ [10.0, 0, 0])
+        pred, d_pose, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, safe)
+        h = np.concatenate([d_pose, d_point], axis=2)
+        s = h @ p @ np.swapaxes(h, 1, 2) + cfg.object_std**2 * np.eye(4)
+        s = 0.5 * (s + np.swapaxes(s, 1, 2))
+        labels = np.full(ids.size, -1, np.int64)
+        if self._label_ids.size and (kind < 2).any():
+            pos = np.clip(np.searchsorted(self._label_ids, ids), 0, self._label_ids.size - 1)
+            found = (self._label_ids[pos] == ids) & (kind < 2)
+            labels[found] = self._labels[pos[found]]
+        if self.ids.size:
+            labels[kind == 2] = self.classes
+        return kind, ids, np.concatenate(seen), pred, s, d_point, in_front, labels
+
+    def _update_tracks(
+        self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame
+    ) -> None:
+        """Kalman update of each assigned track's point; confirm the tracks with enough hits
+        (their earlier detections named in the log as the filter then uses them)."""
+        targets = assigned[detections]
+        rows = targets - int(np.flatnonzero(kinds == 2)[0])  # tracks come last
+        hp = h_point[targets]  # (k, 4, 3)
+        cov = self.covs[rows]
+        cross = hp @ cov  # (k, 4, 3) = H C
+        gain_t = np.linalg.solve(s[targets], cross)  # (k, 4, 3) = S⁻¹ H C = Kᵀ
+        r = z[detections] - pred[targets]
+        self.points[rows] += np.einsum("kij,ki->kj", gain_t, r)
+        cov = cov - np.swapaxes(cross, 1, 2) @ gain_t
+        self.covs[rows] = 0.5 * (cov + np.swapaxes(cov, 1, 2))
+        self.last[rows] = t
+        self.hits[rows] += 1
+        confirmed_before = self.confirmed[rows].copy()
+        newly = ~confirmed_before & (self.hits[rows] >= self.hits_needed)
+        newly &= t - self.first[rows] < self.frames_allowed
+        self.confirmed[rows[newly]] = True
+        for det, row, new in zip(detections.tolist(), rows.tolist(), newly.tolist(), strict=True):
+            tid = int(self.ids[row])
+            past = self.history.setdefault(tid, [])
+            if new:
+                frames = np.array([f for f, _, _ in past], dtype=np.int64)
+                zs = np.array([zz for _, zz, _ in past]).reshape(-1, 4)
+                for f, _, j in past:
+                    self.log[f - self._first_logged][j] = tid
+                frame.confirmed.append((tid, frames, zs))
+                self.counters["tracks_confirmed"] += 1
+                self._add_labels(np.array([tid]), self.classes[row : row + 1])
+            if self.confirmed[row]:
+                frame.ids[det] = tid
+            past.append((t, z[det].copy(), int(index[det])))
+
+    def _start_tracks(
+        self, t: int, z: np.ndarray, index: np.ndarray, labels: np.ndarray, state
+    ) -> None:
+        """Tentative tracks from unassigned detections, stereo-triangulated at the current pose."""
+        cfg = self.config
+        pose = state.current_pose
+        points, ok = stereo_point(self.camera, self.T_cam_body, pose, z)
+        depth = np.linalg.norm(points - pose[:3, 3], axis=1)
+        ok &= np.all(np.isfinite(points), axis=1)
+        ok &= (depth > cfg.object_min_depth) & (depth < cfg.object_max_depth)
+        self.counters["detections_rejected_depth"] += int((~ok).sum())
+        if not ok.any():
+            return
+        points, z, labels, index = points[ok], z[ok], labels[ok], index[ok]
+        _, _, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, points)
+        info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.object_std**2
+        covs = np.linalg.solve(info, np.broadcast_to(np.eye(3), info.shape))
+        k = points.shape[0]
+        ids = np.arange(self.next_id, self.next_id + k, dtype=np.int64)
+        self.next_id += k
+        self.ids = np.concatenate([self.ids, ids])
+        self.points = np.concatenate([self.points, points])
+        self.covs = np.concatenate([self.covs, 0.5 * (covs + np.swapaxes(covs, 1, 2))])
+        self.first = np.concatenate([self.first, np.full(k, t, np.int64)])
+        self.last = np.concatenate([self.last, np.full(k, t, np.int64)])
+        self.hits = np.concatenate([self.hits, np.ones(k, np.int64)])
+        self.classes = np.concatenate([self.classes, labels])
+        self.confirmed = np.concatenate([self.confirmed, np.zeros(k, bool)])
+        for tid, row, j in zip(ids.tolist(), z, index.tolist(), strict=True):
+            self.history[tid] = [(t, row.copy(), j)]
+        self.counters["tracks_started"] += k
+        if self.hits_needed <= 1:  # confirmed by its first detection
+            self.confirmed[-k:] = True
+
+    def _drop_stale(self, t: int) -> None:
+        """Drop tentative tracks past their ``N`` frames, confirmed ones unseen for ``N``."""
+        if not self.ids.size:
+            return
+        expired = ~self.confirmed & (t - self.first >= self.frames_allowed - 1)
+        expired &= self.hits < self.hits_needed
+        lost = self.confirmed & (t - self.last >= self.frames_allowed)
+        drop = expired | lost
+        if drop.any():
+            self.counters["tracks_dropped"] += int(drop.sum())
+            for i in self.ids[drop].tolist():
+                self.history.pop(i, None)
+            self._keep(~drop)
+
+    def _keep(self, mask: np.ndarray) -> None:
+        for name in ("ids", "points", "covs", "first", "last", "hits", "classes", "confirmed"):
+            setattr(self, name, getattr(self, name)[mask])
+
+    def _add_labels(self, ids: np.ndarray, labels: np.ndarray) -> None:
+        if (labels < 0).all():
+            return
+        ids = np.concatenate([self._label_ids, ids[labels >= 0]])
+        labels = np.concatenate([self._labels, labels[labels >= 0]])
+        order = np.argsort(ids)
+        self._label_ids, self._labels = ids[order], labels[order]
+
+
+def _chi2(probability: float, dof: int) -> float:
+    from scipy import stats
+
+    return float(stats.chi2.ppf(probability, dof))

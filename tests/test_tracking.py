@@ -1,0 +1,243 @@
+"""Each robot's tracker of its own detections: gating, assignment, confirmation, clutter, misses,
+the detection format, the MOT metrics, and the id path left untouched."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from teamslam.datasets.identity import strip_object_ids
+from teamslam.datasets.model import DatasetError, FrameDetections
+from teamslam.datasets.storage import load_dataset, save_dataset
+from teamslam.eval.tracking import hypotheses_of, mot_metrics, tracking_metrics
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.models import observe
+from teamslam.msckf.state import MsckfState
+from teamslam.msckf.tracking import ObjectTracker, track_id_base
+from teamslam.sim.lissajous import T_CAM_BODY, SimulationConfig, lissajous_team
+
+CAMERA = SimulationConfig().camera()
+CONFIG = MsckfConfig(object_std=2.0)
+W = CONFIG.odometry_cov()
+
+
+def _state(objects: dict[int, np.ndarray] | None = None, std: float = 0.05) -> MsckfState:
+    """A state at the identity pose holding ``objects`` (uncorrelated, ``std`` metres)."""
+    state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-6)
+    for oid, p in (objects or {}).items():
+        state.add_object(oid, np.asarray(p, float), np.eye(3) * std**2, np.zeros((3, state.dim)))
+    return state
+
+
+def _z(state: MsckfState, points) -> np.ndarray:
+    """Exact stereo measurements of world ``points`` from the state's current pose."""
+    return observe(CAMERA, T_CAM_BODY, state.current_pose, np.asarray(points, float))
+
+
+def _tracker(**changes) -> ObjectTracker:
+    return ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG.with_(**changes))
+
+
+# body frame: x forward, y left, z up — points ahead of the robot
+A, B = np.array([10.0, 1.0, 0.0]), np.array([12.0, -3.0, 0.5])
+
+
+def test_gate_keeps_near_detections_and_refuses_far_ones():
+    state = _state({7: A})
+    tracker = _tracker()
+    near = _z(state, [A])[0] + [3.0, -2.0, 3.0, -2.0]  # ~2 σ
+    far = _z(state, [A])[0] + [40.0, 0.0, 40.0, 0.0]  # ~20 σ: outside any gate
+    frame = tracker.assign(0, np.stack([near, far]), None, state, W)
+    assert frame.ids.tolist() == [7, -1]
+    assert tracker.n_tracks == 1  # the far one starts a tentative track
+
+
+def test_assignment_is_one_to_one_and_global():
+    a2 = A + np.array([0.0, 0.6, 0.0])
+    state = _state({1: A, 2: a2}, std=0.5)
+    tracker = _tracker(track_gate_probability=0.999999)
+    za, zb = _z(state, [A, a2])
+    # detection 0 is nearer object 1, but only detection 1 explains object 1 well: a greedy
+    # choice for detection 0 would cost more in total than the global assignment
+    between = za + 0.45 * (zb - za)
+    frame = tracker.assign(0, np.stack([between, za]), None, state, W)
+    assert frame.ids.tolist() == [2, 1]
+    # two detections of one object: one gets it, the other starts a track
+    state = _state({1: A})
+    frame = _tracker().assign(0, np.stack([za, za + 0.5]), None, state, W)
+    assert frame.ids.tolist() == [1, -1]
+    assert tracker.n_tracks == 0
+
+
+def test_classes_must_agree():
+    tracker = _tracker()
+    state = _state()
+    z = _z(state, [A])
+    for t in range(3):
+        frame = tracker.assign(t, z, np.array([4]), state, W)
+    assert frame.ids[0] >= track_id_base(0)  # confirmed with class 4
+    tid = int(frame.ids[0])
+    other = tracker.assign(3, z, np.array([5]), state, W)
+    assert other.ids.tolist() == [-1]  # another class: a new tentative track
+    again = tracker.assign(4, np.concatenate([z, z]), np.array([5, 4]), state, W)
+    assert again.ids[1] == tid
+
+
+def test_confirmed_after_m_hits_in_n_frames_with_the_earlier_detections():
+    tracker = _tracker(track_confirm_hits=3, track_confirm_frames=4)
+    state = _state()
+    z = _z(state, [B])
+    assert tracker.assign(0, z, None, state, W).ids.tolist() == [-1]
+    assert tracker.assign(1, np.zeros((0, 4)), None, state, W).ids.size == 0  # a miss
+    assert tracker.assign(2, z + 0.5, None, state, W).ids.tolist() == [-1]
+    frame = tracker.assign(3, z - 0.5, None, state, W)
+    (tid, frames, zs), *rest = frame.confirmed
+    assert not rest and frame.ids.tolist() == [tid]
+    assert frames.tolist() == [0, 2]
+    np.testing.assert_allclose(zs, np.stack([z[0], z[0] + 0.5]))
+    # too late: 3 hits only after 4 frames
+    late = _tracker(track_confirm_hits=3, track_confirm_frames=4)
+    for t, zt in ((0, z), (1, z), (2, np.zeros((0, 4))), (3, np.zeros((0, 4))), (4, z)):
+        frame = late.assign(t, zt, None, state, W)
+    assert late.counters["tracks_confirmed"] == 0 and late.counters["tracks_dropped"] == 1
+
+
+def test_a_lone_false_detection_never_reaches_the_filter():
+    tracker = _tracker()
+    state = _state({3: A})
+    za = _z(state, [A])
+    clutter = _z(state, [B])
+    seen = []
+    for t in range(10):
+        z = np.concatenate([za, clutter]) if t == 2 else za
+        seen.extend(tracker.assign(t, z, None, state, W).ids.tolist())
+    assert set(seen) == {3, -1} and seen.count(-1) == 1
+    assert tracker.n_tracks == 0 and tracker.counters["tracks_dropped"] == 1
+
+
+def test_a_missed_object_keeps_its_id():
+    tracker = _tracker()
+    state = _state({9: A})
+    za = _z(state, [A])
+    ids = [tracker.assign(t, za, None, state, W).ids.tolist() for t in range(2)]
+    for t in range(2, 8):  # not detected for six frames
+        tracker.assign(t, np.zeros((0, 4)), None, state, W)
+    ids.append(tracker.assign(8, za + 1.0, None, state, W).ids.tolist())
+    assert ids == [[9], [9], [9]]
+    # and a confirmed track not yet in the state survives fewer than N missed frames
+    tracker = _tracker()
+    state = _state()
+    zb = _z(state, [B])
+    for t in range(3):
+        tid = tracker.assign(t, zb, None, state, W).ids[0]
+    for t in range(3, 3 + tracker.frames_allowed - 1):
+        tracker.assign(t, np.zeros((0, 4)), None, state, W)
+    assert tracker.assign(3 + tracker.frames_allowed - 1, zb, None, state, W).ids[0] == tid
+
+
+def test_objects_of_the_persistent_map_are_predicted():
+    state = _state({5: A})
+    state.retire_objects(np.array([0]))
+    assert state.n_objects == 0 and len(state.retired) == 1
+    frame = _tracker().assign(0, _z(state, [A]), None, state, W)
+    assert frame.ids.tolist() == [5]
+
+
+def test_mot_metrics_by_hand():
+    # frames: 0: a→1, b→2 | 1: a→1, b→-, clutter→9 | 2: a→3, b→2 | 3: a→3, b→2
+    offsets = np.array([0, 2, 5, 7, 9])
+    truth = np.array([0, 1, 0, 1, -1, 0, 1, 0, 1])
+    hyp = np.array([1, 2, 1, -1, 9, 3, 2, 3, 2])
+    m = mot_metrics(offsets, truth, hyp)
+    assert (m["gt"], m["fn"], m["fp"], m["id_switches"], m["fragmentations"]) == (8, 1, 1, 1, 1)
+    assert m["mota"] == pytest.approx(1 - 3 / 8)
+    # IDF1: a↔1 or a↔3 agree on 2 frames, b↔2 on 3: IDTP 5, 8 truths, 8 hypotheses
+    assert m["idtp"] == 5 and m["idf1"] == pytest.approx(10 / 16)
+    assert (m["objects_true"], m["objects_created"], m["false_objects"]) == (2, 4, 1)
+
+
+@pytest.fixture(scope="module")
+def cluttered():
+    return lissajous_team(robots=2, steps=40, objects=80, seed=3, clutter=0.3, miss=0.1, classes=3)
+
+
+def test_detection_format_round_trip_and_strip(tmp_path, cluttered):
+    robot = cluttered.robots[0]
+    det = robot.detections
+    assert det is not None and (det.truth == -1).any()
+    # the oracle's observations are the true detections, the same rows
+    assert robot.objects.ids.size == int((det.truth >= 0).sum())
+    none = strip_object_ids(cluttered, to="none")
+    assert none.object_id_scope == "none" and none.robots[0].objects.ids.size == 0
+    save_dataset(none, tmp_path / "d")
+    back = load_dataset(tmp_path / "d")
+    for a, b in zip(none.robots, back.robots, strict=True):
+        for name in ("offsets", "measurements", "classes", "truth"):
+            np.testing.assert_array_equal(getattr(a.detections, name), getattr(b.detections, name))
+    # a global-id dataset without detections: its observations become the detections
+    plain = lissajous_team(robots=1, steps=10, objects=40, seed=1)
+    stripped = strip_object_ids(plain, to="none").robots[0].detections
+    np.testing.assert_array_equal(stripped.truth, plain.robots[0].objects.ids)
+    with pytest.raises(DatasetError, match="truth"):
+        FrameDetections([0, 2], np.zeros((2, 4)), truth=np.array([0]))
+    with pytest.raises(DatasetError, match="already"):
+        strip_object_ids(none, to="none")
+
+
+def test_agent_tracks_clutter_without_confirming_false_objects(cluttered):
+    none = strip_object_ids(cluttered, to="none")
+    config = MsckfConfig(object_std=2.0, window=10)
+    agents = []
+    for i, robot in enumerate(none.robots):
+        agent = MsckfAgent(i, none.calibration, robot, config)
+        for t in range(robot.frames):
+            agent.step(t)
+        agents.append(agent)
+        # every object in the state was named from detections of real objects
+        hyp = np.concatenate(agent.tracker.log)
+        truth = robot.detections.truth
+        for oid in agent.state.object_ids.tolist():
+            assert np.all(truth[hyp == oid] >= 0)
+    metrics = tracking_metrics(none, hypotheses_of(agents))
+    assert metrics["team"]["false_objects"] == 0
+    assert metrics["team"]["idf1"] > 0.8
+    assert sum(a.counters["objects_initialised"] for a in agents) > 10
+
+
+def test_ids_path_is_untouched_by_detections(cluttered):
+    """A robot with ids ignores its detections: the same estimate bit for bit."""
+    robot = cluttered.robots[1]
+    bare = type(robot)(
+        robot.T_world_body,
+        robot.odometry,
+        robot.features,
+        robot.objects,
+        robot.timestamps,
+        robot.object_classes,
+    )
+    config = MsckfConfig(object_std=2.0, window=10)
+    runs = []
+    for seq in (robot, bare):
+        agent = MsckfAgent(1, cluttered.calibration, seq, config)
+        assert agent.tracker is None
+        for t in range(seq.frames):
+            agent.step(t)
+        runs.append(agent.state)
+    np.testing.assert_array_equal(runs[0].poses, runs[1].poses)
+    np.testing.assert_array_equal(runs[0].cov, runs[1].cov)
+
+
+def test_an_object_unseen_for_long_is_taken_again_only_unambiguously():
+    state = _state({1: A}, std=1.0)  # last seen at frame 0, uncertain by now
+    za = _z(state, [A])
+    two = np.stack([za[0] + [6.0, 0.0, 6.0, 0.0], za[0] - [6.0, 0.0, 6.0, 0.0]])
+    tracker = _tracker()
+    frame = tracker.assign(10, two, None, state, W)
+    assert frame.ids.tolist() == [-1, -1]
+    assert tracker.counters["revisits_refused"] == 1 and tracker.n_tracks == 2
+    # the same pair seen recently is no revisit: the nearer detection gets the object
+    recent = _tracker()
+    assert sorted(recent.assign(3, two, None, state, W).ids.tolist()) == [-1, 1]
+    # alone in its gate, the long-unseen object takes its detection
+    assert _tracker().assign(10, za, None, state, W).ids.tolist() == [1]
