@@ -13,7 +13,7 @@ import numpy as np
 
 from teamslam.errors import InputError
 
-__all__ = ["FrontendConfig", "PixelSettings"]
+__all__ = ["FrontendConfig", "PixelSettings", "frontend_table", "resolve_frontend"]
 
 _DICTIONARIES = {
     "4x4_50": "DICT_4X4_50",
@@ -166,3 +166,76 @@ class PixelSettings:
     refine: float
     marker_row: float
     vo_reprojection: float
+
+
+def _parse_value(name: str, text: str, default) -> object:
+    """A ``--frontend-set`` value in the type of the setting ``name``."""
+    text = text.strip()
+    if name == "marker_dictionary":
+        return None if text.lower() in ("none", "null", "off", "") else text
+    if isinstance(default, bool):
+        lowered = text.lower()
+        if lowered in ("1", "true", "yes", "on"):
+            return True
+        if lowered in ("0", "false", "no", "off"):
+            return False
+        raise InputError(f"front-end setting {name}: expected true or false, got {text!r}")
+    try:
+        return int(text) if isinstance(default, int) else float(text)
+    except ValueError:
+        kind = "an integer" if isinstance(default, int) else "a number"
+        raise InputError(f"front-end setting {name}: expected {kind}, got {text!r}") from None
+
+
+def resolve_frontend(
+    assignments: list[str] | None = None, file_values: dict | None = None, file_name: str = "file"
+) -> tuple[FrontendConfig, dict[str, str]]:
+    """Front-end settings from defaults, a file's values and ``NAME=VALUE`` assignments.
+
+    Parameters
+    ----------
+    assignments
+        ``NAME=VALUE`` strings (``frontend.NAME=VALUE`` accepted too); the last one of a name
+        wins, and they win over ``file_values``.
+    file_values
+        Settings read from a file (``{name: value}``).
+    file_name
+        How the file is named as a source.
+
+    Returns
+    -------
+    (FrontendConfig, sources)
+        The settings and, per field, where its value came from: ``default``, the file's
+        name, or ``--frontend-set``.
+    """
+    defaults = FrontendConfig()
+    known = {f.name: getattr(defaults, f.name) for f in fields(FrontendConfig)}
+    values: dict[str, object] = {}
+    sources = dict.fromkeys(known, "default")
+    for name, value in (file_values or {}).items():
+        if name not in known:
+            raise InputError(f"{file_name}: unknown front-end setting {name!r}")
+        values[name] = _parse_value(name, str(value), known[name])
+        sources[name] = file_name
+    for text in assignments or []:
+        name, sep, value = text.partition("=")
+        name = name.strip().removeprefix("frontend.")
+        if not sep or not name:
+            raise InputError(f"--frontend-set expects NAME=VALUE, got {text!r}")
+        if name not in known:
+            raise InputError(
+                f"unknown front-end setting {name!r}; the settings are " + ", ".join(known)
+            )
+        values[name] = _parse_value(name, value, known[name])
+        sources[name] = "--frontend-set"
+    return FrontendConfig(**values), sources
+
+
+def frontend_table(config: FrontendConfig, sources: dict[str, str]) -> str:
+    """One line per front-end setting: name, value, source."""
+    width = max(len(f.name) for f in fields(config))
+    lines = [f"{'front-end setting':<{width}}  {'value':<12} source"]
+    for f in fields(config):
+        value = getattr(config, f.name)
+        lines.append(f"{f.name:<{width}}  {value!s:<12} {sources.get(f.name, 'default')}")
+    return "\n".join(lines)
