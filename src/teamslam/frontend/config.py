@@ -71,10 +71,23 @@ class FrontendConfig:
     refine_share
         Largest change of the disparity when refined by Lucas–Kanade along the row, and
         largest row offset of the refined match, share of the diagonal (the outlier gate).
+    stereo_affine_iterations
+        Gauss–Newton steps aligning each left patch in the right image with an affine warp,
+        gain and offset after the Lucas–Kanade refinement (0: translation-only Lucas–Kanade).
+        Removes the bias of a translation-only match on slanted surfaces, which is the same
+        frame after frame along a track.
     marker_dictionary
         ArUco / AprilTag family of the fiducial markers (``None``: no markers).
     marker_row_share
         Largest row difference of a marker's centre between left and right (rectified).
+    marker_min_perimeter_share
+        Smallest marker perimeter looked for, share of the larger image side (OpenCV's
+        ``minMarkerPerimeterRate``; 0.08 is a side of 13 px in a 640-px image: smaller
+        markers are not measured to a pixel anyway, and fewer candidate contours halve the
+        detection time).
+    marker_threshold_passes
+        Adaptive-threshold window sizes tried by the marker detector (OpenCV's 3 to 23 px
+        in this many steps; each pass is one thresholding and contour search of the image).
     vo_reprojection_share, vo_min_inliers
         RANSAC threshold of stereo visual odometry (share of the diagonal) and the least
         number of inliers for a motion to be accepted.
@@ -98,8 +111,11 @@ class FrontendConfig:
     uniqueness: float = 0.97
     left_right_share: float = 0.0013
     refine_share: float = 0.0013
+    stereo_affine_iterations: int = 3
     marker_dictionary: str | None = "4x4_250"
     marker_row_share: float = 0.003
+    marker_min_perimeter_share: float = 0.08
+    marker_threshold_passes: int = 2
     vo_reprojection_share: float = 0.0013
     vo_min_inliers: int = 12
 
@@ -108,10 +124,16 @@ class FrontendConfig:
             value = getattr(self, f.name)
             if isinstance(value, float) and not (np.isfinite(value) and value > 0):
                 raise InputError(f"front-end setting {f.name} must be a positive number")
+        if self.marker_min_perimeter_share >= 4 or self.marker_threshold_passes < 1:
+            raise InputError(
+                "marker_min_perimeter_share < 4 and marker_threshold_passes ≥ 1 needed"
+            )
         if self.max_features < 1 or self.lk_levels < 0 or self.vo_min_inliers < 4:
             raise InputError("max_features ≥ 1, lk_levels ≥ 0 and vo_min_inliers ≥ 4 needed")
         if not self.min_depth < self.max_depth:
             raise InputError("front-end: min_depth must be below max_depth")
+        if self.stereo_affine_iterations < 0:
+            raise InputError("stereo_affine_iterations ≥ 0 needed")
         if self.affine_iterations < 1 or self.template_ncc_min >= 1:
             raise InputError("affine_iterations ≥ 1 and template_ncc_min < 1 needed")
         if self.corner_quality >= 1 or self.ncc_min >= 1 or self.uniqueness > 1:
