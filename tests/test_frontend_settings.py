@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from teamslam.errors import InputError
+from teamslam.frontend import match_stereo
 from teamslam.frontend.config import FrontendConfig, frontend_table, resolve_frontend
 
 
@@ -102,3 +103,22 @@ def test_affine_alignment_recovers_a_slanted_surfaces_disparity():
     aligned, ncc = affine_align(left, uv, right.astype(np.float32), start, 10, 5)
     assert np.all(ncc > 0.99)
     assert np.abs(aligned - truth).max() < 0.05
+
+
+def test_match_stereo_with_affine_alignment_on_a_slanted_pair():
+    rng = np.random.default_rng(8)
+    h, w = 200, 320
+    left = np.clip(120 + 40 * _texture(rng, (h, w)), 0, 255).astype(np.float32)
+    scale, shift, c0 = 1.06, 25.3, 160.0
+    xs = (c0 + (np.arange(w, dtype=np.float32) + shift - c0) / scale).astype(np.float32)
+    mx = np.tile(xs, (h, 1))
+    my = np.tile(np.arange(h, dtype=np.float32)[:, None], (1, w))
+    right = np.clip(0.9 * cv2.remap(left, mx, my, cv2.INTER_CUBIC) + 6, 0, 255)
+    left8, right8 = np.rint(left).astype(np.uint8), np.rint(right).astype(np.uint8)
+    uv = np.column_stack([rng.uniform(140, 260, 60), rng.uniform(40, 160, 60)])
+    truth_u = c0 + scale * (uv[:, 0] - c0) - shift
+    m = match_stereo(left8, right8, uv, (10.0, 60.0), FrontendConfig(stereo_affine_iterations=3))
+    assert m.accepted.mean() > 0.8
+    err = np.abs(m.uv_right[m.accepted, 0] - truth_u[m.accepted])
+    assert np.median(err) < 0.05 and err.max() < 0.2
+    np.testing.assert_allclose(m.uv_right[m.accepted, 1], uv[m.accepted, 1], atol=0.1)
