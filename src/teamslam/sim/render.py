@@ -221,6 +221,9 @@ class _MipTextures:
         for i, (o, s) in enumerate(zip(self.offsets, self.sizes, strict=True)):
             self._off[i, : len(o)], self._size[i, : len(s)] = o, s
             self._off[i, len(o) :], self._size[i, len(s) :] = o[-1], s[-1]
+        # 32-bit texel indices while they fit: the lookups are memory-bound
+        index = np.int32 if self.data.size < 2**31 else np.int64
+        self._off, self._size = self._off.astype(index), self._size.astype(index)
         self._texel = np.array(self.texels)
         self._scale = np.exp2(-np.arange(depth)).astype(np.float32)
 
@@ -245,13 +248,15 @@ class _MipTextures:
         y = y0 * scale - np.float32(0.5)
         xf, yf = np.floor(x), np.floor(y)
         fx, fy = x - xf, y - yf
-        xi, yi = xf.astype(np.int64) & mask, yf.astype(np.int64) & mask
+        xi, yi = xf.astype(mask.dtype) & mask, yf.astype(mask.dtype) & mask
         xj, yj = (xi + 1) & mask, (yi + 1) & mask
         row_i = off + yi * (mask + 1)
         row_j = off + yj * (mask + 1)
         d = self.data
-        top = d[row_i + xi] + fx * (d[row_i + xj] - d[row_i + xi])
-        bottom = d[row_j + xi] + fx * (d[row_j + xj] - d[row_j + xi])
+        a, b = np.take(d, row_i + xi), np.take(d, row_i + xj)
+        c, e = np.take(d, row_j + xi), np.take(d, row_j + xj)
+        top = a + fx * (b - a)
+        bottom = c + fx * (e - c)
         return top + fy * (bottom - top)
 
 
