@@ -13,7 +13,11 @@ rejected when
 * Lucas–Kanade refinement along the row (after a global gain correction of the right image)
   moves the disparity, or the row, by more than the refine threshold.
 
-The accepted match is the Lucas–Kanade refined position ``(u_r, v_r)``.
+The accepted match is the Lucas–Kanade refined position ``(u_r, v_r)``, then (with
+``stereo_affine_iterations``, the default) the left patch aligned in the right image with an
+affine warp, gain and offset (:func:`affine_align`): a slanted surface is foreshortened
+differently in the two cameras, which biases a translation-only match by the same amount frame
+after frame along a track; an aligned patch correlating below ``ncc_min`` is rejected.
 """
 
 from __future__ import annotations
