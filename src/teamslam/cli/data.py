@@ -93,6 +93,159 @@ def _cmd_export_bag(args: argparse.Namespace) -> int:
     return 0
 
 
+def _frontend(args: argparse.Namespace):
+    """The front-end settings of ``--frontend-set``, printed with their sources."""
+    from teamslam.frontend.config import frontend_table, resolve_frontend
+
+    config, sources = resolve_frontend(args.frontend_set)
+    print(frontend_table(config, sources))
+    return config
+
+
+def _cmd_simulate_images(args: argparse.Namespace) -> int:
+    from teamslam.api import simulate_images
+    from teamslam.errors import InputError
+    from teamslam.sim.render import render_size
+
+    if args.route != "lissajous" or args.objects is not None or args.noise_free:
+        raise InputError(
+            "--images renders a textured room with markers: --route, --objects and "
+            "--noise-free do not apply"
+        )
+    team = simulate_images(
+        args.out,
+        robots=args.robots,
+        steps=args.steps,
+        seed=args.seed,
+        bag=not args.no_bag,
+        progress=not args.quiet,
+        **render_size(args.image_width),
+    )
+    frames = team.config.steps + 1
+    print(
+        f"rendered {team.config.robots} robots × {frames} stereo frames "
+        f"({team.config.image_size[0]}×{team.config.image_size[1]}) to {args.out}"
+    )
+    print(f"  per robot: {args.out}/robot_k/{{left,right}}/, camera.yaml, timestamps.txt, ")
+    print("  odometry.tum, groundtruth.tum; markers.txt (the marker map)")
+    if not args.no_bag:
+        print(f"  ROS 2 bag: {args.out}/images.mcap")
+    print(f"next: teamslam data from-images --rendered {args.out} --out DATASET")
+    return 0
+
+
+def _cmd_simulate_any(args: argparse.Namespace) -> int:
+    if getattr(args, "images", False):
+        return _cmd_simulate_images(args)
+    return _cmd_simulate(args)
+
+
+def _cmd_data_from_images(args: argparse.Namespace) -> int:
+    from teamslam.datasets.images import dataset_from_images, rendered_team_inputs
+    from teamslam.errors import InputError
+    from teamslam.frontend._cv import require_cv2
+
+    require_cv2()
+    if args.rendered is not None:
+        if args.folders or args.camera or args.timestamps or args.odometry or args.ground_truth:
+            raise InputError("--rendered DIR takes every input from DIR: give no folders or files")
+        inputs = rendered_team_inputs(args.rendered)
+        if args.robot:
+            inputs["robot_names"] = args.robot
+        if args.markers is not None:
+            inputs["markers"] = args.markers
+        if args.no_odometry:
+            inputs["odometry"] = None
+    else:
+        if not args.folders or len(args.folders) % 2:
+            raise InputError(
+                f"give LEFT_DIR RIGHT_DIR per robot (got {len(args.folders)} folders), "
+                "or --rendered DIR"
+            )
+        if args.camera is None:
+            raise InputError("--camera FILE is needed (or --rendered DIR)")
+        if args.no_odometry and args.odometry:
+            raise InputError("--no-odometry and --odometry exclude each other")
+        inputs = {
+            "left_dirs": args.folders[0::2],
+            "right_dirs": args.folders[1::2],
+            "camera": args.camera,
+            "timestamps": args.timestamps or None,
+            "odometry": args.odometry or None,
+            "ground_truth": args.ground_truth or None,
+            "robot_names": args.robot or None,
+            "markers": args.markers,
+        }
+    config = _frontend(args)
+    dataset = dataset_from_images(**inputs, config=config, progress=not args.quiet)
+    _describe_images(dataset)
+    save_and_describe(dataset, args.out)
+    return 0
+
+
+def _describe_images(dataset) -> None:
+    for record in dataset.metadata["images"]["robots"]:
+        print(
+            f"{record['name']}: {record['stereo_observations_per_frame']:.0f} stereo "
+            f"observations per frame, {100 * record['stereo_rejected_share']:.1f} % rejected by "
+            f"the outlier gate; odometry: {record['odometry']}; truth: {record['ground_truth']}"
+        )
+
+
+def _cmd_import_bag_any(args: argparse.Namespace) -> int:
+    from teamslam.errors import InputError
+
+    if args.images is None:
+        missing = [
+            f
+            for f, v in (("--observations", args.observations), ("--camera", args.camera))
+            if v is None
+        ]
+        if missing:
+            raise InputError(f"{' and '.join(missing)} needed (or --images for image topics)")
+        return _cmd_import_bag(args)
+    from teamslam.frontend._cv import require_cv2
+    from teamslam.ros2.image_bags import dataset_from_bag, image_topics
+
+    require_cv2()
+    if args.observations is not None:
+        raise InputError("--observations and --images exclude each other")
+    if args.camera is None and args.camera_info is None:
+        raise InputError("--images needs --camera FILE or --camera-info LEFT_TOPIC,RIGHT_TOPIC")
+    robots = [image_topics(spec, args.images, args.camera_info) for spec in args.robot]
+    config = _frontend(args)
+    dataset = dataset_from_bag(
+        args.bag,
+        robots,
+        camera=args.camera,
+        markers=args.markers,
+        config=config,
+        progress=not args.quiet,
+    )
+    _describe_images(dataset)
+    save_and_describe(dataset, args.out)
+    return 0
+
+
+def _frontend_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--frontend-set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a front-end setting (teamslam.frontend.FrontendConfig), e.g. "
+        "--frontend-set max_features=300 (repeatable); every setting is printed with its "
+        "source (default or --frontend-set)",
+    )
+    parser.add_argument(
+        "--markers",
+        type=Path,
+        default=None,
+        help="marker map (id x y z per line): the objects' truth",
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
 def register(sub) -> None:
     """Add this group's commands to the ``teamslam`` subparsers."""
     sim = sub.add_parser(
@@ -166,12 +319,17 @@ def register(sub) -> None:
     )
     bag.add_argument(
         "--observations",
-        required=True,
+        default=None,
         metavar="TEMPLATE",
         help="observation topic, {name} replaced by the robot's NAME "
-        "(e.g. /{name}/stereo_observations)",
+        "(e.g. /{name}/stereo_observations); needed unless --images",
     )
-    bag.add_argument("--camera", type=Path, required=True, help="stereo calibration (JSON or YAML)")
+    bag.add_argument(
+        "--camera",
+        type=Path,
+        default=None,
+        help="stereo calibration (JSON or YAML); needed unless --images with --camera-info",
+    )
     bag.add_argument(
         "--tolerance",
         type=float,
@@ -188,3 +346,125 @@ def register(sub) -> None:
         "--camera", type=Path, default=None, help="also write the calibration file here"
     )
     exp.set_defaults(handler=_cmd_export_bag)
+
+    # ---- images: simulate --images, data from-images, import-bag --images
+    sim.description += (
+        " With --images: render each robot's stereo images of a procedurally textured room "
+        "with ArUco markers (image folders, a ROS 2 bag images.mcap, exact ground truth)."
+    )
+    sim.add_argument(
+        "--images",
+        action="store_true",
+        help="render stereo images (folders + ROS 2 bag) instead of measurements; "
+        "needs pip install teamslam[images]",
+    )
+    sim.add_argument(
+        "--image-width",
+        type=positive_int,
+        default=None,
+        help="with --images: image width in pixels (default 640; 4:3, same field of view)",
+    )
+    sim.add_argument("--no-bag", action="store_true", help="with --images: no images.mcap")
+    sim.add_argument("--quiet", action="store_true", help="with --images: no progress bars")
+    sim.set_defaults(handler=_cmd_simulate_any)
+
+    fi = data_sub.add_parser(
+        "from-images",
+        help="a team dataset from each robot's stereo image folders (the stereo front-end)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="""Run the stereo front-end (tracked corners, stereo matches, ArUco markers as
+objects) over each robot's left and right image folders and write a team dataset.
+
+One robot:
+  teamslam data from-images L R --camera cam.yaml --timestamps t.txt \\
+      --odometry odo.tum --ground-truth gt.tum --robot alpha --out ds
+
+Several robots: give LEFT_DIR RIGHT_DIR per robot, in team order, and repeat each per-robot
+option once per robot in the same order (all or none of the robots):
+  teamslam data from-images a/left a/right b/left b/right c/left c/right \\
+      --camera cam.yaml --timestamps a/t.txt --timestamps b/t.txt --timestamps c/t.txt \\
+      --odometry a/odo.tum --odometry b/odo.tum --odometry c/odo.tum \\
+      --robot a --robot b --robot c --out ds
+
+A team written by `teamslam simulate --images --out DIR`:
+  teamslam data from-images --rendered DIR --out ds
+
+Without odometry the motion is stereo visual odometry (PnP + RANSAC), recorded in the
+dataset's metadata; without ground truth the poses stored as truth are dead-reckoned.""",
+    )
+    fi.add_argument(
+        "folders",
+        nargs="*",
+        type=Path,
+        metavar="LEFT_DIR RIGHT_DIR",
+        help="per robot its left and right image folders (paired by file name)",
+    )
+    fi.add_argument("--camera", type=Path, default=None, help="stereo camera file (YAML/JSON)")
+    fi.add_argument(
+        "--timestamps",
+        action="append",
+        type=Path,
+        default=[],
+        help="per robot a timestamps file (one stamp per line, s); repeat per robot",
+    )
+    fi.add_argument(
+        "--odometry",
+        action="append",
+        type=Path,
+        default=[],
+        help="per robot an odometry TUM file (interpolated at the stamps); repeat per robot",
+    )
+    fi.add_argument(
+        "--ground-truth",
+        action="append",
+        type=Path,
+        default=[],
+        help="per robot a ground-truth TUM file; repeat per robot",
+    )
+    fi.add_argument(
+        "--robot",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="per robot a name (default robot_0, robot_1, …); repeat per robot",
+    )
+    fi.add_argument(
+        "--rendered",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="every robot's folders and files from a directory of `teamslam simulate --images`",
+    )
+    fi.add_argument(
+        "--no-odometry",
+        action="store_true",
+        help="ignore the odometry files: stereo visual odometry instead",
+    )
+    _frontend_arguments(fi)
+    fi.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    fi.set_defaults(handler=_cmd_data_from_images)
+
+    bag.description += (
+        " Or, with --images LEFT_TOPIC,RIGHT_TOPIC, stereo images (sensor_msgs/Image or "
+        "CompressedImage) run through the stereo front-end; each --robot is then "
+        "NAME[:ODOM_TOPIC[:GT_TOPIC]] (without odometry: stereo visual odometry), e.g. "
+        "teamslam data import-bag DIR/images.mcap --images /{name}/left/image_raw,"
+        "/{name}/right/image_raw --camera-info /{name}/left/camera_info,"
+        "/{name}/right/camera_info --robot robot_0:/robot_0/odom:/robot_0/ground_truth "
+        "--robot robot_1:/robot_1/odom:/robot_1/ground_truth --out DATASET."
+    )
+    bag.add_argument(
+        "--images",
+        default=None,
+        metavar="LEFT_TOPIC,RIGHT_TOPIC",
+        help="stereo image topics, {name} replaced by the robot's NAME",
+    )
+    bag.add_argument(
+        "--camera-info",
+        default=None,
+        metavar="LEFT_TOPIC,RIGHT_TOPIC",
+        help="with --images: sensor_msgs/CameraInfo topics ({name} replaced; the first "
+        "robot's give the rig) in place of --camera",
+    )
+    _frontend_arguments(bag)
+    bag.set_defaults(handler=_cmd_import_bag_any)

@@ -58,6 +58,12 @@ class MarkerDetector:
             dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
             params = cv2.aruco.DetectorParameters()
             params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+            params.minMarkerPerimeterRate = self.config.marker_min_perimeter_share
+            lo, hi = params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax
+            passes = self.config.marker_threshold_passes
+            params.adaptiveThreshWinSizeStep = (
+                hi - lo + 1 if passes == 1 else max(1, -(-(hi - lo) // (passes - 1)))
+            )
             self._detector = cv2.aruco.ArucoDetector(dictionary, params)
 
     def detect(self, image: np.ndarray) -> Markers:

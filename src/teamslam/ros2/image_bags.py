@@ -30,7 +30,7 @@ from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.camera import StereoRig, load_camera
 from teamslam.frontend.config import FrontendConfig
 
-__all__ = ["ImageTopics", "dataset_from_bag", "images_to_bag"]
+__all__ = ["ImageTopics", "dataset_from_bag", "image_topics", "images_to_bag"]
 
 # ----------------------------------------------------------------------------- ROS 2 bags
 IMAGE = "sensor_msgs/msg/Image"
@@ -396,3 +396,41 @@ def _check_size(img: np.ndarray, rig: StereoRig, topic: str, stamp: int) -> np.n
             f"the camera says {w}×{h}"
         )
     return img
+
+
+def image_topics(
+    robot: str, images: str, camera_info: str | None = None, odometry: str | None = None
+) -> ImageTopics:
+    """One robot's :class:`ImageTopics` from command-line templates.
+
+    Parameters
+    ----------
+    robot
+        ``NAME[:ODOM_TOPIC[:GT_TOPIC]]``.
+    images
+        ``LEFT_TOPIC,RIGHT_TOPIC``, ``{name}`` replaced by the robot's name.
+    camera_info
+        ``LEFT_TOPIC,RIGHT_TOPIC`` of ``sensor_msgs/CameraInfo`` (``{name}`` replaced), or
+        ``None``.
+    odometry
+        An odometry topic template used when ``robot`` names none.
+    """
+    parts = robot.split(":")
+    if not 1 <= len(parts) <= 3 or not all(parts):
+        raise InputError(f"--robot expects NAME[:ODOM_TOPIC[:GT_TOPIC]], got {robot!r}")
+    name = parts[0]
+
+    def pair(text: str, flag: str) -> tuple[str, str]:
+        items = [s.strip().replace("{name}", name) for s in text.split(",")]
+        if len(items) != 2 or not all(items):
+            raise InputError(f"{flag} expects LEFT_TOPIC,RIGHT_TOPIC, got {text!r}")
+        return items[0], items[1]
+
+    left, right = pair(images, "--images")
+    info = None if camera_info is None else pair(camera_info, "--camera-info")
+    odo = parts[1] if len(parts) > 1 else odometry
+    if odo is not None:
+        odo = odo.replace("{name}", name)
+    return ImageTopics(
+        name, left, right, info, odo, parts[2].replace("{name}", name) if len(parts) > 2 else None
+    )

@@ -43,6 +43,7 @@ __all__ = [
     "RenderedTeam",
     "TexturedRoom",
     "apply_effects",
+    "render_size",
     "render_stereo",
     "render_team",
     "robot_paths",
@@ -220,6 +221,9 @@ class _MipTextures:
         for i, (o, s) in enumerate(zip(self.offsets, self.sizes, strict=True)):
             self._off[i, : len(o)], self._size[i, : len(s)] = o, s
             self._off[i, len(o) :], self._size[i, len(s) :] = o[-1], s[-1]
+        # 32-bit texel indices while they fit: the lookups are memory-bound
+        index = np.int32 if self.data.size < 2**31 else np.int64
+        self._off, self._size = self._off.astype(index), self._size.astype(index)
         self._texel = np.array(self.texels)
         self._scale = np.exp2(-np.arange(depth)).astype(np.float32)
 
@@ -244,13 +248,15 @@ class _MipTextures:
         y = y0 * scale - np.float32(0.5)
         xf, yf = np.floor(x), np.floor(y)
         fx, fy = x - xf, y - yf
-        xi, yi = xf.astype(np.int64) & mask, yf.astype(np.int64) & mask
+        xi, yi = xf.astype(mask.dtype) & mask, yf.astype(mask.dtype) & mask
         xj, yj = (xi + 1) & mask, (yi + 1) & mask
         row_i = off + yi * (mask + 1)
         row_j = off + yj * (mask + 1)
         d = self.data
-        top = d[row_i + xi] + fx * (d[row_i + xj] - d[row_i + xi])
-        bottom = d[row_j + xi] + fx * (d[row_j + xj] - d[row_j + xi])
+        a, b = np.take(d, row_i + xi), np.take(d, row_i + xj)
+        c, e = np.take(d, row_j + xi), np.take(d, row_j + xj)
+        top = a + fx * (b - a)
+        bottom = c + fx * (e - c)
         return top + fy * (bottom - top)
 
 
@@ -674,3 +680,18 @@ def render_team(
 
 def _jsonable(d: dict) -> dict:
     return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+def render_size(width: int | None) -> dict:
+    """:class:`RenderConfig` fields for images ``width`` pixels wide (4:3, the same field of
+    view; markers grown in small images so they stay detectable, ≥ 25 px); ``{}`` for ``None``.
+    """
+    if width is None:
+        return {}
+    default = RenderConfig()
+    scale = width / default.image_size[0]
+    return {
+        "image_size": (width, round(default.image_size[1] * scale)),
+        "focal": default.focal * scale,
+        "marker_size": default.marker_size * max(1.0, 1.0 / scale) ** 0.85,
+    }
