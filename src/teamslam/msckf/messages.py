@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teamslam.association.summary import ObjectSummary
+
 __all__ = ["CommonMarginalMessage", "MapIdsMessage", "Message", "decode_ids", "encode_ids"]
 
 HEADER_BYTES = 36  # the fixed header of every message on a wire (teamslam.runtime.wire)
@@ -124,6 +126,10 @@ class MapIdsMessage:
     moved
         One flag per id: whether the sender's marginal of that object has moved since the two
         robots last exchanged it (``None``: all have — average every common object).
+    summary
+        With association by the robots themselves (``association = own``): the sender's
+        object summary (ids, means, marginal covariances, classes) on the steps its link
+        exchanges summaries, else ``None``.
     """
 
     sender: int
@@ -131,11 +137,13 @@ class MapIdsMessage:
     step: int
     ids: np.ndarray
     moved: np.ndarray | None = None
+    summary: ObjectSummary | None = None
 
     def nbytes(self) -> int:
-        """Payload size on a wire (header, the ids, one bit per id for ``moved``)."""
+        """Payload size on a wire (header, the ids, one bit per id for ``moved``, the summary)."""
         flags = 0 if self.moved is None else (int(np.size(self.ids)) + 7) // 8
-        return HEADER_BYTES + encoded_ids_size(self.ids) + flags
+        summary = 0 if self.summary is None else self.summary.nbytes
+        return HEADER_BYTES + encoded_ids_size(self.ids) + flags + summary
 
 
 @dataclass(frozen=True)
