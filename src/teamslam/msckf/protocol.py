@@ -98,7 +98,12 @@ from teamslam.msckf.consensus import (
     shared_prior,
 )
 from teamslam.msckf.consensus_checks import ReceivedMarginal, check_message
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
+from teamslam.msckf.messages import (
+    CommonMarginalMessage,
+    MapIdsMessage,
+    Message,
+    summary_wire_bytes,
+)
 
 __all__ = ["ConsensusProtocol"]
 
@@ -258,7 +263,7 @@ class ConsensusProtocol:
             out.append(MapIdsMessage(self.robot, j, self.step, ids, moved, self._summary))
             if self._summary is not None:
                 self.link_stats[j]["summaries_sent"] += 1
-                self.link_stats[j]["summary_bytes"] += self._summary.nbytes
+                self.link_stats[j]["summary_bytes"] += summary_wire_bytes(self._summary)
         self.spent = time.perf_counter() - begin
         return out
 
