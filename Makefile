@@ -1,6 +1,7 @@
 # teamslam: two commands do everything on a fresh machine.
 #   make run   create .venv, install teamslam, run the default job
 #   make test  create .venv, install teamslam with its test extras, lint, run the test suite
+#              (never installs system packages; .ci/run does that in CI)
 
 PYTHON ?= python3
 VENV   := .venv
@@ -27,8 +28,9 @@ lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/ruff format --check src tests benchmarks
 
+# -ra: the reason of every skipped test (and every failure) is listed at the end
 test: lint
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -ra
 
 clean:
 	rm -rf $(VENV) results build src/*.egg-info .pytest_cache .ruff_cache

@@ -181,7 +181,7 @@ def test_the_library_writes_what_the_command_line_writes(team3, tmp_path, capsys
     assert _strip_times(json.loads(json.dumps(json_safe(run.metrics)))) == _strip_times(metrics)
     for name in ("separate", "consensus"):
         for k in range(3):
-            tum = f"{name}/robot_{k + 1}.tum"
+            tum = f"{name}/robot_{k}.tum"
             assert (cli_out / tum).read_bytes() == (lib_out / tum).read_bytes()
         with (
             np.load(cli_out / name / "estimates.npz") as a,
@@ -245,7 +245,7 @@ def test_a_filter_failing_mid_run_exits_1_and_keeps_the_frames_done(
     assert [p.shape[0] for p in partial.poses] == [5, 5, 5]  # frames 0-4 of every robot
     for k in range(3):
         assert np.all(np.isfinite(partial.poses[k]))
-        lines = (out / f"robot_{k + 1}.tum").read_text().strip().splitlines()
+        lines = (out / f"robot_{k}.tum").read_text().strip().splitlines()
         assert len(lines) == 5
     # the library raises with the same frames
     with pytest.raises(PartialRunError, match="robot 1, frame 5") as caught:

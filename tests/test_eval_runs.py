@@ -89,8 +89,8 @@ def test_eval_reference_from_dataset_tum_and_kitti_files_agree(team_run, capsys,
     ).values()
     _same_team(recorded["team"], from_dataset["team"])
     # the same team as bare files: TUM estimates with TUM references, KITTI with KITTI
-    tum = [str(run / "consensus" / f"robot_{k}.tum") for k in (1, 2, 3)]
-    ref_tum = [str(run / "consensus" / f"robot_{k}_groundtruth.tum") for k in (1, 2, 3)]
+    tum = [str(run / "consensus" / f"robot_{k}.tum") for k in range(3)]
+    ref_tum = [str(run / "consensus" / f"robot_{k}_groundtruth.tum") for k in range(3)]
     (files,) = _eval_json(capsys, ",".join(tum), "--align", "se3", "--ref-tum", *ref_tum).values()
     assert files["team"] == recorded["team"]
     kitti, ref_kitti = [], []
@@ -126,7 +126,8 @@ def test_eval_alignment_scopes_and_table(team_run, capsys, tmp_path):
     capsys.readouterr()
     assert main(["eval", str(run), "--align", "first-pose", "--out", str(tmp_path / "ev")]) == 0
     table = capsys.readouterr().out
-    assert f"{run.name}/separate" in table and "robot 3 APE translation RMSE [m]" in table
+    assert f"{run.name}/separate" in table and "robot 2 APE translation RMSE [m]" in table
+    assert "robot 3 APE" not in table  # robots 0, 1, 2
     for name in ("eval.json", "trajectories.png", "ape_over_time.png", "ape_path.png"):
         assert (tmp_path / "ev" / name).stat().st_size > 1000
 
@@ -149,8 +150,8 @@ def test_eval_bad_input_is_one_line_and_exit_2(team_run, tmp_path, capsys, make,
     if make == "bad_tum":
         (tmp_path / "bad.tum").write_text("0 1 2 3 0 0 0 1\n1 1 2 3 0 0\n")
     if make == "two_files":
-        shutil.copy(run / "consensus" / "robot_1.tum", tmp_path / "a.tum")
-        shutil.copy(run / "consensus" / "robot_2.tum", tmp_path / "b.tum")
+        shutil.copy(run / "consensus" / "robot_0.tum", tmp_path / "a.tum")
+        shutil.copy(run / "consensus" / "robot_1.tum", tmp_path / "b.tum")
     if make == "nan_tum":
         (tmp_path / "nan.tum").write_text("0 1 2 3 0 0 0 1\n1 nan 2 3 0 0 0 1\n")
     capsys.readouterr()
@@ -230,7 +231,7 @@ def test_report_renders_in_headless_chromium(team_run, tmp_path):
     # non-blank: plenty of non-white pixels and many colours
     assert np.mean(np.any(rgb < 240, axis=-1)) > 0.02
     assert len(np.unique(rgb.reshape(-1, 3), axis=0)) > 50
-    # the embedded communication-graph figure was decoded: robot 1 is drawn in tab:blue
+    # the embedded communication-graph figure was decoded: robot 0 is drawn in tab:blue
     blue = np.all(np.abs(rgb - np.array([31, 119, 180])) <= 6, axis=-1)
     assert blue.sum() > 30
 

@@ -85,7 +85,8 @@ def test_run_centralised_from_the_command_line(tmp_path, capsys):
     central = json.loads((tmp_path / "centralised" / "metrics.json").read_text())
     assert set(central) == set(separate)
     assert central["graph"] == "centralised" and central["robots"] == 2
-    assert (tmp_path / "centralised" / "robot_2.tum").exists()
+    assert (tmp_path / "centralised" / "robot_1.tum").exists()  # robots 0 and 1
+    assert not (tmp_path / "centralised" / "robot_2.tum").exists()
     with pytest.raises(SystemExit) as exc:
         main(["run", str(tmp_path / "team"), "--centralised", "--compare"])
     assert exc.value.code == 2

@@ -283,7 +283,7 @@ def test_run_with_processes_writes_the_same_metrics(small_team, tmp_path, capsys
         assert key in metrics
     assert len(metrics["transport"]) == 3
     assert all(t["bytes_per_step"] > 0 for t in metrics["transport"])
-    assert (out / "topview.png").exists() and (out / "robot_1.tum").exists()
+    assert (out / "topview.png").exists() and (out / "robot_0.tum").exists()
 
 
 @pytest.mark.parametrize("mode", ["async", "lossy"])

@@ -97,7 +97,7 @@ def _references(args: argparse.Namespace):
         return dataset_references(args.ref)
     if args.ref_tum is not None or args.ref_kitti is not None:
         files = args.ref_tum if args.ref_tum is not None else args.ref_kitti
-        refs = [read_trajectory(f, f"robot {k + 1} reference") for k, f in enumerate(files)]
+        refs = [read_trajectory(f, f"robot {k} reference") for k, f in enumerate(files)]
         if args.ref_kitti is not None and any(r.timestamps is not None for r in refs):
             raise InputError("--ref-kitti: a TUM file was given (8 values a line); use --ref-tum")
         if args.ref_tum is not None and any(r.timestamps is None for r in refs):

@@ -11,24 +11,11 @@
 * :mod:`~teamslam.datasets.stats` — :func:`dataset_info`.
 """
 
-from teamslam.datasets.model import (
-    Calibration,
-    DatasetError,
-    FrameObservations,
-    RobotSequence,
-    TeamDataset,
-)
-from teamslam.datasets.reference import (
-    UnsafePickleError,
-    export_reference,
-    import_reference,
-    read_reference_params,
-    safe_unpickle,
-)
-from teamslam.datasets.sensor_model import SensorModel, SensorNoise
-from teamslam.datasets.stats import dataset_info, format_info, ground_truth_noise
-from teamslam.datasets.storage import FORMAT_VERSION, load_dataset, save_dataset
-from teamslam.datasets.trajectory import read_kitti, read_tum, write_kitti, write_tum
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from teamslam._lazy import attach
 
 __all__ = [
     "FORMAT_VERSION",
@@ -54,3 +41,53 @@ __all__ = [
     "write_kitti",
     "write_tum",
 ]
+
+__getattr__, __dir__ = attach(
+    __name__,
+    ("model", "reference", "sensor_model", "stats", "storage", "trajectory", "victoria_park"),
+    {
+        "Calibration": "teamslam.datasets.model",
+        "DatasetError": "teamslam.datasets.model",
+        "FrameObservations": "teamslam.datasets.model",
+        "RobotSequence": "teamslam.datasets.model",
+        "TeamDataset": "teamslam.datasets.model",
+        "UnsafePickleError": "teamslam.datasets.reference",
+        "export_reference": "teamslam.datasets.reference",
+        "import_reference": "teamslam.datasets.reference",
+        "read_reference_params": "teamslam.datasets.reference",
+        "safe_unpickle": "teamslam.datasets.reference",
+        "SensorModel": "teamslam.datasets.sensor_model",
+        "SensorNoise": "teamslam.datasets.sensor_model",
+        "dataset_info": "teamslam.datasets.stats",
+        "format_info": "teamslam.datasets.stats",
+        "ground_truth_noise": "teamslam.datasets.stats",
+        "FORMAT_VERSION": "teamslam.datasets.storage",
+        "load_dataset": "teamslam.datasets.storage",
+        "save_dataset": "teamslam.datasets.storage",
+        "read_kitti": "teamslam.datasets.trajectory",
+        "read_tum": "teamslam.datasets.trajectory",
+        "write_kitti": "teamslam.datasets.trajectory",
+        "write_tum": "teamslam.datasets.trajectory",
+    },
+)
+
+
+if TYPE_CHECKING:  # what a type checker and an IDE see; nothing is imported at run time
+    from teamslam.datasets.model import (
+        Calibration,
+        DatasetError,
+        FrameObservations,
+        RobotSequence,
+        TeamDataset,
+    )
+    from teamslam.datasets.reference import (
+        UnsafePickleError,
+        export_reference,
+        import_reference,
+        read_reference_params,
+        safe_unpickle,
+    )
+    from teamslam.datasets.sensor_model import SensorModel, SensorNoise
+    from teamslam.datasets.stats import dataset_info, format_info, ground_truth_noise
+    from teamslam.datasets.storage import FORMAT_VERSION, load_dataset, save_dataset
+    from teamslam.datasets.trajectory import read_kitti, read_tum, write_kitti, write_tum

@@ -11,9 +11,11 @@
 * :mod:`~teamslam.ekf2d.victoria_park` — the two-robot Victoria Park split (Fig. 6).
 """
 
-from teamslam.ekf2d.filter import MultiRobotEKF, StepObservations
-from teamslam.ekf2d.linearization import FirstEstimate, Ideal, Standard, policy
-from teamslam.ekf2d.start import StartError, gauss_newton_start
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from teamslam._lazy import attach
 
 __all__ = [
     "FirstEstimate",
@@ -25,3 +27,36 @@ __all__ = [
     "gauss_newton_start",
     "policy",
 ]
+
+__getattr__, __dir__ = attach(
+    __name__,
+    (
+        "environments",
+        "experiments",
+        "filter",
+        "kernels",
+        "linearization",
+        "models",
+        "observability",
+        "run",
+        "simulate",
+        "start",
+        "victoria_park",
+    ),
+    {
+        "MultiRobotEKF": "teamslam.ekf2d.filter",
+        "StepObservations": "teamslam.ekf2d.filter",
+        "FirstEstimate": "teamslam.ekf2d.linearization",
+        "Ideal": "teamslam.ekf2d.linearization",
+        "Standard": "teamslam.ekf2d.linearization",
+        "policy": "teamslam.ekf2d.linearization",
+        "StartError": "teamslam.ekf2d.start",
+        "gauss_newton_start": "teamslam.ekf2d.start",
+    },
+)
+
+
+if TYPE_CHECKING:  # what a type checker and an IDE see; nothing is imported at run time
+    from teamslam.ekf2d.filter import MultiRobotEKF, StepObservations
+    from teamslam.ekf2d.linearization import FirstEstimate, Ideal, Standard, policy
+    from teamslam.ekf2d.start import StartError, gauss_newton_start

@@ -217,7 +217,7 @@ def graph_figure(adjacency: np.ndarray, title: str = ""):
         ax.plot(*xy[[i, j]].T, color="0.5", lw=1.0, zorder=1)
     for k in range(n):
         ax.scatter(*xy[k], s=260, color=_colour(k), zorder=2)
-        ax.text(*xy[k], str(k + 1), ha="center", va="center", color="white", fontsize=9)
+        ax.text(*xy[k], str(k), ha="center", va="center", color="white", fontsize=9)
     ax.set_xlim(-1.35, 1.35)
     ax.set_ylim(-1.35, 1.35)
     ax.set_aspect("equal")

@@ -79,8 +79,8 @@ def _write_trajectories(prefix: Path, dataset, result) -> None:
         if n == 0:
             continue
         stamps = None if robot.timestamps is None else robot.timestamps[:n]
-        write_tum(prefix / f"robot_{i + 1}.tum", result.poses[i][:n], stamps)
-        write_tum(prefix / f"robot_{i + 1}_groundtruth.tum", robot.T_world_body[:n], stamps)
+        write_tum(prefix / f"robot_{i}.tum", result.poses[i][:n], stamps)
+        write_tum(prefix / f"robot_{i}_groundtruth.tum", robot.T_world_body[:n], stamps)
 
 
 def write_team_outputs(out: Path, dataset, results: dict, payload: dict) -> None:

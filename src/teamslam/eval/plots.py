@@ -1,4 +1,9 @@
-"""Figures (matplotlib, Agg backend: no display needed)."""
+"""Figures (matplotlib, Agg backend: no display needed).
+
+The 3D team figures count robots from 0 (``robot 0``), as every table, file and topic of a team
+run does; the planar FEJ-EKF figures name them R1, R2 as the FEJ paper and its tables
+(``teamslam fej``) do.
+"""
 
 from __future__ import annotations
 
@@ -40,7 +45,7 @@ def plot_monte_carlo(result, path: str | Path) -> Path:
         axes[n, 0].plot(steps, c["feature_nees"], **kw)
         axes[n, 1].plot(steps, c["feature_rmse"], **kw)
     for i in range(n):
-        axes[i, 0].set_ylabel(f"robot {i + 1}")
+        axes[i, 0].set_ylabel(f"R{i + 1}")
         axes[i, 0].set_title("pose NEES (normalised)")
         axes[i, 1].set_title("position RMSE [m]")
         axes[i, 2].set_title("heading RMSE [rad]")
@@ -71,7 +76,7 @@ def plot_sigma_bounds(result, path: str | Path, robot: int = 0) -> Path:
             ax.plot(steps, -3 * m.pose_sigma[:, robot, row], "k--", lw=0.7)
             ax.set_ylabel(label)
             if row == 0:
-                ax.set_title(f"{LABELS.get(name, name)}: robot {robot + 1} error and ±3σ")
+                ax.set_title(f"{LABELS.get(name, name)}: R{robot + 1} error and ±3σ")
         axes[-1, col].set_xlabel("step")
     fig.tight_layout()
     return _save(fig, path)
@@ -88,9 +93,7 @@ def plot_planar_map(
     fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 5.5), squeeze=False)
     for ax, name in zip(axes[0], names, strict=True):
         for i, traj in enumerate(trajectories[name]):
-            ax.plot(
-                traj[:, 0], traj[:, 1], ls="-" if i == 0 else "--", lw=0.8, label=f"robot {i + 1}"
-            )
+            ax.plot(traj[:, 0], traj[:, 1], ls="-" if i == 0 else "--", lw=0.8, label=f"R{i + 1}")
         f = features.get(name)
         if f is not None and len(f):
             ax.plot(f[:, 0], f[:, 1], "k^", ms=3, label="features")
@@ -129,7 +132,7 @@ def plot_team_topview(dataset, results: dict, path: str | Path) -> Path:
             ax.plot(
                 odo[:, 0], odo[:, 1], ":", color=c, lw=0.8, label="odometry" if i == 0 else None
             )
-            ax.plot(est[:, 0], est[:, 1], "-", color=c, lw=1.0, label=f"robot {i + 1}")
+            ax.plot(est[:, 0], est[:, 1], "-", color=c, lw=1.0, label=f"robot {i}")
             if len(result.objects[i]):
                 ax.plot(result.objects[i][:, 0], result.objects[i][:, 1], "^", color=c, ms=2.5)
         ax.set_aspect("equal")
@@ -154,7 +157,7 @@ def plot_team_errors(dataset, results: dict, path: str | Path) -> Path:
             gt = robot.T_world_body[:, :3, 3]
             odo = dead_reckoning(robot.T_world_body[0], robot.odometry)[:, :3, 3]
             est = results[name].poses[i][:, :3, 3]
-            ax.plot(np.linalg.norm(est - gt, axis=1), color=c, lw=1.0, label=f"robot {i + 1}")
+            ax.plot(np.linalg.norm(est - gt, axis=1), color=c, lw=1.0, label=f"robot {i}")
             ax.plot(np.linalg.norm(odo - gt, axis=1), ":", color=c, lw=0.8)
         ax.set_title(f"{name}: position error (dotted: odometry)")
         ax.set_xlabel("frame")

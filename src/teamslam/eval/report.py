@@ -130,17 +130,17 @@ def evaluation_rows(stats: list[dict]) -> list[tuple[str, list[str]]]:
     n_robots = max(len(s["robots"]) for s in stats)
     for k in range(n_robots):
         rows.append(
-            (f"robot {k + 1} APE translation RMSE [m]",
+            (f"robot {k} APE translation RMSE [m]",
              cells(lambda s, k=k: s["robots"][k]["ape_translation_m"]["rmse"]))
         )  # fmt: skip
     for k in range(n_robots):
         rows.append(
-            (f"robot {k + 1} APE rotation RMSE [deg]",
+            (f"robot {k} APE rotation RMSE [deg]",
              cells(lambda s, k=k: s["robots"][k]["ape_rotation_deg"]["rmse"]))
         )  # fmt: skip
     for k in range(n_robots):
         rows.append(
-            (f"robot {k + 1} RPE translation RMSE [m]",
+            (f"robot {k} RPE translation RMSE [m]",
              cells(lambda s, k=k: s["robots"][k]["rpe_translation_m"]["rmse"]))
         )  # fmt: skip
     return rows
@@ -265,7 +265,7 @@ def _stats_tables(names: list[str], stats: list[dict]) -> str:
             for key, _ in parts:
                 value = s["robots"][k][key]["rmse"] if k < len(s["robots"]) else None
                 cells.append(f"<td>{_fmt(value)}</td>")
-        out.append(f"<tr><td class='l'>robot {k + 1}</td>{''.join(cells)}</tr>")
+        out.append(f"<tr><td class='l'>robot {k}</td>{''.join(cells)}</tr>")
     out.append("</tbody></table>")
     return "".join(out)
 
@@ -375,7 +375,7 @@ def _consistency_section(names: list[str], runs: list[TeamRun]) -> str:
     n_robots = max(len(r.estimates) for r in runs)
     rows = [
         (
-            f"robot {k + 1} pose NEES / 6 mean | median",
+            f"robot {k} pose NEES / 6 mean | median",
             [
                 f"{c1} | {c2}"
                 for c1, c2 in zip(
@@ -491,7 +491,7 @@ def _messages_section(names: list[str], runs: list[TeamRun]) -> str:
     ]
     rows += [
         (
-            f"robot {k + 1} messages | MB",
+            f"robot {k} messages | MB",
             [
                 f"{a} | {b}"
                 for a, b in zip(

@@ -102,7 +102,7 @@ def read_trajectory(path: str | Path, name: str = "") -> Trajectory:
 
 def _robot_files(directory: Path) -> list[tuple[Path, Path | None]]:
     out = []
-    k = 1
+    k = 0
     while (directory / f"robot_{k}.tum").is_file():
         truth = directory / f"robot_{k}_groundtruth.tum"
         out.append((directory / f"robot_{k}.tum", truth if truth.is_file() else None))
@@ -124,8 +124,8 @@ def write_series(directory: str | Path, nees: list[np.ndarray], frame_times: lis
     directory.mkdir(parents=True, exist_ok=True)
     arrays = {}
     for k, (n, t) in enumerate(zip(nees, frame_times, strict=True)):
-        arrays[f"nees_{k + 1}"] = np.asarray(n, dtype=float)
-        arrays[f"frame_times_{k + 1}"] = np.asarray(t, dtype=float).reshape(-1, len(STAGES))
+        arrays[f"nees_{k}"] = np.asarray(n, dtype=float)
+        arrays[f"frame_times_{k}"] = np.asarray(t, dtype=float).reshape(-1, len(STAGES))
     tmp = directory / (SERIES_FILE + ".tmp.npz")
     np.savez_compressed(tmp, **arrays)
     tmp.replace(directory / SERIES_FILE)
@@ -142,7 +142,7 @@ def read_series(directory: str | Path) -> dict | None:
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
     out: dict[str, list[np.ndarray]] = {"nees": [], "frame_times": []}
-    k = 1
+    k = 0
     while f"nees_{k}" in arrays and f"frame_times_{k}" in arrays:
         times = arrays[f"frame_times_{k}"]
         if times.ndim != 2 or times.shape[1] != len(STAGES):
@@ -155,12 +155,11 @@ def read_series(directory: str | Path) -> dict | None:
 
 def _load_variant(directory: Path, name: str, metrics: dict | None) -> TeamRun:
     files = _robot_files(directory)
-    estimates = [read_trajectory(est, f"robot {k + 1}") for k, (est, _) in enumerate(files)]
+    estimates = [read_trajectory(est, f"robot {k}") for k, (est, _) in enumerate(files)]
     references = None
     if all(truth is not None for _, truth in files):
         references = [
-            read_trajectory(truth, f"robot {k + 1} ground truth")
-            for k, (_, truth) in enumerate(files)
+            read_trajectory(truth, f"robot {k} ground truth") for k, (_, truth) in enumerate(files)
         ]
     return TeamRun(name, estimates, references, metrics, read_series(directory), directory)
 
@@ -200,12 +199,12 @@ def load_runs(spec: str | Path) -> list[TeamRun]:
         if _robot_files(path):
             return [_load_variant(path, label, metrics)]
         raise InputError(
-            f"{path}: not a run directory (no robot_1.tum in it, nor in separate/ or consensus/)"
+            f"{path}: not a run directory (no robot_0.tum in it, nor in separate/ or consensus/)"
         )
     parts = [p for p in text.split(",") if p]
     if not parts:
         raise InputError(f"{text!r}: no run directory or trajectory file given")
-    estimates = [read_trajectory(p, f"robot {k + 1}") for k, p in enumerate(parts)]
+    estimates = [read_trajectory(p, f"robot {k}") for k, p in enumerate(parts)]
     label = ",".join(Path(p).stem for p in parts)
     return [TeamRun(label, estimates)]
 
@@ -216,6 +215,6 @@ def dataset_references(directory: str | Path) -> list[Trajectory]:
 
     dataset = load_dataset(directory)
     return [
-        Trajectory(r.T_world_body, r.timestamps, f"robot {k + 1} ground truth")
+        Trajectory(r.T_world_body, r.timestamps, f"robot {k} ground truth")
         for k, r in enumerate(dataset.robots)
     ]

@@ -22,13 +22,13 @@ def team_table(runs: dict[str, dict]) -> str:
     n_robots = runs[names[0]]["robots"]
     for i in range(n_robots):
         lines.append(
-            f"{f'robot {i + 1} trajectory RMSE [m]':<36}"
+            f"{f'robot {i} trajectory RMSE [m]':<36}"
             + "".join(f"{runs[n]['trajectory_rmse_m'][i]:>{width}.3f}" for n in names)
         )
     linearization = runs[names[0]].get("config", {}).get("linearization", "std")
     for i in range(n_robots):
         lines.append(
-            f"{f'robot {i + 1} pose NEES / 6 ({linearization})':<36}"
+            f"{f'robot {i} pose NEES / 6 ({linearization})':<36}"
             + "".join(f"{runs[n]['nees_pose_avg'][i]:>{width}.2f}" for n in names)
         )
     for sensor, label in (("features", "features"), ("objects", "objects")):

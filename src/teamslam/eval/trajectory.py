@@ -512,7 +512,7 @@ def evaluate_team(
         aligned = est if align == "none" else transform.apply_poses(est)
         robots.append(
             RobotEvaluation(
-                name=estimates[k].name or f"robot {k + 1}",
+                name=estimates[k].name or f"robot {k}",
                 timestamps=ts,
                 estimate=aligned,
                 reference=ref,

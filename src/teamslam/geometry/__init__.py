@@ -17,6 +17,20 @@ Each module works on arrays with arbitrary leading (batch) axes and is numerical
 zero angle (Taylor series) and near π (the rotation log takes the axis from the symmetric part).
 """
 
-from teamslam.geometry import se2, se3, so3
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from teamslam._lazy import attach
 
 __all__ = ["se2", "se3", "so3"]
+
+__getattr__, __dir__ = attach(
+    __name__,
+    ("camera", "se2", "se3", "so3"),
+    {},
+)
+
+
+if TYPE_CHECKING:  # what a type checker and an IDE see; nothing is imported at run time
+    from teamslam.geometry import se2, se3, so3

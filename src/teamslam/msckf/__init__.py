@@ -19,13 +19,11 @@
 * :mod:`~teamslam.msckf.health` — NIS and gate statistics of every sensor.
 """
 
-from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.calibration import CalibrationResult, calibrate
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.persistent_map import PersistentMap
-from teamslam.msckf.settings import EffectiveConfig, config_for, resolve_config
-from teamslam.msckf.state import MsckfState
-from teamslam.msckf.team import TeamResult, run_team
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from teamslam._lazy import attach
 
 __all__ = [
     "CalibrationResult",
@@ -40,3 +38,50 @@ __all__ = [
     "resolve_config",
     "run_team",
 ]
+
+__getattr__, __dir__ = attach(
+    __name__,
+    (
+        "agent",
+        "calibration",
+        "centralised",
+        "config",
+        "consensus",
+        "health",
+        "kernels",
+        "linearization",
+        "messages",
+        "models",
+        "observability",
+        "persistent_map",
+        "protocol",
+        "settings",
+        "state",
+        "team",
+        "transport",
+        "update",
+    ),
+    {
+        "MsckfAgent": "teamslam.msckf.agent",
+        "CalibrationResult": "teamslam.msckf.calibration",
+        "calibrate": "teamslam.msckf.calibration",
+        "MsckfConfig": "teamslam.msckf.config",
+        "PersistentMap": "teamslam.msckf.persistent_map",
+        "EffectiveConfig": "teamslam.msckf.settings",
+        "config_for": "teamslam.msckf.settings",
+        "resolve_config": "teamslam.msckf.settings",
+        "MsckfState": "teamslam.msckf.state",
+        "TeamResult": "teamslam.msckf.team",
+        "run_team": "teamslam.msckf.team",
+    },
+)
+
+
+if TYPE_CHECKING:  # what a type checker and an IDE see; nothing is imported at run time
+    from teamslam.msckf.agent import MsckfAgent
+    from teamslam.msckf.calibration import CalibrationResult, calibrate
+    from teamslam.msckf.config import MsckfConfig
+    from teamslam.msckf.persistent_map import PersistentMap
+    from teamslam.msckf.settings import EffectiveConfig, config_for, resolve_config
+    from teamslam.msckf.state import MsckfState
+    from teamslam.msckf.team import TeamResult, run_team

@@ -1,0 +1,106 @@
+"""One robot's stereo front-end: rectify, track, match, detect markers, per frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from teamslam.errors import InputError
+from teamslam.frontend.camera import StereoRig
+from teamslam.frontend.config import FrontendConfig
+from teamslam.frontend.markers import MarkerDetector
+from teamslam.frontend.stereo import match_stereo
+from teamslam.frontend.tracking import FeatureTracker
+
+__all__ = ["FrameMeasurements", "StereoFrontend"]
+
+
+@dataclass(frozen=True)
+class FrameMeasurements:
+    """What the front-end measured in one stereo frame.
+
+    Attributes
+    ----------
+    feature_ids, features
+        ``(N,)`` track ids and ``(N, 4)`` stereo observations ``(u_l, v_l, u_r, v_r)``.
+    object_ids, objects
+        ``(M,)`` marker ids and ``(M, 4)`` stereo marker centres.
+    track_ids, track_uv
+        All left-image tracks (with or without a stereo match), for visual odometry.
+    searched, rejected
+        Stereo searches made and rejected by the outlier gate in this frame.
+    """
+
+    feature_ids: np.ndarray
+    features: np.ndarray
+    object_ids: np.ndarray
+    objects: np.ndarray
+    track_ids: np.ndarray
+    track_uv: np.ndarray
+    searched: int
+    rejected: int
+
+
+class StereoFrontend:
+    """Rectification, tracking, stereo matching and markers for one robot's camera.
+
+    Parameters
+    ----------
+    rig
+        The calibrated stereo pair (rectified on the fly when needed).
+    config
+        Front-end settings.
+    first_id
+        First feature-track id (give each robot its own range; :attr:`next_id` after a run
+        is the next free id).
+    """
+
+    def __init__(
+        self, rig: StereoRig, config: FrontendConfig | None = None, first_id: int = 0
+    ) -> None:
+        self.rig = rig
+        self.config = config or FrontendConfig()
+        self.camera = rig.camera
+        self.pixels = self.config.pixels(rig.image_size)
+        self.disparity_range = self.config.disparity_range(self.camera.fx_baseline)
+        self.tracker = FeatureTracker(rig.image_size, self.config, first_id)
+        self.markers = MarkerDetector(self.config)
+        self._last_ids = np.zeros(0, np.int64)
+        self._last_disparity = np.zeros(0)
+
+    @property
+    def next_id(self) -> int:
+        """The next unused feature-track id."""
+        return self.tracker.next_id
+
+    def process(self, left: np.ndarray, right: np.ndarray, where: str = "") -> FrameMeasurements:
+        """Measure one stereo frame of 8-bit grey images (raw; rectified here)."""
+        w, h = self.rig.image_size
+        for name, img in (("left", left), ("right", right)):
+            if img.ndim != 2 or img.shape != (h, w) or img.dtype != np.uint8:
+                raise InputError(
+                    f"{where or name}: {name} image is {img.shape} {img.dtype}, "
+                    f"expected {h}×{w} 8-bit grey"
+                )
+        left, right = self.rig.rectify(left, right)
+        ids, uv = self.tracker.track(left)
+        guess = np.full(len(ids), np.nan)
+        _, i_now, i_last = np.intersect1d(ids, self._last_ids, return_indices=True)
+        guess[i_now] = self._last_disparity[i_last]
+        m = match_stereo(left, right, uv, self.disparity_range, self.config, self.pixels, guess)
+        z = np.concatenate([uv, m.uv_right], axis=1)[m.accepted]
+        self._last_ids, self._last_disparity = ids[m.accepted], z[:, 0] - z[:, 2]
+        obj_ids, obj_z = self.markers.detect_stereo(
+            left, right, self.disparity_range, self.pixels.marker_row
+        )
+        return FrameMeasurements(
+            feature_ids=ids[m.accepted],
+            features=z,
+            object_ids=obj_ids,
+            objects=obj_z,
+            track_ids=ids,
+            track_uv=uv,
+            searched=int(m.searched.sum()),
+            rejected=int((m.searched & ~m.accepted).sum()),
+        )

@@ -1,0 +1,194 @@
+"""Feature tracks with persistent ids: Shi–Tomasi corners followed by pyramidal Lucas–Kanade.
+
+Every frame the previous frame's tracks are followed forward and then back again; a track is
+kept when it lands inside the image and the backward track returns within the
+forward–backward threshold. Where the image has no tracks (outside a disc of the feature
+spacing around each survivor) new corners are taken, with fresh ids, up to
+``max_features``.
+
+Frame-to-frame Lucas–Kanade drifts: its translation-only model puts the point at the centre of
+the window's gradient energy, and as the patch grows or shears (the camera approaches, the
+view turns) that centre moves relative to the surface. With ``affine_refinement`` each track
+is then aligned to its own first appearance (Shi and Tomasi's feature monitoring): an affine
+warp plus gain and offset, Gauss–Newton on all tracks at once, the point being the warp of the
+template's centre. A track whose aligned patch no longer correlates with its template
+(``template_ncc_min``), or whose warp degenerates, ends.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from teamslam.frontend._cv import require_cv2
+from teamslam.frontend.config import FrontendConfig
+
+__all__ = ["FeatureTracker"]
+
+
+class FeatureTracker:
+    """Tracks corners through a sequence of grey images.
+
+    Parameters
+    ----------
+    image_size
+        ``(width, height)`` of the images.
+    config
+        Front-end settings.
+    first_id
+        Id of the first new track (ids then count up; :attr:`next_id` is the next free one).
+    """
+
+    def __init__(
+        self, image_size: tuple[int, int], config: FrontendConfig | None = None, first_id: int = 0
+    ) -> None:
+        self.config = config or FrontendConfig()
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        self.px = self.config.pixels(self.image_size)
+        self.next_id = int(first_id)
+        self.ids = np.zeros(0, np.int64)
+        self.uv = np.zeros((0, 2), np.float32)
+        self._previous: np.ndarray | None = None
+        half = self.px.lk_window // 2
+        g = np.arange(-half, half + 1, dtype=np.float32)
+        oy, ox = np.meshgrid(g, g, indexing="ij")
+        self._offsets = np.column_stack([ox.ravel(), oy.ravel()])  # (P, 2)
+        sigma = max(half, 1)
+        self._weights = np.exp(-(ox.ravel() ** 2 + oy.ravel() ** 2) / (2 * sigma**2)).astype(
+            np.float32
+        )
+        self._template = np.zeros((0, self._offsets.shape[0]), np.float32)
+        self._A = np.zeros((0, 2, 2))
+        self._photo = np.zeros((0, 2))  # gain, offset
+
+    def _sample(self, images, uv: np.ndarray, A: np.ndarray) -> list[np.ndarray]:
+        """Images sampled at ``uv + A · offsets`` for each track: ``(N, P)`` each."""
+        cv2 = require_cv2()
+        ox, oy = self._offsets[:, 0], self._offsets[:, 1]
+        A = A.astype(np.float32)
+        mx = uv[:, :1].astype(np.float32) + A[:, 0, :1] * ox + A[:, 0, 1:] * oy
+        my = uv[:, 1:].astype(np.float32) + A[:, 1, :1] * ox + A[:, 1, 1:] * oy
+        return [
+            cv2.remap(im, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            for im in images
+        ]
+
+    def _refine(self, image: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Align every track's template to ``image`` (affine + gain/offset); return the
+        refined points and which tracks still match their template."""
+        cv2 = require_cv2()
+        img = image.astype(np.float32)
+        gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+        gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
+        uv = uv.astype(np.float64).copy()
+        A, photo = self._A.copy(), self._photo.copy()
+        ox, oy = self._offsets[:, 0], self._offsets[:, 1]
+        w = self._weights
+        n, p = len(uv), len(ox)
+        J = np.empty((n, 8, p), np.float32)  # t_x, t_y, A00, A01, A10, A11, gain, offset
+        J[:, 7] = 1.0
+        eye8 = 1e-6 * np.eye(8, dtype=np.float32)
+        for _ in range(self.config.affine_iterations):
+            i_w, gx_w, gy_w = self._sample([img, gx, gy], uv, A)
+            gain = photo[:, :1].astype(np.float32)
+            r = gain * i_w + photo[:, 1:].astype(np.float32) - self._template
+            jx, jy = gain * gx_w, gain * gy_w
+            J[:, 0], J[:, 1] = jx, jy
+            J[:, 2], J[:, 3], J[:, 4], J[:, 5] = jx * ox, jx * oy, jy * ox, jy * oy
+            J[:, 6] = i_w
+            Jw = J * w
+            H = Jw @ J.transpose(0, 2, 1) + eye8
+            step = -np.linalg.solve(H, Jw @ r[..., None])[..., 0].astype(np.float64)
+            uv += step[:, :2]
+            A += step[:, 2:6].reshape(n, 2, 2)
+            photo += step[:, 6:8]
+        (i_w,) = self._sample([img], uv, A)
+        t = self._template - self._template.mean(axis=1, keepdims=True)
+        c = i_w - i_w.mean(axis=1, keepdims=True)
+        ncc = (t * c).sum(1) / np.sqrt((t * t).sum(1) * (c * c).sum(1) + 1e-12)
+        det = np.linalg.det(A)
+        ok = (ncc >= self.config.template_ncc_min) & (det > 0.3) & (det < 3.0)
+        ok &= np.all(np.isfinite(uv), axis=1)
+        self._A, self._photo = A, photo
+        return uv, ok
+
+    def _lk(self, a: np.ndarray, b: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cv2 = require_cv2()
+        win = self.px.lk_window
+        out, status, _ = cv2.calcOpticalFlowPyrLK(
+            a,
+            b,
+            pts.reshape(-1, 1, 2),
+            None,
+            winSize=(win, win),
+            maxLevel=self.config.lk_levels,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 0.001),
+        )
+        return out.reshape(-1, 2), status.ravel().astype(bool)
+
+    def _keep(self, keep: np.ndarray) -> None:
+        self.ids = self.ids[keep]
+        if self.config.affine_refinement:
+            self._template, self._A = self._template[keep], self._A[keep]
+            self._photo = self._photo[keep]
+
+    def _inside(self, uv: np.ndarray) -> np.ndarray:
+        w, h = self.image_size
+        return (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+
+    def track(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Follow the tracks into ``image`` (8-bit grey) and refill; return ``(ids, uv)``."""
+        cv2 = require_cv2()
+        if self._previous is not None and len(self.ids):
+            fwd, ok_f = self._lk(self._previous, image, self.uv)
+            back, ok_b = self._lk(image, self._previous, fwd)
+            fb = np.linalg.norm(back - self.uv, axis=1)
+            keep = ok_f & ok_b & (fb <= self.px.forward_backward) & self._inside(fwd)
+            self._keep(keep)
+            self.uv = fwd[keep].astype(np.float32)
+            if self.config.affine_refinement and len(self.ids):
+                refined, ok = self._refine(image, self.uv)
+                ok &= np.linalg.norm(refined - self.uv, axis=1) <= self.px.refine_track
+                ok &= self._inside(refined)
+                self.uv = refined.astype(np.float32)
+                self._keep(ok)
+                self.uv = self.uv[ok]
+        elif self._previous is None:
+            self.ids, self.uv = np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
+        room = self.config.max_features - len(self.ids)
+        if room > 0:
+            mask = np.full(image.shape, 255, np.uint8)
+            radius = max(1, round(self.px.spacing))
+            for u, v in np.rint(self.uv).astype(int):
+                cv2.circle(mask, (int(u), int(v)), radius, 0, -1)
+            border = self.px.lk_window // 2
+            mask[:border], mask[-border:], mask[:, :border], mask[:, -border:] = 0, 0, 0, 0
+            corners = cv2.goodFeaturesToTrack(
+                image,
+                maxCorners=room,
+                qualityLevel=self.config.corner_quality,
+                minDistance=self.px.spacing,
+                mask=mask,
+                blockSize=self.px.corner_block,
+            )
+            if corners is not None:
+                new = corners.reshape(-1, 2).astype(np.float32)
+                win = max(2, self.px.corner_block // 2)
+                cv2.cornerSubPix(
+                    image,
+                    new,
+                    (win, win),
+                    (-1, -1),
+                    (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01),
+                )
+                fresh = self.next_id + np.arange(len(new), dtype=np.int64)
+                self.next_id += len(new)
+                self.ids = np.concatenate([self.ids, fresh])
+                self.uv = np.concatenate([self.uv, new])
+                if self.config.affine_refinement:
+                    eye = np.tile(np.eye(2), (len(new), 1, 1))
+                    (tmpl,) = self._sample([image.astype(np.float32)], new, eye)
+                    self._template = np.concatenate([self._template, tmpl])
+                    self._A = np.concatenate([self._A, eye])
+                    self._photo = np.concatenate([self._photo, np.tile([1.0, 0.0], (len(new), 1))])
+        self._previous = image
+        return self.ids.copy(), self.uv.astype(np.float64)

@@ -1,0 +1,724 @@
+"""A rendered team: stereo images of a textured room with ArUco markers, and their exact truth.
+
+The world is a closed room (floor, ceiling, four walls) whose surfaces carry procedural
+textures — band-limited fractal noise ("gravel") on the floor and ceiling, bricks with mortar
+and per-brick albedo over fractal noise on the walls — generated from the seed, so nothing
+with a licence is shipped. ArUco markers (OpenCV's dictionaries, with a white quiet zone) hang
+on the walls; a marker's id is its object id.
+
+Rendering is a vectorised ray caster: one ray per pixel through the pixel centre (OpenCV's
+convention: pixel ``(i, j)`` is centred at ``u = j, v = i``), intersected with the room's six
+planes at once, textures sampled with trilinear mip-mapping (the level follows the pixel's
+footprint on the surface, so distant texture does not alias). Image effects: vignetting
+(a share of the cos⁴ fall-off), a different gain and offset in the right camera, sensor noise
+and JPEG compression.
+
+Truth: :meth:`TexturedRoom.cast` returns the exact 3D point behind any pixel, so the projection
+of whatever a front-end tracks can be recomputed in every other view; marker centres and
+corners are known in the world frame; robot paths are exact ``T_world_body``.
+
+:func:`render_team` writes, per robot, ``robot_k/left/000000.png``, ``robot_k/right/…``,
+``camera.yaml``, ``timestamps.txt``, ``groundtruth.tum`` and ``odometry.tum`` (dead-reckoned
+noisy odometry), plus ``markers.txt`` (``id x y z``) and ``render.json`` (the configuration)
+at the top; :func:`simulate_images` also writes the team as a ROS 2 bag.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from teamslam.datasets.trajectory import write_tum
+from teamslam.errors import InputError
+from teamslam.frontend._cv import require_cv2
+from teamslam.geometry import se3
+from teamslam.geometry.camera import StereoCamera
+
+__all__ = [
+    "T_CAM_BODY",
+    "RenderConfig",
+    "RenderedTeam",
+    "TexturedRoom",
+    "apply_effects",
+    "render_stereo",
+    "render_team",
+    "robot_paths",
+    "simulate_images",
+    "write_camera_file",
+]
+
+# body x forward, y left, z up  ->  optical x right, y down, z forward
+T_CAM_BODY = np.array(
+    [[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+)
+
+_ARUCO_DICTIONARIES = {
+    "4x4_250": "DICT_4X4_250",
+    "5x5_250": "DICT_5X5_250",
+    "6x6_250": "DICT_6X6_250",
+    "apriltag_36h11": "DICT_APRILTAG_36h11",
+}
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Every setting of the rendered world, the robots and the cameras.
+
+    Attributes
+    ----------
+    robots, steps, seed
+        Team size, motion steps per robot (``steps + 1`` frames), random seed.
+    room
+        Room extent ``(x, y, z)`` in metres; the room spans ``[0, x] × [0, y] × [0, z]``.
+    texel
+        Size of one texel of the surface textures at full resolution, metres.
+    markers_per_wall, marker_size, marker_heights
+        Markers on each wall, their side (black border included, metres), and the heights
+        of their centres (cycled).
+    dictionary
+        ArUco dictionary: ``4x4_250``, ``5x5_250``, ``6x6_250`` or ``apriltag_36h11``.
+    image_size, focal, baseline
+        ``(width, height)`` pixels, focal length (pixels; principal point at the image
+        centre), stereo baseline (m).
+    camera_height, step_length, rate
+        Height of the camera above the floor (m), distance per step (m), frames per second.
+    wall_margin
+        Closest distance of a path to a wall, metres.
+    odometry_translation_noise, odometry_rotation_noise
+        Per-axis std of the SE(3) odometry noise per step (m, rad).
+    vignetting
+        Share of the cos⁴ fall-off applied (0: none, 1: the full natural fall-off).
+    right_gain, right_offset
+        Gain and offset (grey levels) of the right camera relative to the left.
+    pixel_noise
+        Std of the sensor noise, grey levels.
+    jpeg_quality
+        JPEG quality the images pass through (``None``: no compression).
+    """
+
+    robots: int = 3
+    steps: int = 200
+    seed: int = 0
+    room: tuple[float, float, float] = (16.0, 12.0, 3.0)
+    texel: float = 0.01
+    markers_per_wall: int = 5
+    marker_size: float = 0.5
+    marker_heights: tuple[float, ...] = (1.2, 1.8)
+    dictionary: str = "4x4_250"
+    image_size: tuple[int, int] = (640, 480)
+    focal: float = 420.0
+    baseline: float = 0.2
+    camera_height: float = 1.0
+    step_length: float = 0.08
+    rate: float = 10.0
+    wall_margin: float = 2.0
+    odometry_translation_noise: float = 0.004
+    odometry_rotation_noise: float = 0.002
+    vignetting: float = 0.5
+    right_gain: float = 0.9
+    right_offset: float = 6.0
+    pixel_noise: float = 1.0
+    jpeg_quality: int | None = 75
+
+    def __post_init__(self) -> None:
+        if self.robots < 1 or self.steps < 1:
+            raise InputError("robots and steps must be positive")
+        if min(self.room) <= 0 or 2 * self.wall_margin >= min(self.room[:2]):
+            raise InputError("room must be positive and wider than twice wall_margin")
+        if self.dictionary not in _ARUCO_DICTIONARIES:
+            raise InputError(
+                f"dictionary {self.dictionary!r} unknown; use one of "
+                + ", ".join(_ARUCO_DICTIONARIES)
+            )
+        if self.focal <= 0 or self.baseline <= 0 or min(self.image_size) < 16:
+            raise InputError("focal and baseline must be positive, images at least 16 px")
+        if not 0 < self.camera_height < self.room[2]:
+            raise InputError("camera_height must lie between floor and ceiling")
+        if self.jpeg_quality is not None and not 1 <= self.jpeg_quality <= 100:
+            raise InputError("jpeg_quality must lie in 1..100")
+
+    def camera(self) -> StereoCamera:
+        """The rectified stereo camera (pixels)."""
+        w, h = self.image_size
+        return StereoCamera.from_baseline(
+            self.focal, self.focal, (w - 1) / 2.0, (h - 1) / 2.0, self.baseline
+        )
+
+
+def _fractal_noise(rng: np.random.Generator, n: int, beta: float, cutoff: float) -> np.ndarray:
+    """Tileable ``n × n`` noise with a ``1/f^beta`` spectrum, band-limited at ``cutoff`` cycles
+    per texel; zero mean, unit std."""
+    f = np.fft.fftfreq(n)
+    fr = np.fft.rfftfreq(n)
+    radius = np.hypot(f[:, None], fr[None, :])
+    radius[0, 0] = 1.0
+    gain = radius**-beta * np.exp(-((radius / cutoff) ** 2))
+    gain[0, 0] = 0.0
+    spectrum = np.fft.rfft2(rng.standard_normal((n, n))) * gain
+    out = np.fft.irfft2(spectrum, s=(n, n))
+    return (out - out.mean()) / out.std()
+
+
+def _gravel(rng: np.random.Generator, n: int) -> np.ndarray:
+    noise = _fractal_noise(rng, n, 1.0, 0.12)
+    return 0.5 + 0.3 * np.tanh(1.5 * noise)
+
+
+def _bricks(rng: np.random.Generator, n: int, texel: float) -> np.ndarray:
+    """Bricks ``0.5 × 0.25`` m (rows staggered), mortar 1.5 cm, per-brick albedo and grain."""
+    rows = np.arange(n) * texel
+    brick_h, brick_w, mortar = 0.25, 0.5, 0.015
+    row_index = np.floor(rows / brick_h).astype(int)
+    y_in = rows - row_index * brick_h
+    cols = np.arange(n) * texel
+    shift = (row_index % 2)[:, None] * brick_w / 2
+    x = cols[None, :] + shift
+    col_index = np.floor(x / brick_w).astype(int)
+    x_in = x - col_index * brick_w
+    n_rows = int(np.ceil(n * texel / brick_h)) + 1
+    n_cols = int(np.ceil(n * texel / brick_w)) + 2
+    albedo = rng.uniform(0.35, 0.8, (n_rows, n_cols))
+    brick = albedo[row_index[:, None] % n_rows, col_index % n_cols]
+    is_mortar = (y_in[:, None] < mortar) | (x_in < mortar)
+    grain = 0.12 * np.tanh(_fractal_noise(rng, n, 1.0, 0.15))
+    return np.where(is_mortar, 0.2 + 0.5 * grain, brick + grain)
+
+
+@dataclass
+class _MipTextures:
+    """Square power-of-two textures with their mip pyramids, stored flat for vector lookups."""
+
+    data: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    offsets: list[np.ndarray] = field(default_factory=list)
+    sizes: list[np.ndarray] = field(default_factory=list)
+    texels: list[float] = field(default_factory=list)
+
+    def add(self, image: np.ndarray, texel: float) -> int:
+        levels = [np.asarray(image, dtype=np.float32)]
+        while levels[-1].shape[0] > 4:
+            a = levels[-1]
+            levels.append(0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]))
+        start = self.data.size
+        offs, sizes = [], []
+        for lv in levels:
+            offs.append(start)
+            sizes.append(lv.shape[0])
+            start += lv.size
+        self.data = np.concatenate([self.data, *[lv.ravel() for lv in levels]])
+        self.offsets.append(np.array(offs, np.int64))
+        self.sizes.append(np.array(sizes, np.int64))
+        self.texels.append(texel)
+        return len(self.texels) - 1
+
+    def finish(self) -> None:
+        depth = max(len(o) for o in self.offsets)
+        self._off = np.zeros((len(self.offsets), depth), np.int64)
+        self._size = np.ones((len(self.offsets), depth), np.int64)
+        self._levels = np.array([len(o) for o in self.offsets])
+        for i, (o, s) in enumerate(zip(self.offsets, self.sizes, strict=True)):
+            self._off[i, : len(o)], self._size[i, : len(s)] = o, s
+            self._off[i, len(o) :], self._size[i, len(s) :] = o[-1], s[-1]
+        self._texel = np.array(self.texels)
+        self._scale = np.exp2(-np.arange(depth)).astype(np.float32)
+
+    def sample(self, tex: np.ndarray, a: np.ndarray, b: np.ndarray, footprint: np.ndarray):
+        """Trilinear sample of textures ``tex`` at surface coordinates ``(a, b)`` (metres,
+        ``a`` along columns, ``b`` along rows) for a pixel footprint (metres); wraps."""
+        inv_texel = (1.0 / self._texel[tex]).astype(np.float32)
+        x0, y0 = a * inv_texel, b * inv_texel
+        level = np.log2(np.maximum(footprint * inv_texel, np.float32(1.0)))
+        top = self._levels[tex] - 1
+        level = np.minimum(level, top)
+        l0 = level.astype(np.int32)
+        l1 = np.minimum(l0 + 1, top)
+        w = level - l0
+        return (1 - w) * self._bilinear(tex, l0, x0, y0) + w * self._bilinear(tex, l1, x0, y0)
+
+    def _bilinear(self, tex, level, x0, y0):
+        scale = self._scale[level]
+        mask = self._size[tex, level] - 1  # sizes are powers of two: wrap with a bit mask
+        off = self._off[tex, level]
+        x = x0 * scale - np.float32(0.5)
+        y = y0 * scale - np.float32(0.5)
+        xf, yf = np.floor(x), np.floor(y)
+        fx, fy = x - xf, y - yf
+        xi, yi = xf.astype(np.int64) & mask, yf.astype(np.int64) & mask
+        xj, yj = (xi + 1) & mask, (yi + 1) & mask
+        row_i = off + yi * (mask + 1)
+        row_j = off + yj * (mask + 1)
+        d = self.data
+        top = d[row_i + xi] + fx * (d[row_i + xj] - d[row_i + xi])
+        bottom = d[row_j + xi] + fx * (d[row_j + xj] - d[row_j + xi])
+        return top + fy * (bottom - top)
+
+
+class TexturedRoom:
+    """The rendered world: a textured room with ArUco markers on its walls.
+
+    Surfaces: 0 floor, 1 ceiling, 2 wall ``x = 0``, 3 wall ``x = X``, 4 wall ``y = 0``,
+    5 wall ``y = Y``. Each surface has an origin and two in-plane axes (``a`` along texture
+    columns, ``b`` along rows); on walls ``a`` points to the right and ``b`` down as seen from
+    inside the room, so markers read correctly (not mirrored).
+
+    Attributes
+    ----------
+    marker_ids, marker_centres, marker_corners
+        ``(M,)`` ids, ``(M, 3)`` world centres and ``(M, 4, 3)`` world corners in ArUco's
+        order (top-left, top-right, bottom-right, bottom-left) of the black square.
+    """
+
+    def __init__(self, config: RenderConfig) -> None:
+        cv2 = require_cv2()
+        self.config = config
+        rng = np.random.default_rng(np.random.SeedSequence([config.seed, 29]))
+        X, Y, Z = config.room
+        self.size = np.array(config.room)
+        # origin, a axis, b axis, per surface
+        self._frames = np.array(
+            [
+                [[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+                [[0, 0, Z], [1, 0, 0], [0, 1, 0]],
+                [[0, 0, Z], [0, 1, 0], [0, 0, -1]],
+                [[X, Y, Z], [0, -1, 0], [0, 0, -1]],
+                [[X, 0, Z], [-1, 0, 0], [0, 0, -1]],
+                [[0, Y, Z], [1, 0, 0], [0, 0, -1]],
+            ],
+            dtype=float,
+        )
+        n = 1024
+        self._textures = _MipTextures()
+        self._textures.add(_gravel(rng, n), config.texel)
+        self._textures.add(0.15 + 0.7 * _gravel(rng, n), config.texel)
+        for _ in range(4):
+            self._textures.add(_bricks(rng, n, config.texel), config.texel)
+        # markers
+        dictionary = cv2.aruco.getPredefinedDictionary(
+            getattr(cv2.aruco, _ARUCO_DICTIONARIES[config.dictionary])
+        )
+        bits = dictionary.markerSize + 2
+        cell = 32
+        ids, centres, surface, ab, corners = [], [], [], [], []
+        marker_tex = []
+        next_id = 0
+        for wall in range(2, 6):
+            length = Y if wall in (2, 3) else X
+            for j in range(config.markers_per_wall):
+                a = length * (j + 0.5) / config.markers_per_wall
+                height = config.marker_heights[(j + wall) % len(config.marker_heights)]
+                b = Z - height
+                img = cv2.aruco.generateImageMarker(dictionary, next_id, bits * cell)
+                quad = np.pad(img, cell, constant_values=255).astype(np.float32)
+                quad = cv2.resize(quad, (256, 256), interpolation=cv2.INTER_AREA)
+                quad = 0.05 + 0.9 * quad / 255.0
+                texel = config.marker_size * (bits + 2) / bits / 256
+                marker_tex.append(self._textures.add(quad, texel))
+                o, ax, bx = self._frames[wall]
+                centre = o + a * ax + b * bx
+                h = config.marker_size / 2
+                corners.append(
+                    [
+                        centre - h * ax - h * bx,
+                        centre + h * ax - h * bx,
+                        centre + h * ax + h * bx,
+                        centre - h * ax + h * bx,
+                    ]
+                )
+                ids.append(next_id)
+                centres.append(centre)
+                surface.append(wall)
+                ab.append((a, b))
+                next_id += 1
+        self._textures.finish()
+        self.marker_ids = np.array(ids, np.int64)
+        self.marker_centres = np.array(centres)
+        self.marker_corners = np.array(corners)
+        self._marker_surface = np.array(surface)
+        self._marker_ab = np.array(ab)
+        self._marker_tex = np.array(marker_tex)
+        self._marker_half = config.marker_size * (bits + 2) / bits / 2
+        self._per_wall = config.markers_per_wall
+        self._marker_at = np.zeros((6, max(self._per_wall, 1)), np.int64)
+        for m, wall in enumerate(surface):
+            self._marker_at[wall, m % self._per_wall] = m
+        self._wall_length = np.array([X, X, Y, Y, X, X], np.float32)
+        self._marker_ab32 = self._marker_ab.astype(np.float32)
+        self._frames32 = self._frames.astype(np.float32)
+        self._normals = np.cross(self._frames[:, 1], self._frames[:, 2]).astype(np.float32)
+        self._ray_cache = None
+
+    # -- geometry ------------------------------------------------------------------------
+    def _intersect(self, origin: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distances ``t`` (along ``d``) to the first wall hit and the surface index."""
+        ts = []
+        for axis in range(3):
+            di = d[:, axis]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.where(di > 0, (self.size[axis] - origin[axis]) / di, -origin[axis] / di)
+            ts.append(np.where(di == 0, np.inf, t))
+        t_all = np.stack(ts, axis=1)
+        axis = np.argmin(t_all, axis=1)
+        t = t_all[np.arange(len(axis)), axis]
+        positive = d[np.arange(len(axis)), axis] > 0
+        # axis 2 -> floor (0) / ceiling (1); axis 0 -> walls 2/3; axis 1 -> walls 4/5
+        surface = np.choose(axis, [2, 4, 0]) + positive
+        return t, surface
+
+    def _rays(self, T_world_cam: np.ndarray, K: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        pix = np.column_stack([uv, np.ones(len(uv))])
+        d_cam = np.linalg.solve(K, pix.T).T  # z = 1: t is the depth
+        return d_cam @ T_world_cam[:3, :3].T
+
+    def cast(self, T_world_cam: np.ndarray, K: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """The world points seen at pixels ``uv`` ``(N, 2)`` by a camera at ``T_world_cam``."""
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+        origin = T_world_cam[:3, 3]
+        d = self._rays(T_world_cam, K, uv)
+        t, _ = self._intersect(origin, d)
+        return origin + t[:, None] * d
+
+    def render(self, T_world_cam: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """The albedo image ``(height, width)`` float32 in [0, 1] seen from ``T_world_cam``."""
+        w, h = size
+        key = (w, h, *np.asarray(K, float).ravel().tolist())
+        if self._ray_cache is None or self._ray_cache[0] != key:
+            jj, ii = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+            d_cam = self._rays(np.eye(4), K, np.column_stack([jj.ravel(), ii.ravel()]))
+            self._ray_cache = (key, d_cam, np.linalg.norm(d_cam, axis=1).astype(np.float32))
+        _, d_cam, d_norm = self._ray_cache
+        origin = T_world_cam[:3, 3]
+        d = d_cam @ T_world_cam[:3, :3].T
+        t, surface = self._intersect(origin, d)
+        p = (origin + t[:, None] * d).astype(np.float32)
+        frames = self._frames32[surface]
+        rel = p - frames[:, 0]
+        a = np.einsum("ij,ij->i", rel, frames[:, 1])
+        b = np.einsum("ij,ij->i", rel, frames[:, 2])
+        dist = t.astype(np.float32) * d_norm
+        cos_inc = np.abs(np.einsum("ij,ij->i", d.astype(np.float32), self._normals[surface]))
+        cos_inc /= d_norm
+        footprint = dist / np.float32(K[0, 0]) / np.sqrt(np.maximum(cos_inc, np.float32(0.05)))
+        tex = surface.copy()
+        # markers: evenly spaced along each wall, so the candidate marker is found arithmetically
+        wall = np.flatnonzero(surface >= 2)
+        sw = surface[wall]
+        slot = np.clip(
+            (a[wall] / self._wall_length[sw] * self._per_wall).astype(np.int64),
+            0,
+            self._per_wall - 1,
+        )
+        m = self._marker_at[sw, slot]
+        da = a[wall] - self._marker_ab32[m, 0]
+        db = b[wall] - self._marker_ab32[m, 1]
+        half = np.float32(self._marker_half)
+        hit = (np.abs(da) < half) & (np.abs(db) < half)
+        idx = wall[hit]
+        tex[idx] = self._marker_tex[m[hit]]
+        a[idx] = da[hit] + half
+        b[idx] = db[hit] + half
+        image = self._textures.sample(tex, a, b, footprint)
+        return image.reshape(h, w)
+
+
+def apply_effects(
+    albedo: np.ndarray,
+    K: np.ndarray,
+    config: RenderConfig,
+    right: bool,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Turn an albedo image into a camera's 8-bit image: vignetting, gain/offset (right camera),
+    sensor noise, JPEG compression."""
+    h, w = albedo.shape
+    x = (np.arange(w) - K[0, 2]) / K[0, 0]
+    y = (np.arange(h) - K[1, 2]) / K[1, 1]
+    cos4 = 1.0 / (1.0 + x[None, :] ** 2 + y[:, None] ** 2) ** 2
+    vignette = 1.0 - config.vignetting * (1.0 - cos4)
+    grey = 235.0 * albedo * vignette
+    if right:
+        grey = config.right_gain * grey + config.right_offset
+    if config.pixel_noise > 0:
+        grey = grey + config.pixel_noise * rng.standard_normal(grey.shape)
+    img = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+    if config.jpeg_quality is not None:
+        cv2 = require_cv2()
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(config.jpeg_quality)])
+        if not ok:  # pragma: no cover - OpenCV always encodes a grey image
+            raise InputError("JPEG encoding failed")
+        img = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
+    return img
+
+
+def robot_paths(config: RenderConfig) -> list[np.ndarray]:
+    """Per robot ``(steps + 1, 4, 4)`` true ``T_world_body``: wavy ellipses around the room's
+    centre at the camera height, heading along the path, with a little pitch and roll."""
+    rng = np.random.default_rng(np.random.SeedSequence([config.seed, 30]))
+    X, Y, _ = config.room
+    half = np.array([X / 2 - config.wall_margin, Y / 2 - config.wall_margin])
+    paths = []
+    for _ in range(config.robots):
+        axes = half * rng.uniform(0.55, 0.9, 2) / 1.08  # the wobble below reaches 8 %
+        centre = np.array([X / 2, Y / 2]) + (half - 1.08 * axes) * rng.uniform(-1, 1, 2)
+        sense = rng.choice([-1.0, 1.0])
+        phase = rng.uniform(0, 2 * np.pi)
+        wobble_phase = rng.uniform(0, 2 * np.pi)
+        s_fine = np.linspace(0.0, 2.0 * np.pi, 20_000)
+
+        def xy(s, axes=axes, centre=centre, sense=sense, phase=phase, wp=wobble_phase):
+            r = 1.0 + 0.08 * np.sin(3 * s + wp)
+            ang = sense * s + phase
+            return centre + (axes * r[:, None]) * np.column_stack([np.cos(ang), np.sin(ang)])
+
+        p_fine = xy(s_fine)
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p_fine, axis=0), axis=1))])
+        targets = (np.arange(config.steps + 1) * config.step_length) % arc[-1]
+        s = np.interp(targets, arc, s_fine)
+        ds = 1e-4
+        pos = xy(s)
+        vel = (xy(s + ds) - xy(s - ds)) / (2 * ds)
+        yaw = np.arctan2(vel[:, 1], vel[:, 0])
+        pitch = 0.03 * np.sin(2.3 * s + phase)
+        roll = 0.02 * np.sin(3.1 * s + wobble_phase)
+        cy, sy, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+        cr, sr = np.cos(roll), np.sin(roll)
+        rz = np.zeros((len(s), 3, 3))
+        rz[:, 0, 0], rz[:, 0, 1], rz[:, 1, 0], rz[:, 1, 1], rz[:, 2, 2] = cy, -sy, sy, cy, 1
+        ry = np.zeros((len(s), 3, 3))
+        ry[:, 0, 0], ry[:, 0, 2], ry[:, 2, 0], ry[:, 2, 2], ry[:, 1, 1] = cp, sp, -sp, cp, 1
+        rx = np.zeros((len(s), 3, 3))
+        rx[:, 1, 1], rx[:, 1, 2], rx[:, 2, 1], rx[:, 2, 2], rx[:, 0, 0] = cr, -sr, sr, cr, 1
+        poses = np.tile(np.eye(4), (len(s), 1, 1))
+        poses[:, :3, :3] = rz @ ry @ rx
+        poses[:, :2, 3] = pos
+        poses[:, 2, 3] = config.camera_height
+        paths.append(poses)
+    return paths
+
+
+def write_camera_file(
+    path: str | Path,
+    camera: StereoCamera,
+    image_size: tuple[int, int],
+    T_cam_body: np.ndarray | None = None,
+    distortion: tuple[np.ndarray, np.ndarray] | None = None,
+    intrinsics_right: np.ndarray | None = None,
+) -> None:
+    """Write a stereo camera file (YAML) that :func:`teamslam.frontend.load_camera` reads.
+
+    Keys: ``image_width``, ``image_height``, ``left`` / ``right`` (``K`` 3×3 and
+    ``distortion``, OpenCV's ``k1 k2 p1 p2 [k3]``), ``T_left_right`` (pose of the right camera
+    in the left camera frame, 4×4), optional ``T_cam_body`` (4×4).
+    """
+    import yaml
+
+    d_left, d_right = distortion if distortion is not None else (np.zeros(5), np.zeros(5))
+    k_right = camera.intrinsics if intrinsics_right is None else intrinsics_right
+    data = {
+        "image_width": int(image_size[0]),
+        "image_height": int(image_size[1]),
+        "left": {"K": camera.intrinsics.tolist(), "distortion": np.asarray(d_left).tolist()},
+        "right": {"K": np.asarray(k_right).tolist(), "distortion": np.asarray(d_right).tolist()},
+        "T_left_right": camera.T_left_right.tolist(),
+    }
+    if T_cam_body is not None:
+        data["T_cam_body"] = np.asarray(T_cam_body).tolist()
+    Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+@dataclass
+class RenderedTeam:
+    """What :func:`render_team` wrote, with the exact truth.
+
+    Attributes
+    ----------
+    directory
+        The output directory (``None`` when nothing was written).
+    room
+        The world (for :meth:`TexturedRoom.cast`).
+    paths, odometry
+        Per robot true ``T_world_body`` ``(steps + 1, 4, 4)`` and noisy odometry
+        ``(steps, 4, 4)`` (``T_{k+1} ≈ T_k · odometry[k]``).
+    timestamps
+        ``(steps + 1,)`` seconds.
+    robot_dirs
+        Per robot, the folder with ``left/``, ``right/``, ``camera.yaml``, …
+    """
+
+    directory: Path | None
+    room: TexturedRoom
+    paths: list[np.ndarray]
+    odometry: list[np.ndarray]
+    timestamps: np.ndarray
+    robot_dirs: list[Path] = field(default_factory=list)
+
+    @property
+    def config(self) -> RenderConfig:
+        """The configuration rendered."""
+        return self.room.config
+
+    def T_world_cam(self, robot: int, frame: int) -> np.ndarray:
+        """True left-camera pose of ``robot`` at ``frame``."""
+        return self.paths[robot][frame] @ se3.inverse(T_CAM_BODY)
+
+    def project(self, robot: int, frame: int, points_world: np.ndarray) -> np.ndarray:
+        """Exact stereo projections ``(N, 4)`` of world points in ``robot``'s frame ``frame``."""
+        T_cam_world = se3.inverse(self.T_world_cam(robot, frame))
+        p = np.asarray(points_world, dtype=float) @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+        return self.config.camera().project(p)
+
+    def points_behind(self, robot: int, frame: int, uv_left: np.ndarray) -> np.ndarray:
+        """The world points ``(N, 3)`` seen at left-image pixels ``uv_left`` (exact)."""
+        K = self.config.camera().intrinsics
+        return self.room.cast(self.T_world_cam(robot, frame), K, uv_left)
+
+    def visible_markers(self, robot: int, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Markers wholly inside both images, in front of the camera: ``(ids, z (M, 4) true
+        stereo centres, side (M,) shortest projected side in pixels over both images)``."""
+        room, camera = self.room, self.config.camera()
+        w, h = self.config.image_size
+        corners = self.project(robot, frame, room.marker_corners.reshape(-1, 3)).reshape(-1, 4, 4)
+        T_cam_world = se3.inverse(self.T_world_cam(robot, frame))
+        depth = room.marker_corners.reshape(-1, 3) @ T_cam_world[2, :3] + T_cam_world[2, 3]
+        front = (depth.reshape(-1, 4) > 0.1).all(axis=1)
+        u, v = corners[..., 0::2], corners[..., 1::2]
+        inside = ((u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)).all(axis=(1, 2))
+        sides = []
+        for cam in (0, 2):
+            c = corners[..., cam : cam + 2]
+            sides.append(np.linalg.norm(c - np.roll(c, 1, axis=1), axis=2).min(axis=1))
+        side = np.minimum(*sides)
+        keep = front & inside
+        z = self.project(robot, frame, room.marker_centres)
+        del camera
+        return room.marker_ids[keep], z[keep], side[keep]
+
+
+def render_stereo(
+    room: TexturedRoom, T_world_cam: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """The left and right 8-bit images of the rig whose left camera is at ``T_world_cam``."""
+    config = room.config
+    camera = config.camera()
+    K = camera.intrinsics
+    left = apply_effects(room.render(T_world_cam, K, config.image_size), K, config, False, rng)
+    T_world_right = T_world_cam @ camera.T_left_right
+    right = apply_effects(room.render(T_world_right, K, config.image_size), K, config, True, rng)
+    return left, right
+
+
+def render_team(
+    config: RenderConfig, out: str | Path | None = None, progress: bool = False
+) -> RenderedTeam:
+    """Render a team's stereo images (and write them as folders when ``out`` is given).
+
+    Parameters
+    ----------
+    config
+        World, team and camera settings.
+    out
+        Output directory (created); ``None`` renders nothing and returns only the truth.
+    progress
+        Show a progress bar.
+
+    Returns
+    -------
+    RenderedTeam
+        Paths, noisy odometry, timestamps and the world with its markers.
+    """
+    cv2 = require_cv2()
+    from tqdm import tqdm
+
+    room = TexturedRoom(config)
+    paths = robot_paths(config)
+    timestamps = np.arange(config.steps + 1) / config.rate
+    noise = np.random.SeedSequence([config.seed, 31]).spawn(config.robots)
+    sigma = np.array([config.odometry_translation_noise] * 3 + [config.odometry_rotation_noise] * 3)
+    odometry = []
+    for i, path in enumerate(paths):
+        rng = np.random.default_rng(noise[i])
+        odo_true = se3.inverse(path[:-1]) @ path[1:]
+        odometry.append(odo_true @ se3.exp(rng.standard_normal((config.steps, 6)) * sigma))
+    team = RenderedTeam(None, room, paths, odometry, timestamps)
+    if out is None:
+        return team
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    camera = config.camera()
+    (out / "render.json").write_text(json.dumps(_jsonable(asdict(config)), indent=2) + "\n")
+    rows = np.column_stack([room.marker_ids, room.marker_centres])
+    np.savetxt(out / "markers.txt", rows, fmt=["%d", "%.9f", "%.9f", "%.9f"], header="id x y z")
+    bar = tqdm(total=config.robots * (config.steps + 1), desc="rendering", disable=not progress)
+    for i, path in enumerate(paths):
+        rdir = out / f"robot_{i}"
+        (rdir / "left").mkdir(parents=True, exist_ok=True)
+        (rdir / "right").mkdir(parents=True, exist_ok=True)
+        write_camera_file(rdir / "camera.yaml", camera, config.image_size, T_CAM_BODY)
+        np.savetxt(rdir / "timestamps.txt", timestamps, fmt="%.6f")
+        write_tum(rdir / "groundtruth.tum", path, timestamps)
+        dead_reckoned = np.tile(path[0], (config.steps + 1, 1, 1))
+        for k in range(config.steps):
+            dead_reckoned[k + 1] = dead_reckoned[k] @ odometry[i][k]
+        write_tum(rdir / "odometry.tum", dead_reckoned, timestamps)
+        rng = np.random.default_rng(np.random.SeedSequence([config.seed, 32, i]))
+        for k in range(config.steps + 1):
+            left, right = render_stereo(room, team.T_world_cam(i, k), rng)
+            cv2.imwrite(str(rdir / "left" / f"{k:06d}.png"), left)
+            cv2.imwrite(str(rdir / "right" / f"{k:06d}.png"), right)
+            bar.update()
+        team.robot_dirs.append(rdir)
+    bar.close()
+    team.directory = out
+    return team
+
+
+def _jsonable(d: dict) -> dict:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+def simulate_images(
+    out: str | Path,
+    robots: int = 3,
+    steps: int = 200,
+    seed: int = 0,
+    bag: bool = True,
+    progress: bool = True,
+    **overrides,
+) -> RenderedTeam:
+    """Render a team as image folders (:func:`render_team`) and, with ``bag``, also as a ROS 2
+    bag ``out/images.mcap`` (:func:`teamslam.datasets.images.images_to_bag`, topics
+    ``/robot_k/{left,right}/image_raw``, ``…/camera_info``, ``/robot_k/odom``,
+    ``/robot_k/ground_truth``).
+
+    Parameters
+    ----------
+    out
+        Output directory.
+    robots, steps, seed
+        Team size, motion steps per robot, seed.
+    bag
+        Also write the bag.
+    progress
+        Show progress bars.
+    **overrides
+        Any other :class:`RenderConfig` field.
+    """
+    from teamslam.datasets.images import images_to_bag, rendered_team_inputs
+
+    config = RenderConfig(robots=robots, steps=steps, seed=seed, **overrides)
+    team = render_team(config, out, progress=progress)
+    if bag:
+        inputs = rendered_team_inputs(out)
+        images_to_bag(
+            inputs["left_dirs"],
+            inputs["right_dirs"],
+            inputs["camera"],
+            inputs["timestamps"],
+            Path(out) / "images.mcap",
+            odometry=inputs["odometry"],
+            ground_truth=inputs["ground_truth"],
+            robot_names=inputs["robot_names"],
+            progress=progress,
+        )
+    return team

@@ -1,0 +1,194 @@
+"""Stereo front-end: tracking, stereo matching with its outlier gate, markers, rectification,
+settings, and the error without OpenCV — checked against a rendered room's exact truth."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+cv2 = pytest.importorskip("cv2", reason="the images extra (OpenCV) is not installed")
+
+from teamslam.errors import InputError  # noqa: E402
+from teamslam.frontend import (  # noqa: E402
+    FeatureTracker,
+    FrontendConfig,
+    MarkerDetector,
+    StereoRig,
+    diagonal_centre,
+    match_stereo,
+)
+from teamslam.frontend._cv import require_cv2  # noqa: E402
+from teamslam.sim.render import (  # noqa: E402
+    T_CAM_BODY,
+    RenderConfig,
+    apply_effects,
+    render_stereo,
+    render_team,
+)
+
+SMALL = {"image_size": (320, 240), "focal": 210.0, "marker_size": 0.9, "steps": 6, "robots": 1}
+
+
+@pytest.fixture(scope="module")
+def sequence():
+    team = render_team(RenderConfig(**SMALL))
+    rng = np.random.default_rng(3)
+    frames = [render_stereo(team.room, team.T_world_cam(0, k), rng) for k in range(7)]
+    return team, frames
+
+
+def test_tracking_keeps_ids_with_subpixel_accuracy(sequence):
+    team, frames = sequence
+    tracker = FeatureTracker((320, 240))
+    ids0, uv0 = tracker.track(frames[0][0])
+    assert ids0.size >= 100
+    np.testing.assert_array_equal(ids0, np.arange(ids0.size))  # fresh ids count up
+    world = dict(zip(ids0.tolist(), team.points_behind(0, 0, uv0), strict=True))
+    errors = []
+    for k in range(1, 7):
+        ids, uv = tracker.track(frames[k][0])
+        assert np.unique(ids).size == ids.size
+        old = ids < ids0.size
+        truth = team.project(0, k, np.array([world[i] for i in ids[old].tolist()]))
+        errors.append(np.linalg.norm(uv[old] - truth[:, :2], axis=1))
+    # most first-frame tracks survive six frames under their original ids
+    assert np.isin(ids0, ids).mean() > 0.6
+    e = np.concatenate(errors)
+    assert np.median(e) < 0.25
+    assert np.mean(e < 1.0) > 0.97
+
+
+def test_stereo_matches_true_disparity_within_a_pixel(sequence):
+    team, frames = sequence
+    left, right = frames[0]
+    corners = cv2.goodFeaturesToTrack(left, 300, 0.005, 5).reshape(-1, 2).astype(float)
+    camera = team.config.camera()
+    config = FrontendConfig()
+    m = match_stereo(left, right, corners, config.disparity_range(camera.fx_baseline), config)
+    assert m.accepted.mean() > 0.8
+    truth = team.project(0, 0, team.points_behind(0, 0, corners[m.accepted]))
+    err = np.abs(m.uv_right[m.accepted] - truth[:, 2:])
+    assert err.max() < 1.0
+    assert np.median(err[:, 0]) < 0.2
+    assert np.all(np.isnan(m.uv_right[~m.accepted]))
+
+
+def _occlusion_pair():
+    """Random texture at disparity 4 behind a textured square at disparity 20."""
+    rng = np.random.default_rng(0)
+    h, w = 120, 200
+    back = cv2.GaussianBlur(rng.uniform(0, 255, (h, w + 40)).astype(np.float32), (0, 0), 1.2)
+    front = cv2.GaussianBlur(rng.uniform(0, 255, (h, 60)).astype(np.float32), (0, 0), 1.2)
+    left = back[:, 20 : 20 + w].copy()
+    right = back[:, 24 : 24 + w].copy()
+    x0 = 100  # the square covers columns x0 … x0 + 59 in the left image, 20 fewer in the right
+    left[30:90, x0 : x0 + 60] = front[30:90]
+    right[30:90, x0 - 20 : x0 + 40] = front[30:90]
+    return left.astype(np.uint8), right.astype(np.uint8), x0
+
+
+def test_left_right_check_rejects_an_occlusion():
+    left, right, x0 = _occlusion_pair()
+    # background hidden behind the square in the right image: left columns x0 − 16 … x0 − 1
+    hidden = np.array([[u, v] for u in range(x0 - 13, x0 - 7, 2) for v in range(45, 76, 6)], float)
+    visible = np.array([[u, v] for u in range(30, 60, 4) for v in range(40, 80, 8)], float)
+    lenient = {"ncc_min": 1e-6, "uniqueness": 1.0, "refine_share": 1.0}
+    with_check = FrontendConfig(**lenient)
+    without = FrontendConfig(**lenient, left_right_share=1.0)
+    m_hidden = match_stereo(left, right, hidden, (0.0, 40.0), with_check)
+    m_free = match_stereo(left, right, hidden, (0.0, 40.0), without)
+    assert m_hidden.searched.all()
+    assert not m_hidden.accepted.any()  # the left-right check alone rejects them
+    assert m_free.accepted.mean() > 0.5  # ... which would otherwise pass
+    m_vis = match_stereo(left, right, visible, (0.0, 40.0), FrontendConfig())
+    assert m_vis.accepted.all()
+    np.testing.assert_allclose(visible[:, 0] - m_vis.uv_right[:, 0], 4.0, atol=0.1)
+
+
+def test_markers_found_with_subpixel_centres(sequence):
+    team, frames = sequence
+    detector = MarkerDetector(FrontendConfig())
+    camera = team.config.camera()
+    rng_d = FrontendConfig().disparity_range(camera.fx_baseline)
+    checked = 0
+    for k, (left, right) in enumerate(frames):
+        ids, z = detector.detect_stereo(left, right, rng_d, 2.0)
+        true_ids, true_z, side = team.visible_markers(0, k)
+        for i, zt in zip(true_ids[side >= 25], true_z[side >= 25], strict=True):
+            assert i in ids, f"marker {i} ({side.max():.0f} px) missed in frame {k}"
+            assert np.abs(z[ids == i][0] - zt).max() < 1.0
+            checked += 1
+        # every reported marker is a real one seen by the camera
+        assert np.isin(ids, true_ids).all()
+    assert checked >= 3
+
+
+def test_diagonal_centre_is_the_projective_centre():
+    corners = np.array([[10.0, 10.0], [50.0, 12.0], [44.0, 40.0], [12.0, 44.0]])
+    c = diagonal_centre(corners)
+    # on both diagonals
+    for a, b in ((0, 2), (1, 3)):
+        d = corners[b] - corners[a]
+        r = c - corners[a]
+        assert abs(d[0] * r[1] - d[1] * r[0]) < 1e-9
+
+
+def test_rectification_of_a_rotated_pair():
+    cfg = RenderConfig(**SMALL)
+    team = render_team(cfg)
+    room = team.room
+    K = cfg.camera().intrinsics
+    T_world_left = team.T_world_cam(0, 2)
+    # the right camera: 0.2 m to the right, yawed 3° and rolled 1.5°
+    rot = cv2.Rodrigues(np.array([0.0, np.radians(3.0), np.radians(1.5)]))[0]
+    T_left_right = np.eye(4)
+    T_left_right[:3, :3], T_left_right[0, 3] = rot, 0.2
+    no_effects = RenderConfig(**SMALL, jpeg_quality=None, pixel_noise=0.0, vignetting=0.0)
+    rng = np.random.default_rng(0)
+    raw_l = apply_effects(room.render(T_world_left, K, (320, 240)), K, no_effects, False, rng)
+    T_world_right = T_world_left @ T_left_right
+    raw_r = apply_effects(room.render(T_world_right, K, (320, 240)), K, no_effects, True, rng)
+    rig = StereoRig((320, 240), K, K, np.zeros(5), np.zeros(5), T_left_right, T_CAM_BODY)
+    assert not rig.already_rectified
+    left, right = rig.rectify(raw_l, raw_r)
+    cam = rig.camera
+    assert cam.baseline == pytest.approx(0.2, rel=1e-6)
+    corners = cv2.goodFeaturesToTrack(left, 200, 0.005, 6).reshape(-1, 2).astype(float)
+    cfg_fe = FrontendConfig()
+    m = match_stereo(left, right, corners, cfg_fe.disparity_range(cam.fx_baseline), cfg_fe)
+    assert m.accepted.mean() > 0.6
+    # truth: the rectified left ray back in the raw left camera, cast into the room, projected
+    # into the rectified stereo camera
+    uv = corners[m.accepted]
+    rays_rect = np.column_stack([uv, np.ones(len(uv))]) @ np.linalg.inv(cam.intrinsics).T
+    rays_raw = rays_rect @ rig.R_rect_left  # R⁻¹ = Rᵀ: raw = Rᵀ rect
+    uv_raw = rays_raw[:, :2] / rays_raw[:, 2:] * K[0, 0] + K[:2, 2]
+    world = room.cast(T_world_left, K, uv_raw)
+    T_left_world = np.linalg.inv(T_world_left)
+    p_raw = world @ T_left_world[:3, :3].T + T_left_world[:3, 3]
+    truth = cam.project(p_raw @ rig.R_rect_left.T)
+    np.testing.assert_allclose(truth[:, :2], uv, atol=1e-6)
+    err = np.abs(m.uv_right[m.accepted] - truth[:, 2:])
+    assert np.median(err) < 0.2
+    assert np.mean(err.max(axis=1) < 1.0) > 0.97
+
+
+def test_settings_scale_with_the_image():
+    c = FrontendConfig()
+    small, big = c.pixels((320, 240)), c.pixels((1280, 960))
+    assert big.lk_window > 3 * small.lk_window - 6
+    assert big.spacing == pytest.approx(4 * small.spacing)
+    lo, hi = c.disparity_range(84.0)
+    assert lo == pytest.approx(84.0 / c.max_depth) and hi == pytest.approx(84.0 / c.min_depth)
+    with pytest.raises(InputError, match="min_depth"):
+        FrontendConfig(min_depth=5.0, max_depth=1.0)
+    with pytest.raises(InputError, match="marker_dictionary"):
+        FrontendConfig(marker_dictionary="9x9")
+
+
+def test_without_opencv_the_error_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "cv2", None)
+    with pytest.raises(InputError, match=r"pip install teamslam\[images\]"):
+        require_cv2()
