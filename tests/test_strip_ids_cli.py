@@ -38,6 +38,19 @@ def test_strip_ids_then_run_with_own_association(tmp_path, capsys):
     team = metrics["association"]["team"]
     assert team["wrong"] == 0 and team["precision"] == 1.0
     assert set(metrics["association"]["links"]) == {"0-1"}
+    # the MCAP draws a line between the two estimates of every matched pair
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from teamslam.ros2.mcap_export import export_mcap
+
+    export_mcap(out, tmp_path / "run.mcap", path_messages=2)
+    with (tmp_path / "run.mcap").open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        lines = [d for _, c, _, d in reader.iter_decoded_messages() if c.topic == "/association"]
+    assert len(lines) == 1
+    (marker,) = lines[0].markers
+    assert marker.ns == "link_0_1" and len(marker.points) == 2 * team["held"]
 
 
 def test_simulate_with_per_robot_object_ids(tmp_path):
