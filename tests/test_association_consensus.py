@@ -270,3 +270,34 @@ def test_summaries_cross_the_wire_and_threads_equal_in_process(stripped3, tmp_pa
         len(encode(MapIdsMessage(2, 0, 7, ids, None, summary), team))
         == MapIdsMessage(2, 0, 7, ids, None, summary).nbytes()
     )
+
+
+def test_the_report_shows_the_association_of_a_run():
+    from types import SimpleNamespace
+
+    from teamslam.eval.report import _association_section
+
+    team = {
+        "proposed": 12,
+        "accepted": 10,
+        "revoked": 2,
+        "held": 8,
+        "excluded": 3,
+        "correct": 7,
+        "wrong": 1,
+        "shared": 9,
+        "precision": 0.875,
+        "recall": 7 / 9,
+        "summary_bytes_per_robot_step": 1234.0,
+        "association_time_share": 0.125,
+    }
+    link = {"held": 8, "revoked": 2, "precision": 0.875, "recall": 7 / 9}
+    runs = [
+        SimpleNamespace(metrics={"association": {"team": team, "links": {"0-1": link}}}),
+        SimpleNamespace(metrics={}),
+    ]
+    html = _association_section(["own", "oracle"], runs)
+    assert "<h2>Association</h2>" in html
+    for text in ("12 | 10 | 2", "7 | 1", "0.875", "0.778", "1234", "12.5%", "link 0-1"):
+        assert text in html
+    assert _association_section(["oracle"], [SimpleNamespace(metrics={})]) == ""
