@@ -195,7 +195,7 @@ def test_wire_carries_moved_flags_and_degree_and_refuses_version_1():
     assert decode(encode(marginal, team), team, 4).degree == 7
     old = bytearray(encode(marginal, team))
     old[4] = 1
-    with pytest.raises(WireError, match="unknown format version 1"):
+    with pytest.raises(WireError, match="format version 1 is no longer read"):
         decode(bytes(old), team, 4)
 
 

@@ -183,6 +183,7 @@ def run(
     secure: bool = False,
     progress: bool | None = None,
     source: str | Path | None = None,
+    association: str | None = None,
 ) -> Run:
     """Run the filter over a team dataset: what ``teamslam run`` computes.
 
@@ -216,6 +217,11 @@ def run(
         Show a progress bar (default: when standard error is a terminal).
     source
         The directory of a ``dataset`` given loaded (what ``processes`` need).
+    association
+        Which objects of two robots are the same: ``oracle`` (equal ids; only where the
+        dataset's ids are global) or ``own`` (each link finds its correspondences,
+        :mod:`teamslam.association`); ``None``: the ``association`` setting (default ``oracle``
+        with global ids, ``own`` with per-robot ids).
 
     Raises
     ------
@@ -241,6 +247,8 @@ def run(
     effective = (
         settings if isinstance(settings, EffectiveConfig) else resolve_settings(dataset, settings)
     )
+    if association is not None:
+        effective = with_association(effective, dataset, association)
     comm = make(graph, dataset.n_robots, seed=seed)
     if processes:
         if path is None:
@@ -260,6 +268,32 @@ def run(
     if out is not None:
         write_run(result, out, report=report, mcap=mcap)
     return result
+
+
+def with_association(effective, dataset, association: str):
+    """``effective`` with the ``association`` setting (``oracle`` | ``own``) on every robot.
+
+    Raises
+    ------
+    InputError
+        An unknown kind, or ``oracle`` on a dataset whose object ids are not team-wide.
+    """
+    from dataclasses import replace
+
+    if association not in ("oracle", "own"):
+        raise InputError(f"association must be oracle or own, not {association!r}")
+    if association == "oracle" and dataset.object_id_scope != "global":
+        raise InputError(
+            f"association oracle needs team-wide object ids; this dataset's object ids are "
+            f"{dataset.object_id_scope!r} (use own)"
+        )
+    sources = {**effective.sources, "association": "flag"}
+    return replace(
+        effective,
+        config=effective.config.with_(association=association),
+        robots=[c.with_(association=association) for c in effective.robots],
+        sources=sources,
+    )
 
 
 def _run_one(name, dataset, effective, graph, loss, seed, progress):

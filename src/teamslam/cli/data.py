@@ -33,6 +33,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             seed=args.seed,
             noise_free=args.noise_free,
         )
+    if args.object_ids == "per-robot":
+        from teamslam.datasets.identity import strip_object_ids
+
+        dataset = strip_object_ids(dataset, seed=args.seed)
     save_and_describe(dataset, args.out)
     return 0
 
@@ -49,11 +53,24 @@ def _cmd_data_import_reference(args: argparse.Namespace) -> int:
     from teamslam.datasets import import_reference
 
     dataset = import_reference(
-        args.source, inverted_odometry=args.inverted_odometry, params=args.params
+        args.source,
+        inverted_odometry=args.inverted_odometry,
+        params=args.params,
+        object_ids=args.object_ids,
+        seed=args.seed,
     )
     path = save_and_describe(dataset, args.out)
     if dataset.sensor_model is not None:
         _check_params(dataset, path)
+    return 0
+
+
+def _cmd_strip_ids(args: argparse.Namespace) -> int:
+    from teamslam.datasets import load_dataset
+    from teamslam.datasets.identity import strip_object_ids
+
+    dataset = strip_object_ids(load_dataset(args.dataset), to=args.to, seed=args.seed)
+    save_and_describe(dataset, args.out)
     return 0
 
 
@@ -273,6 +290,13 @@ def register(sub) -> None:
     )
     sim.add_argument("--seed", type=non_negative_int, default=0, help="random seed")
     sim.add_argument("--noise-free", action="store_true", help="exact measurements and odometry")
+    sim.add_argument(
+        "--object-ids",
+        choices=("global", "per-robot"),
+        default="global",
+        help="global: an object has one id in every robot's data (default); per-robot: each "
+        "robot numbers its own objects (which are the same kept as ground truth)",
+    )
     sim.add_argument("--out", type=Path, required=True, help="dataset directory to write")
     sim.set_defaults(handler=_cmd_simulate)
 
@@ -301,7 +325,29 @@ def register(sub) -> None:
         help="the publisher's parameter file (params.yaml): its noise variances become the "
         "dataset's sensor model, checked against a calibration from the data",
     )
+    imp.add_argument(
+        "--object-ids",
+        choices=("global", "per-robot"),
+        default="global",
+        help="global: the published team-wide instance ids (default); per-robot: each robot's "
+        "objects renumbered on their own (the identity kept as ground truth)",
+    )
+    imp.add_argument(
+        "--seed", type=non_negative_int, default=0, help="seed of the per-robot renumbering"
+    )
     imp.set_defaults(handler=_cmd_data_import_reference)
+    strip = data_sub.add_parser(
+        "strip-ids",
+        help="renumber each robot's objects on its own (ground-truth identity kept)",
+        description="Write a copy of a global-id dataset in which every robot numbers its own "
+        "objects, as a real team's trackers would; which per-robot ids are the same object is "
+        "kept as ground truth (evaluation only, never read by a filter).",
+    )
+    strip.add_argument("dataset", type=Path, help="dataset directory (global object ids)")
+    strip.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    strip.add_argument("--to", choices=("per-robot",), default="per-robot", help="the new id scope")
+    strip.add_argument("--seed", type=non_negative_int, default=0, help="seed of the new ids")
+    strip.set_defaults(handler=_cmd_strip_ids)
     bag = data_sub.add_parser(
         "import-bag",
         help="a team dataset from a rosbag2 bag or MCAP file",

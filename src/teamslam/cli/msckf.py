@@ -33,6 +33,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.processes and (args.out is None or args.compare or args.separate or args.centralised):
         raise UsageError("--processes needs --out and runs consensus only")
     dataset = load_dataset(args.dataset)
+    if args.association is not None:
+        args.set = [*(args.set or []), f"association={args.association}"]
     effective = effective_settings(args, dataset)
     print(settings_line(dataset, effective))
     mode = next(
@@ -120,6 +122,13 @@ def register(sub) -> None:
     )
     run.add_argument("--window", type=positive_int, default=None, help="window size c")
     run.add_argument("--objects-only", action="store_true", help="ignore geometric features")
+    run.add_argument(
+        "--association",
+        choices=("oracle", "own"),
+        default=None,
+        help="which objects robots share: equal ids (oracle, global ids only) or found by each "
+        "link from exchanged object summaries (own; the default with per-robot ids)",
+    )
     settings_arguments(run)
     run.add_argument("--seed", type=non_negative_int, default=0, help="seed of the link loss")
     run.add_argument("--out", type=Path, default=None, help="directory for results")

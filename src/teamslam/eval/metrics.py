@@ -10,7 +10,12 @@
   filter's own convention ``T_true = T_est · exp(ε^)``, normalised by 6 (1 when consistent);
 * time per robot per frame for each stage;
 * sensor health (:mod:`teamslam.msckf.health`): per sensor the mean NIS / dof and the share of
-  measurements the χ² gate rejected, and the odometry's smoothed-residual ratio.
+  measurements the χ² gate rejected, and the odometry's smoothed-residual ratio;
+* with association by the robots themselves (``association = own``) or the consensus
+  innovation check: per link the summary bytes per step, the correspondences proposed,
+  accepted, revoked and held, and where ground truth exists (per-robot ids with
+  ``object_identity``, or global ids) the correct and wrong ones, precision and recall against
+  the objects both final maps hold (:func:`association_metrics`).
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from teamslam.geometry import se3
 from teamslam.msckf.team import TeamResult
 
 __all__ = [
+    "association_metrics",
     "dead_reckoning",
     "object_disagreement",
     "object_errors",
@@ -141,7 +147,123 @@ def team_metrics(dataset: TeamDataset, result: TeamResult) -> dict:
         ),
         "wall_seconds": result.wall_seconds,
         **_health(result.health),
+        **_association(dataset, result),
     }
+
+
+def _association(dataset: TeamDataset, result: TeamResult) -> dict:
+    """``{"association": …}`` when the run recorded association (else nothing)."""
+    per_robot = result.extra.get("association")
+    if per_robot is None:  # robot processes: in each robot's summary
+        summaries = result.extra.get("per_robot", [])
+        per_robot = [s.get("association", {}) for s in summaries]
+    if not any(per_robot):
+        return {}
+    return {"association": association_metrics(dataset, result, per_robot)}
+
+
+def association_metrics(dataset: TeamDataset, result: TeamResult, per_robot: list[dict]) -> dict:
+    """Per link and for the team: what the association exchanged, found and got right.
+
+    Parameters
+    ----------
+    dataset
+        The team data (ground truth of object identity: global ids, or ``object_identity``).
+    result
+        The run (final maps, timings, frames).
+    per_robot
+        Per robot (in ``result.robots`` order) :meth:`~teamslam.msckf.protocol.ConsensusProtocol.
+        association_summary`: per neighbour the table's counts and pairs and the exchange
+        statistics.
+
+    Returns
+    -------
+    dict
+        ``links``: ``"i-j"`` (``i < j``, seen from ``i``) → summary bytes per step (each way),
+        ``proposed``, ``accepted``, ``revoked``, ``held``, ``excluded`` (objects left out of an
+        average by the innovation test), ``ends_agree`` (both ends hold the same pairs) and,
+        with ground truth, ``correct``, ``wrong``, ``shared``, ``precision``, ``recall``;
+        ``team``: the sums, precision and recall over the links, and the association's share
+        of the per-robot-step time.
+    """
+    from teamslam.association import score_correspondences
+
+    robots = list(result.robots or range(len(per_robot)))
+    index = {r: k for k, r in enumerate(robots)}
+    scope = dataset.object_id_scope
+    has_truth = scope == "global" or dataset.object_identity.size > 0
+    links: dict[str, dict] = {}
+    totals = {k: 0 for k in ("proposed", "accepted", "revoked", "held", "excluded")}
+    correct = wrong = shared = 0
+    for k, i in enumerate(robots):
+        frames = max(len(result.poses[k]) - 1, 1)
+        for key, entry in sorted(per_robot[k].items(), key=lambda kv: int(kv[0])):
+            j = int(key)
+            if j < i or j not in index:
+                continue
+            other = per_robot[index[j]].get(str(i), {})
+            link = {
+                "summary_bytes_per_step": [
+                    entry.get("summary_bytes", 0) / frames,
+                    other.get("summary_bytes", 0) / frames,
+                ],
+                "excluded": int(entry.get("excluded", 0)) + int(other.get("excluded", 0)),
+            }
+            for name in ("proposed", "accepted", "revoked", "held"):
+                if name in entry:
+                    link[name] = int(entry[name])
+            pairs = np.asarray(entry.get("pairs", []), dtype=np.int64).reshape(-1, 2)
+            if "pairs" in entry:
+                theirs = np.asarray(other.get("pairs", []), dtype=np.int64).reshape(-1, 2)
+                mirrored = theirs[:, ::-1]
+                link["ends_agree"] = bool(
+                    np.array_equal(
+                        pairs[np.lexsort(pairs.T[::-1])] if pairs.size else pairs,
+                        mirrored[np.lexsort(mirrored.T[::-1])] if mirrored.size else mirrored,
+                    )
+                )
+            if has_truth and "pairs" in entry:
+                own_ids, their_ids = result.object_ids[k], result.object_ids[index[j]]
+                inside = np.isin(pairs[:, 0], own_ids) & np.isin(pairs[:, 1], their_ids)
+                truth = (
+                    (None, None)
+                    if scope == "global"
+                    else (dataset.true_objects(i), dataset.true_objects(j))
+                )
+                score = score_correspondences(pairs[inside], own_ids, their_ids, *truth)
+                link.update(score.to_json())
+                correct += score.correct
+                wrong += score.wrong
+                shared += score.shared
+            for name in totals:
+                totals[name] += int(link.get(name, 0))
+            links[f"{i}-{j}"] = link
+    seconds = [
+        sum(float(e.get("association_seconds", 0.0)) for e in per_robot[k].values())
+        for k in range(len(robots))
+    ]
+    spent = [sum(float(v) for v in t.values()) for t in result.timings]
+    team: dict = dict(totals)
+    if has_truth:
+        team.update(
+            correct=correct,
+            wrong=wrong,
+            shared=shared,
+            precision=correct / (correct + wrong) if correct + wrong else 1.0,
+            recall=correct / shared if shared else 1.0,
+        )
+    team["association_seconds"] = float(sum(seconds))
+    team["association_time_share"] = float(sum(seconds) / sum(spent)) if sum(spent) > 0 else 0.0
+    team["summary_bytes_per_robot_step"] = float(
+        np.mean(
+            [
+                sum(e.get("summary_bytes", 0) for e in per_robot[k].values())
+                / max(len(result.poses[k]) - 1, 1)
+                for k in range(len(robots))
+            ]
+        )
+    )
+    return {"links": links, "team": team}
 
 
 def _health(health: dict) -> dict:

@@ -583,6 +583,74 @@ def _summary_section(
     return f"<section id='summary'><h2>Summary</h2>{table}</section>"
 
 
+def _association_section(names: list[str], runs: list[TeamRun]) -> str:
+    """Which objects the robots found they share (runs with ``association = own``); empty when
+    no run associated objects itself."""
+    found = [(r.metrics or {}).get("association") for r in runs]
+    if not any(found):
+        return ""
+
+    def team(key, fmt="{}"):
+        return [
+            "—" if a is None or a["team"].get(key) is None else fmt.format(a["team"][key])
+            for a in found
+        ]
+
+    rows = [
+        ("correspondences held, team", team("held")),
+        (
+            "proposed | accepted | revoked",
+            [
+                "—" if a is None else "{proposed} | {accepted} | {revoked}".format(**a["team"])
+                for a in found
+            ],
+        ),
+        (
+            "correct | wrong (ground truth)",
+            [
+                "—"
+                if a is None or "correct" not in a["team"]
+                else f"{a['team']['correct']} | {a['team']['wrong']}"
+                for a in found
+            ],
+        ),
+        ("precision", team("precision", "{:.3f}")),
+        ("recall (objects both maps hold)", team("recall", "{:.3f}")),
+        ("summary bytes / robot / frame", team("summary_bytes_per_robot_step", "{:.0f}")),
+        (
+            "association share of step time",
+            [
+                "—" if a is None else f"{100 * a['team']['association_time_share']:.1f}%"
+                for a in found
+            ],
+        ),
+    ]
+    links = sorted(
+        {k for a in found if a for k in a["links"]}, key=lambda k: tuple(map(int, k.split("-")))
+    )
+    for key in links:
+        cells = []
+        for a in found:
+            link = None if a is None else a["links"].get(key)
+            if link is None:
+                cells.append("—")
+            elif "precision" in link:
+                cells.append(
+                    f"{link.get('held', 0)} held, {link.get('revoked', 0)} revoked, "
+                    f"P {link['precision']:.3f} R {link['recall']:.3f}"
+                )
+            else:
+                cells.append(f"{link.get('held', 0)} held, {link.get('revoked', 0)} revoked")
+        rows.append((f"link {key}", cells))
+    table = _table(names, rows, "association-table")
+    return (
+        "<section id='association'><h2>Association</h2>"
+        "<p>Objects without shared ids: each link finds which objects the two robots share from "
+        "exchanged object summaries; consensus averages the matched pairs.</p>"
+        f"{table}</section>"
+    )
+
+
 def build_report(runs: list[TeamRun], evaluations: list[TeamEvaluation]) -> str:
     """The HTML text of the report, a column per run."""
     from teamslam import __version__
@@ -601,6 +669,7 @@ def build_report(runs: list[TeamRun], evaluations: list[TeamEvaluation]) -> str:
         _health_section(names, runs),
         _timing_section(names, runs),
         _messages_section(names, runs),
+        _association_section(names, runs),
         _configuration_section(names, runs),
     ]
     return (

@@ -47,7 +47,36 @@ def team_table(runs: dict[str, dict]) -> str:
             f"{f'time {stage} [ms/robot/frame]':<36}"
             + "".join(f"{runs[n]['time_per_robot_step_ms'][stage]:>{width}.2f}" for n in names)
         )
+    if any("association" in runs[n] for n in names):
+        for label, cell in _ASSOCIATION_ROWS:
+            lines.append(
+                f"{label:<36}"
+                + "".join(
+                    f"{cell(runs[n]['association']['team']):>{width}}"
+                    if "association" in runs[n]
+                    else f"{'—':>{width}}"
+                    for n in names
+                )
+            )
     return "\n".join(lines)
+
+
+def _share(team: dict, key: str, digits: int) -> str:
+    value = team.get(key)
+    return "—" if value is None else f"{value:.{digits}f}"
+
+
+#: rows of the run table when a run associated objects itself (``association = own``)
+_ASSOCIATION_ROWS = (
+    (
+        "correspondences held | revoked",
+        lambda t: f"{t.get('held', 0)} | {t.get('revoked', 0)}",
+    ),
+    ("association precision", lambda t: _share(t, "precision", 3)),
+    ("association recall", lambda t: _share(t, "recall", 3)),
+    ("summary bytes / robot / frame", lambda t: f"{t['summary_bytes_per_robot_step']:.0f}"),
+    ("association share of step time", lambda t: f"{100 * t['association_time_share']:.1f}%"),
+)
 
 
 def _health_cell(run: dict, sensor: str, width: int) -> str:

@@ -20,7 +20,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CommonMarginalMessage", "MapIdsMessage", "Message", "decode_ids", "encode_ids"]
+from teamslam.association.summary import ObjectSummary
+
+__all__ = [
+    "CommonMarginalMessage",
+    "MapIdsMessage",
+    "Message",
+    "decode_ids",
+    "encode_ids",
+    "summary_wire_bytes",
+]
 
 HEADER_BYTES = 36  # the fixed header of every message on a wire (teamslam.runtime.wire)
 _VARINT_GROUPS = 10  # 7-bit groups of a 64-bit integer
@@ -113,6 +122,15 @@ def decode_ids(data: bytes | np.ndarray, count: int) -> np.ndarray:
     return ids
 
 
+def summary_wire_bytes(summary: ObjectSummary | None) -> int:
+    """Bytes an object summary adds to a round-1 message on a wire: per object its mean (3 ×
+    8), the upper triangle of its covariance (6 × 8) and its class (8) when the map has classes
+    — the ids travel once, as the message's map ids."""
+    if summary is None:
+        return 0
+    return len(summary) * (72 + (8 if summary.classes is not None else 0))
+
+
 @dataclass(frozen=True)
 class MapIdsMessage:
     """Round 1 of consensus: the ids of the objects in the sender's map.
@@ -124,6 +142,10 @@ class MapIdsMessage:
     moved
         One flag per id: whether the sender's marginal of that object has moved since the two
         robots last exchanged it (``None``: all have — average every common object).
+    summary
+        With association by the robots themselves (``association = own``): the sender's
+        object summary (ids, means, marginal covariances, classes) on the steps its link
+        exchanges summaries, else ``None``.
     """
 
     sender: int
@@ -131,11 +153,12 @@ class MapIdsMessage:
     step: int
     ids: np.ndarray
     moved: np.ndarray | None = None
+    summary: ObjectSummary | None = None
 
     def nbytes(self) -> int:
-        """Payload size on a wire (header, the ids, one bit per id for ``moved``)."""
+        """Payload size on a wire (header, the ids, one bit per id for ``moved``, the summary)."""
         flags = 0 if self.moved is None else (int(np.size(self.ids)) + 7) // 8
-        return HEADER_BYTES + encoded_ids_size(self.ids) + flags
+        return HEADER_BYTES + encoded_ids_size(self.ids) + flags + summary_wire_bytes(self.summary)
 
 
 @dataclass(frozen=True)

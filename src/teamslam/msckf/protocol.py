@@ -42,6 +42,22 @@ Only objects in the filter state take part: objects retired to the persistent ma
 (``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
 averaged until they are observed again and re-enter the state.
 
+**Objects without shared ids** (``association = own``). Each robot names its own objects; each
+link keeps a :class:`~teamslam.association.CorrespondenceTable` (own id ↔ neighbour id). Every
+``association_interval`` steps round 1 carries the sender's object summary (ids, means, 3×3
+marginals); a robot that holds both summaries of a link updates the link's table — a full
+association when the table is :meth:`~teamslam.association.CorrespondenceTable.due`, else
+:meth:`~teamslam.association.CorrespondenceTable.extend` — by a rule computed in the canonical
+order of the two robots, so both ends hold the same pairs without a further message. The common
+objects of a link are its matched pairs present in both maps; round-2 messages carry the sender's
+own ids, and the receiver translates them through its table into its own ids (blocks reordered
+to increasing own ids; a pair it does not hold — the two tables may differ for a step after a
+lost summary — is marginalised out) before the one check below and the average. After the check
+every matched pair's consensus innovation is tested (:func:`~teamslam.association.
+pair_innovation_consistent`, ``association_revoke_probability``); a failing pair is left out of
+this step's average and revoked for good. With oracle ids the same test runs only when
+``consensus_innovation_check`` is set (objects that fail are left out of that step's average).
+
 Every received message is checked once, by one function
 (:func:`~teamslam.msckf.consensus_checks.check_message`): kind, step (``step − max_age ≤ s ≤
 step``), a sender that is a neighbour, and for a marginal the ids, sizes, finiteness and one
@@ -57,15 +73,22 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import replace
 
 import numpy as np
 
+from teamslam.association import (
+    AssociationSettings,
+    CorrespondenceTable,
+    ObjectSummary,
+    associate,
+    pair_innovation_consistent,
+)
 from teamslam.errors import EstimationError, InputError, InternalError
-from teamslam.gaussian import kl_divergence, spd_inverse
+from teamslam.gaussian import NotPositiveDefiniteError, kl_divergence, spd_inverse
 from teamslam.graph import metropolis_weight
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus import (
-    ReceivedMarginal,
     SharedPrior,
     common_marginal_message,
     consensus_average,
@@ -74,8 +97,13 @@ from teamslam.msckf.consensus import (
     prior_information,
     shared_prior,
 )
-from teamslam.msckf.consensus_checks import check_message
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage, Message
+from teamslam.msckf.consensus_checks import ReceivedMarginal, check_message
+from teamslam.msckf.messages import (
+    CommonMarginalMessage,
+    MapIdsMessage,
+    Message,
+    summary_wire_bytes,
+)
 
 __all__ = ["ConsensusProtocol"]
 
@@ -129,6 +157,32 @@ class ConsensusProtocol:
         self.expected: set[int] = set()
         self.averaged_with: list[int] = []
         self.spent = 0.0
+        # association by the robots themselves: one correspondence table per link
+        config = agent.config
+        self.association = config.association
+        self.association_interval = int(config.association_interval)
+        self.tables: dict[int, CorrespondenceTable] = {}
+        if self.association == "own":
+            settings = AssociationSettings()
+            self.tables = {
+                j: CorrespondenceTable(self.robot, j, settings) for j in sorted(self.neighbours)
+            }
+        check = self.association == "own" or config.consensus_innovation_check
+        self.innovation_probability = config.association_revoke_probability if check else None
+        self._summary: ObjectSummary | None = None
+        #: per link: summaries sent and their bytes, full associations, extensions, seconds
+        #: spent associating, objects left out of an average by the innovation test
+        self.link_stats: dict[int, dict[str, float]] = {
+            j: {
+                "summaries_sent": 0,
+                "summary_bytes": 0,
+                "full_associations": 0,
+                "extensions": 0,
+                "association_seconds": 0.0,
+                "excluded": 0,
+            }
+            for j in sorted(self.neighbours)
+        }
 
     # ------------------------------------------------------------------ checks
     @contextmanager
@@ -192,16 +246,24 @@ class ConsensusProtocol:
         self._own_information = {}
         order = np.argsort(self.agent.state.object_ids)
         ids = self.agent.state.object_ids[order]  # increasing, as messages carry them
-        if self.kl_threshold > 0:
+        exchange = self.association == "own" and self.step % self.association_interval == 0
+        if self.kl_threshold > 0 or exchange:
             means, covs = object_marginals(self.agent.state)
+        if self.kl_threshold > 0:
             self._own = (ids, means[order], covs[order])
         else:
             self._own = None
+        self._summary = (
+            ObjectSummary(self.robot, ids, means[order], covs[order]) if exchange else None
+        )
         targets = sorted(self.neighbours if to is None else set(to) & self.neighbours)
         out = []
         for j in targets:
             moved = self._moved_for(j)
-            out.append(MapIdsMessage(self.robot, j, self.step, ids, moved))
+            out.append(MapIdsMessage(self.robot, j, self.step, ids, moved, self._summary))
+            if self._summary is not None:
+                self.link_stats[j]["summaries_sent"] += 1
+                self.link_stats[j]["summary_bytes"] += summary_wire_bytes(self._summary)
         self.spent = time.perf_counter() - begin
         return out
 
@@ -273,16 +335,25 @@ class ConsensusProtocol:
         own = np.sort(self.agent.state.object_ids)
         for j in sorted(requests):
             their_ids = np.asarray(requests[j].ids, dtype=np.int64)
+            if self.tables:
+                if requests[j].summary is not None and not self._associate(j, requests[j]):
+                    continue
+                # their ids in ours: the pairs of the link's table (-1: not matched)
+                ours = self.tables[j].ours(their_ids)
+                matched = ours >= 0
+                matched[matched] = _members(ours[matched], own)
+            else:
+                ours, matched = their_ids, _members(their_ids, own)
             # ours ∩ theirs, flagged by either side: masks over their (increasing) ids
-            shared = _members(their_ids, own)
+            shared = matched
             mine_moved = self._moved_for(j)
             theirs_moved = requests[j].moved
             if mine_moved is not None and theirs_moved is not None:
                 # the flags refer to our map as it was in round 1
-                shared &= np.asarray(theirs_moved, dtype=bool) | _members(
-                    their_ids, self._own[0][mine_moved]
+                shared &= np.asarray(theirs_moved, dtype=bool) | (
+                    matched & _members(ours, self._own[0][mine_moved])
                 )
-            share = their_ids[shared]
+            share = np.sort(ours[shared]) if self.tables else their_ids[shared]
             if share.size == 0:
                 continue
             self._pending[j] = share
@@ -307,6 +378,138 @@ class ConsensusProtocol:
             replies.append(reply)
         self.spent += time.perf_counter() - begin
         return replies
+
+    def _associate(self, j: int, request: MapIdsMessage) -> bool:
+        """Update the table of link ``j`` with both summaries of this step (``False``: the
+        neighbour's summary was rejected)."""
+        theirs = request.summary
+        if not isinstance(theirs, ObjectSummary) or theirs.robot != j:
+            self.agent.reject("messages", reason=f"object summary of robot {j} names another robot")
+            return False
+        if not np.array_equal(theirs.ids, np.asarray(request.ids, dtype=np.int64)):
+            self.agent.reject(
+                "messages", reason=f"object summary of robot {j} disagrees with its ids"
+            )
+            return False
+        own = self._summary
+        if own is None:  # we did not exchange summaries this step (a neighbour out of phase)
+            return True
+        begin = time.perf_counter()
+        table = self.tables[j]
+        stats = self.link_stats[j]
+        if table.due(len(own), len(theirs)):
+            table.merge(associate(own, theirs, table.settings), own, theirs, self.step)
+            stats["full_associations"] += 1
+        else:
+            table.extend(own, theirs, self.step)
+            stats["extensions"] += 1
+        stats["association_seconds"] += time.perf_counter() - begin
+        return True
+
+    def _translate(self, message: CommonMarginalMessage) -> CommonMarginalMessage | None:
+        """A neighbour's marginal in our own ids: blocks reordered to increasing own ids, the
+        objects of pairs we do not hold marginalised out (``None``: rejected, or no object of
+        ours in it)."""
+        table = self.tables.get(message.sender)
+        if table is None or message.receiver != self.robot:
+            return message  # the one check rejects it, naming why
+        ids = np.asarray(message.ids)
+        k = ids.size
+        per_object = message.info is None and np.ndim(message.cov) == 3
+        shape = (k, 3, 3) if per_object else (3 * k, 3 * k)
+        if (
+            ids.ndim != 1
+            or k == 0
+            or ids.dtype.kind not in "iu"
+            or np.any(ids[1:] <= ids[:-1])
+            or np.shape(message.mean) != (3 * k,)
+            or np.shape(message.matrix) != shape
+        ):
+            self.agent.reject("messages", reason="marginal ids or sizes malformed")
+            return None
+        ours = table.ours(ids)
+        keep = np.flatnonzero(ours >= 0)
+        if keep.size == 0:
+            self.agent.reject(
+                "messages", reason=f"no object of robot {message.sender}'s marginal is matched"
+            )
+            return None
+        keep = keep[np.argsort(ours[keep], kind="stable")]
+        coords = (3 * keep[:, None] + np.arange(3)).ravel()
+        mean = np.asarray(message.mean)[coords]
+        matrix = np.asarray(message.matrix)
+        if per_object:
+            return replace(message, ids=ours[keep], mean=mean, cov=matrix[keep])
+        if keep.size == k or message.info is None:
+            sub = matrix[np.ix_(coords, coords)]
+            if message.info is None:
+                return replace(message, ids=ours[keep], mean=mean, cov=sub)
+            return replace(message, ids=ours[keep], mean=mean, info=sub)
+        try:  # marginalise in moment form
+            cov = spd_inverse(matrix, "information matrix")
+        except (NotPositiveDefiniteError, np.linalg.LinAlgError, ValueError):
+            self.agent.reject("messages", reason="information matrix is not positive definite")
+            return None
+        return replace(
+            message, ids=ours[keep], mean=mean, cov=cov[np.ix_(coords, coords)], info=None
+        )
+
+    def _innovation_check(self, marginal: ReceivedMarginal) -> ReceivedMarginal | None:
+        """The marginal without the objects whose consensus innovation fails the ``χ²₃`` test
+        (revoked from the link's table with own association); ``None`` when none is left."""
+        ids = marginal.ids
+        k = ids.size
+        try:
+            cov = spd_inverse(marginal.info, "information matrix")
+        except (NotPositiveDefiniteError, np.linalg.LinAlgError):
+            self.agent.reject("messages", reason="information matrix is not positive definite")
+            return None
+        mean = cov @ marginal.info_vector
+        index = 3 * np.arange(k)[:, None] + np.arange(3)
+        blocks = cov[index[:, :, None], index[:, None, :]]
+        state = self.agent.state
+        slots = state.object_slots(ids)
+        own_covs = state.covariance(state.object(slots))[index[:, :, None], index[:, None, :]]
+        ok = pair_innovation_consistent(
+            state.objects[slots],
+            own_covs,
+            mean.reshape(k, 3),
+            blocks,
+            probability=self.innovation_probability,
+        )
+        if ok.all():
+            return marginal
+        j = marginal.sender
+        failed = ids[~ok]
+        self.link_stats[j]["excluded"] += int(failed.size)
+        self.agent.counters["consensus_innovation_failures"] += int(failed.size)
+        table = self.tables.get(j)
+        if table is not None:
+            for own_id, their_id in zip(failed, table.theirs(failed), strict=True):
+                table.revoke(int(own_id), int(their_id), self.step)
+        if not ok.any():
+            return None
+        coords = index[ok].ravel()
+        sub = cov[np.ix_(coords, coords)]
+        info = spd_inverse(sub, "marginal covariance")
+        return ReceivedMarginal(j, ids[ok], info, info @ mean[coords], marginal.per_object)
+
+    def association_summary(self) -> dict:
+        """Per link (neighbour id as a string): the table's pairs and counts and the exchange
+        statistics (empty with oracle ids and no innovation check)."""
+        if self.innovation_probability is None and not self.tables:
+            return {}
+        out = {}
+        for j, stats in self.link_stats.items():
+            entry = {
+                k: (float(v) if k == "association_seconds" else int(v)) for k, v in stats.items()
+            }
+            table = self.tables.get(j)
+            if table is not None:
+                entry.update(table.counts())
+                entry["pairs"] = table.pairs().tolist()
+            out[str(j)] = entry
+        return out
 
     def _hybrid_source(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Our joint marginal of every object we send, new information scaled by ``1 + d_i``."""
@@ -351,9 +554,15 @@ class ConsensusProtocol:
         marginals: dict[int, ReceivedMarginal] = {}
         degrees: dict[int, int] = {}
         for m in received:
+            if self.tables and isinstance(m, CommonMarginalMessage):
+                m = self._translate(m)
+                if m is None:
+                    continue
             # asynchronous mode: a marginal from a neighbour whose ids we did not hear this
             # step still counts as heard (the link works)
             marginal = self._check(m, CommonMarginalMessage, marginals, self.heard)
+            if marginal is not None and self.innovation_probability is not None:
+                marginal = self._innovation_check(marginal)
             if marginal is None:
                 continue
             marginals[m.sender] = marginal

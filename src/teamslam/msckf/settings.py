@@ -239,7 +239,7 @@ class EffectiveConfig:
         lines = []
         for key, value in data.items():
             shown = format_value(value, 6)
-            lines.append(f"{key:<{width}}  {shown:<48} {self.sources[key]}")
+            lines.append(f"{key:<{width}}  {shown:<48} {self.sources.get(key, 'default')}")
         for i, c in enumerate(self.robots):
             if c != self.config:
                 own = {k: v for k, v in c.to_json().items() if v != data[k]}
@@ -284,6 +284,16 @@ def resolve_config(
         sources.update(dict.fromkeys(layer, name))
     relevant = _calibratable(dataset, values)
     explicit = set(file_values) | set(flag_values)
+    if dataset.object_id_scope != "global":
+        # no shared ids: the robots find their common objects themselves
+        if values.get("association", "oracle") == "oracle" and "association" in explicit:
+            raise ConfigError(
+                f"association=oracle needs team-wide object ids; this dataset's object ids are "
+                f"{dataset.object_id_scope!r} (use association=own)"
+            )
+        if "association" not in explicit:
+            values["association"] = "own"
+            sources["association"] = "dataset"
     if calibrate == "always":
         wanted = [k for k in relevant if k not in explicit]
     elif calibrate == "auto":

@@ -297,12 +297,22 @@ class RobotDriver:
         self.covs[: self.done] = covs
 
     def summary(self) -> dict:
-        """Lost neighbours, steps with lost links and with whom the robot averaged when."""
-        return {
+        """Lost neighbours, steps with lost links and with whom the robot averaged when (and,
+        with association by the robots or the innovation check, the per-link association)."""
+        out = {
             "lost_neighbours": sorted(self.lost_reported),
             "steps_with_lost_links": list(self.lost_steps),
             "averaged_with": {str(j): s for j, s in sorted(self.averaged_with.items())},
         }
+        association = self.association()
+        if association:
+            out["association"] = association
+        return out
+
+    def association(self) -> dict:
+        """:meth:`~teamslam.msckf.protocol.ConsensusProtocol.association_summary` (empty without
+        a protocol)."""
+        return {} if self.protocol is None else self.protocol.association_summary()
 
 
 def run_lockstep(
@@ -376,6 +386,8 @@ def assemble_result(
         for a in agents:
             a.flush_odometry_health()
     maps = [a.state.full_map() for a in agents] if maps is None else maps
+    association = [d.association() for d in drivers]
+    extra = {"association": association} if any(association) else {}
     counters = []
     for d in drivers:
         c = dict(d.agent.counters)
@@ -407,6 +419,7 @@ def assemble_result(
         sensor_health=[a.health.to_json() for a in agents],
         robots=list(range(len(drivers)) if robots is None else robots),
         complete=complete,
+        extra=extra,
     )
 
 

@@ -12,7 +12,10 @@ Topics, per robot ``i`` (the team's robot index, from 0):
 * ``/ground_truth/robot_<i>/pose`` — ``PoseStamped`` of the dataset's ground truth, when it has
   one (written once, with the main run);
 * ``/tf`` — ``tf2_msgs/msg/TFMessage``: ``world → robot_<i>/base_link`` (estimate) and
-  ``world → robot_<i>/ground_truth``.
+  ``world → robot_<i>/ground_truth``;
+* ``/association`` — ``MarkerArray``, for a run whose robots associated their objects themselves
+  (``association = own``): per link ``i–j`` one ``LINE_LIST`` (namespace ``link_i_j``) joining
+  each matched pair's two estimates at the last stamp.
 
 With ``--compare`` results (``separate/`` and ``consensus/``) the consensus run has the topics
 above and the separate run the same under ``/separate``. The file is written by ``rosbags``'
@@ -68,8 +71,13 @@ def write_mcap(
     out: str | Path,
     path_messages: int = 100,
     n_sigma: float = 3.0,
+    associations: dict[str, list[dict]] | None = None,
 ) -> dict:
     """Write the estimates of one or more runs (``{topic prefix: robots}``) to ``out``.
+
+    ``associations``: per topic prefix, per robot the run's per-link association (``pairs`` of
+    own and neighbour ids, :meth:`~teamslam.msckf.protocol.ConsensusProtocol.
+    association_summary`), drawn as lines on ``<prefix>/association``.
 
     Returns a summary: messages per topic, bytes, seconds.
     """
@@ -109,6 +117,11 @@ def write_mcap(
                 r.object_ids, r.objects, r.object_covs, last, i, sphere, n_sigma=n_sigma
             )
             records.append((last, f"{base}/objects", MARKERS, m.serialize(markers, MARKERS)))
+        per_robot = (associations or {}).get(prefix)
+        if per_robot:
+            last = max(int(r.stamps_ns[-1]) for r in robots)
+            lines = _association_lines(robots, per_robot, last)
+            records.append((last, f"{prefix}/association", MARKERS, m.serialize(lines, MARKERS)))
     counts = m.write_mcap_records(records, out)
     return {
         "path": str(out),
@@ -119,7 +132,83 @@ def write_mcap(
     }
 
 
+def _association_lines(robots: list[RobotEstimates], per_robot: list[dict], stamp: int):
+    """One ``LINE_LIST`` marker per link ``i < j``: a segment per matched pair."""
+    t = m._types()
+    Marker, Point = t["visualization_msgs/msg/Marker"], t["geometry_msgs/msg/Point"]
+    position = [
+        dict(zip(np.asarray(r.object_ids).tolist(), np.asarray(r.objects), strict=True))
+        for r in robots
+    ]
+    markers = []
+    for i, links in enumerate(per_robot):
+        for key, link in sorted(links.items(), key=lambda kv: int(kv[0])):
+            j = int(key)
+            if j <= i or j >= len(robots) or not link.get("pairs"):
+                continue
+            points = []
+            for own_id, their_id in link["pairs"]:
+                a, b = position[i].get(int(own_id)), position[j].get(int(their_id))
+                if a is None or b is None:
+                    continue
+                points += [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in (a, b)]
+            markers.append(
+                Marker(
+                    header=m.header(stamp, "world"),
+                    ns=f"link_{i}_{j}",
+                    id=0,
+                    type=Marker.LINE_LIST,
+                    action=Marker.ADD,
+                    pose=t["geometry_msgs/msg/Pose"](
+                        position=Point(x=0.0, y=0.0, z=0.0),
+                        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                    ),
+                    scale=t["geometry_msgs/msg/Vector3"](x=0.05, y=0.0, z=0.0),
+                    color=m._colour(i, 0.8),
+                    lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+                    frame_locked=False,
+                    points=points,
+                    colors=[],
+                    texture_resource="",
+                    texture=t["sensor_msgs/msg/CompressedImage"](
+                        header=m.header(0, ""), format="", data=np.zeros(0, np.uint8)
+                    ),
+                    uv_coordinates=[],
+                    text="",
+                    mesh_resource="",
+                    mesh_file=t["visualization_msgs/msg/MeshFile"](
+                        filename="", data=np.zeros(0, np.uint8)
+                    ),
+                    mesh_use_embedded_materials=False,
+                )
+            )
+    return t["visualization_msgs/msg/MarkerArray"](markers=markers)
+
+
+def _associations(paths: dict[str, Path]) -> dict[str, list[dict]]:
+    """Per run (topic prefix) the per-robot association its ``result.json`` recorded."""
+    import json
+
+    out = {}
+    for prefix, path in paths.items():
+        result = Path(path).parent / "result.json"
+        if not result.is_file():
+            continue
+        try:
+            extra = json.loads(result.read_text()).get("extra", {})
+        except (OSError, ValueError):
+            continue
+        association = extra.get("association") or [
+            s.get("association", {}) for s in extra.get("per_robot", [])
+        ]
+        if any(association):
+            out[prefix] = association
+    return out
+
+
 def export_mcap(result_dir: str | Path, out: str | Path, path_messages: int = 100) -> dict:
-    """Export the run(s) in ``result_dir`` (``estimates.npz``) to the MCAP file ``out``."""
-    runs = {prefix: load_estimates(path)[1] for prefix, path in find_runs(result_dir).items()}
-    return write_mcap(runs, out, path_messages=path_messages)
+    """Export the run(s) in ``result_dir`` (``estimates.npz``) to the MCAP file ``out`` (with
+    the association lines of a run whose robots associated their objects themselves)."""
+    paths = find_runs(result_dir)
+    runs = {prefix: load_estimates(path)[1] for prefix, path in paths.items()}
+    return write_mcap(runs, out, path_messages=path_messages, associations=_associations(paths))

@@ -105,8 +105,14 @@ def robot_setup(
     dataset = load_dataset(dataset_path)
     if not 0 <= index < dataset.n_robots:
         raise InputError(f"robot {robot}: dataset {dataset_path} has no robot {index}")
+    # the robot's own data (identity truth of per-robot object ids: its rows, as robot 0)
+    identity = dataset.object_identity[dataset.object_identity[:, 0] == index].copy()
+    identity[:, 0] = 0
     own = replace(
-        dataset, robots=[dataset.robots[index]], sensor_model=_own_sensor_model(dataset, index)
+        dataset,
+        robots=[dataset.robots[index]],
+        sensor_model=_own_sensor_model(dataset, index),
+        object_identity=identity,
     )
     config = resolve_config(own, file_values=team.filter_settings, calibrate=calibrate).config
     # an imported bag may have no ground truth (its metadata says so)

@@ -4,10 +4,11 @@ Every message is a fixed little-endian header followed by a payload::
 
     offset size field
     0      4    magic b"TSLM"
-    4      1    format version (4)
+    4      1    format version (5)
     5      1    kind: 1 = map ids; a common marginal: 2 = joint covariance, float64; 3 = joint
                 covariance, float32; 4 = per object, float64; 5 = per object, float32;
-                6 = joint information matrix, float64; 7 = joint information matrix, float32
+                6 = joint information matrix, float64; 7 = joint information matrix, float32;
+                map ids with the sender's object summary: 8 = without classes, 9 = with
     6      2    marginal: the sender's degree this step (neighbours heard); map ids: 0
     8      8    team id (64-bit hash of the team name)
     16     2    sender robot
@@ -22,11 +23,15 @@ Every message is a fixed little-endian header followed by a payload::
                 ids b bytes of moved flags (one bit per id, little bit order); for a marginal
                 d mean values, then the upper triangle (row-major) of the joint covariance
                 or information matrix (d (d + 1) / 2 values) or of each object's 3×3
-                covariance block (6 n values); values float64 or float32 by kind
+                covariance block (6 n values); values float64 or float32 by kind; for map
+                ids with a summary (kinds 8, 9), after the flags the objects' means (3 n
+                float64), the upper triangles of their 3×3 marginal covariances (6 n
+                float64) and, kind 9, their class labels (n int64), in the order of the ids
 
 Version 2 added the moved flags and the degree (consensus on what changed, one weighting
 rule); version 3 the variable-length ids; version 4 marginals in information form (what
-robots send by default). Older versions are refused by name.
+robots send by default); version 5 the object summaries of association without shared ids
+(kinds 8, 9). Older versions are refused by name.
 
 No pickle, no code: :func:`decode` checks the magic, version, kind, team, robots, sizes (the
 byte length must match the header exactly and stay under a limit), ids without repeats and
@@ -41,6 +46,7 @@ import struct
 
 import numpy as np
 
+from teamslam.association.summary import ObjectSummary
 from teamslam.errors import InputError
 from teamslam.msckf.messages import (
     CommonMarginalMessage,
@@ -53,8 +59,10 @@ from teamslam.msckf.messages import (
 __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
 
 MAGIC = b"TSLM"
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 KIND_IDS = 1
+KIND_IDS_SUMMARY = 8  # 9: with class labels
+_IDS_KINDS = (KIND_IDS, KIND_IDS_SUMMARY, KIND_IDS_SUMMARY + 1)
 KIND_MARGINAL = 2  # joint float64; 3 joint float32; 4 per object float64; 5 per object float32
 # (per object, float32, information form) → kind
 _MARGINAL_KINDS = {
@@ -94,10 +102,13 @@ def encode(message: Message, team: int) -> bytes:
             if moved.shape != ids.shape:
                 raise WireError(f"{moved.size} moved flags for {ids.size} ids")
             flags = np.packbits(moved, bitorder="little").tobytes()
+        kind, summary = KIND_IDS, b""
+        if message.summary is not None:
+            kind, summary = _encode_summary(message.summary, ids)
         header = HEADER.pack(
             MAGIC,
             FORMAT_VERSION,
-            KIND_IDS,
+            kind,
             0,
             team,
             message.sender,
@@ -107,7 +118,7 @@ def encode(message: Message, team: int) -> bytes:
             len(id_bytes),
             len(flags),
         )
-        return header + id_bytes + flags
+        return header + id_bytes + flags + summary
     per_object, single = message.per_object, message.single_precision
     information = message.info is not None
     dtype = "<f4" if single else "<f8"
@@ -131,6 +142,38 @@ def encode(message: Message, team: int) -> bytes:
     return header + id_bytes + mean.tobytes() + upper.tobytes()
 
 
+def _encode_summary(summary: ObjectSummary, ids: np.ndarray) -> tuple[int, bytes]:
+    """Kind and bytes of an object summary riding on a map-ids message (same ids, same order)."""
+    if not np.array_equal(summary.ids, ids):
+        raise WireError("an object summary must hold exactly the message's ids, in their order")
+    means = np.ascontiguousarray(summary.means, dtype="<f8")
+    upper = np.ascontiguousarray(summary.covs[:, _TRIU3[0], _TRIU3[1]], dtype="<f8")
+    out = means.tobytes() + upper.tobytes()
+    if summary.classes is None:
+        return KIND_IDS_SUMMARY, out
+    return KIND_IDS_SUMMARY + 1, out + np.ascontiguousarray(summary.classes, "<i8").tobytes()
+
+
+def _decode_summary(
+    data: bytes, offset: int, sender: int, ids: np.ndarray, classes: bool
+) -> ObjectSummary:
+    n = ids.size
+    means = np.frombuffer(data, dtype="<f8", count=3 * n, offset=offset).astype(float)
+    upper = np.frombuffer(data, dtype="<f8", count=6 * n, offset=offset + 24 * n).astype(float)
+    labels = None
+    if classes:
+        labels = np.frombuffer(data, dtype="<i8", count=n, offset=offset + 72 * n).astype(np.int64)
+    if not (np.all(np.isfinite(means)) and np.all(np.isfinite(upper))):
+        raise WireError("non-finite object summary")
+    covs = np.zeros((n, 3, 3))
+    covs[:, _TRIU3[0], _TRIU3[1]] = upper.reshape(n, 6)
+    covs = covs + np.triu(covs, 1).swapaxes(-1, -2)
+    try:
+        return ObjectSummary(sender, ids, means.reshape(n, 3), covs, labels)
+    except InputError as error:
+        raise WireError(f"bad object summary: {error}") from error
+
+
 def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_BYTES) -> Message:
     """Parse and validate a message.
 
@@ -150,6 +193,11 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
     if magic != MAGIC:
         raise WireError("not a teamslam message (bad magic)")
     if version != FORMAT_VERSION:
+        if 1 <= version < FORMAT_VERSION:
+            raise WireError(
+                f"format version {version} is no longer read (this robot speaks version "
+                f"{FORMAT_VERSION}: update the sender)"
+            )
         raise WireError(f"unknown format version {version}")
     if team_of != team:
         raise WireError("message from another team")
@@ -157,12 +205,13 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
         raise WireError(f"unknown robot (sender {sender}, receiver {receiver}, team of {n_robots})")
     if n_ids > MAX_IDS:
         raise WireError(f"too many ids ({n_ids})")
-    if kind == KIND_IDS:
+    if kind in _IDS_KINDS:
         if d not in (0, (n_ids + 7) // 8) or (n_ids == 0 and d != 0):
             raise WireError(f"map-ids message with {d} bytes of flags for {n_ids} ids")
         if degree != 0:
             raise WireError("map-ids message with a degree")
-        expected = HEADER.size + c + d
+        per_summary = {KIND_IDS: 0, KIND_IDS_SUMMARY: 72, KIND_IDS_SUMMARY + 1: 80}[kind]
+        expected = HEADER.size + c + d + per_summary * n_ids
     elif kind in _MARGINAL_KINDS.values():
         if d != 3 * n_ids or n_ids == 0:
             raise WireError(f"marginal of {n_ids} objects with mean length {d}")
@@ -180,12 +229,17 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
         ids = decode_ids(np.frombuffer(data, dtype=np.uint8, count=c, offset=HEADER.size), n_ids)
     except ValueError as error:
         raise WireError(f"bad ids: {error}") from error
-    if kind == KIND_IDS:
+    if kind in _IDS_KINDS:
         moved = None
         if d:
             bits = np.frombuffer(data, dtype=np.uint8, count=d, offset=HEADER.size + c)
             moved = np.unpackbits(bits, count=n_ids, bitorder="little").astype(bool)
-        return MapIdsMessage(int(sender), int(receiver), int(step), ids, moved)
+        summary = None
+        if kind != KIND_IDS:
+            summary = _decode_summary(
+                data, HEADER.size + c + d, int(sender), ids, kind == KIND_IDS_SUMMARY + 1
+            )
+        return MapIdsMessage(int(sender), int(receiver), int(step), ids, moved, summary)
     offset = HEADER.size + c
     dtype = "<f4" if width == 4 else "<f8"
     mean = np.frombuffer(data, dtype=dtype, count=d, offset=offset).astype(float)

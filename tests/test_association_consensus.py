@@ -1,0 +1,303 @@
+"""Consensus over correspondences: robots that name their own objects (``association = own``).
+
+Each link keeps a correspondence table computed alike at both ends; round-2 marginals travel in
+the sender's ids and are translated by the receiver; a pair whose consensus innovation fails its
+``χ²`` test is revoked. With a table that holds exactly the equal ids the path is the oracle
+one, bit for bit; on a stripped team the association finds only right pairs; a wrong pair is
+revoked; a lying member is no longer averaged; too few objects give no correspondence.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from teamslam import api
+from teamslam.datasets import save_dataset
+from teamslam.datasets.identity import strip_object_ids
+from teamslam.errors import InputError
+from teamslam.eval.metrics import team_metrics, trajectory_rmse
+from teamslam.graph import complete, ring
+from teamslam.msckf import config_for, run_team
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.linearization import GroundTruth
+from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.protocol import ConsensusProtocol
+from teamslam.msckf.team import LockStep, RobotDriver, run_drivers
+from teamslam.msckf.transport import MemoryNetwork
+from teamslam.runtime.team_file import write_team_file
+from teamslam.runtime.wire import decode, encode, team_id
+from teamslam.sim import lissajous_team
+from test_protocol import _threads_over_memory  # the robot-process driver in threads
+
+
+@pytest.fixture(scope="module")
+def team3():
+    return lissajous_team(robots=3, steps=40, seed=4, landmarks=500)
+
+
+@pytest.fixture(scope="module")
+def stripped3(team3):
+    return strip_object_ids(team3, seed=2)
+
+
+def _rmse(result, dataset) -> float:
+    return float(
+        np.mean(
+            [
+                trajectory_rmse(p, r.T_world_body)
+                for p, r in zip(result.poses, dataset.robots, strict=True)
+            ]
+        )
+    )
+
+
+def _drivers(dataset, config, network, graph=None):
+    n = dataset.n_robots
+    graph = graph or complete(n)
+    return [
+        RobotDriver(
+            MsckfAgent(
+                i, dataset.calibration, r, config, truth=GroundTruth(r.T_world_body, dataset)
+            ),
+            network.endpoint(i),
+            graph.neighbours(i),
+            LockStep(timeout=0.0),
+        )
+        for i, r in enumerate(dataset.robots)
+    ]
+
+
+def test_default_settings_record_no_association_keys():
+    """A run with oracle ids writes the settings it always wrote (bit-identical metrics)."""
+    assert "association" not in MsckfConfig().to_json()
+    own = MsckfConfig(association="own").to_json()
+    assert own["association"] == "own" and own["association_interval"] == 5
+    with pytest.raises(InputError, match="association must be oracle or own"):
+        MsckfConfig(association="ids")
+
+
+def test_own_with_a_table_of_equal_ids_is_the_oracle_run_bit_for_bit(team3, monkeypatch):
+    """Translation, reordering and the moved flags in own ids reproduce the oracle path."""
+    config = config_for(team3, window=6)
+    oracle = run_team(team3, config, progress=False)
+
+    def equal_ids(self, j, request):
+        table = self.tables[j]
+        for i in np.intersect1d(request.ids, self._summary.ids):
+            if int(i) not in table._theirs:
+                table._theirs[int(i)] = int(i)
+                table._ours[int(i)] = int(i)
+        return True
+
+    monkeypatch.setattr(ConsensusProtocol, "_associate", equal_ids)
+    own = config.with_(
+        association="own", association_interval=1, association_revoke_probability=1 - 1e-15
+    )
+    result = run_team(team3, own, progress=False)
+    for a, b in zip(result.poses, oracle.poses, strict=True):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(result.objects, oracle.objects, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert result.counters[0]["objects_averaged"] == oracle.counters[0]["objects_averaged"] > 0
+
+
+def test_own_on_a_stripped_team_matches_right_pairs_at_both_ends(team3, stripped3):
+    config = config_for(team3, window=6)
+    oracle = run_team(team3, config, progress=False)
+    separate = run_team(team3, config, consensus=False, progress=False)
+    result = run_team(stripped3, config.with_(association="own"), progress=False)
+    metrics = team_metrics(stripped3, result)["association"]
+    team = metrics["team"]
+    assert team["accepted"] > 0 and team["wrong"] == 0 and team["precision"] == 1.0
+    assert team["recall"] > 0.5
+    # the shared rule: both ends of every link hold the same pairs, mirrored
+    assert all(link["ends_agree"] for link in metrics["links"].values())
+    assert len(metrics["links"]) == 3
+    assert all(link["summary_bytes_per_step"][0] > 0 for link in metrics["links"].values())
+    # consensus over the found pairs helps like the oracle's
+    own_rmse = _rmse(result, stripped3)
+    assert own_rmse < _rmse(separate, team3)
+    assert own_rmse <= 1.3 * _rmse(oracle, team3)
+
+
+def test_oracle_is_refused_on_per_robot_ids_which_default_to_own(stripped3):
+    with pytest.raises(InputError, match="association=oracle needs team-wide object ids"):
+        api.resolve_settings(stripped3, {"association": "oracle"}, calibrate="never")
+    effective = api.resolve_settings(stripped3, {}, calibrate="never")
+    assert effective.config.association == "own"
+    assert effective.sources["association"] == "dataset"
+    with pytest.raises(InputError, match="association oracle needs team-wide object ids"):
+        api.run(stripped3, "consensus", settings={"window": 6}, association="oracle")
+
+
+def _cross(table, first: tuple[int, int], second: tuple[int, int]) -> list[tuple[int, int]]:
+    """Replace two held pairs of ``table`` by the two wrong pairs that cross them."""
+    (a0, b0), (a1, b1) = first, second
+    for own_id, their_id in (first, second):
+        del table._theirs[own_id], table._ours[their_id]
+    wrong = [(a0, b1), (a1, b0)]
+    for own_id, their_id in wrong:
+        table._theirs[own_id] = their_id
+        table._ours[their_id] = own_id
+    return wrong
+
+
+def test_a_wrong_pair_is_revoked_and_not_readded(stripped3):
+    config = config_for(stripped3, window=6).with_(association="own", association_interval=1)
+    drivers = _drivers(stripped3, config, MemoryNetwork(3))
+    injected = {}
+
+    def inject(t, running):
+        if t != 20:
+            return
+        table = drivers[0].protocol.tables[2]
+        pairs = [tuple(int(v) for v in p) for p in table.pairs()]
+        assert len(pairs) >= 4
+        state = drivers[0].agent.state
+        position = dict(zip(state.object_ids.tolist(), state.objects, strict=True))
+        # the two held pairs farthest apart, crossed at both ends of link 0–1
+        first, second = max(
+            ((p, q) for p in pairs for q in pairs if p < q),
+            key=lambda pq: np.linalg.norm(position[pq[0][0]] - position[pq[1][0]]),
+        )
+        injected[0] = _cross(table, first, second)
+        mirrored = [(b, a) for a, b in (first, second)]
+        injected[2] = _cross(drivers[2].protocol.tables[0], *mirrored)
+
+    run_drivers(drivers, "complete", 0.0, inject, progress=False)
+    assert injected
+    for robot, other in ((0, 2), (2, 0)):
+        table = drivers[robot].protocol.tables[other]
+        assert table.revoked >= 2
+        for pair in injected[robot]:
+            assert pair not in table
+    assert drivers[0].agent.counters["consensus_innovation_failures"] >= 2
+
+
+class _LyingNetwork(MemoryNetwork):
+    """Robot ``liar`` sends, in its own name, marginals 20 m off with a tiny covariance."""
+
+    def __init__(self, n: int, liar: int | None) -> None:
+        super().__init__(n)
+        self.liar = liar
+
+    def _deliver(self, message):
+        if message.sender == self.liar and isinstance(message, CommonMarginalMessage):
+            d = message.mean.size
+            shifted = message.mean + np.tile([20.0, 0.0, 0.0], d // 3)
+            message = replace(message, mean=shifted, cov=None, info=1e6 * np.eye(d))
+        return super()._deliver(message)
+
+
+@pytest.mark.parametrize("mode", ["own", "oracle-check"])
+def test_a_lying_member_is_no_longer_averaged(mode):
+    """Robot 2 lies to everyone; the others end as well as a team without it."""
+    team = lissajous_team(robots=4, steps=40, seed=4, landmarks=500)
+    config = config_for(team, window=6)
+    if mode == "own":
+        team = strip_object_ids(team, seed=2)
+        config = config.with_(association="own", association_interval=1)
+    else:
+        config = config.with_(consensus_innovation_check=True)
+    honest = [0, 1, 3]
+    without = team.subset(honest)
+    alone = run_team(without, config, progress=False)
+    lied = run_drivers(_drivers(team, config, _LyingNetwork(4, 2)), "c", 0.0, progress=False)
+    rmse_without = _rmse(alone, without)
+    rmse_lied = np.mean(
+        [trajectory_rmse(lied.poses[i], team.robots[i].T_world_body) for i in honest]
+    )
+    assert rmse_lied <= 1.1 * rmse_without
+    # caught by the χ² test of the consensus innovation, at every robot it lied to that
+    # shares objects with it
+    assert lied.counters[0]["consensus_innovation_failures"] > 0
+    if mode == "own":  # the liar's pairs are revoked at the honest end
+        assert lied.extra["association"][0]["2"]["revoked"] > 0
+        assert lied.extra["association"][0]["2"]["held"] == 0
+
+
+def test_too_few_objects_give_no_correspondence_and_the_separate_run():
+    team = strip_object_ids(lissajous_team(robots=2, steps=30, seed=3, objects=4), seed=0)
+    config = config_for(team, window=6)
+    separate = run_team(team, config, consensus=False, progress=False)
+    result = run_team(team, config.with_(association="own", association_interval=1), progress=False)
+    assert all(e["held"] == 0 for a in result.extra["association"] for e in a.values())
+    for a, b in zip(result.poses, separate.poses, strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
+def test_summaries_cross_the_wire_and_threads_equal_in_process(stripped3, tmp_path):
+    """Robot-process drivers (in threads, over memory) give the in-process own run."""
+    reference_config = config_for(stripped3, window=6, association="own")
+    reference = run_team(stripped3, reference_config, ring(3), progress=False)
+    directory = tmp_path / "data"
+    save_dataset(stripped3, directory)
+    team_path = write_team_file(
+        tmp_path / "team.yaml",
+        f"own-{os.getpid()}",
+        directory,
+        ring(3).adjacency,
+        base_port=27500,
+        timeout_s=60.0,
+        filter={"window": 6, "association": "own"},
+    )
+    _threads_over_memory(team_path, tmp_path / "out", lambda t: np.ones((3, 3), bool), 3)
+    from teamslam.msckf.team import load_result
+
+    for r in range(3):
+        part = load_result(tmp_path / "out" / f"robot_{r}")
+        np.testing.assert_array_equal(part.poses[0], reference.poses[r])
+        np.testing.assert_array_equal(part.objects[0], reference.objects[r])
+    # a summary survives the wire exactly
+    ids = np.array([3, 9, 40])
+    from teamslam.association import ObjectSummary
+
+    summary = ObjectSummary(2, ids, np.arange(9.0).reshape(3, 3), np.stack([np.eye(3)] * 3))
+    team = team_id("own")
+    back = decode(encode(MapIdsMessage(2, 0, 7, ids, None, summary), team), team, 3)
+    np.testing.assert_array_equal(back.summary.means, summary.means)
+    np.testing.assert_array_equal(back.summary.covs, summary.covs)
+    assert back.summary.robot == 2 and back.summary.classes is None
+    with_classes = replace(summary, classes=np.array([1, 2, 1]))
+    back = decode(encode(MapIdsMessage(2, 0, 7, ids, None, with_classes), team), team, 3)
+    np.testing.assert_array_equal(back.summary.classes, [1, 2, 1])
+    assert (
+        len(encode(MapIdsMessage(2, 0, 7, ids, None, summary), team))
+        == MapIdsMessage(2, 0, 7, ids, None, summary).nbytes()
+    )
+
+
+def test_the_report_shows_the_association_of_a_run():
+    from types import SimpleNamespace
+
+    from teamslam.eval.report import _association_section
+
+    team = {
+        "proposed": 12,
+        "accepted": 10,
+        "revoked": 2,
+        "held": 8,
+        "excluded": 3,
+        "correct": 7,
+        "wrong": 1,
+        "shared": 9,
+        "precision": 0.875,
+        "recall": 7 / 9,
+        "summary_bytes_per_robot_step": 1234.0,
+        "association_time_share": 0.125,
+    }
+    link = {"held": 8, "revoked": 2, "precision": 0.875, "recall": 7 / 9}
+    runs = [
+        SimpleNamespace(metrics={"association": {"team": team, "links": {"0-1": link}}}),
+        SimpleNamespace(metrics={}),
+    ]
+    html = _association_section(["own", "oracle"], runs)
+    assert "<h2>Association</h2>" in html
+    for text in ("12 | 10 | 2", "7 | 1", "0.875", "0.778", "1234", "12.5%", "link 0-1"):
+        assert text in html
+    assert _association_section(["oracle"], [SimpleNamespace(metrics={})]) == ""
