@@ -75,3 +75,30 @@ def test_import_reference_with_per_robot_object_ids(kitti00_dir, tmp_path):
     # 405 team objects stand for more per-robot ones; the identity maps them back
     assert np.unique(dataset.object_identity[:, 2]).size == 405
     assert dataset.object_identity.shape[0] > 405
+
+
+def test_detections_without_ids_from_the_command_line(tmp_path):
+    """``simulate --object-ids none --clutter --miss`` and ``strip-ids --to none`` give per-frame
+    detections without ids: false ones among them (truth −1), none carrying an object id."""
+    noisy = tmp_path / "noisy"
+    args = ["simulate", "--robots", "2", "--steps", "25", "--seed", "2", "--out", str(noisy)]
+    extra = ["--object-ids", "none", "--clutter", "0.2", "--miss", "0.1", "--classes", "3"]
+    assert main(args + extra) == 0
+    dataset = load_dataset(noisy)
+    assert dataset.object_id_scope == "none"
+    for robot in dataset.robots:
+        assert robot.objects.ids.size == 0  # the filter sees no id
+        truth = robot.detections.truth
+        assert np.any(truth == -1) and np.any(truth >= 0)  # clutter and true detections
+        assert set(np.unique(robot.detections.classes).tolist()) <= {0, 1, 2}
+    clean, stripped = tmp_path / "clean", tmp_path / "stripped"
+    assert main([*args[:-1], str(clean)]) == 0
+    assert main(["data", "strip-ids", str(clean), "--out", str(stripped), "--to", "none"]) == 0
+    before, after = load_dataset(clean), load_dataset(stripped)
+    assert after.object_id_scope == "none"
+    for b, a in zip(before.robots, after.robots, strict=True):
+        assert a.objects.ids.size == 0
+        # every observation became a detection whose truth is the object it came from
+        assert np.array_equal(np.sort(a.detections.truth), np.sort(b.objects.ids))
+    # clutter only on the Lissajous route
+    assert main([*args[:-1], str(tmp_path / "x"), "--route", "long", "--clutter", "0.1"]) == 2

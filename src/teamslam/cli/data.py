@@ -22,6 +22,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                 "--objects sets the Lissajous arena's map; the long route scatters objects "
                 "along its length (about 1.2 per metre)"
             )
+        if args.clutter or args.miss or args.classes:
+            raise InputError("--clutter, --miss and --classes apply to the Lissajous route")
         dataset = long_route_team(
             robots=args.robots, steps=args.steps, seed=args.seed, noise_free=args.noise_free
         )
@@ -32,11 +34,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             objects=210 if args.objects is None else args.objects,
             seed=args.seed,
             noise_free=args.noise_free,
+            clutter=args.clutter,
+            miss=args.miss,
+            classes=args.classes,
         )
-    if args.object_ids == "per-robot":
+    if args.object_ids != "global":
         from teamslam.datasets.identity import strip_object_ids
 
-        dataset = strip_object_ids(dataset, seed=args.seed)
+        dataset = strip_object_ids(dataset, to=args.object_ids, seed=args.seed)
     save_and_describe(dataset, args.out)
     return 0
 
@@ -292,10 +297,27 @@ def register(sub) -> None:
     sim.add_argument("--noise-free", action="store_true", help="exact measurements and odometry")
     sim.add_argument(
         "--object-ids",
-        choices=("global", "per-robot"),
+        choices=("global", "per-robot", "none"),
         default="global",
         help="global: an object has one id in every robot's data (default); per-robot: each "
-        "robot numbers its own objects (which are the same kept as ground truth)",
+        "robot numbers its own objects (which are the same kept as ground truth); none: "
+        "per-frame detections without ids",
+    )
+    sim.add_argument(
+        "--clutter",
+        type=float,
+        default=0.0,
+        help="Lissajous route: false detections per frame, as a share of the true ones "
+        "(uniform in the image, random disparity in the depth range)",
+    )
+    sim.add_argument(
+        "--miss", type=float, default=0.0, help="Lissajous route: probability of a missed object"
+    )
+    sim.add_argument(
+        "--classes",
+        type=non_negative_int,
+        default=0,
+        help="Lissajous route: number of object classes (0: none)",
     )
     sim.add_argument("--out", type=Path, required=True, help="dataset directory to write")
     sim.set_defaults(handler=_cmd_simulate)
@@ -345,7 +367,13 @@ def register(sub) -> None:
     )
     strip.add_argument("dataset", type=Path, help="dataset directory (global object ids)")
     strip.add_argument("--out", type=Path, required=True, help="dataset directory to write")
-    strip.add_argument("--to", choices=("per-robot",), default="per-robot", help="the new id scope")
+    strip.add_argument(
+        "--to",
+        choices=("per-robot", "none"),
+        default="per-robot",
+        help="per-robot: each robot numbers its own objects; none: per-frame detections "
+        "without ids, which each robot's tracker names (the identity kept as ground truth)",
+    )
     strip.add_argument("--seed", type=non_negative_int, default=0, help="seed of the new ids")
     strip.set_defaults(handler=_cmd_strip_ids)
     bag = data_sub.add_parser(
