@@ -102,3 +102,21 @@ def test_detections_without_ids_from_the_command_line(tmp_path):
         assert np.array_equal(np.sort(a.detections.truth), np.sort(b.objects.ids))
     # clutter only on the Lissajous route
     assert main([*args[:-1], str(tmp_path / "x"), "--route", "long", "--clutter", "0.1"]) == 2
+
+
+def test_a_run_on_detections_reports_its_tracking(tmp_path, capsys):
+    """A run on detections without ids writes ``metrics.json["tracking"]`` (scored against the
+    truth of each detection) and prints it in the run table."""
+    data, out = tmp_path / "data", tmp_path / "run"
+    args = ["simulate", "--robots", "2", "--steps", "30", "--seed", "5", "--out", str(data)]
+    assert main([*args, "--object-ids", "none", "--clutter", "0.1", "--miss", "0.05"]) == 0
+    assert main(["run", str(data), "--separate", "--out", str(out), "--no-report"]) == 0
+    assert "tracking IDF1 | MOTA" in capsys.readouterr().out
+    tracking = json.loads((out / "metrics.json").read_text())["tracking"]
+    team = tracking["team"]
+    dataset = load_dataset(data)
+    truth = np.concatenate([r.detections.truth for r in dataset.robots])
+    assert team["gt"] == int(np.sum(truth >= 0))  # every true detection is scored
+    assert team["fp"] + team["idtp"] <= team["gt"] + np.sum(truth < 0)
+    assert 0.0 < team["idf1"] <= 1.0 and team["false_objects"] == 0
+    assert len(tracking["robots"]) == 2

@@ -148,7 +148,23 @@ def team_metrics(dataset: TeamDataset, result: TeamResult) -> dict:
         "wall_seconds": result.wall_seconds,
         **_health(result.health),
         **_association(dataset, result),
+        **_tracking(dataset, result),
     }
+
+
+def _tracking(dataset: TeamDataset, result: TeamResult) -> dict:
+    """``{"tracking": …}`` (:func:`teamslam.eval.tracking.tracking_metrics`) when robots tracked
+    their own detections and the dataset holds the truth of each (else nothing)."""
+    from teamslam.eval.tracking import tracking_metrics
+
+    hypotheses = result.extra.get("tracking_hypotheses")
+    if hypotheses is None:  # robot processes: in each robot's summary
+        summaries = result.extra.get("per_robot", [])
+        hypotheses = [s.get("tracking_hypotheses", []) for s in summaries]
+    if not any(len(h) for h in hypotheses) or len(hypotheses) != dataset.n_robots:
+        return {}
+    tracking = tracking_metrics(dataset, [np.asarray(h, dtype=np.int64) for h in hypotheses])
+    return {} if tracking is None else {"tracking": tracking}
 
 
 def _association(dataset: TeamDataset, result: TeamResult) -> dict:

@@ -47,13 +47,15 @@ def team_table(runs: dict[str, dict]) -> str:
             f"{f'time {stage} [ms/robot/frame]':<36}"
             + "".join(f"{runs[n]['time_per_robot_step_ms'][stage]:>{width}.2f}" for n in names)
         )
-    if any("association" in runs[n] for n in names):
-        for label, cell in _ASSOCIATION_ROWS:
+    for key, rows in (("association", _ASSOCIATION_ROWS), ("tracking", _TRACKING_ROWS)):
+        if not any(key in runs[n] for n in names):
+            continue
+        for label, cell in rows:
             lines.append(
                 f"{label:<36}"
                 + "".join(
-                    f"{cell(runs[n]['association']['team']):>{width}}"
-                    if "association" in runs[n]
+                    f"{cell(runs[n][key]['team']):>{width}}"
+                    if key in runs[n]
                     else f"{'—':>{width}}"
                     for n in names
                 )
@@ -76,6 +78,17 @@ _ASSOCIATION_ROWS = (
     ("association recall", lambda t: _share(t, "recall", 3)),
     ("summary bytes / robot / frame", lambda t: f"{t['summary_bytes_per_robot_step']:.0f}"),
     ("association share of step time", lambda t: f"{100 * t['association_time_share']:.1f}%"),
+)
+
+
+#: rows of the run table when robots tracked their own detections (datasets without ids)
+_TRACKING_ROWS = (
+    ("tracking IDF1 | MOTA", lambda t: f"{t['idf1']:.3f} | {t['mota']:.3f}"),
+    ("tracking id switches", lambda t: f"{t['id_switches']}"),
+    (
+        "objects created | true | false",
+        lambda t: f"{t['objects_created']} | {t['objects_true']} | {t['false_objects']}",
+    ),
 )
 
 

@@ -140,11 +140,7 @@ def tracking_metrics(dataset, hypotheses: list[np.ndarray]) -> dict | None:
 
 def hypotheses_of(agents) -> list[np.ndarray]:
     """Per agent the ids its tracker gave each detection so far (empty without a tracker)."""
-    out = []
-    for agent in agents:
-        tracker = getattr(agent, "tracker", None)
-        if tracker is None or not tracker.log:
-            out.append(np.zeros(0, np.int64))
-        else:
-            out.append(np.concatenate(tracker.log).astype(np.int64))
-    return out
+    return [
+        np.zeros(0, np.int64) if agent.tracker is None else agent.tracker.hypotheses()
+        for agent in agents
+    ]

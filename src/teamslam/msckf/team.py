@@ -307,7 +307,15 @@ class RobotDriver:
         association = self.association()
         if association:
             out["association"] = association
+        tracking = self.tracking()
+        if tracking is not None:
+            out["tracking_hypotheses"] = tracking
         return out
+
+    def tracking(self) -> list[int] | None:
+        """The id the robot's tracker gave each of its detections (``None`` without one)."""
+        tracker = self.agent.tracker
+        return None if tracker is None else tracker.hypotheses().tolist()
 
     def association(self) -> dict:
         """:meth:`~teamslam.msckf.protocol.ConsensusProtocol.association_summary` (empty without
@@ -388,6 +396,9 @@ def assemble_result(
     maps = [a.state.full_map() for a in agents] if maps is None else maps
     association = [d.association() for d in drivers]
     extra = {"association": association} if any(association) else {}
+    tracking = [d.tracking() for d in drivers]
+    if any(t is not None for t in tracking):
+        extra["tracking_hypotheses"] = [[] if t is None else t for t in tracking]
     counters = []
     for d in drivers:
         c = dict(d.agent.counters)

@@ -226,6 +226,12 @@ class ObjectTracker:
         frame.ids = every
         return frame
 
+    def hypotheses(self) -> np.ndarray:
+        """The id given to every detection so far, in frame order (``-1``: none)."""
+        if not self.log:
+            return np.zeros(0, np.int64)
+        return np.concatenate(self.log).astype(np.int64)
+
     @property
     def n_tracks(self) -> int:
         """Tracks held (tentative and confirmed not yet in the state)."""
