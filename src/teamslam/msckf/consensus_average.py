@@ -47,7 +47,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from teamslam.errors import InputError, InternalError
-from teamslam.gaussian import NotPositiveDefiniteError, completed_geometric_average, spd_inverse
+from teamslam.gaussian import (
+    NotPositiveDefiniteError,
+    add_weighted_difference,
+    completed_geometric_average,
+    spd_inverse,
+)
 from teamslam.msckf.consensus_checks import ReceivedMarginal, receive_marginal
 from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
@@ -56,6 +61,7 @@ __all__ = [
     "SharedPrior",
     "consensus_average",
     "hybrid_marginal",
+    "increment_average",
     "new_information",
     "prior_information",
     "shared_prior",
@@ -171,6 +177,7 @@ def consensus_average(
     prior: SharedPrior | None = None,
     counters: MutableMapping[str, int] | None = None,
     own_information: Mapping[bytes, np.ndarray] | None = None,
+    increments: bool = False,
 ) -> int:
     """Average the common objects with the neighbours' marginals and rebuild the joint.
 
@@ -194,6 +201,10 @@ def consensus_average(
         of ``y``. The rebuild (Prop. 2) still uses our actual conditional. Joint marginals only.
         ``counters["hybrid_fallbacks"]`` is incremented when the result is not positive definite
         and the plain average is used instead.
+    increments
+        With ``prior``: consensus on information increments (module docstring) — each
+        neighbour's marginal is completed against our prior's marginal of its objects instead
+        of our current one, so our own new information counts exactly once on every object.
     own_information
         Our own information matrices of object sets already inverted this step (by
         :func:`common_marginal_message` with ``keep``), under the key ``ids.tobytes()``
@@ -247,6 +258,18 @@ def consensus_average(
         own_info = None if own_information is None else own_information.get(y_ids.tobytes())
         if own_info is None:
             own_info = spd_inverse(own_cov, "own marginal covariance")
+        if prior is not None and increments:
+            blocks = [
+                (w, m.ids, sub, m.info, m.info_vector)
+                for (w, sub, *_), m in zip(terms, marginals, strict=True)
+            ]
+            averaged = increment_average(own_mean, own_info, blocks, prior)
+            if averaged is None:
+                if counters is not None:
+                    counters["hybrid_fallbacks"] += 1
+                averaged = completed_geometric_average(own_mean, own_cov, terms, info=own_info)
+            state.replace_marginal(cols, *averaged, info=own_info)
+            return int(y_ids.size)
         extra = None
         if prior is not None:
             # our own new information Δ, added with the weight of the messages that hold all
@@ -268,3 +291,52 @@ def consensus_average(
             mean, cov = completed_geometric_average(own_mean, own_cov, terms, info=own_info)
         state.replace_marginal(cols, mean, cov, info=own_info)
     return int(y_ids.size)
+
+
+def increment_average(
+    own_mean: np.ndarray,
+    own_info: np.ndarray,
+    blocks: Sequence[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+    prior: SharedPrior,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Consensus on information increments over ``y`` (module docstring), or ``None``.
+
+    ``Ω̄ = Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ`` and ``η̄ = η + Σ_j A_ij Lⱼᵀ (m_j − η_{P,C_j})``:
+    our own marginal of ``y`` at full weight, and each neighbour's (hybrid) marginal of
+    ``C_j ⊆ y`` with weight ``A_ij`` against our prior's marginal of ``C_j``
+    (:func:`prior_information`; zero for objects initialised since).
+
+    Parameters
+    ----------
+    own_mean, own_info
+        Our marginal of ``y`` (mean and information matrix).
+    blocks
+        ``(A_ij, ids_j, index_j, M_j, m_j)`` per neighbour: the ids of ``C_j`` (increasing),
+        their coordinates in ``y``, the neighbour's information matrix and vector of ``C_j``.
+    prior
+        Our objects' marginal right after our last exchange.
+
+    Returns
+    -------
+    tuple or None
+        ``(mean, cov)`` of the averaged marginal of ``y``; ``None`` when ``Ω̄`` is not positive
+        definite (our new information since the prior is then too far from positive
+        semi-definite: after relinearisation, or an object that re-entered the state).
+    """
+    info_bar = own_info.copy()
+    eta_bar = own_info @ own_mean
+    for weight, ids, sub, m_info, m_eta in blocks:
+        add_weighted_difference(
+            info_bar,
+            eta_bar,
+            np.ix_(sub, sub),
+            sub,
+            weight,
+            (m_info, m_eta),
+            prior_information(prior, ids),
+        )
+    try:
+        cov = spd_inverse(info_bar, "averaged information")
+    except NotPositiveDefiniteError:
+        return None
+    return cov @ eta_bar, cov

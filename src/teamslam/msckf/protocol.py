@@ -126,7 +126,9 @@ class ConsensusProtocol:
         self._own_information: dict[bytes, np.ndarray] = {}
         self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         # hybrid consensus: our joint marginal of the objects after the last exchange
-        self.hybrid = bool(agent.config.consensus_hybrid) and self.max_age == 0
+        config = agent.config
+        self.increments = bool(config.consensus_increments) and self.max_age == 0
+        self.hybrid = (bool(config.consensus_hybrid) or self.increments) and self.max_age == 0
         self._prior: SharedPrior | None = shared_prior(agent.state) if self.hybrid else None
         self.step = -1
         self.heard: set[int] = set()
@@ -372,6 +374,7 @@ class ConsensusProtocol:
             prior=self._prior if self.hybrid else None,
             counters=self.agent.counters,
             own_information=self._own_information,
+            increments=self.increments,
         )
         self._own_information = {}  # the state has moved
         if self.hybrid and (self.expected or averaged):
