@@ -18,13 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_hybrid_consensus import OBJECTS, _exchange, _marginal, _team
 
 from teamslam.dvi.kalman import kalman_update
 from teamslam.errors import InputError
 from teamslam.graph import complete, random_geometric, ring
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.protocol import ConsensusProtocol, metropolis_weight
+from test_hybrid_consensus import OBJECTS, _exchange, _marginal, _team
 
 
 def _rows(rng, agent, truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
