@@ -37,6 +37,52 @@ before the average, even with the largest gain that counts it once per object, f
 test). The new information is a difference of two marginals; when it is not positive semi-definite
 enough for the result to stay positive definite (after relinearisation, or an object re-entering
 from the persistent map) the plain marginal is used (``hybrid_fallbacks``).
+
+**Consensus on information increments** (``consensus_increments``; :func:`increment_average`).
+The hybrid rule adds our own new information with the weight of the messages that hold *every*
+averaged object; where a message lacks some object of ``y`` — partial maps, or pairs that
+exchange different subsets because only some objects moved — our own new information on the
+objects it does hold enters with less than full weight, and with the map of our team (objects
+seen by two to five robots) that is most averages. The increments rule completes each
+neighbour's marginal against our *prior* marginal of its objects instead of our current one:
+
+    ``Ω̄ = Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ``,  ``η̄ = η + Σ_j A_ij Lⱼᵀ (m_j − η_{P,C_j})``
+
+with ``M_j = P_j + γ_j Δ_j`` the neighbour's hybrid marginal of ``C_j`` and ``Ω = P + Δ`` ours.
+Written out, ``Ω̄ = [P + Σ_j A_ij Lⱼᵀ (P_j − P_{C_j}) Lⱼ] + Δ + Σ_j A_ij γ_j Lⱼᵀ Δ_j Lⱼ``: the
+bracket is eq. 42 on the priors (weights summing to one, each neighbour completed by our prior
+conditional — a convex combination, consistent whatever the priors' correlation), then our own
+increment with weight one on every object of ``y`` and each neighbour's with weight
+``A_ij γ_j``.
+
+*The condition.* An increment — the information one robot gathered between two exchanges, from
+measurement noise independent of every prior — must enter any estimate with a total weight of
+at most one. In one exchange robot ``i`` receives ``Δ_j`` only from ``j`` itself, with weight
+``A_ij γ_j``; so the condition is ``A_ij γ_j ≤ 1`` for every receiver ``i`` of ``j``. With
+Metropolis weights ``A_ij = 1/(1 + max(d_i, d_j)) ≤ 1/(1 + d_j)``, the largest gain the sender
+can use without knowing its receivers' degrees is ``γ_j = 1 + d_j`` (``d_j`` the neighbours it
+heard this step): the weight is then exactly one wherever ``d_i ≤ d_j`` — on a complete graph
+everywhere, where one exchange equals the centralised Kalman filter on the common objects — and
+``(1 + d_j)/(1 + d_i) < 1`` elsewhere. Later exchanges carry the increment only inside priors,
+which are averaged with weights summing to one, so by induction no increment ever weighs more
+than one in any estimate: never more information than the centralised filter. *Link loss*: a
+robot renews its prior after every step in which it sent a marginal, whether or not it arrived,
+so an increment is sent at gain ``γ`` once; a lost message loses that increment for that
+neighbour (it arrives later only inside a prior, at a Metropolis weight) but never doubles it;
+a neighbour heard in round 1 whose marginal did not arrive keeps its weight on our own
+marginal. *Partial maps*: a neighbour's increment only enters on the objects its message holds;
+ours enters on all of ``y`` once; objects initialised since the prior have ``P = 0``, so their
+whole marginal counts as new — once. *Asynchronous exchanges* may use one marginal at several
+steps, counting its increment again, so the rule (like hybrid) is lock-step only. All of this
+is tested on a linear team (``tests/test_consistent_consensus.py``).
+
+*What it still loses*: an object that one robot has held for a while (prior ``P_j``) and another
+has just initialised (prior zero) is averaged with one matrix per message, so the receiver
+cannot tell ``j``'s prior from its scaled increment: the new holder keeps ``A_ij P_j`` of the
+old holders' prior information and the old holder ``1 − A_ij`` of its own. That loss is
+permanent (priors are only averaged convexly afterwards) and grows with the number of robots
+that see an object. Separating them needs the prior and the increment to travel apart (two
+matrices per message).
 """
 
 from __future__ import annotations
