@@ -16,6 +16,8 @@ makes every marginal a sum of information pieces, so the properties are exact:
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -203,3 +205,33 @@ def test_increment_settings_are_checked_and_asynchronous_exchanges_stay_plain():
     assert protocol.increments and protocol.hybrid
     asynchronous = ConsensusProtocol(agents[0], [1], max_age=2)
     assert not asynchronous.increments and not asynchronous.hybrid
+
+
+def test_montecarlo_runs_the_increments_mode_on_a_chosen_graph_with_link_loss(tmp_path, capsys):
+    from teamslam.cli import main
+    from teamslam.eval.team_montecarlo import MonteCarloSpec
+
+    def study(*flags: str) -> dict:
+        argv = ["montecarlo", "--robots", "3", "--steps", "40", "--runs", "2", "--filters"]
+        argv += ["fej", "--modes", "consensus,increments", "--workers", "1"]
+        assert main([*argv, *flags, "--json", "--out", str(tmp_path)]) == 0
+        return json.loads(capsys.readouterr().out)
+
+    lossy = study("--graph", "ring", "--loss", "0.5")
+    assert (lossy["graph"], lossy["loss"]) == ("ring", 0.5)
+    results = lossy["results"]["fej"]
+    paired = lossy["paired_rmse"]["increments-consensus"]["fej"]
+    diff = np.subtract(
+        results["increments"]["position_rmse_per_run_m"],
+        results["consensus"]["position_rmse_per_run_m"],
+    )
+    assert paired["mean_difference_m"] == pytest.approx(diff.mean(), abs=1e-15)
+    # a ring of three is a complete graph: only the link loss tells the two studies apart
+    whole = study("--graph", "complete")["results"]["fej"]
+    for mode in ("consensus", "increments"):
+        lost = results[mode]["position_rmse_per_run_m"]
+        assert not np.allclose(whole[mode]["position_rmse_per_run_m"], lost, rtol=1e-9, atol=0)
+    with pytest.raises(InputError, match="unknown graph"):
+        MonteCarloSpec(graph="star")
+    with pytest.raises(InputError, match="link loss"):
+        MonteCarloSpec(loss=1.0)

@@ -29,9 +29,11 @@ Per filter and mode:
 
 Every filter and mode sees the same ``N`` noise realisations, so filters can be compared run by
 run: ``paired_rmse["<filter>-std"][mode]`` (for every filter besides ``std``, when ``std`` is
-in the study) holds the mean over runs of the difference of the per-run position RMSEs, its
-95 % Student-t confidence interval, the same relative to ``std``'s mean, and in how many runs
-the filter was the more accurate one. A difference whose interval contains 0 is one this many
+in the study), and the averaging rules against the paper's average,
+``paired_rmse["<hybrid|increments>-consensus"][filter]`` (when ``consensus`` is in the study),
+hold the mean over runs of the difference of the per-run position RMSEs, its 95 % Student-t
+confidence interval, the same relative to the reference's mean, and in how many runs the
+filter (rule) was the more accurate one. A difference whose interval contains 0 is one this many
 runs cannot tell from noise.
 """
 
@@ -246,6 +248,17 @@ def summarise(spec: MonteCarloSpec, runs: list[dict]) -> dict:
                 )
                 for mode in spec.modes
             }
+    # each averaging rule against the paper's average, filter by filter, run by run
+    if "consensus" in spec.modes:
+        for mode in ("hybrid", "increments"):
+            if mode in spec.modes:
+                paired[f"{mode}-consensus"] = {
+                    filt: paired_difference(
+                        results[filt][mode]["position_rmse_per_run_m"],
+                        results[filt]["consensus"]["position_rmse_per_run_m"],
+                    )
+                    for filt in spec.filters
+                }
     return {**asdict(spec), "results": results, "paired_rmse": paired}
 
 
@@ -333,7 +346,7 @@ def table(summary: dict) -> str:
             )
     for pair, modes in summary.get("paired_rmse", {}).items():
         lines.append(f"per-run position RMSE, {pair.replace('-', ' − ')} (95% interval):")
-        for mode, p in modes.items():
+        for mode, p in modes.items():  # a mode, or a filter for the averaging rules
             low, high = p["interval_m"]
             lines.append(
                 f"  {mode:<12}{p['mean_difference_m']:+.4f} m [{low:+.4f}, {high:+.4f}] "
