@@ -28,9 +28,15 @@ OBJECTS = 4
 
 
 def _agent(
-    robot: int, mean: np.ndarray, cov: np.ndarray, hybrid: bool, held: np.ndarray | None = None
+    robot: int,
+    mean: np.ndarray,
+    cov: np.ndarray,
+    hybrid: bool,
+    held: np.ndarray | None = None,
+    increments: bool = False,
 ) -> SimpleNamespace:
-    """A robot with one window pose (independent of the map) and the objects ``held`` (all)."""
+    """A robot with one window pose (independent of the map) and the objects ``held`` (all);
+    ``increments``: consensus on information increments instead of the hybrid rule."""
     held = np.arange(OBJECTS) if held is None else np.asarray(held)
     coords = (3 * held[:, None] + np.arange(3)).ravel()
     full = np.zeros((6 + coords.size, 6 + coords.size))
@@ -39,7 +45,10 @@ def _agent(
     ids = (10 + held).astype(np.int64)
     state = MsckfState.from_arrays(np.eye(4), [0], ids, mean[coords].reshape(-1, 3), full)
     config = MsckfConfig(
-        consensus_kl_threshold=0.0, consensus_float32=False, consensus_hybrid=hybrid
+        consensus_kl_threshold=0.0,
+        consensus_float32=False,
+        consensus_hybrid=hybrid,
+        consensus_increments=increments,
     )
     rejected = []
     return SimpleNamespace(
@@ -69,18 +78,21 @@ def _measure(rng, agent, truth) -> tuple[np.ndarray, np.ndarray]:
     return info, h.T @ np.linalg.solve(noise, z)
 
 
-def _exchange(protocols, adjacency, step) -> None:
-    """One lock-step consensus round over ``adjacency``, all links up."""
+def _exchange(protocols, adjacency, step, lost=frozenset()) -> None:
+    """One lock-step consensus round over ``adjacency``; a message ``(round, sender,
+    receiver)`` in ``lost`` does not arrive (every other link is up)."""
     n = len(protocols)
     boxes: dict[int, list] = defaultdict(list)
     for i in range(n):
         for m in protocols[i].requests(step, np.flatnonzero(adjacency[i])):
-            boxes[m.receiver].append(m)
+            if (1, m.sender, m.receiver) not in lost:
+                boxes[m.receiver].append(m)
     replies: dict[int, list] = defaultdict(list)
     for i in range(n):
         ids = [m for m in boxes[i] if isinstance(m, MapIdsMessage)]
         for m in protocols[i].answer(ids):
-            replies[m.receiver].append(m)
+            if (2, m.sender, m.receiver) not in lost:
+                replies[m.receiver].append(m)
     for i in range(n):
         assert all(isinstance(m, CommonMarginalMessage) for m in replies[i])
         protocols[i].average(replies[i])
@@ -91,11 +103,11 @@ def _marginal(agent) -> tuple[np.ndarray, np.ndarray]:
     return agent.state.objects.ravel(), cov
 
 
-def _team(n, rng, hybrid, maps=None):
+def _team(n, rng, hybrid, maps=None, increments=False):
     prior_cov = np.diag(rng.uniform(0.5, 2.0, 3 * OBJECTS))
     prior_mean = rng.standard_normal(3 * OBJECTS)
     maps = maps or [None] * n
-    agents = [_agent(i, prior_mean, prior_cov, hybrid, maps[i]) for i in range(n)]
+    agents = [_agent(i, prior_mean, prior_cov, hybrid, maps[i], increments) for i in range(n)]
     return agents, prior_mean, prior_cov
 
 

@@ -29,6 +29,8 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
         seed=args.seed,
         window=args.window,
         settings=tuple(parse_assignments(args.set).items()),
+        graph=args.graph,
+        loss=args.loss,
     )
     summary, figures = write_montecarlo(spec, args.out, args.workers)
     if args.json:
@@ -47,16 +49,32 @@ def register(subparsers) -> None:
         help="Monte Carlo NEES and RMSE of the 3D team filter: linearisation × team mode",
         description="Run N noise realisations of one simulated stereo team through every "
         "chosen linearisation (std, fej, ideal, oc) and team mode (separate, consensus, "
-        "hybrid consensus, centralised); report the average NEES of the current pose and of "
-        "the objects with the χ² band, RMSE of position and heading, and write "
-        "montecarlo.json and figures.",
+        "hybrid consensus, consensus on information increments, centralised); report the "
+        "average NEES of the current pose and of the objects with the χ² band, RMSE of "
+        "position and heading, and write montecarlo.json and figures.",
     )
     mc.add_argument("--robots", type=positive_int, default=5, help="team size")
     mc.add_argument("--steps", type=positive_int, default=200, help="motion steps per robot")
     mc.add_argument("--runs", type=positive_int, default=20, help="noise realisations")
     mc.add_argument("--filters", default="std,fej,ideal", help="comma-separated policies")
     mc.add_argument(
-        "--modes", default="separate,consensus,centralised", help="comma-separated modes"
+        "--modes",
+        default="separate,consensus,centralised",
+        help="comma-separated modes: separate, consensus, hybrid, increments, centralised",
+    )
+    mc.add_argument(
+        "--graph",
+        choices=("complete", "ring", "random"),
+        default="complete",
+        help="communication graph of the consensus modes (random: connected random geometric, "
+        "drawn from --seed)",
+    )
+    mc.add_argument(
+        "--loss",
+        type=float,
+        default=0.0,
+        metavar="R",
+        help="per-frame probability that a link is down (consensus modes)",
     )
     mc.add_argument("--objects-only", action="store_true", help="ignore geometric features")
     mc.add_argument("--seed", type=non_negative_int, default=0, help="seed of paths and map")

@@ -3,9 +3,12 @@
 ``N`` noise realisations of one simulated team (same paths and map, fresh odometry and
 measurement noise, :func:`~teamslam.sim.lissajous_team` with ``noise_seed``), each run through
 every linearisation policy (:mod:`teamslam.msckf.linearization`) and every mode — ``separate``
-filters, ``consensus`` (the distributed MSCKF on a complete graph), ``hybrid`` (the same with
-hybrid consensus, ``consensus_hybrid``: new information at full weight,
-:mod:`teamslam.msckf.consensus`) and ``centralised`` (:mod:`teamslam.msckf.centralised`).
+filters, ``consensus`` (the distributed MSCKF, on a complete graph unless ``graph`` says
+otherwise, with link loss ``loss``), ``hybrid`` (the same with hybrid consensus,
+``consensus_hybrid``: new information at full weight, :mod:`teamslam.msckf.consensus`),
+``increments`` (consensus on information increments, ``consensus_increments``: each robot's
+new information counted once, :mod:`teamslam.msckf.consensus_average`) and ``centralised``
+(:mod:`teamslam.msckf.centralised`).
 Runs are spread over processes (:func:`~teamslam.eval.montecarlo.run_parallel`, BLAS pinned
 to one thread per worker).
 
@@ -26,9 +29,11 @@ Per filter and mode:
 
 Every filter and mode sees the same ``N`` noise realisations, so filters can be compared run by
 run: ``paired_rmse["<filter>-std"][mode]`` (for every filter besides ``std``, when ``std`` is
-in the study) holds the mean over runs of the difference of the per-run position RMSEs, its
-95 % Student-t confidence interval, the same relative to ``std``'s mean, and in how many runs
-the filter was the more accurate one. A difference whose interval contains 0 is one this many
+in the study), and the averaging rules against the paper's average,
+``paired_rmse["<hybrid|increments>-consensus"][filter]`` (when ``consensus`` is in the study),
+hold the mean over runs of the difference of the per-run position RMSEs, its 95 % Student-t
+confidence interval, the same relative to the reference's mean, and in how many runs the
+filter (rule) was the more accurate one. A difference whose interval contains 0 is one this many
 runs cannot tell from noise.
 """
 
@@ -56,7 +61,14 @@ __all__ = [
     "write_montecarlo",
 ]
 
-MODES = ("separate", "consensus", "hybrid", "centralised")
+MODES = ("separate", "consensus", "hybrid", "increments", "centralised")
+GRAPHS = ("complete", "ring", "random")
+# the team setting each consensus mode turns on
+_MODE_SETTINGS = {
+    "consensus": {},
+    "hybrid": {"consensus_hybrid": True},
+    "increments": {"consensus_increments": True},
+}
 FILTERS = ("std", "fej", "ideal", "oc")
 
 
@@ -71,7 +83,13 @@ class MonteCarloSpec:
     filters
         Linearisation policies (``std``, ``fej``, ``ideal``, ``oc``).
     modes
-        Team modes (``separate``, ``consensus``, ``hybrid``, ``centralised``).
+        Team modes (``separate``, ``consensus``, ``hybrid``, ``increments``, ``centralised``).
+    graph
+        Communication graph of the consensus modes: ``complete``, ``ring`` or ``random`` (a
+        connected random geometric graph drawn from ``seed``, the same in every run).
+    loss
+        Per-frame probability that a link is down (consensus modes; run ``k`` draws its link
+        losses from seed ``k``).
     objects_only
         Ignore geometric features.
     seed
@@ -91,6 +109,8 @@ class MonteCarloSpec:
     seed: int = 0
     window: int = 10
     settings: tuple[tuple[str, object], ...] = ()
+    graph: str = "complete"
+    loss: float = 0.0
 
     def __post_init__(self) -> None:
         from teamslam.errors import InputError
@@ -105,6 +125,16 @@ class MonteCarloSpec:
                 raise InputError(f"unknown mode {m!r}; choose from {', '.join(MODES)}")
         if not self.filters or not self.modes:
             raise InputError("give at least one filter and one mode")
+        if self.graph not in GRAPHS:
+            raise InputError(f"unknown graph {self.graph!r}; choose from {', '.join(GRAPHS)}")
+        if not 0 <= self.loss < 1:
+            raise InputError(f"link loss must lie in [0, 1), not {self.loss}")
+
+    def communication_graph(self):
+        """The consensus modes' communication graph."""
+        from teamslam.graph import make
+
+        return make(self.graph, self.robots, seed=self.seed)
 
     def team(self, run: int):
         """The simulated team of run ``run``."""
@@ -126,6 +156,7 @@ def one_run(run: int, spec: MonteCarloSpec) -> dict:
     from teamslam.msckf.centralised import run_centralised
 
     team = spec.team(run)
+    graph = spec.communication_graph()
     truth = np.stack([r.T_world_body for r in team.robots])  # (R, T + 1, 4, 4)
     out: dict = {}
     for filt in spec.filters:
@@ -139,11 +170,18 @@ def one_run(run: int, spec: MonteCarloSpec) -> dict:
         for mode in spec.modes:
             if mode == "centralised":
                 result = run_centralised(team, config, progress=False)
-            elif mode == "hybrid":
-                hybrid = config.with_(consensus_hybrid=True)
-                result = run_team(team, hybrid, consensus=True, progress=False)
+            elif mode == "separate":
+                result = run_team(team, config, consensus=False, progress=False)
             else:
-                result = run_team(team, config, consensus=mode == "consensus", progress=False)
+                result = run_team(
+                    team,
+                    config.with_(**_MODE_SETTINGS[mode]),
+                    graph=graph,
+                    consensus=True,
+                    loss=spec.loss,
+                    seed=run,
+                    progress=False,
+                )
             poses = np.stack(result.poses)
             covs = np.stack(result.pose_covs)
             eps = se3.log(se3.inverse(poses) @ truth)
@@ -210,6 +248,17 @@ def summarise(spec: MonteCarloSpec, runs: list[dict]) -> dict:
                 )
                 for mode in spec.modes
             }
+    # each averaging rule against the paper's average, filter by filter, run by run
+    if "consensus" in spec.modes:
+        for mode in ("hybrid", "increments"):
+            if mode in spec.modes:
+                paired[f"{mode}-consensus"] = {
+                    filt: paired_difference(
+                        results[filt][mode]["position_rmse_per_run_m"],
+                        results[filt]["consensus"]["position_rmse_per_run_m"],
+                    )
+                    for filt in spec.filters
+                }
     return {**asdict(spec), "results": results, "paired_rmse": paired}
 
 
@@ -297,7 +346,7 @@ def table(summary: dict) -> str:
             )
     for pair, modes in summary.get("paired_rmse", {}).items():
         lines.append(f"per-run position RMSE, {pair.replace('-', ' − ')} (95% interval):")
-        for mode, p in modes.items():
+        for mode, p in modes.items():  # a mode, or a filter for the averaging rules
             low, high = p["interval_m"]
             lines.append(
                 f"  {mode:<12}{p['mean_difference_m']:+.4f} m [{low:+.4f}, {high:+.4f}] "

@@ -80,6 +80,14 @@ class MsckfConfig:
         information twice; the plain average (``False``, the paper's) is conservative by about
         the number of robots averaging. Joint marginals, lock-step exchanges only;
         :mod:`teamslam.msckf.consensus`.
+    consensus_increments
+        Consensus on information increments: hybrid consensus (its messages, gains and
+        priors) in which the robot's own new information enters its average exactly once on
+        every object — each neighbour's marginal is completed against our prior rather than
+        our current marginal — so partial maps and partial exchanges no longer dilute it (the
+        hybrid rule counts it less than once wherever a message lacks some averaged object).
+        Never counts an increment twice on any graph, with link loss and partial maps; joint
+        marginals, lock-step exchanges only; :mod:`teamslam.msckf.consensus_average`.
     linearization
         Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates)
         ``ideal`` (ground truth, simulation only) or ``oc`` (observability-constrained);
@@ -171,6 +179,7 @@ class MsckfConfig:
     consensus_per_object: bool = False
     consensus_float32: bool = True
     consensus_hybrid: bool = False
+    consensus_increments: bool = False
     linearization: str = "std"
     object_retire_after: int = 0
     debug: bool = False
@@ -204,11 +213,11 @@ class MsckfConfig:
         threshold = self.consensus_kl_threshold
         if isinstance(threshold, bool) or not (np.isfinite(threshold) and threshold >= 0):
             raise InputError("consensus_kl_threshold must be a number ≥ 0 (nats)")
-        if self.consensus_hybrid and self.consensus_per_object:
-            raise InputError(
-                "consensus_hybrid needs joint marginals: it cannot be used with "
-                "consensus_per_object"
-            )
+        for name in ("consensus_hybrid", "consensus_increments"):
+            if getattr(self, name) and self.consensus_per_object:
+                raise InputError(
+                    f"{name} needs joint marginals: it cannot be used with consensus_per_object"
+                )
         if self.object_loss not in ("none", "huber", "cauchy"):
             raise InputError(f"object_loss must be none, huber or cauchy, not {self.object_loss!r}")
         scale = self.object_loss_scale

@@ -12,7 +12,11 @@ The protocol around it — who sends what, which messages are accepted, the weig
   (its information matrix is what the average uses);
 * averaging — :mod:`teamslam.msckf.consensus_average`: :func:`consensus_average` (eq. 19 over
   the common objects, each neighbour completed by our own conditional, then Prop. 2 and eq. 21)
-  and the optional hybrid weighting (``consensus_hybrid``, new information at full weight).
+  and the optional hybrid weighting (``consensus_hybrid``, new information at full weight) and
+  consensus on information increments (``consensus_increments``, :func:`increment_average`:
+  the hybrid messages, each neighbour completed against our prior so every robot's new
+  information counts once — the gain condition, link loss and partial maps are derived
+  there).
 
 This module gathers their public names. A message with unknown ids, wrong sizes, or a
 covariance that is not symmetric positive definite is rejected; the estimate is unaffected.
@@ -24,6 +28,7 @@ from teamslam.msckf.consensus_average import (
     SharedPrior,
     consensus_average,
     hybrid_marginal,
+    increment_average,
     new_information,
     prior_information,
     shared_prior,
@@ -51,6 +56,7 @@ __all__ = [
     "common_marginal_message",
     "consensus_average",
     "hybrid_marginal",
+    "increment_average",
     "information_rounding_bound",
     "new_information",
     "object_marginals",

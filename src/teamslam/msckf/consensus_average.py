@@ -37,6 +37,52 @@ before the average, even with the largest gain that counts it once per object, f
 test). The new information is a difference of two marginals; when it is not positive semi-definite
 enough for the result to stay positive definite (after relinearisation, or an object re-entering
 from the persistent map) the plain marginal is used (``hybrid_fallbacks``).
+
+**Consensus on information increments** (``consensus_increments``; :func:`increment_average`).
+The hybrid rule adds our own new information with the weight of the messages that hold *every*
+averaged object; where a message lacks some object of ``y`` — partial maps, or pairs that
+exchange different subsets because only some objects moved — our own new information on the
+objects it does hold enters with less than full weight, and with the map of our team (objects
+seen by two to five robots) that is most averages. The increments rule completes each
+neighbour's marginal against our *prior* marginal of its objects instead of our current one:
+
+    ``Ω̄ = Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ``,  ``η̄ = η + Σ_j A_ij Lⱼᵀ (m_j − η_{P,C_j})``
+
+with ``M_j = P_j + γ_j Δ_j`` the neighbour's hybrid marginal of ``C_j`` and ``Ω = P + Δ`` ours.
+Written out, ``Ω̄ = [P + Σ_j A_ij Lⱼᵀ (P_j − P_{C_j}) Lⱼ] + Δ + Σ_j A_ij γ_j Lⱼᵀ Δ_j Lⱼ``: the
+bracket is eq. 42 on the priors (weights summing to one, each neighbour completed by our prior
+conditional — a convex combination, consistent whatever the priors' correlation), then our own
+increment with weight one on every object of ``y`` and each neighbour's with weight
+``A_ij γ_j``.
+
+*The condition.* An increment — the information one robot gathered between two exchanges, from
+measurement noise independent of every prior — must enter any estimate with a total weight of
+at most one. In one exchange robot ``i`` receives ``Δ_j`` only from ``j`` itself, with weight
+``A_ij γ_j``; so the condition is ``A_ij γ_j ≤ 1`` for every receiver ``i`` of ``j``. With
+Metropolis weights ``A_ij = 1/(1 + max(d_i, d_j)) ≤ 1/(1 + d_j)``, the largest gain the sender
+can use without knowing its receivers' degrees is ``γ_j = 1 + d_j`` (``d_j`` the neighbours it
+heard this step): the weight is then exactly one wherever ``d_i ≤ d_j`` — on a complete graph
+everywhere, where one exchange equals the centralised Kalman filter on the common objects — and
+``(1 + d_j)/(1 + d_i) < 1`` elsewhere. Later exchanges carry the increment only inside priors,
+which are averaged with weights summing to one, so by induction no increment ever weighs more
+than one in any estimate: never more information than the centralised filter. *Link loss*: a
+robot renews its prior after every step in which it sent a marginal, whether or not it arrived,
+so an increment is sent at gain ``γ`` once; a lost message loses that increment for that
+neighbour (it arrives later only inside a prior, at a Metropolis weight) but never doubles it;
+a neighbour heard in round 1 whose marginal did not arrive keeps its weight on our own
+marginal. *Partial maps*: a neighbour's increment only enters on the objects its message holds;
+ours enters on all of ``y`` once; objects initialised since the prior have ``P = 0``, so their
+whole marginal counts as new — once. *Asynchronous exchanges* may use one marginal at several
+steps, counting its increment again, so the rule (like hybrid) is lock-step only. All of this
+is tested on a linear team (``tests/test_consistent_consensus.py``).
+
+*What it still loses*: an object that one robot has held for a while (prior ``P_j``) and another
+has just initialised (prior zero) is averaged with one matrix per message, so the receiver
+cannot tell ``j``'s prior from its scaled increment: the new holder keeps ``A_ij P_j`` of the
+old holders' prior information and the old holder ``1 − A_ij`` of its own. That loss is
+permanent (priors are only averaged convexly afterwards) and grows with the number of robots
+that see an object. Separating them needs the prior and the increment to travel apart (two
+matrices per message).
 """
 
 from __future__ import annotations
@@ -47,7 +93,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from teamslam.errors import InputError, InternalError
-from teamslam.gaussian import NotPositiveDefiniteError, completed_geometric_average, spd_inverse
+from teamslam.gaussian import (
+    NotPositiveDefiniteError,
+    add_weighted_difference,
+    completed_geometric_average,
+    spd_inverse,
+)
 from teamslam.msckf.consensus_checks import ReceivedMarginal, receive_marginal
 from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
@@ -56,6 +107,7 @@ __all__ = [
     "SharedPrior",
     "consensus_average",
     "hybrid_marginal",
+    "increment_average",
     "new_information",
     "prior_information",
     "shared_prior",
@@ -171,6 +223,7 @@ def consensus_average(
     prior: SharedPrior | None = None,
     counters: MutableMapping[str, int] | None = None,
     own_information: Mapping[bytes, np.ndarray] | None = None,
+    increments: bool = False,
 ) -> int:
     """Average the common objects with the neighbours' marginals and rebuild the joint.
 
@@ -194,6 +247,10 @@ def consensus_average(
         of ``y``. The rebuild (Prop. 2) still uses our actual conditional. Joint marginals only.
         ``counters["hybrid_fallbacks"]`` is incremented when the result is not positive definite
         and the plain average is used instead.
+    increments
+        With ``prior``: consensus on information increments (module docstring) — each
+        neighbour's marginal is completed against our prior's marginal of its objects instead
+        of our current one, so our own new information counts exactly once on every object.
     own_information
         Our own information matrices of object sets already inverted this step (by
         :func:`common_marginal_message` with ``keep``), under the key ``ids.tobytes()``
@@ -247,6 +304,18 @@ def consensus_average(
         own_info = None if own_information is None else own_information.get(y_ids.tobytes())
         if own_info is None:
             own_info = spd_inverse(own_cov, "own marginal covariance")
+        if prior is not None and increments:
+            blocks = [
+                (w, m.ids, sub, m.info, m.info_vector)
+                for (w, sub, *_), m in zip(terms, marginals, strict=True)
+            ]
+            averaged = increment_average(own_mean, own_info, blocks, prior)
+            if averaged is None:
+                if counters is not None:
+                    counters["hybrid_fallbacks"] += 1
+                averaged = completed_geometric_average(own_mean, own_cov, terms, info=own_info)
+            state.replace_marginal(cols, *averaged, info=own_info)
+            return int(y_ids.size)
         extra = None
         if prior is not None:
             # our own new information Δ, added with the weight of the messages that hold all
@@ -268,3 +337,52 @@ def consensus_average(
             mean, cov = completed_geometric_average(own_mean, own_cov, terms, info=own_info)
         state.replace_marginal(cols, mean, cov, info=own_info)
     return int(y_ids.size)
+
+
+def increment_average(
+    own_mean: np.ndarray,
+    own_info: np.ndarray,
+    blocks: Sequence[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+    prior: SharedPrior,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Consensus on information increments over ``y`` (module docstring), or ``None``.
+
+    ``Ω̄ = Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ`` and ``η̄ = η + Σ_j A_ij Lⱼᵀ (m_j − η_{P,C_j})``:
+    our own marginal of ``y`` at full weight, and each neighbour's (hybrid) marginal of
+    ``C_j ⊆ y`` with weight ``A_ij`` against our prior's marginal of ``C_j``
+    (:func:`prior_information`; zero for objects initialised since).
+
+    Parameters
+    ----------
+    own_mean, own_info
+        Our marginal of ``y`` (mean and information matrix).
+    blocks
+        ``(A_ij, ids_j, index_j, M_j, m_j)`` per neighbour: the ids of ``C_j`` (increasing),
+        their coordinates in ``y``, the neighbour's information matrix and vector of ``C_j``.
+    prior
+        Our objects' marginal right after our last exchange.
+
+    Returns
+    -------
+    tuple or None
+        ``(mean, cov)`` of the averaged marginal of ``y``; ``None`` when ``Ω̄`` is not positive
+        definite (our new information since the prior is then too far from positive
+        semi-definite: after relinearisation, or an object that re-entered the state).
+    """
+    info_bar = own_info.copy()
+    eta_bar = own_info @ own_mean
+    for weight, ids, sub, m_info, m_eta in blocks:
+        add_weighted_difference(
+            info_bar,
+            eta_bar,
+            np.ix_(sub, sub),
+            sub,
+            weight,
+            (m_info, m_eta),
+            prior_information(prior, ids),
+        )
+    try:
+        cov = spd_inverse(info_bar, "averaged information")
+    except NotPositiveDefiniteError:
+        return None
+    return cov @ eta_bar, cov

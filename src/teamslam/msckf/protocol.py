@@ -36,7 +36,10 @@ round-2 marginals are scaled with the gain ``1 + d_i``, its own new information 
 with the weight of the marginals that hold every averaged object, and its prior is renewed after
 every step in which it sent or averaged (:mod:`teamslam.msckf.consensus`). In asynchronous mode a
 neighbour's newest marginal may be used at several steps, which would count its new information
-again, so there the plain average is used.
+again, so there the plain average is used. **Consensus on information increments**
+(``consensus_increments``, lock-step only, the same messages): the average completes each
+neighbour's marginal against our prior instead of our current marginal, so our own new
+information counts once on every object (:func:`~teamslam.msckf.consensus.increment_average`).
 
 Only objects in the filter state take part: objects retired to the persistent map
 (``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
@@ -150,7 +153,11 @@ class ConsensusProtocol:
         self._own_information: dict[bytes, np.ndarray] = {}
         self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         # hybrid consensus: our joint marginal of the objects after the last exchange
-        self.hybrid = bool(agent.config.consensus_hybrid) and self.max_age == 0
+        config = agent.config
+        # (a configuration without the setting — one built before it existed — averages plainly)
+        increments = getattr(config, "consensus_increments", False)
+        self.increments = bool(increments) and self.max_age == 0
+        self.hybrid = (bool(config.consensus_hybrid) or self.increments) and self.max_age == 0
         self._prior: SharedPrior | None = shared_prior(agent.state) if self.hybrid else None
         self.step = -1
         self.heard: set[int] = set()
@@ -577,6 +584,7 @@ class ConsensusProtocol:
             prior=self._prior if self.hybrid else None,
             counters=self.agent.counters,
             own_information=self._own_information,
+            increments=self.increments,
         )
         self._own_information = {}  # the state has moved
         if self.hybrid and (self.expected or averaged):
