@@ -24,6 +24,7 @@ from teamslam.gaussian import (
 )
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
+from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.consensus import ReceivedMarginal, consensus_average
 from teamslam.msckf.models import observe_jacobians, points_in_camera
 from teamslam.msckf.protocol import ConsensusProtocol, _members
@@ -220,7 +221,7 @@ def test_moved_flags_equal_per_neighbour_kl():
     agent = SimpleNamespace(
         robot=0,
         state=state,
-        config=SimpleNamespace(consensus_kl_threshold=1e-3, consensus_hybrid=False),
+        config=MsckfConfig(consensus_kl_threshold=1e-3, consensus_hybrid=False),
     )
     protocol = ConsensusProtocol(agent, [1, 2, 3, 4])
     protocol.requests(1)
