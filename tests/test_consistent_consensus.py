@@ -23,25 +23,10 @@ import pytest
 
 from teamslam.dvi.kalman import kalman_update
 from teamslam.errors import InputError
-from teamslam.graph import complete, random_geometric, ring
+from teamslam.graph import complete, metropolis_weight, random_geometric, ring
 from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.protocol import ConsensusProtocol, metropolis_weight
-from test_hybrid_consensus import OBJECTS, _exchange, _marginal, _team
-
-
-def _rows(rng, agent, truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A direct linear measurement of some of the robot's object coordinates, applied to the
-    robot's filter; returns ``(H, R, z)`` over all ``OBJECTS`` objects for the reference."""
-    coords = (3 * (agent.state.object_ids - 10)[:, None] + np.arange(3)).ravel()
-    rows = int(rng.integers(2, coords.size))
-    h = np.zeros((rows, 3 * OBJECTS))
-    h[:, coords] = rng.standard_normal((rows, coords.size))
-    noise = np.diag(rng.uniform(0.05, 0.5, rows))
-    z = h @ truth + rng.multivariate_normal(np.zeros(rows), noise)
-    jacobian = np.zeros((rows, agent.state.dim))
-    jacobian[:, 6:] = h[:, coords]
-    agent.state.update(jacobian, z - h[:, coords] @ agent.state.objects.ravel(), noise)
-    return h, noise, z
+from teamslam.msckf.protocol import ConsensusProtocol
+from test_hybrid_consensus import OBJECTS, _exchange, _marginal, _rows, _team
 
 
 def _protocols(agents, adjacency):

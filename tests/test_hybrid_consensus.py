@@ -62,9 +62,9 @@ def _agent(
     )
 
 
-def _measure(rng, agent, truth) -> tuple[np.ndarray, np.ndarray]:
-    """A direct linear measurement of some of the robot's object coordinates; returns its
-    information and information vector over all ``OBJECTS`` objects."""
+def _rows(rng, agent, truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A direct linear measurement of some of the robot's object coordinates, applied to the
+    robot's filter; returns ``(H, R, z)`` over all ``OBJECTS`` objects for the reference."""
     coords = (3 * (agent.state.object_ids - 10)[:, None] + np.arange(3)).ravel()
     rows = int(rng.integers(2, coords.size))
     h = np.zeros((rows, 3 * OBJECTS))
@@ -74,8 +74,14 @@ def _measure(rng, agent, truth) -> tuple[np.ndarray, np.ndarray]:
     jacobian = np.zeros((rows, agent.state.dim))
     jacobian[:, 6:] = h[:, coords]
     agent.state.update(jacobian, z - h[:, coords] @ agent.state.objects.ravel(), noise)
-    info = h.T @ np.linalg.solve(noise, h)
-    return info, h.T @ np.linalg.solve(noise, z)
+    return h, noise, z
+
+
+def _measure(rng, agent, truth) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_rows` as the information and information vector it adds over all ``OBJECTS``
+    objects."""
+    h, noise, z = _rows(rng, agent, truth)
+    return h.T @ np.linalg.solve(noise, h), h.T @ np.linalg.solve(noise, z)
 
 
 def _exchange(protocols, adjacency, step, lost=frozenset()) -> None:

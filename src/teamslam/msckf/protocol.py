@@ -154,9 +154,7 @@ class ConsensusProtocol:
         self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         # hybrid consensus: our joint marginal of the objects after the last exchange
         config = agent.config
-        # (a configuration without the setting — one built before it existed — averages plainly)
-        increments = getattr(config, "consensus_increments", False)
-        self.increments = bool(increments) and self.max_age == 0
+        self.increments = bool(config.consensus_increments) and self.max_age == 0
         self.hybrid = (bool(config.consensus_hybrid) or self.increments) and self.max_age == 0
         self._prior: SharedPrior | None = shared_prior(agent.state) if self.hybrid else None
         self.step = -1
