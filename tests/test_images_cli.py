@@ -159,38 +159,13 @@ def test_frontend_settings_are_applied_and_shown_with_their_source(rendered, tmp
     dataset = load_dataset(out)
     assert max(r.features.counts().max() for r in dataset.robots) <= 40
     assert dataset.metadata["images"]["frontend"]["max_features"] == 40
-    assert (
-        main(
-            [
-                "data",
-                "from-images",
-                "--rendered",
-                str(rendered),
-                "--out",
-                str(out),
-                "--frontend-set",
-                "max_features=many",
-            ]
-        )
-        == 2
-    )
-    assert "max_features" in capsys.readouterr().err
-    assert (
-        main(
-            [
-                "data",
-                "from-images",
-                "--rendered",
-                str(rendered),
-                "--out",
-                str(out),
-                "--frontend-set",
-                "no_such=1",
-            ]
-        )
-        == 2
-    )
-    assert "unknown front-end setting 'no_such'" in capsys.readouterr().err
+    command = ["data", "from-images", "--rendered", str(rendered), "--out", str(out)]
+    for setting, named in (
+        ("max_features=many", "max_features"),
+        ("no_such=1", "unknown front-end setting 'no_such'"),
+    ):
+        assert main([*command, "--frontend-set", setting]) == 2
+        assert named in capsys.readouterr().err
 
 
 def test_bad_inputs_name_what_is_wrong(rendered, tmp_path, capsys):
