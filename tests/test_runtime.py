@@ -24,6 +24,7 @@ from teamslam.runtime.agent_process import load_robot_result, run_agent
 from teamslam.runtime.launch import agent_command
 from teamslam.runtime.team_file import TeamFileError, load_team_file, write_team_file
 from teamslam.runtime.wire import WireError, decode, encode, team_id
+from teamslam.runtime.zenoh_transport import ZenohTransport
 from teamslam.sim import lissajous_team
 
 TEAM = team_id("test-team")
@@ -352,3 +353,41 @@ def test_ctrl_c_stops_every_agent(small_team, tmp_path):
     for pid in pids:
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
+
+
+class _SlowReceiver(ZenohTransport):
+    """A transport whose subscriber takes a while per message (a robot busy with its filter)."""
+
+    received = 0
+
+    def _on_sample(self, sample) -> None:
+        time.sleep(0.002)
+        super()._on_sample(sample)
+        self.received += 1
+
+
+def test_lockstep_transport_delivers_a_burst_to_a_slow_receiver(small_team, tmp_path):
+    """Lock-step needs every message: a burst larger than Zenoh's link queue is not dropped.
+
+    With Zenoh's default congestion control for puts (drop) most of this burst is lost.
+    """
+    _, directory = small_team
+    team = load_team_file(
+        _team_file(tmp_path, f"burst-{os.getpid()}", directory, _port(21), sync="lockstep")
+    )
+    sender, receiver = ZenohTransport(team, 0), _SlowReceiver(team, 1)
+    try:
+        deadline = time.monotonic() + 30.0
+        while 1 not in sender.alive_neighbours() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        identity = np.eye(120)  # 40 objects: 115 kB a message
+        for step in range(1, 201):
+            sender.send(CommonMarginalMessage(0, 1, step, np.arange(40), np.zeros(120), identity))
+        deadline = time.monotonic() + 60.0
+        while receiver.received < 200 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert receiver.received == 200
+        assert [m.step for m in receiver.collect(200, CommonMarginalMessage, {0}, 1.0)] == [200]
+    finally:
+        sender.close()
+        receiver.close()

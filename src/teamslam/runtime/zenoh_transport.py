@@ -15,6 +15,13 @@ whose decoded sender is not the ``from/<i>`` of the key it arrived on.
 
 Optional injected loss (each send dropped with a probability) and delay (sleep before each
 send) make lossy-radio experiments reproducible.
+
+Zenoh drops a put whose link queue is full unless told to wait (its default congestion control
+for publications is *drop*). A lock-step team needs every message of a step — one dropped
+silently costs the receiver a whole timeout and a lost link — so lock-step puts wait for queue
+space (*block*); on a slow or lossy link a TCP retransmission stall otherwise fills the queue
+with a frame's few messages. Asynchronous robots use the newest message they have, and keep
+*drop*: a late message is worth less than not stalling the filter.
 """
 
 from __future__ import annotations
@@ -79,6 +86,11 @@ class ZenohTransport:
         self.newest_step: dict[int, int] = {}  # per neighbour, the latest step it has spoken in
         self.stale_skipped = 0
         self._cond = threading.Condition()
+        self._congestion_control = (
+            zenoh.CongestionControl.BLOCK
+            if team.sync == "lockstep"
+            else zenoh.CongestionControl.DROP
+        )
         me = team.robots[robot]
         config = zenoh.Config()
         config.insert_json5("mode", json.dumps("peer"))
@@ -222,7 +234,12 @@ class ZenohTransport:
             f"teamslam/{self.team.team}/to/{message.receiver}/from/{message.sender}"
             f"/step/{message.step}/{_kind(message)}"
         )
-        self.session.put(key, payload, attachment=repr(time.time()))
+        self.session.put(
+            key,
+            payload,
+            attachment=repr(time.time()),
+            congestion_control=self._congestion_control,
+        )
 
     def collect(
         self,
