@@ -139,13 +139,15 @@ def _kitti_job(k: int, dataset, effective) -> dict:
     return _team_run(dataset, TEAM_FILTERS[k], effective)
 
 
-def settings_summary(effective) -> str:
+def settings_summary(dataset, effective) -> str:
     """The settings that matter for the tables, and where they came from."""
     config = effective.config
     sources = effective.sources
+    tracks = sum(r.features.ids.size for r in dataset.robots)
+    features = "on" if config.use_geometric_features else "off"
     parts = [
         f"window {config.window} ({sources.get('window', 'default')})",
-        f"geometric features {'on' if config.use_geometric_features else 'off'}",
+        f"geometric features {features}" if tracks else "no geometric features in the data",
         f"noise levels from the {sources.get('odometry_std', 'default')}",
     ]
     return ", ".join(parts)
@@ -193,7 +195,7 @@ def kitti_pair(
     results = run_parallel(job, [0, 1], workers, progress, description="KITTI 00")
     return KittiPair(
         dict(zip(TEAM_FILTERS, results, strict=True)),
-        settings_summary(effective),
+        settings_summary(dataset, effective),
         [r.frames for r in dataset.robots],
     )
 
@@ -211,7 +213,7 @@ def _pair_job(k: int, cases: tuple, steps: int, settings: dict | None) -> dict:
     dataset = _simulated(robots, steps, seed)
     effective = api.resolve_settings(dataset, settings)
     out = _team_run(dataset, mode, effective, loss=loss, seed=1)
-    out["settings"] = settings_summary(effective)
+    out["settings"] = settings_summary(dataset, effective)
     return out
 
 

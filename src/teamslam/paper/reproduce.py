@@ -127,14 +127,14 @@ ITEMS = {row[0]: Item(*row) for row in _ITEM_ROWS}
 ROMAN = {"1": "I", "2": "II", "3": "III", "4": "IV"}
 FEJ_FILTERS = {"Standard": "std", "Ideal": "ideal", "FEJ": "fej"}
 FEJ_COLUMNS = {
-    "Robot 1 pose NEES": "r1_pose_nees",
-    "Robot 1 position RMSE": "r1_position_rmse",
-    "Robot 1 heading RMSE": "r1_heading_rmse",
-    "Robot 2 pose NEES": "r2_pose_nees",
-    "Robot 2 position RMSE": "r2_position_rmse",
-    "Robot 2 heading RMSE": "r2_heading_rmse",
-    "Feature position NEES": "feature_nees",
-    "Feature position RMSE": "feature_rmse",
+    "Robot 1 Pose NEES": "r1_pose_nees",
+    "Robot 1 Position RMSE": "r1_position_rmse",
+    "Robot 1 Heading RMSE": "r1_heading_rmse",
+    "Robot 2 Pose NEES": "r2_pose_nees",
+    "Robot 2 Position RMSE": "r2_position_rmse",
+    "Robot 2 Heading RMSE": "r2_heading_rmse",
+    "Feature Position NEES": "feature_nees",
+    "Feature Position RMSE": "feature_rmse",
 }
 # DVI Tables I–III: the rows of KITTI 00 and the metric of each
 KITTI_ROWS = {
@@ -500,11 +500,11 @@ class Reproducer:
         for name, label in labels.items():
             r = None if run is None else run[0][name]
             columns: list[tuple[str, str, Any]] = [
-                ("Robot 1 position RMSE", "m", None if r is None else r["position_rmse_m"][0]),
-                ("Robot 2 position RMSE", "m", None if r is None else r["position_rmse_m"][1]),
-                ("Robot 1 heading RMSE", "rad", None if r is None else r["heading_rmse_rad"][0]),
-                ("Robot 2 heading RMSE", "rad", None if r is None else r["heading_rmse_rad"][1]),
-                ("Feature position RMSE", "m", None if r is None else r["feature_rmse_m"]),
+                ("Robot 1 Position RMSE", "m", None if r is None else r["position_rmse_m"][0]),
+                ("Robot 2 Position RMSE", "m", None if r is None else r["position_rmse_m"][1]),
+                ("Robot 1 Heading RMSE", "rad", None if r is None else r["heading_rmse_rad"][0]),
+                ("Robot 2 Heading RMSE", "rad", None if r is None else r["heading_rmse_rad"][1]),
+                ("Feature Position RMSE", "m", None if r is None else r["feature_rmse_m"]),
             ]
             for column, unit, ours in columns:
                 v = published.get((label, column))
@@ -517,7 +517,7 @@ class Reproducer:
                         unit,
                         None if v is None else v.value,
                         ours,
-                        2 if v is None else v.digits + 1,
+                        {"rad": 4}.get(unit, 3) if v is None else v.digits + 1,
                         own_data=v is not None and r is not None,
                         source="published code",
                     )
