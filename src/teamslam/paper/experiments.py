@@ -28,6 +28,8 @@ __all__ = [
     "fej_tables",
     "kitti_pair",
     "loss_sweep",
+    "settings_summary",
+    "stage_statistics",
     "team_pairs",
 ]
 
@@ -128,11 +130,27 @@ def _kept(metrics: dict) -> dict:
     return {k: metrics[k] for k in _KEPT}
 
 
+def stage_statistics(result) -> dict[str, list[float]]:
+    """Per stage and ``total``: mean, median and 95th percentile of the ms per robot per frame
+    of a :class:`~teamslam.msckf.team.TeamResult` (frame 0 excluded)."""
+    import numpy as np
+
+    from teamslam.eval.runs import STAGES
+
+    times = 1e3 * np.concatenate([f[1:] for f in result.frame_times])  # (robot-steps, stages)
+    columns = {s: times[:, k] for k, s in enumerate(STAGES)}
+    columns["total"] = times.sum(axis=1)
+    return {
+        s: [float(c.mean()), float(np.median(c)), float(np.percentile(c, 95))]
+        for s, c in columns.items()
+    }
+
+
 def _team_run(dataset, mode: str, effective, loss: float = 0.0, seed: int = 0) -> dict:
     from teamslam import api
 
     run = api.run(dataset, mode=mode, settings=effective, loss=loss, seed=seed, progress=False)
-    return _kept(run.by_mode[mode])
+    return {**_kept(run.by_mode[mode]), "stage_ms": stage_statistics(run.results[mode])}
 
 
 def _kitti_job(k: int, dataset, effective) -> dict:
