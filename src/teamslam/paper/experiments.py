@@ -108,7 +108,7 @@ class PaperSettings:
         in minutes (what ``--quick`` runs)."""
         base = {
             "seeds": 1,
-            "steps": 100,
+            "steps": 60,
             "loss_rates": (0.0, 0.5, 0.9),
             "fej_runs": 10,
             "label": "quick",
