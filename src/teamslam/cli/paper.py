@@ -173,8 +173,10 @@ def register(sub) -> None:
     ):
         p = paper_sub.add_parser(name, help=f"a table or figure of {title}")
         which = p.add_mutually_exclusive_group(required=True)
-        which.add_argument("--table", choices=tables, default=None)
-        which.add_argument("--figure", choices=figures, default=None)
+        which.add_argument("--table", choices=tables, default=None, help="the paper's table N")
+        which.add_argument(
+            "--figure", choices=figures, default=None, help="the paper's figure N (PNG with --out)"
+        )
         if name == "fej":
             which.add_argument(
                 "--victoria-park",
