@@ -270,3 +270,15 @@ def test_missing_data_is_said_not_computed(tmp_path):
     assert all(c.ours is None for c in result.cells)
     assert any("not found" in line for line in result.setting)
     assert "8.76 / —" in result.text()
+
+
+def test_cell_text_and_record():
+    from teamslam.paper import Cell
+
+    own = Cell("dvi", "I", "00 Separate", "Robot 3", "m", 12.65, 12.6499, 2, own_data=True)
+    assert own.text() == "12.65 / 12.65 (+0.00)"
+    assert own.record()["difference"] == pytest.approx(-1e-4)
+    ours_only = Cell("dvi", "IV", "Separate object error (m)", "3 robots", "m", 1.402, 0.2, 3)
+    assert ours_only.text() == "1.402 / 0.200" and ours_only.record()["difference"] is None
+    missing = Cell("fej", "1", "60 features FEJ", "Robot 1 Pose NEES", "", 1.1143, None, 4, True)
+    assert missing.text() == "1.1143 / —" and missing.record()["ours"] is None

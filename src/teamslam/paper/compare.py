@@ -81,7 +81,8 @@ class Cell:
         """``paper / ours`` and, on the paper's own data, ``(±difference)``."""
         out = f"{_number(self.paper_value, self.digits)} / {_number(self.ours, self.digits)}"
         if self.difference is not None:
-            out += f" ({self.difference:+.{self.digits}f})"
+            shown = round(self.difference, self.digits) + 0.0  # no "-0.00"
+            out += f" ({shown:+.{self.digits}f})"
         return out
 
 
