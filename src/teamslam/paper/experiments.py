@@ -15,7 +15,7 @@ numbers. ``benchmarks/msckf_team.py`` calls the same functions.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -350,8 +350,3 @@ def fej_tables(
             environment, runs=runs, seed=seed, workers=workers, progress=progress
         )
     return FejTables(results, sources, published)
-
-
-def with_progress(settings: PaperSettings, progress: bool | None) -> PaperSettings:
-    """``settings`` with ``progress``."""
-    return replace(settings, progress=progress)
