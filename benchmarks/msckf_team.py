@@ -12,8 +12,11 @@ Run on demand (BLAS pinned to one thread)::
 
 ``accuracy`` and ``loss`` use the simulator with the full filter (geometric features and
 objects) unless ``--objects-only``; they print separate vs consensus trajectory RMSE and object
-error and the relative change. ``speed`` prints mean, median and p95 time per robot per frame
-per stage (frame 0 excluded) and the accuracy of the run; ``kitti`` also prints those times.
+error and the relative change. ``accuracy``, ``loss`` and ``kitti`` call the experiments of
+``teamslam paper`` (:mod:`teamslam.paper.experiments`): the settings ``teamslam run`` resolves
+from the data, plus ``--window`` (and ``--objects-only``). ``speed`` prints mean, median and
+p95 time per robot per frame per stage (frame 0 excluded) and the accuracy of the run;
+``kitti`` also prints those times.
 ``scaling`` runs teams of growing size on a random geometric graph (each robot talks to the
 robots near it, so its neighbourhood does not grow with the team) and prints the median time
 per robot per frame, overall and for consensus, and its ratio to the smallest team.
@@ -30,65 +33,55 @@ from pathlib import Path
 
 import numpy as np
 
-from teamslam.datasets import import_reference
 from teamslam.eval.metrics import team_metrics
 from teamslam.msckf import config_for, run_team
+from teamslam.paper.experiments import kitti_pair, stage_statistics, team_pairs
+from teamslam.paper.experiments import loss_sweep as library_loss_sweep
 from teamslam.sim import lissajous_team
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
-def _pair(dataset, config, loss=0.0, seed=0, runs=None):
-    out = {}
-    for name, consensus in (("separate", False), ("consensus", True)):
-        result = run_team(
-            dataset, config, consensus=consensus, loss=loss, seed=seed, progress=False
-        )
-        if runs is not None:
-            runs[name] = result
-        out[name] = team_metrics(dataset, result)
-    return out
-
-
 STAGES = ("consensus", "propagation", "update", "initialisation")
 
 
-def _stage_table(label, result):
+def _settings(window, objects_only=False):
+    """The benchmark's flags as settings on top of those resolved from the data."""
+    settings = {"window": window}
+    if objects_only:
+        settings["use_geometric_features"] = False
+    return settings
+
+
+def _print_stages(label, stage_ms):
     """Mean, median and p95 per robot per frame of each stage and of the total, in ms."""
-    times = 1e3 * np.concatenate([f[1:] for f in result.frame_times])  # (robot-steps, 4)
-    for k, stage in enumerate(STAGES):
-        column = times[:, k]
-        print(
-            f"{label:>6} {stage:>15} {column.mean():8.2f} {np.median(column):8.2f} "
-            f"{np.percentile(column, 95):8.2f}"
-        )
-    total = times.sum(axis=1)
-    print(
-        f"{label:>6} {'total':>15} {total.mean():8.2f} {np.median(total):8.2f} "
-        f"{np.percentile(total, 95):8.2f}"
-    )
+    for stage in (*STAGES, "total"):
+        mean, median, p95 = stage_ms[stage]
+        print(f"{label:>6} {stage:>15} {mean:8.2f} {median:8.2f} {p95:8.2f}")
+
+
+def _stage_table(label, result):
+    _print_stages(label, stage_statistics(result))
 
 
 def accuracy(robots, seeds, steps, objects_only, window):
+    """Paper Table IV: the library's experiment (``teamslam paper dvi --table 4``)."""
+    pairs = team_pairs(robots, seeds, steps, _settings(window, objects_only), progress=False)
     print(
         f"{'robots':>6} {'sep traj':>9} {'con traj':>9} {'change':>7} "
         f"{'sep obj':>8} {'con obj':>8} {'change':>7} {'odometry':>9}"
     )
     for n in robots:
-        rows = []
-        for seed in range(seeds):
-            ds = lissajous_team(robots=n, steps=steps, seed=seed)
-            cfg = config_for(ds, window=window, use_geometric_features=not objects_only)
-            m = _pair(ds, cfg)
-            rows.append(
-                [
-                    m["separate"]["trajectory_rmse_avg_m"],
-                    m["consensus"]["trajectory_rmse_avg_m"],
-                    m["separate"]["object_error_avg_m"],
-                    m["consensus"]["object_error_avg_m"],
-                    m["consensus"]["odometry_rmse_avg_m"],
-                ]
-            )
+        rows = [
+            [
+                sep["trajectory_rmse_avg_m"],
+                con["trajectory_rmse_avg_m"],
+                sep["object_error_avg_m"],
+                con["object_error_avg_m"],
+                float(np.mean(con["odometry_rmse_m"])),
+            ]
+            for sep, con in zip(pairs[n]["separate"], pairs[n]["consensus"], strict=True)
+        ]
         st, ct, so, co, odo = np.mean(rows, axis=0)
         print(
             f"{n:>6} {st:9.3f} {ct:9.3f} {100 * (ct / st - 1):6.0f}% {so:8.3f} {co:8.3f} "
@@ -97,37 +90,36 @@ def accuracy(robots, seeds, steps, objects_only, window):
 
 
 def loss_sweep(robots, steps, objects_only, window):
+    """Paper Fig. 4: the library's experiment (``teamslam paper dvi --figure 4``)."""
+    rates = (0.0, 0.3, 0.6, 0.9)
+    sweep = library_loss_sweep(
+        robots, rates, steps, settings=_settings(window, objects_only), progress=False
+    )
     print(f"{'robots':>6} {'loss':>5} {'con traj':>9} {'con obj':>8} {'disagree':>9}")
     for n in robots:
-        ds = lissajous_team(robots=n, steps=steps, seed=0)
-        cfg = config_for(ds, window=window, use_geometric_features=not objects_only)
-        sep = team_metrics(ds, run_team(ds, cfg, consensus=False, progress=False))
-        print(
-            f"{n:>6} {'sep':>5} {sep['trajectory_rmse_avg_m']:9.3f} "
-            f"{sep['object_error_avg_m']:8.3f} {sep['object_disagreement_avg_m']:9.3f}"
-        )
-        for r in (0.0, 0.3, 0.6, 0.9):
-            m = team_metrics(ds, run_team(ds, cfg, consensus=True, loss=r, seed=1, progress=False))
+        runs = [("sep", sweep[n]["separate"])]
+        runs += [(f"{r:.1f}", sweep[n]["consensus"][r]) for r in rates]
+        for label, m in runs:
             print(
-                f"{n:>6} {r:5.1f} {m['trajectory_rmse_avg_m']:9.3f} {m['object_error_avg_m']:8.3f} "
-                f"{m['object_disagreement_avg_m']:9.3f}"
+                f"{n:>6} {label:>5} {m['trajectory_rmse_avg_m']:9.3f} "
+                f"{m['object_error_avg_m']:8.3f} {m['object_disagreement_avg_m']:9.3f}"
             )
 
 
 def kitti(window):
+    """Paper Tables I–III and Fig. 3 on KITTI 00: the library's experiment (``teamslam paper
+    dvi --table 1``), the two filters one after the other so that the times are alone."""
     src = DATA / "distributed-msckf" / "kitti00"
     if not src.is_dir():
         print(f"KITTI 00 not found at {src}")
         return
-    ds = import_reference(src)
-    cfg = config_for(ds, window=window)
-    runs = {}
-    m = _pair(ds, cfg, runs=runs)
+    m = kitti_pair(src, settings=_settings(window), workers=1, progress=False).metrics
     print(f"{'':<12} {'robot 1':>8} {'robot 2':>8} {'robot 3':>8} {'avg':>8}  obj err  disagree")
+    odometry = m["separate"]["odometry_rmse_m"]
     print(
         f"{'odometry':<12} "
-        + " ".join(f"{v:8.2f}" for v in m["separate"]["odometry_rmse_m"])
-        + f" {m['separate']['odometry_rmse_avg_m']:8.2f}"
+        + " ".join(f"{v:8.2f}" for v in odometry)
+        + f" {float(np.mean(odometry)):8.2f}"
     )
     for name in ("separate", "consensus"):
         r = m[name]
@@ -138,7 +130,7 @@ def kitti(window):
             f"{r['object_disagreement_avg_m']:8.2f}"
         )
     print(f"\n{'':>6} {'stage':>15} {'mean ms':>8} {'med ms':>8} {'p95 ms':>8}")
-    _stage_table("kitti", runs["consensus"])
+    _print_stages("kitti", m["consensus"]["stage_ms"])
 
 
 def speed(robots, steps, window, objects_only=False):

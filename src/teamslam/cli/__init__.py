@@ -43,7 +43,7 @@ __all__ = ["EXIT_INTERRUPTED", "build_parser", "exit_status", "main"]
 EXIT_INTERRUPTED = 130
 
 # ros2 last: it adds options to run, data and agent
-GROUPS = ("dvi", "data", "msckf", "team", "fej", "montecarlo", "evaluate", "ros2")
+GROUPS = ("dvi", "data", "msckf", "team", "fej", "montecarlo", "evaluate", "paper", "ros2")
 
 # an OSError with one of these numbers happened while writing, never while reading an input
 _WRITE_ERRNOS = frozenset(

@@ -1,0 +1,192 @@
+"""``teamslam paper``: every table and figure of both papers, the paper's numbers beside ours."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from teamslam.cli._common import Parser, default_data, positive_int
+
+__all__ = ["register"]
+
+
+def _settings(args: argparse.Namespace):
+    from teamslam.paper import PaperSettings
+
+    changes = {
+        name: value
+        for name, value in (
+            ("fej_runs", args.runs),
+            ("seeds", args.seeds),
+            ("steps", args.steps),
+            ("frames", args.frames),
+            ("workers", args.workers),
+            ("team_sizes", tuple(args.robots) if args.robots else None),
+            ("fej_features", tuple(args.features) if args.features else None),
+        )
+        if value is not None
+    }
+    if args.quick:
+        return PaperSettings.quick(**changes)
+    label = {"label": "custom"} if changes.keys() - {"workers"} else {}
+    return PaperSettings(**changes, **label)
+
+
+def _show(result, as_json: bool) -> None:
+    if as_json:
+        return
+    print(result.text())
+    print(f"  ({result.seconds:.1f} s)\n", flush=True)
+
+
+def _finish(results, args: argparse.Namespace, written: list[str]) -> int:
+    if args.json:
+        print(json.dumps([r for item in results for r in item.records()], indent=1))
+    elif written:
+        print("wrote " + ", ".join(written))
+    return 0
+
+
+def _cmd_list(args: argparse.Namespace) -> int:
+    from teamslam.paper import ITEMS
+    from teamslam.paper.values import paper_values
+
+    rows = []
+    for item in ITEMS.values():
+        flag = (
+            "--victoria-park"
+            if item.kind == "table" and item.number == "victoria-park"
+            else (f"--{item.kind} {item.number}")
+        )
+        count = len(paper_values(item.paper, _table_name(item)))
+        rows.append((item.key, f"teamslam paper {item.paper} {flag}", item.data, count, item.title))
+    if args.json:
+        keys = ("key", "command", "data", "paper_values", "title")
+        print(json.dumps([dict(zip(keys, r, strict=True)) for r in rows], indent=1))
+        return 0
+    for key, command, data, count, title in rows:
+        print(f"{key:<18} {command:<38} {data:<26} {count:>3} values  {title}")
+    print("\nteamslam paper all --out DIR [--quick]   every one, with report.html")
+    return 0
+
+
+def _table_name(item) -> str:
+    roman = {"1": "I", "2": "II", "3": "III", "4": "IV"}
+    if item.kind != "table":
+        return "-"
+    return roman[item.number] if item.paper == "dvi" else item.number
+
+
+def _cmd_one(args: argparse.Namespace) -> int:
+    from teamslam.paper import Reproducer, item_key
+
+    if getattr(args, "victoria_park", False):
+        key = item_key(args.paper, "victoria-park", "")
+    elif args.table is not None:
+        key = item_key(args.paper, "table", args.table)
+    else:
+        key = item_key(args.paper, "figure", args.figure)
+    settings = _settings(args)
+    if not args.json:
+        print(settings.describe(), flush=True)
+    result = Reproducer(settings, args.data).build(key)
+    _show(result, args.json)
+    written = [] if args.out is None else [str(p) for p in result.write(args.out)]
+    return _finish([result], args, written)
+
+
+def _cmd_all(args: argparse.Namespace) -> int:
+    from teamslam.paper import reproduce_all
+
+    settings = _settings(args)
+    if not args.json:
+        print(settings.describe(), flush=True)
+    results, reproducer = reproduce_all(
+        args.out, settings, args.data, on_done=lambda r: _show(r, args.json)
+    )
+    if not args.json:
+        total = sum(reproducer.seconds.values())
+        times = ", ".join(f"{k} {v:.0f} s" for k, v in reproducer.seconds.items())
+        print(f"experiments: {times}; total {total:.0f} s", file=sys.stderr)
+    return _finish(results, args, [f"{args.out}/ (*.md, *.json, *.png, paper.json, report.html)"])
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="fewer Monte Carlo runs and seeds, shorter simulated teams (stated in the output)",
+    )
+    parser.add_argument("--runs", type=positive_int, default=None, help="FEJ Monte Carlo runs")
+    parser.add_argument(
+        "--seeds", type=positive_int, default=None, help="simulated teams per team size"
+    )
+    parser.add_argument(
+        "--steps", type=positive_int, default=None, help="steps of each simulated robot"
+    )
+    parser.add_argument(
+        "--robots", type=positive_int, nargs="+", default=None, help="simulated team sizes"
+    )
+    parser.add_argument(
+        "--features",
+        type=int,
+        nargs="+",
+        choices=(20, 60, 100),
+        default=None,
+        help="FEJ feature counts",
+    )
+    parser.add_argument(
+        "--frames",
+        type=positive_int,
+        default=None,
+        help="only the first FRAMES frames of each robot of the real data",
+    )
+    parser.add_argument(
+        "--workers", type=positive_int, default=None, help="processes (default: all cores)"
+    )
+    parser.add_argument(
+        "--data", type=Path, default=default_data(), help="data directory (default: $TEAMSLAM_DATA)"
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON record per cell")
+
+
+def register(sub) -> None:
+    """Add ``teamslam paper``."""
+    paper = sub.add_parser(
+        "paper",
+        help="every table and figure of both papers, the paper's numbers beside ours",
+        description="Run the experiments behind the distributed-MSCKF paper (dvi) and the FEJ "
+        "multi-robot EKF paper (fej) and print each table with the paper's value and ours side "
+        "by side (and ours − theirs where the data is the paper's own), saying what differs in "
+        "the setting; with --out write Markdown, JSON and PNG files.",
+    )
+    paper_sub = paper.add_subparsers(dest="paper_command", metavar="ACTION", parser_class=Parser)
+    paper_sub.required = True
+    listing = paper_sub.add_parser("list", help="the tables and figures that can be reproduced")
+    listing.add_argument("--json", action="store_true", help="print JSON")
+    listing.set_defaults(handler=_cmd_list)
+    for name, tables, figures, title in (
+        ("dvi", ("1", "2", "3", "4"), ("3", "4"), "the distributed-MSCKF paper"),
+        ("fej", ("1", "2"), ("4", "5", "6"), "the FEJ multi-robot EKF paper"),
+    ):
+        p = paper_sub.add_parser(name, help=f"a table or figure of {title}")
+        which = p.add_mutually_exclusive_group(required=True)
+        which.add_argument("--table", choices=tables, default=None, help="the paper's table N")
+        which.add_argument(
+            "--figure", choices=figures, default=None, help="the paper's figure N (PNG with --out)"
+        )
+        if name == "fej":
+            which.add_argument(
+                "--victoria-park",
+                action="store_true",
+                help="Victoria Park RMSE beside the published code's (and Figure 6)",
+            )
+        _common(p)
+        p.add_argument("--out", type=Path, default=None, help="directory for .md, .json, .png")
+        p.set_defaults(handler=_cmd_one, paper=name)
+    everything = paper_sub.add_parser("all", help="every table and figure, and report.html")
+    _common(everything)
+    everything.add_argument("--out", type=Path, required=True, help="output directory")
+    everything.set_defaults(handler=_cmd_all)
