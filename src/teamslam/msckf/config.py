@@ -235,8 +235,8 @@ class MsckfConfig:
             raise InputError(f"consensus_set must be all or active, not {self.consensus_set!r}")
         for name in ("consensus_active_information", "consensus_inactive_kl_threshold"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not (np.isfinite(value) and value >= 0):
-                raise InputError(f"{name} must be a number ≥ 0 (nats)")
+            if isinstance(value, bool) or not value >= 0:  # inf: never by this test
+                raise InputError(f"{name} must be a number ≥ 0 (nats; inf allowed)")
         for name in ("consensus_hybrid", "consensus_increments"):
             if getattr(self, name) and self.consensus_per_object:
                 raise InputError(

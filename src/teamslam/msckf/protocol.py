@@ -329,7 +329,7 @@ class ConsensusProtocol:
         ``consensus_inactive_kl_threshold`` otherwise."""
         config = self.agent.config
         active = active_objects(self.agent.state, covs, config.consensus_active_information)
-        self.agent.counters["objects_active"] += int(active.sum())
+        self.agent.counters["objects_inactive"] += int(active.size - active.sum())
         active_threshold = self.kl_threshold if self.kl_threshold > 0 else -np.inf
         inactive = max(float(config.consensus_inactive_kl_threshold), self.kl_threshold)
         return np.where(active, active_threshold, inactive)
