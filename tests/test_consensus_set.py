@@ -36,6 +36,10 @@ def test_pose_mutual_information_is_the_dense_formula():
         conditional = sigma_oo - sigma_ox @ np.linalg.inv(cov[:p, :p]) @ sigma_ox.T
         expected.append(0.5 * np.log(np.linalg.det(sigma_oo) / np.linalg.det(conditional)))
     np.testing.assert_allclose(pose_mutual_information(state, covs), expected, rtol=1e-9)
+    some = np.array([5, 2])
+    np.testing.assert_allclose(
+        pose_mutual_information(state, covs[some], some), np.array(expected)[some], rtol=1e-9
+    )
 
 
 def test_active_objects_are_those_observed_in_the_window_or_correlated_with_its_poses():

@@ -57,14 +57,18 @@ from teamslam.msckf.state import MsckfState
 __all__ = ["active_objects", "pose_mutual_information"]
 
 
-def pose_mutual_information(state: MsckfState, object_covs: np.ndarray) -> np.ndarray:
-    """``I(o; x)`` (nats) between each object of the state and its window poses, ``(m,)``.
+def pose_mutual_information(
+    state: MsckfState, object_covs: np.ndarray, slots: np.ndarray | None = None
+) -> np.ndarray:
+    """``I(o; x)`` (nats) between objects of the state and its window poses.
 
-    ``object_covs`` are the objects' own ``3×3`` marginals (state slot order). An object whose
-    conditional covariance is not positive definite (it is fully determined by the poses, up to
-    rounding) gets ``inf``; if the pose block itself cannot be factorised every object does.
+    ``object_covs`` are the objects' own ``3×3`` marginals, of the objects at ``slots`` (default:
+    every object, in slot order). An object whose conditional covariance is not positive
+    definite (it is fully determined by the poses, up to rounding) gets ``inf``; if the pose
+    block itself cannot be factorised every object does.
     """
-    m = state.n_objects
+    slots = np.arange(state.n_objects) if slots is None else np.asarray(slots, dtype=np.int64)
+    m = slots.size
     if m == 0:
         return np.zeros(0)
     p = 6 * state.n_poses
@@ -74,7 +78,8 @@ def pose_mutual_information(state: MsckfState, object_covs: np.ndarray) -> np.nd
     except LinAlgError:
         return np.full(m, np.inf)
     # K = L⁻¹ Σ_xo: Σ_oo|x = Σ_oo − KᵀK, block by block
-    k = solve_triangular(factor, cov[:p, p:], lower=True, check_finite=False)
+    columns = (p + 3 * slots[:, None] + np.arange(3)).ravel()
+    k = solve_triangular(factor, cov[:p, columns], lower=True, check_finite=False)
     k = k.reshape(p, m, 3)
     explained = np.einsum("pmi,pmj->mij", k, k)
     sign_all, logdet_all = np.linalg.slogdet(object_covs)
@@ -92,7 +97,9 @@ def active_objects(state: MsckfState, object_covs: np.ndarray, information: floa
     """
     if state.n_objects == 0:
         return np.zeros(0, dtype=bool)
-    seen = state.object_last_seen >= int(state.frames.min())
-    if seen.all():
-        return seen
-    return seen | (pose_mutual_information(state, object_covs) > information)
+    active = state.object_last_seen >= int(state.frames.min())
+    if active.all() or information == np.inf:
+        return active
+    unseen = np.flatnonzero(~active)
+    active[unseen] = pose_mutual_information(state, object_covs[unseen], unseen) > information
+    return active

@@ -29,6 +29,12 @@ moved towards the other), so pairs keep averaging until they agree to within the
 new objects and objects observed since are always averaged. A robot records an exchange only
 once its neighbour's marginal arrived, so a lost message never hides a change. With
 ``kl_threshold = 0`` (or in asynchronous mode) every common object is averaged at every step.
+With a bounded consensus set (``consensus_set = active``, lock-step only) an object counts as
+moved at that threshold only while the robot's window can still change it — observed within the
+window or correlated with its poses — and otherwise only beyond
+``consensus_inactive_kl_threshold``, so the joint a pair averages follows what the robots see
+now, not everything they mapped (:mod:`teamslam.msckf.consensus_set`); the round-1 flags carry
+the result, so the wire is unchanged.
 
 **Hybrid consensus** (``consensus_hybrid``, lock-step only): the new information each robot
 gathered since its last exchange enters the average at full weight instead of ``A_ij`` — its
