@@ -23,7 +23,9 @@ of ``make run``.
 objects, window 10, geometric features and objects) for ``--frames`` frames, once with the
 paper's consensus set (``consensus_set = all``) and once with the bounded one (``active``, with
 the ``--set`` overrides), in one process, and prints per stage the median over frames of the
-time per frame (mean over robots) over the first and the last 100 frames and their ratio, the
+time per frame (mean over robots) over the first and the last 100 frames and their ratio (wall
+time, and the CPU time of the consensus rounds and of the filter step, which other work on the
+machine disturbs less), the
 consensus bytes per robot-step over the same frames, and the accuracy of each run and its ratio
 to the paper's set.
 """
@@ -182,6 +184,50 @@ def accuracy(robots: int, frames: int, retire: int, seed: int) -> None:
 STAGES = ("consensus", "propagation", "update", "initialisation")
 
 
+class ConsensusCpu:
+    """CPU seconds of each robot's consensus rounds per step (``time.thread_time``: on a loaded
+    machine wall time also counts waiting for a core; the team runs in one thread)."""
+
+    def __init__(self) -> None:
+        from teamslam.msckf.protocol import ConsensusProtocol
+
+        self.spent: dict[tuple[int, int], float] = {}
+        self._cls = ConsensusProtocol
+        self._saved = {name: getattr(ConsensusProtocol, name) for name in ROUNDS}
+        probe = self
+
+        def timed(name):
+            original = probe._saved[name]
+
+            def call(protocol, *args, **kwargs):
+                begin = time.thread_time()
+                try:
+                    return original(protocol, *args, **kwargs)
+                finally:
+                    key = (protocol.robot, protocol.step)
+                    probe.spent[key] = probe.spent.get(key, 0.0) + time.thread_time() - begin
+
+            return call
+
+        for name in ROUNDS:
+            setattr(ConsensusProtocol, name, timed(name))
+
+    def close(self) -> None:
+        for name, method in self._saved.items():
+            setattr(self._cls, name, method)
+
+    def per_frame(self, robots: int, frames: int) -> np.ndarray:
+        """``(frames + 1,)`` consensus CPU seconds per robot at each step (mean over robots)."""
+        out = np.zeros(frames + 1)
+        for (_, step), seconds in self.spent.items():
+            if 0 <= step <= frames:
+                out[step] += seconds / robots
+        return out
+
+
+ROUNDS = ("requests", "answer", "average")
+
+
 class ByteProbe:
     """Records the consensus bytes each robot sends at each step (in-process transport)."""
 
@@ -221,18 +267,25 @@ def revisit(frames: int, seed: int, overrides: dict) -> None:
     rows, metrics = {}, {}
     for name, extra in (("all", {}), ("active", {"consensus_set": "active", **overrides})):
         config = config_for(dataset, window=10, **extra)
-        probe = ByteProbe()
+        probe, cpu, steps = ByteProbe(), ConsensusCpu(), Probe(())
         try:
             result = run_team(dataset, config, progress=False)
         finally:
             probe.close()
+            cpu.close()
+            steps.close()
         times = 1e3 * np.stack(result.frame_times).mean(axis=0)  # (frames + 1, 4), robot mean
         times = np.column_stack([times, times.sum(axis=1)])
         sent = probe.per_frame(5, frames)
         first, last = slice(1, 101), slice(frames - 99, frames + 1)
-        rows[name] = [(np.median(times[first, k]), np.median(times[last, k])) for k in range(5)] + [
-            (float(np.mean(sent[first])), float(np.mean(sent[last])))
-        ]
+        consensus_cpu = 1e3 * cpu.per_frame(5, frames)
+        step_cpu = 1e3 * np.mean([steps.cpu[i] for i in range(5)], axis=0)  # frames 0 … N-1
+        rows[name] = (
+            [(np.median(times[first, k]), np.median(times[last, k])) for k in range(5)]
+            + [(float(np.mean(sent[first])), float(np.mean(sent[last])))]
+            + [(np.median(consensus_cpu[first]), np.median(consensus_cpu[last]))]
+            + [(np.median(step_cpu[0:100]), np.median(step_cpu[frames - 100 : frames]))]
+        )
         metrics[name] = team_metrics(dataset, result)
         inactive = sum(c.get("objects_inactive", 0) for c in result.counters)
         averaged = sum(c.get("objects_averaged", 0) for c in result.counters)
@@ -242,7 +295,8 @@ def revisit(frames: int, seed: int, overrides: dict) -> None:
             flush=True,
         )
     print(f"\n{'stage':<16} {'set':<7} {'first 100':>10} {'last 100':>10} {'last/first':>10}")
-    for k, stage in enumerate((*STAGES, "total", "bytes/robot-step")):
+    labels = (*STAGES, "total", "bytes/robot-step", "consensus CPU", "filter step CPU")
+    for k, stage in enumerate(labels):
         for name in rows:
             a, b = rows[name][k]
             unit = "" if k == 5 else " ms"

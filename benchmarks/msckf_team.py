@@ -31,6 +31,7 @@ published code's time to each (``team``: ``--robots`` robots, objects only, ``--
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -285,8 +286,10 @@ PUBLISHED_MS = {"team": 19.9, "kitti": 25.0}
 
 def bounded(what, robots, steps, window, overrides):
     """The paper's consensus set against the bounded one, on one team, in one process."""
+    from msckf_long import ConsensusCpu  # the benchmarks' directory is on the path
+
     if what == "kitti":
-        src = DATA / "distributed-msckf" / "kitti00"
+        src = Path(os.environ.get("TEAMSLAM_DATA", DATA)) / "distributed-msckf" / "kitti00"
         if not src.is_dir():
             print(f"KITTI 00 not found at {src}")
             return
@@ -299,24 +302,46 @@ def bounded(what, robots, steps, window, overrides):
     rows = {}
     for name, extra in (("all", {}), ("active", {"consensus_set": "active", **overrides})):
         cfg = config_for(ds, window=window, **base, **extra)
-        result = run_team(ds, cfg, consensus=True, progress=False)
+        cpu = ConsensusCpu()
+        try:
+            result = run_team(ds, cfg, consensus=True, progress=False)
+        finally:
+            cpu.close()
         times = 1e3 * np.concatenate([f[1:] for f in result.frame_times])
         m = team_metrics(ds, result)
         sent, _ = _bytes_and_consensus_ms(ds, result)
-        rows[name] = (np.median(times, axis=0), np.median(times.sum(axis=1)), sent, m)
-    print(f"{'set':<7} " + " ".join(f"{s:>14}" for s in (*STAGES, "total")) + f" {'B/step':>9}")
-    for name, (stages, total, sent, _) in rows.items():
-        print(f"{name:<7} " + " ".join(f"{v:14.2f}" for v in (*stages, total)) + f" {sent:9.0f}")
+        consensus_cpu = 1e3 * np.median([v for (_, t), v in cpu.spent.items() if t > 0])
+        rows[name] = (
+            np.median(times, axis=0),
+            np.median(times.sum(axis=1)),
+            sent,
+            m,
+            consensus_cpu,
+        )
+    print(
+        f"{'set':<7} "
+        + " ".join(f"{s:>14}" for s in (*STAGES, "total"))
+        + f" {'B/step':>9} {'consensus CPU':>14}"
+    )
+    for name, (stages, total, sent, _, consensus_cpu) in rows.items():
+        print(
+            f"{name:<7} "
+            + " ".join(f"{v:14.2f}" for v in (*stages, total))
+            + f" {sent:9.0f} {consensus_cpu:14.2f}"
+        )
     a, b = rows["all"][1], rows["active"][1]
     published = PUBLISHED_MS.get(what if what == "kitti" else "team")
-    print(f"active/all total {b / a:.3f}; consensus {rows['active'][0][0] / rows['all'][0][0]:.3f}")
+    print(
+        f"active/all total {b / a:.3f}; consensus {rows['active'][0][0] / rows['all'][0][0]:.3f}"
+        f"; consensus CPU {rows['active'][4] / rows['all'][4]:.3f}"
+    )
     if what == "kitti" or (robots == 15 and steps == 100):
         print(
             f"published code {published} ms: ×{published / a:.2f} (all), "
             f"×{published / b:.2f} (active)"
         )
     keys = ("trajectory_rmse_avg_m", "object_error_avg_m", "object_disagreement_avg_m")
-    for name, (*_, m) in rows.items():
+    for name, (*_, m, _) in rows.items():
         print(f"{name:<7} RMSE/obj/disagree " + " ".join(f"{m[k]:.5f}" for k in keys))
     ratio = [rows["active"][3][k] / rows["all"][3][k] for k in keys]
     print("ratio   " + " ".join(f"{r:.3f}" for r in ratio))

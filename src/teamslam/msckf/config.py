@@ -192,8 +192,8 @@ class MsckfConfig:
     initial_pose_std: float = 1e-4
     consensus_kl_threshold: float = 1e-3
     consensus_set: str = "all"
-    consensus_active_information: float = 0.1
-    consensus_inactive_kl_threshold: float = 0.1
+    consensus_active_information: float = 0.3
+    consensus_inactive_kl_threshold: float = 0.3
     consensus_per_object: bool = False
     consensus_float32: bool = True
     consensus_hybrid: bool = False
