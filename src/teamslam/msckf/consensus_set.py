@@ -36,10 +36,10 @@ beyond what our own conditional ``p(I | J)`` predicts from the averaged ``J``:
   at most about the threshold plus what the two conditionals add — the disagreement is bounded
   by the threshold, not driven to ``consensus_kl_threshold``;
 * the window poses are corrected through ``J`` only (``A = Σ_xJ Σ_J⁻¹`` instead of
-  ``Σ_xy Σ_y⁻¹``); an inactive object is by definition weakly correlated with them (mutual
-  information below the threshold), so the correction it would have carried is small: with
-  ``I(o; x) = ε`` nats at most a fraction ``1 − e^{−2ε}`` of the pose-predictable variance of
-  ``o`` (``≈ 2ε``) is shared with the poses.
+  ``Σ_xy Σ_y⁻¹``); an inactive object is weakly correlated with them: ``I(o; x) = −½ Σ_k
+  log(1 − ρ_k²) ≤ ε`` over its canonical correlations ``ρ_k`` with the poses, so the poses
+  explain at most a fraction ``ρ_k² ≤ 1 − e^{−2ε}`` (``≈ 2ε`` for small ``ε``) of its variance
+  in any direction, and its correction of the poses is weaker by that much, not absent.
 
 When every common object is active (or both thresholds equal) the bounded set is exactly the
 paper's average (tested), and an object that is not flagged by either robot of any pair keeps
