@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_consensus_reference import _random_state
-from test_protocol import _agents, _exchange
 
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.consensus_set import active_objects, pose_mutual_information
 from teamslam.msckf.protocol import ConsensusProtocol
 from teamslam.msckf.transport import MemoryNetwork
 from teamslam.sim import lissajous_team
+from test_consensus_reference import _random_state
+from test_protocol import _agents, _exchange
 
 
 def test_pose_mutual_information_is_the_dense_formula():
