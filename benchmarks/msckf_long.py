@@ -4,6 +4,7 @@ Run on demand (BLAS pinned to one thread)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py cost [--frames 5000] [--retire 40]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py accuracy [--frames 300] [--retire 40]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py revisit [--frames 1000] [--set k=v ...]
 
 ``cost`` runs a team (3 robots, consensus over a complete graph) along the long route
 (:func:`teamslam.sim.long_route_team`, a world of about 1.2 objects per metre) with objects
@@ -18,6 +19,15 @@ objects retired — and the process's resident set size (the whole team and its 
 the trajectory RMSE with and without retirement over a shorter run of the same route (without
 retirement the cost grows with the map, so the run must stay short), and on the Lissajous team
 of ``make run``.
+``revisit`` flies the team of ``make run`` (5 robots on a complete graph revisiting the same
+objects, window 10, geometric features and objects) for ``--frames`` frames, once with the
+paper's consensus set (``consensus_set = all``) and once with the bounded one (``active``, with
+the ``--set`` overrides), in one process, and prints per stage the median over frames of the
+time per frame (mean over robots) over the first and the last 100 frames and their ratio (wall
+time, and the CPU time of the consensus rounds and of the filter step, which other work on the
+machine disturbs less), the
+consensus bytes per robot-step over the same frames, and the accuracy of each run and its ratio
+to the paper's set.
 """
 
 from __future__ import annotations
@@ -171,15 +181,151 @@ def accuracy(robots: int, frames: int, retire: int, seed: int) -> None:
             )
 
 
+STAGES = ("consensus", "propagation", "update", "initialisation")
+
+
+class ConsensusCpu:
+    """CPU seconds of each robot's consensus rounds per step (``time.thread_time``: on a loaded
+    machine wall time also counts waiting for a core; the team runs in one thread)."""
+
+    def __init__(self) -> None:
+        from teamslam.msckf.protocol import ConsensusProtocol
+
+        self.spent: dict[tuple[int, int], float] = {}
+        self._cls = ConsensusProtocol
+        self._saved = {name: getattr(ConsensusProtocol, name) for name in ROUNDS}
+        probe = self
+
+        def timed(name):
+            original = probe._saved[name]
+
+            def call(protocol, *args, **kwargs):
+                begin = time.thread_time()
+                try:
+                    return original(protocol, *args, **kwargs)
+                finally:
+                    key = (protocol.robot, protocol.step)
+                    probe.spent[key] = probe.spent.get(key, 0.0) + time.thread_time() - begin
+
+            return call
+
+        for name in ROUNDS:
+            setattr(ConsensusProtocol, name, timed(name))
+
+    def close(self) -> None:
+        for name, method in self._saved.items():
+            setattr(self._cls, name, method)
+
+    def per_frame(self, robots: int, frames: int) -> np.ndarray:
+        """``(frames + 1,)`` consensus CPU seconds per robot at each step (mean over robots)."""
+        out = np.zeros(frames + 1)
+        for (_, step), seconds in self.spent.items():
+            if 0 <= step <= frames:
+                out[step] += seconds / robots
+        return out
+
+
+ROUNDS = ("requests", "answer", "average")
+
+
+class ByteProbe:
+    """Records the consensus bytes each robot sends at each step (in-process transport)."""
+
+    def __init__(self) -> None:
+        from teamslam.msckf.transport import MemoryTransport
+
+        self.sent: dict[tuple[int, int], int] = {}
+        self._cls = MemoryTransport
+        self._send = MemoryTransport.send
+        probe = self
+
+        def send(transport, message) -> None:
+            key = (int(message.sender), int(message.step))
+            probe.sent[key] = probe.sent.get(key, 0) + message.nbytes()
+            probe._send(transport, message)
+
+        MemoryTransport.send = send
+
+    def close(self) -> None:
+        self._cls.send = self._send
+
+    def per_frame(self, robots: int, frames: int) -> np.ndarray:
+        """``(frames + 1,)`` bytes sent per robot at each step (mean over robots)."""
+        out = np.zeros(frames + 1)
+        for (_, step), size in self.sent.items():
+            if 0 <= step <= frames:
+                out[step] += size / robots
+        return out
+
+
+def revisit(frames: int, seed: int, overrides: dict) -> None:
+    dataset = lissajous_team(5, frames, seed=seed)
+    print(
+        f"make-run team: 5 robots × {frames} frames, complete graph, window 10, "
+        f"{len(dataset.object_positions)} objects; bounded set: {overrides}"
+    )
+    rows, metrics = {}, {}
+    for name, extra in (("all", {}), ("active", {"consensus_set": "active", **overrides})):
+        config = config_for(dataset, window=10, **extra)
+        probe, cpu, steps = ByteProbe(), ConsensusCpu(), Probe(())
+        try:
+            result = run_team(dataset, config, progress=False)
+        finally:
+            probe.close()
+            cpu.close()
+            steps.close()
+        times = 1e3 * np.stack(result.frame_times).mean(axis=0)  # (frames + 1, 4), robot mean
+        times = np.column_stack([times, times.sum(axis=1)])
+        sent = probe.per_frame(5, frames)
+        first, last = slice(1, 101), slice(frames - 99, frames + 1)
+        consensus_cpu = 1e3 * cpu.per_frame(5, frames)
+        step_cpu = 1e3 * np.mean([steps.cpu[i] for i in range(5)], axis=0)  # frames 0 … N-1
+        rows[name] = (
+            [(np.median(times[first, k]), np.median(times[last, k])) for k in range(5)]
+            + [(float(np.mean(sent[first])), float(np.mean(sent[last])))]
+            + [(np.median(consensus_cpu[first]), np.median(consensus_cpu[last]))]
+            + [(np.median(step_cpu[0:100]), np.median(step_cpu[frames - 100 : frames]))]
+        )
+        metrics[name] = team_metrics(dataset, result)
+        inactive = sum(c.get("objects_inactive", 0) for c in result.counters)
+        averaged = sum(c.get("objects_averaged", 0) for c in result.counters)
+        print(
+            f"{name}: wall {result.wall_seconds:.0f} s, objects averaged per robot-step "
+            f"{averaged / (5 * frames):.1f}, inactive {inactive / (5 * frames):.1f}",
+            flush=True,
+        )
+    print(f"\n{'stage':<16} {'set':<7} {'first 100':>10} {'last 100':>10} {'last/first':>10}")
+    labels = (*STAGES, "total", "bytes/robot-step", "consensus CPU", "filter step CPU")
+    for k, stage in enumerate(labels):
+        for name in rows:
+            a, b = rows[name][k]
+            unit = "" if k == 5 else " ms"
+            print(f"{stage:<16} {name:<7} {a:10.2f} {b:10.2f} {b / a:10.2f}{unit}")
+    print(f"\n{'set':<7} {'traj RMSE':>10} {'obj err':>10} {'disagree':>10}")
+    keys = ("trajectory_rmse_avg_m", "object_error_avg_m", "object_disagreement_avg_m")
+    for name in rows:
+        print(f"{name:<7} " + " ".join(f"{metrics[name][k]:10.5f}" for k in keys))
+    print("ratio   " + " ".join(f"{metrics['active'][k] / metrics['all'][k]:10.3f}" for k in keys))
+
+
+def _overrides(pairs: list[str]) -> dict:
+    from teamslam.msckf.settings import parse_assignments
+
+    return dict(parse_assignments(pairs))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("what", choices=("cost", "accuracy"))
+    parser.add_argument("what", choices=("cost", "accuracy", "revisit"))
+    parser.add_argument("--set", nargs="*", default=[], help="bounded-set settings (revisit)")
     parser.add_argument("--robots", type=int, default=3)
     parser.add_argument("--frames", type=int, default=None, help="5000 (cost), 300 (accuracy)")
     parser.add_argument("--retire", type=int, default=40, help="object_retire_after (frames)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    if args.what == "cost":
+    if args.what == "revisit":
+        revisit(args.frames or 1000, args.seed, _overrides(args.set))
+    elif args.what == "cost":
         cost(args.robots, args.frames or 5000, args.retire, args.seed)
     else:
         accuracy(args.robots, args.frames or 300, args.retire, args.seed)

@@ -9,6 +9,7 @@ Run on demand (BLAS pinned to one thread)::
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py scaling [--robots 5 10 25 50 100]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py messages --steps 150 [--robots 5]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py hybrid --steps 150 [--robots 5]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py bounded {team,kitti} [--set k=v ...]
 
 ``accuracy`` and ``loss`` use the simulator with the full filter (geometric features and
 objects) unless ``--objects-only``; they print separate vs consensus trajectory RMSE and object
@@ -23,11 +24,17 @@ per robot per frame, overall and for consensus, and its ratio to the smallest te
 ``hybrid`` compares the plain average with hybrid consensus (``consensus_hybrid``) on the
 complete graph (one realisation) and on a ring with 30% link loss and the ideal filter (means
 over ``--seeds`` noise realisations): accuracy, mean pose NEES/6, bytes and consensus time.
+``bounded`` runs one team twice in one process — the paper's consensus set and the bounded one
+(``consensus_set = active`` with the ``--set`` overrides) — and prints the median time per
+robot-step of each stage, bytes per robot-step and accuracy of both, and the ratio of the
+published code's time to each (``team``: ``--robots`` robots, objects only, ``--steps``;
+``kitti``: KITTI 00).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -264,19 +271,99 @@ def hybrid(robots, steps, window, seeds):
             )
 
 
+#: ms per robot-step of the published code on these runs (same machine, single-threaded BLAS,
+#: recorded when the speed work began; the code itself is not part of this repository)
+PUBLISHED_MS = {"team": 19.9, "kitti": 25.0}
+
+
+def bounded(what, robots, steps, window, overrides):
+    """The paper's consensus set against the bounded one, on one team, in one process."""
+    from msckf_long import ConsensusCpu  # the benchmarks' directory is on the path
+
+    if what == "kitti":
+        src = Path(os.environ.get("TEAMSLAM_DATA", DATA)) / "distributed-msckf" / "kitti00"
+        if not src.is_dir():
+            print(f"KITTI 00 not found at {src}")
+            return
+        ds = import_reference(src)
+        base = {}
+    else:
+        ds = lissajous_team(robots=robots, steps=steps, seed=0)
+        base = {"use_geometric_features": False}
+    print(f"{what}: {ds.n_robots} robots, {ds.robots[0].frames} frames; bounded: {overrides}")
+    rows = {}
+    for name, extra in (("all", {}), ("active", {"consensus_set": "active", **overrides})):
+        cfg = config_for(ds, window=window, **base, **extra)
+        cpu = ConsensusCpu()
+        try:
+            result = run_team(ds, cfg, consensus=True, progress=False)
+        finally:
+            cpu.close()
+        times = 1e3 * np.concatenate([f[1:] for f in result.frame_times])
+        m = team_metrics(ds, result)
+        sent, _ = _bytes_and_consensus_ms(ds, result)
+        consensus_cpu = 1e3 * np.median([v for (_, t), v in cpu.spent.items() if t > 0])
+        rows[name] = (
+            np.median(times, axis=0),
+            np.median(times.sum(axis=1)),
+            sent,
+            m,
+            consensus_cpu,
+        )
+    print(
+        f"{'set':<7} "
+        + " ".join(f"{s:>14}" for s in (*STAGES, "total"))
+        + f" {'B/step':>9} {'consensus CPU':>14}"
+    )
+    for name, (stages, total, sent, _, consensus_cpu) in rows.items():
+        print(
+            f"{name:<7} "
+            + " ".join(f"{v:14.2f}" for v in (*stages, total))
+            + f" {sent:9.0f} {consensus_cpu:14.2f}"
+        )
+    a, b = rows["all"][1], rows["active"][1]
+    published = PUBLISHED_MS.get(what if what == "kitti" else "team")
+    print(
+        f"active/all total {b / a:.3f}; consensus {rows['active'][0][0] / rows['all'][0][0]:.3f}"
+        f"; consensus CPU {rows['active'][4] / rows['all'][4]:.3f}"
+    )
+    if what == "kitti" or (robots == 15 and steps == 100):
+        print(
+            f"published code {published} ms: ×{published / a:.2f} (all), "
+            f"×{published / b:.2f} (active)"
+        )
+    keys = ("trajectory_rmse_avg_m", "object_error_avg_m", "object_disagreement_avg_m")
+    for name, (*_, m, _) in rows.items():
+        print(f"{name:<7} RMSE/obj/disagree " + " ".join(f"{m[k]:.5f}" for k in keys))
+    ratio = [rows["active"][3][k] / rows["all"][3][k] for k in keys]
+    print("ratio   " + " ".join(f"{r:.3f}" for r in ratio))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "what",
-        choices=("accuracy", "loss", "kitti", "speed", "scaling", "messages", "hybrid"),
+        choices=("accuracy", "loss", "kitti", "speed", "scaling", "messages", "hybrid", "bounded"),
     )
+    parser.add_argument("team", nargs="?", default="team", choices=("team", "kitti"))
+    parser.add_argument("--set", nargs="*", default=[], help="bounded-set settings (bounded)")
     parser.add_argument("--robots", type=int, nargs="+", default=None)
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--window", type=int, default=10)
     parser.add_argument("--objects-only", action="store_true")
     args = parser.parse_args()
-    if args.what == "accuracy":
+    if args.what == "bounded":
+        from teamslam.msckf.settings import parse_assignments
+
+        bounded(
+            args.team,
+            (args.robots or [15])[0],
+            args.steps,
+            args.window,
+            parse_assignments(args.set),
+        )
+    elif args.what == "accuracy":
         accuracy(
             args.robots or [3, 5, 10, 15], args.seeds, args.steps, args.objects_only, args.window
         )

@@ -64,6 +64,21 @@ class MsckfConfig:
         on either robot, since the two last exchanged it: by more than this Kullback–Leibler
         divergence (nats; unit-free, so the same for any camera or scale). 0 averages every
         common object at every step, as the paper does.
+    consensus_set
+        Which common objects consensus averages jointly: ``all`` (the paper: every common
+        object that moved, so the joint inverted each step grows with the shared map) or
+        ``active`` (a bounded set: the objects the window can still change — observed within
+        the window or with mutual information above ``consensus_active_information`` with the
+        window poses — and the others only when they moved by more than
+        ``consensus_inactive_kl_threshold``); lock-step exchanges only;
+        :mod:`teamslam.msckf.consensus_set` derives what it loses.
+    consensus_active_information
+        With ``consensus_set = active``: an object not observed within the window is active
+        while its mutual information with the window poses exceeds this (nats, unit-free).
+    consensus_inactive_kl_threshold
+        With ``consensus_set = active``: an inactive object is averaged with a neighbour when
+        its marginal moved by more than this Kullback–Leibler divergence (nats) since the pair
+        last exchanged it (active objects use ``consensus_kl_threshold``).
     consensus_per_object
         Send each common object's own 3×3 marginal instead of the joint marginal of all of
         them (the cross-object covariances are dropped from the message, not from the filter):
@@ -176,6 +191,9 @@ class MsckfConfig:
     use_objects: bool = True
     initial_pose_std: float = 1e-4
     consensus_kl_threshold: float = 1e-3
+    consensus_set: str = "all"
+    consensus_active_information: float = 0.3
+    consensus_inactive_kl_threshold: float = 0.3
     consensus_per_object: bool = False
     consensus_float32: bool = True
     consensus_hybrid: bool = False
@@ -213,6 +231,12 @@ class MsckfConfig:
         threshold = self.consensus_kl_threshold
         if isinstance(threshold, bool) or not (np.isfinite(threshold) and threshold >= 0):
             raise InputError("consensus_kl_threshold must be a number ≥ 0 (nats)")
+        if self.consensus_set not in ("all", "active"):
+            raise InputError(f"consensus_set must be all or active, not {self.consensus_set!r}")
+        for name in ("consensus_active_information", "consensus_inactive_kl_threshold"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not value >= 0:  # inf: never by this test
+                raise InputError(f"{name} must be a number ≥ 0 (nats; inf allowed)")
         for name in ("consensus_hybrid", "consensus_increments"):
             if getattr(self, name) and self.consensus_per_object:
                 raise InputError(

@@ -18,6 +18,10 @@ The protocol around it — who sends what, which messages are accepted, the weig
   information counts once — the gain condition, link loss and partial maps are derived
   there).
 
+* selecting them — :mod:`teamslam.msckf.consensus_set`: with ``consensus_set = active`` only
+  the objects the window can still change are averaged at every move
+  (:func:`~teamslam.msckf.consensus_set.active_objects`), the others when they moved further.
+
 This module gathers their public names. A message with unknown ids, wrong sizes, or a
 covariance that is not symmetric positive definite is rejected; the estimate is unaffected.
 """

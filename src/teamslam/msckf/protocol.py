@@ -29,6 +29,12 @@ moved towards the other), so pairs keep averaging until they agree to within the
 new objects and objects observed since are always averaged. A robot records an exchange only
 once its neighbour's marginal arrived, so a lost message never hides a change. With
 ``kl_threshold = 0`` (or in asynchronous mode) every common object is averaged at every step.
+With a bounded consensus set (``consensus_set = active``, lock-step only) an object counts as
+moved at that threshold only while the robot's window can still change it — observed within the
+window or correlated with its poses — and otherwise only beyond
+``consensus_inactive_kl_threshold``, so the joint a pair averages follows what the robots see
+now, not everything they mapped (:mod:`teamslam.msckf.consensus_set`); the round-1 flags carry
+the result, so the wire is unchanged.
 
 **Hybrid consensus** (``consensus_hybrid``, lock-step only): the new information each robot
 gathered since its last exchange enters the average at full weight instead of ``A_ij`` — its
@@ -101,6 +107,7 @@ from teamslam.msckf.consensus import (
     shared_prior,
 )
 from teamslam.msckf.consensus_checks import ReceivedMarginal, check_message
+from teamslam.msckf.consensus_set import active_objects
 from teamslam.msckf.messages import (
     CommonMarginalMessage,
     MapIdsMessage,
@@ -144,6 +151,11 @@ class ConsensusProtocol:
         threshold = agent.config.consensus_kl_threshold if kl_threshold is None else kl_threshold
         # asynchronous exchanges mix steps: there every common object is averaged
         self.kl_threshold = float(threshold) if self.max_age == 0 else 0.0
+        # a bounded consensus set (lock-step only): inactive objects are flagged only when they
+        # moved by more than their own threshold (:mod:`teamslam.msckf.consensus_set`)
+        config = agent.config
+        self.bounded = config.consensus_set == "active" and self.max_age == 0
+        self._thresholds: np.ndarray | None = None
         # per neighbour: our own per-object marginals as they were at the last exchange
         self._agreed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._moved: dict[int, np.ndarray] = {}
@@ -252,12 +264,14 @@ class ConsensusProtocol:
         order = np.argsort(self.agent.state.object_ids)
         ids = self.agent.state.object_ids[order]  # increasing, as messages carry them
         exchange = self.association == "own" and self.step % self.association_interval == 0
-        if self.kl_threshold > 0 or exchange:
+        if self.kl_threshold > 0 or exchange or self.bounded:
             means, covs = object_marginals(self.agent.state)
-        if self.kl_threshold > 0:
+        if self.kl_threshold > 0 or self.bounded:
             self._own = (ids, means[order], covs[order])
         else:
             self._own = None
+        if self.bounded:
+            self._thresholds = self._object_thresholds(covs)[order]
         self._summary = (
             ObjectSummary(self.robot, ids, means[order], covs[order]) if exchange else None
         )
@@ -311,8 +325,20 @@ class ConsensusProtocol:
         )
         split = np.cumsum([mine.size for _, mine, _ in pairs])[:-1]
         for (j, mine, _), kl_j in zip(pairs, np.split(kl, split), strict=True):
-            out[j][mine] = kl_j > self.kl_threshold
+            limit = self.kl_threshold if self._thresholds is None else self._thresholds[mine]
+            out[j][mine] = kl_j > limit
         return out
+
+    def _object_thresholds(self, covs: np.ndarray) -> np.ndarray:
+        """Per object (state slot order): how far its marginal must move (KL, nats) to be
+        averaged again — ``consensus_kl_threshold`` when active (``-inf`` for 0: always),
+        ``consensus_inactive_kl_threshold`` otherwise."""
+        config = self.agent.config
+        active = active_objects(self.agent.state, covs, config.consensus_active_information)
+        self.agent.counters["objects_inactive"] += int(active.size - active.sum())
+        active_threshold = self.kl_threshold if self.kl_threshold > 0 else -np.inf
+        inactive = max(float(config.consensus_inactive_kl_threshold), self.kl_threshold)
+        return np.where(active, active_threshold, inactive)
 
     def answer(self, received: Sequence[Message]) -> list[CommonMarginalMessage]:
         """Round 2: our marginal of the common objects to average with each requester.

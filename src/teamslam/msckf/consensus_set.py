@@ -1,0 +1,105 @@
+"""Consensus, selection: which common objects a robot averages jointly (``consensus_set``).
+
+The paper averages every common object at every step (eq. 19 over ``y``, Prop. 2 rebuild), so
+each step inverts the joint marginal of all of them: the cost is cubic in the map the robots
+share and keeps growing on a route that revisits a fixed area, long after the map stopped
+growing. With ``consensus_set = active`` a robot flags for the joint average only the objects
+its current window can still change appreciably — the *active* objects:
+
+* observed within the window (``object_last_seen`` at or after the oldest window frame), or
+* correlated with the window poses: the mutual information between the object and the window
+  poses, ``I(o; x) = ½ log det Σ_oo − ½ log det Σ_oo|x`` (nats, unit-free: the same for any
+  camera, unit or noise level), above ``consensus_active_information``. ``Σ_oo|x = Σ_oo −
+  Σ_oxΣ_xx⁻¹Σ_xo`` costs one Cholesky factorisation of the pose block and one triangular solve
+  with the pose–object cross-covariance, ``O(p² m)`` for ``p`` pose coordinates and ``m``
+  objects — linear in the map.
+
+The other common objects (*inactive*) keep their agreement by the cheaper rule of averaging only
+when they change: the protocol's moved flags (:mod:`teamslam.msckf.protocol`) flag an active
+object when its marginal moved by more than ``consensus_kl_threshold`` since the pair last
+exchanged it, and an inactive one only when it moved by more than
+``consensus_inactive_kl_threshold``. Both ends of a link average the objects flagged by either,
+so an object one robot observes now is averaged jointly with every neighbour that shares it.
+
+**What is lost against the full joint average.** Write ``y = J ∪ I`` (averaged jointly this
+step, left out) and ``x`` the window poses and all other objects. The full average replaces the
+marginal of ``y`` by ``p̄(y)`` and keeps our conditional ``p(x | y)``; the bounded set replaces
+the marginal of ``J`` by ``p̄(J)`` and keeps ``p(x, I | J)``. Both are eq. 42 + Prop. 2, on
+different sets, so each result is a proper Gaussian and each neighbour's information enters
+with its Metropolis weight. The difference is confined to what neighbours know about ``I``
+beyond what our own conditional ``p(I | J)`` predicts from the averaged ``J``:
+
+* ``I``'s own marginal follows ``p̄(J)`` through our conditional instead of being averaged, so
+  a neighbour's information on ``I`` arrives only when ``I`` moves by more than the inactive
+  threshold (then it is in ``J`` again), or when ``I`` becomes active (observed by either robot
+  of the pair). Between two such exchanges the pair's marginals of an inactive object differ by
+  at most about the threshold plus what the two conditionals add — the disagreement is bounded
+  by the threshold, not driven to ``consensus_kl_threshold``;
+* the window poses are corrected through ``J`` only (``A = Σ_xJ Σ_J⁻¹`` instead of
+  ``Σ_xy Σ_y⁻¹``); an inactive object is weakly correlated with them: ``I(o; x) = −½ Σ_k
+  log(1 − ρ_k²) ≤ ε`` over its canonical correlations ``ρ_k`` with the poses, so the poses
+  explain at most a fraction ``ρ_k² ≤ 1 − e^{−2ε}`` (``≈ 2ε`` for small ``ε``) of its variance
+  in any direction, and its correction of the poses is weaker by that much, not absent.
+
+When every common object is active (or both thresholds equal) the bounded set is exactly the
+paper's average (tested), and an object that is not flagged by either robot of any pair keeps
+the marginal our own conditional gives it — it is never averaged with stale information.
+Only lock-step exchanges use it (asynchronous exchanges average every common object).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import LinAlgError, cho_factor, solve_triangular
+
+from teamslam.msckf.state import MsckfState
+
+__all__ = ["active_objects", "pose_mutual_information"]
+
+
+def pose_mutual_information(
+    state: MsckfState, object_covs: np.ndarray, slots: np.ndarray | None = None
+) -> np.ndarray:
+    """``I(o; x)`` (nats) between objects of the state and its window poses.
+
+    ``object_covs`` are the objects' own ``3×3`` marginals, of the objects at ``slots`` (default:
+    every object, in slot order). An object whose conditional covariance is not positive
+    definite (it is fully determined by the poses, up to rounding) gets ``inf``; if the pose
+    block itself cannot be factorised every object does.
+    """
+    slots = np.arange(state.n_objects) if slots is None else np.asarray(slots, dtype=np.int64)
+    m = slots.size
+    if m == 0:
+        return np.zeros(0)
+    p = 6 * state.n_poses
+    cov = state.cov
+    try:
+        factor, _ = cho_factor(cov[:p, :p], lower=True, check_finite=False)
+    except LinAlgError:
+        return np.full(m, np.inf)
+    # K = L⁻¹ Σ_xo: Σ_oo|x = Σ_oo − KᵀK, block by block
+    columns = (p + 3 * slots[:, None] + np.arange(3)).ravel()
+    k = solve_triangular(factor, cov[:p, columns], lower=True, check_finite=False)
+    k = k.reshape(p, m, 3)
+    explained = np.einsum("pmi,pmj->mij", k, k)
+    sign_all, logdet_all = np.linalg.slogdet(object_covs)
+    sign_cond, logdet_cond = np.linalg.slogdet(object_covs - explained)
+    out = 0.5 * (logdet_all - logdet_cond)
+    out[(sign_all <= 0) | (sign_cond <= 0) | ~np.isfinite(out)] = np.inf
+    return out
+
+
+def active_objects(state: MsckfState, object_covs: np.ndarray, information: float) -> np.ndarray:
+    """Which objects of the state the current window can still change appreciably, ``(m,)``.
+
+    Observed within the window, or with mutual information above ``information`` nats with the
+    window poses (:func:`pose_mutual_information`; module docstring). State slot order.
+    """
+    if state.n_objects == 0:
+        return np.zeros(0, dtype=bool)
+    active = state.object_last_seen >= int(state.frames.min())
+    if active.all() or information == np.inf:
+        return active
+    unseen = np.flatnonzero(~active)
+    active[unseen] = pose_mutual_information(state, object_covs[unseen], unseen) > information
+    return active
