@@ -3,6 +3,7 @@
 Run on demand::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py [--robots 3] [--steps 40]
+        [--variant NAME=VALUE[,NAME=VALUE] ...]
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --exact-twin DIR
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --track-errors DIR
 
@@ -35,10 +36,13 @@ import numpy as np
 
 from teamslam.frontend import FrontendConfig, StereoFrontend, StereoRig, match_stereo
 from teamslam.frontend._cv import require_cv2
+from teamslam.frontend.config import resolve_frontend
 from teamslam.sim.render import T_CAM_BODY, RenderConfig, render_stereo, render_team
 
 
-def rendered_team(robots: int, steps: int) -> dict:
+def rendered_team(robots: int, steps: int, variants: dict[str, FrontendConfig]) -> dict:
+    """Accuracy and CPU time of each front-end variant on the same rendered frames (the
+    variants take turns on every frame, so they share the machine's load)."""
     config = RenderConfig(robots=robots, steps=steps)
     team = render_team(config)
     camera = config.camera()
@@ -51,50 +55,83 @@ def rendered_team(robots: int, steps: int) -> dict:
         camera.T_left_right,
         T_CAM_BODY,
     )
-    counts, errors, cpu, searched, rejected = [], [], [], 0, 0
-    big_found, big_err, all_found = [], [], []
-    next_id = 0
+    stats = {
+        name: {
+            "counts": [],
+            "errors": [],
+            "cpu": [],
+            "searched": 0,
+            "rejected": 0,
+            "big_found": [],
+            "big_err": [],
+            "all_found": [],
+            "next_id": 0,
+        }
+        for name in variants
+    }
     for i in range(robots):
-        frontend = StereoFrontend(rig, FrontendConfig(), first_id=next_id)
+        frontends = {
+            name: StereoFrontend(rig, cfg, first_id=stats[name]["next_id"])
+            for name, cfg in variants.items()
+        }
+        firsts: dict[str, dict[int, np.ndarray]] = {name: {} for name in variants}
         rng = np.random.default_rng(100 + i)
-        first: dict[int, np.ndarray] = {}
         for k in range(steps + 1):
             left, right = render_stereo(team.room, team.T_world_cam(i, k), rng)
-            start = time.process_time()
-            m = frontend.process(left, right)
-            cpu.append(time.process_time() - start)
-            new = np.array([int(t) not in first for t in m.track_ids], bool)
-            if new.any():
-                pts = team.points_behind(i, k, m.track_uv[new])
-                first.update(zip(m.track_ids[new].tolist(), pts, strict=True))
-            counts.append(len(m.feature_ids))
-            searched += m.searched
-            rejected += m.rejected
-            if len(m.feature_ids):
-                truth = team.project(i, k, np.array([first[int(t)] for t in m.feature_ids]))
-                errors.append(np.abs(m.features - truth).max(axis=1))
             ids, z_true, side = team.visible_markers(i, k)
-            for mid, zt, s in zip(ids, z_true, side, strict=True):
-                hit = np.flatnonzero(m.object_ids == mid)
-                all_found.append(hit.size > 0)
-                if s >= 25:
-                    big_found.append(hit.size > 0)
-                    if hit.size:
-                        big_err.append(np.abs(m.objects[hit[0]] - zt).max())
-        next_id = frontend.next_id
-    e = np.concatenate(errors)
-    return {
-        "stereo observations per frame": f"{np.mean(counts):.0f} (min {np.min(counts)})",
-        "share within 1 px of truth": f"{np.mean(e < 1.0):.2%}",
-        "median error, px": f"{np.median(e):.3f}",
-        "stereo matches rejected by the gate": f"{rejected / max(searched, 1):.1%}",
-        "markers ≥ 25 px detected": f"{np.mean(big_found):.1%} of {len(big_found)}",
-        "marker centre error median / max, px": (
-            f"{np.median(big_err):.2f} / {np.max(big_err):.2f}" if big_err else "-"
-        ),
-        "markers of any size detected": f"{np.mean(all_found):.1%} of {len(all_found)}",
-        "front-end CPU ms per stereo frame (median)": f"{1000 * np.median(cpu):.0f}",
-    }
+            for name, frontend in frontends.items():
+                st, first = stats[name], firsts[name]
+                start = time.process_time()
+                m = frontend.process(left, right)
+                st["cpu"].append(time.process_time() - start)
+                new = np.array([int(t) not in first for t in m.track_ids], bool)
+                if new.any():
+                    pts = team.points_behind(i, k, m.track_uv[new])
+                    first.update(zip(m.track_ids[new].tolist(), pts, strict=True))
+                st["counts"].append(len(m.feature_ids))
+                st["searched"] += m.searched
+                st["rejected"] += m.rejected
+                if len(m.feature_ids):
+                    truth = team.project(i, k, np.array([first[int(t)] for t in m.feature_ids]))
+                    st["errors"].append(np.abs(m.features - truth).max(axis=1))
+                for mid, zt, s in zip(ids, z_true, side, strict=True):
+                    hit = np.flatnonzero(m.object_ids == mid)
+                    st["all_found"].append(hit.size > 0)
+                    if s >= 25:
+                        st["big_found"].append(hit.size > 0)
+                        if hit.size:
+                            st["big_err"].append(np.abs(m.objects[hit[0]] - zt).max())
+        for name, frontend in frontends.items():
+            stats[name]["next_id"] = frontend.next_id
+    base = 1000 * np.median(stats[next(iter(variants))]["cpu"])
+    rows: dict[str, str] = {}
+    for name, st in stats.items():
+        e = np.concatenate(st["errors"])
+        big_err, cpu = st["big_err"], 1000 * np.median(st["cpu"])
+        tag = "" if len(variants) == 1 else f"[{name}] "
+        rows |= {
+            f"{tag}stereo observations per frame": (
+                f"{np.mean(st['counts']):.0f} (min {np.min(st['counts'])})"
+            ),
+            f"{tag}share within 1 px of truth": f"{np.mean(e < 1.0):.2%}",
+            f"{tag}median error, px": f"{np.median(e):.3f}",
+            f"{tag}stereo matches rejected by the gate": (
+                f"{st['rejected'] / max(st['searched'], 1):.1%}"
+            ),
+            f"{tag}markers ≥ 25 px detected": (
+                f"{np.mean(st['big_found']):.1%} of {len(st['big_found'])}"
+            ),
+            f"{tag}marker centre error median / max, px": (
+                f"{np.median(big_err):.2f} / {np.max(big_err):.2f}" if big_err else "-"
+            ),
+            f"{tag}markers of any size detected": (
+                f"{np.mean(st['all_found']):.1%} of {len(st['all_found'])}"
+            ),
+            f"{tag}front-end CPU ms per stereo frame (median)": (
+                f"{cpu:.0f}" + ("" if len(variants) == 1 else f" (× {cpu / base:.2f})")
+            ),
+        }
+    return rows
 
 
 def middlebury() -> dict:
@@ -279,6 +316,13 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--exact-twin", metavar="DIR")
     parser.add_argument("--track-errors", metavar="DIR")
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE[,NAME=VALUE]",
+        help="also measure the front-end with these settings, on the same frames (repeatable)",
+    )
     args = parser.parse_args()
     if args.track_errors:
         for key, value in track_errors(args.track_errors).items():
@@ -288,7 +332,12 @@ def main() -> None:
         for key, value in exact_twin(args.exact_twin).items():
             print(f"{key:<44}  {value}")
         return
-    rows = rendered_team(args.robots, args.steps)
+    cv2 = require_cv2()
+    cv2.setNumThreads(1)
+    variants = {"default": FrontendConfig()}
+    for text in args.variant:
+        variants[text] = resolve_frontend(text.split(","))[0]
+    rows = rendered_team(args.robots, args.steps, variants)
     rows.update(middlebury())
     width = max(len(k) for k in rows)
     print(f"rendered team: {args.robots} robots × {args.steps + 1} stereo frames, 640×480")

@@ -71,6 +71,11 @@ class FrontendConfig:
     refine_share
         Largest change of the disparity when refined by Lucas–Kanade along the row, and
         largest row offset of the refined match, share of the diagonal (the outlier gate).
+    stereo_from_guess
+        Match a tracked point whose disparity in the previous frame is known by pyramidal
+        Lucas–Kanade from that disparity into the right image and back (the left–right
+        check), instead of searching the row by NCC: the search, point by point, was the
+        front-end's largest cost. New points are always searched.
     stereo_affine_iterations
         Gauss–Newton steps aligning each left patch in the right image with an affine warp,
         gain and offset after the Lucas–Kanade refinement (0: translation-only Lucas–Kanade).
@@ -114,6 +119,7 @@ class FrontendConfig:
     uniqueness: float = 0.97
     left_right_share: float = 0.0013
     refine_share: float = 0.0013
+    stereo_from_guess: bool = True
     stereo_affine_iterations: int = 3
     marker_dictionary: str | None = "4x4_250"
     marker_row_share: float = 0.003
