@@ -4,7 +4,7 @@ Run on demand::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py [--robots 3] [--steps 40]
         [--variant NAME=VALUE[,NAME=VALUE] ...]
-    OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --exact-twin DIR
+    OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --exact-twin DIR [--correlated]
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --track-errors DIR
 
 ``--track-errors DIR`` measures, in ``DIR/dataset`` and ``DIR/dataset-exact``, how each
@@ -160,7 +160,49 @@ def middlebury() -> dict:
     }
 
 
-def exact_twin(directory: str) -> dict:
+def _fit_correlation(tracks: dict, lags: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Per coordinate ``(κ, φ)`` of the lag correlation ``κ + (1 − κ) φ^lag`` of a track's
+    error (least squares over lags 1…``lags``): a per-track constant holding the share ``κ``
+    of the variance plus a first-order autoregression with coefficient ``φ``."""
+    rho = np.array([_lag_correlation(tracks, lag) for lag in range(1, lags + 1)])  # (L, 4)
+    lag = np.arange(1, lags + 1)[:, None]
+    grid = np.linspace(0.0, 0.99, 100)
+    kappa, phi = np.zeros(4), np.zeros(4)
+    for j in range(4):
+        best = np.inf
+        for f in grid:
+            # for a given φ the model is linear in κ: ρ − φ^l = κ (1 − φ^l)
+            x = 1 - f ** lag[:, 0]
+            k = float(np.clip(x @ (rho[:, j] - f ** lag[:, 0]) / (x @ x), 0.0, 1.0))
+            cost = float(np.sum((rho[:, j] - k - (1 - k) * f ** lag[:, 0]) ** 2))
+            if cost < best:
+                best, kappa[j], phi[j] = cost, k, f
+    return kappa, phi
+
+
+def _correlated_noise(
+    lengths: list[int], sigma: np.ndarray, kappa: np.ndarray, phi: np.ndarray, rng
+) -> list[np.ndarray]:
+    """Per track of that length ``(length, 4)`` errors: a constant of variance ``κσ²`` plus a
+    stationary first-order autoregression of variance ``(1 − κ)σ²`` and coefficient ``φ``."""
+    out = []
+    for n in lengths:
+        constant = np.sqrt(kappa) * sigma * rng.standard_normal(4)
+        ar = np.empty((n, 4))
+        ar[0] = rng.standard_normal(4)
+        for k in range(1, n):
+            ar[k] = phi * ar[k - 1] + np.sqrt(1 - phi**2) * rng.standard_normal(4)
+        out.append(constant + np.sqrt(1 - kappa) * sigma * ar)
+    return out
+
+
+def exact_twin(directory: str, correlated: bool = False) -> dict:
+    """Write ``DIR/dataset-exact``: the exact projections of the front-end's tracks and
+    markers plus Gaussian noise of the measured robust σ, white (``correlated=False``) or
+    with the measured correlation along a track (``DIR/dataset-exact-correlated``: a
+    per-track constant plus a first-order autoregression fitted to the lag-1…10
+    correlations, and, as in the front-end's data, no error at a track's first left
+    coordinates)."""
     import json
     from dataclasses import replace
     from pathlib import Path
@@ -202,9 +244,27 @@ def exact_twin(directory: str) -> dict:
     sigma = 1.4826 * np.nanmedian(np.abs(e - np.nanmedian(e, axis=0)), axis=0)
     sigma_obj = 1.4826 * np.median(np.abs(eo - np.median(eo, axis=0)), axis=0)
     rng = np.random.default_rng(0)
-    robots = []
+    robots, extra = [], {}
+    if correlated:
+        kappa, phi = _fit_correlation(_track_errors(team, dataset, dataset))
+        extra = {"kappa": kappa.tolist(), "phi": phi.tolist()}
     for robot, (feats, objs) in zip(dataset.robots, truths, strict=True):
-        f = [(ids, z + sigma * rng.standard_normal(z.shape)) for ids, z in feats]
+        if correlated:
+            rows = [ids for ids, _ in feats]
+            tracks, index = np.unique(np.concatenate(rows), return_inverse=True)
+            lengths = np.bincount(index, minlength=len(tracks))
+            noise = _correlated_noise(lengths.tolist(), sigma, kappa, phi, rng)
+            age = np.zeros(len(tracks), int)
+            f = []
+            for ids, z in feats:
+                t = np.searchsorted(tracks, ids)
+                e = np.array([noise[a][b] for a, b in zip(t, age[t], strict=True)])
+                e = e.reshape(-1, 4)
+                e[age[t] == 0, :2] = 0.0  # a track's first left coordinates are its point's
+                age[t] += 1
+                f.append((ids, z + e))
+        else:
+            f = [(ids, z + sigma * rng.standard_normal(z.shape)) for ids, z in feats]
         o = [(ids, z + sigma_obj * rng.standard_normal(z.shape)) for ids, z in objs]
         robots.append(
             replace(
@@ -213,17 +273,25 @@ def exact_twin(directory: str) -> dict:
                 objects=FrameObservations.from_frames(o),
             )
         )
-    twin = replace(dataset, robots=robots, name=dataset.name + "-exact")
+    name = "dataset-exact-correlated" if correlated else "dataset-exact"
+    twin = replace(dataset, robots=robots, name=dataset.name + name.removeprefix("dataset"))
     twin.metadata = {
         **dataset.metadata,
-        "exact_twin": {"sigma": sigma.tolist(), "sigma_obj": sigma_obj.tolist()},
+        "exact_twin": {"sigma": sigma.tolist(), "sigma_obj": sigma_obj.tolist(), **extra},
     }
-    save_dataset(twin, root / "dataset-exact")
+    save_dataset(twin, root / name)
+    fitted = {}
+    if correlated:
+        fitted = {
+            "constant share κ of the variance u_l v_l u_r v_r": " ".join(f"{x:.2f}" for x in kappa),
+            "autoregression φ u_l v_l u_r v_r": " ".join(f"{x:.2f}" for x in phi),
+        }
     return {
+        **fitted,
         "feature error robust σ u_l v_l u_r v_r, px": " ".join(f"{x:.3f}" for x in sigma),
         "feature share within 1 px": f"{np.mean(np.nanmax(np.abs(e), axis=1) < 1):.2%}",
         "object error robust σ u_l v_l u_r v_r, px": " ".join(f"{x:.3f}" for x in sigma_obj),
-        "written": str(root / "dataset-exact"),
+        "written": str(root / name),
     }
 
 
@@ -276,7 +344,7 @@ def track_errors(directory: str) -> dict:
     team = render_team(RenderConfig(**cfg))
     reference = load_dataset(root / "dataset")
     rows = {}
-    for name in ("dataset", "dataset-exact"):
+    for name in ("dataset", "dataset-exact", "dataset-exact-correlated"):
         if not (root / name).is_dir():
             continue
         tracks = _track_errors(team, load_dataset(root / name), reference)
@@ -317,6 +385,11 @@ def main() -> None:
     parser.add_argument("--exact-twin", metavar="DIR")
     parser.add_argument("--track-errors", metavar="DIR")
     parser.add_argument(
+        "--correlated",
+        action="store_true",
+        help="with --exact-twin: noise with the front-end's measured correlation along a track",
+    )
+    parser.add_argument(
         "--variant",
         action="append",
         default=[],
@@ -329,7 +402,7 @@ def main() -> None:
             print(f"{key:<52}  {value}")
         return
     if args.exact_twin:
-        for key, value in exact_twin(args.exact_twin).items():
+        for key, value in exact_twin(args.exact_twin, args.correlated).items():
             print(f"{key:<44}  {value}")
         return
     cv2 = require_cv2()
