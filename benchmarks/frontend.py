@@ -164,8 +164,11 @@ def _fit_correlation(tracks: dict, lags: int = 10) -> tuple[np.ndarray, np.ndarr
     """Per coordinate ``(κ, φ)`` of the lag correlation ``κ + (1 − κ) φ^lag`` of a track's
     error (least squares over lags 1…``lags``): a per-track constant holding the share ``κ``
     of the variance plus a first-order autoregression with coefficient ``φ``."""
+    # without the first sightings: their left coordinates are exact by construction
+    tracks = {key: v[1:] for key, v in tracks.items()}
     rho = np.array([_lag_correlation(tracks, lag) for lag in range(1, lags + 1)])  # (L, 4)
-    lag = np.arange(1, lags + 1)[:, None]
+    known = np.all(np.isfinite(rho), axis=1)
+    rho, lag = rho[known], np.arange(1, lags + 1)[known, None]
     grid = np.linspace(0.0, 0.99, 100)
     kappa, phi = np.zeros(4), np.zeros(4)
     for j in range(4):
@@ -258,11 +261,11 @@ def exact_twin(directory: str, correlated: bool = False) -> dict:
             f = []
             for ids, z in feats:
                 t = np.searchsorted(tracks, ids)
-                e = np.array([noise[a][b] for a, b in zip(t, age[t], strict=True)])
-                e = e.reshape(-1, 4)
-                e[age[t] == 0, :2] = 0.0  # a track's first left coordinates are its point's
+                err = np.array([noise[a][b] for a, b in zip(t, age[t], strict=True)])
+                err = err.reshape(-1, 4)
+                err[age[t] == 0, :2] = 0.0  # a track's first left coordinates are its point's
                 age[t] += 1
-                f.append((ids, z + e))
+                f.append((ids, z + err))
         else:
             f = [(ids, z + sigma * rng.standard_normal(z.shape)) for ids, z in feats]
         o = [(ids, z + sigma_obj * rng.standard_normal(z.shape)) for ids, z in objs]
@@ -325,6 +328,8 @@ def _lag_correlation(tracks: dict, lag: int) -> np.ndarray:
             if k + lag in by_frame:
                 a.append(e)
                 b.append(by_frame[k + lag])
+    if len(a) < 3:
+        return np.full(4, np.nan)
     a, b = np.array(a), np.array(b)
     good = (np.abs(a).max(axis=1) < 1) & (np.abs(b).max(axis=1) < 1)
     return np.array([np.corrcoef(a[good, j], b[good, j])[0, 1] for j in range(4)])
@@ -371,6 +376,8 @@ def track_errors(directory: str) -> dict:
         )
         for age in (0, 1, 10, 40):
             x = np.array([v[age][1] for v in tracks.values() if len(v) > age])
+            if len(x) == 0:
+                continue
             g = np.abs(x).max(axis=1) < 1
             rows[f"{name}: rms error at track age {age}, px"] = " ".join(
                 f"{y:.3f}" for y in np.sqrt((x[g] ** 2).mean(axis=0))
