@@ -18,6 +18,13 @@ The accepted match is the Lucas–Kanade refined position ``(u_r, v_r)``, then (
 affine warp, gain and offset (:func:`affine_align`): a slanted surface is foreshortened
 differently in the two cameras, which biases a translation-only match by the same amount frame
 after frame along a track; an aligned patch correlating below ``ncc_min`` is rejected.
+
+A tracked point whose disparity in the previous frame is known (``disparity_guess``, with
+``stereo_from_guess``, the default) is not searched: pyramidal Lucas–Kanade follows it from that
+disparity into the right image and back to the left one; it is rejected when the way back
+misses the left point by more than the left–right threshold, when the match leaves the row by
+more than the refine threshold or leaves ``guess ± max(3, 20 %)`` pixels, and then by the same
+alignment gate. The search, point by point in Python, was the front-end's largest cost.
 """
 
 from __future__ import annotations
