@@ -55,6 +55,12 @@ class FrontendConfig:
         Gauss–Newton steps); end a track whose aligned patch correlates below
         ``template_ncc_min`` with its template, or moves more than ``refine_track_share`` of
         the diagonal from the frame-to-frame track.
+    max_track_length
+        Most frames a track is followed (0: no limit); a longer one ends and its corner may
+        start a new track with a fresh template and id. Aligned to its first appearance, a
+        track's error grows with its age as the view changes (on the rendered team the
+        left-image error's RMS is 0.10 px one frame after the first sighting, 0.13 px ten
+        frames and 0.17 px forty frames after it), and the error is the same from frame to frame.
     min_depth, max_depth
         Depth range (metres) of stereo matches: the disparity search range is
         ``[fx·b / max_depth, fx·b / min_depth]``.
@@ -114,6 +120,7 @@ class FrontendConfig:
     affine_iterations: int = 2
     template_ncc_min: float = 0.93
     refine_track_share: float = 0.0025
+    max_track_length: int = 0
     min_depth: float = 0.5
     max_depth: float = 100.0
     ncc_window_share: float = 0.014
@@ -139,6 +146,8 @@ class FrontendConfig:
             raise InputError(
                 "marker_min_perimeter_share < 4 and marker_threshold_passes ≥ 1 needed"
             )
+        if self.max_track_length < 0 or self.max_track_length == 1:
+            raise InputError("max_track_length must be 0 (no limit) or at least 2 frames")
         if self.max_features < 1 or self.lk_levels < 0 or self.vo_min_inliers < 4:
             raise InputError("max_features ≥ 1, lk_levels ≥ 0 and vo_min_inliers ≥ 4 needed")
         if not self.min_depth < self.max_depth:

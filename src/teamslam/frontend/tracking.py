@@ -47,6 +47,7 @@ class FeatureTracker:
         self.px = self.config.pixels(self.image_size)
         self.next_id = int(first_id)
         self.ids = np.zeros(0, np.int64)
+        self._age = np.zeros(0, np.int64)  # frames since a track's first sighting
         self.uv = np.zeros((0, 2), np.float32)
         self._previous: np.ndarray | None = None
         self._window = PatchWindow(self.px.lk_window // 2)
@@ -87,7 +88,7 @@ class FeatureTracker:
         return out.reshape(-1, 2), status.ravel().astype(bool)
 
     def _keep(self, keep: np.ndarray) -> None:
-        self.ids = self.ids[keep]
+        self.ids, self._age = self.ids[keep], self._age[keep]
         if self.config.affine_refinement:
             self._template, self._A = self._template[keep], self._A[keep]
             self._photo = self._photo[keep]
@@ -99,7 +100,12 @@ class FeatureTracker:
     def track(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Follow the tracks into ``image`` (8-bit grey) and refill; return ``(ids, uv)``."""
         cv2 = require_cv2()
+        if self.config.max_track_length and len(self.ids):
+            young = self._age + 1 < self.config.max_track_length
+            self._keep(young)
+            self.uv = self.uv[young]
         if self._previous is not None and len(self.ids):
+            self._age += 1
             fwd, ok_f = self._lk(self._previous, image, self.uv)
             back, ok_b = self._lk(image, self._previous, fwd)
             fb = np.linalg.norm(back - self.uv, axis=1)
@@ -115,6 +121,7 @@ class FeatureTracker:
                 self.uv = self.uv[ok]
         elif self._previous is None:
             self.ids, self.uv = np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
+            self._age = np.zeros(0, np.int64)
         room = self.config.max_features - len(self.ids)
         if room > 0:
             mask = np.full(image.shape, 255, np.uint8)
@@ -144,6 +151,7 @@ class FeatureTracker:
                 fresh = self.next_id + np.arange(len(new), dtype=np.int64)
                 self.next_id += len(new)
                 self.ids = np.concatenate([self.ids, fresh])
+                self._age = np.concatenate([self._age, np.zeros(len(new), np.int64)])
                 self.uv = np.concatenate([self.uv, new])
                 if self.config.affine_refinement:
                     eye = np.tile(np.eye(2), (len(new), 1, 1))
