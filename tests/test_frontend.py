@@ -60,6 +60,25 @@ def test_tracking_keeps_ids_with_subpixel_accuracy(sequence):
     assert np.mean(e < 1.0) > 0.97
 
 
+def test_tracks_end_after_max_track_length_and_their_corners_start_new_ones(sequence):
+    _, frames = sequence
+    tracker = FeatureTracker((320, 240), FrontendConfig(max_track_length=3))
+    seen: dict[int, int] = {}
+    counts = []
+    for k in range(7):
+        ids, _ = tracker.track(frames[k][0])
+        for t in ids.tolist():
+            seen[t] = seen.get(t, 0) + 1
+        counts.append(len(ids))
+    lengths = np.array(list(seen.values()))
+    assert lengths.max() == 3  # followed for three frames, then ended
+    assert np.mean(lengths == 3) > 0.5
+    # the ended tracks' corners are taken again: the count of tracks does not fall
+    assert min(counts[3:]) > 0.8 * counts[0]
+    with pytest.raises(InputError, match="max_track_length"):
+        FrontendConfig(max_track_length=1)
+
+
 def test_stereo_matches_true_disparity_within_a_pixel(sequence):
     team, frames = sequence
     left, right = frames[0]
