@@ -3,7 +3,8 @@
 Run on demand::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py [--robots 3] [--steps 40]
-    OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --exact-twin DIR
+        [--variant NAME=VALUE[,NAME=VALUE] ...]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --exact-twin DIR [--correlated]
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --track-errors DIR
 
 ``--track-errors DIR`` measures, in ``DIR/dataset`` and ``DIR/dataset-exact``, how each
@@ -35,10 +36,13 @@ import numpy as np
 
 from teamslam.frontend import FrontendConfig, StereoFrontend, StereoRig, match_stereo
 from teamslam.frontend._cv import require_cv2
+from teamslam.frontend.config import resolve_frontend
 from teamslam.sim.render import T_CAM_BODY, RenderConfig, render_stereo, render_team
 
 
-def rendered_team(robots: int, steps: int) -> dict:
+def rendered_team(robots: int, steps: int, variants: dict[str, FrontendConfig]) -> dict:
+    """Accuracy and CPU time of each front-end variant on the same rendered frames (the
+    variants take turns on every frame, so they share the machine's load)."""
     config = RenderConfig(robots=robots, steps=steps)
     team = render_team(config)
     camera = config.camera()
@@ -51,50 +55,83 @@ def rendered_team(robots: int, steps: int) -> dict:
         camera.T_left_right,
         T_CAM_BODY,
     )
-    counts, errors, cpu, searched, rejected = [], [], [], 0, 0
-    big_found, big_err, all_found = [], [], []
-    next_id = 0
+    stats = {
+        name: {
+            "counts": [],
+            "errors": [],
+            "cpu": [],
+            "searched": 0,
+            "rejected": 0,
+            "big_found": [],
+            "big_err": [],
+            "all_found": [],
+            "next_id": 0,
+        }
+        for name in variants
+    }
     for i in range(robots):
-        frontend = StereoFrontend(rig, FrontendConfig(), first_id=next_id)
+        frontends = {
+            name: StereoFrontend(rig, cfg, first_id=stats[name]["next_id"])
+            for name, cfg in variants.items()
+        }
+        firsts: dict[str, dict[int, np.ndarray]] = {name: {} for name in variants}
         rng = np.random.default_rng(100 + i)
-        first: dict[int, np.ndarray] = {}
         for k in range(steps + 1):
             left, right = render_stereo(team.room, team.T_world_cam(i, k), rng)
-            start = time.process_time()
-            m = frontend.process(left, right)
-            cpu.append(time.process_time() - start)
-            new = np.array([int(t) not in first for t in m.track_ids], bool)
-            if new.any():
-                pts = team.points_behind(i, k, m.track_uv[new])
-                first.update(zip(m.track_ids[new].tolist(), pts, strict=True))
-            counts.append(len(m.feature_ids))
-            searched += m.searched
-            rejected += m.rejected
-            if len(m.feature_ids):
-                truth = team.project(i, k, np.array([first[int(t)] for t in m.feature_ids]))
-                errors.append(np.abs(m.features - truth).max(axis=1))
             ids, z_true, side = team.visible_markers(i, k)
-            for mid, zt, s in zip(ids, z_true, side, strict=True):
-                hit = np.flatnonzero(m.object_ids == mid)
-                all_found.append(hit.size > 0)
-                if s >= 25:
-                    big_found.append(hit.size > 0)
-                    if hit.size:
-                        big_err.append(np.abs(m.objects[hit[0]] - zt).max())
-        next_id = frontend.next_id
-    e = np.concatenate(errors)
-    return {
-        "stereo observations per frame": f"{np.mean(counts):.0f} (min {np.min(counts)})",
-        "share within 1 px of truth": f"{np.mean(e < 1.0):.2%}",
-        "median error, px": f"{np.median(e):.3f}",
-        "stereo matches rejected by the gate": f"{rejected / max(searched, 1):.1%}",
-        "markers ≥ 25 px detected": f"{np.mean(big_found):.1%} of {len(big_found)}",
-        "marker centre error median / max, px": (
-            f"{np.median(big_err):.2f} / {np.max(big_err):.2f}" if big_err else "-"
-        ),
-        "markers of any size detected": f"{np.mean(all_found):.1%} of {len(all_found)}",
-        "front-end CPU ms per stereo frame (median)": f"{1000 * np.median(cpu):.0f}",
-    }
+            for name, frontend in frontends.items():
+                st, first = stats[name], firsts[name]
+                start = time.process_time()
+                m = frontend.process(left, right)
+                st["cpu"].append(time.process_time() - start)
+                new = np.array([int(t) not in first for t in m.track_ids], bool)
+                if new.any():
+                    pts = team.points_behind(i, k, m.track_uv[new])
+                    first.update(zip(m.track_ids[new].tolist(), pts, strict=True))
+                st["counts"].append(len(m.feature_ids))
+                st["searched"] += m.searched
+                st["rejected"] += m.rejected
+                if len(m.feature_ids):
+                    truth = team.project(i, k, np.array([first[int(t)] for t in m.feature_ids]))
+                    st["errors"].append(np.abs(m.features - truth).max(axis=1))
+                for mid, zt, s in zip(ids, z_true, side, strict=True):
+                    hit = np.flatnonzero(m.object_ids == mid)
+                    st["all_found"].append(hit.size > 0)
+                    if s >= 25:
+                        st["big_found"].append(hit.size > 0)
+                        if hit.size:
+                            st["big_err"].append(np.abs(m.objects[hit[0]] - zt).max())
+        for name, frontend in frontends.items():
+            stats[name]["next_id"] = frontend.next_id
+    base = 1000 * np.median(stats[next(iter(variants))]["cpu"])
+    rows: dict[str, str] = {}
+    for name, st in stats.items():
+        e = np.concatenate(st["errors"])
+        big_err, cpu = st["big_err"], 1000 * np.median(st["cpu"])
+        tag = "" if len(variants) == 1 else f"[{name}] "
+        rows |= {
+            f"{tag}stereo observations per frame": (
+                f"{np.mean(st['counts']):.0f} (min {np.min(st['counts'])})"
+            ),
+            f"{tag}share within 1 px of truth": f"{np.mean(e < 1.0):.2%}",
+            f"{tag}median error, px": f"{np.median(e):.3f}",
+            f"{tag}stereo matches rejected by the gate": (
+                f"{st['rejected'] / max(st['searched'], 1):.1%}"
+            ),
+            f"{tag}markers ≥ 25 px detected": (
+                f"{np.mean(st['big_found']):.1%} of {len(st['big_found'])}"
+            ),
+            f"{tag}marker centre error median / max, px": (
+                f"{np.median(big_err):.2f} / {np.max(big_err):.2f}" if big_err else "-"
+            ),
+            f"{tag}markers of any size detected": (
+                f"{np.mean(st['all_found']):.1%} of {len(st['all_found'])}"
+            ),
+            f"{tag}front-end CPU ms per stereo frame (median)": (
+                f"{cpu:.0f}" + ("" if len(variants) == 1 else f" (× {cpu / base:.2f})")
+            ),
+        }
+    return rows
 
 
 def middlebury() -> dict:
@@ -123,7 +160,52 @@ def middlebury() -> dict:
     }
 
 
-def exact_twin(directory: str) -> dict:
+def _fit_correlation(tracks: dict, lags: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Per coordinate ``(κ, φ)`` of the lag correlation ``κ + (1 − κ) φ^lag`` of a track's
+    error (least squares over lags 1…``lags``): a per-track constant holding the share ``κ``
+    of the variance plus a first-order autoregression with coefficient ``φ``."""
+    # without the first sightings: their left coordinates are exact by construction
+    tracks = {key: v[1:] for key, v in tracks.items()}
+    rho = np.array([_lag_correlation(tracks, lag) for lag in range(1, lags + 1)])  # (L, 4)
+    known = np.all(np.isfinite(rho), axis=1)
+    rho, lag = rho[known], np.arange(1, lags + 1)[known, None]
+    grid = np.linspace(0.0, 0.99, 100)
+    kappa, phi = np.zeros(4), np.zeros(4)
+    for j in range(4):
+        best = np.inf
+        for f in grid:
+            # for a given φ the model is linear in κ: ρ − φ^l = κ (1 − φ^l)
+            x = 1 - f ** lag[:, 0]
+            k = float(np.clip(x @ (rho[:, j] - f ** lag[:, 0]) / (x @ x), 0.0, 1.0))
+            cost = float(np.sum((rho[:, j] - k - (1 - k) * f ** lag[:, 0]) ** 2))
+            if cost < best:
+                best, kappa[j], phi[j] = cost, k, f
+    return kappa, phi
+
+
+def _correlated_noise(
+    lengths: list[int], sigma: np.ndarray, kappa: np.ndarray, phi: np.ndarray, rng
+) -> list[np.ndarray]:
+    """Per track of that length ``(length, 4)`` errors: a constant of variance ``κσ²`` plus a
+    stationary first-order autoregression of variance ``(1 − κ)σ²`` and coefficient ``φ``."""
+    out = []
+    for n in lengths:
+        constant = np.sqrt(kappa) * sigma * rng.standard_normal(4)
+        ar = np.empty((n, 4))
+        ar[0] = rng.standard_normal(4)
+        for k in range(1, n):
+            ar[k] = phi * ar[k - 1] + np.sqrt(1 - phi**2) * rng.standard_normal(4)
+        out.append(constant + np.sqrt(1 - kappa) * sigma * ar)
+    return out
+
+
+def exact_twin(directory: str, correlated: bool = False) -> dict:
+    """Write ``DIR/dataset-exact``: the exact projections of the front-end's tracks and
+    markers plus Gaussian noise of the measured robust σ, white (``correlated=False``) or
+    with the measured correlation along a track (``DIR/dataset-exact-correlated``: a
+    per-track constant plus a first-order autoregression fitted to the lag-1…10
+    correlations, and, as in the front-end's data, no error at a track's first left
+    coordinates)."""
     import json
     from dataclasses import replace
     from pathlib import Path
@@ -165,9 +247,27 @@ def exact_twin(directory: str) -> dict:
     sigma = 1.4826 * np.nanmedian(np.abs(e - np.nanmedian(e, axis=0)), axis=0)
     sigma_obj = 1.4826 * np.median(np.abs(eo - np.median(eo, axis=0)), axis=0)
     rng = np.random.default_rng(0)
-    robots = []
+    robots, extra = [], {}
+    if correlated:
+        kappa, phi = _fit_correlation(_track_errors(team, dataset, dataset))
+        extra = {"kappa": kappa.tolist(), "phi": phi.tolist()}
     for robot, (feats, objs) in zip(dataset.robots, truths, strict=True):
-        f = [(ids, z + sigma * rng.standard_normal(z.shape)) for ids, z in feats]
+        if correlated:
+            rows = [ids for ids, _ in feats]
+            tracks, index = np.unique(np.concatenate(rows), return_inverse=True)
+            lengths = np.bincount(index, minlength=len(tracks))
+            noise = _correlated_noise(lengths.tolist(), sigma, kappa, phi, rng)
+            age = np.zeros(len(tracks), int)
+            f = []
+            for ids, z in feats:
+                t = np.searchsorted(tracks, ids)
+                err = np.array([noise[a][b] for a, b in zip(t, age[t], strict=True)])
+                err = err.reshape(-1, 4)
+                err[age[t] == 0, :2] = 0.0  # a track's first left coordinates are its point's
+                age[t] += 1
+                f.append((ids, z + err))
+        else:
+            f = [(ids, z + sigma * rng.standard_normal(z.shape)) for ids, z in feats]
         o = [(ids, z + sigma_obj * rng.standard_normal(z.shape)) for ids, z in objs]
         robots.append(
             replace(
@@ -176,17 +276,25 @@ def exact_twin(directory: str) -> dict:
                 objects=FrameObservations.from_frames(o),
             )
         )
-    twin = replace(dataset, robots=robots, name=dataset.name + "-exact")
+    name = "dataset-exact-correlated" if correlated else "dataset-exact"
+    twin = replace(dataset, robots=robots, name=dataset.name + name.removeprefix("dataset"))
     twin.metadata = {
         **dataset.metadata,
-        "exact_twin": {"sigma": sigma.tolist(), "sigma_obj": sigma_obj.tolist()},
+        "exact_twin": {"sigma": sigma.tolist(), "sigma_obj": sigma_obj.tolist(), **extra},
     }
-    save_dataset(twin, root / "dataset-exact")
+    save_dataset(twin, root / name)
+    fitted = {}
+    if correlated:
+        fitted = {
+            "constant share κ of the variance u_l v_l u_r v_r": " ".join(f"{x:.2f}" for x in kappa),
+            "autoregression φ u_l v_l u_r v_r": " ".join(f"{x:.2f}" for x in phi),
+        }
     return {
+        **fitted,
         "feature error robust σ u_l v_l u_r v_r, px": " ".join(f"{x:.3f}" for x in sigma),
         "feature share within 1 px": f"{np.mean(np.nanmax(np.abs(e), axis=1) < 1):.2%}",
         "object error robust σ u_l v_l u_r v_r, px": " ".join(f"{x:.3f}" for x in sigma_obj),
-        "written": str(root / "dataset-exact"),
+        "written": str(root / name),
     }
 
 
@@ -220,6 +328,8 @@ def _lag_correlation(tracks: dict, lag: int) -> np.ndarray:
             if k + lag in by_frame:
                 a.append(e)
                 b.append(by_frame[k + lag])
+    if len(a) < 3:
+        return np.full(4, np.nan)
     a, b = np.array(a), np.array(b)
     good = (np.abs(a).max(axis=1) < 1) & (np.abs(b).max(axis=1) < 1)
     return np.array([np.corrcoef(a[good, j], b[good, j])[0, 1] for j in range(4)])
@@ -239,7 +349,7 @@ def track_errors(directory: str) -> dict:
     team = render_team(RenderConfig(**cfg))
     reference = load_dataset(root / "dataset")
     rows = {}
-    for name in ("dataset", "dataset-exact"):
+    for name in ("dataset", "dataset-exact", "dataset-exact-correlated"):
         if not (root / name).is_dir():
             continue
         tracks = _track_errors(team, load_dataset(root / name), reference)
@@ -266,6 +376,8 @@ def track_errors(directory: str) -> dict:
         )
         for age in (0, 1, 10, 40):
             x = np.array([v[age][1] for v in tracks.values() if len(v) > age])
+            if len(x) == 0:
+                continue
             g = np.abs(x).max(axis=1) < 1
             rows[f"{name}: rms error at track age {age}, px"] = " ".join(
                 f"{y:.3f}" for y in np.sqrt((x[g] ** 2).mean(axis=0))
@@ -279,16 +391,33 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--exact-twin", metavar="DIR")
     parser.add_argument("--track-errors", metavar="DIR")
+    parser.add_argument(
+        "--correlated",
+        action="store_true",
+        help="with --exact-twin: noise with the front-end's measured correlation along a track",
+    )
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE[,NAME=VALUE]",
+        help="also measure the front-end with these settings, on the same frames (repeatable)",
+    )
     args = parser.parse_args()
     if args.track_errors:
         for key, value in track_errors(args.track_errors).items():
             print(f"{key:<52}  {value}")
         return
     if args.exact_twin:
-        for key, value in exact_twin(args.exact_twin).items():
+        for key, value in exact_twin(args.exact_twin, args.correlated).items():
             print(f"{key:<44}  {value}")
         return
-    rows = rendered_team(args.robots, args.steps)
+    cv2 = require_cv2()
+    cv2.setNumThreads(1)
+    variants = {"default": FrontendConfig()}
+    for text in args.variant:
+        variants[text] = resolve_frontend(text.split(","))[0]
+    rows = rendered_team(args.robots, args.steps, variants)
     rows.update(middlebury())
     width = max(len(k) for k in rows)
     print(f"rendered team: {args.robots} robots × {args.steps + 1} stereo frames, 640×480")

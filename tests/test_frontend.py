@@ -60,6 +60,25 @@ def test_tracking_keeps_ids_with_subpixel_accuracy(sequence):
     assert np.mean(e < 1.0) > 0.97
 
 
+def test_tracks_end_after_max_track_length_and_their_corners_start_new_ones(sequence):
+    _, frames = sequence
+    tracker = FeatureTracker((320, 240), FrontendConfig(max_track_length=3))
+    seen: dict[int, int] = {}
+    counts = []
+    for k in range(7):
+        ids, _ = tracker.track(frames[k][0])
+        for t in ids.tolist():
+            seen[t] = seen.get(t, 0) + 1
+        counts.append(len(ids))
+    lengths = np.array(list(seen.values()))
+    assert lengths.max() == 3  # followed for three frames, then ended
+    assert np.mean(lengths == 3) > 0.5
+    # the ended tracks' corners are taken again: the count of tracks does not fall
+    assert min(counts[3:]) > 0.8 * counts[0]
+    with pytest.raises(InputError, match="max_track_length"):
+        FrontendConfig(max_track_length=1)
+
+
 def test_stereo_matches_true_disparity_within_a_pixel(sequence):
     team, frames = sequence
     left, right = frames[0]
@@ -103,6 +122,56 @@ def test_left_right_check_rejects_an_occlusion():
     assert not m_hidden.accepted.any()  # the left-right check alone rejects them
     assert m_free.accepted.mean() > 0.5  # ... which would otherwise pass
     m_vis = match_stereo(left, right, visible, (0.0, 40.0), FrontendConfig())
+    assert m_vis.accepted.all()
+    np.testing.assert_allclose(visible[:, 0] - m_vis.uv_right[:, 0], 4.0, atol=0.1)
+
+
+def test_stereo_from_a_guess_finds_the_searched_match(sequence):
+    """A tracked point followed from its previous disparity (Lucas–Kanade there and back)
+    lands where the full NCC search of the row lands, within 1 px of the truth."""
+    team, frames = sequence
+    left, right = frames[0]
+    corners = cv2.goodFeaturesToTrack(left, 300, 0.005, 5).reshape(-1, 2).astype(float)
+    camera = team.config.camera()
+    config = FrontendConfig()
+    d_range = config.disparity_range(camera.fx_baseline)
+    searched = match_stereo(left, right, corners, d_range, config)
+    truth = team.project(0, 0, team.points_behind(0, 0, corners))
+    # the previous frame's disparity: off by up to 2 px
+    off = np.random.default_rng(1).uniform(-2.0, 2.0, len(corners))
+    guess = corners[:, 0] - truth[:, 2] + off
+    followed = match_stereo(left, right, corners, d_range, config, disparity_guess=guess)
+    both = searched.accepted & followed.accepted
+    assert followed.accepted.mean() > 0.8 and both.sum() > 0.9 * searched.accepted.sum()
+    np.testing.assert_allclose(followed.uv_right[both], searched.uv_right[both], atol=0.02)
+    err = np.abs(followed.uv_right[followed.accepted] - truth[followed.accepted, 2:])
+    assert err.max() < 1.0
+    # with the guess switched off the same call searches, and gives the searched matches
+    no_guess = FrontendConfig(stereo_from_guess=False)
+    again = match_stereo(left, right, corners, d_range, no_guess, disparity_guess=guess)
+    assert again.accepted.sum() > 0.8 * searched.accepted.sum()
+    ok = again.accepted & searched.accepted
+    np.testing.assert_allclose(again.uv_right[ok], searched.uv_right[ok], atol=0.02)
+
+
+def test_a_guess_is_not_followed_into_an_occlusion():
+    """A point that was matched at the background's disparity and is now hidden behind the
+    square in the right image is rejected (Lucas–Kanade from the guess does not come back to
+    the left point, or leaves the guess's interval), even with lenient NCC and refine gates;
+    visible points followed from a guess 1.5 px off are matched exactly."""
+    left, right, x0 = _occlusion_pair()
+    hidden = np.array([[u, v] for u in range(x0 - 13, x0 - 7, 2) for v in range(45, 76, 6)], float)
+    visible = np.array([[u, v] for u in range(30, 60, 4) for v in range(40, 80, 8)], float)
+    lenient = {"ncc_min": 1e-6, "uniqueness": 1.0, "refine_share": 1.0}
+    guess = np.full(len(hidden), 4.0)
+    m_hidden = match_stereo(
+        left, right, hidden, (0.0, 40.0), FrontendConfig(**lenient), disparity_guess=guess
+    )
+    assert m_hidden.searched.all()
+    assert not m_hidden.accepted.any()
+    m_vis = match_stereo(
+        left, right, visible, (0.0, 40.0), FrontendConfig(), disparity_guess=np.full(40, 5.5)
+    )
     assert m_vis.accepted.all()
     np.testing.assert_allclose(visible[:, 0] - m_vis.uv_right[:, 0], 4.0, atol=0.1)
 

@@ -20,21 +20,21 @@ def test_assignments_set_any_field_in_its_type_with_its_source():
             "marker_dictionary=none",
             "max_features=150",  # the last one wins
         ],
-        {"lk_levels": 2},
+        {"lk_levels": 3},
         "frontend.yaml",
     )
     assert config.max_features == 150 and isinstance(config.max_features, int)
     assert config.ncc_min == 0.8
     assert config.affine_refinement is False
     assert config.marker_dictionary is None
-    assert config.lk_levels == 2
+    assert config.lk_levels == 3
     assert sources["max_features"] == "--frontend-set"
     assert sources["lk_levels"] == "frontend.yaml"
     assert sources["min_depth"] == "default"
     table = frontend_table(config, sources)
     assert len(table.splitlines()) == 1 + len(sources)
     assert any(
-        line.split()[:3] == ["lk_levels", "2", "frontend.yaml"] for line in table.splitlines()
+        line.split()[:3] == ["lk_levels", "3", "frontend.yaml"] for line in table.splitlines()
     )
 
 

@@ -155,7 +155,7 @@ def test_frontend_settings_are_applied_and_shown_with_their_source(rendered, tmp
     rows = {line.split()[0]: line.split()[1:] for line in text.splitlines() if line.strip()}
     assert rows["max_features"] == ["40", "--frontend-set"]
     assert rows["ncc_min"] == ["0.8", "--frontend-set"]
-    assert rows["lk_levels"] == ["3", "default"]
+    assert rows["lk_levels"] == ["2", "default"]
     dataset = load_dataset(out)
     assert max(r.features.counts().max() for r in dataset.robots) <= 40
     assert dataset.metadata["images"]["frontend"]["max_features"] == 40

@@ -5,7 +5,8 @@
 * :mod:`~teamslam.frontend.tracking` — :class:`FeatureTracker` (corners + pyramidal
   Lucas–Kanade, forward–backward check, persistent ids);
 * :mod:`~teamslam.frontend.stereo` — :func:`match_stereo` (epipolar NCC, uniqueness,
-  left–right check, Lucas–Kanade refinement);
+  left–right check, Lucas–Kanade refinement; tracked points followed from their previous
+  disparity);
 * :mod:`~teamslam.frontend.markers` — :class:`MarkerDetector` (ArUco / AprilTag objects);
 * :mod:`~teamslam.frontend.odometry` — :func:`stereo_motion` (PnP + RANSAC);
 * :mod:`~teamslam.frontend.pipeline` — :class:`StereoFrontend`, all of it per frame.

@@ -18,6 +18,13 @@ The accepted match is the Lucas–Kanade refined position ``(u_r, v_r)``, then (
 affine warp, gain and offset (:func:`affine_align`): a slanted surface is foreshortened
 differently in the two cameras, which biases a translation-only match by the same amount frame
 after frame along a track; an aligned patch correlating below ``ncc_min`` is rejected.
+
+A tracked point whose disparity in the previous frame is known (``disparity_guess``, with
+``stereo_from_guess``, the default) is not searched: pyramidal Lucas–Kanade follows it from that
+disparity into the right image and back to the left one; it is rejected when the way back
+misses the left point by more than the left–right threshold, when the match leaves the row by
+more than the refine threshold or leaves ``guess ± max(3, 20 %)`` pixels, and then by the same
+alignment gate. The search, point by point in Python, was the front-end's largest cost.
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teamslam.frontend._align import PatchWindow, align_patches, with_gradients
 from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.config import FrontendConfig, PixelSettings
 
@@ -88,52 +96,32 @@ def affine_align(
         ``(N, 2)`` aligned centres in ``image`` and the NCC of each aligned patch with its
         template.
     """
-    cv2 = require_cv2()
-    g = np.arange(-half, half + 1, dtype=np.float32)
-    oy, ox = np.meshgrid(g, g, indexing="ij")
-    ox, oy = ox.ravel(), oy.ravel()
-    w = np.exp(-(ox**2 + oy**2) / (2 * max(half, 1) ** 2)).astype(np.float32)
-    n, p = len(uv_template), ox.size
-
-    def sample(images, uv, A):
-        mx = uv[:, :1].astype(np.float32) + A[:, 0, :1] * ox + A[:, 0, 1:] * oy
-        my = uv[:, 1:].astype(np.float32) + A[:, 1, :1] * ox + A[:, 1, 1:] * oy
-        return [
-            cv2.remap(im, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            for im in images
-        ]
-
-    eye = np.tile(np.eye(2, dtype=np.float32), (n, 1, 1))
-    (template,) = sample([template_image], np.asarray(uv_template, np.float64), eye)
-    gx = cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
-    gy = cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-    uv = np.asarray(uv_start, np.float64).copy()
-    A = eye.astype(np.float64)
+    n = len(uv_template)
+    window = PatchWindow(half)
+    eye = np.tile(np.eye(2), (n, 1, 1))
+    template = window.sample(template_image, np.asarray(uv_template, np.float64), eye)
     photo = np.tile([1.0, 0.0], (n, 1))
-    J = np.empty((n, 8, p), np.float32)
-    J[:, 7] = 1.0
-    reg = 1e-6 * np.eye(8, dtype=np.float32)
-    for _ in range(iterations):
-        i_w, gx_w, gy_w = sample([image, gx, gy], uv, A.astype(np.float32))
-        gain = photo[:, :1].astype(np.float32)
-        r = gain * i_w + photo[:, 1:].astype(np.float32) - template
-        jx, jy = gain * gx_w, gain * gy_w
-        J[:, 0], J[:, 1] = jx, jy
-        J[:, 2], J[:, 3], J[:, 4], J[:, 5] = jx * ox, jx * oy, jy * ox, jy * oy
-        J[:, 6] = i_w
-        Jw = J * w
-        step = -np.linalg.solve(Jw @ J.transpose(0, 2, 1) + reg, Jw @ r[..., None])[..., 0]
-        step = step.astype(np.float64)
-        uv += step[:, :2]
-        A += step[:, 2:6].reshape(n, 2, 2)
-        photo += step[:, 6:8]
-    (i_w,) = sample([image], uv, A.astype(np.float32))
-    t = template - template.mean(axis=1, keepdims=True)
-    c = i_w - i_w.mean(axis=1, keepdims=True)
-    ncc = (t * c).sum(1) / np.sqrt((t * t).sum(1) * (c * c).sum(1) + 1e-12)
+    uv, A, _, ncc = align_patches(
+        window, template, with_gradients(image), uv_start, eye, photo, iterations
+    )
     det = np.linalg.det(A)
     ncc = np.where((det > 0.5) & (det < 2.0) & np.all(np.isfinite(uv), axis=1), ncc, -1.0)
     return uv, ncc
+
+
+def _lk_pair(cv2, a, b, pts, start, win, levels):
+    """Pyramidal Lucas–Kanade of ``pts`` in ``a`` into ``b`` from ``start``: ``(out, ok)``."""
+    out, status, _ = cv2.calcOpticalFlowPyrLK(
+        a,
+        b,
+        pts.astype(np.float32).reshape(-1, 1, 2),
+        start.astype(np.float32).reshape(-1, 1, 2),
+        winSize=(win, win),
+        maxLevel=levels,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 0.001),
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )
+    return out.reshape(-1, 2).astype(np.float64), status.ravel().astype(bool)
 
 
 def match_stereo(
@@ -160,7 +148,10 @@ def match_stereo(
         Settings (``pixels`` defaults to ``config.pixels(image size)``).
     disparity_guess
         Optional ``(N,)`` expected disparities (NaN where unknown), e.g. a track's disparity
-        in the previous frame: the search then covers only ``guess ± max(3, 20 %)`` pixels.
+        in the previous frame. With ``stereo_from_guess`` (the default) such a point is not
+        searched: pyramidal Lucas–Kanade follows it from the guess into the right image and
+        back again (the left–right check), and the match must stay within
+        ``guess ± max(3, 20 %)`` pixels. Otherwise the NCC search covers only that interval.
     """
     cv2 = require_cv2()
     config = config or FrontendConfig()
@@ -177,9 +168,15 @@ def match_stereo(
     coarse = np.full(n, np.nan)
     searched = np.zeros(n, bool)
     guess = np.full(n, np.nan) if disparity_guess is None else np.asarray(disparity_guess, float)
-    for k, (u, v) in enumerate(uv_left):
-        if not (r + 1 <= v <= h - r - 2 and r + 1 <= u <= w - r - 2):
-            continue
+    u_all, v_all = uv_left[:, 0], uv_left[:, 1]
+    inside = (v_all >= r + 1) & (v_all <= h - r - 2) & (u_all >= r + 1) & (u_all <= w - r - 2)
+    margin_all = np.maximum(3.0, 0.2 * np.nan_to_num(guess))
+    g_lo = np.maximum(d_lo, np.floor(guess - margin_all))
+    g_hi = np.minimum(np.minimum(d_hi_all, np.ceil(guess + margin_all)), np.floor(u_all - r - 1))
+    with np.errstate(invalid="ignore"):
+        predicted = inside & np.isfinite(guess) & (g_hi - g_lo >= 4) & config.stereo_from_guess
+    for k in np.flatnonzero(inside & ~predicted):
+        u, v = uv_left[k]
         d_lo_k, d_hi_k = d_lo, d_hi_all
         if np.isfinite(guess[k]):
             margin = max(3.0, 0.2 * guess[k])
@@ -213,47 +210,51 @@ def match_stereo(
         if abs(d_back - d) > px.left_right:
             continue
         coarse[k] = d
-    accepted = np.isfinite(coarse)
+    searched |= predicted
     uv_right = np.full((n, 2), np.nan)
-    if np.any(accepted):
-        idx = np.flatnonzero(accepted)
-        # global gain/offset correction so Lucas–Kanade (a sum of squared differences) is unbiased
-        gain = left_f.std() / max(float(right_f.std()), 1e-6)
-        right_c = np.clip((right_f - right_f.mean()) * gain + left_f.mean(), 0, 255)
-        right_c = right_c.astype(np.uint8)
+    accepted = np.zeros(n, bool)
+    if not (np.any(np.isfinite(coarse)) or np.any(predicted)):
+        return StereoMatches(uv_right, accepted, searched)
+    # global gain/offset correction so Lucas–Kanade (a sum of squared differences) is unbiased
+    gain = left_f.std() / max(float(right_f.std()), 1e-6)
+    right_c = np.clip((right_f - right_f.mean()) * gain + left_f.mean(), 0, 255).astype(np.uint8)
+    win = px.lk_window
+    outs, oks, idxs, refs = [], [], [], []
+    idx = np.flatnonzero(np.isfinite(coarse))
+    if idx.size:
         start = uv_left[idx].copy()
         start[:, 0] -= coarse[idx]
-        win = px.lk_window
-        out, status, _ = cv2.calcOpticalFlowPyrLK(
-            left,
-            right_c,
-            uv_left[idx].astype(np.float32).reshape(-1, 1, 2),
-            start.astype(np.float32).reshape(-1, 1, 2),
-            winSize=(win, win),
-            maxLevel=0,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 0.001),
-            flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+        out, ok = _lk_pair(cv2, left, right_c, uv_left[idx], start, win, 0)
+        outs.append(out), oks.append(ok), idxs.append(idx), refs.append(start[:, 0])
+    idx = np.flatnonzero(predicted)
+    if idx.size:
+        # a tracked point: followed from its guessed disparity, then back to the left image
+        start = uv_left[idx].copy()
+        start[:, 0] -= guess[idx]
+        levels = config.lk_levels
+        out, ok = _lk_pair(cv2, left, right_c, uv_left[idx], start, win, levels)
+        back, ok_b = _lk_pair(cv2, right_c, left, out, uv_left[idx], win, levels)
+        d = uv_left[idx, 0] - out[:, 0]
+        ok &= ok_b & (np.linalg.norm(back - uv_left[idx], axis=1) <= px.left_right)
+        ok &= np.abs(out[:, 1] - uv_left[idx, 1]) <= px.refine
+        ok &= (d >= g_lo[idx]) & (d <= g_hi[idx])
+        outs.append(out), oks.append(ok), idxs.append(idx), refs.append(out[:, 0])
+    idx, out, ok = np.concatenate(idxs), np.concatenate(outs), np.concatenate(oks)
+    ref = np.concatenate(refs)
+    if config.stereo_affine_iterations and idx.size:
+        # left and right see a slanted surface with different foreshortening and a
+        # different vignetting: align each left patch with an affine warp, gain and offset
+        aligned, ncc = affine_align(
+            left_f, uv_left[idx], right_f, out, win // 2, config.stereo_affine_iterations
         )
-        out = out.reshape(-1, 2).astype(np.float64)
-        if config.stereo_affine_iterations:
-            # left and right see a slanted surface with different foreshortening and a
-            # different vignetting: align each left patch with an affine warp, gain and offset
-            aligned, ncc = affine_align(
-                left_f,
-                uv_left[idx],
-                right_f,
-                out,
-                px.lk_window // 2,
-                config.stereo_affine_iterations,
-            )
-            status = status.ravel().astype(bool) & (ncc >= config.ncc_min)
-            out = aligned
-        ok = (
-            status.ravel().astype(bool)
-            & (np.abs(out[:, 0] - start[:, 0]) <= px.refine)
-            & (np.abs(out[:, 1] - uv_left[idx, 1]) <= px.refine)
-            & (uv_left[idx, 0] - out[:, 0] > 0)
-        )
-        uv_right[idx[ok]] = out[ok]
-        accepted[idx[~ok]] = False
+        ok &= ncc >= config.ncc_min
+        out = aligned
+    # the outlier gate: refinement moves the disparity (from the NCC peak, or from the tracked
+    # match) and the row by at most the refine threshold
+    ok &= (np.abs(out[:, 0] - ref) <= px.refine) & (
+        np.abs(out[:, 1] - uv_left[idx, 1]) <= px.refine
+    )
+    ok &= uv_left[idx, 0] - out[:, 0] > 0
+    uv_right[idx[ok]] = out[ok]
+    accepted[idx[ok]] = True
     return StereoMatches(uv_right, accepted, searched)

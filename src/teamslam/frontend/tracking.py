@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from teamslam.frontend._align import PatchWindow, align_patches, with_gradients
 from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.config import FrontendConfig
 
@@ -46,65 +47,26 @@ class FeatureTracker:
         self.px = self.config.pixels(self.image_size)
         self.next_id = int(first_id)
         self.ids = np.zeros(0, np.int64)
+        self._age = np.zeros(0, np.int64)  # frames since a track's first sighting
         self.uv = np.zeros((0, 2), np.float32)
         self._previous: np.ndarray | None = None
-        half = self.px.lk_window // 2
-        g = np.arange(-half, half + 1, dtype=np.float32)
-        oy, ox = np.meshgrid(g, g, indexing="ij")
-        self._offsets = np.column_stack([ox.ravel(), oy.ravel()])  # (P, 2)
-        sigma = max(half, 1)
-        self._weights = np.exp(-(ox.ravel() ** 2 + oy.ravel() ** 2) / (2 * sigma**2)).astype(
-            np.float32
-        )
-        self._template = np.zeros((0, self._offsets.shape[0]), np.float32)
+        self._window = PatchWindow(self.px.lk_window // 2)
+        self._template = np.zeros((0, self._window.ox.size), np.float32)
         self._A = np.zeros((0, 2, 2))
         self._photo = np.zeros((0, 2))  # gain, offset
-
-    def _sample(self, images, uv: np.ndarray, A: np.ndarray) -> list[np.ndarray]:
-        """Images sampled at ``uv + A · offsets`` for each track: ``(N, P)`` each."""
-        cv2 = require_cv2()
-        ox, oy = self._offsets[:, 0], self._offsets[:, 1]
-        A = A.astype(np.float32)
-        mx = uv[:, :1].astype(np.float32) + A[:, 0, :1] * ox + A[:, 0, 1:] * oy
-        my = uv[:, 1:].astype(np.float32) + A[:, 1, :1] * ox + A[:, 1, 1:] * oy
-        return [
-            cv2.remap(im, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            for im in images
-        ]
 
     def _refine(self, image: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Align every track's template to ``image`` (affine + gain/offset); return the
         refined points and which tracks still match their template."""
-        cv2 = require_cv2()
-        img = image.astype(np.float32)
-        gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
-        gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-        uv = uv.astype(np.float64).copy()
-        A, photo = self._A.copy(), self._photo.copy()
-        ox, oy = self._offsets[:, 0], self._offsets[:, 1]
-        w = self._weights
-        n, p = len(uv), len(ox)
-        J = np.empty((n, 8, p), np.float32)  # t_x, t_y, A00, A01, A10, A11, gain, offset
-        J[:, 7] = 1.0
-        eye8 = 1e-6 * np.eye(8, dtype=np.float32)
-        for _ in range(self.config.affine_iterations):
-            i_w, gx_w, gy_w = self._sample([img, gx, gy], uv, A)
-            gain = photo[:, :1].astype(np.float32)
-            r = gain * i_w + photo[:, 1:].astype(np.float32) - self._template
-            jx, jy = gain * gx_w, gain * gy_w
-            J[:, 0], J[:, 1] = jx, jy
-            J[:, 2], J[:, 3], J[:, 4], J[:, 5] = jx * ox, jx * oy, jy * ox, jy * oy
-            J[:, 6] = i_w
-            Jw = J * w
-            H = Jw @ J.transpose(0, 2, 1) + eye8
-            step = -np.linalg.solve(H, Jw @ r[..., None])[..., 0].astype(np.float64)
-            uv += step[:, :2]
-            A += step[:, 2:6].reshape(n, 2, 2)
-            photo += step[:, 6:8]
-        (i_w,) = self._sample([img], uv, A)
-        t = self._template - self._template.mean(axis=1, keepdims=True)
-        c = i_w - i_w.mean(axis=1, keepdims=True)
-        ncc = (t * c).sum(1) / np.sqrt((t * t).sum(1) * (c * c).sum(1) + 1e-12)
+        uv, A, photo, ncc = align_patches(
+            self._window,
+            self._template,
+            with_gradients(image),
+            uv,
+            self._A,
+            self._photo,
+            self.config.affine_iterations,
+        )
         det = np.linalg.det(A)
         ok = (ncc >= self.config.template_ncc_min) & (det > 0.3) & (det < 3.0)
         ok &= np.all(np.isfinite(uv), axis=1)
@@ -126,7 +88,7 @@ class FeatureTracker:
         return out.reshape(-1, 2), status.ravel().astype(bool)
 
     def _keep(self, keep: np.ndarray) -> None:
-        self.ids = self.ids[keep]
+        self.ids, self._age = self.ids[keep], self._age[keep]
         if self.config.affine_refinement:
             self._template, self._A = self._template[keep], self._A[keep]
             self._photo = self._photo[keep]
@@ -138,7 +100,12 @@ class FeatureTracker:
     def track(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Follow the tracks into ``image`` (8-bit grey) and refill; return ``(ids, uv)``."""
         cv2 = require_cv2()
+        if self.config.max_track_length and len(self.ids):
+            young = self._age + 1 < self.config.max_track_length
+            self._keep(young)
+            self.uv = self.uv[young]
         if self._previous is not None and len(self.ids):
+            self._age += 1
             fwd, ok_f = self._lk(self._previous, image, self.uv)
             back, ok_b = self._lk(image, self._previous, fwd)
             fb = np.linalg.norm(back - self.uv, axis=1)
@@ -154,6 +121,7 @@ class FeatureTracker:
                 self.uv = self.uv[ok]
         elif self._previous is None:
             self.ids, self.uv = np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
+            self._age = np.zeros(0, np.int64)
         room = self.config.max_features - len(self.ids)
         if room > 0:
             mask = np.full(image.shape, 255, np.uint8)
@@ -183,10 +151,11 @@ class FeatureTracker:
                 fresh = self.next_id + np.arange(len(new), dtype=np.int64)
                 self.next_id += len(new)
                 self.ids = np.concatenate([self.ids, fresh])
+                self._age = np.concatenate([self._age, np.zeros(len(new), np.int64)])
                 self.uv = np.concatenate([self.uv, new])
                 if self.config.affine_refinement:
                     eye = np.tile(np.eye(2), (len(new), 1, 1))
-                    (tmpl,) = self._sample([image.astype(np.float32)], new, eye)
+                    tmpl = self._window.sample(image.astype(np.float32), new, eye)
                     self._template = np.concatenate([self._template, tmpl])
                     self._A = np.concatenate([self._A, eye])
                     self._photo = np.concatenate([self._photo, np.tile([1.0, 0.0], (len(new), 1))])
