@@ -379,6 +379,7 @@ class ConsensusProtocol:
                 source=source,
                 information=not config.consensus_per_object,
                 keep=self._own_information if source is None else None,
+                prior=self._prior if self.increments else None,
             )
             replies.append(reply)
         self.spent += time.perf_counter() - begin
@@ -449,8 +450,13 @@ class ConsensusProtocol:
             sub = matrix[np.ix_(coords, coords)]
             if message.info is None:
                 return replace(message, ids=ours[keep], mean=mean, cov=sub)
-            return replace(message, ids=ours[keep], mean=mean, info=sub)
-        try:  # marginalise in moment form
+            return replace(
+                message, ids=ours[keep], mean=mean, info=sub, **_reordered_prior(message, keep)
+            )
+        # marginalise in moment form; a prior (consensus on increments) is left out: the
+        # marginal then counts as a prior only
+        message = replace(message, prior_held=None, prior_mean=None, prior_info=None)
+        try:
             cov = spd_inverse(matrix, "information matrix")
         except (NotPositiveDefiniteError, np.linalg.LinAlgError, ValueError):
             self.agent.reject("messages", reason="information matrix is not positive definite")
@@ -611,6 +617,24 @@ class ConsensusProtocol:
             new_ids, new_means, new_covs = ids[take], means[take], covs[take]
         order = np.argsort(new_ids)
         self._agreed[j] = (new_ids[order], new_means[order], new_covs[order])
+
+
+def _reordered_prior(message: CommonMarginalMessage, order: np.ndarray) -> dict:
+    """The prior fields of a marginal message whose objects are taken in ``order`` (a
+    permutation of its objects); empty without a prior."""
+    if not message.has_prior:
+        return {}
+    held = np.asarray(message.prior_held, dtype=bool)
+    if held.shape != order.shape:
+        return {"prior_held": held[:0]}  # the one check rejects it, naming why
+    rank = np.cumsum(held) - 1  # an object's place among the held ones
+    taken = order[held[order]]
+    coords = (3 * rank[taken][:, None] + np.arange(3)).ravel()
+    return {
+        "prior_held": held[order],
+        "prior_mean": np.asarray(message.prior_mean)[coords],
+        "prior_info": np.asarray(message.prior_info)[np.ix_(coords, coords)],
+    }
 
 
 def _members(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
