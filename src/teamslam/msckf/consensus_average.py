@@ -43,17 +43,30 @@ The hybrid rule adds our own new information with the weight of the messages tha
 averaged object; where a message lacks some object of ``y`` — partial maps, or pairs that
 exchange different subsets because only some objects moved — our own new information on the
 objects it does hold enters with less than full weight, and with the map of our team (objects
-seen by two to five robots) that is most averages. The increments rule completes each
-neighbour's marginal against our *prior* marginal of its objects instead of our current one:
+seen by two to five robots) that is most averages. And a message of one matrix cannot tell the
+sender's prior from its scaled new information: when an object enters a robot's map after a
+neighbour has held it for a while, the newcomer (prior zero) would keep ``A_ij`` of the
+neighbour's prior and the old holder ``1 − A_ij`` of its own, for good. So each message of this
+rule carries two parts: the hybrid marginal ``M_j = P_j + γ_j Δ_j`` of ``C_j`` (the new
+information scaled in the sender's joint, then marginalised) and the sender's *prior* ``P_j`` of
+the objects ``H_j ⊆ C_j`` it held at its last exchange (flags, mean, information matrix). Robot
+``i`` forms
 
-    ``Ω̄ = Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ``,  ``η̄ = η + Σ_j A_ij Lⱼᵀ (m_j − η_{P,C_j})``
+    ``Ω̄ = P̄ + (Ω − P_y) + Σ_j A_ij Lⱼᵀ (M_j − P_j) Lⱼ``  (and ``η̄`` alike),
 
-with ``M_j = P_j + γ_j Δ_j`` the neighbour's hybrid marginal of ``C_j`` and ``Ω = P + Δ`` ours.
-Written out, ``Ω̄ = [P + Σ_j A_ij Lⱼᵀ (P_j − P_{C_j}) Lⱼ] + Δ + Σ_j A_ij γ_j Lⱼᵀ Δ_j Lⱼ``: the
-bracket is eq. 42 on the priors (weights summing to one, each neighbour completed by our prior
-conditional — a convex combination, consistent whatever the priors' correlation), then our own
-increment with weight one on every object of ``y`` and each neighbour's with weight
-``A_ij γ_j``.
+``Ω = P + Δ`` its own marginal of ``y`` and ``P_y`` its prior of ``y`` (zero on objects it
+initialised since), with the average of the priors
+
+    ``P̄ = R + Σ_j A_ij L_{H_j}ᵀ (P_j − R_{H_j}) L_{H_j}``.
+
+``R`` is the *reference*: our prior of ``y``, completed on the objects it lacks by the prior
+conditional ``p_j(new | rest of H_j)`` of the heaviest neighbour that holds them; ``R_{H_j}`` is
+its marginal of ``H_j``. ``P̄`` is eq. 42 on the priors — each neighbour's prior completed by the
+reference's conditional, weights summing to one: a convex combination — so an object new to us
+takes the old holders' prior whole, and an object new to a neighbour (not in ``H_j``) keeps ours
+whole. Then comes our own increment, once on every object of ``y``, and each neighbour's,
+``γ_j Δ_j``, with weight ``A_ij``. Where every prior holds every object of ``y`` this equals the
+one-matrix form ``Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ``.
 
 *The condition.* An increment — the information one robot gathered between two exchanges, from
 measurement noise independent of every prior — must enter any estimate with a total weight of
@@ -64,25 +77,23 @@ can use without knowing its receivers' degrees is ``γ_j = 1 + d_j`` (``d_j`` th
 heard this step): the weight is then exactly one wherever ``d_i ≤ d_j`` — on a complete graph
 everywhere, where one exchange equals the centralised Kalman filter on the common objects — and
 ``(1 + d_j)/(1 + d_i) < 1`` elsewhere. Later exchanges carry the increment only inside priors,
-which are averaged with weights summing to one, so by induction no increment ever weighs more
-than one in any estimate: never more information than the centralised filter. *Link loss*: a
-robot renews its prior after every step in which it sent a marginal, whether or not it arrived,
-so an increment is sent at gain ``γ`` once; a lost message loses that increment for that
-neighbour (it arrives later only inside a prior, at a Metropolis weight) but never doubles it;
-a neighbour heard in round 1 whose marginal did not arrive keeps its weight on our own
-marginal. *Partial maps*: a neighbour's increment only enters on the objects its message holds;
-ours enters on all of ``y`` once; objects initialised since the prior have ``P = 0``, so their
-whole marginal counts as new — once. *Asynchronous exchanges* may use one marginal at several
-steps, counting its increment again, so the rule (like hybrid) is lock-step only. All of this
-is tested on a linear team (``tests/test_consistent_consensus.py``).
-
-*What it still loses*: an object that one robot has held for a while (prior ``P_j``) and another
-has just initialised (prior zero) is averaged with one matrix per message, so the receiver
-cannot tell ``j``'s prior from its scaled increment: the new holder keeps ``A_ij P_j`` of the
-old holders' prior information and the old holder ``1 − A_ij`` of its own. That loss is
-permanent (priors are only averaged convexly afterwards) and grows with the number of robots
-that see an object. Separating them needs the prior and the increment to travel apart (two
-matrices per message).
+which enter ``P̄`` as one convex combination (the reference takes each object's prior from one
+robot: ours, or the heaviest neighbour's conditional), so by induction — with the completion by
+a conditional that eq. 42 and Prop. 2 rest on — no increment ever weighs more than one in any
+estimate: never more information than the centralised filter (tested, not proved, where
+completions meet partial maps).
+*Link loss*: a robot renews its prior after every step in which it sent a marginal, whether or not
+it arrived, so an increment is sent at gain ``γ`` once; a lost message loses that increment for
+that neighbour (it arrives later only inside a prior, at a Metropolis weight) but never doubles it;
+a neighbour heard in round 1 whose marginal did not arrive keeps its weight on the reference.
+*Partial maps*: a neighbour's increment only enters on the objects its message holds; ours enters
+on all of ``y`` once; objects initialised since the prior have ``P = 0``, so their whole marginal
+counts as new — once — and their prior comes from the neighbours that held them. A marginal without
+a prior (a neighbour not on this rule, or one whose objects had to be marginalised in translation)
+counts as a prior only: its new information is then lost, never doubled. *Asynchronous exchanges*
+may use one marginal at several steps, counting its increment again, so the rule (like hybrid) is
+lock-step only. All of this is tested on a linear team (``tests/test_consistent_consensus.py``),
+including objects that enter a second robot's map late.
 """
 
 from __future__ import annotations

@@ -37,9 +37,9 @@ with the weight of the marginals that hold every averaged object, and its prior 
 every step in which it sent or averaged (:mod:`teamslam.msckf.consensus`). In asynchronous mode a
 neighbour's newest marginal may be used at several steps, which would count its new information
 again, so there the plain average is used. **Consensus on information increments**
-(``consensus_increments``, lock-step only, the same messages): the average completes each
-neighbour's marginal against our prior instead of our current marginal, so our own new
-information counts once on every object (:func:`~teamslam.msckf.consensus.increment_average`).
+(``consensus_increments``, lock-step only): the hybrid marginals carry the sender's prior beside
+them (wire format 6), and the average takes the priors' average, our own new information once
+and each neighbour's at full weight (:func:`~teamslam.msckf.consensus.increment_average`).
 
 Only objects in the filter state take part: objects retired to the persistent map
 (``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
