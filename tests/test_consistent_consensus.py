@@ -342,3 +342,29 @@ def replace_single(message):
         prior_mean=single(message.prior_mean),
         prior_info=single(message.prior_info),
     )
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_objects_no_prior_holds_are_summed_on_a_complete_graph(n):
+    """Robots that start without objects all initialise the same objects from their own
+    measurements: no prior holds any of them, so one exchange on a complete graph gives every
+    robot the sum of all robots' information (the centralised filter without a prior), with
+    no fallback to the plain average."""
+    rng = np.random.default_rng(50 + n)
+    truth = rng.standard_normal(3 * OBJECTS)
+    agents, _, _ = _team(n, rng, False, [np.zeros(0, dtype=int)] * n, increments=True)
+    adjacency = complete(n).adjacency
+    protocols = _protocols(agents, adjacency)
+    info, eta = np.zeros((3 * OBJECTS, 3 * OBJECTS)), np.zeros(3 * OBJECTS)
+    for a in agents:
+        for k in range(OBJECTS):
+            piece, piece_eta = _initialise(a, 10 + k, truth, np.random.default_rng([a.robot, k]))
+            info, eta = info + piece, eta + piece_eta
+    _exchange(protocols, adjacency, 1)
+    cov = np.linalg.inv(info)
+    for a in agents:
+        order = _object_order(a)
+        own_mean, own_cov = _marginal(a)
+        np.testing.assert_allclose(own_cov, cov[np.ix_(order, order)], rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(own_mean, (cov @ eta)[order], rtol=1e-8, atol=1e-10)
+        assert a.counters["hybrid_fallbacks"] == 0

@@ -451,11 +451,13 @@ def increment_average(
             _add_conditional(ref_info, ref_eta, term.position[held], new, p_info, p_eta)
             have[term.position[held][new]] = True
     support = _coords(np.flatnonzero(have))
-    try:
-        ref_cov = spd_inverse(ref_info[np.ix_(support, support)], "prior reference")
-    except NotPositiveDefiniteError:
-        return None
-    ref_mean = ref_cov @ ref_eta[support]
+    ref_cov, ref_mean = np.zeros((0, 0)), np.zeros(0)  # no prior of any object of y anywhere
+    if support.size:
+        try:
+            ref_cov = spd_inverse(ref_info[np.ix_(support, support)], "prior reference")
+        except NotPositiveDefiniteError:
+            return None
+        ref_mean = ref_cov @ ref_eta[support]
     # where each object of y sits in the support (−1: no prior information anywhere)
     in_support = np.full(y_ids.size, -1)
     in_support[have] = np.arange(int(have.sum()))
