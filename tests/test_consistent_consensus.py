@@ -11,7 +11,10 @@ makes every marginal a sum of information pieces, so the properties are exact:
 * on any graph, with link loss and partial maps, no robot ever holds more information than the
   centralised filter;
 * a lost message never makes an increment count twice (the sender's prior is renewed whether
-  or not its message arrived).
+  or not its message arrived);
+* an object that enters a second robot's map keeps every prior whole: the new holder takes the
+  old holders' prior (the message carries it beside the marginal), the old holder keeps its own;
+* the prior travels on the wire (format version 6) exactly, and version 5 is refused by name.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from teamslam.errors import InputError
 from teamslam.graph import complete, metropolis_weight, random_geometric, ring
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.protocol import ConsensusProtocol
-from test_hybrid_consensus import OBJECTS, _exchange, _marginal, _rows, _team
+from test_hybrid_consensus import OBJECTS, _exchange, _marginal, _measure, _rows, _team
 
 
 def _protocols(agents, adjacency):
@@ -106,18 +109,78 @@ def _graphs(n: int) -> dict[str, np.ndarray]:
     }
 
 
+def _initialise(agent, object_id: int, truth: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
+    """The robot initialises object ``object_id`` from a measurement of its own (independent of
+    its state); returns the measurement's information and information vector over all
+    ``OBJECTS`` objects, for the centralised reference."""
+    cov = np.diag(rng.uniform(0.1, 0.4, 3))
+    coords = slice(3 * (object_id - 10), 3 * (object_id - 10) + 3)
+    z = truth[coords] + rng.multivariate_normal(np.zeros(3), cov)
+    agent.state.add_object(object_id, z, cov, np.zeros((3, agent.state.dim)))
+    info = np.zeros((3 * OBJECTS, 3 * OBJECTS))
+    eta = np.zeros(3 * OBJECTS)
+    info[coords, coords] = np.linalg.inv(cov)
+    eta[coords] = info[coords, coords] @ z
+    return info, eta
+
+
+def _object_order(agent) -> np.ndarray:
+    """The coordinates of the robot's objects in the reference's order (ids 10, 11, …)."""
+    return (3 * (agent.state.object_ids - 10)[:, None] + np.arange(3)).ravel()
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_an_object_entering_a_second_map_keeps_every_prior_whole(n):
+    """Robot 0 holds every object, the others all but the last; after a first exchange the
+    others initialise the last object from their own measurement while robot 0 measures. On a
+    complete graph every robot then equals the centralised Kalman filter: the new holders take
+    robot 0's prior of the object whole and robot 0 keeps its own (a single matrix per message
+    cannot tell a prior from new information and leaves ``A_ij`` of the prior to each)."""
+    rng = np.random.default_rng(30 + n)
+    truth = rng.standard_normal(3 * OBJECTS)
+    maps = [list(range(OBJECTS))] + [list(range(OBJECTS - 1))] * (n - 1)
+    agents, prior_mean, prior_cov = _team(n, rng, False, maps, increments=True)
+    adjacency = complete(n).adjacency
+    protocols = _protocols(agents, adjacency)
+    info = np.linalg.inv(prior_cov)
+    eta = info @ prior_mean
+    late = 10 + OBJECTS - 1
+    for step in (1, 2, 3):
+        for a in agents:
+            draw = np.random.default_rng([step, a.robot])
+            if step == 2 and a.robot > 0:
+                piece, piece_eta = _initialise(a, late, truth, draw)
+            elif step == 1 and a.robot == 0:
+                continue  # the others' first pieces lie on the objects all hold
+            else:
+                piece, piece_eta = _measure(draw, a, truth)
+            info, eta = info + piece, eta + piece_eta
+        _exchange(protocols, adjacency, step)
+        cov = np.linalg.inv(info)
+        mean = cov @ eta
+        for a in agents:
+            order = _object_order(a)
+            own_mean, own_cov = _marginal(a)
+            np.testing.assert_allclose(own_cov, cov[np.ix_(order, order)], rtol=1e-8, atol=1e-12)
+            np.testing.assert_allclose(own_mean, mean[order], rtol=1e-8, atol=1e-10)
+            assert a.counters["hybrid_fallbacks"] == 0
+
+
 @pytest.mark.parametrize("graph", ["complete", "ring", "chord", "random"])
 @pytest.mark.parametrize("loss", [0.0, 0.3])
 @pytest.mark.parametrize("partial_maps", [False, True])
 def test_increments_never_hold_more_information_than_the_centralised_filter(
     graph, loss, partial_maps
 ):
-    """Any graph, messages of either round lost at random, robots holding different objects:
-    every robot's information about the objects it holds stays below the centralised one."""
+    """Any graph, messages of either round lost at random, robots holding different objects
+    (with partial maps robots 2 and 4 also initialise an object each at step 4, one the others
+    hold and one only robot 2 had): every robot's information about the objects it holds stays
+    below the centralised one."""
     n = 5
     rng = np.random.default_rng(17)
     truth = rng.standard_normal(3 * OBJECTS)
     maps = [[0, 1, 2, 3], [0, 1, 2, 3], [0, 1], [0, 2, 3], [1, 3]] if partial_maps else None
+    late = {(4, 2): 12, (4, 4): 10} if partial_maps else {}
     agents, _, prior_cov = _team(n, rng, False, maps, increments=True)
     plain, _, _ = _team(n, np.random.default_rng(17), False, maps)
     adjacency = _graphs(n)[graph]
@@ -127,6 +190,10 @@ def test_increments_never_hold_more_information_than_the_centralised_filter(
     central = np.linalg.inv(prior_cov)
     for step in range(1, 11):
         for a, b in zip(agents, plain, strict=True):
+            if (step, a.robot) in late:
+                piece, _ = _initialise(a, late[step, a.robot], truth, np.random.default_rng(step))
+                _initialise(b, late[step, a.robot], truth, np.random.default_rng(step))
+                central = central + piece
             h, noise, _ = _rows(np.random.default_rng([step, a.robot]), a, truth)
             _rows(np.random.default_rng([step, a.robot]), b, truth)
             central = central + h.T @ np.linalg.solve(noise, h)
@@ -135,7 +202,7 @@ def test_increments_never_hold_more_information_than_the_centralised_filter(
         _exchange(plain_protocols, adjacency, step, lost)
         central_cov = np.linalg.inv(central)
         for a in agents:
-            coords = (3 * (a.state.object_ids - 10)[:, None] + np.arange(3)).ravel()
+            coords = _object_order(a)
             central_info = np.linalg.inv(central_cov[np.ix_(coords, coords)])
             gap = np.linalg.eigvalsh(central_info - _information(a)).min()
             assert gap > -1e-9 * np.abs(central_info).max(), (step, a.robot, gap)
@@ -220,3 +287,84 @@ def test_montecarlo_runs_the_increments_mode_on_a_chosen_graph_with_link_loss(tm
         MonteCarloSpec(graph="star")
     with pytest.raises(InputError, match="link loss"):
         MonteCarloSpec(loss=1.0)
+
+
+def test_the_prior_travels_on_the_wire_and_version_5_is_refused():
+    from teamslam.msckf.messages import CommonMarginalMessage
+    from teamslam.runtime.wire import WireError, decode, encode, team_id
+
+    team = team_id("increments")
+    rng = np.random.default_rng(3)
+    root = rng.standard_normal((12, 12))
+    info = root @ root.T + 12 * np.eye(12)
+    held = np.array([True, False, True, True])
+    message = CommonMarginalMessage(
+        1,
+        2,
+        7,
+        np.array([3, 5, 8, 13]),
+        rng.standard_normal(12),
+        None,
+        degree=3,
+        info=info,
+        prior_held=held,
+        prior_mean=rng.standard_normal(9),
+        prior_info=info[:9, :9] / 2,
+    )
+    data = encode(message, team)
+    assert len(data) == message.nbytes()
+    back = decode(data, team, 4)
+    np.testing.assert_array_equal(back.prior_held, held)
+    np.testing.assert_array_equal(back.prior_mean, message.prior_mean)
+    np.testing.assert_array_equal(back.prior_info, message.prior_info)
+    np.testing.assert_array_equal(back.info, info)
+    single = decode(encode(replace_single(message), team), team, 4)
+    assert single.single_precision and single.has_prior
+    with pytest.raises(WireError, match="the prior's flags say"):
+        decode(data[:-4], team, 4)
+    old = bytearray(data)
+    old[4] = 5
+    with pytest.raises(WireError, match="format version 5 is no longer read"):
+        decode(bytes(old), team, 4)
+
+
+def replace_single(message):
+    """The message with every number rounded to single precision."""
+    from dataclasses import replace
+
+    def single(x):
+        return np.asarray(x).astype(np.float32).astype(float)
+
+    return replace(
+        message,
+        mean=single(message.mean),
+        info=single(message.info),
+        prior_mean=single(message.prior_mean),
+        prior_info=single(message.prior_info),
+    )
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_objects_no_prior_holds_are_summed_on_a_complete_graph(n):
+    """Robots that start without objects all initialise the same objects from their own
+    measurements: no prior holds any of them, so one exchange on a complete graph gives every
+    robot the sum of all robots' information (the centralised filter without a prior), with
+    no fallback to the plain average."""
+    rng = np.random.default_rng(50 + n)
+    truth = rng.standard_normal(3 * OBJECTS)
+    agents, _, _ = _team(n, rng, False, [np.zeros(0, dtype=int)] * n, increments=True)
+    adjacency = complete(n).adjacency
+    protocols = _protocols(agents, adjacency)
+    info, eta = np.zeros((3 * OBJECTS, 3 * OBJECTS)), np.zeros(3 * OBJECTS)
+    for a in agents:
+        for k in range(OBJECTS):
+            piece, piece_eta = _initialise(a, 10 + k, truth, np.random.default_rng([a.robot, k]))
+            info, eta = info + piece, eta + piece_eta
+    _exchange(protocols, adjacency, 1)
+    cov = np.linalg.inv(info)
+    for a in agents:
+        order = _object_order(a)
+        own_mean, own_cov = _marginal(a)
+        np.testing.assert_allclose(own_cov, cov[np.ix_(order, order)], rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(own_mean, (cov @ eta)[order], rtol=1e-8, atol=1e-10)
+        assert a.counters["hybrid_fallbacks"] == 0

@@ -62,7 +62,7 @@ def test_wire_round_trip_is_exact():
         (lambda b: b + b"\x00" * 8, "length"),
         (lambda b: b"XXXX" + b[4:], "bad magic"),
         (lambda b: b[:4] + bytes([9]) + b[5:], "unknown format version"),
-        (lambda b: b[:5] + bytes([10]) + b[6:], "unknown message kind"),
+        (lambda b: b[:5] + bytes([12]) + b[6:], "unknown message kind"),
     ],
 )
 def test_wire_rejections_are_named(mutate, reason):
@@ -159,10 +159,20 @@ def _team_file(tmp_path: Path, name: str, directory: Path, base_port: int, **set
     )
 
 
-def test_three_processes_equal_the_in_process_runner(small_team, tmp_path):
+@pytest.mark.parametrize(
+    ("settings", "offset"), [({}, 0), ({"consensus_increments": True}, 21)], ids=["plain", "incr"]
+)
+def test_three_processes_equal_the_in_process_runner(small_team, tmp_path, settings, offset):
+    """Also with consensus on information increments, whose marginals carry the sender's prior
+    (wire kinds 10, 11)."""
     dataset, directory = small_team
     team_path = _team_file(
-        tmp_path, f"eq-{os.getpid()}", directory, _port(0), timeout_s=20.0, filter={"window": 8}
+        tmp_path,
+        f"eq-{os.getpid()}-{offset}",
+        directory,
+        _port(offset),
+        timeout_s=20.0,
+        filter={"window": 8, **settings},
     )
     procs = [
         subprocess.Popen(
@@ -175,7 +185,7 @@ def test_three_processes_equal_the_in_process_runner(small_team, tmp_path):
     for p in procs:
         out, _ = p.communicate(timeout=240)
         assert p.returncode == 0, out.decode()
-    reference = run_team(dataset, config_for(dataset, window=8), progress=False)
+    reference = run_team(dataset, config_for(dataset, window=8, **settings), progress=False)
     # equal to the last few bits: arrays decoded from the wire sit at other addresses, and
     # numpy's SIMD reductions may then add in another order (seen: 1e-12 m after 40 frames)
     for r in range(3):

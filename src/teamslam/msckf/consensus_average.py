@@ -43,17 +43,30 @@ The hybrid rule adds our own new information with the weight of the messages tha
 averaged object; where a message lacks some object of ``y`` — partial maps, or pairs that
 exchange different subsets because only some objects moved — our own new information on the
 objects it does hold enters with less than full weight, and with the map of our team (objects
-seen by two to five robots) that is most averages. The increments rule completes each
-neighbour's marginal against our *prior* marginal of its objects instead of our current one:
+seen by two to five robots) that is most averages. And a message of one matrix cannot tell the
+sender's prior from its scaled new information: when an object enters a robot's map after a
+neighbour has held it for a while, the newcomer (prior zero) would keep ``A_ij`` of the
+neighbour's prior and the old holder ``1 − A_ij`` of its own, for good. So each message of this
+rule carries two parts: the hybrid marginal ``M_j = P_j + γ_j Δ_j`` of ``C_j`` (the new
+information scaled in the sender's joint, then marginalised) and the sender's *prior* ``P_j`` of
+the objects ``H_j ⊆ C_j`` it held at its last exchange (flags, mean, information matrix). Robot
+``i`` forms
 
-    ``Ω̄ = Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ``,  ``η̄ = η + Σ_j A_ij Lⱼᵀ (m_j − η_{P,C_j})``
+    ``Ω̄ = P̄ + (Ω − P_y) + Σ_j A_ij Lⱼᵀ (M_j − P_j) Lⱼ``  (and ``η̄`` alike),
 
-with ``M_j = P_j + γ_j Δ_j`` the neighbour's hybrid marginal of ``C_j`` and ``Ω = P + Δ`` ours.
-Written out, ``Ω̄ = [P + Σ_j A_ij Lⱼᵀ (P_j − P_{C_j}) Lⱼ] + Δ + Σ_j A_ij γ_j Lⱼᵀ Δ_j Lⱼ``: the
-bracket is eq. 42 on the priors (weights summing to one, each neighbour completed by our prior
-conditional — a convex combination, consistent whatever the priors' correlation), then our own
-increment with weight one on every object of ``y`` and each neighbour's with weight
-``A_ij γ_j``.
+``Ω = P + Δ`` its own marginal of ``y`` and ``P_y`` its prior of ``y`` (zero on objects it
+initialised since), with the average of the priors
+
+    ``P̄ = R + Σ_j A_ij L_{H_j}ᵀ (P_j − R_{H_j}) L_{H_j}``.
+
+``R`` is the *reference*: our prior of ``y``, completed on the objects it lacks by the prior
+conditional ``p_j(new | rest of H_j)`` of the heaviest neighbour that holds them; ``R_{H_j}`` is
+its marginal of ``H_j``. ``P̄`` is eq. 42 on the priors — each neighbour's prior completed by the
+reference's conditional, weights summing to one: a convex combination — so an object new to us
+takes the old holders' prior whole, and an object new to a neighbour (not in ``H_j``) keeps ours
+whole. Then comes our own increment, once on every object of ``y``, and each neighbour's,
+``γ_j Δ_j``, with weight ``A_ij``. Where every prior holds every object of ``y`` this equals the
+one-matrix form ``Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ``.
 
 *The condition.* An increment — the information one robot gathered between two exchanges, from
 measurement noise independent of every prior — must enter any estimate with a total weight of
@@ -64,25 +77,23 @@ can use without knowing its receivers' degrees is ``γ_j = 1 + d_j`` (``d_j`` th
 heard this step): the weight is then exactly one wherever ``d_i ≤ d_j`` — on a complete graph
 everywhere, where one exchange equals the centralised Kalman filter on the common objects — and
 ``(1 + d_j)/(1 + d_i) < 1`` elsewhere. Later exchanges carry the increment only inside priors,
-which are averaged with weights summing to one, so by induction no increment ever weighs more
-than one in any estimate: never more information than the centralised filter. *Link loss*: a
-robot renews its prior after every step in which it sent a marginal, whether or not it arrived,
-so an increment is sent at gain ``γ`` once; a lost message loses that increment for that
-neighbour (it arrives later only inside a prior, at a Metropolis weight) but never doubles it;
-a neighbour heard in round 1 whose marginal did not arrive keeps its weight on our own
-marginal. *Partial maps*: a neighbour's increment only enters on the objects its message holds;
-ours enters on all of ``y`` once; objects initialised since the prior have ``P = 0``, so their
-whole marginal counts as new — once. *Asynchronous exchanges* may use one marginal at several
-steps, counting its increment again, so the rule (like hybrid) is lock-step only. All of this
-is tested on a linear team (``tests/test_consistent_consensus.py``).
-
-*What it still loses*: an object that one robot has held for a while (prior ``P_j``) and another
-has just initialised (prior zero) is averaged with one matrix per message, so the receiver
-cannot tell ``j``'s prior from its scaled increment: the new holder keeps ``A_ij P_j`` of the
-old holders' prior information and the old holder ``1 − A_ij`` of its own. That loss is
-permanent (priors are only averaged convexly afterwards) and grows with the number of robots
-that see an object. Separating them needs the prior and the increment to travel apart (two
-matrices per message).
+which enter ``P̄`` as one convex combination (the reference takes each object's prior from one
+robot: ours, or the heaviest neighbour's conditional), so by induction — with the completion by
+a conditional that eq. 42 and Prop. 2 rest on — no increment ever weighs more than one in any
+estimate: never more information than the centralised filter (tested, not proved, where
+completions meet partial maps).
+*Link loss*: a robot renews its prior after every step in which it sent a marginal, whether or not
+it arrived, so an increment is sent at gain ``γ`` once; a lost message loses that increment for
+that neighbour (it arrives later only inside a prior, at a Metropolis weight) but never doubles it;
+a neighbour heard in round 1 whose marginal did not arrive keeps its weight on the reference.
+*Partial maps*: a neighbour's increment only enters on the objects its message holds; ours enters
+on all of ``y`` once; objects initialised since the prior have ``P = 0``, so their whole marginal
+counts as new — once — and their prior comes from the neighbours that held them. A marginal without
+a prior (a neighbour not on this rule, or one whose objects had to be marginalised in translation)
+counts as a prior only: its new information is then lost, never doubled. *Asynchronous exchanges*
+may use one marginal at several steps, counting its increment again, so the rule (like hybrid) is
+lock-step only. All of this is tested on a linear team (``tests/test_consistent_consensus.py``),
+including objects that enter a second robot's map late.
 """
 
 from __future__ import annotations
@@ -104,12 +115,14 @@ from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
 
 __all__ = [
+    "IncrementTerm",
     "SharedPrior",
     "consensus_average",
     "hybrid_marginal",
     "increment_average",
     "new_information",
     "prior_information",
+    "prior_marginal",
     "shared_prior",
 ]
 
@@ -165,18 +178,41 @@ def _prior_information(prior: SharedPrior, ids: np.ndarray) -> tuple[np.ndarray,
     k = ids.size
     info = np.zeros((3 * k, 3 * k))
     eta = np.zeros(3 * k)
-    if prior.ids.size == 0 or k == 0:
-        return info, eta
-    pos = np.minimum(np.searchsorted(prior.ids, ids), prior.ids.size - 1)
-    present = prior.ids[pos] == ids
-    if not present.any():
-        return info, eta
-    source = (3 * pos[present][:, None] + np.arange(3)).ravel()
-    target = (3 * np.flatnonzero(present)[:, None] + np.arange(3)).ravel()
-    held = spd_inverse(prior.cov[np.ix_(source, source)], "hybrid prior marginal")
-    info[np.ix_(target, target)] = held
-    eta[target] = held @ prior.mean[source]
+    held, mean, held_info, _ = prior_marginal(prior, ids)
+    if held.any():
+        target = _coords(np.flatnonzero(held))
+        info[np.ix_(target, target)] = held_info
+        eta[target] = held_info @ mean
     return info, eta
+
+
+def _coords(positions: np.ndarray) -> np.ndarray:
+    """The ``3k`` coordinates of the objects at ``positions`` of a stacked marginal."""
+    return (3 * np.asarray(positions)[:, None] + np.arange(3)).ravel()
+
+
+def prior_marginal(
+    prior: SharedPrior, ids: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The prior's marginal of those of ``ids`` (increasing) it holds.
+
+    Returns
+    -------
+    held, mean, info, cov
+        One flag per id (the object is in the prior), and the prior mean, information matrix
+        and covariance of the flagged objects, in the order of ``ids`` — what a message of
+        consensus on information increments carries as the sender's prior.
+    """
+    ids = np.asarray(ids, dtype=np.int64)
+    held = np.zeros(ids.size, dtype=bool)
+    if prior.ids.size and ids.size:
+        pos = np.minimum(np.searchsorted(prior.ids, ids), prior.ids.size - 1)
+        held = prior.ids[pos] == ids
+    if not held.any():
+        return held, np.zeros(0), np.zeros((0, 0)), np.zeros((0, 0))
+    source = _coords(pos[held])
+    cov = prior.cov[np.ix_(source, source)]
+    return held, prior.mean[source], spd_inverse(cov, "hybrid prior marginal"), cov
 
 
 def hybrid_marginal(
@@ -248,9 +284,10 @@ def consensus_average(
         ``counters["hybrid_fallbacks"]`` is incremented when the result is not positive definite
         and the plain average is used instead.
     increments
-        With ``prior``: consensus on information increments (module docstring) — each
-        neighbour's marginal is completed against our prior's marginal of its objects instead
-        of our current one, so our own new information counts exactly once on every object.
+        With ``prior``: consensus on information increments (module docstring,
+        :func:`increment_average`) — the neighbours' priors (carried by their messages) are
+        averaged with ours, our own new information counts once and each neighbour's with
+        weight ``A_ij γ_j`` (the gain ``γ_j`` applied by the sender, :func:`hybrid_marginal`).
     own_information
         Our own information matrices of object sets already inverted this step (by
         :func:`common_marginal_message` with ``keep``), under the key ``ids.tobytes()``
@@ -305,11 +342,11 @@ def consensus_average(
         if own_info is None:
             own_info = spd_inverse(own_cov, "own marginal covariance")
         if prior is not None and increments:
-            blocks = [
-                (w, m.ids, sub, m.info, m.info_vector)
-                for (w, sub, *_), m in zip(terms, marginals, strict=True)
+            increment_terms = [
+                IncrementTerm(w, np.searchsorted(y_ids, m.ids), m.info, m.info_vector, m.prior)
+                for w, m in zip(weights, marginals, strict=True)
             ]
-            averaged = increment_average(own_mean, own_info, blocks, prior)
+            averaged = increment_average(own_mean, own_info, y_ids, increment_terms, prior)
             if averaged is None:
                 if counters is not None:
                     counters["hybrid_fallbacks"] += 1
@@ -339,50 +376,153 @@ def consensus_average(
     return int(y_ids.size)
 
 
+@dataclass(frozen=True)
+class IncrementTerm:
+    """One neighbour's part of consensus on information increments (:func:`increment_average`).
+
+    Attributes
+    ----------
+    weight
+        ``A_ij``.
+    position
+        Where its objects ``C_j`` sit among the averaged objects ``y`` (object indices).
+    info, info_vector
+        Its marginal information of ``C_j`` now, new information scaled by its gain
+        ``γ_j = 1 + d_j`` (:func:`hybrid_marginal`).
+    prior
+        ``(held, P_j, η_P)``: which of ``C_j`` were in its prior and its prior information of
+        those; ``None`` for a marginal sent without a prior (it then counts as a prior only).
+    """
+
+    weight: float
+    position: np.ndarray
+    info: np.ndarray
+    info_vector: np.ndarray
+    prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+
+
 def increment_average(
     own_mean: np.ndarray,
     own_info: np.ndarray,
-    blocks: Sequence[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+    y_ids: np.ndarray,
+    terms: Sequence[IncrementTerm],
     prior: SharedPrior,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Consensus on information increments over ``y`` (module docstring), or ``None``.
 
-    ``Ω̄ = Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ`` and ``η̄ = η + Σ_j A_ij Lⱼᵀ (m_j − η_{P,C_j})``:
-    our own marginal of ``y`` at full weight, and each neighbour's (hybrid) marginal of
-    ``C_j ⊆ y`` with weight ``A_ij`` against our prior's marginal of ``C_j``
-    (:func:`prior_information`; zero for objects initialised since).
+    ``Ω̄ = P̄ + (Ω − P_y) + Σ_j A_ij Lⱼᵀ (M_j − P_j) Lⱼ``: the average ``P̄`` of the priors,
+    our own new information since our prior once, and each neighbour's with weight
+    ``A_ij γ_j`` (its marginal ``M_j`` carries its new information scaled by ``γ_j``). The
+    priors' average starts from our prior of ``y`` completed, on the objects it lacks, by
+    the prior conditional of the heaviest neighbour that holds them (the reference ``R``),
+    and adds ``A_ij (P_j − R_{H_j})`` for the objects ``H_j`` of each
+    neighbour's prior (``R_{H_j}`` the reference's marginal of them): eq. 42 on the priors,
+    each completed by the reference's conditional.
 
     Parameters
     ----------
     own_mean, own_info
         Our marginal of ``y`` (mean and information matrix).
-    blocks
-        ``(A_ij, ids_j, index_j, M_j, m_j)`` per neighbour: the ids of ``C_j`` (increasing),
-        their coordinates in ``y``, the neighbour's information matrix and vector of ``C_j``.
+    y_ids
+        The averaged objects, increasing.
+    terms
+        One per neighbour marginal (:class:`IncrementTerm`).
     prior
         Our objects' marginal right after our last exchange.
 
     Returns
     -------
     tuple or None
-        ``(mean, cov)`` of the averaged marginal of ``y``; ``None`` when ``Ω̄`` is not positive
-        definite (our new information since the prior is then too far from positive
+        ``(mean, cov)`` of the averaged marginal of ``y``; ``None`` when ``Ω̄`` (or the
+        reference) is not positive definite (a new information that is far from positive
         semi-definite: after relinearisation, or an object that re-entered the state).
     """
-    info_bar = own_info.copy()
-    eta_bar = own_info @ own_mean
-    for weight, ids, sub, m_info, m_eta in blocks:
-        add_weighted_difference(
-            info_bar,
-            eta_bar,
-            np.ix_(sub, sub),
-            sub,
-            weight,
-            (m_info, m_eta),
-            prior_information(prior, ids),
-        )
+    own_prior = prior_information(prior, y_ids)
+    info_bar = own_info - own_prior[0]  # our increment, then the reference and the rest
+    eta_bar = own_info @ own_mean - own_prior[1]
+    ref_info, ref_eta = own_prior[0].copy(), own_prior[1].copy()
+    have = prior_marginal(prior, y_ids)[0]
+    for term in sorted(terms, key=lambda t: -t.weight):  # stable: ties in sender order
+        if term.prior is None:
+            continue
+        held, p_info, p_eta = term.prior
+        new = ~have[term.position[held]]
+        if new.any():
+            _add_conditional(ref_info, ref_eta, term.position[held], new, p_info, p_eta)
+            have[term.position[held][new]] = True
+    support = _coords(np.flatnonzero(have))
+    ref_cov, ref_mean = np.zeros((0, 0)), np.zeros(0)  # no prior of any object of y anywhere
+    if support.size:
+        try:
+            ref_cov = spd_inverse(ref_info[np.ix_(support, support)], "prior reference")
+        except NotPositiveDefiniteError:
+            return None
+        ref_mean = ref_cov @ ref_eta[support]
+    # where each object of y sits in the support (−1: no prior information anywhere)
+    in_support = np.full(y_ids.size, -1)
+    in_support[have] = np.arange(int(have.sum()))
+    info_bar += ref_info
+    eta_bar += ref_eta
+    for term in terms:
+        held = np.ones(term.position.size, dtype=bool) if term.prior is None else term.prior[0]
+        p_info, p_eta = (term.info, term.info_vector) if term.prior is None else term.prior[1:]
+        positions = term.position[held]
+        if positions.size:
+            kept = in_support[positions] >= 0
+            r_info, r_eta = np.zeros_like(p_info), np.zeros_like(p_eta)
+            if kept.any():
+                at = _coords(in_support[positions[kept]])
+                marginal = spd_inverse(ref_cov[np.ix_(at, at)], "prior reference marginal")
+                local = _coords(np.flatnonzero(kept))
+                r_info[np.ix_(local, local)] = marginal
+                r_eta[local] = marginal @ ref_mean[at]
+            target = _coords(positions)
+            add_weighted_difference(
+                info_bar,
+                eta_bar,
+                np.ix_(target, target),
+                target,
+                term.weight,
+                (p_info, p_eta),
+                (r_info, r_eta),
+            )
+        if term.prior is not None:  # the increment γ_j (Ω_j − P_j) at weight A_ij
+            sub = _coords(term.position)
+            local = _coords(np.flatnonzero(held))
+            d_info, d_eta = term.info.copy(), term.info_vector.copy()
+            d_info[np.ix_(local, local)] -= p_info
+            d_eta[local] -= p_eta
+            info_bar[np.ix_(sub, sub)] += term.weight * d_info
+            eta_bar[sub] += term.weight * d_eta
     try:
         cov = spd_inverse(info_bar, "averaged information")
     except NotPositiveDefiniteError:
         return None
     return cov @ eta_bar, cov
+
+
+def _add_conditional(
+    info: np.ndarray,
+    eta: np.ndarray,
+    position: np.ndarray,
+    new: np.ndarray,
+    p_info: np.ndarray,
+    p_eta: np.ndarray,
+) -> None:
+    """Add, in place, the conditional of the ``new`` objects given the others of a marginal.
+
+    ``p_info``, ``p_eta`` hold a marginal of the objects at ``position`` (object indices of
+    ``info``); in information form the conditional ``p(n | r)`` is the marginal minus the
+    marginal of ``r``: ``[[Λnn, Λnr], [Λrn, Λrn Λnn⁻¹ Λnr]]`` and ``[ηn, Λrn Λnn⁻¹ ηn]``.
+    """
+    n, r = _coords(np.flatnonzero(new)), _coords(np.flatnonzero(~new))
+    yn, yr = _coords(position[new]), _coords(position[~new])
+    info[np.ix_(yn, yn)] += p_info[np.ix_(n, n)]
+    eta[yn] += p_eta[n]
+    if r.size:
+        cross = p_info[np.ix_(r, n)]
+        gain = cross @ spd_inverse(p_info[np.ix_(n, n)], "prior conditional")
+        info[np.ix_(yn, yr)] += cross.T
+        info[np.ix_(yr, yn)] += cross
+        info[np.ix_(yr, yr)] += gain @ cross.T
+        eta[yr] += gain @ p_eta[n]

@@ -116,6 +116,10 @@ class ReceivedMarginal:
         Its objects (all in our map, no repeats).
     info, info_vector
         ``Σ⁻¹`` and ``Σ⁻¹ μ`` of the neighbour's marginal.
+    prior
+        Consensus on information increments: ``(held, P, η_P)`` — which of ``ids`` were in the
+        neighbour's prior, and the information matrix and vector of its prior marginal of
+        those, in the order of ``ids`` — or ``None`` (a message without a prior).
     """
 
     sender: int
@@ -123,6 +127,7 @@ class ReceivedMarginal:
     info: np.ndarray
     info_vector: np.ndarray
     per_object: bool = False
+    prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 def receive_marginal(
@@ -188,9 +193,36 @@ def receive_marginal(
         info = np.zeros((3 * k, 3 * k))
         index = 3 * np.arange(k)[:, None] + np.arange(3)
         info[index[:, :, None], index[:, None, :]] = blocks
+    prior = None
+    if message.has_prior and not absent.any():
+        problem, prior = _received_prior(message, k)
+        if problem is not None:
+            return problem, None
     return None, ReceivedMarginal(
-        int(message.sender), ids.astype(np.int64), info, info @ mean, per_object
+        int(message.sender), ids.astype(np.int64), info, info @ mean, per_object, prior
     )
+
+
+def _received_prior(
+    message: CommonMarginalMessage, k: int
+) -> tuple[str | None, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
+    """The checked prior of a marginal message: ``(held, P, η_P)``, or a reason."""
+    held = np.asarray(message.prior_held)
+    if held.shape != (k,) or held.dtype != bool:
+        return "prior flags do not match the ids", None
+    h = 3 * int(held.sum())
+    mean = np.asarray(message.prior_mean, dtype=float)
+    info = np.asarray(message.prior_info, dtype=float)
+    if mean.shape != (h,) or info.shape != (h, h):
+        return "prior mean/information sizes do not match its flags", None
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(info))):
+        return "non-finite prior mean or information matrix", None
+    if h and np.abs(info - info.T).max() > 1e-9 * np.abs(info).max() + 1e-12:
+        return "prior information matrix is not symmetric", None
+    info = 0.5 * (info + info.T)
+    if h and lapack.dpotrf(info, lower=1)[1] != 0:
+        return "prior information matrix is not positive definite", None
+    return None, (held, info, info @ mean)
 
 
 def validate_marginal(state: MsckfState, message: CommonMarginalMessage) -> str | None:

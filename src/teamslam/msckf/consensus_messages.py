@@ -16,6 +16,7 @@ from scipy.linalg import lapack, solve_triangular
 
 from teamslam.errors import InternalError
 from teamslam.gaussian import spd_inverse
+from teamslam.msckf.consensus_average import SharedPrior, prior_marginal
 from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
 
@@ -51,6 +52,7 @@ def common_marginal_message(
     source: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     information: bool = False,
     keep: MutableMapping[bytes, np.ndarray] | None = None,
+    prior: SharedPrior | None = None,
 ) -> CommonMarginalMessage | None:
     """The marginal of the objects ``ids`` (those the sender holds), or ``None`` if none.
 
@@ -96,11 +98,27 @@ def common_marginal_message(
             keep[ids[held].tobytes()] = info
         message_info = info
         if float32:
-            mean32, info32 = _single(mean), _single(info)
-            if information_rounding_bound(mean, cov, info, mean32, info32) <= FLOAT32_MAX_KL:
-                mean, message_info = mean32, info32
+            mean, message_info = _rounded_information(mean, cov, info)
+        prior_part = {}
+        if prior is not None:
+            prior_held, prior_mean, prior_info, prior_cov = prior_marginal(prior, ids[held])
+            if float32 and prior_held.any():
+                prior_mean, prior_info = _rounded_information(prior_mean, prior_cov, prior_info)
+            prior_part = {
+                "prior_held": prior_held,
+                "prior_mean": prior_mean,
+                "prior_info": prior_info,
+            }
         return CommonMarginalMessage(
-            sender, receiver, step, ids[held].copy(), mean, None, int(degree), info=message_info
+            sender,
+            receiver,
+            step,
+            ids[held].copy(),
+            mean,
+            None,
+            int(degree),
+            info=message_info,
+            **prior_part,
         )
     if float32:
         mean32, cov32 = _single(mean), _single(cov)
@@ -110,6 +128,17 @@ def common_marginal_message(
     return CommonMarginalMessage(
         sender, receiver, step, ids[held].copy(), mean, cov.copy(), int(degree)
     )
+
+
+def _rounded_information(
+    mean: np.ndarray, cov: np.ndarray, info: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(mean, info)`` rounded to single precision when that is within
+    :data:`FLOAT32_MAX_KL` (:func:`information_rounding_bound`), else as they are."""
+    mean32, info32 = _single(mean), _single(info)
+    if information_rounding_bound(mean, cov, info, mean32, info32) <= FLOAT32_MAX_KL:
+        return mean32, info32
+    return mean, info
 
 
 FLOAT32_MAX_KL = 1e-4

@@ -6,7 +6,9 @@ Two rounds per step:
 2. :class:`CommonMarginalMessage` — the sender's marginal (mean, and information matrix or
    covariance) of the objects it shares with the receiver, plus the number of neighbours the
    sender heard in round 1 (its degree this step), from which both ends compute the same
-   Metropolis–Hastings weight.
+   Metropolis–Hastings weight; with consensus on information increments also the sender's
+   prior (its marginal of the same objects right after its last exchange, in information form,
+   over the objects it then held), so the receiver can tell the prior from the new information.
 
 Messages are plain data. How they travel is a :class:`~teamslam.msckf.transport.Transport`;
 their byte layout on a network is :mod:`teamslam.runtime.wire`, which writes the ids — always
@@ -183,6 +185,13 @@ class CommonMarginalMessage:
         How many neighbours the sender heard from in round 1 of this step.
     info
         Information form: ``Σ⁻¹`` of the joint marginal, ``(3k, 3k)``; ``None`` in moment form.
+    prior_held
+        Consensus on information increments: one flag per id, whether the object was in the
+        sender's prior (its map right after its last exchange); ``None`` without a prior.
+    prior_mean, prior_info
+        The sender's prior marginal of the flagged objects (``3h`` and ``(3h, 3h)``, ``h`` the
+        flags set, in the order of ``ids``), in information form; ``None`` without a prior.
+        Only with ``info`` (a joint marginal in information form).
     """
 
     sender: int
@@ -193,6 +202,9 @@ class CommonMarginalMessage:
     cov: np.ndarray | None
     degree: int = 0
     info: np.ndarray | None = None
+    prior_held: np.ndarray | None = None
+    prior_mean: np.ndarray | None = None
+    prior_info: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if (self.cov is None) == (self.info is None):
@@ -201,6 +213,17 @@ class CommonMarginalMessage:
             )
         if self.info is not None and np.ndim(self.info) != 2:
             raise ValueError("an information-form marginal is joint: info must be (3k, 3k)")
+        parts = (self.prior_held, self.prior_mean, self.prior_info)
+        if any(p is not None for p in parts):
+            if any(p is None for p in parts):
+                raise ValueError("a prior needs its flags, mean and information matrix")
+            if self.info is None:
+                raise ValueError("a prior travels only with a marginal in information form")
+
+    @property
+    def has_prior(self) -> bool:
+        """Whether the message carries the sender's prior (consensus on increments)."""
+        return self.prior_held is not None
 
     @property
     def matrix(self) -> np.ndarray:
@@ -215,19 +238,23 @@ class CommonMarginalMessage:
     @property
     def single_precision(self) -> bool:
         """Whether every number is exactly a float32 (sent in 4 bytes)."""
-        mean, matrix = np.asarray(self.mean), np.asarray(self.matrix)
-        return bool(
-            np.array_equal(mean.astype(np.float32), mean)
-            and np.array_equal(matrix.astype(np.float32), matrix)
-        )
+        arrays = [self.mean, self.matrix]
+        if self.has_prior:
+            arrays += [self.prior_mean, self.prior_info]
+        return all(np.array_equal(np.asarray(a).astype(np.float32), np.asarray(a)) for a in arrays)
 
     def nbytes(self) -> int:
-        """Payload size on a wire: ids, mean and the matrix's upper triangle(s)."""
+        """Payload size on a wire: ids, mean and the matrix's upper triangle(s); with a prior,
+        one bit per id for its flags, its mean and its information matrix's upper triangle."""
         d = int(np.size(self.mean))
         k = int(np.size(self.ids))
         upper = 6 * k if self.per_object else d * (d + 1) // 2
         width = 4 if self.single_precision else 8
-        return HEADER_BYTES + encoded_ids_size(self.ids) + width * (d + upper)
+        prior = 0
+        if self.has_prior:
+            h = int(np.size(self.prior_mean))
+            prior = (k + 7) // 8 + width * (h + h * (h + 1) // 2)
+        return HEADER_BYTES + encoded_ids_size(self.ids) + width * (d + upper) + prior
 
 
 Message = MapIdsMessage | CommonMarginalMessage

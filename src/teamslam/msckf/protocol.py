@@ -43,9 +43,9 @@ with the weight of the marginals that hold every averaged object, and its prior 
 every step in which it sent or averaged (:mod:`teamslam.msckf.consensus`). In asynchronous mode a
 neighbour's newest marginal may be used at several steps, which would count its new information
 again, so there the plain average is used. **Consensus on information increments**
-(``consensus_increments``, lock-step only, the same messages): the average completes each
-neighbour's marginal against our prior instead of our current marginal, so our own new
-information counts once on every object (:func:`~teamslam.msckf.consensus.increment_average`).
+(``consensus_increments``, lock-step only): the hybrid marginals carry the sender's prior beside
+them (wire format 6), and the average takes the priors' average, our own new information once
+and each neighbour's at full weight (:func:`~teamslam.msckf.consensus.increment_average`).
 
 Only objects in the filter state take part: objects retired to the persistent map
 (``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
@@ -405,6 +405,7 @@ class ConsensusProtocol:
                 source=source,
                 information=not config.consensus_per_object,
                 keep=self._own_information if source is None else None,
+                prior=self._prior if self.increments else None,
             )
             replies.append(reply)
         self.spent += time.perf_counter() - begin
@@ -475,8 +476,13 @@ class ConsensusProtocol:
             sub = matrix[np.ix_(coords, coords)]
             if message.info is None:
                 return replace(message, ids=ours[keep], mean=mean, cov=sub)
-            return replace(message, ids=ours[keep], mean=mean, info=sub)
-        try:  # marginalise in moment form
+            return replace(
+                message, ids=ours[keep], mean=mean, info=sub, **_reordered_prior(message, keep)
+            )
+        # marginalise in moment form; a prior (consensus on increments) is left out: the
+        # marginal then counts as a prior only
+        message = replace(message, prior_held=None, prior_mean=None, prior_info=None)
+        try:
             cov = spd_inverse(matrix, "information matrix")
         except (NotPositiveDefiniteError, np.linalg.LinAlgError, ValueError):
             self.agent.reject("messages", reason="information matrix is not positive definite")
@@ -637,6 +643,24 @@ class ConsensusProtocol:
             new_ids, new_means, new_covs = ids[take], means[take], covs[take]
         order = np.argsort(new_ids)
         self._agreed[j] = (new_ids[order], new_means[order], new_covs[order])
+
+
+def _reordered_prior(message: CommonMarginalMessage, order: np.ndarray) -> dict:
+    """The prior fields of a marginal message whose objects are taken in ``order`` (a
+    permutation of its objects); empty without a prior."""
+    if not message.has_prior:
+        return {}
+    held = np.asarray(message.prior_held, dtype=bool)
+    if held.shape != order.shape:
+        return {"prior_held": held[:0]}  # the one check rejects it, naming why
+    rank = np.cumsum(held) - 1  # an object's place among the held ones
+    taken = order[held[order]]
+    coords = (3 * rank[taken][:, None] + np.arange(3)).ravel()
+    return {
+        "prior_held": held[order],
+        "prior_mean": np.asarray(message.prior_mean)[coords],
+        "prior_info": np.asarray(message.prior_info)[np.ix_(coords, coords)],
+    }
 
 
 def _members(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:

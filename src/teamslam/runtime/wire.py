@@ -4,11 +4,12 @@ Every message is a fixed little-endian header followed by a payload::
 
     offset size field
     0      4    magic b"TSLM"
-    4      1    format version (5)
+    4      1    format version (6)
     5      1    kind: 1 = map ids; a common marginal: 2 = joint covariance, float64; 3 = joint
                 covariance, float32; 4 = per object, float64; 5 = per object, float32;
                 6 = joint information matrix, float64; 7 = joint information matrix, float32;
-                map ids with the sender's object summary: 8 = without classes, 9 = with
+                map ids with the sender's object summary: 8 = without classes, 9 = with;
+                a joint information matrix with the sender's prior: 10 = float64, 11 = float32
     6      2    marginal: the sender's degree this step (neighbours heard); map ids: 0
     8      8    team id (64-bit hash of the team name)
     16     2    sender robot
@@ -26,12 +27,17 @@ Every message is a fixed little-endian header followed by a payload::
                 covariance block (6 n values); values float64 or float32 by kind; for map
                 ids with a summary (kinds 8, 9), after the flags the objects' means (3 n
                 float64), the upper triangles of their 3×3 marginal covariances (6 n
-                float64) and, kind 9, their class labels (n int64), in the order of the ids
+                float64) and, kind 9, their class labels (n int64), in the order of the ids;
+                kinds 10, 11 then carry the prior: ceil(n / 8) bytes of flags (one bit per id,
+                little bit order: the object was in the sender's prior), the prior mean of
+                the h flagged objects (3 h values) and the upper triangle of their prior
+                information matrix (3h (3h + 1) / 2 values), in the order of the ids
 
 Version 2 added the moved flags and the degree (consensus on what changed, one weighting
 rule); version 3 the variable-length ids; version 4 marginals in information form (what
 robots send by default); version 5 the object summaries of association without shared ids
-(kinds 8, 9). Older versions are refused by name.
+(kinds 8, 9); version 6 the prior of consensus on information increments (kinds 10, 11).
+Older versions are refused by name.
 
 No pickle, no code: :func:`decode` checks the magic, version, kind, team, robots, sizes (the
 byte length must match the header exactly and stay under a limit), ids without repeats and
@@ -59,7 +65,7 @@ from teamslam.msckf.messages import (
 __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
 
 MAGIC = b"TSLM"
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 KIND_IDS = 1
 KIND_IDS_SUMMARY = 8  # 9: with class labels
 _IDS_KINDS = (KIND_IDS, KIND_IDS_SUMMARY, KIND_IDS_SUMMARY + 1)
@@ -73,6 +79,7 @@ _MARGINAL_KINDS = {
     (False, False, True): 6,
     (False, True, True): 7,
 }
+KIND_PRIOR = 10  # joint information matrix with the sender's prior, float64; 11: float32
 _TRIU3 = np.triu_indices(3)
 HEADER = struct.Struct("<4sBBHQHHIIII")  # HEADER_BYTES long
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024
@@ -126,10 +133,15 @@ def encode(message: Message, team: int) -> bytes:
     d = mean.size
     matrix = np.asarray(message.matrix, dtype=dtype)
     upper = matrix[:, _TRIU3[0], _TRIU3[1]].ravel() if per_object else matrix[np.triu_indices(d)]
+    kind = _MARGINAL_KINDS[per_object, single, information]
+    prior = b""
+    if message.has_prior:
+        kind = KIND_PRIOR + int(single)
+        prior = _encode_prior(message, ids.size, dtype)
     header = HEADER.pack(
         MAGIC,
         FORMAT_VERSION,
-        _MARGINAL_KINDS[per_object, single, information],
+        kind,
         min(int(message.degree), 0xFFFF),
         team,
         message.sender,
@@ -139,7 +151,45 @@ def encode(message: Message, team: int) -> bytes:
         len(id_bytes),
         d,
     )
-    return header + id_bytes + mean.tobytes() + upper.tobytes()
+    return header + id_bytes + mean.tobytes() + upper.tobytes() + prior
+
+
+def _encode_prior(message: CommonMarginalMessage, n: int, dtype: str) -> bytes:
+    """Flags, mean and information matrix's upper triangle of a marginal's prior."""
+    held = np.asarray(message.prior_held, dtype=bool)
+    if held.shape != (n,):
+        raise WireError(f"{held.size} prior flags for {n} ids")
+    mean = np.ascontiguousarray(message.prior_mean, dtype=dtype)
+    h = 3 * int(held.sum())
+    info = np.asarray(message.prior_info, dtype=dtype)
+    if mean.shape != (h,) or info.shape != (h, h):
+        raise WireError(f"a prior of {h // 3} flagged objects with mean {mean.shape}")
+    flags = np.packbits(held, bitorder="little").tobytes()
+    return flags + mean.tobytes() + info[np.triu_indices(h)].tobytes()
+
+
+def _decode_prior(
+    data: bytes, offset: int, n: int, dtype: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse of :func:`_encode_prior` from ``offset`` to the end of ``data``."""
+    flag_bytes = (n + 7) // 8
+    width = np.dtype(dtype).itemsize
+    if len(data) < offset + flag_bytes:
+        raise WireError("truncated prior flags")
+    bits = np.frombuffer(data, dtype=np.uint8, count=flag_bytes, offset=offset)
+    held = np.unpackbits(bits, count=n, bitorder="little").astype(bool)
+    h = 3 * int(held.sum())
+    expected = offset + flag_bytes + width * (h + h * (h + 1) // 2)
+    if len(data) != expected:
+        raise WireError(f"length {len(data)} bytes, the prior's flags say {expected}")
+    offset += flag_bytes
+    mean = np.frombuffer(data, dtype=dtype, count=h, offset=offset).astype(float)
+    values = np.frombuffer(data, dtype=dtype, count=h * (h + 1) // 2, offset=offset + width * h)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(values))):
+        raise WireError("non-finite prior mean or information matrix")
+    info = np.zeros((h, h))
+    info[np.triu_indices(h)] = values
+    return held, mean, info + np.triu(info, 1).T
 
 
 def _encode_summary(summary: ObjectSummary, ids: np.ndarray) -> tuple[int, bytes]:
@@ -212,16 +262,17 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
             raise WireError("map-ids message with a degree")
         per_summary = {KIND_IDS: 0, KIND_IDS_SUMMARY: 72, KIND_IDS_SUMMARY + 1: 80}[kind]
         expected = HEADER.size + c + d + per_summary * n_ids
-    elif kind in _MARGINAL_KINDS.values():
+    elif kind in _MARGINAL_KINDS.values() or kind in (KIND_PRIOR, KIND_PRIOR + 1):
         if d != 3 * n_ids or n_ids == 0:
             raise WireError(f"marginal of {n_ids} objects with mean length {d}")
-        per_object, width = kind in (4, 5), 4 if kind in (3, 5, 7) else 8
-        information = kind in (6, 7)
+        per_object, width = kind in (4, 5), 4 if kind in (3, 5, 7, KIND_PRIOR + 1) else 8
+        information = kind in (6, 7, KIND_PRIOR, KIND_PRIOR + 1)
         upper = 6 * n_ids if per_object else d * (d + 1) // 2
         expected = HEADER.size + c + width * (d + upper)
     else:
         raise WireError(f"unknown message kind {kind}")
-    if len(data) != expected:
+    with_prior = kind in (KIND_PRIOR, KIND_PRIOR + 1)
+    if len(data) != expected and not (with_prior and len(data) > expected):
         raise WireError(f"length {len(data)} bytes, header says {expected}")
     if not n_ids <= c <= 10 * n_ids:
         raise WireError(f"{c} bytes for {n_ids} ids")
@@ -258,6 +309,17 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
         matrix[np.triu_indices(d)] = values
         matrix = matrix + np.triu(matrix, 1).T
     head = (int(sender), int(receiver), int(step), ids, mean)
+    if with_prior:
+        held, prior_mean, prior_info = _decode_prior(data, expected, n_ids, dtype)
+        return CommonMarginalMessage(
+            *head,
+            None,
+            int(degree),
+            info=matrix,
+            prior_held=held,
+            prior_mean=prior_mean,
+            prior_info=prior_info,
+        )
     if information:
         return CommonMarginalMessage(*head, None, int(degree), info=matrix)
     return CommonMarginalMessage(*head, matrix, int(degree))
