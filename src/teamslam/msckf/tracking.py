@@ -15,7 +15,14 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    them, must agree.
 3. **Assign** one-to-one over the gated pairs by global nearest neighbour (the assignment of
    least total squared distance among those of the most gated pairs,
-   :func:`scipy.optimize.linear_sum_assignment`).
+   :func:`scipy.optimize.linear_sum_assignment`), in two passes: first the targets seen within
+   the last ``N`` frames (the tracks, and the objects followed frame to frame), then the
+   detections left against the objects not seen for ``N`` frames (the state's or the
+   persistent map's), each such pair only when unambiguous (no other detection in the object's
+   gate and no other target in the detection's): a drifted robot's wrong revisit would pull
+   its whole map, a second object for the same one only costs a loop closure. A long-unseen
+   object's gate is wide; served first, it would take the detections of the objects followed
+   frame to frame next to it.
 4. A detection assigned to an object of the state or the persistent map gets that object's id.
    A detection assigned to a track updates the track's point (a Kalman update of the point).
    An unassigned detection starts a **tentative** track, stereo-triangulated at the current
@@ -25,10 +32,9 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    detections — the earlier ones at once — go to the filter under its id, where the object
    initialisation (eqs. 29–30) takes it into the state; from then on the state predicts it and
    the tracker forgets it. A confirmed track not taken into the state is dropped after ``N``
-   frames without a detection. An object unseen for more than ``N`` frames (or in the
-   persistent map) takes a detection only when the pair is unambiguous (no other detection in
-   its gate and no other target in the detection's): a drifted robot's wrong revisit would
-   pull its whole map, a second object for the same one only costs a loop closure.
+   frames without a detection. An unassigned detection inside the ``track_birth_probability``
+   quantile around an object followed frame to frame starts no track (one object, one id);
+   objects not seen for ``N`` frames block no new track.
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
