@@ -241,3 +241,19 @@ def test_an_object_unseen_for_long_is_taken_again_only_unambiguously():
     assert sorted(recent.assign(3, two, None, state, W).ids.tolist()) == [-1, 1]
     # alone in its gate, the long-unseen object takes its detection
     assert _tracker().assign(10, za, None, state, W).ids.tolist() == [1]
+
+
+def test_an_object_followed_frame_to_frame_is_served_before_a_long_unseen_one():
+    """Pass 1 (targets seen within N frames) before pass 2: a long-unseen object whose wide
+    covariance puts the detection nearer in Mahalanobis distance does not take it from the
+    object seen in the last frame."""
+    b = A + np.array([0.0, 0.3, 0.0])
+    state = _state({1: A}, std=0.05)
+    state.add_object(2, b, np.eye(3), np.zeros((3, state.dim)))  # 1 m, unseen since frame 0
+    state.mark_seen(state.object_slots(np.array([2])), 0)
+    state.mark_seen(state.object_slots(np.array([1])), 9)
+    za, zb = _z(state, [A, b])
+    z = za + 0.3 * (zb - za)
+    tracker = _tracker()
+    assert tracker.assign(10, z[None], None, state, W).ids.tolist() == [1]
+    assert tracker.n_tracks == 0

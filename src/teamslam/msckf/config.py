@@ -146,9 +146,10 @@ class MsckfConfig:
         of χ²(4).
     track_birth_probability
         An unassigned detection starts a tentative track only when it lies outside this
-        quantile of χ²(4) around every object of the state and of the persistent map (a
-        detection of a known object that missed the assignment gate, or lost it to another
-        detection, makes no second object). Set it to ``track_gate_probability`` or below to
+        quantile of χ²(4) around every object of the state seen within the last ``N``
+        frames (``track_confirm_frames``; a detection of a known object that missed the
+        assignment gate, or lost it to another detection, makes no second object; objects
+        unseen for longer block nothing). Set it to ``track_gate_probability`` or below to
         let every unassigned detection start a track.
     track_confirm_hits, track_confirm_frames
         A tentative track is confirmed after ``M = track_confirm_hits`` detections within its

@@ -15,7 +15,14 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    them, must agree.
 3. **Assign** one-to-one over the gated pairs by global nearest neighbour (the assignment of
    least total squared distance among those of the most gated pairs,
-   :func:`scipy.optimize.linear_sum_assignment`).
+   :func:`scipy.optimize.linear_sum_assignment`), in two passes: first the targets seen within
+   the last ``N`` frames (the tracks, and the objects followed frame to frame), then the
+   detections left against the objects not seen for ``N`` frames (the state's or the
+   persistent map's), each such pair only when unambiguous (no other detection in the object's
+   gate and no other target in the detection's): a drifted robot's wrong revisit would pull
+   its whole map, a second object for the same one only costs a loop closure. A long-unseen
+   object's gate is wide; served first, it would take the detections of the objects followed
+   frame to frame next to it.
 4. A detection assigned to an object of the state or the persistent map gets that object's id.
    A detection assigned to a track updates the track's point (a Kalman update of the point).
    An unassigned detection starts a **tentative** track, stereo-triangulated at the current
@@ -25,10 +32,9 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    detections — the earlier ones at once — go to the filter under its id, where the object
    initialisation (eqs. 29–30) takes it into the state; from then on the state predicts it and
    the tracker forgets it. A confirmed track not taken into the state is dropped after ``N``
-   frames without a detection. An object unseen for more than ``N`` frames (or in the
-   persistent map) takes a detection only when the pair is unambiguous (no other detection in
-   its gate and no other target in the detection's): a drifted robot's wrong revisit would
-   pull its whole map, a second object for the same one only costs a loop closure.
+   frames without a detection. An unassigned detection inside the ``track_birth_probability``
+   quantile around an object followed frame to frame starts no track (one object, one id);
+   objects not seen for ``N`` frames block no new track.
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
@@ -179,33 +185,28 @@ class ObjectTracker:
                 | (labels[None, :] < 0)
                 | (target_labels[:, None] == labels[None, :])
             )
-            # a detection near an object it was not given starts no track: one object, one id
-            blocking = in_front & (kinds < 2)
+            # pass 1: the targets seen within the last N frames (tracks, and objects followed
+            # frame to frame) by global nearest neighbour
+            fresh = (kinds == 2) | ((kinds == 0) & (t - seen <= self.frames_allowed))
+            _nearest_neighbour(allowed & fresh[:, None], d2, assigned_target)
+            # pass 2: the detections left against the objects not seen for N frames (the
+            # state's or the persistent map's), each pair only when unambiguous: no other
+            # detection in the object's gate, no other target in the detection's (a wrong
+            # revisit would pull the whole map; a second object for the same one is safe)
+            left = assigned_target < 0
+            lone = allowed & ~fresh[:, None]
+            lone &= (allowed.sum(axis=1) == 1)[:, None] & (allowed.sum(axis=0) == 1)[None, :]
+            lone &= left[None, :]
+            stale_hits = lone.any(axis=0)
+            assigned_target[stale_hits] = np.argmax(lone[:, stale_hits], axis=0)
+            # objects not seen for N frames that had a detection in their gate and took none
+            wanted = (allowed & ~fresh[:, None] & left[None, :]).any(axis=1)
+            wanted[assigned_target[stale_hits]] = False
+            self.counters["revisits_refused"] += int(wanted.sum())
+            # a detection near an object followed frame to frame that it was not given starts
+            # no track (one object, one id); objects not seen for N frames block nothing
+            blocking = in_front & fresh & (kinds < 2)
             near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
-            rows_any, cols_any = allowed.any(axis=1), allowed.any(axis=0)
-            if rows_any.any():
-                rows_idx, cols_idx = np.flatnonzero(rows_any), np.flatnonzero(cols_any)
-                sub = allowed[np.ix_(rows_idx, cols_idx)]
-                cost = np.where(sub, d2[np.ix_(rows_idx, cols_idx)], _OUTSIDE)
-                ra, ca = linear_sum_assignment(cost)
-                keep = sub[ra, ca]
-                assigned_target[cols_idx[ca[keep]]] = rows_idx[ra[keep]]
-            # an object not seen for N frames (the state's or the persistent map's) is taken
-            # again only when unambiguous: no other detection in its gate, no other target in
-            # the detection's (a wrong revisit would pull the whole map; a new object is safe)
-            hit_idx = np.flatnonzero(assigned_target >= 0)
-            target = assigned_target[hit_idx]
-            stale = (kinds[target] == 1) | (
-                (kinds[target] == 0) & (t - seen[target] > self.frames_allowed)
-            )
-            ambiguous = (allowed[target].sum(axis=1) > 1) | (allowed[:, hit_idx].sum(axis=0) > 1)
-            refused = hit_idx[stale & ambiguous]
-            if refused.size:
-                # nor does it block new tracks near it
-                blocking[assigned_target[refused]] = False
-                near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
-                assigned_target[refused] = -1
-            self.counters["revisits_refused"] += int(refused.size)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
@@ -431,6 +432,19 @@ class ObjectTracker:
         labels = np.concatenate([self._labels, labels[labels >= 0]])
         order = np.argsort(ids)
         self._label_ids, self._labels = ids[order], labels[order]
+
+
+def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarray) -> None:
+    """One-to-one assignment of least total ``cost`` among the ``allowed`` (target, detection)
+    pairs (of the most pairs); writes each assigned detection's target into ``assigned``."""
+    rows_idx = np.flatnonzero(allowed.any(axis=1))
+    if not rows_idx.size:
+        return
+    cols_idx = np.flatnonzero(allowed.any(axis=0))
+    sub = allowed[np.ix_(rows_idx, cols_idx)]
+    ra, ca = linear_sum_assignment(np.where(sub, cost[np.ix_(rows_idx, cols_idx)], _OUTSIDE))
+    keep = sub[ra, ca]
+    assigned[cols_idx[ca[keep]]] = rows_idx[ra[keep]]
 
 
 def _chi2(probability: float, dof: int) -> float:
