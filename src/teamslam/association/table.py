@@ -303,6 +303,10 @@ class CorrespondenceTable:
         if self._sizes is None:
             return True
         own0, their0 = self._sizes
+        if len(self) < self.settings.min_inliers:
+            # no answer held (too few shared objects so far, or an ambiguous one): try again as
+            # soon as either map holds an object it did not hold at the last try
+            return own_objects > own0 or their_objects > their0
         return own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1)
 
     def revoke(self, own_id: int, their_id: int, step: int | None = None) -> bool:
