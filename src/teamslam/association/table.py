@@ -6,14 +6,17 @@ added only when it is consistent with the transform of the pairs already held (a
 with the drift allowance), when neither of its objects is already matched to another object,
 and when it was not revoked before. Consensus then checks every matched pair's innovation
 (:func:`pair_innovation_consistent`); a pair that fails is :meth:`~CorrespondenceTable.revoke` d
-and never re-added (or, with a hold-off, not before that many steps have passed).
+and never re-added (or, with a hold-off, not before that many steps have passed). A full
+association that pairs an object of a held pair with another object releases the held pair
+(:meth:`~CorrespondenceTable.merge`): the answer on the current maps wins over a pair decided on
+younger ones.
 
 At run time a robot runs the full association when the table says it is
-:meth:`~CorrespondenceTable.due` (nothing merged yet, or a map grown by a quarter since the last
-one) and grows the table in between with :meth:`~CorrespondenceTable.extend` (one gate, one
-assignment). Both ends of a link merge the same results in the same order and compute every
-decision in the canonical order of the two robots, so their tables stay mirror images of each
-other (own ↔ neighbour ids swapped).
+:meth:`~CorrespondenceTable.due` (no answer held yet and a map has new objects, or a map grown
+by a quarter since the last one) and grows the table in between with
+:meth:`~CorrespondenceTable.extend` (one gate, one assignment). Both ends of a link merge the
+same results in the same order and compute every decision in the canonical order of the two
+robots, so their tables stay mirror images of each other (own ↔ neighbour ids swapped).
 """
 
 from __future__ import annotations
@@ -316,7 +319,10 @@ class CorrespondenceTable:
     def due(self, own_objects: int, their_objects: int, growth: float = 1.25) -> bool:
         """Whether a full association is worth running now.
 
-        Yes when none was merged yet, or when either map has grown by the factor ``growth``
+        Yes when none was merged yet; while the table holds fewer than ``min_inliers`` pairs (no
+        answer yet), whenever either map holds more objects than at the last try (one more
+        shared object can complete a consistent set: waiting for ``growth`` left links
+        unmatched for tens of steps); else when either map has grown by the factor ``growth``
         since the last one; in between, :meth:`extend` grows the table for the cost of one
         gate. (A full association of maps of a hundred or two objects costs tens of
         milliseconds; with ``growth = 1.25`` a map growing from 10 to 200 objects is associated
