@@ -196,8 +196,7 @@ def association_metrics(dataset: TeamDataset, result: TeamResult, per_robot: lis
     -------
     dict
         ``links``: ``"i-j"`` (``i < j``, seen from ``i``) → summary bytes per step (each way),
-        ``proposed``, ``accepted``, ``revoked``, ``replaced`` (held pairs a newer full answer
-        contradicted), ``held``, ``excluded`` (objects left out of an
+        ``proposed``, ``accepted``, ``revoked``, ``held``, ``excluded`` (objects left out of an
         average by the innovation test), ``ends_agree`` (both ends hold the same pairs) and,
         with ground truth, ``correct``, ``wrong``, ``shared``, ``precision``, ``recall``;
         ``team``: the sums, precision and recall over the links, and the association's share
@@ -210,7 +209,7 @@ def association_metrics(dataset: TeamDataset, result: TeamResult, per_robot: lis
     scope = dataset.object_id_scope
     has_truth = scope == "global" or dataset.object_identity.size > 0
     links: dict[str, dict] = {}
-    totals = {k: 0 for k in ("proposed", "accepted", "revoked", "replaced", "held", "excluded")}
+    totals = {k: 0 for k in ("proposed", "accepted", "revoked", "held", "excluded")}
     correct = wrong = shared = 0
     for k, i in enumerate(robots):
         frames = max(len(result.poses[k]) - 1, 1)
@@ -226,7 +225,7 @@ def association_metrics(dataset: TeamDataset, result: TeamResult, per_robot: lis
                 ],
                 "excluded": int(entry.get("excluded", 0)) + int(other.get("excluded", 0)),
             }
-            for name in ("proposed", "accepted", "revoked", "replaced", "held"):
+            for name in ("proposed", "accepted", "revoked", "held"):
                 if name in entry:
                     link[name] = int(entry[name])
             pairs = np.asarray(entry.get("pairs", []), dtype=np.int64).reshape(-1, 2)
