@@ -116,9 +116,8 @@ class CorrespondenceTable:
 
     Attributes
     ----------
-    proposed, accepted, revoked, replaced
-        Pairs the association proposed (new ones only), pairs added, pairs revoked, held pairs
-        dropped because a newer full association contradicted them.
+    proposed, accepted, revoked
+        Pairs the association proposed (new ones only), pairs added, pairs revoked.
     T_own_their
         Transform of the held pairs (from the last merge that had at least three), or ``None``.
     """
@@ -142,7 +141,6 @@ class CorrespondenceTable:
         self.proposed = 0
         self.accepted = 0
         self.revoked = 0
-        self.replaced = 0
         self.T_own_their: np.ndarray | None = None
         self._sizes: tuple[int, int] | None = None  # map sizes at the last full association
 
@@ -214,8 +212,6 @@ class CorrespondenceTable:
         ]
         self._sizes = (len(own), len(their))
         self.proposed += len(new)
-        if result.matched:
-            self._release_conflicts(result.pairs)
         new = [
             p
             for p in new
@@ -244,26 +240,6 @@ class CorrespondenceTable:
             self._ours[b] = a
         self.accepted += len(new)
         return np.array(new, dtype=np.int64).reshape(-1, 2)
-
-    def _release_conflicts(self, answer: np.ndarray) -> None:
-        """Drop the held pairs a newer full answer contradicts (it pairs one of their objects
-        with another object).
-
-        A full association sees both whole maps as they are now, while a held pair was decided
-        on the maps of its time: in a row of similar objects a pair shifted by one object fits
-        a younger, smaller map as well as the right one. The answer's own pairs then take the
-        freed objects (through the usual merge gate); a dropped pair is not barred, a later
-        answer may propose it again. Both ends drop the same pairs (the answer is the same).
-        """
-        theirs = {int(a): int(b) for a, b in answer}
-        ours = {b: a for a, b in theirs.items()}
-        conflicts = [
-            (a, b) for a, b in self._theirs.items() if theirs.get(a, b) != b or ours.get(b, a) != a
-        ]
-        for a, b in conflicts:
-            del self._theirs[a]
-            del self._ours[b]
-        self.replaced += len(conflicts)
 
     def extend(
         self, own: ObjectSummary, their: ObjectSummary, step: int | None = None
@@ -357,12 +333,11 @@ class CorrespondenceTable:
         return True
 
     def counts(self) -> dict[str, int]:
-        """``proposed``, ``accepted``, ``revoked``, ``replaced`` and ``held`` pairs."""
+        """``proposed``, ``accepted``, ``revoked`` and ``held`` pairs."""
         return {
             "proposed": self.proposed,
             "accepted": self.accepted,
             "revoked": self.revoked,
-            "replaced": self.replaced,
             "held": len(self),
         }
 
