@@ -6,13 +6,10 @@ added only when it is consistent with the transform of the pairs already held (a
 with the drift allowance), when neither of its objects is already matched to another object,
 and when it was not revoked before. Consensus then checks every matched pair's innovation
 (:func:`pair_innovation_consistent`); a pair that fails is :meth:`~CorrespondenceTable.revoke` d
-and never re-added (or, with a hold-off, not before that many steps have passed). A full
-association that pairs an object of a held pair with another object releases the held pair
-(:meth:`~CorrespondenceTable.merge`): the answer on the current maps wins over a pair decided on
-younger ones.
+and never re-added (or, with a hold-off, not before that many steps have passed).
 
 At run time a robot runs the full association when the table says it is
-:meth:`~CorrespondenceTable.due` (no answer held yet and a map has new objects, or a map grown
+:meth:`~CorrespondenceTable.due` (no answer yet and a map has new objects, or a map grown
 by a quarter since the last one) and grows the table in between with
 :meth:`~CorrespondenceTable.extend` (one gate, one assignment). Both ends of a link merge the
 same results in the same order and compute every decision in the canonical order of the two
@@ -142,6 +139,7 @@ class CorrespondenceTable:
         self.accepted = 0
         self.revoked = 0
         self.T_own_their: np.ndarray | None = None
+        self._answered = False  # whether a full association has given an answer
         self._sizes: tuple[int, int] | None = None  # map sizes at the last full association
 
     def __len__(self) -> int:
@@ -211,6 +209,7 @@ class CorrespondenceTable:
             if self._theirs.get(int(a)) != int(b)  # not already held
         ]
         self._sizes = (len(own), len(their))
+        self._answered = self._answered or result.matched
         self.proposed += len(new)
         new = [
             p
@@ -295,8 +294,8 @@ class CorrespondenceTable:
     def due(self, own_objects: int, their_objects: int, growth: float = 1.25) -> bool:
         """Whether a full association is worth running now.
 
-        Yes when none was merged yet; while the table holds fewer than ``min_inliers`` pairs (no
-        answer yet), whenever either map holds more objects than at the last try (one more
+        Yes when none was merged yet; while no full association has given an answer yet,
+        whenever either map holds more objects than at the last try (one more
         shared object can complete a consistent set: waiting for ``growth`` left links
         unmatched for tens of steps); else when either map has grown by the factor ``growth``
         since the last one; in between, :meth:`extend` grows the table for the cost of one
@@ -309,8 +308,8 @@ class CorrespondenceTable:
         if self._sizes is None:
             return True
         own0, their0 = self._sizes
-        if len(self) < self.settings.min_inliers:
-            # no answer held (too few shared objects so far, or an ambiguous one): try again as
+        if not self._answered:
+            # no answer yet (too few shared objects so far, or an ambiguous one): try again as
             # soon as either map holds an object it did not hold at the last try
             return own_objects > own0 or their_objects > their0
         return own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1)
