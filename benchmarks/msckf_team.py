@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from teamslam.datasets import import_reference
 from teamslam.eval.metrics import team_metrics
 from teamslam.msckf import config_for, run_team
 from teamslam.paper.experiments import kitti_pair, stage_statistics, team_pairs
