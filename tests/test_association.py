@@ -339,17 +339,3 @@ def test_a_full_association_is_due_first_and_when_a_map_has_grown():
     assert table.due(len(a), 2 * len(b))
     with pytest.raises(InputError, match="growth"):
         table.due(1, 1, growth=1.0)
-
-
-def test_without_an_answer_a_full_association_is_due_whenever_a_map_has_new_objects():
-    rng = np.random.default_rng(6)
-    a = _summary(0, np.arange(60), _scene(rng, 60), rng)
-    b = _summary(1, np.arange(60) + 100, _scene(rng, 60), rng)
-    table = CorrespondenceTable(a.robot, b.robot)
-    result = associate(a, b)
-    assert not result.matched
-    table.merge(result, a, b)
-    assert len(table) == 0
-    assert not table.due(len(a), len(b))  # nothing new: the same answer again
-    assert table.due(len(a) + 1, len(b))  # one more object may complete a consistent set
-    assert table.due(len(a), len(b) + 1)

@@ -9,11 +9,11 @@ and when it was not revoked before. Consensus then checks every matched pair's i
 and never re-added (or, with a hold-off, not before that many steps have passed).
 
 At run time a robot runs the full association when the table says it is
-:meth:`~CorrespondenceTable.due` (no answer yet and a map has new objects, or a map grown
-by a quarter since the last one) and grows the table in between with
-:meth:`~CorrespondenceTable.extend` (one gate, one assignment). Both ends of a link merge the
-same results in the same order and compute every decision in the canonical order of the two
-robots, so their tables stay mirror images of each other (own ↔ neighbour ids swapped).
+:meth:`~CorrespondenceTable.due` (nothing merged yet, or a map grown by a quarter since the last
+one) and grows the table in between with :meth:`~CorrespondenceTable.extend` (one gate, one
+assignment). Both ends of a link merge the same results in the same order and compute every
+decision in the canonical order of the two robots, so their tables stay mirror images of each
+other (own ↔ neighbour ids swapped).
 """
 
 from __future__ import annotations
@@ -139,7 +139,6 @@ class CorrespondenceTable:
         self.accepted = 0
         self.revoked = 0
         self.T_own_their: np.ndarray | None = None
-        self._answered = False  # whether a full association has given an answer
         self._sizes: tuple[int, int] | None = None  # map sizes at the last full association
 
     def __len__(self) -> int:
@@ -209,7 +208,6 @@ class CorrespondenceTable:
             if self._theirs.get(int(a)) != int(b)  # not already held
         ]
         self._sizes = (len(own), len(their))
-        self._answered = self._answered or result.matched
         self.proposed += len(new)
         new = [
             p
@@ -294,10 +292,7 @@ class CorrespondenceTable:
     def due(self, own_objects: int, their_objects: int, growth: float = 1.25) -> bool:
         """Whether a full association is worth running now.
 
-        Yes when none was merged yet; while no full association has given an answer yet,
-        whenever either map holds more objects than at the last try (one more
-        shared object can complete a consistent set: waiting for ``growth`` left links
-        unmatched for tens of steps); else when either map has grown by the factor ``growth``
+        Yes when none was merged yet, or when either map has grown by the factor ``growth``
         since the last one; in between, :meth:`extend` grows the table for the cost of one
         gate. (A full association of maps of a hundred or two objects costs tens of
         milliseconds; with ``growth = 1.25`` a map growing from 10 to 200 objects is associated
@@ -308,10 +303,6 @@ class CorrespondenceTable:
         if self._sizes is None:
             return True
         own0, their0 = self._sizes
-        if not self._answered:
-            # no answer yet (too few shared objects so far, or an ambiguous one): try again as
-            # soon as either map holds an object it did not hold at the last try
-            return own_objects > own0 or their_objects > their0
         return own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1)
 
     def revoke(self, own_id: int, their_id: int, step: int | None = None) -> bool:
