@@ -9,7 +9,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from teamslam.paper.values import PaperValue
 
 __all__ = ["Cell", "Reproduction"]
 
@@ -51,6 +54,21 @@ class Cell:
     digits: int = 3
     own_data: bool = False
     source: str = "paper"
+
+    @classmethod
+    def of(cls, value: PaperValue, ours: float | None, own_data: bool = False) -> Cell:
+        """The cell of one of the paper's values, with ours beside it."""
+        return cls(
+            value.paper,
+            value.table,
+            value.row,
+            value.column,
+            value.unit,
+            value.value,
+            ours,
+            value.digits,
+            own_data=own_data,
+        )
 
     @property
     def difference(self) -> float | None:

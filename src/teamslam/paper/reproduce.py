@@ -306,19 +306,7 @@ class Reproducer:
                     ours = per_robot[int(v.column.split()[1]) - 1]
                 else:
                     ours = (_finite_mean if v.column == "Avg" else _finite_max)(per_robot)
-            out.cells.append(
-                Cell(
-                    "dvi",
-                    table,
-                    v.row,
-                    v.column,
-                    v.unit,
-                    v.value,
-                    ours,
-                    v.digits,
-                    own_data=pair is not None and v.row in rows,
-                )
-            )
+            out.cells.append(Cell.of(v, ours, own_data=pair is not None and v.row in rows))
         if pair is None:
             out.setting.append(self._missing("KITTI 00", "distributed-msckf", "kitti00"))
             return out
@@ -452,19 +440,7 @@ class Reproducer:
             count = int(count_text)
             result = tables.results.get(count)
             ours = None if result is None else result.table[FEJ_FILTERS[ekf]][FEJ_COLUMNS[v.column]]
-            out.cells.append(
-                Cell(
-                    "fej",
-                    item.number,
-                    v.row,
-                    v.column,
-                    v.unit,
-                    v.value,
-                    ours,
-                    v.digits,
-                    own_data=tables.published.get(count, False),
-                )
-            )
+            out.cells.append(Cell.of(v, ours, own_data=tables.published.get(count, False)))
         for count, source in tables.sources.items():
             out.setting.append(f"{count} features: {source}")
         runs = next(iter(tables.results.values())).runs
