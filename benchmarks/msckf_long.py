@@ -218,14 +218,19 @@ class ConsensusCpu:
 
     def per_frame(self, robots: int, frames: int) -> np.ndarray:
         """``(frames + 1,)`` consensus CPU seconds per robot at each step (mean over robots)."""
-        out = np.zeros(frames + 1)
-        for (_, step), seconds in self.spent.items():
-            if 0 <= step <= frames:
-                out[step] += seconds / robots
-        return out
+        return per_step_mean(self.spent, robots, frames)
 
 
 ROUNDS = ("requests", "answer", "average")
+
+
+def per_step_mean(totals: dict[tuple[int, int], float], robots: int, frames: int) -> np.ndarray:
+    """``(frames + 1,)`` mean over robots of ``totals[(robot, step)]`` at each step."""
+    out = np.zeros(frames + 1)
+    for (_, step), amount in totals.items():
+        if 0 <= step <= frames:
+            out[step] += amount / robots
+    return out
 
 
 class ByteProbe:
@@ -251,11 +256,7 @@ class ByteProbe:
 
     def per_frame(self, robots: int, frames: int) -> np.ndarray:
         """``(frames + 1,)`` bytes sent per robot at each step (mean over robots)."""
-        out = np.zeros(frames + 1)
-        for (_, step), size in self.sent.items():
-            if 0 <= step <= frames:
-                out[step] += size / robots
-        return out
+        return per_step_mean(self.sent, robots, frames)
 
 
 def revisit(frames: int, seed: int, overrides: dict) -> None:
