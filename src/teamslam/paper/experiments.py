@@ -42,6 +42,7 @@ __all__ = [
     "run_experiments",
     "settings_summary",
     "stage_statistics",
+    "task_label",
     "team_experiment",
     "team_pairs",
     "victoria_park_experiment",
@@ -227,6 +228,12 @@ def run_experiments(
             tasks.setdefault(task.key, task)
     done, schedule = run_tasks(tasks.values(), workers, progress, description)
     return {name: e.collect(done) for name, e in experiments.items()}, schedule
+
+
+def task_label(key: tuple) -> str:
+    """A task's key for people: its parts without directories and empty settings."""
+    parts = [p for p in key if not (isinstance(p, str) and ("/" in p or p == "[]"))]
+    return " ".join(str(p) for p in parts if p is not None)
 
 
 def _settings_key(settings: dict | None) -> str:

@@ -313,13 +313,20 @@ class Reproducer:
 
     def timing(self) -> dict[str, Any]:
         """Wall seconds of the pool runs, the workers, the CPU seconds each worker was given
-        and the most of them (per pool run, summed): what the runs would take with a free
-        core per worker."""
+        and the most of them (per pool run, summed: what the runs would take with a free core
+        per worker), and per task its CPU and wall seconds, worker and place in the start
+        order."""
         return {
             "wall_seconds": sum(s.seconds for s in self.schedules),
             "workers": max((s.workers for s in self.schedules), default=0),
             "worker_cpu_seconds": [s.worker_cpu() for s in self.schedules],
             "critical_path_seconds": sum(s.critical_path() for s in self.schedules),
+            "tasks": [
+                {"task": ex.task_label(key), "cpu": s.cpu[key], "wall": s.wall[key]}
+                | {"worker": s.worker[key], "start": s.order.index(key)}
+                for s in self.schedules
+                for key in s.order
+            ],
         }
 
     def time_text(self) -> str:
