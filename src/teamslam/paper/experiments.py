@@ -513,7 +513,7 @@ def fej_experiment(
                 (*base, chunk[0], len(chunk)),
                 partial(run_seeds, chunk, environment),
                 # per run: the three EKFs over every robot and feature at every step
-                cost=3 * environment.steps * (environment.n_robots + count) / 100,
+                cost=3 * environment.steps * (environment.n_robots + count) / 600,
             )
             for chunk in (
                 seeds[k : k + FEJ_RUNS_PER_TASK] for k in range(0, runs, FEJ_RUNS_PER_TASK)
