@@ -212,8 +212,8 @@ def run_experiments(
     progress: bool | None = None,
     description: str = "experiments",
 ):
-    """The tasks of all ``experiments`` in one process pool (:func:`~teamslam.eval.schedule.
-    run_tasks`), each task once.
+    """The tasks of all ``experiments`` in one process pool, longest chain first, each task
+    once (:func:`teamslam.eval.schedule.run_tasks`).
 
     Returns
     -------
