@@ -282,3 +282,55 @@ def test_cell_text_and_record():
     assert ours_only.text() == "1.402 / 0.200" and ours_only.record()["difference"] is None
     missing = Cell("fej", "1", "60 features FEJ", "Robot 1 Pose NEES", "", 1.1143, None, 4, True)
     assert missing.text() == "1.1143 / —" and missing.record()["ours"] is None
+
+
+def _computed_cells(out: Path) -> dict[tuple[str, str, str], dict]:
+    """The cells of ``paper.json`` that are computed (the wall-clock times aside)."""
+    cells = json.loads((out / "paper.json").read_text())["cells"]
+    return {
+        (c["table"], c["row"], c["column"]): c
+        for c in cells
+        if c["unit"] != "ms" and "time" not in c["row"]
+    }
+
+
+def test_reproduce_all_does_not_depend_on_the_workers(shared_data, tmp_path):
+    """KITTI 00 (import, calibration, two filters), simulated teams, link loss and FEJ Monte
+    Carlo in one pool: the same cells with one worker and with two, and the FEJ table the same
+    numbers as the Monte Carlo run on its own (its runs are split over tasks)."""
+    from teamslam import api
+
+    keys = ["dvi-table-1", "dvi-table-4", "dvi-figure-4", "fej-table-1"]
+    settings = {
+        "team_sizes": (3,),
+        "steps": 10,
+        "loss_rates": (0.0, 0.5),
+        "fej_runs": 7,
+        "fej_features": (20,),
+        "frames": 20,
+        "progress": False,
+    }
+    cells = {}
+    for workers in (1, 2):
+        out = tmp_path / str(workers)
+        _, reproducer = reproduce_all(
+            out, PaperSettings.quick(workers=workers, **settings), shared_data, keys=keys
+        )
+        cells[workers] = _computed_cells(out)
+        timing = reproducer.timing()
+        assert timing["workers"] == workers
+        assert timing["critical_path_seconds"] >= sum(reproducer.seconds.values()) / workers
+    assert cells[1] == cells[2]
+    filled = [c for c in cells[1].values() if c["ours"] is not None]
+    assert len(filled) == 3 * 5 + 4 + 3 * 2 + 3 * 8
+    # the link-loss run at r = 0 and the Table IV consensus run are the same run
+    table4 = cells[1]["IV", "Consensus trajectory RMSE (m)", "3 robots"]["ours"]
+    fig4 = cells[1]["Fig. 4", "3 robots, consensus, r = 0", "trajectory RMSE"]["ours"]
+    assert fig4 == table4
+    folder = shared_data / "fej-environments"
+    env = api.fej_environment(
+        1, 20, [folder / "RobotsWaypoints_1.mat", folder / "CheckedTrueState_20features_1.mat"]
+    )
+    direct = api.fej_table(env, runs=7, workers=1).table
+    cell = cells[2]["1", "20 features FEJ", "Feature Position NEES"]
+    assert cell["ours"] == direct["fej"]["feature_nees"]

@@ -38,7 +38,7 @@ def _show(result, as_json: bool) -> None:
     if as_json:
         return
     print(result.text())
-    print(f"  ({result.seconds:.1f} s)\n", flush=True)
+    print(f"  ({result.seconds:.1f} s CPU)\n", flush=True)
 
 
 def _finish(results, args: argparse.Namespace, written: list[str]) -> int:
@@ -107,9 +107,7 @@ def _cmd_all(args: argparse.Namespace) -> int:
         args.out, settings, args.data, on_done=lambda r: _show(r, args.json)
     )
     if not args.json:
-        total = sum(reproducer.seconds.values())
-        times = ", ".join(f"{k} {v:.0f} s" for k, v in reproducer.seconds.items())
-        print(f"experiments: {times}; total {total:.0f} s", file=sys.stderr)
+        print(reproducer.time_text(), file=sys.stderr)
     return _finish(results, args, [f"{args.out}/ (*.md, *.json, *.png, paper.json, report.html)"])
 
 

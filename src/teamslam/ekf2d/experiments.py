@@ -24,7 +24,15 @@ from teamslam.ekf2d.simulate import PlanarTruth, simulate, truth_of
 from teamslam.errors import InputError
 from teamslam.eval.montecarlo import run_parallel
 
-__all__ = ["FILTERS", "MonteCarloResult", "format_table", "monte_carlo"]
+__all__ = [
+    "FILTERS",
+    "MonteCarloResult",
+    "format_table",
+    "monte_carlo",
+    "run_seeds",
+    "run_seeds_of",
+    "summarise_runs",
+]
 
 FILTERS = ("std", "ideal", "fej")
 LABELS = {"std": "Standard", "ideal": "Ideal", "fej": "FEJ"}
@@ -100,11 +108,32 @@ def monte_carlo(
         raise InputError("runs must be positive")
     for name in filters:
         make_policy(name)
-    truth = truth_of(env)
-    job = partial(_one_run, env=env, truth=truth, filters=tuple(filters))
-    seeds = [seed * 100_003 + k for k in range(runs)]
+    job = partial(_one_run, env=env, truth=truth_of(env), filters=tuple(filters))
+    seeds = run_seeds_of(runs, seed)
     results = run_parallel(job, seeds, workers, progress, description=f"{env.name} Monte Carlo")
-    out = MonteCarloResult(env.name, runs, truth.steps, env.n_robots)
+    return summarise_runs(env, results, filters)
+
+
+def run_seeds_of(runs: int, seed: int = 0) -> list[int]:
+    """The seeds of the ``runs`` Monte Carlo runs of :func:`monte_carlo` with ``seed``."""
+    return [seed * 100_003 + k for k in range(runs)]
+
+
+def run_seeds(
+    seeds: list[int], env: PlanarEnvironment, filters: tuple[str, ...] = FILTERS
+) -> list[dict[str, RunMetrics]]:
+    """The Monte Carlo runs of ``seeds`` (a part of :func:`monte_carlo`'s runs, for a
+    scheduler of many experiments): per run, per filter its metrics."""
+    truth = truth_of(env)
+    return [_one_run(s, env, truth, filters) for s in seeds]
+
+
+def summarise_runs(
+    env: PlanarEnvironment, results: list[dict[str, RunMetrics]], filters: tuple[str, ...] = FILTERS
+) -> MonteCarloResult:
+    """:func:`monte_carlo`'s result from its runs (:func:`run_seeds`, in seed order)."""
+    steps = results[0][filters[0]].position_sq.shape[0] - 1
+    out = MonteCarloResult(env.name, len(results), steps, env.n_robots)
     for name in filters:
         metrics = [r[name] for r in results]
         out.curves[name], out.table[name] = _summarise(metrics, env.n_robots)

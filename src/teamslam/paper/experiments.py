@@ -10,11 +10,17 @@ numbers. ``benchmarks/msckf_team.py`` calls the same functions.
 * :func:`loss_sweep` — consensus under link loss (DVI Fig. 4);
 * :func:`fej_tables` — Monte Carlo of the standard, ideal and FEJ planar EKFs (FEJ Tables 1–2,
   Figs. 4–5).
+
+Each is also an :class:`Experiment` — its independent tasks and how its result is built from
+theirs (:func:`kitti_experiment`, :func:`team_experiment`, :func:`loss_experiment`,
+:func:`fej_experiment`, :func:`victoria_park_experiment`) — so that :func:`run_experiments` can
+run the tasks of many in one process pool, longest first, each task once. The results do not
+depend on the number of workers.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -23,14 +29,23 @@ from typing import Any
 from teamslam.errors import InputError
 
 __all__ = [
+    "FEJ_RUNS_PER_TASK",
     "TEAM_FILTERS",
+    "Experiment",
     "PaperSettings",
+    "fej_experiment",
     "fej_tables",
+    "kitti_experiment",
     "kitti_pair",
+    "loss_experiment",
     "loss_sweep",
+    "run_experiments",
     "settings_summary",
     "stage_statistics",
+    "task_label",
+    "team_experiment",
     "team_pairs",
+    "victoria_park_experiment",
 ]
 
 #: The two filters of every distributed-MSCKF table: without and with consensus averaging.
@@ -153,10 +168,6 @@ def _team_run(dataset, mode: str, effective, loss: float = 0.0, seed: int = 0) -
     return {**_kept(run.by_mode[mode]), "stage_ms": stage_statistics(run.results[mode])}
 
 
-def _kitti_job(k: int, dataset, effective) -> dict:
-    return _team_run(dataset, TEAM_FILTERS[k], effective)
-
-
 def settings_summary(dataset, effective) -> str:
     """The settings that matter for the tables, and where they came from."""
     config = effective.config
@@ -171,6 +182,102 @@ def settings_summary(dataset, effective) -> str:
     return ", ".join(parts)
 
 
+# ---------------------------------------------------------------------- experiments as tasks
+# Every experiment is a list of tasks and a function building its result from theirs, so that
+# the tasks of several experiments share one process pool (:func:`run_experiments`). A task's
+# key names everything its result depends on: two experiments listing the same key (the
+# separate filters of Table IV and of Fig. 4) run it once. The costs only order the tasks
+# (longest chain first); they are estimates in robot-frames of the MSCKF.
+
+
+@dataclass
+class Experiment:
+    """The tasks of an experiment and how its result is built from their results.
+
+    Attributes
+    ----------
+    tasks
+        :class:`~teamslam.eval.schedule.Task` objects.
+    collect
+        Called with every task's result (``{key: result}``); returns the experiment's result.
+    """
+
+    tasks: list
+    collect: Callable[[dict], Any]
+
+
+def run_experiments(
+    experiments: dict[str, Experiment],
+    workers: int | None = None,
+    progress: bool | None = None,
+    description: str = "experiments",
+):
+    """The tasks of all ``experiments`` in one process pool, longest chain first, each task
+    once (:func:`teamslam.eval.schedule.run_tasks`).
+
+    Returns
+    -------
+    results, schedule
+        Per experiment name its result, and the :class:`~teamslam.eval.schedule.Schedule`.
+    """
+    from teamslam.eval.schedule import run_tasks
+
+    tasks: dict = {}
+    for experiment in experiments.values():
+        for task in experiment.tasks:
+            tasks.setdefault(task.key, task)
+    done, schedule = run_tasks(tasks.values(), workers, progress, description)
+    return {name: e.collect(done) for name, e in experiments.items()}, schedule
+
+
+def task_label(key: tuple) -> str:
+    """A task's key for people: its parts without directories and empty settings."""
+    parts = [p for p in key if not (isinstance(p, str) and ("/" in p or p == "[]"))]
+    return " ".join(str(p) for p in parts if p is not None)
+
+
+def _settings_key(settings: dict | None) -> str:
+    return repr(sorted((settings or {}).items()))
+
+
+#: estimated cost of a consensus run against a separate one, per robot-frame
+_CONSENSUS_COST = 2.0
+#: estimated calibration passes (each a separate filter over the calibration frames)
+_CALIBRATION_PASSES = 6
+
+
+def _team_cost(robots: int, frames: int, mode: str) -> float:
+    return robots * frames * (_CONSENSUS_COST if mode == "consensus" else 1.0)
+
+
+def _reference_frames(directory: Path, frames: int | None) -> tuple[int, int]:
+    """Robots and frames per robot of a published team directory (for the cost estimates)."""
+    import numpy as np
+
+    try:
+        with np.load(directory / "poses.npz") as poses:
+            lengths = [poses[k].shape[0] for k in poses.files]
+    except (OSError, ValueError):
+        lengths = [1]  # the import will say what is wrong
+    longest = max(lengths) if frames is None else min(max(lengths), frames)
+    return len(lengths), longest
+
+
+def _kitti_prepare(directory: Path, frames: int | None, settings: dict | None):
+    from teamslam import api
+    from teamslam.datasets import import_reference
+
+    dataset = import_reference(directory)
+    if frames is not None:
+        dataset = dataset.head(frames)
+    return dataset, api.resolve_settings(dataset, settings)
+
+
+def _kitti_run(prepared, mode: str) -> dict:
+    dataset, effective = prepared
+    return _team_run(dataset, mode, effective)
+
+
 @dataclass
 class KittiPair:
     """Separate and consensus on the KITTI 00 team: per filter the run's metrics."""
@@ -178,6 +285,42 @@ class KittiPair:
     metrics: dict[str, dict]
     settings: str
     frames: list[int] = field(default_factory=list)
+
+
+def kitti_experiment(
+    directory: str | Path, frames: int | None = None, settings: dict | None = None
+) -> Experiment:
+    """:func:`kitti_pair` as tasks: the import and the settings (with the noise calibration)
+    once, then the two filters on the imported team."""
+    from teamslam.eval.schedule import Task
+    from teamslam.msckf.calibration import default_frames
+
+    directory = Path(directory)
+    base = ("kitti", str(directory), frames, _settings_key(settings))
+    robots, length = _reference_frames(directory, frames)
+    calibration = _CALIBRATION_PASSES * robots * min(length, default_frames(robots))
+    prepare = Task(
+        (*base, "prepare"), partial(_kitti_prepare, directory, frames, settings), cost=calibration
+    )
+    runs = [
+        Task(
+            (*base, mode),
+            partial(_kitti_run, mode=mode),
+            cost=_team_cost(robots, length, mode),
+            needs=prepare.key,
+        )
+        for mode in TEAM_FILTERS
+    ]
+
+    def collect(done: dict) -> KittiPair:
+        dataset, effective = done[prepare.key]
+        return KittiPair(
+            {mode: done[(*base, mode)] for mode in TEAM_FILTERS},
+            settings_summary(dataset, effective),
+            [r.frames for r in dataset.robots],
+        )
+
+    return Experiment([prepare, *runs], collect)
 
 
 def kitti_pair(
@@ -199,23 +342,10 @@ def kitti_pair(
     settings
         Filter settings on top of those resolved from the data (``{name: value}``, as ``--set``).
     workers, progress
-        The two filters run in parallel (:func:`~teamslam.eval.montecarlo.run_parallel`).
+        The two filters run in parallel (:func:`run_experiments`).
     """
-    from teamslam import api
-    from teamslam.datasets import import_reference
-    from teamslam.eval.montecarlo import run_parallel
-
-    dataset = import_reference(directory)
-    if frames is not None:
-        dataset = dataset.head(frames)
-    effective = api.resolve_settings(dataset, settings)
-    job = partial(_kitti_job, dataset=dataset, effective=effective)
-    results = run_parallel(job, [0, 1], workers, progress, description="KITTI 00")
-    return KittiPair(
-        dict(zip(TEAM_FILTERS, results, strict=True)),
-        settings_summary(dataset, effective),
-        [r.frames for r in dataset.robots],
-    )
+    experiment = kitti_experiment(directory, frames, settings)
+    return run_experiments({"kitti": experiment}, workers, progress, "KITTI 00")[0]["kitti"]
 
 
 def _simulated(robots: int, steps: int, seed: int):
@@ -224,10 +354,10 @@ def _simulated(robots: int, steps: int, seed: int):
     return lissajous_team(robots=robots, steps=steps, seed=seed)
 
 
-def _pair_job(k: int, cases: tuple, steps: int, settings: dict | None) -> dict:
+def _pair_job(case: tuple, steps: int, settings: dict | None) -> dict:
     from teamslam import api
 
-    robots, seed, mode, loss = cases[k]
+    robots, seed, mode, loss = case
     dataset = _simulated(robots, steps, seed)
     effective = api.resolve_settings(dataset, settings)
     out = _team_run(dataset, mode, effective, loss=loss, seed=1)
@@ -235,17 +365,36 @@ def _pair_job(k: int, cases: tuple, steps: int, settings: dict | None) -> dict:
     return out
 
 
-def _run_cases(cases, steps, settings, workers, progress, description) -> list[dict]:
-    from teamslam.eval.montecarlo import run_parallel
+def _case_tasks(cases, steps: int, settings: dict | None) -> dict[tuple, Any]:
+    """Per case ``(robots, seed, mode, loss)`` of a simulated team its task."""
+    from teamslam.eval.schedule import Task
 
-    # the largest teams first: the pool ends with the short runs
-    order = sorted(range(len(cases)), key=lambda k: -cases[k][0])
-    job = partial(_pair_job, cases=tuple(cases[k] for k in order), steps=steps, settings=settings)
-    done = run_parallel(job, list(range(len(cases))), workers, progress, description)
-    results: list[dict] = [{}] * len(cases)
-    for position, k in enumerate(order):
-        results[k] = done[position]
-    return results
+    return {
+        case: Task(
+            ("team", *case, steps, _settings_key(settings)),
+            partial(_pair_job, case, steps, settings),
+            cost=_team_cost(case[0], steps, case[2]),
+        )
+        for case in cases
+    }
+
+
+def team_experiment(
+    team_sizes: Sequence[int], seeds: int, steps: int, settings: dict | None = None
+) -> Experiment:
+    """:func:`team_pairs` as tasks: one per team size, seed and filter."""
+    cases = [(n, s, m, 0.0) for n in team_sizes for s in range(seeds) for m in TEAM_FILTERS]
+    tasks = _case_tasks(cases, steps, settings)
+
+    def collect(done: dict) -> dict[int, dict[str, list[dict]]]:
+        out: dict[int, dict[str, list[dict]]] = {
+            n: {m: [] for m in TEAM_FILTERS} for n in team_sizes
+        }
+        for case, task in tasks.items():
+            out[case[0]][case[2]].append(done[task.key])
+        return out
+
+    return Experiment(list(tasks.values()), collect)
 
 
 def team_pairs(
@@ -263,12 +412,32 @@ def team_pairs(
     dict
         Per team size, per filter (``separate``, ``consensus``) the metrics of each seed.
     """
-    cases = [(n, s, m, 0.0) for n in team_sizes for s in range(seeds) for m in TEAM_FILTERS]
-    done = _run_cases(cases, steps, settings, workers, progress, "simulated teams")
-    out: dict[int, dict[str, list[dict]]] = {n: {m: [] for m in TEAM_FILTERS} for n in team_sizes}
-    for (n, _, mode, _), metrics in zip(cases, done, strict=True):
-        out[n][mode].append(metrics)
-    return out
+    experiment = team_experiment(team_sizes, seeds, steps, settings)
+    return run_experiments({"teams": experiment}, workers, progress, "simulated teams")[0]["teams"]
+
+
+def loss_experiment(
+    team_sizes: Sequence[int],
+    rates: Sequence[float],
+    steps: int,
+    seed: int = 0,
+    settings: dict | None = None,
+) -> Experiment:
+    """:func:`loss_sweep` as tasks: one per team size and rate, and the separate filters."""
+    cases = [(n, seed, "separate", 0.0) for n in team_sizes]
+    cases += [(n, seed, "consensus", float(r)) for n in team_sizes for r in rates]
+    tasks = _case_tasks(cases, steps, settings)
+
+    def collect(done: dict) -> dict[int, dict[str, Any]]:
+        out: dict[int, dict[str, Any]] = {n: {"consensus": {}} for n in team_sizes}
+        for (n, _, mode, r), task in tasks.items():
+            if mode == "separate":
+                out[n]["separate"] = done[task.key]
+            else:
+                out[n]["consensus"][r] = done[task.key]
+        return out
+
+    return Experiment(list(tasks.values()), collect)
 
 
 def loss_sweep(
@@ -288,16 +457,8 @@ def loss_sweep(
     dict
         Per team size: ``separate`` (metrics) and ``consensus`` (rate → metrics).
     """
-    cases = [(n, seed, "separate", 0.0) for n in team_sizes]
-    cases += [(n, seed, "consensus", float(r)) for n in team_sizes for r in rates]
-    done = _run_cases(cases, steps, settings, workers, progress, "link loss")
-    out: dict[int, dict[str, Any]] = {n: {"consensus": {}} for n in team_sizes}
-    for (n, _, mode, r), metrics in zip(cases, done, strict=True):
-        if mode == "separate":
-            out[n]["separate"] = metrics
-        else:
-            out[n]["consensus"][r] = metrics
-    return out
+    experiment = loss_experiment(team_sizes, rates, steps, seed, settings)
+    return run_experiments({"loss": experiment}, workers, progress, "link loss")[0]["loss"]
 
 
 @dataclass
@@ -310,6 +471,71 @@ class FejTables:
     published: dict[int, bool]
 
 
+#: Monte Carlo runs per FEJ task
+FEJ_RUNS_PER_TASK = 5
+
+
+def _fej_environment(env: int, count: int, data: str | Path | None):
+    """The environment of ``env`` with ``count`` features, and whether it is the paper's own."""
+    from teamslam import api
+
+    files: tuple[Path, ...] = ()
+    if data is not None:
+        folder = Path(data) / "fej-environments"
+        pair = (
+            folder / f"RobotsWaypoints_{env}.mat",
+            folder / f"CheckedTrueState_{count}features_{env}.mat",
+        )
+        files = pair if all(f.is_file() for f in pair) else ()
+    source = (
+        "the published environment files " + " + ".join(f.name for f in files)
+        if files
+        else f"our generated environment {env} with the paper's parameters"
+    )
+    return api.fej_environment(env, count, files), source, bool(files)
+
+
+def fej_experiment(
+    env: int, features: Sequence[int], runs: int, data: str | Path | None = None, seed: int = 0
+) -> Experiment:
+    """:func:`fej_tables` as tasks: the Monte Carlo runs of each feature count in parts of
+    :data:`FEJ_RUNS_PER_TASK` runs."""
+    from teamslam.ekf2d.experiments import run_seeds, run_seeds_of, summarise_runs
+    from teamslam.eval.schedule import Task
+
+    seeds = run_seeds_of(runs, seed)
+    environments = {count: _fej_environment(env, count, data) for count in features}
+    parts: dict[int, list] = {}
+    for count, (environment, _, _) in environments.items():
+        base = ("fej", env, count, str(data), seed)
+        parts[count] = [
+            Task(
+                (*base, chunk[0], len(chunk)),
+                partial(run_seeds, chunk, environment),
+                # per run: the three EKFs over every robot and feature at every step
+                cost=3 * environment.steps * (environment.n_robots + count) / 600,
+            )
+            for chunk in (
+                seeds[k : k + FEJ_RUNS_PER_TASK] for k in range(0, runs, FEJ_RUNS_PER_TASK)
+            )
+        ]
+
+    def collect(done: dict) -> FejTables:
+        results = {
+            count: summarise_runs(
+                environments[count][0], [r for t in parts[count] for r in done[t.key]]
+            )
+            for count in features
+        }
+        return FejTables(
+            results,
+            {count: e[1] for count, e in environments.items()},
+            {count: e[2] for count, e in environments.items()},
+        )
+
+    return Experiment([t for tasks in parts.values() for t in tasks], collect)
+
+
 def fej_tables(
     env: int,
     features: Sequence[int],
@@ -320,33 +546,31 @@ def fej_tables(
     progress: bool | None = None,
 ) -> FejTables:
     """Monte Carlo of the standard, ideal and FEJ EKFs on FEJ environment ``env`` for each
-    feature count, as ``teamslam fej table`` runs it.
+    feature count, as ``teamslam fej table`` runs it (the same numbers).
 
     Where ``data/fej-environments`` holds the paper's own environment files for a feature
     count (``RobotsWaypoints_<env>.mat`` and ``CheckedTrueState_<F>features_<env>.mat``) they
     are used; otherwise the generated environment with the paper's parameters.
     """
-    from teamslam import api
-    from teamslam.ekf2d.experiments import monte_carlo
+    experiment = fej_experiment(env, features, runs, data, seed)
+    name = f"fej-env{env}"
+    return run_experiments({name: experiment}, workers, progress, f"FEJ environment {env}")[0][name]
 
-    results, sources, published = {}, {}, {}
-    folder = None if data is None else Path(data) / "fej-environments"
-    for count in features:
-        files: tuple[Path, ...] = ()
-        if folder is not None:
-            pair = (
-                folder / f"RobotsWaypoints_{env}.mat",
-                folder / f"CheckedTrueState_{count}features_{env}.mat",
-            )
-            files = pair if all(f.is_file() for f in pair) else ()
-        environment = api.fej_environment(env, count, files)
-        published[count] = bool(files)
-        sources[count] = (
-            "the published environment files " + " + ".join(f.name for f in files)
-            if files
-            else f"our generated environment {env} with the paper's parameters"
-        )
-        results[count] = monte_carlo(
-            environment, runs=runs, seed=seed, workers=workers, progress=progress
-        )
-    return FejTables(results, sources, published)
+
+def _victoria_park(path: Path) -> tuple[dict, bytes]:
+    import tempfile
+
+    from teamslam import api
+
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = api.victoria_park(path, out=tmp)
+        return summary, (Path(tmp) / "victoria_park.png").read_bytes()
+
+
+def victoria_park_experiment(path: str | Path) -> Experiment:
+    """The std and FEJ EKFs on the Victoria Park split (:func:`teamslam.api.victoria_park`):
+    one task; its result is the summary and the figure's PNG."""
+    from teamslam.eval.schedule import Task
+
+    task = Task(("victoria-park", str(path)), partial(_victoria_park, Path(path)), cost=1.0)
+    return Experiment([task], lambda done: done[task.key])

@@ -45,7 +45,7 @@ def _section(item) -> str:
         out.append(f"<figure><img alt='{_esc(item.title)}' src='data:image/png;base64,{data}'>")
         out.append(f"<figcaption>{_esc(item.title)}</figcaption></figure>")
     out.append("<ul>" + "".join(f"<li>{_esc(s)}</li>" for s in item.setting) + "</ul>")
-    out.append(f"<p><small>{item.seconds:.1f} s</small></p></section>")
+    out.append(f"<p><small>{item.seconds:.1f} s CPU</small></p></section>")
     return "".join(out)
 
 
@@ -53,7 +53,7 @@ def paper_report(items: list, reproducer) -> str:
     """The HTML text."""
     from teamslam import __version__
 
-    times = ", ".join(f"{k} {v:.0f} s" for k, v in reproducer.seconds.items())
+    times = reproducer.time_text()
     toc = "".join(
         f"<li><a href='#{_esc(i.key)}'>{_esc(i.key)}</a>: {_esc(i.title)}</li>" for i in items
     )
@@ -62,7 +62,7 @@ def paper_report(items: list, reproducer) -> str:
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
         f"<title>teamslam: the papers reproduced</title><style>{_STYLE}</style></head><body>"
         f"<h1>The papers' tables and figures, reproduced by teamslam {_esc(__version__)}</h1>"
-        f"<p>{_esc(reproducer.settings.describe())}</p><p>Experiment times: {_esc(times)}</p>"
+        f"<p>{_esc(reproducer.settings.describe())}</p><p>{_esc(times)}</p>"
         f"<ul>{toc}</ul>{body}</body></html>\n"
     )
 

@@ -9,8 +9,6 @@ with ``report.html``.
 from __future__ import annotations
 
 import math
-import tempfile
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,12 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from teamslam.errors import InputError
+from teamslam.errors import InputError, InternalError
 from teamslam.paper import experiments as ex
 from teamslam.paper.compare import Cell, Reproduction
 from teamslam.paper.values import paper_values
 
-__all__ = ["ITEMS", "Item", "Reproducer", "item_key", "reproduce_all"]
+__all__ = ["ITEMS", "NEEDS", "Item", "Reproducer", "item_key", "reproduce_all"]
 
 
 @dataclass(frozen=True)
@@ -188,8 +186,29 @@ def _finite_max(values) -> float:
     return float(v.max()) if v.size else math.nan
 
 
+#: The experiments each table or figure needs (:meth:`Reproducer.run`).
+NEEDS = {
+    "dvi-table-1": ("kitti",),
+    "dvi-table-2": ("kitti",),
+    "dvi-table-3": ("kitti",),
+    "dvi-table-4": ("teams",),
+    "dvi-figure-3": ("kitti", "teams"),
+    "dvi-figure-4": ("loss",),
+    "fej-table-1": ("fej-env1",),
+    "fej-table-2": ("fej-env2",),
+    "fej-figure-4": ("fej-env1",),
+    "fej-figure-5": ("fej-env2",),
+    "fej-figure-6": ("victoria-park",),
+    "fej-victoria-park": ("victoria-park",),
+}
+
+
 class Reproducer:
     """Runs the experiments behind the papers' tables and figures, each once.
+
+    :meth:`run` runs the tasks of every experiment a set of tables and figures needs in one
+    process pool, longest first (:func:`~teamslam.paper.experiments.run_experiments`); a table
+    built without it runs what it needs alone.
 
     Parameters
     ----------
@@ -198,91 +217,140 @@ class Reproducer:
     data
         The data directory (``distributed-msckf/kitti00``, ``fej-environments``,
         ``victoria-park``); what is absent is reported in the setting lines, not computed.
+
+    Attributes
+    ----------
+    seconds
+        Per experiment run: the CPU seconds of its tasks (a task two experiments share counts
+        for the first).
+    schedules
+        The :class:`~teamslam.eval.schedule.Schedule` of each pool run: wall time, and the CPU
+        time each worker was given.
     """
 
     def __init__(self, settings: ex.PaperSettings | None = None, data: str | Path | None = None):
         self.settings = settings or ex.PaperSettings()
         self.data = None if data is None else Path(data)
         self.seconds: dict[str, float] = {}
+        self.schedules: list = []
         self._cache: dict[str, Any] = {}
         self._charged: set[str] = set()
 
     # ------------------------------------------------------------------ experiments
-    def _experiment(self, name: str, compute: Callable[[], Any]) -> Any:
-        if name not in self._cache:
-            begin = time.perf_counter()
-            self._cache[name] = compute()
-            self.seconds[name] = time.perf_counter() - begin
-        return self._cache[name]
-
     def _path(self, *parts: str) -> Path | None:
         if self.data is None:
             return None
         path = self.data.joinpath(*parts)
         return path if path.exists() else None
 
+    def _define(self, name: str) -> ex.Experiment | None:
+        """The experiment ``name`` at these settings (``None``: its data is absent)."""
+        s = self.settings
+        if name == "kitti":
+            path = self._path("distributed-msckf", "kitti00")
+            return None if path is None else ex.kitti_experiment(path, s.frames)
+        if name == "teams":
+            return ex.team_experiment(s.team_sizes, s.seeds, s.steps)
+        if name == "loss":
+            return ex.loss_experiment(s.team_sizes, s.loss_rates, s.steps, 0)
+        if name.startswith("fej-env"):
+            env = int(name.removeprefix("fej-env"))
+            return ex.fej_experiment(env, s.fej_features, s.fej_runs, self.data, 0)
+        if name == "victoria-park":
+            path = self._path("victoria-park")
+            return None if path is None else ex.victoria_park_experiment(path)
+        raise InternalError(f"no experiment {name!r}")
+
+    def run(self, keys: list[str] | None = None) -> None:
+        """Run, in one process pool, every experiment the tables and figures ``keys`` (default:
+        all) need that has not run yet."""
+        names = dict.fromkeys(n for k in (keys or list(ITEMS)) for n in NEEDS[k])
+        todo = {}
+        for name in names:
+            if name in self._cache:
+                continue
+            experiment = self._define(name)
+            if experiment is None:
+                self._cache[name] = None
+            else:
+                todo[name] = experiment
+        if not todo:
+            return
+        s = self.settings
+        results, schedule = ex.run_experiments(todo, s.workers, s.progress, "paper experiments")
+        self.schedules.append(schedule)
+        charged: set = set()
+        for name, experiment in todo.items():
+            keys_of = {t.key for t in experiment.tasks} - charged
+            charged |= keys_of
+            self.seconds[name] = sum(schedule.cpu[k] for k in keys_of)
+        self._cache.update(results)
+
+    def _get(self, name: str) -> Any:
+        if name not in self._cache:
+            self.run([k for k, needs in NEEDS.items() if name in needs][:1])
+        return self._cache[name]
+
     def kitti(self) -> ex.KittiPair | None:
         """Separate and consensus on KITTI 00 (``None`` without the data)."""
-        path = self._path("distributed-msckf", "kitti00")
-        if path is None:
-            return None
-        s = self.settings
-        return self._experiment(
-            "kitti", lambda: ex.kitti_pair(path, s.frames, None, s.workers, s.progress)
-        )
+        return self._get("kitti")
 
     def teams(self) -> dict:
         """Separate and consensus on the simulated teams."""
-        s = self.settings
-        return self._experiment(
-            "teams",
-            lambda: ex.team_pairs(s.team_sizes, s.seeds, s.steps, None, s.workers, s.progress),
-        )
+        return self._get("teams")
 
     def loss(self) -> dict:
         """The link-loss sweep."""
-        s = self.settings
-        return self._experiment(
-            "loss",
-            lambda: ex.loss_sweep(
-                s.team_sizes, s.loss_rates, s.steps, 0, None, s.workers, s.progress
-            ),
-        )
+        return self._get("loss")
 
     def fej(self, env: int) -> ex.FejTables:
         """The FEJ Monte Carlo of environment ``env``."""
-        s = self.settings
-        return self._experiment(
-            f"fej-env{env}",
-            lambda: ex.fej_tables(
-                env, s.fej_features, s.fej_runs, self.data, 0, s.workers, s.progress
-            ),
-        )
+        return self._get(f"fej-env{env}")
 
     def victoria_park(self) -> tuple[dict, bytes] | None:
         """Std and FEJ EKFs on the Victoria Park split: summary and the figure's PNG."""
-        path = self._path("victoria-park")
-        if path is None:
-            return None
+        return self._get("victoria-park")
 
-        def compute():
-            from teamslam import api
+    def timing(self) -> dict[str, Any]:
+        """Wall seconds of the pool runs, the workers, the CPU seconds each worker was given
+        and the most of them (per pool run, summed: what the runs would take with a free core
+        per worker), and per task its CPU and wall seconds, worker and place in the start
+        order."""
+        return {
+            "wall_seconds": sum(s.seconds for s in self.schedules),
+            "workers": max((s.workers for s in self.schedules), default=0),
+            "worker_cpu_seconds": [s.worker_cpu() for s in self.schedules],
+            "critical_path_seconds": sum(s.critical_path() for s in self.schedules),
+            "tasks": [
+                {"task": ex.task_label(key), "cpu": s.cpu[key], "wall": s.wall[key]}
+                | {"worker": s.worker[key], "start": s.order.index(key)}
+                for s in self.schedules
+                for key in s.order
+            ],
+        }
 
-            with tempfile.TemporaryDirectory() as tmp:
-                summary = api.victoria_park(path, out=tmp)
-                return summary, (Path(tmp) / "victoria_park.png").read_bytes()
-
-        return self._experiment("victoria-park", compute)
+    def time_text(self) -> str:
+        """One line: CPU seconds per experiment, the wall time and the most CPU time one
+        worker was given."""
+        timing = self.timing()
+        cpu = ", ".join(f"{k} {v:.0f} s" for k, v in self.seconds.items())
+        return (
+            f"experiments (CPU): {cpu}; total {sum(self.seconds.values()):.0f} s CPU in "
+            f"{timing['wall_seconds']:.0f} s wall on {timing['workers']} worker(s), the most "
+            f"CPU one worker was given {timing['critical_path_seconds']:.0f} s"
+        )
 
     # ------------------------------------------------------------------ tables and figures
     def build(self, key: str) -> Reproduction:
         """The table or figure ``key`` of :data:`ITEMS`, its experiments run if not yet."""
         if key not in ITEMS:
             raise InputError(f"unknown table or figure {key!r} (have: {', '.join(ITEMS)})")
-        before = set(self.seconds)
+        self.run([key])
         result = getattr(self, "_" + key.replace("-", "_"))(ITEMS[key])
-        spent = sum(v for k, v in self.seconds.items() if k not in before)
-        result.seconds = spent
+        # the CPU time of the experiments this is the first to use
+        first = [n for n in NEEDS[key] if n in self.seconds and n not in self._charged]
+        self._charged.update(first)
+        result.seconds = sum(self.seconds[n] for n in first)
         result.setting.append(self.settings.describe())
         return result
 
@@ -541,6 +609,7 @@ def reproduce_all(
     from teamslam.paper.report import write_paper_report
 
     reproducer = Reproducer(settings, data)
+    reproducer.run(keys)
     done = []
     for key in keys or list(ITEMS):
         result = reproducer.build(key)
@@ -553,6 +622,7 @@ def reproduce_all(
         {
             "settings": reproducer.settings.describe(),
             "seconds": reproducer.seconds,
+            "schedule": reproducer.timing(),
             "cells": [r for item in done for r in item.records()],
         },
     )

@@ -1,0 +1,209 @@
+"""Independent jobs of different lengths, some needing another's result, in one process pool.
+
+Each :class:`Task` is a picklable callable; a task with ``needs`` is called with the result of
+the task it names. Tasks start by the longest chain first — the estimated cost of the task plus
+the longest chain of tasks that wait on it (list scheduling by "bottom level", Adam, Chandy &
+Dickson 1974, "A comparison of list schedules for parallel processing systems", CACM 17(12)) —
+and never more than ``workers`` at a time, so a long chain does not start last and the pool
+ends with the short tasks. Every worker has BLAS pinned to one thread, as in
+:func:`~teamslam.eval.montecarlo.run_parallel`.
+
+Results do not depend on the order or the number of workers (each task is deterministic on its
+inputs); only the times do. :class:`Schedule` keeps each task's CPU and wall seconds and the
+worker that ran it.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable, Hashable, Iterable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from typing import Any
+
+from threadpoolctl import threadpool_limits
+from tqdm import tqdm
+
+from teamslam.errors import InputError
+from teamslam.eval.montecarlo import _init_worker, default_workers
+
+__all__ = ["Schedule", "Task", "run_tasks"]
+
+
+@dataclass(frozen=True)
+class Task:
+    """One job of :func:`run_tasks`.
+
+    Attributes
+    ----------
+    key
+        Its name (unique among the tasks).
+    call
+        A picklable callable (a module-level function or a ``functools.partial`` of one),
+        called without arguments, or with the result of ``needs``.
+    cost
+        Estimated CPU time, in any unit common to the tasks (only the order uses it).
+    needs
+        The key of the task whose result ``call`` takes, or ``None``.
+    """
+
+    key: Hashable
+    call: Callable[..., Any]
+    cost: float = 1.0
+    needs: Hashable | None = None
+
+
+@dataclass
+class Schedule:
+    """Where and how long each task ran.
+
+    Attributes
+    ----------
+    cpu, wall
+        Per task key: CPU seconds of its process and wall seconds.
+    worker
+        Per task key: the worker (0, 1, …) that ran it.
+    order
+        The task keys in the order they started.
+    seconds
+        Wall seconds of the whole run.
+    workers
+        Processes used.
+    """
+
+    cpu: dict[Hashable, float] = field(default_factory=dict)
+    wall: dict[Hashable, float] = field(default_factory=dict)
+    worker: dict[Hashable, int] = field(default_factory=dict)
+    order: list[Hashable] = field(default_factory=list)
+    seconds: float = 0.0
+    workers: int = 1
+
+    def worker_cpu(self) -> list[float]:
+        """CPU seconds of the tasks each worker ran."""
+        out = [0.0] * max(self.workers, 1 + max(self.worker.values(), default=0))
+        for key, w in self.worker.items():
+            out[w] += self.cpu[key]
+        return out
+
+    def critical_path(self) -> float:
+        """The most CPU seconds one worker was given: the wall time of the run on a machine
+        with a free core per worker (pool start and the results' transfer aside)."""
+        return max(self.worker_cpu(), default=0.0)
+
+
+def _timed(call: Callable[..., Any], *args: Any) -> tuple[Any, float, float, int]:
+    cpu, wall = time.process_time(), time.perf_counter()
+    result = call(*args)
+    return result, time.process_time() - cpu, time.perf_counter() - wall, os.getpid()
+
+
+def _priorities(tasks: dict[Hashable, Task]) -> dict[Hashable, float]:
+    """Per task: its cost plus the longest chain of costs of the tasks waiting on it."""
+    waiting: dict[Hashable, list[Hashable]] = {k: [] for k in tasks}
+    for t in tasks.values():
+        if t.needs is not None:
+            waiting[t.needs].append(t.key)
+    level: dict[Hashable, float] = {}
+
+    def bottom(key: Hashable, seen: tuple = ()) -> float:
+        if key in seen:
+            raise InputError(f"tasks wait on each other in a cycle through {key!r}")
+        if key not in level:
+            below = [bottom(k, (*seen, key)) for k in waiting[key]]
+            level[key] = tasks[key].cost + max(below, default=0.0)
+        return level[key]
+
+    for key in tasks:
+        bottom(key)
+    return level
+
+
+def run_tasks(
+    tasks: Iterable[Task],
+    workers: int | None = None,
+    progress: bool | None = None,
+    description: str = "tasks",
+) -> tuple[dict[Hashable, Any], Schedule]:
+    """Run every task, longest chain first, at most ``workers`` at a time.
+
+    Parameters
+    ----------
+    tasks
+        The tasks; a task's ``needs`` must name another of them.
+    workers
+        Processes to use (default: all cores); ``1`` runs every task in this process.
+    progress
+        Show a progress bar; default: when standard error is a terminal.
+
+    Returns
+    -------
+    results, schedule
+        Per task key its result, and where and how long each task ran.
+    """
+    by_key: dict[Hashable, Task] = {}
+    for t in tasks:
+        if t.key in by_key:
+            raise InputError(f"two tasks named {t.key!r}")
+        by_key[t.key] = t
+    for t in by_key.values():
+        if t.needs is not None and t.needs not in by_key:
+            raise InputError(f"task {t.key!r} needs {t.needs!r}, which is not a task")
+    level = _priorities(by_key)
+    position = {k: n for n, k in enumerate(by_key)}
+    waiting: dict[Hashable, list[Hashable]] = {k: [] for k in by_key}
+    ready: list[Hashable] = []
+    for t in by_key.values():
+        (ready if t.needs is None else waiting[t.needs]).append(t.key)
+
+    def next_task() -> Task:
+        best = max(ready, key=lambda k: (level[k], -position[k]))
+        ready.remove(best)
+        schedule.order.append(best)
+        return by_key[best]
+
+    workers = default_workers() if workers is None else max(1, int(workers))
+    show = sys.stderr.isatty() if progress is None else progress
+    bar = tqdm(total=len(by_key), desc=description, disable=not show, leave=False)
+    results: dict[Hashable, Any] = {}
+    schedule = Schedule(workers=workers)
+    pids: dict[int, int] = {}
+
+    def finish(task: Task, outcome: tuple[Any, float, float, int]) -> None:
+        result, cpu, wall, pid = outcome
+        results[task.key] = result
+        schedule.cpu[task.key] = cpu
+        schedule.wall[task.key] = wall
+        schedule.worker[task.key] = pids.setdefault(pid, len(pids))
+        ready.extend(waiting[task.key])
+        bar.update()
+
+    def args(task: Task) -> tuple:
+        return () if task.needs is None else (results[task.needs],)
+
+    begin = time.perf_counter()
+    try:
+        if workers == 1:
+            with threadpool_limits(1):
+                while ready:
+                    task = next_task()
+                    finish(task, _timed(task.call, *args(task)))
+        else:
+            with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
+                running: dict[Future, Task] = {}
+                try:
+                    while ready or running:
+                        while ready and len(running) < workers:
+                            task = next_task()
+                            running[pool.submit(_timed, task.call, *args(task))] = task
+                        done, _ = wait(running, return_when=FIRST_COMPLETED)
+                        for future in done:
+                            finish(running.pop(future), future.result())
+                finally:
+                    for future in running:
+                        future.cancel()
+    finally:
+        bar.close()
+    schedule.seconds = time.perf_counter() - begin
+    return results, schedule
