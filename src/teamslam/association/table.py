@@ -26,6 +26,7 @@ from teamslam.association.core import (
     AssociationSettings,
     _assign,
     _distinct,
+    _separated,
     fit_transform,
     gate_pairs,
 )
@@ -369,6 +370,10 @@ def _extend(
     all_cols = np.concatenate([ib, cols])
     keep_rows, keep_cols = _distinct(cost, all_rows, all_cols, settings.distinctness)
     added = free_a[keep_rows]
+    # the drift allowance from the held pairs: a new pair does not vouch for itself
+    added[added] = _separated(
+        a, b, t, a.means[ia], b.means[ib], keep_rows[added], keep_cols[added], settings
+    )
     pairs = np.column_stack([a.ids[keep_rows[added]], b.ids[keep_cols[added]]])
     return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
 
