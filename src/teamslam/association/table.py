@@ -247,8 +247,11 @@ class CorrespondenceTable:
         The objects neither end has matched yet are gated under the transform of the held pairs
         (:func:`~teamslam.association.core.gate_pairs`, drift allowance from the nearest held
         pair), assigned one to one, and kept when distinct (no other object of either map fits
-        nearly as well, held pairs included). Computed in the canonical order of the two robots,
-        like :func:`~teamslam.association.associate`, so both ends add the same pairs.
+        nearly as well, held pairs included) and separated (their gate, with the drift allowance
+        from the held pairs, narrow against their objects' spacing:
+        :attr:`~teamslam.association.AssociationSettings.separation`). Computed in the
+        canonical order of the two robots, like :func:`~teamslam.association.associate`, so both
+        ends add the same pairs.
 
         Parameters
         ----------
