@@ -122,10 +122,6 @@ class AssociationSettings:
     ambiguity_ratio
         A rival consistent set gathering at least this fraction of the answer's pair count in
         pairs that contradict the answer makes it ambiguous (no correspondence).
-    rival_floor
-        A rival makes the answer ambiguous only when it gathers at least this many
-        contradicting pairs (``None``: :attr:`min_inliers`, a rival that could be an answer
-        itself).
     clique_budget
         Search nodes of the exact maximum-clique search (beyond it, the best clique found).
     rivals
@@ -156,7 +152,6 @@ class AssociationSettings:
     distinctness: float = 2.0
     rivals: int = 3
     separation: float = 0.5
-    rival_floor: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("consistency_probability", "gate_probability"):
@@ -184,11 +179,6 @@ class AssociationSettings:
             raise InputError(
                 f"association setting distinctness must be ≥ 0, got {self.distinctness}"
             )
-        floor = self.rival_floor
-        if floor is not None and (
-            isinstance(floor, bool) or not isinstance(floor, int | np.integer) or floor < 1
-        ):
-            raise InputError("association setting rival_floor must be an integer ≥ 1 or None")
         if not (np.isfinite(self.separation) and self.separation >= 0.0):
             raise InputError(f"association setting separation must be ≥ 0, got {self.separation}")
         if self.descriptor_matches > self.neighbours:
@@ -639,8 +629,7 @@ def _associate(
         ),
         default=0,
     )
-    floor = need if settings.rival_floor is None else settings.rival_floor
-    if counts["rival"] >= max(settings.ambiguity_ratio * rows.size, floor):
+    if counts["rival"] >= max(settings.ambiguity_ratio * rows.size, need):
         return _no_answer(a, b, "ambiguous", exact=exact, **counts)
     if rows.size < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
