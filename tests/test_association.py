@@ -339,3 +339,54 @@ def test_a_full_association_is_due_first_and_when_a_map_has_grown():
     assert table.due(len(a), 2 * len(b))
     with pytest.raises(InputError, match="growth"):
         table.due(1, 1, growth=1.0)
+
+
+def _with_a_neighbour_of_an_unseen_partner(seed=0, elongation=10.0):
+    """Two maps and, in the second, a neighbour (3 m along x) of an object only the first map
+    holds, placed along x with a standard deviation of ``elongation`` metres: a car of the same
+    row whose true partner the second robot has not seen."""
+    rng = np.random.default_rng(seed)
+    a, b, truth_a, _ = _two_maps(seed=seed)
+    only_a = truth_a[1] >= 40  # objects the second map lacks
+    k = int(np.flatnonzero(only_a)[0])
+    cov = np.diag([elongation**2, SIGMA**2, SIGMA**2])
+    mean = a.means[k] + np.array([3.0, 0.0, 0.0]) + rng.normal(0, SIGMA, 3)
+    b2 = ObjectSummary(
+        b.robot,
+        np.append(b.ids, 99_999),
+        np.vstack([b.means, mean]),
+        np.concatenate([b.covs, cov[None]]),
+    )
+    return a, b2, int(a.ids[k])
+
+
+def test_a_pair_whose_gate_spans_its_neighbours_is_not_a_match():
+    a, b, own_id = _with_a_neighbour_of_an_unseen_partner()
+    loose = associate(a, b, AssociationSettings(separation=0.0))
+    assert [own_id, 99_999] in loose.pairs.tolist()  # the gate alone takes the neighbour
+    strict = associate(a, b, AssociationSettings(separation=1.0))
+    assert strict.matched and [own_id, 99_999] not in strict.pairs.tolist()
+    assert len(strict.pairs) == len(loose.pairs) - 1  # every well-placed pair stays
+    # objects placed well within their spacing lose no pair to the test
+    a, b, *_ = _two_maps(seed=1, yaw=30.0, shift=(20.0, 0.0, 0.0))
+    plain = associate(a, b, AssociationSettings(separation=1.0))
+    assert np.array_equal(plain.pairs, associate(a, b, AssociationSettings()).pairs)
+    assert len(plain.pairs) == 40
+
+
+def test_extend_refuses_a_pair_whose_gate_spans_its_neighbours():
+    a, b, own_id = _with_a_neighbour_of_an_unseen_partner()
+    base = associate(a, b, AssociationSettings(separation=1.0))
+    for separation, expected in ((0.0, True), (1.0, False)):
+        settings = AssociationSettings(separation=separation)
+        table = CorrespondenceTable(a.robot, b.robot, settings)
+        table.merge(base, a, b)
+        table.extend(a, b)
+        assert ((own_id, 99_999) in table) is expected
+        # the same decision at the other end of the link
+        other = CorrespondenceTable(b.robot, a.robot, settings)
+        other.merge(base.swapped(), b, a)
+        other.extend(b, a)
+        assert np.array_equal(
+            other.pairs()[:, ::-1][np.argsort(other.pairs()[:, 1])], table.pairs()
+        )

@@ -26,6 +26,7 @@ from teamslam.association.core import (
     AssociationSettings,
     _assign,
     _distinct,
+    _separated,
     fit_transform,
     gate_pairs,
 )
@@ -246,8 +247,11 @@ class CorrespondenceTable:
         The objects neither end has matched yet are gated under the transform of the held pairs
         (:func:`~teamslam.association.core.gate_pairs`, drift allowance from the nearest held
         pair), assigned one to one, and kept when distinct (no other object of either map fits
-        nearly as well, held pairs included). Computed in the canonical order of the two robots,
-        like :func:`~teamslam.association.associate`, so both ends add the same pairs.
+        nearly as well, held pairs included) and separated (their gate, with the drift allowance
+        from the held pairs, narrow against their objects' spacing:
+        :attr:`~teamslam.association.AssociationSettings.separation`). Computed in the
+        canonical order of the two robots, like :func:`~teamslam.association.associate`, so both
+        ends add the same pairs.
 
         Parameters
         ----------
@@ -369,6 +373,10 @@ def _extend(
     all_cols = np.concatenate([ib, cols])
     keep_rows, keep_cols = _distinct(cost, all_rows, all_cols, settings.distinctness)
     added = free_a[keep_rows]
+    # the drift allowance from the held pairs: a new pair does not vouch for itself
+    added[added] = _separated(
+        a, b, t, a.means[ia], b.means[ib], keep_rows[added], keep_cols[added], settings
+    )
     pairs = np.column_stack([a.ids[keep_rows[added]], b.ids[keep_cols[added]]])
     return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
 
