@@ -20,6 +20,7 @@ from teamslam.frontend import (  # noqa: E402
     match_stereo,
 )
 from teamslam.frontend._cv import require_cv2  # noqa: E402
+from teamslam.frontend.tracking import warp_change  # noqa: E402
 from teamslam.sim.render import (  # noqa: E402
     T_CAM_BODY,
     RenderConfig,
@@ -77,6 +78,62 @@ def test_tracks_end_after_max_track_length_and_their_corners_start_new_ones(sequ
     assert min(counts[3:]) > 0.8 * counts[0]
     with pytest.raises(InputError, match="max_track_length"):
         FrontendConfig(max_track_length=1)
+
+
+def _zoom_sequence(frames: int, scale: float) -> list[np.ndarray]:
+    """A random texture seen by a camera approaching it: each frame magnified ``scale`` times
+    the previous one about the image centre (320×240)."""
+    rng = np.random.default_rng(5)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (240, 320)).astype(np.float32), (0, 0), 1.5)
+    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX)
+    out = []
+    for k in range(frames):
+        M = cv2.getRotationMatrix2D((159.5, 119.5), 0.0, scale**k)
+        img = cv2.warpAffine(texture, M, (320, 240), flags=cv2.INTER_CUBIC)
+        out.append(np.clip(img, 0, 255).astype(np.uint8))
+    return out
+
+
+def test_warp_change_measures_growth_and_shear_not_rotation():
+    c, s = np.cos(0.7), np.sin(0.7)
+    A = np.array([[[c, -s], [s, c]], [[1.1, 0.0], [0.0, 1.1]], [[1.0, 0.2], [0.0, 1.0]]])
+    change = warp_change(A)
+    assert change[0] == pytest.approx(0.0, abs=1e-12)
+    assert change[1] == pytest.approx(np.log(1.1))
+    # a shear stretches one direction: the larger singular value of [[1, t], [0, 1]]
+    assert change[2] == pytest.approx(np.log((0.2 + np.sqrt(0.2**2 + 4)) / 2))
+    assert warp_change(np.zeros((1, 2, 2)))[0] == np.inf
+
+
+def test_tracks_end_when_their_warp_exceeds_max_track_warp():
+    scale = 1.03
+    images = _zoom_sequence(9, scale)
+
+    def lengths(config):
+        tracker = FeatureTracker((320, 240), config)
+        seen: dict[int, int] = {}
+        changes = np.zeros(0)
+        for k, img in enumerate(images):
+            ids, _ = tracker.track(img)
+            for t in ids.tolist():
+                seen[t] = seen.get(t, 0) + 1
+            if k == 0:
+                first_ids = ids
+            if k == 3:  # the warps of the first frame's tracks, three frames later
+                changes = warp_change(tracker._A[np.isin(ids, first_ids)])
+        return np.array(list(seen.values())), changes
+
+    unlimited, changes = lengths(FrontendConfig())
+    assert changes.size > 50
+    # the track's affine warp follows the magnification: 3 frames of 3 % each
+    assert np.median(changes) == pytest.approx(3 * np.log(scale), abs=0.01)
+    assert unlimited.max() == len(images)
+    limited, _ = lengths(FrontendConfig(max_track_warp=0.1))
+    # 3 frames is a warp of 0.089, 4 frames 0.118: no track is followed for more than 4 frames
+    assert limited.max() <= 4
+    assert np.mean(limited == 4) > 0.3
+    with pytest.raises(InputError, match="max_track_warp"):
+        FrontendConfig(max_track_warp=-0.1)
 
 
 def test_stereo_matches_true_disparity_within_a_pixel(sequence):

@@ -30,6 +30,8 @@ _DICTIONARIES = {
     "apriltag_36h11": "DICT_APRILTAG_36h11",
 }
 
+_ZERO_MEANS_OFF = ("max_track_warp",)
+
 
 @dataclass(frozen=True)
 class FrontendConfig:
@@ -121,6 +123,7 @@ class FrontendConfig:
     template_ncc_min: float = 0.93
     refine_track_share: float = 0.0025
     max_track_length: int = 0
+    max_track_warp: float = 0.0
     min_depth: float = 0.5
     max_depth: float = 100.0
     ncc_window_share: float = 0.014
@@ -140,7 +143,10 @@ class FrontendConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, float) and not (np.isfinite(value) and value > 0):
+            if f.name in _ZERO_MEANS_OFF:
+                if not (np.isfinite(value) and value >= 0):
+                    raise InputError(f"front-end setting {f.name} must be 0 (off) or positive")
+            elif isinstance(value, float) and not (np.isfinite(value) and value > 0):
                 raise InputError(f"front-end setting {f.name} must be a positive number")
         if self.marker_min_perimeter_share >= 4 or self.marker_threshold_passes < 1:
             raise InputError(
