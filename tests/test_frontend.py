@@ -251,6 +251,40 @@ def test_markers_found_with_subpixel_centres(sequence):
     assert checked >= 3
 
 
+def _small_marker(side: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """A 4×4 ArUco marker of ``side`` pixels, slanted by a homography into a 160×120 grey
+    image with blur and noise; returns the image and the true corners."""
+    bits = cv2.aruco.generateImageMarker(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_250), 7, 600
+    )
+    canvas = np.full((1000, 1000), 255, np.uint8)
+    canvas[200:800, 200:800] = bits
+    source = np.array([[200, 200], [800, 200], [800, 800], [200, 800]], np.float32)
+    corners = np.array([[0, 0], [side, 0.06 * side], [side * 0.97, side], [0.04 * side, side]])
+    corners = (corners + np.array([60.3, 40.7])).astype(np.float32)
+    H = cv2.getPerspectiveTransform(source, corners)
+    img = cv2.warpPerspective(canvas.astype(np.float32), H, (160, 120), flags=cv2.INTER_AREA)
+    img = cv2.GaussianBlur(img, (0, 0), 0.6) * 0.7 + 40 + rng.normal(0, 1.0, img.shape)
+    # the warp maps pixel centres: the marker's corners are the outer edges of the bits image
+    return np.clip(img, 0, 255).astype(np.uint8), corners
+
+
+def test_marker_corner_window_reaches_the_detector_and_small_markers_are_subpixel():
+    rng = np.random.default_rng(2)
+    detector = MarkerDetector(FrontendConfig(marker_corner_window=0.4))
+    params = detector._detector.getDetectorParameters()
+    assert params.relativeCornerRefinmentWinSize == pytest.approx(0.4)
+    errors = []
+    for side in (26.0, 30.0, 36.0):
+        img, corners = _small_marker(side, rng)
+        found = detector.detect(img)
+        assert found.ids.tolist() == [7]
+        errors.append(np.abs(found.centres[0] - diagonal_centre(corners)).max())
+    assert max(errors) < 0.5
+    with pytest.raises(InputError, match="marker_corner_window"):
+        FrontendConfig(marker_corner_window=0.0)
+
+
 def test_diagonal_centre_is_the_projective_centre():
     corners = np.array([[10.0, 10.0], [50.0, 12.0], [44.0, 40.0], [12.0, 44.0]])
     c = diagonal_centre(corners)
