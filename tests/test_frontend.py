@@ -42,7 +42,7 @@ def sequence():
 
 def test_tracking_keeps_ids_with_subpixel_accuracy(sequence):
     team, frames = sequence
-    tracker = FeatureTracker((320, 240))
+    tracker = FeatureTracker((320, 240), FrontendConfig(max_track_warp=0.0))  # tracks not renewed
     ids0, uv0 = tracker.track(frames[0][0])
     assert ids0.size >= 100
     np.testing.assert_array_equal(ids0, np.arange(ids0.size))  # fresh ids count up
@@ -63,7 +63,7 @@ def test_tracking_keeps_ids_with_subpixel_accuracy(sequence):
 
 def test_tracks_end_after_max_track_length_and_their_corners_start_new_ones(sequence):
     _, frames = sequence
-    tracker = FeatureTracker((320, 240), FrontendConfig(max_track_length=3))
+    tracker = FeatureTracker((320, 240), FrontendConfig(max_track_length=3, max_track_warp=0.0))
     seen: dict[int, int] = {}
     counts = []
     for k in range(7):
@@ -123,7 +123,7 @@ def test_tracks_end_when_their_warp_exceeds_max_track_warp():
                 changes = warp_change(tracker._A[np.isin(ids, first_ids)])
         return np.array(list(seen.values())), changes
 
-    unlimited, changes = lengths(FrontendConfig())
+    unlimited, changes = lengths(FrontendConfig(max_track_warp=0.0))
     assert changes.size > 50
     # the track's affine warp follows the magnification: 3 frames of 3 % each
     assert np.median(changes) == pytest.approx(3 * np.log(scale), abs=0.01)

@@ -63,6 +63,16 @@ class FrontendConfig:
         track's error grows with its age as the view changes (on the rendered team the
         left-image error's RMS is 0.10 px one frame after the first sighting, 0.13 px ten
         frames and 0.17 px forty frames after it), and the error is the same from frame to frame.
+    max_track_warp
+        Largest change of a track's appearance since its first sighting, unit-free: the
+        largest ``|log σ|`` of the singular values ``σ`` of the track's affine warp (0.1 is
+        a patch grown, shrunk or sheared by about 10 %; 0: no limit). A track past it ends,
+        and its corner may start a new track with a fresh template and id. Unlike
+        ``max_track_length`` it does not depend on the frame rate: a track ends when the
+        view of its patch has changed, not after a number of frames. On the rendered
+        3-robot team 0.2 took the consensus RMSE from 7.43 to 6.10 mm and the pose NEES per
+        degree of freedom from 4–6 to 1.0–1.1 (0.1: 6.78 mm), tracks being 7.1 instead of
+        14.1 frames long on average.
     min_depth, max_depth
         Depth range (metres) of stereo matches: the disparity search range is
         ``[fx·b / max_depth, fx·b / min_depth]``.
@@ -130,7 +140,7 @@ class FrontendConfig:
     template_ncc_min: float = 0.93
     refine_track_share: float = 0.0025
     max_track_length: int = 0
-    max_track_warp: float = 0.0
+    max_track_warp: float = 0.2
     min_depth: float = 0.5
     max_depth: float = 100.0
     ncc_window_share: float = 0.014
