@@ -64,6 +64,7 @@ def rendered_team(robots: int, steps: int, variants: dict[str, FrontendConfig]) 
             "rejected": 0,
             "big_found": [],
             "big_err": [],
+            "big_where": [],
             "all_found": [],
             "next_id": 0,
         }
@@ -101,6 +102,7 @@ def rendered_team(robots: int, steps: int, variants: dict[str, FrontendConfig]) 
                         st["big_found"].append(hit.size > 0)
                         if hit.size:
                             st["big_err"].append(np.abs(m.objects[hit[0]] - zt).max())
+                            st["big_where"].append(f"robot {i} frame {k} id {mid} side {s:.0f} px")
         for name, frontend in frontends.items():
             stats[name]["next_id"] = frontend.next_id
     base = 1000 * np.median(stats[next(iter(variants))]["cpu"])
@@ -123,6 +125,9 @@ def rendered_team(robots: int, steps: int, variants: dict[str, FrontendConfig]) 
             ),
             f"{tag}marker centre error median / max, px": (
                 f"{np.median(big_err):.2f} / {np.max(big_err):.2f}" if big_err else "-"
+            ),
+            f"{tag}largest marker centre error at": (
+                st["big_where"][int(np.argmax(big_err))] if big_err else "-"
             ),
             f"{tag}markers of any size detected": (
                 f"{np.mean(st['all_found']):.1%} of {len(st['all_found'])}"

@@ -20,6 +20,7 @@ from teamslam.frontend import (  # noqa: E402
     match_stereo,
 )
 from teamslam.frontend._cv import require_cv2  # noqa: E402
+from teamslam.frontend.tracking import warp_change  # noqa: E402
 from teamslam.sim.render import (  # noqa: E402
     T_CAM_BODY,
     RenderConfig,
@@ -41,7 +42,7 @@ def sequence():
 
 def test_tracking_keeps_ids_with_subpixel_accuracy(sequence):
     team, frames = sequence
-    tracker = FeatureTracker((320, 240))
+    tracker = FeatureTracker((320, 240), FrontendConfig(max_track_warp=0.0))  # tracks not renewed
     ids0, uv0 = tracker.track(frames[0][0])
     assert ids0.size >= 100
     np.testing.assert_array_equal(ids0, np.arange(ids0.size))  # fresh ids count up
@@ -62,7 +63,7 @@ def test_tracking_keeps_ids_with_subpixel_accuracy(sequence):
 
 def test_tracks_end_after_max_track_length_and_their_corners_start_new_ones(sequence):
     _, frames = sequence
-    tracker = FeatureTracker((320, 240), FrontendConfig(max_track_length=3))
+    tracker = FeatureTracker((320, 240), FrontendConfig(max_track_length=3, max_track_warp=0.0))
     seen: dict[int, int] = {}
     counts = []
     for k in range(7):
@@ -77,6 +78,62 @@ def test_tracks_end_after_max_track_length_and_their_corners_start_new_ones(sequ
     assert min(counts[3:]) > 0.8 * counts[0]
     with pytest.raises(InputError, match="max_track_length"):
         FrontendConfig(max_track_length=1)
+
+
+def _zoom_sequence(frames: int, scale: float) -> list[np.ndarray]:
+    """A random texture seen by a camera approaching it: each frame magnified ``scale`` times
+    the previous one about the image centre (320×240)."""
+    rng = np.random.default_rng(5)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (240, 320)).astype(np.float32), (0, 0), 1.5)
+    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX)
+    out = []
+    for k in range(frames):
+        M = cv2.getRotationMatrix2D((159.5, 119.5), 0.0, scale**k)
+        img = cv2.warpAffine(texture, M, (320, 240), flags=cv2.INTER_CUBIC)
+        out.append(np.clip(img, 0, 255).astype(np.uint8))
+    return out
+
+
+def test_warp_change_measures_growth_and_shear_not_rotation():
+    c, s = np.cos(0.7), np.sin(0.7)
+    A = np.array([[[c, -s], [s, c]], [[1.1, 0.0], [0.0, 1.1]], [[1.0, 0.2], [0.0, 1.0]]])
+    change = warp_change(A)
+    assert change[0] == pytest.approx(0.0, abs=1e-12)
+    assert change[1] == pytest.approx(np.log(1.1))
+    # a shear stretches one direction: the larger singular value of [[1, t], [0, 1]]
+    assert change[2] == pytest.approx(np.log((0.2 + np.sqrt(0.2**2 + 4)) / 2))
+    assert warp_change(np.zeros((1, 2, 2)))[0] == np.inf
+
+
+def test_tracks_end_when_their_warp_exceeds_max_track_warp():
+    scale = 1.03
+    images = _zoom_sequence(9, scale)
+
+    def lengths(config):
+        tracker = FeatureTracker((320, 240), config)
+        seen: dict[int, int] = {}
+        changes = np.zeros(0)
+        for k, img in enumerate(images):
+            ids, _ = tracker.track(img)
+            for t in ids.tolist():
+                seen[t] = seen.get(t, 0) + 1
+            if k == 0:
+                first_ids = ids
+            if k == 3:  # the warps of the first frame's tracks, three frames later
+                changes = warp_change(tracker._A[np.isin(ids, first_ids)])
+        return np.array(list(seen.values())), changes
+
+    unlimited, changes = lengths(FrontendConfig(max_track_warp=0.0))
+    assert changes.size > 50
+    # the track's affine warp follows the magnification: 3 frames of 3 % each
+    assert np.median(changes) == pytest.approx(3 * np.log(scale), abs=0.01)
+    assert unlimited.max() == len(images)
+    limited, _ = lengths(FrontendConfig(max_track_warp=0.1))
+    # 3 frames is a warp of 0.089, 4 frames 0.118: no track is followed for more than 4 frames
+    assert limited.max() <= 4
+    assert np.mean(limited == 4) > 0.3
+    with pytest.raises(InputError, match="max_track_warp"):
+        FrontendConfig(max_track_warp=-0.1)
 
 
 def test_stereo_matches_true_disparity_within_a_pixel(sequence):
@@ -192,6 +249,40 @@ def test_markers_found_with_subpixel_centres(sequence):
         # every reported marker is a real one seen by the camera
         assert np.isin(ids, true_ids).all()
     assert checked >= 3
+
+
+def _small_marker(side: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """A 4×4 ArUco marker of ``side`` pixels, slanted by a homography into a 160×120 grey
+    image with blur and noise; returns the image and the true corners."""
+    bits = cv2.aruco.generateImageMarker(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_250), 7, 600
+    )
+    canvas = np.full((1000, 1000), 255, np.uint8)
+    canvas[200:800, 200:800] = bits
+    source = np.array([[200, 200], [800, 200], [800, 800], [200, 800]], np.float32)
+    corners = np.array([[0, 0], [side, 0.06 * side], [side * 0.97, side], [0.04 * side, side]])
+    corners = (corners + np.array([60.3, 40.7])).astype(np.float32)
+    H = cv2.getPerspectiveTransform(source, corners)
+    img = cv2.warpPerspective(canvas.astype(np.float32), H, (160, 120), flags=cv2.INTER_AREA)
+    img = cv2.GaussianBlur(img, (0, 0), 0.6) * 0.7 + 40 + rng.normal(0, 1.0, img.shape)
+    # the warp maps pixel centres: the marker's corners are the outer edges of the bits image
+    return np.clip(img, 0, 255).astype(np.uint8), corners
+
+
+def test_marker_corner_window_reaches_the_detector_and_small_markers_are_subpixel():
+    rng = np.random.default_rng(2)
+    detector = MarkerDetector(FrontendConfig(marker_corner_window=0.4))
+    params = detector._detector.getDetectorParameters()
+    assert params.relativeCornerRefinmentWinSize == pytest.approx(0.4)
+    errors = []
+    for side in (26.0, 30.0, 36.0):
+        img, corners = _small_marker(side, rng)
+        found = detector.detect(img)
+        assert found.ids.tolist() == [7]
+        errors.append(np.abs(found.centres[0] - diagonal_centre(corners)).max())
+    assert max(errors) < 0.5
+    with pytest.raises(InputError, match="marker_corner_window"):
+        FrontendConfig(marker_corner_window=0.0)
 
 
 def test_diagonal_centre_is_the_projective_centre():

@@ -58,6 +58,7 @@ class MarkerDetector:
             dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
             params = cv2.aruco.DetectorParameters()
             params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+            params.relativeCornerRefinmentWinSize = self.config.marker_corner_window
             params.minMarkerPerimeterRate = self.config.marker_min_perimeter_share
             lo, hi = params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax
             passes = self.config.marker_threshold_passes

@@ -12,7 +12,11 @@ view turns) that centre moves relative to the surface. With ``affine_refinement`
 is then aligned to its own first appearance (Shi and Tomasi's feature monitoring): an affine
 warp plus gain and offset, Gauss–Newton on all tracks at once, the point being the warp of the
 template's centre. A track whose aligned patch no longer correlates with its template
-(``template_ncc_min``), or whose warp degenerates, ends.
+(``template_ncc_min``), or whose warp degenerates, ends; so does, with ``max_track_warp``, a
+track whose patch has grown, shrunk or been sheared by more than that (the largest ``|log σ|``
+of the warp's singular values, :func:`warp_change`): the affine model fits the first
+appearance less well the more the view has changed, and the error it leaves is repeated frame
+after frame.
 """
 
 from __future__ import annotations
@@ -23,7 +27,16 @@ from teamslam.frontend._align import PatchWindow, align_patches, with_gradients
 from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.config import FrontendConfig
 
-__all__ = ["FeatureTracker"]
+__all__ = ["FeatureTracker", "warp_change"]
+
+
+def warp_change(A: np.ndarray) -> np.ndarray:
+    """``(N, 2, 2)`` affine warps → ``(N,)`` largest ``|log σ|`` of their singular values:
+    how much a patch has grown, shrunk or been sheared (0 for a rotation), unit-free."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sigma = np.linalg.svd(np.asarray(A, float), compute_uv=False)
+        change = np.abs(np.log(sigma)).max(axis=-1)
+    return np.where(np.isfinite(change), change, np.inf)
 
 
 class FeatureTracker:
@@ -69,6 +82,8 @@ class FeatureTracker:
         )
         det = np.linalg.det(A)
         ok = (ncc >= self.config.template_ncc_min) & (det > 0.3) & (det < 3.0)
+        if self.config.max_track_warp:
+            ok &= warp_change(A) <= self.config.max_track_warp
         ok &= np.all(np.isfinite(uv), axis=1)
         self._A, self._photo = A, photo
         return uv, ok
