@@ -29,8 +29,11 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check src tests benchmarks
 
 # -ra: the reason of every skipped test (and every failure) is listed at the end
+# -n auto: one pytest-xdist worker per CPU (PYTEST_XDIST_AUTO_NUM_WORKERS=N to choose);
+# --dist loadgroup: a module's tests stay on one worker (tests/conftest.py names the groups)
 test: lint
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -ra
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 \
+		$(BIN)/python -m pytest -q -ra -n auto --dist loadgroup
 
 clean:
 	rm -rf $(VENV) results build src/*.egg-info .pytest_cache .ruff_cache
