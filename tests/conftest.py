@@ -32,6 +32,34 @@ def kitti00_dir(shared_data: Path) -> Path:
     return path
 
 
+@pytest.fixture(scope="session")
+def drifting_team():
+    """Objects only, noisy odometry: every robot drifts, the shared objects can correct it."""
+    from teamslam.sim import lissajous_team
+
+    return lissajous_team(
+        robots=3,
+        steps=100,
+        seed=2,
+        odometry_translation_noise=0.05,
+        odometry_rotation_noise=0.01,
+        landmarks=10,
+    )
+
+
+@pytest.fixture(scope="session")
+def drifting_runs(drifting_team):
+    """Separate and consensus filters on ``drifting_team`` (window 10, objects only); several
+    tests of two modules read them (run once per session)."""
+    from teamslam.msckf import config_for, run_team
+
+    cfg = config_for(drifting_team, window=10, use_geometric_features=False)
+    return {
+        name: run_team(drifting_team, cfg, consensus=c, progress=False)
+        for name, c in (("separate", False), ("consensus", True))
+    }
+
+
 #: Modules whose tests listen on loopback ports (fixed, or derived from the process id), run
 #: robot processes over Zenoh or make network namespaces. With ``pytest -n N`` (pytest-xdist,
 #: ``--dist loadgroup``, as ``make test`` runs) they all go to one worker, one after another,
@@ -39,6 +67,10 @@ def kitti00_dir(shared_data: Path) -> Path:
 NETWORK_MODULES = frozenset(
     {"test_driver", "test_netns", "test_rejoin", "test_ros2_live", "test_runtime", "test_security"}
 )
+
+
+#: Modules that read a session fixture above with another module: in that module's group.
+SHARED_SESSION_FIXTURES = {"test_msckf_centralised": "test_msckf"}
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -50,7 +82,8 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Name each test's ``xdist_group``: its module, so that a module's fixtures (a dataset,
     a team run several tests read) are built once, on one worker; the network modules share
-    one group. Without pytest-xdist the mark is inert."""
+    one group, modules sharing a session fixture another. Without pytest-xdist the mark is
+    inert."""
     for item in items:
-        module = item.path.stem
+        module = SHARED_SESSION_FIXTURES.get(item.path.stem, item.path.stem)
         item.add_marker(pytest.mark.xdist_group("network" if module in NETWORK_MODULES else module))
