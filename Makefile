@@ -30,10 +30,11 @@ lint: $(STAMP)
 
 # -ra: the reason of every skipped test (and every failure) is listed at the end
 # -n auto: one pytest-xdist worker per CPU (PYTEST_XDIST_AUTO_NUM_WORKERS=N to choose);
-# --dist loadgroup: a module's tests stay on one worker (tests/conftest.py names the groups)
+# --dist loadscope: a module's tests on one worker, the network tests together on one
+# (tests/conftest.py: pytest_xdist_make_scheduler)
 test: lint
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 \
-		$(BIN)/python -m pytest -q -ra -n auto --dist loadgroup
+		$(BIN)/python -m pytest -q -ra -n auto --dist loadscope
 
 clean:
 	rm -rf $(VENV) results build src/*.egg-info .pytest_cache .ruff_cache

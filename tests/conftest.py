@@ -61,29 +61,38 @@ def drifting_runs(drifting_team):
 
 
 #: Modules whose tests listen on loopback ports (fixed, or derived from the process id), run
-#: robot processes over Zenoh or make network namespaces. With ``pytest -n N`` (pytest-xdist,
-#: ``--dist loadgroup``, as ``make test`` runs) they all go to one worker, one after another,
-#: as in a serial run: two of them at once could pick the same port.
+#: robot processes over Zenoh or make network namespaces: with pytest-xdist they run on one
+#: worker, one after another, as in a serial run (two at once could pick the same port).
 NETWORK_MODULES = frozenset(
     {"test_driver", "test_netns", "test_rejoin", "test_ros2_live", "test_runtime", "test_security"}
 )
 
-
-#: Modules that read a session fixture above with another module: in that module's group.
+#: Modules that read a session fixture above with another module: scheduled with that one.
 SHARED_SESSION_FIXTURES = {"test_msckf_centralised": "test_msckf"}
 
 
-def pytest_configure(config: pytest.Config) -> None:
-    # pytest-xdist registers this mark itself; without it the mark is inert but known
-    config.addinivalue_line("markers", "xdist_group(name): run on one pytest-xdist worker")
+def work_unit(nodeid: str) -> str:
+    """The unit of work of ``pytest -n N --dist loadscope`` that a test belongs to: its module
+    (whose module fixtures, a dataset or a team run several tests read, are then built once),
+    the module it shares a session fixture with, or ``network`` for :data:`NETWORK_MODULES`."""
+    module = Path(nodeid.split("::", 1)[0]).stem
+    module = SHARED_SESSION_FIXTURES.get(module, module)
+    return "network" if module in NETWORK_MODULES else module
 
 
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Name each test's ``xdist_group``: its module, so that a module's fixtures (a dataset,
-    a team run several tests read) are built once, on one worker; the network modules share
-    one group, modules sharing a session fixture another. Without pytest-xdist the mark is
-    inert."""
-    for item in items:
-        module = SHARED_SESSION_FIXTURES.get(item.path.stem, item.path.stem)
-        item.add_marker(pytest.mark.xdist_group("network" if module in NETWORK_MODULES else module))
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """``--dist loadscope`` (``make test``) with the scopes of :func:`work_unit`.
+
+    pytest-xdist's own ``loadgroup`` (the ``xdist_group`` mark) rewrites a private node id
+    field that pytest 9 no longer reads, so its groups are silently ignored; the scheduler
+    hook is the documented way to choose the units of work."""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModuleScopeScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return work_unit(nodeid)
+
+    return ModuleScopeScheduling(config, log)
