@@ -80,6 +80,20 @@ def work_unit(nodeid: str) -> str:
     return "network" if module in NETWORK_MODULES else module
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "network: a test of NETWORK_MODULES (make test runs them after the rest, alone)"
+    )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark the tests of :data:`NETWORK_MODULES` ``network``: their robot processes are paced by
+    timeouts and want the machine to themselves (``make test`` runs them after the others)."""
+    for item in items:
+        if item.path.stem in NETWORK_MODULES:
+            item.add_marker(pytest.mark.network)
+
+
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log):
     """``--dist loadscope`` (``make test``) with the scopes of :func:`work_unit`.
