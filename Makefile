@@ -29,8 +29,13 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check src tests benchmarks
 
 # -ra: the reason of every skipped test (and every failure) is listed at the end
+# -n auto: one pytest-xdist worker per CPU (PYTEST_XDIST_AUTO_NUM_WORKERS=N to choose);
+# --dist loadscope: a module's tests on one worker (tests/conftest.py: pytest_xdist_make_scheduler)
+# then the network tests (robot processes paced by timeouts) alone, one after another
+TEST_ENV := OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1
 test: lint
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -ra
+	$(TEST_ENV) $(BIN)/python -m pytest -q -ra -n auto --dist loadscope -m "not network"
+	$(TEST_ENV) $(BIN)/python -m pytest -q -ra -m network
 
 clean:
 	rm -rf $(VENV) results build src/*.egg-info .pytest_cache .ruff_cache

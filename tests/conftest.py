@@ -30,3 +30,83 @@ def kitti00_dir(shared_data: Path) -> Path:
     if not path.is_dir():
         pytest.skip(f"KITTI 00 reference data not found at {path}")
     return path
+
+
+@pytest.fixture(scope="session")
+def drifting_team():
+    """Objects only, noisy odometry: every robot drifts, the shared objects can correct it."""
+    from teamslam.sim import lissajous_team
+
+    return lissajous_team(
+        robots=3,
+        steps=100,
+        seed=2,
+        odometry_translation_noise=0.05,
+        odometry_rotation_noise=0.01,
+        landmarks=10,
+    )
+
+
+@pytest.fixture(scope="session")
+def drifting_runs(drifting_team):
+    """Separate and consensus filters on ``drifting_team`` (window 10, objects only); several
+    tests of two modules read them (run once per session)."""
+    from teamslam.msckf import config_for, run_team
+
+    cfg = config_for(drifting_team, window=10, use_geometric_features=False)
+    return {
+        name: run_team(drifting_team, cfg, consensus=c, progress=False)
+        for name, c in (("separate", False), ("consensus", True))
+    }
+
+
+#: Modules whose tests listen on loopback ports (fixed, or derived from the process id), run
+#: robot processes over Zenoh or make network namespaces: with pytest-xdist they run on one
+#: worker, one after another, as in a serial run (two at once could pick the same port).
+NETWORK_MODULES = frozenset(
+    {"test_driver", "test_netns", "test_rejoin", "test_ros2_live", "test_runtime", "test_security"}
+)
+
+#: Modules that read a session fixture above with another module: scheduled with that one.
+SHARED_SESSION_FIXTURES = {"test_msckf_centralised": "test_msckf"}
+
+
+def work_unit(nodeid: str) -> str:
+    """The unit of work of ``pytest -n N --dist loadscope`` that a test belongs to: its module
+    (whose module fixtures, a dataset or a team run several tests read, are then built once),
+    the module it shares a session fixture with, or ``network`` for :data:`NETWORK_MODULES`."""
+    module = Path(nodeid.split("::", 1)[0]).stem
+    module = SHARED_SESSION_FIXTURES.get(module, module)
+    return "network" if module in NETWORK_MODULES else module
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "network: a test of NETWORK_MODULES (make test runs them after the rest, alone)"
+    )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark the tests of :data:`NETWORK_MODULES` ``network``: their robot processes are paced by
+    timeouts and want the machine to themselves (``make test`` runs them after the others)."""
+    for item in items:
+        if item.path.stem in NETWORK_MODULES:
+            item.add_marker(pytest.mark.network)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """``--dist loadscope`` (``make test``) with the scopes of :func:`work_unit`.
+
+    pytest-xdist's own ``loadgroup`` (the ``xdist_group`` mark) rewrites a private node id
+    field that pytest 9 no longer reads, so its groups are silently ignored; the scheduler
+    hook is the documented way to choose the units of work."""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModuleScopeScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return work_unit(nodeid)
+
+    return ModuleScopeScheduling(config, log)

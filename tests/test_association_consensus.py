@@ -45,6 +45,12 @@ def stripped3(team3):
     return strip_object_ids(team3, seed=2)
 
 
+@pytest.fixture(scope="module")
+def oracle3(team3):
+    """The oracle-id consensus run of ``team3`` (window 6), read by several tests."""
+    return run_team(team3, config_for(team3, window=6), progress=False)
+
+
 def _rmse(result, dataset) -> float:
     return float(
         np.mean(
@@ -81,10 +87,10 @@ def test_default_settings_record_no_association_keys():
         MsckfConfig(association="ids")
 
 
-def test_own_with_a_table_of_equal_ids_is_the_oracle_run_bit_for_bit(team3, monkeypatch):
+def test_own_with_a_table_of_equal_ids_is_the_oracle_run_bit_for_bit(team3, oracle3, monkeypatch):
     """Translation, reordering and the moved flags in own ids reproduce the oracle path."""
     config = config_for(team3, window=6)
-    oracle = run_team(team3, config, progress=False)
+    oracle = oracle3
 
     def equal_ids(self, j, request):
         table = self.tables[j]
@@ -106,9 +112,9 @@ def test_own_with_a_table_of_equal_ids_is_the_oracle_run_bit_for_bit(team3, monk
     assert result.counters[0]["objects_averaged"] == oracle.counters[0]["objects_averaged"] > 0
 
 
-def test_own_on_a_stripped_team_matches_right_pairs_at_both_ends(team3, stripped3):
+def test_own_on_a_stripped_team_matches_right_pairs_at_both_ends(team3, stripped3, oracle3):
     config = config_for(team3, window=6)
-    oracle = run_team(team3, config, progress=False)
+    oracle = oracle3
     separate = run_team(team3, config, consensus=False, progress=False)
     result = run_team(stripped3, config.with_(association="own"), progress=False)
     metrics = team_metrics(stripped3, result)["association"]

@@ -99,34 +99,13 @@ def test_noise_free_team_recovers_ground_truth(exact_team, consensus):
         np.testing.assert_allclose(pos, exact_team.object_position(ids), atol=1e-6)
 
 
-@pytest.fixture(scope="module")
-def drifting_team():
-    """Objects only, noisy odometry: every robot drifts, the shared objects can correct it."""
-    return lissajous_team(
-        robots=3,
-        steps=100,
-        seed=2,
-        odometry_translation_noise=0.05,
-        odometry_rotation_noise=0.01,
-        landmarks=10,
-    )
+# drifting_team and drifting_runs (separate and consensus): session fixtures in conftest.py
 
 
-@pytest.fixture(scope="module")
-def drifting_runs(drifting_team):
+def test_agent_without_neighbours_is_exactly_separate(drifting_team, drifting_runs):
     cfg = config_for(drifting_team, window=10, use_geometric_features=False)
-    return {
-        name: run_team(drifting_team, cfg, consensus=c, progress=False)
-        for name, c in (("separate", False), ("consensus", True))
-    } | {
-        "lonely": run_team(
-            drifting_team, cfg, graph=from_edges(3, []), consensus=True, progress=False
-        )
-    }
-
-
-def test_agent_without_neighbours_is_exactly_separate(drifting_runs):
-    for a, b in zip(drifting_runs["lonely"].poses, drifting_runs["separate"].poses, strict=True):
+    lonely = run_team(drifting_team, cfg, graph=from_edges(3, []), consensus=True, progress=False)
+    for a, b in zip(lonely.poses, drifting_runs["separate"].poses, strict=True):
         np.testing.assert_array_equal(a, b)
 
 

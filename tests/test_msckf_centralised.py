@@ -11,7 +11,7 @@ from teamslam.cli import main
 from teamslam.datasets import save_dataset
 from teamslam.eval.metrics import team_metrics
 from teamslam.geometry import se3
-from teamslam.msckf import MsckfState, config_for, run_team
+from teamslam.msckf import MsckfState, config_for
 from teamslam.msckf.centralised import run_centralised
 from teamslam.sim import lissajous_team
 
@@ -43,24 +43,13 @@ def test_team_state_windows_evolve_like_separate_states():
     np.testing.assert_array_equal(team.robots, [0, 0, 0, 1, 1, 1])
 
 
-@pytest.fixture(scope="module")
-def drifting_team():
-    """Objects only, noisy odometry: shared objects are what corrects the drift."""
-    return lissajous_team(
-        robots=3,
-        steps=100,
-        seed=2,
-        odometry_translation_noise=0.05,
-        odometry_rotation_noise=0.01,
-        landmarks=10,
-    )
-
-
-def test_centralised_is_at_least_as_accurate_as_consensus(drifting_team):
+def test_centralised_is_at_least_as_accurate_as_consensus(drifting_team, drifting_runs):
+    """On conftest's drifting team (objects only, noisy odometry: shared objects are what
+    corrects the drift), against its separate and consensus runs."""
     cfg = config_for(drifting_team, window=10, use_geometric_features=False)
     metrics = {
-        "separate": team_metrics(drifting_team, run_team(drifting_team, cfg, consensus=False)),
-        "consensus": team_metrics(drifting_team, run_team(drifting_team, cfg, consensus=True)),
+        "separate": team_metrics(drifting_team, drifting_runs["separate"]),
+        "consensus": team_metrics(drifting_team, drifting_runs["consensus"]),
         "centralised": team_metrics(drifting_team, run_centralised(drifting_team, cfg)),
     }
     rmse = {k: m["trajectory_rmse_avg_m"] for k, m in metrics.items()}
