@@ -333,8 +333,18 @@ def test_async_and_lossy_teams_finish_with_sane_estimates(small_team, tmp_path, 
             assert summary["counters"]["links_lost"] > 0
 
 
-def test_ctrl_c_stops_every_agent(small_team, tmp_path):
-    _, directory = small_team
+def _frame_reached(progress: Path) -> int:
+    try:
+        return int(json.loads(progress.read_text())["frame"])
+    except (OSError, ValueError, KeyError):
+        return -1
+
+
+def test_ctrl_c_stops_every_agent(tmp_path):
+    # a team long enough (1000 frames) to be interrupted mid-run on a fast, idle machine: with
+    # the 40-frame test team the robots could finish before the signal arrived (exit code 0)
+    directory = tmp_path / "long"
+    save_dataset(lissajous_team(robots=3, steps=1000, seed=1, landmarks=600), directory)
     team_path = _team_file(
         tmp_path, f"int-{os.getpid()}", directory, _port(18), timeout_s=5.0, filter={"window": 8}
     )
@@ -347,8 +357,10 @@ def test_ctrl_c_stops_every_agent(small_team, tmp_path):
     )
     progress = out / "robot_0" / "progress.json"
     deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and not progress.exists():
+    # interrupted while the robots are filtering (frame 5 written), not while they start
+    while time.monotonic() < deadline and launcher.poll() is None and _frame_reached(progress) < 5:
         time.sleep(0.05)
+    assert launcher.poll() is None, "the team ended before it could be interrupted"
     launcher.send_signal(signal.SIGINT)
     _, err = launcher.communicate(timeout=60)
     assert launcher.returncode == 130
