@@ -409,6 +409,11 @@ def fit_transform(
     return out
 
 
+def _anchor_distance(means: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """Distance from each object to its nearest anchor (a matched object) of the same map."""
+    return np.min(np.linalg.norm(means[:, None] - anchors[None], axis=2), axis=1)
+
+
 def gate_pairs(
     first: ObjectSummary,
     second: ObjectSummary,
@@ -434,8 +439,8 @@ def gate_pairs(
     b_in_a = second.means @ r.T + T_first_second[:3, 3]
     covs_b = r @ second.covs @ r.T
     rho2 = settings.drift_ratio**2
-    ra = np.min(np.linalg.norm(first.means[:, None] - anchors_first[None], axis=2), axis=1)
-    rb = np.min(np.linalg.norm(second.means[:, None] - anchors_second[None], axis=2), axis=1)
+    ra = _anchor_distance(first.means, anchors_first)
+    rb = _anchor_distance(second.means, anchors_second)
     extra = 0.5 * rho2 * (ra[:, None] ** 2 + rb[None, :] ** 2)
     chi2 = settings.gate_threshold
     delta = first.means[:, None, :] - b_in_a[None, :, :]
@@ -526,8 +531,8 @@ def _separated(
     r = T_first_second[:3, :3]
     top_a = np.linalg.eigvalsh(a.covs[rows])[:, -1]
     top_b = np.linalg.eigvalsh(r @ b.covs[cols] @ r.T)[:, -1]
-    ra = np.min(np.linalg.norm(a.means[rows][:, None] - anchors_first[None], axis=2), axis=1)
-    rb = np.min(np.linalg.norm(b.means[cols][:, None] - anchors_second[None], axis=2), axis=1)
+    ra = _anchor_distance(a.means[rows], anchors_first)
+    rb = _anchor_distance(b.means[cols], anchors_second)
     extent = top_a + top_b + 0.5 * settings.drift_ratio**2 * (ra**2 + rb**2)
     spacing = np.minimum(_nearest_neighbour(a.means)[rows], _nearest_neighbour(b.means)[cols])
     return settings.separation**2 * settings.gate_threshold * extent <= spacing**2
