@@ -17,20 +17,13 @@ import numpy as np
 from teamslam.datasets import save_dataset
 from teamslam.graph import complete
 from teamslam.runtime.agent_process import load_robot_result
-from teamslam.runtime.launch import agent_command
+from teamslam.runtime.launch import agent_command, frames_done
 from teamslam.runtime.team_file import write_team_file
 from teamslam.sim import lissajous_team
 
 
 def _port(offset: int) -> int:
     return 30800 + (os.getpid() % 60) * 32 + offset
-
-
-def _frame(out: Path, robot: int) -> int:
-    try:
-        return int(json.loads((out / f"robot_{robot}" / "progress.json").read_text())["frame"])
-    except (OSError, ValueError, KeyError):
-        return -1
 
 
 def _checkpoint(out: Path, robot: int) -> int:
@@ -76,7 +69,7 @@ def test_killed_robot_resumes_and_rejoins_the_running_team(tmp_path):
         killed_at = _checkpoint(out, 2)
         # long enough for the others to report it lost (3 silent frames of 0.5 s)
         time.sleep(3 * 0.5 + 0.5)
-        restarted_at = min(_frame(out, 0), _frame(out, 1))
+        restarted_at = min(frames_done(out, 0), frames_done(out, 1)) - 1
         assert restarted_at < dataset.robots[0].frames - 10, "the team finished too early"
         procs[2] = subprocess.Popen(
             agent_command(team_path, 2, out, "--resume"),

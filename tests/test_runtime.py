@@ -21,7 +21,7 @@ from teamslam.msckf import config_for, run_team
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.transport import MemoryNetwork
 from teamslam.runtime.agent_process import load_robot_result, run_agent
-from teamslam.runtime.launch import agent_command
+from teamslam.runtime.launch import agent_command, frames_done
 from teamslam.runtime.team_file import TeamFileError, load_team_file, write_team_file
 from teamslam.runtime.wire import WireError, decode, encode, team_id
 from teamslam.runtime.zenoh_transport import ZenohTransport
@@ -333,13 +333,6 @@ def test_async_and_lossy_teams_finish_with_sane_estimates(small_team, tmp_path, 
             assert summary["counters"]["links_lost"] > 0
 
 
-def _frame_reached(progress: Path) -> int:
-    try:
-        return int(json.loads(progress.read_text())["frame"])
-    except (OSError, ValueError, KeyError):
-        return -1
-
-
 def test_ctrl_c_stops_every_agent(tmp_path):
     # a team long enough (1000 frames) to be interrupted mid-run on a fast, idle machine: with
     # the 40-frame test team the robots could finish before the signal arrived (exit code 0)
@@ -355,10 +348,9 @@ def test_ctrl_c_stops_every_agent(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
     )
-    progress = out / "robot_0" / "progress.json"
     deadline = time.monotonic() + 120
     # interrupted while the robots are filtering (frame 5 written), not while they start
-    while time.monotonic() < deadline and launcher.poll() is None and _frame_reached(progress) < 5:
+    while time.monotonic() < deadline and launcher.poll() is None and frames_done(out, 0) < 6:
         time.sleep(0.05)
     assert launcher.poll() is None, "the team ended before it could be interrupted"
     launcher.send_signal(signal.SIGINT)

@@ -21,10 +21,12 @@ from tqdm import tqdm
 from teamslam.msckf.team import TeamResult, load_result, merge_results
 from teamslam.runtime.team_file import TeamFile
 
-__all__ = ["agent_command", "gather", "launch_team"]
+__all__ = ["agent_command", "frames_done", "gather", "launch_team"]
 
 
-def _progress(out: Path, robot: int) -> int:
+def frames_done(out: Path, robot: int) -> int:
+    """Frames a launched robot has filtered, from its ``progress.json`` in ``out`` (0 before
+    it has written one, or while the file cannot be read)."""
     try:
         return int(json.loads((out / f"robot_{robot}" / "progress.json").read_text())["frame"]) + 1
     except (OSError, ValueError, KeyError):
@@ -75,7 +77,7 @@ def launch_team(
                 if rid not in codes and p.poll() is not None:
                     codes[rid] = p.returncode
             if show:
-                bar.n = sum(_progress(out, r.id) for r in team.robots)
+                bar.n = sum(frames_done(out, r.id) for r in team.robots)
                 bar.refresh()
             time.sleep(poll_s)
     except KeyboardInterrupt:
