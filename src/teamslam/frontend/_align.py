@@ -1,4 +1,4 @@
-"""Affine + gain/offset alignment of many small patches at once (Gauss–Newton).
+"""Affine + gain/offset alignment of many small patches at once (Gauss–Newton, compiled).
 
 Both the track alignment to a track's first appearance and the stereo alignment of a left
 patch in the right image solve, per patch, for a centre ``uv``, a 2×2 warp ``A`` and a gain
@@ -6,57 +6,238 @@ and offset ``(g, b)`` minimising the Gaussian-weighted
 
     Σ_x w(x) · (g · I(uv + A x) + b − T(x))²
 
-over the window's offsets ``x``. The image and its two gradients are sampled by one remap of
-a 3-channel image.
+over the window's offsets ``x``. The image and its two (Sobel) gradients are sampled
+bilinearly, with the border replicated, at ``uv + A x``; the normal equations
+``(JᵀWJ + 10⁻⁶ I) δ = −JᵀW r`` of the eight parameters are solved by Cholesky. One compiled
+call (numba) runs every step of every patch: sampling, normal equations and solve, patch by
+patch, with no per-pixel Jacobian array of all patches in memory.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from teamslam.frontend._cv import require_cv2
+
+__all__ = ["PatchWindow", "align_patches", "with_gradients"]
+
+# reassociation lets the compiler vectorise the sums over a window's pixels; NaN and
+# infinity keep their meaning (the finiteness checks below must not be folded away)
+_SUMS = {"reassoc", "contract"}
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_SUMS)
+def _bilinear_taps(x: float, y: float, width: int, height: int) -> tuple[int, int, float, float]:
+    """Top-left tap and fractions of a bilinear sample at ``(x, y)``, border replicated
+    (the coordinate clamped to the image: exact for a replicated border)."""
+    x = min(max(x, 0.0), width - 1.0)
+    y = min(max(y, 0.0), height - 1.0)
+    x0 = min(int(x), width - 2)
+    y0 = min(int(y), height - 2)
+    return x0, y0, x - x0, y - y0
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_SUMS)
+def _sample_patches(
+    image: np.ndarray, uv: np.ndarray, A: np.ndarray, ox: np.ndarray, oy: np.ndarray
+) -> np.ndarray:
+    n, p = uv.shape[0], ox.size
+    height, width = image.shape
+    out = np.empty((n, p), np.float32)
+    for k in range(n):
+        u, v = uv[k, 0], uv[k, 1]
+        a00, a01, a10, a11 = A[k, 0, 0], A[k, 0, 1], A[k, 1, 0], A[k, 1, 1]
+        if not (np.isfinite(u) and np.isfinite(v) and np.isfinite(a00 + a01 + a10 + a11)):
+            out[k] = np.nan
+            continue
+        for q in range(p):
+            x0, y0, fx, fy = _bilinear_taps(
+                u + a00 * ox[q] + a01 * oy[q], v + a10 * ox[q] + a11 * oy[q], width, height
+            )
+            top = (1 - fx) * image[y0, x0] + fx * image[y0, x0 + 1]
+            bottom = (1 - fx) * image[y0 + 1, x0] + fx * image[y0 + 1, x0 + 1]
+            out[k, q] = (1 - fy) * top + fy * bottom
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_SUMS)
+def _gauss_newton(
+    template: np.ndarray,
+    image: np.ndarray,
+    grad_x: np.ndarray,
+    grad_y: np.ndarray,
+    ox: np.ndarray,
+    oy: np.ndarray,
+    weights: np.ndarray,
+    uv: np.ndarray,
+    A: np.ndarray,
+    photo: np.ndarray,
+    iterations: int,
+) -> np.ndarray:
+    """Gauss–Newton on every patch, ``uv``, ``A`` and ``photo`` updated in place; returns
+    each aligned patch's NCC with its template (−1 where a patch diverged)."""
+    n, p = template.shape
+    height, width = image.shape
+    J = np.empty((8, p))  # t_x, t_y, A00, A01, A10, A11, gain, offset
+    Jw = np.empty((8, p))
+    r = np.empty(p)
+    H = np.empty((8, 8))
+    step = np.empty(8)
+    ncc = np.full(n, -1.0)
+    for k in range(n):
+        for it in range(iterations + 1):
+            u, v = uv[k, 0], uv[k, 1]
+            a00, a01, a10, a11 = A[k, 0, 0], A[k, 0, 1], A[k, 1, 0], A[k, 1, 1]
+            gain, offset = photo[k, 0], photo[k, 1]
+            if not np.isfinite(u + v + a00 + a01 + a10 + a11 + gain + offset):
+                uv[k, 0] = uv[k, 1] = np.nan
+                break
+            if it == iterations:  # the aligned patch's NCC with its template
+                s_t = s_c = s_tt = s_cc = s_tc = 0.0
+                for q in range(p):
+                    x0, y0, fx, fy = _bilinear_taps(
+                        u + a00 * ox[q] + a01 * oy[q],
+                        v + a10 * ox[q] + a11 * oy[q],
+                        width,
+                        height,
+                    )
+                    c = (1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x0 + 1]) + fy * (
+                        (1 - fx) * image[y0 + 1, x0] + fx * image[y0 + 1, x0 + 1]
+                    )
+                    t = template[k, q]
+                    s_t += t
+                    s_c += c
+                    s_tt += t * t
+                    s_cc += c * c
+                    s_tc += t * c
+                var_t = max(s_tt - s_t * s_t / p, 0.0)
+                var_c = max(s_cc - s_c * s_c / p, 0.0)
+                ncc[k] = (s_tc - s_t * s_c / p) / np.sqrt(var_t * var_c + 1e-12)
+                break
+            for q in range(p):
+                x0, y0, fx, fy = _bilinear_taps(
+                    u + a00 * ox[q] + a01 * oy[q], v + a10 * ox[q] + a11 * oy[q], width, height
+                )
+                w00, w01 = (1 - fx) * (1 - fy), fx * (1 - fy)
+                w10, w11 = (1 - fx) * fy, fx * fy
+                i_w = (
+                    w00 * image[y0, x0]
+                    + w01 * image[y0, x0 + 1]
+                    + w10 * image[y0 + 1, x0]
+                    + w11 * image[y0 + 1, x0 + 1]
+                )
+                gx_w = gain * (
+                    w00 * grad_x[y0, x0]
+                    + w01 * grad_x[y0, x0 + 1]
+                    + w10 * grad_x[y0 + 1, x0]
+                    + w11 * grad_x[y0 + 1, x0 + 1]
+                )
+                gy_w = gain * (
+                    w00 * grad_y[y0, x0]
+                    + w01 * grad_y[y0, x0 + 1]
+                    + w10 * grad_y[y0 + 1, x0]
+                    + w11 * grad_y[y0 + 1, x0 + 1]
+                )
+                r[q] = gain * i_w + offset - template[k, q]
+                J[0, q], J[1, q] = gx_w, gy_w
+                J[2, q], J[3, q] = gx_w * ox[q], gx_w * oy[q]
+                J[4, q], J[5, q] = gy_w * ox[q], gy_w * oy[q]
+                J[6, q], J[7, q] = i_w, 1.0
+            for a in range(8):
+                for q in range(p):
+                    Jw[a, q] = weights[q] * J[a, q]
+            for a in range(8):
+                s = 0.0
+                for q in range(p):
+                    s += Jw[a, q] * r[q]
+                step[a] = -s
+                for b in range(a, 8):
+                    s = 0.0
+                    for q in range(p):
+                        s += Jw[a, q] * J[b, q]
+                    H[a, b] = s
+                H[a, a] += 1e-6
+            # Cholesky H = L Lᵀ in the lower triangle, then L Lᵀ δ = step
+            ok = True
+            for a in range(8):
+                for b in range(a + 1):
+                    s = H[b, a]
+                    for c in range(b):
+                        s -= H[a, c] * H[b, c]
+                    if a == b:
+                        if not s > 0.0:
+                            ok = False
+                            break
+                        H[a, a] = np.sqrt(s)
+                    else:
+                        H[a, b] = s / H[b, b]
+                if not ok:
+                    break
+            if not ok:
+                uv[k, 0] = uv[k, 1] = np.nan
+                break
+            for a in range(8):
+                s = step[a]
+                for c in range(a):
+                    s -= H[a, c] * step[c]
+                step[a] = s / H[a, a]
+            for a in range(7, -1, -1):
+                s = step[a]
+                for c in range(a + 1, 8):
+                    s -= H[c, a] * step[c]
+                step[a] = s / H[a, a]
+            uv[k, 0] += step[0]
+            uv[k, 1] += step[1]
+            A[k, 0, 0] += step[2]
+            A[k, 0, 1] += step[3]
+            A[k, 1, 0] += step[4]
+            A[k, 1, 1] += step[5]
+            photo[k, 0] += step[6]
+            photo[k, 1] += step[7]
+    return ncc
 
 
 class PatchWindow:
     """A square window of ``2·half + 1`` pixels with Gaussian weights (σ = ``half``)."""
 
     def __init__(self, half: int) -> None:
-        g = np.arange(-half, half + 1, dtype=np.float32)
+        g = np.arange(-half, half + 1, dtype=np.float64)
         oy, ox = np.meshgrid(g, g, indexing="ij")
         self.ox, self.oy = ox.ravel(), oy.ravel()
-        self.weights = np.exp(-(self.ox**2 + self.oy**2) / (2 * max(half, 1) ** 2)).astype(
-            np.float32
-        )
+        self.weights = np.exp(-(self.ox**2 + self.oy**2) / (2 * max(half, 1) ** 2))
 
     def sample(self, image: np.ndarray, uv: np.ndarray, A: np.ndarray) -> np.ndarray:
-        """``image`` (one or more channels) at ``uv + A · offsets``: ``(N, P[, C])``."""
-        cv2 = require_cv2()
-        A = A.astype(np.float32)
-        mx = uv[:, :1].astype(np.float32) + A[:, 0, :1] * self.ox + A[:, 0, 1:] * self.oy
-        my = uv[:, 1:].astype(np.float32) + A[:, 1, :1] * self.ox + A[:, 1, 1:] * self.oy
-        return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        """A grey ``image`` sampled bilinearly (border replicated) at ``uv + A · offsets``:
+        ``(N, P)`` float32."""
+        return _sample_patches(
+            np.ascontiguousarray(image, np.float32),
+            np.ascontiguousarray(uv, np.float64).reshape(-1, 2),
+            np.ascontiguousarray(A, np.float64).reshape(-1, 2, 2),
+            self.ox,
+            self.oy,
+        )
 
 
-def with_gradients(image: np.ndarray) -> np.ndarray:
-    """A float32 grey image and its Sobel gradients as one 3-channel image (one remap
-    samples all three)."""
+def with_gradients(image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A float32 grey image and its Sobel gradients (per pixel of offset)."""
     cv2 = require_cv2()
-    img = image.astype(np.float32)
+    img = np.ascontiguousarray(image, np.float32)
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
     gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-    return cv2.merge([img, gx, gy])
+    return img, gx, gy
 
 
 def align_patches(
     window: PatchWindow,
     template: np.ndarray,
-    image3: np.ndarray,
+    gradients: tuple[np.ndarray, np.ndarray, np.ndarray],
     uv: np.ndarray,
     A: np.ndarray,
     photo: np.ndarray,
     iterations: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Gauss–Newton on every patch at once.
+    """Gauss–Newton on every patch (one compiled call).
 
     Parameters
     ----------
@@ -64,7 +245,7 @@ def align_patches(
         The window (offsets and weights).
     template
         ``(N, P)`` templates.
-    image3
+    gradients
         :func:`with_gradients` of the image the templates are looked for in.
     uv, A, photo
         ``(N, 2)`` start centres, ``(N, 2, 2)`` warps, ``(N, 2)`` gains and offsets.
@@ -75,34 +256,31 @@ def align_patches(
     -------
     (uv, A, photo, ncc)
         The aligned parameters and each aligned patch's normalised cross-correlation with
-        its template.
+        its template (NaN centres and an NCC of −1 where a patch's steps diverged).
     """
-    uv = np.asarray(uv, np.float64).copy()
-    A, photo = np.asarray(A, np.float64).copy(), np.asarray(photo, np.float64).copy()
-    n, p = template.shape
-    ox, oy, w = window.ox, window.oy, window.weights
-    J = np.empty((n, 8, p), np.float32)  # t_x, t_y, A00, A01, A10, A11, gain, offset
-    J[:, 7] = 1.0
-    reg = 1e-6 * np.eye(8, dtype=np.float32)
-    for _ in range(iterations):
-        i_w, gx_w, gy_w = np.moveaxis(window.sample(image3, uv, A), 2, 0)
-        gain = photo[:, :1].astype(np.float32)
-        r = gain * i_w + photo[:, 1:].astype(np.float32) - template
-        np.multiply(gain, gx_w, out=J[:, 0])
-        np.multiply(gain, gy_w, out=J[:, 1])
-        np.multiply(J[:, 0], ox, out=J[:, 2])
-        np.multiply(J[:, 0], oy, out=J[:, 3])
-        np.multiply(J[:, 1], ox, out=J[:, 4])
-        np.multiply(J[:, 1], oy, out=J[:, 5])
-        J[:, 6] = i_w
-        Jw = J * w
-        H = Jw @ J.transpose(0, 2, 1) + reg
-        step = -np.linalg.solve(H, Jw @ r[..., None])[..., 0].astype(np.float64)
-        uv += step[:, :2]
-        A += step[:, 2:6].reshape(n, 2, 2)
-        photo += step[:, 6:8]
-    i_w = window.sample(image3, uv, A)[..., 0]
-    t = template - template.mean(axis=1, keepdims=True)
-    c = i_w - i_w.mean(axis=1, keepdims=True)
-    ncc = (t * c).sum(1) / np.sqrt((t * t).sum(1) * (c * c).sum(1) + 1e-12)
+    image, grad_x, grad_y = gradients
+    if image.shape[0] < 2 or image.shape[1] < 2:
+        raise ValueError(f"patch alignment needs an image of at least 2×2 pixels: {image.shape}")
+    uv = np.array(uv, np.float64).reshape(-1, 2)
+    A = np.array(A, np.float64).reshape(-1, 2, 2)
+    photo = np.array(photo, np.float64).reshape(-1, 2)
+    template = np.ascontiguousarray(template, np.float32)
+    if template.shape != (len(uv), window.ox.size) or len(A) != len(uv) or len(photo) != len(uv):
+        raise ValueError(
+            f"patch alignment: {template.shape} templates for {len(uv)} centres, {len(A)} "
+            f"warps and {len(photo)} gains; a window of {window.ox.size} pixels"
+        )
+    ncc = _gauss_newton(
+        template,
+        image,
+        grad_x,
+        grad_y,
+        window.ox,
+        window.oy,
+        window.weights,
+        uv,
+        A,
+        photo,
+        int(iterations),
+    )
     return uv, A, photo, ncc
