@@ -3,9 +3,14 @@
 Run on demand::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py [--robots 3] [--steps 40]
-        [--variant NAME=VALUE[,NAME=VALUE] ...]
+        [--variant NAME=VALUE[,NAME=VALUE] ...] [--stages]
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --exact-twin DIR [--correlated]
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend.py --track-errors DIR
+
+``--stages`` adds where the front-end's CPU time goes: the patch alignments (to a track's first
+appearance and left → right, with the image gradients they sample), pyramidal Lucas–Kanade,
+the markers, the corners and the NCC row search, in CPU milliseconds per stereo frame and as a
+share of the front-end's time (all variants together).
 
 ``--track-errors DIR`` measures, in ``DIR/dataset`` and ``DIR/dataset-exact``, how each
 track's error against the renderer's truth is correlated in time (lag 1, 5, 10 frames), the
@@ -30,19 +35,24 @@ matches within 1 px of the ground-truth disparity and the rejected share.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
 
 import numpy as np
 
 from teamslam.frontend import FrontendConfig, StereoFrontend, StereoRig, match_stereo
+from teamslam.frontend._align import PatchWindow, align_patches, with_gradients
 from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.config import resolve_frontend
 from teamslam.sim.render import T_CAM_BODY, RenderConfig, render_stereo, render_team
 
 
-def rendered_team(robots: int, steps: int, variants: dict[str, FrontendConfig]) -> dict:
+def rendered_team(
+    robots: int, steps: int, variants: dict[str, FrontendConfig]
+) -> tuple[dict, float]:
     """Accuracy and CPU time of each front-end variant on the same rendered frames (the
-    variants take turns on every frame, so they share the machine's load)."""
+    variants take turns on every frame, so they share the machine's load); with the rows,
+    the CPU seconds of all the front-ends' frames."""
     config = RenderConfig(robots=robots, steps=steps)
     team = render_team(config)
     camera = config.camera()
@@ -136,7 +146,58 @@ def rendered_team(robots: int, steps: int, variants: dict[str, FrontendConfig]) 
                 f"{cpu:.0f}" + ("" if len(variants) == 1 else f" (× {cpu / base:.2f})")
             ),
         }
-    return rows
+    return rows, float(sum(sum(st["cpu"]) for st in stats.values()))
+
+
+def warm_up() -> None:
+    """Load (or compile) the front-end's compiled kernels, so no frame's time includes it."""
+    window = PatchWindow(1)
+    image, eye = np.zeros((4, 4), np.float32), np.eye(2)[None]
+    template = window.sample(image, np.ones((1, 2)), eye)
+    align_patches(window, template, with_gradients(image), np.ones((1, 2)), eye, [[1.0, 0.0]], 1)
+
+
+@contextlib.contextmanager
+def stage_clock():
+    """CPU seconds spent in each part of the front-end while the block runs: ``{part: s}``
+    (the parts' functions wrapped by a process-time clock, put back afterwards)."""
+    from teamslam.frontend import markers, stereo, tracking
+
+    cv2 = require_cv2()
+    spent: dict[str, float] = {}
+    parts = {
+        "patch alignment": [
+            (module, name)
+            for module in (tracking, stereo)
+            for name in ("align_patches", "with_gradients")
+        ],
+        "Lucas–Kanade": [(cv2, "calcOpticalFlowPyrLK")],
+        "markers": [(markers.MarkerDetector, "detect")],
+        "corners": [(cv2, "goodFeaturesToTrack"), (cv2, "cornerSubPix")],
+        "NCC row search": [(cv2, "matchTemplate"), (cv2, "getRectSubPix")],
+    }
+
+    def clocked(part, function):
+        def run(*args, **kwargs):
+            start = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                spent[part] = spent.get(part, 0.0) + time.process_time() - start
+
+        return run
+
+    saved = [
+        (owner, name, getattr(owner, name)) for hooks in parts.values() for owner, name in hooks
+    ]
+    for part, hooks in parts.items():
+        for owner, name in hooks:
+            setattr(owner, name, clocked(part, getattr(owner, name)))
+    try:
+        yield spent
+    finally:
+        for owner, name, function in saved:
+            setattr(owner, name, function)
 
 
 def middlebury() -> dict:
@@ -408,6 +469,9 @@ def main() -> None:
         metavar="NAME=VALUE[,NAME=VALUE]",
         help="also measure the front-end with these settings, on the same frames (repeatable)",
     )
+    parser.add_argument(
+        "--stages", action="store_true", help="where the front-end's CPU time goes, by part"
+    )
     args = parser.parse_args()
     if args.track_errors:
         for key, value in track_errors(args.track_errors).items():
@@ -422,7 +486,15 @@ def main() -> None:
     variants = {"default": FrontendConfig()}
     for text in args.variant:
         variants[text] = resolve_frontend(text.split(","))[0]
-    rows = rendered_team(args.robots, args.steps, variants)
+    warm_up()
+    with stage_clock() if args.stages else contextlib.nullcontext() as spent:
+        rows, total = rendered_team(args.robots, args.steps, variants)
+    if spent is not None:
+        frames = args.robots * (args.steps + 1) * len(variants)
+        for part, seconds in [*spent.items(), ("other", total - sum(spent.values()))]:
+            rows[f"CPU per frame: {part}"] = (
+                f"{1000 * seconds / frames:.1f} ms ({seconds / total:.0%})"
+            )
     rows.update(middlebury())
     width = max(len(k) for k in rows)
     print(f"rendered team: {args.robots} robots × {args.steps + 1} stereo frames, 640×480")
