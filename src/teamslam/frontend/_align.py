@@ -28,14 +28,40 @@ _SUMS = {"reassoc", "contract"}
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=_SUMS)
-def _bilinear_taps(x: float, y: float, width: int, height: int) -> tuple[int, int, float, float]:
+def _bilinear_taps(
+    x: float, y: float, width: int, height: int, inside: bool
+) -> tuple[int, int, float, float]:
     """Top-left tap and fractions of a bilinear sample at ``(x, y)``, border replicated
-    (the coordinate clamped to the image: exact for a replicated border)."""
+    (the coordinate clamped to the image: exact for a replicated border); ``inside``: the
+    point is known to lie inside the image by half a pixel, nothing to clamp."""
+    if inside:
+        x0, y0 = int(x), int(y)
+        return np.uintp(x0), np.uintp(y0), x - x0, y - y0
     x = min(max(x, 0.0), width - 1.0)
     y = min(max(y, 0.0), height - 1.0)
     x0 = min(int(x), width - 2)
     y0 = min(int(y), height - 2)
-    return x0, y0, x - x0, y - y0
+    # unsigned: the indices are never negative, so no wrap-around test at each access
+    return np.uintp(x0), np.uintp(y0), x - x0, y - y0
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_SUMS)
+def _window_inside(
+    u: float,
+    v: float,
+    a00: float,
+    a01: float,
+    a10: float,
+    a11: float,
+    half: float,
+    width: int,
+    height: int,
+) -> bool:
+    """Whether the window of offsets up to ``half`` warped by ``A`` about ``(u, v)`` lies
+    inside the image by half a pixel (its extremes are at the window's corners)."""
+    ex = (abs(a00) + abs(a01)) * half
+    ey = (abs(a10) + abs(a11)) * half
+    return u - ex >= 0.5 and u + ex <= width - 1.5 and v - ey >= 0.5 and v + ey <= height - 1.5
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=_SUMS)
@@ -45,15 +71,17 @@ def _sample_patches(
     n, p = uv.shape[0], ox.size
     height, width = image.shape
     out = np.empty((n, p), np.float32)
+    half = np.abs(ox).max()
     for k in range(n):
         u, v = uv[k, 0], uv[k, 1]
         a00, a01, a10, a11 = A[k, 0, 0], A[k, 0, 1], A[k, 1, 0], A[k, 1, 1]
         if not (np.isfinite(u) and np.isfinite(v) and np.isfinite(a00 + a01 + a10 + a11)):
             out[k] = np.nan
             continue
+        inside = _window_inside(u, v, a00, a01, a10, a11, half, width, height)
         for q in range(p):
             x0, y0, fx, fy = _bilinear_taps(
-                u + a00 * ox[q] + a01 * oy[q], v + a10 * ox[q] + a11 * oy[q], width, height
+                u + a00 * ox[q] + a01 * oy[q], v + a10 * ox[q] + a11 * oy[q], width, height, inside
             )
             top = (1 - fx) * image[y0, x0] + fx * image[y0, x0 + 1]
             bottom = (1 - fx) * image[y0 + 1, x0] + fx * image[y0 + 1, x0 + 1]
@@ -79,9 +107,11 @@ def _gauss_newton(
     each aligned patch's NCC with its template (−1 where a patch diverged)."""
     n, p = template.shape
     height, width = image.shape
-    J = np.empty((8, p))  # t_x, t_y, A00, A01, A10, A11, gain, offset
-    Jw = np.empty((8, p))
+    # rows of √w·J (t_x, t_y, A00, A01, A10, A11, gain, offset) and √w·r over the window
+    J = np.empty((8, p))
     r = np.empty(p)
+    root_w = np.sqrt(weights)
+    half = np.abs(ox).max()
     H = np.empty((8, 8))
     step = np.empty(8)
     ncc = np.full(n, -1.0)
@@ -93,6 +123,7 @@ def _gauss_newton(
             if not np.isfinite(u + v + a00 + a01 + a10 + a11 + gain + offset):
                 uv[k, 0] = uv[k, 1] = np.nan
                 break
+            inside = _window_inside(u, v, a00, a01, a10, a11, half, width, height)
             if it == iterations:  # the aligned patch's NCC with its template
                 s_t = s_c = s_tt = s_cc = s_tc = 0.0
                 for q in range(p):
@@ -101,6 +132,7 @@ def _gauss_newton(
                         v + a10 * ox[q] + a11 * oy[q],
                         width,
                         height,
+                        inside,
                     )
                     c = (1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x0 + 1]) + fy * (
                         (1 - fx) * image[y0 + 1, x0] + fx * image[y0 + 1, x0 + 1]
@@ -117,7 +149,11 @@ def _gauss_newton(
                 break
             for q in range(p):
                 x0, y0, fx, fy = _bilinear_taps(
-                    u + a00 * ox[q] + a01 * oy[q], v + a10 * ox[q] + a11 * oy[q], width, height
+                    u + a00 * ox[q] + a01 * oy[q],
+                    v + a10 * ox[q] + a11 * oy[q],
+                    width,
+                    height,
+                    inside,
                 )
                 w00, w01 = (1 - fx) * (1 - fy), fx * (1 - fy)
                 w10, w11 = (1 - fx) * fy, fx * fy
@@ -139,23 +175,22 @@ def _gauss_newton(
                     + w10 * grad_y[y0 + 1, x0]
                     + w11 * grad_y[y0 + 1, x0 + 1]
                 )
-                r[q] = gain * i_w + offset - template[k, q]
+                sw = root_w[q]
+                r[q] = sw * (gain * i_w + offset - template[k, q])
+                gx_w, gy_w = sw * gx_w, sw * gy_w
                 J[0, q], J[1, q] = gx_w, gy_w
                 J[2, q], J[3, q] = gx_w * ox[q], gx_w * oy[q]
                 J[4, q], J[5, q] = gy_w * ox[q], gy_w * oy[q]
-                J[6, q], J[7, q] = i_w, 1.0
-            for a in range(8):
-                for q in range(p):
-                    Jw[a, q] = weights[q] * J[a, q]
+                J[6, q], J[7, q] = sw * i_w, sw
             for a in range(8):
                 s = 0.0
                 for q in range(p):
-                    s += Jw[a, q] * r[q]
+                    s += J[a, q] * r[q]
                 step[a] = -s
                 for b in range(a, 8):
                     s = 0.0
                     for q in range(p):
-                        s += Jw[a, q] * J[b, q]
+                        s += J[a, q] * J[b, q]
                     H[a, b] = s
                 H[a, a] += 1e-6
             # Cholesky H = L Lᵀ in the lower triangle, then L Lᵀ δ = step
