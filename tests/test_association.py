@@ -106,6 +106,52 @@ def test_maximum_clique_is_exact_on_a_planted_clique():
     assert adj[np.ix_(clique, clique)].sum() == 12 * 11
 
 
+def _clique_number(adj: np.ndarray) -> int:
+    """Size of a maximum clique by Bron–Kerbosch with a pivot (the reference)."""
+    neighbours = [set(np.flatnonzero(row).tolist()) for row in adj]
+    best = 0
+
+    def grow(r: int, p: set, x: set) -> None:
+        nonlocal best
+        if not p and not x:
+            best = max(best, r)
+            return
+        pivot = max(p | x, key=lambda u: len(neighbours[u] & p))
+        for v in list(p - neighbours[pivot]):
+            grow(r + 1, p & neighbours[v], x & neighbours[v])
+            p = p - {v}
+            x = x | {v}
+
+    grow(0, set(range(adj.shape[0])), set())
+    return best
+
+
+@pytest.mark.parametrize(("m", "density", "seed"), [(70, 0.35, 0), (130, 0.25, 1), (200, 0.2, 2)])
+def test_maximum_clique_matches_a_reference_across_word_boundaries(m, density, seed):
+    # graphs of more than 64 vertices: the bit sets span several words; one greedy start only,
+    # so the exact search (not the heuristic) has to find the maximum
+    rng = np.random.default_rng(seed)
+    adj = np.triu(rng.random((m, m)) < density, 1)
+    adj = adj | adj.T
+    clique, exact = maximum_clique(adj, budget=10**7, starts=1)
+    assert exact
+    assert clique.size == _clique_number(adj)
+    assert adj[np.ix_(clique, clique)].sum() == clique.size * (clique.size - 1)
+
+
+def test_maximum_clique_out_of_budget_is_flagged_and_still_a_clique():
+    rng = np.random.default_rng(5)
+    m = 150
+    adj = np.triu(rng.random((m, m)) < 0.5, 1)
+    adj = adj | adj.T
+    clique, exact = maximum_clique(adj, budget=3, starts=1)
+    assert not exact
+    assert clique.size >= 2
+    assert adj[np.ix_(clique, clique)].sum() == clique.size * (clique.size - 1)
+    full, exact_full = maximum_clique(adj, budget=10**7)
+    assert exact_full and full.size >= clique.size
+
+
 @pytest.mark.parametrize(("yaw", "shift"), [(0.0, (0, 0, 0)), (30.0, (20.0, 0.0, 0.0))])
 def test_shifted_and_rotated_map_is_matched_correctly(yaw, shift):
     a, b, (ids_a, in_a), (ids_b, in_b) = _two_maps(yaw=yaw, shift=shift)

@@ -10,9 +10,10 @@ gives a lower bound that prunes every vertex of smaller degree, then an exact br
 runs on what is left. :func:`maximum_clique` does the same: the heuristic of Pattabiraman et al.
 (grow a clique from each vertex, always adding the candidate with the most neighbours among the
 remaining candidates) and an exact search with the greedy-colouring bound of Tomita & Seki
-("An efficient branch-and-bound algorithm for finding a maximum clique", DMTCS 2003) over Python
-integer bit sets, under a budget of search nodes; when the budget runs out the best clique found
-so far is returned and flagged as not proven maximum.
+("An efficient branch-and-bound algorithm for finding a maximum clique", DMTCS 2003) over bit sets
+of 64-bit words, compiled with numba (depth first, an explicit stack of search nodes), under a
+budget of search nodes; when the budget runs out the best clique found so far is returned and
+flagged as not proven maximum.
 
 Everything is deterministic: ties are broken by vertex index, so the same graph always gives the
 same clique.
@@ -20,6 +21,7 @@ same clique.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 __all__ = ["maximum_clique"]
@@ -38,24 +40,113 @@ def _greedy(adjacency: np.ndarray, rank: np.ndarray, start: int, floor: int) -> 
     return sorted(clique)
 
 
-def _colour_order(p: int, bits: list[int]) -> tuple[list[int], list[int]]:
-    """Greedy colouring of the vertex set ``p``: vertices in colour order and their colours."""
-    order: list[int] = []
-    colours: list[int] = []
+# a de Bruijn sequence: the top 6 bits of (lowest set bit × it) name the bit's index
+_DEBRUIJN = 0x03F79D71B4CB0A89
+_DEBRUIJN_INDEX = np.zeros(64, dtype=np.int64)
+_DEBRUIJN_INDEX[[((_DEBRUIJN << i) & (2**64 - 1)) >> 58 for i in range(64)]] = np.arange(64)
+
+
+@numba.njit(cache=True)
+def _lowest(word: np.uint64, table: np.ndarray) -> int:
+    """Index of the lowest set bit of a non-zero word."""
+    low = word & (~word + np.uint64(1))
+    return table[(low * np.uint64(0x03F79D71B4CB0A89)) >> np.uint64(58)]
+
+
+@numba.njit(cache=True)
+def _colour_order(
+    p: np.ndarray, bits: np.ndarray, order: np.ndarray, colours: np.ndarray, table: np.ndarray
+) -> int:
+    """Greedy colouring of the vertex set ``p`` (a bit set of words): colour classes one after
+    another, each grown from the lowest uncoloured vertex; writes the vertices in colour order
+    and their colours, returns how many."""
+    words = p.size
+    uncoloured = p.copy()
+    q = np.empty(words, dtype=np.uint64)
+    n = 0
     colour = 0
-    uncoloured = p
-    while uncoloured:
+    first = 0  # lowest word of `uncoloured` that may be non-zero
+    while True:
+        while first < words and uncoloured[first] == 0:
+            first += 1
+        if first == words:
+            return n
         colour += 1
-        q = uncoloured
-        while q:
-            low = q & -q
-            v = low.bit_length() - 1
-            q &= ~low
-            q &= ~bits[v]
-            uncoloured &= ~low
-            order.append(v)
-            colours.append(colour)
-    return order, colours
+        q[:] = uncoloured
+        w = first
+        while True:
+            while w < words and q[w] == 0:
+                w += 1
+            if w == words:
+                break
+            v = 64 * w + _lowest(q[w], table)
+            for x in range(words):
+                q[x] &= ~bits[v, x]
+            bit = np.uint64(1) << np.uint64(v - 64 * w)
+            q[w] &= ~bit
+            uncoloured[w] &= ~bit
+            order[n] = v
+            colours[n] = colour
+            n += 1
+
+
+@numba.njit(cache=True)
+def _branch_and_bound(
+    bits: np.ndarray, m: int, budget: int, floor: int, table: np.ndarray
+) -> tuple[np.ndarray, bool]:
+    """Tomita & Seki's branch and bound over bit sets, depth first in colour order.
+
+    Returns the largest clique found above ``floor`` (empty when none) and whether the search
+    finished within ``budget`` search nodes.
+    """
+    words = bits.shape[1]
+    depth = m + 1
+    sets = np.zeros((depth, words), dtype=np.uint64)
+    order = np.empty((depth, m), dtype=np.int64)
+    colours = np.empty((depth, m), dtype=np.int64)
+    size = np.zeros(depth, dtype=np.int64)
+    k = np.zeros(depth, dtype=np.int64)
+    clique = np.empty(depth, dtype=np.int64)
+    best = np.empty(0, dtype=np.int64)
+    best_size = floor
+    for v in range(m):
+        sets[0, v // 64] |= np.uint64(1) << np.uint64(v % 64)
+    nodes = 1
+    if nodes > budget:
+        return best, False
+    size[0] = _colour_order(sets[0], bits, order[0], colours[0], table)
+    k[0] = size[0] - 1
+    d = 0
+    while d >= 0:
+        if k[d] < 0 or d + colours[d, k[d]] <= best_size:
+            # this node is done: back to its parent, which drops the vertex it tried
+            d -= 1
+            if d >= 0:
+                v = clique[d]
+                sets[d, v // 64] &= ~(np.uint64(1) << np.uint64(v % 64))
+                k[d] -= 1
+            continue
+        v = order[d, k[d]]
+        clique[d] = v
+        empty = True
+        for x in range(words):
+            sets[d + 1, x] = sets[d, x] & bits[v, x]
+            if sets[d + 1, x] != 0:
+                empty = False
+        if empty:
+            if d + 1 > best_size:
+                best_size = d + 1
+                best = clique[: d + 1].copy()
+            sets[d, v // 64] &= ~(np.uint64(1) << np.uint64(v % 64))
+            k[d] -= 1
+            continue
+        nodes += 1
+        if nodes > budget:
+            return best, False
+        d += 1
+        size[d] = _colour_order(sets[d], bits, order[d], colours[d], table)
+        k[d] = size[d] - 1
+    return best, True
 
 
 def maximum_clique(
@@ -111,38 +202,12 @@ def maximum_clique(
     if keep.size <= floor:
         return np.asarray(best, dtype=np.int64), True
     sub = adjacency[np.ix_(keep, keep)]
-    packed = np.packbits(sub, axis=1, bitorder="little")  # row i as the bit set of its neighbours
-    bits = [int.from_bytes(row.tobytes(), "little") for row in packed]
-    state: dict = {"best": [], "nodes": 0}
-    best_size = [max(len(best), lower_bound)]
-    exhausted = [False]
-
-    def expand(clique: list[int], p: int) -> None:
-        if exhausted[0]:
-            return
-        state["nodes"] += 1
-        if state["nodes"] > budget:
-            exhausted[0] = True
-            return
-        order, colours = _colour_order(p, bits)
-        for k in range(len(order) - 1, -1, -1):
-            if len(clique) + colours[k] <= best_size[0]:
-                return
-            v = order[k]
-            new_p = p & bits[v]
-            clique.append(v)
-            if new_p:
-                expand(clique, new_p)
-            elif len(clique) > best_size[0]:
-                best_size[0] = len(clique)
-                state["best"] = list(clique)
-            clique.pop()
-            p &= ~(1 << v)
-            if exhausted[0]:
-                return
-
-    expand([], (1 << keep.size) - 1)
-    found = state["best"]
-    if len(found) > len(best):
+    # row i as the bit set of its neighbours, in 64-bit words (little-endian bit order)
+    words = -(-keep.size // 64)
+    packed = np.zeros((keep.size, 8 * words), dtype=np.uint8)
+    packed[:, : -(-keep.size // 8)] = np.packbits(sub, axis=1, bitorder="little")
+    bits = packed.view("<u8").astype(np.uint64)
+    found, done = _branch_and_bound(bits, keep.size, budget, floor, _DEBRUIJN_INDEX)
+    if found.size > len(best):
         best = sorted(int(keep[i]) for i in found)
-    return np.asarray(sorted(best), dtype=np.int64), not exhausted[0]
+    return np.asarray(sorted(best), dtype=np.int64), bool(done)
