@@ -24,20 +24,37 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from teamslam.errors import InputError
+
 __all__ = ["maximum_clique"]
 
 
-def _greedy(adjacency: np.ndarray, rank: np.ndarray, start: int, floor: int) -> list[int]:
-    """A clique grown from ``start``: add candidates in order of degree (Pattabiraman et al.)."""
+@numba.njit(cache=True)
+def _greedy(
+    adjacency: np.ndarray, rank: np.ndarray, start: int, floor: int, work: np.ndarray
+) -> np.ndarray:
+    """A clique grown from ``start``: add candidates in order of degree (Pattabiraman et al.);
+    empty when it cannot grow beyond ``floor``. ``work`` is scratch of ``rank``'s size."""
+    n = 0
+    for u in rank:  # neighbours of start, highest degree first
+        if adjacency[start, u]:
+            work[n] = u
+            n += 1
     clique = [start]
-    candidates = rank[adjacency[start, rank]]  # neighbours of start, highest degree first
-    while candidates.size:
-        v = int(candidates[0])
+    head = 0
+    while head < n:
+        v = work[head]
         clique.append(v)
-        candidates = candidates[1:][adjacency[v, candidates[1:]]]
-        if len(clique) + candidates.size <= floor:
-            return []  # cannot beat the best any more
-    return sorted(clique)
+        kept = 0
+        for i in range(head + 1, n):
+            if adjacency[v, work[i]]:
+                work[head + 1 + kept] = work[i]
+                kept += 1
+        head += 1
+        n = head + kept
+        if len(clique) + kept <= floor:
+            return np.empty(0, dtype=np.int64)  # cannot beat the best any more
+    return np.sort(np.array(clique, dtype=np.int64))
 
 
 # a de Bruijn sequence: the top 6 bits of (lowest set bit × it) name the bit's index
@@ -174,40 +191,74 @@ def maximum_clique(
         within its budget).
     """
     adjacency = np.asarray(adjacency, dtype=bool)
+    if adjacency.ndim != 2 or adjacency.shape[0] != adjacency.shape[1]:
+        raise InputError(f"maximum_clique needs a square adjacency matrix, got {adjacency.shape}")
+    clique, exact = _maximum_clique(
+        np.ascontiguousarray(adjacency), int(budget), int(lower_bound), int(starts), _DEBRUIJN_INDEX
+    )
+    return clique, bool(exact)
+
+
+@numba.njit(cache=True)
+def _maximum_clique(
+    adjacency: np.ndarray, budget: int, lower_bound: int, starts: int, table: np.ndarray
+) -> tuple[np.ndarray, bool]:
+    """:func:`maximum_clique` compiled: the heuristic, the peeling, the exact search."""
     m = adjacency.shape[0]
     if m == 0:
         return np.zeros(0, dtype=np.int64), True
-    degree = adjacency.sum(axis=1)
-    best: list[int] = [int(np.argmax(degree))] if lower_bound < 1 else []
+    degree = np.zeros(m, dtype=np.int64)
+    for i in range(m):
+        for j in range(i + 1, m):
+            if adjacency[i, j]:
+                degree[i] += 1
+                degree[j] += 1
+    best = np.empty(0, dtype=np.int64)
+    if lower_bound < 1:
+        best = np.array([np.argmax(degree)], dtype=np.int64)
     # heuristic: grow a clique from each vertex that could still beat the best (high degree first)
-    rank = np.lexsort((np.arange(m), -degree))  # highest degree first, ties by index
+    rank = np.argsort(-degree, kind="mergesort")  # highest degree first, ties by index
+    work = np.empty(m, dtype=np.int64)
     for v in rank[:starts]:
-        size = max(len(best), lower_bound)
+        size = max(best.size, lower_bound)
         if degree[v] < size:  # a vertex in a larger clique has at least `size` neighbours
             break
-        clique = _greedy(adjacency, rank[degree[rank] >= size], int(v), size)
-        if len(clique) > len(best):
+        clique = _greedy(adjacency, rank[degree[rank] >= size], v, size, work)
+        if clique.size > best.size:
             best = clique
     # exact search on the vertices that could be in a larger clique
-    floor = max(len(best), lower_bound)
+    floor = max(best.size, lower_bound)
     # peel to the floor-core: a vertex of a larger clique has ≥ floor neighbours in that core
+    # (the floor-core is unique: vertices are removed one at a time, their neighbours' counts
+    # of live neighbours updated)
     alive = degree >= floor
-    while True:
-        inner = np.count_nonzero(adjacency[:, alive], axis=1)
-        peeled = alive & (inner >= floor)
-        if np.array_equal(peeled, alive):
-            break
-        alive = peeled
+    inner = np.zeros(m, dtype=np.int64)
+    for i in range(m):
+        if alive[i]:
+            for j in range(m):
+                inner[j] += adjacency[i, j]
+    stack = [i for i in range(m) if alive[i] and inner[i] < floor]
+    for i in stack:
+        alive[i] = False
+    while stack:
+        i = stack.pop()
+        for j in range(m):
+            if adjacency[i, j]:
+                inner[j] -= 1
+                if alive[j] and inner[j] < floor:
+                    alive[j] = False
+                    stack.append(j)
     keep = np.flatnonzero(alive)
     if keep.size <= floor:
-        return np.asarray(best, dtype=np.int64), True
-    sub = adjacency[np.ix_(keep, keep)]
-    # row i as the bit set of its neighbours, in 64-bit words (little-endian bit order)
-    words = -(-keep.size // 64)
-    packed = np.zeros((keep.size, 8 * words), dtype=np.uint8)
-    packed[:, : -(-keep.size // 8)] = np.packbits(sub, axis=1, bitorder="little")
-    bits = packed.view("<u8").astype(np.uint64)
-    found, done = _branch_and_bound(bits, keep.size, budget, floor, _DEBRUIJN_INDEX)
-    if found.size > len(best):
-        best = sorted(int(keep[i]) for i in found)
-    return np.asarray(sorted(best), dtype=np.int64), bool(done)
+        return best, True
+    # row i as the bit set of its neighbours, in 64-bit words
+    words = (keep.size + 63) // 64
+    bits = np.zeros((keep.size, words), dtype=np.uint64)
+    for i in range(keep.size):
+        for j in range(keep.size):
+            if adjacency[keep[i], keep[j]]:
+                bits[i, j // 64] |= np.uint64(1) << np.uint64(j % 64)
+    found, done = _branch_and_bound(bits, keep.size, budget, floor, table)
+    if found.size > best.size:
+        best = np.sort(keep[found])
+    return best, done

@@ -19,7 +19,6 @@ other (own ↔ neighbour ids swapped).
 from __future__ import annotations
 
 import numpy as np
-import scipy.stats
 
 from teamslam.association.core import (
     AssociationResult,
@@ -27,6 +26,7 @@ from teamslam.association.core import (
     _assign,
     _distinct,
     _separated,
+    chi2_quantile,
     fit_transform,
     gate_pairs,
 )
@@ -97,7 +97,7 @@ def pair_innovation_consistent(
     if not 0.0 < probability < 1.0:
         raise InputError(f"probability must be in (0, 1), got {probability}")
     nis = pair_innovation_nis(mean_own, cov_own, mean_their, cov_their, T_own_their)
-    return nis <= scipy.stats.chi2.ppf(probability, 3)
+    return nis <= chi2_quantile(probability, 3)
 
 
 class CorrespondenceTable:
