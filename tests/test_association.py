@@ -17,6 +17,7 @@ from teamslam.association import (
     score_correspondences,
 )
 from teamslam.association.core import _distances
+from teamslam.association.kernels import consistent_pairs, descriptor_mismatch
 from teamslam.errors import InputError
 from teamslam.geometry import so3
 
@@ -89,6 +90,29 @@ def test_drift_allowance_is_relative_to_distance():
     strict = consistency_graph(ia, ib, geo_a, geo_b, AssociationSettings(drift_ratio=0.0))
     loose = consistency_graph(ia, ib, geo_a, geo_b, AssociationSettings(drift_ratio=0.02))
     assert not strict[0, 1] and loose[0, 1]
+
+
+def test_compiled_loops_equal_the_formulas_in_numpy():
+    # the descriptor comparison and the consistency test, written out in numpy (float32 as the
+    # compiled loops): the same booleans and the same values, on maps of random size
+    rng = np.random.default_rng(4)
+    quarter, chi2 = np.float32(0.25 * 0.05**2), np.float32(6.63)
+    dx, dy = (rng.uniform(1, 30, (n, 6)).astype(np.float32) for n in (40, 35))
+    vx, vy = (rng.uniform(0.01, 2, (n, 6)).astype(np.float32) for n in (40, 35))
+    d = dx[:, None, :, None] - dy[None, :, None, :]
+    s = dx[:, None, :, None] + dy[None, :, None, :]
+    z = d * d / (vx[:, None, :, None] + vy[None, :, None, :] + quarter * s * s)
+    assert np.allclose(descriptor_mismatch(dx, vx, dy, vy, quarter), z.min(axis=3), rtol=1e-6)
+    a, b = _scene(rng, 30), _scene(rng, 25)
+    geo_a = tuple(x.astype(np.float32) for x in _distances(a, np.tile(0.3 * np.eye(3), (30, 1, 1))))
+    geo_b = tuple(x.astype(np.float32) for x in _distances(b, np.tile(0.2 * np.eye(3), (25, 1, 1))))
+    ia, ib = rng.integers(0, 30, 400), rng.integers(0, 25, 400)
+    d1, d2 = geo_a[0][np.ix_(ia, ia)], geo_b[0][np.ix_(ib, ib)]
+    var = geo_a[1][np.ix_(ia, ia)] + geo_b[1][np.ix_(ib, ib)] + quarter * (d1 + d2) ** 2
+    expected = ((d1 - d2) ** 2 <= chi2 * var) & (ia[:, None] != ia) & (ib[:, None] != ib)
+    graph = consistent_pairs(ia, ib, *geo_a, *geo_b, quarter, chi2)
+    assert expected.any() and not expected.all()
+    assert np.array_equal(graph, expected)
 
 
 def test_maximum_clique_is_exact_on_a_planted_clique():
