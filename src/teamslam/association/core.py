@@ -56,11 +56,15 @@ there. Three pairs fix a transform, but in maps as dense and uncertain as KITTI 
 fit one within their covariances; they come with rivals of about their size, so the default
 rival threshold is half the answer, and the default minimum six pairs.
 
-Cost: all pairs of objects within each map, ``n_a · n_b · k²`` descriptor comparisons, and
-``m²`` consistency tests for ``m`` candidates (a few per object) — tens of milliseconds for maps
-of a hundred or two objects. At run time a link runs it when its table holds no pair yet or the
-maps have grown markedly since the last run, and grows its table in between with
-:meth:`~teamslam.association.table.CorrespondenceTable.extend` (one gate and one assignment).
+Cost: all pairs of objects within each map, ``n_a · n_b · k²`` descriptor comparisons, ``m²``
+consistency tests for ``m`` candidates (a few per object) and up to ``rivals + 1`` clique
+searches. The descriptor comparison, the consistency test and the clique search are compiled
+loops (:mod:`teamslam.association.kernels`, :mod:`teamslam.association.clique`): a few
+milliseconds for maps of a hundred objects (median 5.9 ms of CPU over the 264 full
+associations of 15 simulated robots on a ring, maps of up to 145 objects). At run time a link
+runs it when its table holds no pair yet or the maps have grown markedly since the last run, and
+grows its table in between with :meth:`~teamslam.association.table.CorrespondenceTable.extend`
+(one gate and one assignment).
 
 Both ends of a link hold the same correspondences
 -------------------------------------------------
