@@ -9,10 +9,11 @@ and when it was not revoked before. Consensus then checks every matched pair's i
 and never re-added (or, with a hold-off, not before that many steps have passed).
 
 At run time a robot runs the full association when the table says it is
-:meth:`~CorrespondenceTable.due` (nothing merged yet, or a map grown by a quarter since the last
-one) and grows the table in between with :meth:`~CorrespondenceTable.extend` (one gate, one
-assignment). Both ends of a link merge the same results in the same order and compute every
-decision in the canonical order of the two robots, so their tables stay mirror images of each
+:meth:`~CorrespondenceTable.due` (nothing merged yet, a map grown by a quarter since the last
+one, or — while the link has no answer — ``min_inliers`` new objects in a map) and grows the
+table in between with :meth:`~CorrespondenceTable.extend` (one gate, one assignment). Both ends
+of a link merge the same results in the same order and compute every decision in the canonical
+order of the two robots, so their tables stay mirror images of each
 other (own ↔ neighbour ids swapped).
 """
 
@@ -141,6 +142,7 @@ class CorrespondenceTable:
         self.revoked = 0
         self.T_own_their: np.ndarray | None = None
         self._sizes: tuple[int, int] | None = None  # map sizes at the last full association
+        self._seen: tuple[int, int] | None = None  # map sizes :meth:`due` was last asked about
 
     def __len__(self) -> int:
         return len(self._theirs)
@@ -296,18 +298,45 @@ class CorrespondenceTable:
     def due(self, own_objects: int, their_objects: int, growth: float = 1.25) -> bool:
         """Whether a full association is worth running now.
 
-        Yes when none was merged yet, or when either map has grown by the factor ``growth``
-        since the last one; in between, :meth:`extend` grows the table for the cost of one
-        gate. (A full association of maps of a hundred or two objects costs tens of
-        milliseconds; with ``growth = 1.25`` a map growing from 10 to 200 objects is associated
-        about 14 times.)
+        Yes when none was merged yet; when either map has grown by the factor ``growth`` since
+        the last one; and, while the table holds fewer pairs than an answer needs
+        (:attr:`~teamslam.association.AssociationSettings.min_inliers`), when either map holds
+        that many objects more than at the last one. In between, :meth:`extend` grows the
+        table for the cost of one gate.
+
+        The growth factor spaces the full associations of a link that has an answer (maps of
+        a hundred or two objects; with ``growth = 1.25`` a map growing from 10 to 200 objects
+        is associated about 14 times), and :meth:`extend` grows its table meanwhile. A link
+        without an answer has nothing to extend: its maps may share objects for tens of frames
+        before they have grown by a quarter (25 new objects on maps of a hundred). Its next
+        attempt comes once either map holds as many new objects as an answer needs pairs — a
+        count the answer itself sets, no constant of its own — so a link that begins to share
+        objects with its neighbour waits a few exchanges, not tens of frames — or once the maps
+        have stopped growing (the same sizes as at the previous call) with objects the last
+        attempt did not see: when the maps stop changing, the last attempt has seen them all,
+        so no answer an attempt at every exchange would find is missed for good. Estimates
+        that only moved do not make an attempt due.
+
+        Call it once per exchange of summaries (it remembers the sizes it was asked about).
+        (Measured: on 15 simulated robots on a ring with 30% link loss recall 0.932 → 0.967 and
+        RMSE 0.0898 → 0.0878 m; on KITTI 00 with per-robot ids RMSE 7.70 → 7.65 m, the same
+        single wrong pair; an attempt at every exchange with new objects reached about the same
+        on the simulated teams but let two more wrong pairs in on KITTI 00.)
         """
         if growth <= 1.0:
             raise InputError(f"growth must be > 1, got {growth}")
+        sizes = (int(own_objects), int(their_objects))
+        previous, self._seen = self._seen, sizes
         if self._sizes is None:
             return True
         own0, their0 = self._sizes
-        return own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1)
+        if own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1):
+            return True
+        need = self.settings.min_inliers
+        if len(self) >= need or sizes == self._sizes:
+            return False
+        # no answer yet and new objects: enough of them, or no more since the last exchange
+        return own_objects >= own0 + need or their_objects >= their0 + need or sizes == previous
 
     def revoke(self, own_id: int, their_id: int, step: int | None = None) -> bool:
         """Drop a held pair (its consensus innovation failed); it is not re-added.
