@@ -318,12 +318,12 @@ class CorrespondenceTable:
         Measured (``benchmarks/association.py ring``; ``teamslam run --association own`` on
         KITTI 00 with per-robot ids): on 15 simulated robots on a ring with 30% link loss,
         recall 0.932 → 0.967 and RMSE 0.0898 → 0.0878 m; on the ``make run`` team 0.954 →
-        0.986 and 0.0536 → 0.0509 m; on KITTI 00 RMSE 7.70 → 7.65 m with the same single wrong
-        pair. Two rules that try more often reached the same on the simulated teams but let
-        two more wrong pairs in on KITTI 00 (precision 0.996 → 0.987): an attempt at every
-        exchange with new objects, and this rule with an attempt also once the maps stopped
-        growing (the same sizes at two exchanges running). Each attempt on maps that do not
-        overlap is one more chance of a wrong answer.
+        0.986 and 0.0536 → 0.0509 m; on KITTI 00 RMSE 7.70 → 7.65 m, precision 0.996 as
+        before (one wrong pair). Two rules that try more often reached the same on the
+        simulated teams but let two more wrong pairs in on KITTI 00 (precision 0.996 → 0.987):
+        an attempt at every exchange with new objects, and this rule with an attempt also once
+        the maps stopped growing (the same sizes at two exchanges running). Each attempt on maps
+        that do not overlap is one more chance of a wrong answer.
         """
         if growth <= 1.0:
             raise InputError(f"growth must be > 1, got {growth}")
