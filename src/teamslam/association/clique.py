@@ -109,15 +109,16 @@ def _colour_order(
 
 @numba.njit(cache=True)
 def _branch_and_bound(
-    bits: np.ndarray, m: int, budget: int, floor: int, table: np.ndarray
+    bits: np.ndarray, m: int, budget: int, floor: int, table: np.ndarray, degree: int
 ) -> tuple[np.ndarray, bool]:
     """Tomita & Seki's branch and bound over bit sets, depth first in colour order.
 
-    Returns the largest clique found above ``floor`` (empty when none) and whether the search
-    finished within ``budget`` search nodes.
+    ``degree`` is the largest degree of the graph: no clique is larger than ``degree + 1``,
+    which bounds the depth of the search. Returns the largest clique found above ``floor``
+    (empty when none) and whether the search finished within ``budget`` search nodes.
     """
     words = bits.shape[1]
-    depth = m + 1
+    depth = min(m, degree + 1) + 1
     sets = np.zeros((depth, words), dtype=np.uint64)
     order = np.empty((depth, m), dtype=np.int64)
     colours = np.empty((depth, m), dtype=np.int64)
@@ -258,7 +259,7 @@ def _maximum_clique(
         for j in range(keep.size):
             if adjacency[keep[i], keep[j]]:
                 bits[i, j // 64] |= np.uint64(1) << np.uint64(j % 64)
-    found, done = _branch_and_bound(bits, keep.size, budget, floor, table)
+    found, done = _branch_and_bound(bits, keep.size, budget, floor, table, inner[keep].max())
     if found.size > best.size:
         best = np.sort(keep[found])
     return best, done
