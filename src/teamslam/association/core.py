@@ -60,7 +60,7 @@ Cost: all pairs of objects within each map, ``n_a · n_b · k²`` descriptor com
 consistency tests for ``m`` candidates (a few per object) and up to ``rivals + 1`` clique
 searches. The descriptor comparison, the consistency test and the clique search are compiled
 loops (:mod:`teamslam.association.kernels`, :mod:`teamslam.association.clique`): a few
-milliseconds for maps of a hundred objects (median 6.1 ms of CPU over the 326 full
+milliseconds for maps of a hundred objects (median 5.9 ms of CPU over the 322 full
 associations of 15 simulated robots on a ring: ``benchmarks/association.py ring``). At run time
 a link runs it when its table is :meth:`~teamslam.association.table.CorrespondenceTable.due`
 (no answer yet and new objects, or maps grown markedly since the last run), and grows its table
