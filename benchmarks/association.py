@@ -2,7 +2,7 @@
 
 Run on demand (BLAS pinned to one thread)::
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/association.py [kitti] [sim] [--frames 500 1000 1500]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/association.py [kitti] [sim] [ring] [--frames 500 1000]
 
 Each team's object ids are first made per robot (:func:`~teamslam.datasets.identity.
 strip_object_ids`: no id in common across robots; which ids are the same object is kept as
@@ -21,6 +21,12 @@ Last, a correspondence table per link is kept over the growing maps (the truncat
 the final ones), as a robot would at run time: extended under its transform
 (:meth:`~teamslam.association.CorrespondenceTable.extend`), then merged with a full association;
 it prints the table's precision and recall and the CPU time of both calls.
+
+* ``ring`` — the cost at run time: 15 simulated robots on a ring with 30% link loss (150 frames,
+  ``window = 10``, ids made per robot), consensus with own association. Prints the association's
+  share of the per-robot-step time (``metrics.json["association"]["team"]``), the number of
+  full associations and extensions and the CPU time of each kind (``time.thread_time`` around
+  every call), with the run's RMSE, precision and recall.
 """
 
 from __future__ import annotations
@@ -32,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+import teamslam.msckf.protocol as protocol
+from teamslam import api
 from teamslam.association import (
     CorrespondenceTable,
     ObjectSummary,
@@ -173,9 +181,54 @@ def sim(frames: list[int]) -> None:
     _evaluate("sim 5x150", dataset, configs, [f for f in frames if f < 151])
 
 
+def ring() -> None:
+    dataset = strip_object_ids(lissajous_team(robots=15, steps=150, seed=0), seed=0)
+    spent = {"full": [], "extend": []}
+    full, extend = protocol.associate, CorrespondenceTable.extend
+
+    def timed_full(*args, **kwargs):
+        begin = time.thread_time()
+        out = full(*args, **kwargs)
+        spent["full"].append(time.thread_time() - begin)
+        return out
+
+    def timed_extend(*args, **kwargs):
+        begin = time.thread_time()
+        out = extend(*args, **kwargs)
+        spent["extend"].append(time.thread_time() - begin)
+        return out
+
+    protocol.associate, CorrespondenceTable.extend = timed_full, timed_extend
+    try:
+        begin = time.process_time()
+        run = api.run(
+            dataset,
+            graph="ring",
+            loss=0.3,
+            settings={"window": 10},
+            association="own",
+            report=False,
+            progress=False,
+        )
+        total = time.process_time() - begin
+    finally:
+        protocol.associate, CorrespondenceTable.extend = full, extend
+    team = run.metrics["association"]["team"]
+    print(
+        f"ring 15 robots, 30% loss: association share of step time "
+        f"{100 * team['association_time_share']:.1f}%; run {total:.1f} cpu s; "
+        f"{len(spent['full'])} full associations {sum(spent['full']):.2f} cpu s "
+        f"({1e3 * np.median(spent['full']):.1f} ms median), {len(spent['extend'])} extensions "
+        f"{sum(spent['extend']):.2f} cpu s; RMSE {run.metrics['trajectory_rmse_avg_m']:.4f} m, "
+        f"precision {team['precision']:.3f}, recall {team['recall']:.3f}"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", nargs="*", default=["kitti", "sim"], choices=("kitti", "sim"))
+    parser.add_argument(
+        "what", nargs="*", default=["kitti", "sim"], choices=("kitti", "sim", "ring")
+    )
     parser.add_argument("--frames", type=int, nargs="*", default=[500, 1000, 1500])
     parser.add_argument("--sim-frames", type=int, nargs="*", default=[50, 100])
     args = parser.parse_args()
@@ -184,6 +237,8 @@ def main() -> None:
         kitti(args.frames)
     if "sim" in args.what:
         sim(args.sim_frames)
+    if "ring" in args.what:
+        ring()
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from teamslam.association import (
     score_correspondences,
 )
 from teamslam.association.core import _distances
+from teamslam.association.kernels import consistent_pairs, descriptor_mismatch
 from teamslam.errors import InputError
 from teamslam.geometry import so3
 
@@ -91,6 +92,29 @@ def test_drift_allowance_is_relative_to_distance():
     assert not strict[0, 1] and loose[0, 1]
 
 
+def test_compiled_loops_equal_the_formulas_in_numpy():
+    # the descriptor comparison and the consistency test, written out in numpy (float32 as the
+    # compiled loops): the same booleans and the same values, on maps of random size
+    rng = np.random.default_rng(4)
+    quarter, chi2 = np.float32(0.25 * 0.05**2), np.float32(6.63)
+    dx, dy = (rng.uniform(1, 30, (n, 6)).astype(np.float32) for n in (40, 35))
+    vx, vy = (rng.uniform(0.01, 2, (n, 6)).astype(np.float32) for n in (40, 35))
+    d = dx[:, None, :, None] - dy[None, :, None, :]
+    s = dx[:, None, :, None] + dy[None, :, None, :]
+    z = d * d / (vx[:, None, :, None] + vy[None, :, None, :] + quarter * s * s)
+    assert np.allclose(descriptor_mismatch(dx, vx, dy, vy, quarter), z.min(axis=3), rtol=1e-6)
+    a, b = _scene(rng, 30), _scene(rng, 25)
+    geo_a = tuple(x.astype(np.float32) for x in _distances(a, np.tile(0.3 * np.eye(3), (30, 1, 1))))
+    geo_b = tuple(x.astype(np.float32) for x in _distances(b, np.tile(0.2 * np.eye(3), (25, 1, 1))))
+    ia, ib = rng.integers(0, 30, 400), rng.integers(0, 25, 400)
+    d1, d2 = geo_a[0][np.ix_(ia, ia)], geo_b[0][np.ix_(ib, ib)]
+    var = geo_a[1][np.ix_(ia, ia)] + geo_b[1][np.ix_(ib, ib)] + quarter * (d1 + d2) ** 2
+    expected = ((d1 - d2) ** 2 <= chi2 * var) & (ia[:, None] != ia) & (ib[:, None] != ib)
+    graph = consistent_pairs(ia, ib, *geo_a, *geo_b, quarter, chi2)
+    assert expected.any() and not expected.all()
+    assert np.array_equal(graph, expected)
+
+
 def test_maximum_clique_is_exact_on_a_planted_clique():
     rng = np.random.default_rng(3)
     m = 60
@@ -104,6 +128,52 @@ def test_maximum_clique_is_exact_on_a_planted_clique():
     assert exact
     assert clique.tolist() == planted.tolist()
     assert adj[np.ix_(clique, clique)].sum() == 12 * 11
+
+
+def _clique_number(adj: np.ndarray) -> int:
+    """Size of a maximum clique by Bron–Kerbosch with a pivot (the reference)."""
+    neighbours = [set(np.flatnonzero(row).tolist()) for row in adj]
+    best = 0
+
+    def grow(r: int, p: set, x: set) -> None:
+        nonlocal best
+        if not p and not x:
+            best = max(best, r)
+            return
+        pivot = max(p | x, key=lambda u: len(neighbours[u] & p))
+        for v in list(p - neighbours[pivot]):
+            grow(r + 1, p & neighbours[v], x & neighbours[v])
+            p = p - {v}
+            x = x | {v}
+
+    grow(0, set(range(adj.shape[0])), set())
+    return best
+
+
+@pytest.mark.parametrize(("m", "density", "seed"), [(70, 0.35, 0), (130, 0.25, 1), (200, 0.2, 2)])
+def test_maximum_clique_matches_a_reference_across_word_boundaries(m, density, seed):
+    # graphs of more than 64 vertices: the bit sets span several words; one greedy start only,
+    # so the exact search (not the heuristic) has to find the maximum
+    rng = np.random.default_rng(seed)
+    adj = np.triu(rng.random((m, m)) < density, 1)
+    adj = adj | adj.T
+    clique, exact = maximum_clique(adj, budget=10**7, starts=1)
+    assert exact
+    assert clique.size == _clique_number(adj)
+    assert adj[np.ix_(clique, clique)].sum() == clique.size * (clique.size - 1)
+
+
+def test_maximum_clique_out_of_budget_is_flagged_and_still_a_clique():
+    rng = np.random.default_rng(5)
+    m = 150
+    adj = np.triu(rng.random((m, m)) < 0.5, 1)
+    adj = adj | adj.T
+    clique, exact = maximum_clique(adj, budget=3, starts=1)
+    assert not exact
+    assert clique.size >= 2
+    assert adj[np.ix_(clique, clique)].sum() == clique.size * (clique.size - 1)
+    full, exact_full = maximum_clique(adj, budget=10**7)
+    assert exact_full and full.size >= clique.size
 
 
 @pytest.mark.parametrize(("yaw", "shift"), [(0.0, (0, 0, 0)), (30.0, (20.0, 0.0, 0.0))])
@@ -339,6 +409,59 @@ def test_a_full_association_is_due_first_and_when_a_map_has_grown():
     assert table.due(len(a), 2 * len(b))
     with pytest.raises(InputError, match="growth"):
         table.due(1, 1, growth=1.0)
+
+
+def test_a_link_without_an_answer_tries_again_after_as_many_new_objects_as_an_answer_needs():
+    a, b, *_ = _two_maps(shared=3, own=40)  # three shared objects: no answer
+    table = CorrespondenceTable(a.robot, b.robot)
+    assert table.due(len(a), len(b))
+    table.merge(associate(a, b), a, b)
+    assert len(table) == 0
+    need = table.settings.min_inliers
+    n = len(a)  # 43 objects: a quarter more is 54
+    assert not table.due(n, len(b))  # nothing new
+    assert not table.due(n + need - 1, len(b))
+    assert table.due(n + need, len(b))
+    assert table.due(n, len(b) + need)
+    # with an answer, only the growth by a quarter makes a full association due
+    a, b, *_ = _two_maps()
+    table = CorrespondenceTable(a.robot, b.robot)
+    table.merge(associate(a, b), a, b)
+    assert len(table) >= need
+    assert not table.due(len(a) + need, len(b))
+    assert table.due(len(a) + 15, len(b))
+
+
+def test_the_cadence_answers_within_min_inliers_objects_of_an_attempt_at_every_exchange():
+    # the second map grows by one object per exchange: first the objects only it holds, then
+    # the shared ones; the cadence's first answer comes fewer than min_inliers objects after
+    # that of a full association at every exchange, for a fraction of the full associations
+    a, b, (ids_a, in_a), (ids_b, in_b) = _two_maps()
+    rng = np.random.default_rng(0)
+    order = np.concatenate(
+        [rng.permutation(np.flatnonzero(in_b >= 40)), rng.permutation(np.flatnonzero(in_b < 40))]
+    )
+    runs = {}
+    for cadence in (False, True):
+        table = CorrespondenceTable(a.robot, b.robot)
+        first, full = None, 0
+        for n in range(26, len(b) + 1):
+            seen = b.take(np.sort(order[:n]))
+            if not cadence or table.due(len(a), len(seen)):
+                table.merge(associate(a, seen), a, seen)
+                full += 1
+            else:
+                table.extend(a, seen)
+            first = n if first is None and len(table) else first
+        runs[cadence] = (first, full, table.pairs())
+    every, cadence = runs[False], runs[True]
+    need = AssociationSettings().min_inliers
+    assert every[0] is not None and every[0] <= cadence[0] < every[0] + need
+    assert cadence[1] < every[1] / 4
+    truth_a = dict(zip(ids_a.tolist(), in_a.tolist(), strict=True))
+    truth_b = dict(zip(ids_b.tolist(), in_b.tolist(), strict=True))
+    assert len(cadence[2]) >= 0.9 * len(every[2])
+    assert all(truth_a[x] == truth_b[y] for x, y in cadence[2].tolist())
 
 
 def _with_a_neighbour_of_an_unseen_partner(seed=0, elongation=10.0):

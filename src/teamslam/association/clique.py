@@ -10,9 +10,10 @@ gives a lower bound that prunes every vertex of smaller degree, then an exact br
 runs on what is left. :func:`maximum_clique` does the same: the heuristic of Pattabiraman et al.
 (grow a clique from each vertex, always adding the candidate with the most neighbours among the
 remaining candidates) and an exact search with the greedy-colouring bound of Tomita & Seki
-("An efficient branch-and-bound algorithm for finding a maximum clique", DMTCS 2003) over Python
-integer bit sets, under a budget of search nodes; when the budget runs out the best clique found
-so far is returned and flagged as not proven maximum.
+("An efficient branch-and-bound algorithm for finding a maximum clique", DMTCS 2003) over bit sets
+of 64-bit words, compiled with numba (depth first, an explicit stack of search nodes), under a
+budget of search nodes; when the budget runs out the best clique found so far is returned and
+flagged as not proven maximum.
 
 Everything is deterministic: ties are broken by vertex index, so the same graph always gives the
 same clique.
@@ -20,42 +21,150 @@ same clique.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
+
+from teamslam.errors import InputError
 
 __all__ = ["maximum_clique"]
 
 
-def _greedy(adjacency: np.ndarray, rank: np.ndarray, start: int, floor: int) -> list[int]:
-    """A clique grown from ``start``: add candidates in order of degree (Pattabiraman et al.)."""
+@numba.njit(cache=True)
+def _greedy(
+    adjacency: np.ndarray, rank: np.ndarray, start: int, floor: int, work: np.ndarray
+) -> np.ndarray:
+    """A clique grown from ``start``: add candidates in order of degree (Pattabiraman et al.);
+    empty when it cannot grow beyond ``floor``. ``work`` is scratch of ``rank``'s size."""
+    n = 0
+    for u in rank:  # neighbours of start, highest degree first
+        if adjacency[start, u]:
+            work[n] = u
+            n += 1
     clique = [start]
-    candidates = rank[adjacency[start, rank]]  # neighbours of start, highest degree first
-    while candidates.size:
-        v = int(candidates[0])
+    head = 0
+    while head < n:
+        v = work[head]
         clique.append(v)
-        candidates = candidates[1:][adjacency[v, candidates[1:]]]
-        if len(clique) + candidates.size <= floor:
-            return []  # cannot beat the best any more
-    return sorted(clique)
+        kept = 0
+        for i in range(head + 1, n):
+            if adjacency[v, work[i]]:
+                work[head + 1 + kept] = work[i]
+                kept += 1
+        head += 1
+        n = head + kept
+        if len(clique) + kept <= floor:
+            return np.empty(0, dtype=np.int64)  # cannot beat the best any more
+    return np.sort(np.array(clique, dtype=np.int64))
 
 
-def _colour_order(p: int, bits: list[int]) -> tuple[list[int], list[int]]:
-    """Greedy colouring of the vertex set ``p``: vertices in colour order and their colours."""
-    order: list[int] = []
-    colours: list[int] = []
+# a de Bruijn sequence: the top 6 bits of (lowest set bit × it) name the bit's index
+_DEBRUIJN = 0x03F79D71B4CB0A89
+_DEBRUIJN_INDEX = np.zeros(64, dtype=np.int64)
+_DEBRUIJN_INDEX[[((_DEBRUIJN << i) & (2**64 - 1)) >> 58 for i in range(64)]] = np.arange(64)
+
+
+@numba.njit(cache=True)
+def _lowest(word: np.uint64, table: np.ndarray) -> int:
+    """Index of the lowest set bit of a non-zero word."""
+    low = word & (~word + np.uint64(1))
+    return table[(low * np.uint64(0x03F79D71B4CB0A89)) >> np.uint64(58)]
+
+
+@numba.njit(cache=True)
+def _colour_order(
+    p: np.ndarray, bits: np.ndarray, order: np.ndarray, colours: np.ndarray, table: np.ndarray
+) -> int:
+    """Greedy colouring of the vertex set ``p`` (a bit set of words): colour classes one after
+    another, each grown from the lowest uncoloured vertex; writes the vertices in colour order
+    and their colours, returns how many."""
+    words = p.size
+    uncoloured = p.copy()
+    q = np.empty(words, dtype=np.uint64)
+    n = 0
     colour = 0
-    uncoloured = p
-    while uncoloured:
+    first = 0  # lowest word of `uncoloured` that may be non-zero
+    while True:
+        while first < words and uncoloured[first] == 0:
+            first += 1
+        if first == words:
+            return n
         colour += 1
-        q = uncoloured
-        while q:
-            low = q & -q
-            v = low.bit_length() - 1
-            q &= ~low
-            q &= ~bits[v]
-            uncoloured &= ~low
-            order.append(v)
-            colours.append(colour)
-    return order, colours
+        q[:] = uncoloured
+        w = first
+        while True:
+            while w < words and q[w] == 0:
+                w += 1
+            if w == words:
+                break
+            v = 64 * w + _lowest(q[w], table)
+            for x in range(words):
+                q[x] &= ~bits[v, x]
+            bit = np.uint64(1) << np.uint64(v - 64 * w)
+            q[w] &= ~bit
+            uncoloured[w] &= ~bit
+            order[n] = v
+            colours[n] = colour
+            n += 1
+
+
+@numba.njit(cache=True)
+def _branch_and_bound(
+    bits: np.ndarray, m: int, budget: int, floor: int, table: np.ndarray, degree: int
+) -> tuple[np.ndarray, bool]:
+    """Tomita & Seki's branch and bound over bit sets, depth first in colour order.
+
+    ``degree`` is the largest degree of the graph: no clique is larger than ``degree + 1``,
+    which bounds the depth of the search. Returns the largest clique found above ``floor``
+    (empty when none) and whether the search finished within ``budget`` search nodes.
+    """
+    words = bits.shape[1]
+    depth = min(m, degree + 1) + 1
+    sets = np.zeros((depth, words), dtype=np.uint64)
+    order = np.empty((depth, m), dtype=np.int64)
+    colours = np.empty((depth, m), dtype=np.int64)
+    size = np.zeros(depth, dtype=np.int64)
+    k = np.zeros(depth, dtype=np.int64)
+    clique = np.empty(depth, dtype=np.int64)
+    best = np.empty(0, dtype=np.int64)
+    best_size = floor
+    for v in range(m):
+        sets[0, v // 64] |= np.uint64(1) << np.uint64(v % 64)
+    nodes = 1
+    if nodes > budget:
+        return best, False
+    size[0] = _colour_order(sets[0], bits, order[0], colours[0], table)
+    k[0] = size[0] - 1
+    d = 0
+    while d >= 0:
+        if k[d] < 0 or d + colours[d, k[d]] <= best_size:
+            # this node is done: back to its parent, which drops the vertex it tried
+            d -= 1
+            if d >= 0:
+                v = clique[d]
+                sets[d, v // 64] &= ~(np.uint64(1) << np.uint64(v % 64))
+                k[d] -= 1
+            continue
+        v = order[d, k[d]]
+        clique[d] = v
+        empty = True
+        for x in range(words):
+            sets[d + 1, x] = sets[d, x] & bits[v, x]
+            if sets[d + 1, x] != 0:
+                empty = False
+        if empty:
+            if d + 1 > best_size:
+                best_size = d + 1
+                best = clique[: d + 1].copy()
+            sets[d, v // 64] &= ~(np.uint64(1) << np.uint64(v % 64))
+            k[d] -= 1
+            continue
+        nodes += 1
+        if nodes > budget:
+            return best, False
+        d += 1
+        size[d] = _colour_order(sets[d], bits, order[d], colours[d], table)
+        k[d] = size[d] - 1
+    return best, True
 
 
 def maximum_clique(
@@ -83,66 +192,74 @@ def maximum_clique(
         within its budget).
     """
     adjacency = np.asarray(adjacency, dtype=bool)
+    if adjacency.ndim != 2 or adjacency.shape[0] != adjacency.shape[1]:
+        raise InputError(f"maximum_clique needs a square adjacency matrix, got {adjacency.shape}")
+    clique, exact = _maximum_clique(
+        np.ascontiguousarray(adjacency), int(budget), int(lower_bound), int(starts), _DEBRUIJN_INDEX
+    )
+    return clique, bool(exact)
+
+
+@numba.njit(cache=True)
+def _maximum_clique(
+    adjacency: np.ndarray, budget: int, lower_bound: int, starts: int, table: np.ndarray
+) -> tuple[np.ndarray, bool]:
+    """:func:`maximum_clique` compiled: the heuristic, the peeling, the exact search."""
     m = adjacency.shape[0]
     if m == 0:
         return np.zeros(0, dtype=np.int64), True
-    degree = adjacency.sum(axis=1)
-    best: list[int] = [int(np.argmax(degree))] if lower_bound < 1 else []
+    degree = np.zeros(m, dtype=np.int64)
+    for i in range(m):
+        for j in range(i + 1, m):
+            if adjacency[i, j]:
+                degree[i] += 1
+                degree[j] += 1
+    best = np.empty(0, dtype=np.int64)
+    if lower_bound < 1:
+        best = np.array([np.argmax(degree)], dtype=np.int64)
     # heuristic: grow a clique from each vertex that could still beat the best (high degree first)
-    rank = np.lexsort((np.arange(m), -degree))  # highest degree first, ties by index
+    rank = np.argsort(-degree, kind="mergesort")  # highest degree first, ties by index
+    work = np.empty(m, dtype=np.int64)
     for v in rank[:starts]:
-        size = max(len(best), lower_bound)
+        size = max(best.size, lower_bound)
         if degree[v] < size:  # a vertex in a larger clique has at least `size` neighbours
             break
-        clique = _greedy(adjacency, rank[degree[rank] >= size], int(v), size)
-        if len(clique) > len(best):
+        clique = _greedy(adjacency, rank[degree[rank] >= size], v, size, work)
+        if clique.size > best.size:
             best = clique
     # exact search on the vertices that could be in a larger clique
-    floor = max(len(best), lower_bound)
+    floor = max(best.size, lower_bound)
     # peel to the floor-core: a vertex of a larger clique has ≥ floor neighbours in that core
+    # (the floor-core is unique: vertices are removed one at a time, their neighbours' counts
+    # of live neighbours updated)
     alive = degree >= floor
-    while True:
-        inner = np.count_nonzero(adjacency[:, alive], axis=1)
-        peeled = alive & (inner >= floor)
-        if np.array_equal(peeled, alive):
-            break
-        alive = peeled
+    inner = np.zeros(m, dtype=np.int64)
+    for i in range(m):
+        if alive[i]:
+            for j in range(m):
+                inner[j] += adjacency[i, j]
+    stack = [i for i in range(m) if alive[i] and inner[i] < floor]
+    for i in stack:
+        alive[i] = False
+    while stack:
+        i = stack.pop()
+        for j in range(m):
+            if adjacency[i, j]:
+                inner[j] -= 1
+                if alive[j] and inner[j] < floor:
+                    alive[j] = False
+                    stack.append(j)
     keep = np.flatnonzero(alive)
     if keep.size <= floor:
-        return np.asarray(best, dtype=np.int64), True
-    sub = adjacency[np.ix_(keep, keep)]
-    packed = np.packbits(sub, axis=1, bitorder="little")  # row i as the bit set of its neighbours
-    bits = [int.from_bytes(row.tobytes(), "little") for row in packed]
-    state: dict = {"best": [], "nodes": 0}
-    best_size = [max(len(best), lower_bound)]
-    exhausted = [False]
-
-    def expand(clique: list[int], p: int) -> None:
-        if exhausted[0]:
-            return
-        state["nodes"] += 1
-        if state["nodes"] > budget:
-            exhausted[0] = True
-            return
-        order, colours = _colour_order(p, bits)
-        for k in range(len(order) - 1, -1, -1):
-            if len(clique) + colours[k] <= best_size[0]:
-                return
-            v = order[k]
-            new_p = p & bits[v]
-            clique.append(v)
-            if new_p:
-                expand(clique, new_p)
-            elif len(clique) > best_size[0]:
-                best_size[0] = len(clique)
-                state["best"] = list(clique)
-            clique.pop()
-            p &= ~(1 << v)
-            if exhausted[0]:
-                return
-
-    expand([], (1 << keep.size) - 1)
-    found = state["best"]
-    if len(found) > len(best):
-        best = sorted(int(keep[i]) for i in found)
-    return np.asarray(sorted(best), dtype=np.int64), not exhausted[0]
+        return best, True
+    # row i as the bit set of its neighbours, in 64-bit words
+    words = (keep.size + 63) // 64
+    bits = np.zeros((keep.size, words), dtype=np.uint64)
+    for i in range(keep.size):
+        for j in range(keep.size):
+            if adjacency[keep[i], keep[j]]:
+                bits[i, j // 64] |= np.uint64(1) << np.uint64(j % 64)
+    found, done = _branch_and_bound(bits, keep.size, budget, floor, table, inner[keep].max())
+    if found.size > best.size:
+        best = np.sort(keep[found])
+    return best, done

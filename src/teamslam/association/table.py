@@ -9,17 +9,17 @@ and when it was not revoked before. Consensus then checks every matched pair's i
 and never re-added (or, with a hold-off, not before that many steps have passed).
 
 At run time a robot runs the full association when the table says it is
-:meth:`~CorrespondenceTable.due` (nothing merged yet, or a map grown by a quarter since the last
-one) and grows the table in between with :meth:`~CorrespondenceTable.extend` (one gate, one
-assignment). Both ends of a link merge the same results in the same order and compute every
-decision in the canonical order of the two robots, so their tables stay mirror images of each
+:meth:`~CorrespondenceTable.due` (nothing merged yet, a map grown by a quarter since the last
+one, or — while the link has no answer — ``min_inliers`` new objects in a map) and grows the
+table in between with :meth:`~CorrespondenceTable.extend` (one gate, one assignment). Both ends
+of a link merge the same results in the same order and compute every decision in the canonical
+order of the two robots, so their tables stay mirror images of each
 other (own ↔ neighbour ids swapped).
 """
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.stats
 
 from teamslam.association.core import (
     AssociationResult,
@@ -27,6 +27,7 @@ from teamslam.association.core import (
     _assign,
     _distinct,
     _separated,
+    chi2_quantile,
     fit_transform,
     gate_pairs,
 )
@@ -97,7 +98,7 @@ def pair_innovation_consistent(
     if not 0.0 < probability < 1.0:
         raise InputError(f"probability must be in (0, 1), got {probability}")
     nis = pair_innovation_nis(mean_own, cov_own, mean_their, cov_their, T_own_their)
-    return nis <= scipy.stats.chi2.ppf(probability, 3)
+    return nis <= chi2_quantile(probability, 3)
 
 
 class CorrespondenceTable:
@@ -296,18 +297,43 @@ class CorrespondenceTable:
     def due(self, own_objects: int, their_objects: int, growth: float = 1.25) -> bool:
         """Whether a full association is worth running now.
 
-        Yes when none was merged yet, or when either map has grown by the factor ``growth``
-        since the last one; in between, :meth:`extend` grows the table for the cost of one
-        gate. (A full association of maps of a hundred or two objects costs tens of
-        milliseconds; with ``growth = 1.25`` a map growing from 10 to 200 objects is associated
-        about 14 times.)
+        Yes when none was merged yet; when either map has grown by the factor ``growth`` since
+        the last one; and, while the table holds fewer pairs than an answer needs
+        (:attr:`~teamslam.association.AssociationSettings.min_inliers`), when either map holds
+        that many objects more than at the last one. In between, :meth:`extend` grows the
+        table for the cost of one gate.
+
+        The growth factor spaces the full associations of a link that has an answer (maps of
+        a hundred or two objects; with ``growth = 1.25`` a map growing from 10 to 200 objects
+        is associated about 14 times), and :meth:`extend` grows its table meanwhile. A link
+        without an answer has nothing to extend: its maps may share objects for tens of frames
+        before they have grown by a quarter (25 new objects on maps of a hundred). Its next
+        attempt comes once either map holds as many new objects as an answer needs pairs — a
+        count the answer itself sets, no constant of its own — so a link that begins to share
+        objects with its neighbour waits a few exchanges, not tens of frames. Estimates that
+        only moved do not make an attempt due, nor do fewer new objects: an answer that needs
+        the last few objects of maps that then stop growing is not found (as with the growth
+        rule alone).
+
+        Measured (``benchmarks/association.py ring``; ``teamslam run --association own`` on
+        KITTI 00 with per-robot ids): on 15 simulated robots on a ring with 30% link loss,
+        recall 0.932 → 0.967 and RMSE 0.0898 → 0.0878 m; on the ``make run`` team 0.954 →
+        0.986 and 0.0536 → 0.0509 m; on KITTI 00 RMSE 7.70 → 7.65 m, precision 0.996 as
+        before (one wrong pair). Two rules that try more often reached the same on the
+        simulated teams but let two more wrong pairs in on KITTI 00 (precision 0.996 → 0.987):
+        an attempt at every exchange with new objects, and this rule with an attempt also once
+        the maps stopped growing (the same sizes at two exchanges running). Each attempt on maps
+        that do not overlap is one more chance of a wrong answer.
         """
         if growth <= 1.0:
             raise InputError(f"growth must be > 1, got {growth}")
         if self._sizes is None:
             return True
         own0, their0 = self._sizes
-        return own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1)
+        if own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1):
+            return True
+        need = self.settings.min_inliers
+        return len(self) < need and (own_objects >= own0 + need or their_objects >= their0 + need)
 
     def revoke(self, own_id: int, their_id: int, step: int | None = None) -> bool:
         """Drop a held pair (its consensus innovation failed); it is not re-added.
