@@ -23,11 +23,13 @@ of ``make run``.
 objects, window 10, geometric features and objects) for ``--frames`` frames, once with the
 paper's consensus set (``consensus_set = all``) and once with the bounded one (``active``, with
 the ``--set`` overrides), in one process, and prints per stage the median over frames of the
-time per frame (mean over robots) over the first and the last 100 frames and their ratio (wall
+time per frame (mean over robots) over the first 100 frames, the 100 frames up to the middle of
+the run and the last 100, and the ratios of the last to the first and to the middle (wall
 time, and the CPU time of the consensus rounds and of the filter step, which other work on the
 machine disturbs less), the
-consensus bytes per robot-step over the same frames, and the accuracy of each run and its ratio
-to the paper's set.
+consensus bytes per robot-step, the objects averaged per robot-step and the state dimension
+(mean over robots) over the same frames, and the accuracy of each run and its ratio to the
+paper's set.
 """
 
 from __future__ import annotations
@@ -76,6 +78,7 @@ class Probe:
         self.memory: dict[int, list[int]] = {}
         self.states: dict[int, object] = {}
         self.cpu: dict[int, list[float]] = {}
+        self.dims: dict[int, list[int]] = {}
         self.rss: dict[int, float] = {}
         self._step = MsckfAgent.step
         probe = self
@@ -86,6 +89,7 @@ class Probe:
             probe.cpu.setdefault(agent.robot, []).append(time.thread_time() - begin)
             state = agent.state
             probe.states[agent.robot] = state
+            probe.dims.setdefault(agent.robot, []).append(state.dim)
             probe.dim = max(probe.dim, state.dim)
             probe.objects = max(probe.objects, state.n_objects)
             probe.retired = max(probe.retired, len(state.retired))
@@ -192,6 +196,7 @@ class ConsensusCpu:
         from teamslam.msckf.protocol import ConsensusProtocol
 
         self.spent: dict[tuple[int, int], float] = {}
+        self.averaged: dict[tuple[int, int], int] = {}
         self._cls = ConsensusProtocol
         self._saved = {name: getattr(ConsensusProtocol, name) for name in ROUNDS}
         probe = self
@@ -202,7 +207,10 @@ class ConsensusCpu:
             def call(protocol, *args, **kwargs):
                 begin = time.thread_time()
                 try:
-                    return original(protocol, *args, **kwargs)
+                    out = original(protocol, *args, **kwargs)
+                    if name == "average":
+                        probe.averaged[(protocol.robot, protocol.step)] = out
+                    return out
                 finally:
                     key = (protocol.robot, protocol.step)
                     probe.spent[key] = probe.spent.get(key, 0.0) + time.thread_time() - begin
@@ -222,6 +230,12 @@ class ConsensusCpu:
 
 
 ROUNDS = ("requests", "answer", "average")
+
+
+def over(values, windows, summary=np.median, shift=0) -> list[float]:
+    """``summary`` of ``values`` over each ``(begin, end)`` frame window (``shift``: the index
+    of frame ``t`` is ``t − shift``)."""
+    return [float(summary(values[a - shift : b - shift])) for a, b in windows]
 
 
 def per_step_mean(totals: dict[tuple[int, int], float], robots: int, frames: int) -> np.ndarray:
@@ -278,14 +292,22 @@ def revisit(frames: int, seed: int, overrides: dict) -> None:
         times = 1e3 * np.stack(result.frame_times).mean(axis=0)  # (frames + 1, 4), robot mean
         times = np.column_stack([times, times.sum(axis=1)])
         sent = probe.per_frame(5, frames)
-        first, last = slice(1, 101), slice(frames - 99, frames + 1)
+        # frames 1–100, the 100 frames up to the middle of the run, the last 100
+        half = frames // 2
+        windows = [(1, 101), (half - 99, half + 1), (frames - 99, frames + 1)]
         consensus_cpu = 1e3 * cpu.per_frame(5, frames)
-        step_cpu = 1e3 * np.mean([steps.cpu[i] for i in range(5)], axis=0)  # frames 0 … N-1
+        # per step 0 … N-1 (frame t's step is at t): shifted to the same frames
+        step_cpu = 1e3 * np.mean([steps.cpu[i] for i in range(5)], axis=0)
+        dims = np.mean([steps.dims[i] for i in range(5)], axis=0)
+        averaged_now = per_step_mean(cpu.averaged, 5, frames)
+
         rows[name] = (
-            [(np.median(times[first, k]), np.median(times[last, k])) for k in range(5)]
-            + [(float(np.mean(sent[first])), float(np.mean(sent[last])))]
-            + [(np.median(consensus_cpu[first]), np.median(consensus_cpu[last]))]
-            + [(np.median(step_cpu[0:100]), np.median(step_cpu[frames - 100 : frames]))]
+            [over(times[:, k], windows) for k in range(5)]
+            + [over(sent, windows, np.mean)]
+            + [over(consensus_cpu, windows)]
+            + [over(step_cpu, windows, shift=1)]
+            + [over(averaged_now, windows, np.mean)]
+            + [over(dims, windows, np.mean, shift=1)]
         )
         metrics[name] = team_metrics(dataset, result)
         inactive = sum(c.get("objects_inactive", 0) for c in result.counters)
@@ -295,13 +317,28 @@ def revisit(frames: int, seed: int, overrides: dict) -> None:
             f"{averaged / (5 * frames):.1f}, inactive {inactive / (5 * frames):.1f}",
             flush=True,
         )
-    print(f"\n{'stage':<16} {'set':<7} {'first 100':>10} {'last 100':>10} {'last/first':>10}")
-    labels = (*STAGES, "total", "bytes/robot-step", "consensus CPU", "filter step CPU")
+    mid = f"{frames // 2 - 99}–{frames // 2}"
+    print(
+        f"\n{'stage':<16} {'set':<7} {'first 100':>10} {mid:>10} {'last 100':>10} "
+        f"{'last/first':>10} {'last/mid':>10}"
+    )
+    labels = (
+        *STAGES,
+        "total",
+        "bytes/robot-step",
+        "consensus CPU",
+        "filter step CPU",
+        "objects averaged",
+        "state dimension",
+    )
     for k, stage in enumerate(labels):
         for name in rows:
-            a, b = rows[name][k]
-            unit = "" if k == 5 else " ms"
-            print(f"{stage:<16} {name:<7} {a:10.2f} {b:10.2f} {b / a:10.2f}{unit}")
+            a, m, b = rows[name][k]
+            unit = "" if k in (5, 8, 9) else " ms"
+            print(
+                f"{stage:<16} {name:<7} {a:10.2f} {m:10.2f} {b:10.2f} {b / a:10.2f} "
+                f"{b / m:10.2f}{unit}"
+            )
     print(f"\n{'set':<7} {'traj RMSE':>10} {'obj err':>10} {'disagree':>10}")
     keys = ("trajectory_rmse_avg_m", "object_error_avg_m", "object_disagreement_avg_m")
     for name in rows:

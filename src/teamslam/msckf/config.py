@@ -68,13 +68,15 @@ class MsckfConfig:
         Which common objects consensus averages jointly: ``all`` (the paper: every common
         object that moved, so the joint inverted each step grows with the shared map) or
         ``active`` (a bounded set: the objects the window can still change — observed within
-        the window or with mutual information above ``consensus_active_information`` with the
+        the window, or with mutual information above ``consensus_active_information`` with the
         window poses — and the others only when they moved by more than
         ``consensus_inactive_kl_threshold``); lock-step exchanges only;
         :mod:`teamslam.msckf.consensus_set` derives what it loses.
     consensus_active_information
         With ``consensus_set = active``: an object not observed within the window is active
-        while its mutual information with the window poses exceeds this (nats, unit-free).
+        while its mutual information with the window poses exceeds this (nats, unit-free;
+        default ``inf``: only the objects observed within the window are active — on a route
+        that revisits one area every mapped object stays correlated with the poses).
     consensus_inactive_kl_threshold
         With ``consensus_set = active``: an inactive object is averaged with a neighbour when
         its marginal moved by more than this Kullback–Leibler divergence (nats) since the pair
@@ -193,7 +195,7 @@ class MsckfConfig:
     initial_pose_std: float = 1e-4
     consensus_kl_threshold: float = 1e-3
     consensus_set: str = "all"
-    consensus_active_information: float = 0.3
+    consensus_active_information: float = float("inf")
     consensus_inactive_kl_threshold: float = 0.3
     consensus_per_object: bool = False
     consensus_float32: bool = True
