@@ -9,6 +9,7 @@ Run on demand (BLAS pinned to one thread)::
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py scaling [--robots 5 10 25 50 100]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py messages --steps 150 [--robots 5]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py hybrid --steps 150 [--robots 5]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py iterations --steps 100 [--robots 5]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py bounded {team,kitti} [--set k=v ...]
 
 ``accuracy`` and ``loss`` use the simulator with the full filter (geometric features and
@@ -24,6 +25,10 @@ per robot per frame, overall and for consensus, and its ratio to the smallest te
 ``hybrid`` compares the plain average with hybrid consensus (``consensus_hybrid``) on the
 complete graph (one realisation) and on a ring with 30% link loss and the ideal filter (means
 over ``--seeds`` noise realisations): accuracy, mean pose NEES/6, bytes and consensus time.
+``iterations`` runs one team with ``consensus_iterations`` 1, 2 and 3, plain and on information
+increments, on a ring and on the complete graph, and prints per robot-step the CPU time of the
+whole run (process time) and of consensus (its share of the stage times), the bytes sent, and
+the accuracy, pose NEES/6 and object disagreement; ratios are to ``L = 1`` of the same row.
 ``bounded`` runs one team twice in one process — the paper's consensus set and the bounded one
 (``consensus_set = active`` with the ``--set`` overrides) — and prints the median time per
 robot-step of each stage, bytes per robot-step and accuracy of both, and the ratio of the
@@ -272,6 +277,39 @@ def hybrid(robots, steps, window, seeds):
             )
 
 
+def iterations(robots, steps, window):
+    """``consensus_iterations`` 1, 2, 3: CPU and bytes per robot-step, accuracy, consistency."""
+    from teamslam.graph import complete, ring
+
+    n = robots[0]
+    ds = lissajous_team(robots=n, steps=steps, seed=0)
+    robot_steps = n * (ds.robots[0].frames - 1)
+    print(
+        f"{'graph':<9} {'mode':<11} {'L':>2} {'CPU ms':>8} {'ratio':>6} {'cons ms':>8} "
+        f"{'B/robot-step':>13} {'ratio':>6} {'RMSE':>7} {'NEES/6':>7} {'disagree':>9}"
+    )
+    for graph in (ring(n), complete(n)):
+        for mode, settings in (("plain", {}), ("increments", {"consensus_increments": True})):
+            first = None
+            for count in (1, 2, 3):
+                cfg = config_for(ds, window=window, consensus_iterations=count, **settings)
+                begin = time.process_time()
+                result = run_team(ds, cfg, graph=graph, progress=False)
+                cpu = 1e3 * (time.process_time() - begin) / robot_steps
+                stages = np.sum([[t[k] for k in STAGES] for t in result.timings], axis=0)
+                cons = cpu * stages[0] / stages.sum()  # consensus's share of the CPU time
+                sent = sum(c["bytes"] for c in result.counters) / robot_steps
+                first = first or (cpu, sent)
+                m = team_metrics(ds, result)
+                print(
+                    f"{graph.name:<9} {mode:<11} {count:>2} {cpu:8.2f} {cpu / first[0]:6.2f} "
+                    f"{cons:8.2f} {sent:13.0f} {sent / first[1]:6.2f} "
+                    f"{m['trajectory_rmse_avg_m']:7.4f} {np.mean(m['nees_pose_avg']):7.2f} "
+                    f"{m['object_disagreement_avg_m']:9.4f}",
+                    flush=True,
+                )
+
+
 #: ms per robot-step of the published code on these runs (same machine, single-threaded BLAS,
 #: recorded when the speed work began; the code itself is not part of this repository)
 PUBLISHED_MS = {"team": 19.9, "kitti": 25.0}
@@ -344,7 +382,17 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "what",
-        choices=("accuracy", "loss", "kitti", "speed", "scaling", "messages", "hybrid", "bounded"),
+        choices=(
+            "accuracy",
+            "loss",
+            "kitti",
+            "speed",
+            "scaling",
+            "messages",
+            "hybrid",
+            "iterations",
+            "bounded",
+        ),
     )
     parser.add_argument("team", nargs="?", default="team", choices=("team", "kitti"))
     parser.add_argument("--set", nargs="*", default=[], help="bounded-set settings (bounded)")
@@ -376,6 +424,8 @@ def main():
         messages(args.robots or [5], args.steps, args.window)
     elif args.what == "hybrid":
         hybrid(args.robots or [5], args.steps, args.window, args.seeds)
+    elif args.what == "iterations":
+        iterations(args.robots or [5], args.steps, args.window)
     elif args.what == "scaling":
         scaling(args.robots or [5, 10, 25, 50, 100], args.steps, args.window)
     else:

@@ -160,11 +160,17 @@ def _team_file(tmp_path: Path, name: str, directory: Path, base_port: int, **set
 
 
 @pytest.mark.parametrize(
-    ("settings", "offset"), [({}, 0), ({"consensus_increments": True}, 21)], ids=["plain", "incr"]
+    ("settings", "offset"),
+    [
+        ({}, 0),
+        ({"consensus_increments": True}, 21),
+        ({"consensus_increments": True, "consensus_iterations": 2}, 24),
+    ],
+    ids=["plain", "incr", "incr-L2"],
 )
 def test_three_processes_equal_the_in_process_runner(small_team, tmp_path, settings, offset):
     """Also with consensus on information increments, whose marginals carry the sender's prior
-    (wire kinds 10, 11)."""
+    (wire kinds 10, 11), and with two consensus exchanges per frame."""
     dataset, directory = small_team
     team_path = _team_file(
         tmp_path,

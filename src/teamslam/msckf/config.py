@@ -105,6 +105,15 @@ class MsckfConfig:
         hybrid rule counts it less than once wherever a message lacks some averaged object).
         Never counts an increment twice on any graph, with link loss and partial maps; joint
         marginals, lock-step exchanges only; :mod:`teamslam.msckf.consensus_average`.
+    consensus_iterations
+        Consensus exchanges per step (``L``, default 1): both rounds and the average are run
+        ``L`` times before each frame, every exchange with its own messages and link losses, so
+        estimates on a sparse graph come closer to the network average at ``L`` times the
+        messages. With hybrid consensus or increments each robot's new information is sent at
+        its gain in the first exchange only (the later ones average the fused estimates, a
+        convex combination), so no increment is counted twice for any ``L``. Lock-step only
+        (asynchronous robots exchange once per step); every robot of a team must use the same
+        ``L``; :mod:`teamslam.msckf.protocol`.
     linearization
         Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates)
         ``ideal`` (ground truth, simulation only) or ``oc`` (observability-constrained);
@@ -201,6 +210,7 @@ class MsckfConfig:
     consensus_float32: bool = True
     consensus_hybrid: bool = False
     consensus_increments: bool = False
+    consensus_iterations: int = 1
     linearization: str = "std"
     object_retire_after: int = 0
     debug: bool = False
@@ -245,6 +255,9 @@ class MsckfConfig:
                 raise InputError(
                     f"{name} needs joint marginals: it cannot be used with consensus_per_object"
                 )
+        iterations = self.consensus_iterations
+        if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+            raise InputError("consensus_iterations must be an integer of at least 1 (exchanges)")
         if self.object_loss not in ("none", "huber", "cauchy"):
             raise InputError(f"object_loss must be none, huber or cauchy, not {self.object_loss!r}")
         scale = self.object_loss_scale

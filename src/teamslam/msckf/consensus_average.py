@@ -90,7 +90,21 @@ a neighbour heard in round 1 whose marginal did not arrive keeps its weight on t
 on all of ``y`` once; objects initialised since the prior have ``P = 0``, so their whole marginal
 counts as new — once — and their prior comes from the neighbours that held them. A marginal without
 a prior (a neighbour not on this rule, or one whose objects had to be marginalised in translation)
-counts as a prior only: its new information is then lost, never doubled. *Asynchronous exchanges*
+counts as a prior only: its new information is then lost, never doubled.
+*Iterations* (``consensus_iterations = L`` exchanges per step): HCMCI averages the increments
+``L`` times and then scales the result by one ``ω``, so robot ``k``'s increment ends in robot
+``i`` with the weight ``ω (Π^L)_ik``; never counting it twice needs ``ω ≤ 1 / max_ik (Π^L)_ik``,
+which on a sparse graph is close to one (the diagonal of ``Π^L`` stays large) and needs ``Π^L``,
+which no robot knows. Here a robot renews its prior after every exchange, so its increment is
+sent — at the gain ``γ_j = 1 + d_j`` — in the first exchange after it was gathered and never
+again: exchanges ``2 … L`` of a step find no new information (``Ω = P``) and are eq. 42 on the
+priors. After them ``Δ_k`` weighs ``Σ_j (Π^{L−1})_ij c_jk`` in robot ``i`` (``c_kk = 1``,
+``c_jk = A_jk γ_k ≤ 1``): a convex combination of weights of at most one. So the condition is
+``A_ij γ_j ≤ 1`` in the exchange that carries the increment, for any ``L``; on a complete graph
+the first exchange is the centralised Kalman filter and the others change nothing, on a sparse
+graph they spread each increment beyond one hop inside the priors (tested with ``L = 3``, link
+loss and partial maps).
+*Asynchronous exchanges*
 may use one marginal at several steps, counting its increment again, so the rule (like hybrid) is
 lock-step only. All of this is tested on a linear team (``tests/test_consistent_consensus.py``),
 including objects that enter a second robot's map late.

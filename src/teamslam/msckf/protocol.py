@@ -47,6 +47,17 @@ again, so there the plain average is used. **Consensus on information increments
 them (wire format 6), and the average takes the priors' average, our own new information once
 and each neighbour's at full weight (:func:`~teamslam.msckf.consensus.increment_average`).
 
+**Consensus iterations** (``consensus_iterations = L``, lock-step only): each step runs ``L``
+exchanges (both rounds and the average) before the frame is processed; exchange ``l`` of step
+``t`` is numbered ``t·L + l`` in its messages, links and mailboxes, so every exchange is checked,
+lost and weighted on its own (``L = 1`` numbers them by the step, as before). The second and
+later exchanges average what the first left; with the kept-agreement threshold they carry only
+the objects that still moved. With hybrid consensus or increments the prior is renewed after
+every exchange, so each increment is sent — at the gain ``1 + d_j`` — in the first exchange after
+it was gathered and only inside priors afterwards: the later exchanges of a step are eq. 42 on
+the priors, a convex combination, and the condition stays ``A_ij γ_j ≤ 1`` for any ``L``
+(:mod:`teamslam.msckf.consensus_average`).
+
 Only objects in the filter state take part: objects retired to the persistent map
 (``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
 averaged until they are observed again and re-enter the state.
@@ -170,6 +181,10 @@ class ConsensusProtocol:
         self.hybrid = (bool(config.consensus_hybrid) or self.increments) and self.max_age == 0
         self._prior: SharedPrior | None = shared_prior(agent.state) if self.hybrid else None
         self.step = -1
+        # L exchanges per step (lock-step only; asynchronous robots exchange once a step)
+        self.iterations = int(config.consensus_iterations) if self.max_age == 0 else 1
+        self.iteration = 0
+        self.round = -1
         self.heard: set[int] = set()
         self.expected: set[int] = set()
         self.averaged_with: list[int] = []
@@ -227,7 +242,7 @@ class ConsensusProtocol:
         problem, usable = check_message(
             message,
             kind,
-            self.step,
+            self.round,
             self.max_age,
             self.robot,
             self.neighbours,
@@ -241,8 +256,21 @@ class ConsensusProtocol:
         return usable
 
     # ------------------------------------------------------------------ rounds
-    def requests(self, step: int, to: Iterable[int] | None = None) -> list[MapIdsMessage]:
-        """Round 1 of ``step``: our map ids (and which moved) for each neighbour in ``to``.
+    def exchange(self, step: int, iteration: int = 0) -> int:
+        """The number the messages of exchange ``iteration`` of ``step`` carry (and the links
+        and mailboxes go by): ``step · L + iteration`` with ``L`` exchanges per step — the step
+        itself when ``L = 1``."""
+        if not 0 <= iteration < self.iterations:
+            raise InternalError(
+                f"exchange {iteration} of a step with {self.iterations} consensus iterations"
+            )
+        return int(step) * self.iterations + int(iteration)
+
+    def requests(
+        self, step: int, to: Iterable[int] | None = None, iteration: int = 0
+    ) -> list[MapIdsMessage]:
+        """Round 1 of exchange ``iteration`` of ``step``: our map ids (and which moved) for
+        each neighbour in ``to``.
 
         Raises
         ------
@@ -250,6 +278,8 @@ class ConsensusProtocol:
             A marginal of ours that is not positive definite; robot and frame are named.
         """
         self.step = int(step)
+        self.iteration = int(iteration)
+        self.round = self.exchange(step, iteration)
         with self._named():
             return self._requests(to)
 
@@ -263,7 +293,11 @@ class ConsensusProtocol:
         self._own_information = {}
         order = np.argsort(self.agent.state.object_ids)
         ids = self.agent.state.object_ids[order]  # increasing, as messages carry them
-        exchange = self.association == "own" and self.step % self.association_interval == 0
+        exchange = (
+            self.association == "own"
+            and self.iteration == 0
+            and self.step % self.association_interval == 0
+        )
         if self.kl_threshold > 0 or exchange or self.bounded:
             means, covs = object_marginals(self.agent.state)
         if self.kl_threshold > 0 or self.bounded:
@@ -279,7 +313,7 @@ class ConsensusProtocol:
         out = []
         for j in targets:
             moved = self._moved_for(j)
-            out.append(MapIdsMessage(self.robot, j, self.step, ids, moved, self._summary))
+            out.append(MapIdsMessage(self.robot, j, self.round, ids, moved, self._summary))
             if self._summary is not None:
                 self.link_stats[j]["summaries_sent"] += 1
                 self.link_stats[j]["summary_bytes"] += summary_wire_bytes(self._summary)
@@ -397,7 +431,7 @@ class ConsensusProtocol:
                 self.agent.state,
                 self.robot,
                 j,
-                self.step,
+                self.round,
                 share,
                 len(self.heard),
                 per_object=config.consensus_per_object,

@@ -6,7 +6,8 @@ Every way of running the filter goes through the same per-frame code, :class:`Ro
   :class:`~teamslam.msckf.protocol.ConsensusProtocol`): round 1 sends its map ids, round 2
   answers the requests heard with the marginals of the common objects, round 3 averages the
   marginals heard (:meth:`RobotDriver.requests`, :meth:`RobotDriver.answer`,
-  :meth:`RobotDriver.average`);
+  :meth:`RobotDriver.average`) — ``consensus_iterations`` times per frame, each exchange with
+  its own messages and, in the in-process team, its own link-loss draw;
 * then it processes the frame (:meth:`RobotDriver.step`) and records the filtered pose of
   frame ``k`` and its covariance (:meth:`RobotDriver.record`).
 
@@ -15,7 +16,7 @@ Messages move through a :class:`~teamslam.msckf.transport.Transport` — the in-
 :class:`LockStep` (wait for the messages of this step, up to a timeout) or :class:`Asynchronous`
 (never wait; use each neighbour's newest message no older than ``max_age`` steps). A neighbour
 silent for ``lost_after`` frames in a row is reported lost and no longer awaited (it is awaited
-again as soon as it speaks); each neighbour silent in a frame counts as a link lost.
+again as soon as it speaks); each neighbour silent in an exchange counts as a link lost.
 
 The robot process runs one driver to the end (:meth:`RobotDriver.frame` per frame); a team in
 one process runs every robot's driver phase by phase (:func:`run_lockstep`): all requests go
@@ -63,6 +64,7 @@ __all__ = [
     "RobotDriver",
     "TeamResult",
     "assemble_result",
+    "exchanges_per_frame",
     "load_result",
     "merge_results",
     "run_drivers",
@@ -227,35 +229,48 @@ class RobotDriver:
         """Whether the robot takes part in consensus at frame ``t``."""
         return t > 0 and self.protocol is not None
 
+    @property
+    def iterations(self) -> int:
+        """Consensus exchanges per frame (``consensus_iterations``; 1 without consensus)."""
+        return 1 if self.protocol is None else self.protocol.iterations
+
     # ------------------------------------------------------------------ consensus rounds
-    def requests(self, t: int) -> None:
-        """Round 1: send our map ids to every neighbour the transport can reach."""
-        reachable = self.transport.reachable(t, self.neighbours)
-        for message in self.protocol.requests(t, reachable):
+    def requests(self, t: int, iteration: int = 0) -> None:
+        """Round 1 of exchange ``iteration``: send our map ids to every neighbour the transport
+        can reach."""
+        reachable = self.transport.reachable(self.protocol.exchange(t, iteration), self.neighbours)
+        for message in self.protocol.requests(t, reachable, iteration):
             self.transport.send(message)
 
-    def answer(self, t: int) -> None:
-        """Round 2: take the neighbours' ids, answer each with our common marginal."""
+    def answer(self, t: int, iteration: int = 0) -> None:
+        """Round 2: take the neighbours' ids, answer each with our common marginal (a
+        neighbour's silence is judged on a frame's first exchange)."""
+        number = self.protocol.exchange(t, iteration)
         if isinstance(self.wait, LockStep):
             waiting = {j for j in self.neighbours if self.silent[j] < self.lost_after}
             heard = self.transport.collect(
-                t, MapIdsMessage, waiting, self.wait.timeout, also=self.neighbours - waiting
+                number, MapIdsMessage, waiting, self.wait.timeout, also=self.neighbours - waiting
             )
         else:
             heard = self.transport.newest(MapIdsMessage, self.neighbours, self.wait.max_age, t)
         for reply in self.protocol.answer(heard):
             self.transport.send(reply)
+        if iteration > 0:
+            return
         for j in self.neighbours:
             self.silent[j] = 0 if j in self.protocol.heard else self.silent[j] + 1
             if self.silent[j] >= self.lost_after and j not in self.lost_reported:
                 self.lost_reported.add(j)
                 self.agent.counters["neighbours_lost"] += 1
 
-    def average(self, t: int) -> None:
+    def average(self, t: int, iteration: int = 0) -> None:
         """Round 3: take the marginals we expect, average (eq. 19, Prop. 2)."""
         if isinstance(self.wait, LockStep):
             heard = self.transport.collect(
-                t, CommonMarginalMessage, self.protocol.expected, self.wait.timeout
+                self.protocol.exchange(t, iteration),
+                CommonMarginalMessage,
+                self.protocol.expected,
+                self.wait.timeout,
             )
         else:
             heard = self.transport.newest(
@@ -264,11 +279,13 @@ class RobotDriver:
         silent = self.neighbours - self.protocol.heard
         if silent:
             self.agent.counters["links_lost"] += len(silent)
-            self.lost_steps.append(t)
+            if not self.lost_steps or self.lost_steps[-1] != t:
+                self.lost_steps.append(t)
         self.protocol.average(heard)
         for j in self.protocol.averaged_with:
-            self.averaged_with[j].append(t)
-        self.consensus_times[t] = self.protocol.spent
+            if not self.averaged_with[j] or self.averaged_with[j][-1] != t:
+                self.averaged_with[j].append(t)
+        self.consensus_times[t] += self.protocol.spent
 
     # ------------------------------------------------------------------ filter
     def step(self, t: int) -> None:
@@ -284,9 +301,10 @@ class RobotDriver:
     def frame(self, t: int) -> None:
         """Everything of frame ``t`` for this robot alone (the robot process's loop body)."""
         if self.exchanges(t):
-            self.requests(t)
-            self.answer(t)
-            self.average(t)
+            for iteration in range(self.iterations):
+                self.requests(t, iteration)
+                self.answer(t, iteration)
+                self.average(t, iteration)
         self.step(t)
         self.record(t)
 
@@ -356,14 +374,33 @@ def run_lockstep(
         if before is not None:
             before(t, running)
         talking = [drivers[i] for i in running if drivers[i].exchanges(t)]
-        for phase in (RobotDriver.requests, RobotDriver.answer, RobotDriver.average):
-            for d in talking:
-                phase(d, t)
+        for iteration in range(exchanges_per_frame(talking)):
+            for phase in (RobotDriver.requests, RobotDriver.answer, RobotDriver.average):
+                for d in talking:
+                    phase(d, t, iteration)
         for i in running:
             drivers[i].step(t)
         for i in running:  # after every robot's update of this frame
             drivers[i].record(t)
     return time.perf_counter() - begin
+
+
+def exchanges_per_frame(drivers: Sequence[RobotDriver]) -> int:
+    """The consensus exchanges per frame of a team (``consensus_iterations``; 1 without
+    consensus).
+
+    Raises
+    ------
+    InputError
+        Robots that exchange a different number of times per frame (their messages would
+        never meet).
+    """
+    counts = {d.iterations for d in drivers if d.protocol is not None}
+    if len(counts) > 1:
+        raise InputError(
+            f"every robot of a team needs the same consensus_iterations, not {sorted(counts)}"
+        )
+    return counts.pop() if counts else 1
 
 
 def assemble_result(
@@ -621,11 +658,14 @@ def run_team(
         for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))
     ]
 
+    exchanges = exchanges_per_frame(drivers)
+
     def draw_links(t: int, running: list[int]) -> None:
-        active, _ = edge_loss.step()
         mask = np.zeros(n, dtype=bool)
         mask[running] = True
         links.clear()
-        links[t] = active & mask[:, None] & mask[None, :]
+        for iteration in range(exchanges):  # each exchange of the frame draws its own links
+            active, _ = edge_loss.step()
+            links[t * exchanges + iteration] = active & mask[:, None] & mask[None, :]
 
     return run_drivers(drivers, graph.name, loss, draw_links, progress)
