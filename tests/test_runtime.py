@@ -393,7 +393,7 @@ def test_lockstep_transport_delivers_a_burst_to_a_slow_receiver(small_team, tmp_
     """
     _, directory = small_team
     team = load_team_file(
-        _team_file(tmp_path, f"burst-{os.getpid()}", directory, _port(21), sync="lockstep")
+        _team_file(tmp_path, f"burst-{os.getpid()}", directory, _port(27), sync="lockstep")
     )
     sender, receiver = ZenohTransport(team, 0), _SlowReceiver(team, 1)
     try:
