@@ -209,7 +209,8 @@ class ConsensusCpu:
                 try:
                     out = original(protocol, *args, **kwargs)
                     if name == "average":
-                        probe.averaged[(protocol.robot, protocol.step)] = out
+                        key = (protocol.robot, protocol.step)  # every exchange of the step
+                        probe.averaged[key] = probe.averaged.get(key, 0) + out
                     return out
                 finally:
                     key = (protocol.robot, protocol.step)

@@ -115,6 +115,33 @@ def test_compiled_loops_equal_the_formulas_in_numpy():
     assert np.array_equal(graph, expected)
 
 
+def test_compiled_search_and_test_refuse_what_they_cannot_read():
+    # the compiled loops read without bounds checks: bad input is refused before them, by name
+    loop = np.zeros((4, 4), dtype=bool)
+    loop[1, 1] = True
+    with pytest.raises(InputError, match="false diagonal"):
+        maximum_clique(loop)
+    one_sided = np.zeros((4, 4), dtype=bool)
+    one_sided[0, 2] = True
+    with pytest.raises(InputError, match="symmetric"):
+        maximum_clique(one_sided)
+    rng = np.random.default_rng(1)
+    a, b = _scene(rng, 6), _scene(rng, 5)
+    geo_a = _distances(a, np.tile(0.3 * np.eye(3), (6, 1, 1)))
+    geo_b = _distances(b, np.tile(0.3 * np.eye(3), (5, 1, 1)))
+    settings = AssociationSettings()
+    good = consistency_graph(np.array([0, 1]), np.array([0, 1]), geo_a, geo_b, settings)
+    assert good.shape == (2, 2)
+    with pytest.raises(InputError, match="ib has an index outside"):
+        consistency_graph(np.array([0, 1]), np.array([0, 5]), geo_a, geo_b, settings)
+    with pytest.raises(InputError, match="differ in length"):
+        consistency_graph(np.array([0, 1]), np.array([0]), geo_a, geo_b, settings)
+    with pytest.raises(InputError, match="integer indices"):
+        consistency_graph(np.array([0.0, 1.0]), np.array([0, 1]), geo_a, geo_b, settings)
+    with pytest.raises(InputError, match="square"):
+        consistency_graph(np.array([0]), np.array([0]), (geo_a[0][:3], geo_a[1]), geo_b, settings)
+
+
 def test_maximum_clique_is_exact_on_a_planted_clique():
     rng = np.random.default_rng(3)
     m = 60

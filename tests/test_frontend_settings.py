@@ -186,3 +186,21 @@ def test_compiled_alignment_of_all_patches_equals_one_patch_at_a_time():
     xs = uv[:, :1] + A[:, 0, :1] * window.ox + A[:, 0, 1:] * window.oy
     ys = uv[:, 1:] + A[:, 1, :1] * window.ox + A[:, 1, 1:] * window.oy
     np.testing.assert_allclose(window.sample(image, uv, A), _bilinear(image, xs, ys), atol=1e-3)
+
+
+def test_compiled_sampling_refuses_images_it_cannot_read():
+    # the compiled loops read without bounds checks: a too small image or gradients of another
+    # shape are refused by name before them
+    from teamslam.frontend._align import PatchWindow, align_patches
+
+    window = PatchWindow(2)
+    uv, A = np.array([[0.0, 0.0]]), np.eye(2)[None]
+    with pytest.raises(InputError, match="at least 2×2"):
+        window.sample(np.zeros((1, 40), np.float32), uv, A)
+    image = np.zeros((30, 40), np.float32)
+    template = np.zeros((1, window.ox.size), np.float32)
+    with pytest.raises(InputError, match="gradient of shape"):
+        align_patches(
+            window, template, (image, image, image[:, :20]), uv + 15, A, np.array([[1.0, 0.0]]), 2
+        )
+    assert window.sample(image, uv + 15, A).shape == (1, window.ox.size)

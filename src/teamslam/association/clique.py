@@ -194,6 +194,12 @@ def maximum_clique(
     adjacency = np.asarray(adjacency, dtype=bool)
     if adjacency.ndim != 2 or adjacency.shape[0] != adjacency.shape[1]:
         raise InputError(f"maximum_clique needs a square adjacency matrix, got {adjacency.shape}")
+    # the compiled search sizes its stack by the degrees: a self-loop or a one-sided edge
+    # would let it descend past it
+    if adjacency.diagonal().any():
+        raise InputError("maximum_clique needs an adjacency matrix with a false diagonal")
+    if not np.array_equal(adjacency, adjacency.T):
+        raise InputError("maximum_clique needs a symmetric adjacency matrix")
     clique, exact = _maximum_clique(
         np.ascontiguousarray(adjacency), int(budget), int(lower_bound), int(starts), _DEBRUIJN_INDEX
     )

@@ -361,8 +361,23 @@ def consistency_graph(
         ``(m, m)`` boolean, true where candidates ``p`` and ``q`` are consistent: they name four
         different objects and ``(dₐ − d_b)² ≤ χ²₁ · (σₐ² + σ_b² + ρ² d̄²)``.
     """
-    dist_a, var_a = (x.astype(np.float32) for x in geo_a)
-    dist_b, var_b = (x.astype(np.float32) for x in geo_b)
+    dist_a, var_a = (np.asarray(x, dtype=np.float32) for x in geo_a)
+    dist_b, var_b = (np.asarray(x, dtype=np.float32) for x in geo_b)
+    ia, ib = np.asarray(ia), np.asarray(ib)
+    # the compiled test reads without bounds checks: every index and shape is checked here
+    for name, index, dist, var in (("ia", ia, dist_a, var_a), ("ib", ib, dist_b, var_b)):
+        n = dist.shape[0] if dist.ndim == 2 else -1
+        if dist.ndim != 2 or dist.shape != (n, n) or var.shape != (n, n):
+            raise InputError(
+                f"consistency_graph: the distances and variances of {name}'s map must be square "
+                f"and alike, got {dist.shape} and {var.shape}"
+            )
+        if index.ndim != 1 or (index.size and not np.issubdtype(index.dtype, np.integer)):
+            raise InputError(f"consistency_graph: {name} must be a 1-D array of integer indices")
+        if index.size and (index.min() < 0 or index.max() >= n):
+            raise InputError(f"consistency_graph: {name} has an index outside 0..{n - 1}")
+    if ia.shape != ib.shape:
+        raise InputError(f"consistency_graph: ia and ib differ in length ({ia.size}, {ib.size})")
     return consistent_pairs(
         np.ascontiguousarray(ia, dtype=np.int64),
         np.ascontiguousarray(ib, dtype=np.int64),

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from teamslam.errors import InputError
 from teamslam.frontend._cv import require_cv2
 
 __all__ = ["PatchWindow", "align_patches", "with_gradients"]
@@ -245,6 +246,7 @@ class PatchWindow:
     def sample(self, image: np.ndarray, uv: np.ndarray, A: np.ndarray) -> np.ndarray:
         """A grey ``image`` sampled bilinearly (border replicated) at ``uv + A · offsets``:
         ``(N, P)`` float32."""
+        _check_image(image)
         return _sample_patches(
             np.ascontiguousarray(image, np.float32),
             np.ascontiguousarray(uv, np.float64).reshape(-1, 2),
@@ -252,6 +254,22 @@ class PatchWindow:
             self.ox,
             self.oy,
         )
+
+
+def _check_image(image: np.ndarray, *gradients: np.ndarray) -> None:
+    """The compiled sampling reads without bounds checks: a grey image of at least 2×2 pixels,
+    and gradients of its shape."""
+    image = np.asarray(image)
+    if image.ndim != 2 or image.shape[0] < 2 or image.shape[1] < 2:
+        raise InputError(
+            f"patch alignment needs a grey image of at least 2×2 pixels: {image.shape}"
+        )
+    for gradient in gradients:
+        if np.shape(gradient) != image.shape:
+            raise InputError(
+                f"patch alignment: a gradient of shape {np.shape(gradient)} for an image of "
+                f"{image.shape}"
+            )
 
 
 def with_gradients(image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -294,14 +312,13 @@ def align_patches(
         its template (NaN centres and an NCC of −1 where a patch's steps diverged).
     """
     image, grad_x, grad_y = gradients
-    if image.shape[0] < 2 or image.shape[1] < 2:
-        raise ValueError(f"patch alignment needs an image of at least 2×2 pixels: {image.shape}")
+    _check_image(image, grad_x, grad_y)
     uv = np.array(uv, np.float64).reshape(-1, 2)
     A = np.array(A, np.float64).reshape(-1, 2, 2)
     photo = np.array(photo, np.float64).reshape(-1, 2)
     template = np.ascontiguousarray(template, np.float32)
     if template.shape != (len(uv), window.ox.size) or len(A) != len(uv) or len(photo) != len(uv):
-        raise ValueError(
+        raise InputError(
             f"patch alignment: {template.shape} templates for {len(uv)} centres, {len(A)} "
             f"warps and {len(photo)} gains; a window of {window.ox.size} pixels"
         )

@@ -56,7 +56,8 @@ the objects that still moved. With hybrid consensus or increments the prior is r
 every exchange, so each increment is sent — at the gain ``1 + d_j`` — in the first exchange after
 it was gathered and only inside priors afterwards: the later exchanges of a step are eq. 42 on
 the priors, a convex combination, and the condition stays ``A_ij γ_j ≤ 1`` for any ``L``
-(:mod:`teamslam.msckf.consensus_average`).
+(:mod:`teamslam.msckf.consensus_average`). The counters ``objects_averaged``,
+``hybrid_fallbacks`` and ``links_lost`` count per exchange, ``objects_inactive`` per step.
 
 Only objects in the filter state take part: objects retired to the persistent map
 (``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
@@ -369,7 +370,8 @@ class ConsensusProtocol:
         ``consensus_inactive_kl_threshold`` otherwise."""
         config = self.agent.config
         active = active_objects(self.agent.state, covs, config.consensus_active_information)
-        self.agent.counters["objects_inactive"] += int(active.size - active.sum())
+        if self.iteration == 0:  # the set of a step, counted once however many exchanges
+            self.agent.counters["objects_inactive"] += int(active.size - active.sum())
         active_threshold = self.kl_threshold if self.kl_threshold > 0 else -np.inf
         inactive = max(float(config.consensus_inactive_kl_threshold), self.kl_threshold)
         return np.where(active, active_threshold, inactive)

@@ -216,6 +216,7 @@ class RobotDriver:
         self.consensus_times = np.zeros(frames)
         self.done = 0  # frames recorded
         self.silent = dict.fromkeys(self.neighbours, 0)
+        self._heard_first: set[int] = set(self.neighbours)
         self.lost_reported: set[int] = set()
         self.lost_steps: list[int] = []
         self.averaged_with: dict[int, list[int]] = defaultdict(list)
@@ -248,6 +249,8 @@ class RobotDriver:
         number = self.protocol.exchange(t, iteration)
         if isinstance(self.wait, LockStep):
             waiting = {j for j in self.neighbours if self.silent[j] < self.lost_after}
+            if iteration > 0:  # a neighbour silent in the frame's first exchange is not awaited
+                waiting &= self._heard_first
             heard = self.transport.collect(
                 number, MapIdsMessage, waiting, self.wait.timeout, also=self.neighbours - waiting
             )
@@ -257,6 +260,7 @@ class RobotDriver:
             self.transport.send(reply)
         if iteration > 0:
             return
+        self._heard_first = set(self.protocol.heard)
         for j in self.neighbours:
             self.silent[j] = 0 if j in self.protocol.heard else self.silent[j] + 1
             if self.silent[j] >= self.lost_after and j not in self.lost_reported:

@@ -6,7 +6,8 @@ through a :class:`~teamslam.runtime.zenoh_transport.ZenohTransport`:
 * **lock-step** — at frame ``t`` it sends its map ids to every neighbour, waits (up to the
   timeout) for theirs, answers each with the marginal of the objects they share, waits for the
   answers it expects (it knows which neighbours share objects from their ids), then averages.
-  A neighbour that stays silent past the timeout is a link lost for that frame; after
+  A neighbour that stays silent past the timeout is a link lost for that exchange (with
+  ``consensus_iterations`` > 1 it is not awaited again in the frame's later exchanges); after
   ``lost_after`` silent frames in a row it is reported lost and no longer waited for (it is
   waited for again as soon as it speaks).
 * **async** — it never waits: it answers any ids request it has, and averages with each
