@@ -21,7 +21,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from teamslam.dvi.kalman import kalman_update
 from teamslam.errors import InputError, InternalError
 from teamslam.graph import complete
 from teamslam.msckf import config_for, run_team
@@ -30,7 +29,13 @@ from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.protocol import ConsensusProtocol
 from teamslam.msckf.team import exchanges_per_frame
 from teamslam.sim import lissajous_team
-from test_consistent_consensus import _graphs, _information, _initialise, _object_order
+from test_consistent_consensus import (
+    _follow_the_centralised_filter,
+    _graphs,
+    _information,
+    _initialise,
+    _object_order,
+)
 from test_hybrid_consensus import OBJECTS, _marginal, _rows, _team
 
 
@@ -123,16 +128,9 @@ def test_iterated_increments_equal_the_centralised_kalman_filter_on_a_complete_g
     _iterated(agents, iterations)
     adjacency = complete(n).adjacency
     protocols = _protocols(agents, adjacency)
-    for step in range(1, 4):
-        for a in agents:
-            h, noise, z = _rows(np.random.default_rng([step, a.robot]), a, truth)
-            mean, cov = kalman_update(mean, cov, h, z, noise)
-        _step(protocols, adjacency, step)
-        for a in agents:
-            own_mean, own_cov = _marginal(a)
-            np.testing.assert_allclose(own_cov, cov, rtol=1e-8, atol=1e-12)
-            np.testing.assert_allclose(own_mean, mean, rtol=1e-8, atol=1e-10)
-            assert a.counters["hybrid_fallbacks"] == 0
+    _follow_the_centralised_filter(
+        agents, mean, cov, truth, 3, lambda step: _step(protocols, adjacency, step)
+    )
 
 
 @pytest.mark.parametrize("graph", ["ring", "chord", "random"])

@@ -40,6 +40,22 @@ def _information(agent) -> np.ndarray:
     return np.linalg.inv(_marginal(agent)[1])
 
 
+def _follow_the_centralised_filter(agents, mean, cov, truth, steps, exchange) -> None:
+    """Each step every robot updates on its own rows (and the centralised filter on all of
+    them), ``exchange(step)`` runs the team's consensus; every robot must then hold the
+    centralised estimate."""
+    for step in range(1, steps + 1):
+        for a in agents:
+            h, noise, z = _rows(np.random.default_rng([step, a.robot]), a, truth)
+            mean, cov = kalman_update(mean, cov, h, z, noise)
+        exchange(step)
+        for a in agents:
+            own_mean, own_cov = _marginal(a)
+            np.testing.assert_allclose(own_cov, cov, rtol=1e-8, atol=1e-12)
+            np.testing.assert_allclose(own_mean, mean, rtol=1e-8, atol=1e-10)
+            assert a.counters["hybrid_fallbacks"] == 0
+
+
 @pytest.mark.parametrize("n", [2, 3, 5])
 def test_increments_equal_the_centralised_kalman_filter_on_a_complete_graph(n):
     rng = np.random.default_rng(10 + n)
@@ -47,16 +63,9 @@ def test_increments_equal_the_centralised_kalman_filter_on_a_complete_graph(n):
     agents, mean, cov = _team(n, rng, hybrid=False, increments=True)
     adjacency = complete(n).adjacency
     protocols = _protocols(agents, adjacency)
-    for step in range(1, 5):
-        for a in agents:
-            h, noise, z = _rows(np.random.default_rng([step, a.robot]), a, truth)
-            mean, cov = kalman_update(mean, cov, h, z, noise)
-        _exchange(protocols, adjacency, step)
-        for a in agents:
-            own_mean, own_cov = _marginal(a)
-            np.testing.assert_allclose(own_cov, cov, rtol=1e-8, atol=1e-12)
-            np.testing.assert_allclose(own_mean, mean, rtol=1e-8, atol=1e-10)
-            assert a.counters["hybrid_fallbacks"] == 0
+    _follow_the_centralised_filter(
+        agents, mean, cov, truth, 4, lambda step: _exchange(protocols, adjacency, step)
+    )
 
 
 def _star(n: int) -> np.ndarray:
