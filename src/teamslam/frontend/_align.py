@@ -47,6 +47,14 @@ def _bilinear_taps(
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=_SUMS)
+def _bilinear_value(image: np.ndarray, x0: int, y0: int, fx: float, fy: float) -> float:
+    """The bilinear sample of ``image`` at the taps of :func:`_bilinear_taps`."""
+    top = (1 - fx) * image[y0, x0] + fx * image[y0, x0 + 1]
+    bottom = (1 - fx) * image[y0 + 1, x0] + fx * image[y0 + 1, x0 + 1]
+    return (1 - fy) * top + fy * bottom
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_SUMS)
 def _window_inside(
     u: float,
     v: float,
@@ -84,9 +92,7 @@ def _sample_patches(
             x0, y0, fx, fy = _bilinear_taps(
                 u + a00 * ox[q] + a01 * oy[q], v + a10 * ox[q] + a11 * oy[q], width, height, inside
             )
-            top = (1 - fx) * image[y0, x0] + fx * image[y0, x0 + 1]
-            bottom = (1 - fx) * image[y0 + 1, x0] + fx * image[y0 + 1, x0 + 1]
-            out[k, q] = (1 - fy) * top + fy * bottom
+            out[k, q] = _bilinear_value(image, x0, y0, fx, fy)
     return out
 
 
@@ -135,9 +141,7 @@ def _gauss_newton(
                         height,
                         inside,
                     )
-                    c = (1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x0 + 1]) + fy * (
-                        (1 - fx) * image[y0 + 1, x0] + fx * image[y0 + 1, x0 + 1]
-                    )
+                    c = _bilinear_value(image, x0, y0, fx, fy)
                     t = template[k, q]
                     s_t += t
                     s_c += c
