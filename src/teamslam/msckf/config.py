@@ -24,6 +24,11 @@ def _chi2_quantile(probability: float, dof: int) -> float:
     return float(stats.chi2.ppf(probability, dof))
 
 
+def _is_count(value, least: int) -> bool:
+    """Whether ``value`` is an integer (not a bool) of at least ``least``."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+
+
 @dataclass(frozen=True)
 class MsckfConfig:
     """Noise levels, window size, thresholds.
@@ -226,7 +231,7 @@ class MsckfConfig:
     consensus_innovation_check: bool = False
 
     def __post_init__(self) -> None:
-        if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 2:
+        if not _is_count(self.window, 2):
             raise InputError("window must be an integer of at least 2 poses")
         odometry = self.odometry_std
         if isinstance(odometry, int | float):
@@ -255,8 +260,7 @@ class MsckfConfig:
                 raise InputError(
                     f"{name} needs joint marginals: it cannot be used with consensus_per_object"
                 )
-        iterations = self.consensus_iterations
-        if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        if not _is_count(self.consensus_iterations, 1):
             raise InputError("consensus_iterations must be an integer of at least 1 (exchanges)")
         if self.object_loss not in ("none", "huber", "cauchy"):
             raise InputError(f"object_loss must be none, huber or cauchy, not {self.object_loss!r}")
@@ -269,24 +273,20 @@ class MsckfConfig:
             raise InputError(
                 f"linearization must be std, fej, ideal or oc, not {self.linearization!r}"
             )
-        retire = self.object_retire_after
-        if isinstance(retire, bool) or not isinstance(retire, int) or retire < 0:
+        if not _is_count(self.object_retire_after, 0):
             raise InputError(
                 "object_retire_after must be an integer number of frames ≥ 0 (0: never retire)"
             )
         for name in ("min_track_length", "object_init_observations"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 2:
+            if not _is_count(getattr(self, name), 2):
                 raise InputError(f"{name} must be an integer of at least 2 observations")
-        iterations = self.object_update_iterations
-        if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        if not _is_count(self.object_update_iterations, 1):
             raise InputError(
                 "object_update_iterations must be an integer of at least 1 (1: the EKF update)"
             )
         if self.association not in ("oracle", "own"):
             raise InputError(f"association must be oracle or own, not {self.association!r}")
-        interval = self.association_interval
-        if isinstance(interval, bool) or not isinstance(interval, int) or interval < 1:
+        if not _is_count(self.association_interval, 1):
             raise InputError("association_interval must be an integer number of steps ≥ 1")
         revoke = self.association_revoke_probability
         if isinstance(revoke, bool) or not 0.0 < revoke < 1.0:
@@ -305,8 +305,7 @@ class MsckfConfig:
             if not 0 < getattr(self, name) < 1:
                 raise InputError(f"{name} must lie in (0, 1)")
         for name in ("track_confirm_hits", "track_confirm_frames"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            if not _is_count(getattr(self, name), 0):
                 raise InputError(f"{name} must be an integer ≥ 0 (0: the default)")
         hits = self.track_confirm_hits or self.object_init_observations
         frames = self.track_confirm_frames or hits + 2
