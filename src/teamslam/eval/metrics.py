@@ -31,6 +31,7 @@ __all__ = [
     "dead_reckoning",
     "object_disagreement",
     "object_errors",
+    "object_nees",
     "pose_nees",
     "team_metrics",
     "trajectory_rmse",
@@ -62,6 +63,23 @@ def pose_nees(estimated: np.ndarray, covs: np.ndarray, truth: np.ndarray) -> np.
 def object_errors(dataset: TeamDataset, ids: np.ndarray, positions: np.ndarray) -> np.ndarray:
     """Distance of each estimated object to its true position."""
     return np.linalg.norm(positions - dataset.object_position(ids), axis=1)
+
+
+def object_nees(dataset: TeamDataset, result: TeamResult) -> np.ndarray:
+    """NEES / 3 of every object of every robot's final map whose true position is known.
+
+    The objects of all robots are concatenated (robot 0's first); an object without ground truth
+    is left out.
+    """
+    out = [np.empty(0)]
+    for ids, positions, covs in zip(
+        result.object_ids, result.objects, result.object_covs, strict=True
+    ):
+        err = positions - dataset.object_position(ids)
+        ok = np.all(np.isfinite(err), axis=1)
+        solved = np.linalg.solve(covs[ok], err[ok][..., None])[..., 0]
+        out.append(np.einsum("ki,ki->k", err[ok], solved) / 3.0)
+    return np.concatenate(out)
 
 
 def object_disagreement(ids: list[np.ndarray], positions: list[np.ndarray]) -> np.ndarray:

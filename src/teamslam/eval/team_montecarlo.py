@@ -152,6 +152,7 @@ def _heading_error(estimated: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 def one_run(run: int, spec: MonteCarloSpec) -> dict:
     """Every filter and mode on realisation ``run``: per-frame errors and NEES."""
+    from teamslam.eval.metrics import object_nees
     from teamslam.msckf import config_for, run_team
     from teamslam.msckf.centralised import run_centralised
 
@@ -186,19 +187,11 @@ def one_run(run: int, spec: MonteCarloSpec) -> dict:
             covs = np.stack(result.pose_covs)
             eps = se3.log(se3.inverse(poses) @ truth)
             nees = np.einsum("rti,rti->rt", eps, np.linalg.solve(covs, eps[..., None])[..., 0])
-            object_nees = []
-            for ids, positions, cov in zip(
-                result.object_ids, result.objects, result.object_covs, strict=True
-            ):
-                err = positions - team.object_position(ids)
-                ok = np.all(np.isfinite(err), axis=1)
-                solved = np.linalg.solve(cov[ok], err[ok][..., None])[..., 0]
-                object_nees.append(np.einsum("ki,ki->k", err[ok], solved) / 3.0)
             out[f"{filt}/{mode}"] = {
                 "nees_pose": nees / 6.0,
                 "position_error": np.linalg.norm(poses[..., :3, 3] - truth[..., :3, 3], axis=-1),
                 "heading_error": _heading_error(poses, truth),
-                "nees_object": np.concatenate(object_nees),
+                "nees_object": object_nees(team, result),
             }
     return out
 
