@@ -13,16 +13,22 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    ``S = H P Hᵀ + R``: the squared Mahalanobis distance of the detection from the prediction at
    most the ``track_gate_probability`` quantile of χ²(4); class labels, when the detector gives
    them, must agree.
-3. **Assign** one-to-one over the gated pairs by global nearest neighbour (the assignment of
-   least total squared distance among those of the most gated pairs,
-   :func:`scipy.optimize.linear_sum_assignment`), in two passes: first the targets seen within
-   the last ``N`` frames (the tracks, and the objects followed frame to frame), then the
-   detections left against the objects not seen for ``N`` frames (the state's or the
-   persistent map's), each such pair only when unambiguous (no other detection in the object's
-   gate and no other target in the detection's): a drifted robot's wrong revisit would pull
-   its whole map, a second object for the same one only costs a loop closure. A long-unseen
-   object's gate is wide; served first, it would take the detections of the objects followed
-   frame to frame next to it.
+3. **Assign** one-to-one over the gated pairs by global nearest neighbour with explicit miss
+   and birth costs: a pair costs its squared distance ``d²``, a detection left to start a new
+   track and a target left missed together cost the gate ``g`` (the same χ² quantile), so the
+   assignment (:func:`scipy.optimize.linear_sum_assignment`) minimises ``Σ (d² − g)`` over the
+   pairs it keeps and never trades a good pair for two poor ones just to assign more. Three
+   passes: first the targets seen within the last ``N`` frames (the tracks, and the objects
+   followed frame to frame); then each of those left without a detection against the
+   detections left outside every gate, inside the wider ``track_birth_probability`` quantile
+   (the outer gate) and only when the pair is alone there — a detector's heavy-tailed error
+   (a box cut by the image border or an occluder) keeps its object rather than starting a
+   second one; last the detections left against the objects not seen for ``N`` frames (the
+   state's or the persistent map's), each such pair only when unambiguous (no other
+   detection in the object's gate and no other target in the detection's): a drifted robot's
+   wrong revisit would pull its whole map, a second object for the same one only costs a
+   loop closure. A long-unseen object's gate is wide; served first, it would take the
+   detections of the objects followed frame to frame next to it.
 4. A detection assigned to an object of the state or the persistent map gets that object's id.
    A detection assigned to a track updates the track's point (a Kalman update of the point).
    An unassigned detection starts a **tentative** track, stereo-triangulated at the current
@@ -32,9 +38,11 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    detections — the earlier ones at once — go to the filter under its id, where the object
    initialisation (eqs. 29–30) takes it into the state; from then on the state predicts it and
    the tracker forgets it. A confirmed track not taken into the state is dropped after ``N``
-   frames without a detection. An unassigned detection inside the ``track_birth_probability``
-   quantile around an object followed frame to frame starts no track (one object, one id);
-   objects not seen for ``N`` frames block no new track.
+   frames without a detection. An unassigned detection inside the outer gate of an object
+   followed frame to frame that took no detection this frame starts no track (the pair was
+   ambiguous: one object, one id); near an object that took another detection it is another
+   object (a detector boxes an object once per frame) and starts a track; objects not seen
+   for ``N`` frames block no new track.
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
@@ -55,10 +63,6 @@ from teamslam.msckf.models import observe_jacobians, points_in_camera
 from teamslam.msckf.update import stereo_point
 
 __all__ = ["ObjectTracker", "TrackerFrame", "track_id_base"]
-
-#: Cost of a pair outside the gate in the assignment (never kept).
-_OUTSIDE = 1e12
-
 
 def track_id_base(robot: int) -> int:
     """The first object id robot ``robot``'s tracker gives: ids of different robots never meet
@@ -179,16 +183,26 @@ class ObjectTracker:
             r = z[None, :, :] - pred[:, None, :]  # (T, D, 4)
             y = np.linalg.solve(chol[:, None], r[..., None])[..., 0]
             d2 = np.einsum("tdi,tdi->td", y, y)
-            allowed = (d2 <= self.gate) & in_front[:, None]
-            allowed &= (
+            agree = in_front[:, None] & (
                 (target_labels[:, None] < 0)
                 | (labels[None, :] < 0)
                 | (target_labels[:, None] == labels[None, :])
             )
+            allowed = (d2 <= self.gate) & agree
             # pass 1: the targets seen within the last N frames (tracks, and objects followed
-            # frame to frame) by global nearest neighbour
+            # frame to frame) by global nearest neighbour, a pair kept only when it costs less
+            # than leaving the detection to a new track and the target missed
             fresh = (kinds == 2) | ((kinds == 0) & (t - seen <= self.frames_allowed))
-            _nearest_neighbour(allowed & fresh[:, None], d2, assigned_target)
+            _nearest_neighbour(allowed & fresh[:, None], d2 - self.gate, assigned_target)
+            # pass 1b: a fresh target left without a detection and a detection left outside
+            # every gate, inside each other's outer gate (a heavy-tailed detector error) and
+            # alone there: the detection is that object's
+            left = assigned_target < 0
+            taken = np.zeros(n_targets, bool)
+            taken[assigned_target[~left]] = True
+            outer = (d2 <= self.birth_gate) & agree & (fresh & ~taken)[:, None] & left[None, :]
+            outer &= ~allowed.any(axis=0)[None, :]
+            _take_unambiguous(outer, assigned_target)
             # pass 2: the detections left against the objects not seen for N frames (the
             # state's or the persistent map's), each pair only when unambiguous: no other
             # detection in the object's gate, no other target in the detection's (a wrong
@@ -197,15 +211,17 @@ class ObjectTracker:
             lone = allowed & ~fresh[:, None]
             lone &= (allowed.sum(axis=1) == 1)[:, None] & (allowed.sum(axis=0) == 1)[None, :]
             lone &= left[None, :]
-            stale_hits = lone.any(axis=0)
-            assigned_target[stale_hits] = np.argmax(lone[:, stale_hits], axis=0)
+            stale_hits = _take_unambiguous(lone, assigned_target)
             # objects not seen for N frames that had a detection in their gate and took none
             wanted = (allowed & ~fresh[:, None] & left[None, :]).any(axis=1)
             wanted[assigned_target[stale_hits]] = False
             self.counters["revisits_refused"] += int(wanted.sum())
-            # a detection near an object followed frame to frame that it was not given starts
-            # no track (one object, one id); objects not seen for N frames block nothing
+            # a detection in the outer gate of an object followed frame to frame that took no
+            # detection, and not given to it (ambiguous), starts no track (one object, one id);
+            # a detection near an object that took another one is another object (one
+            # detection per object and frame), and objects not seen for N frames block nothing
             blocking = in_front & fresh & (kinds < 2)
+            blocking[assigned_target[assigned_target >= 0]] = False
             near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
@@ -435,16 +451,26 @@ class ObjectTracker:
 
 
 def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarray) -> None:
-    """One-to-one assignment of least total ``cost`` among the ``allowed`` (target, detection)
-    pairs (of the most pairs); writes each assigned detection's target into ``assigned``."""
+    """One-to-one assignment of least total ``cost`` over the ``allowed`` (target, detection)
+    pairs, leaving a detection or a target unassigned at cost 0 (so only pairs of negative
+    cost are ever worth keeping); writes each assigned detection's target into ``assigned``."""
     rows_idx = np.flatnonzero(allowed.any(axis=1))
     if not rows_idx.size:
         return
     cols_idx = np.flatnonzero(allowed.any(axis=0))
     sub = allowed[np.ix_(rows_idx, cols_idx)]
-    ra, ca = linear_sum_assignment(np.where(sub, cost[np.ix_(rows_idx, cols_idx)], _OUTSIDE))
+    ra, ca = linear_sum_assignment(np.where(sub, cost[np.ix_(rows_idx, cols_idx)], 0.0))
     keep = sub[ra, ca]
     assigned[cols_idx[ca[keep]]] = rows_idx[ra[keep]]
+
+
+def _take_unambiguous(pairs: np.ndarray, assigned: np.ndarray) -> np.ndarray:
+    """Assign each detection that is the only one of its target's ``pairs`` and whose target is
+    the only one of its own; returns the detections assigned."""
+    lone = pairs & (pairs.sum(axis=1) == 1)[:, None] & (pairs.sum(axis=0) == 1)[None, :]
+    hits = lone.any(axis=0)
+    assigned[hits] = np.argmax(lone[:, hits], axis=0)
+    return hits
 
 
 def _chi2(probability: float, dof: int) -> float:
