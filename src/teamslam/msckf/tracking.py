@@ -64,6 +64,7 @@ from teamslam.msckf.update import stereo_point
 
 __all__ = ["ObjectTracker", "TrackerFrame", "track_id_base"]
 
+
 def track_id_base(robot: int) -> int:
     """The first object id robot ``robot``'s tracker gives: ids of different robots never meet
     (equal ids of two robots' own tracks would say nothing)."""
