@@ -257,3 +257,66 @@ def test_an_object_followed_frame_to_frame_is_served_before_a_long_unseen_one():
     tracker = _tracker()
     assert tracker.assign(10, z[None], None, state, W).ids.tolist() == [1]
     assert tracker.n_tracks == 0
+
+
+def _d2(tracker: ObjectTracker, state: MsckfState, z: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distance of each (target, detection) pair, as the tracker gates."""
+    _, _, _, pred, s, _, _, _ = tracker._predict(0, state, W)
+    r = z[None, :, :] - pred[:, None, :]
+    return np.einsum("tdi,tdi->td", r, np.linalg.solve(s[:, None], r[..., None])[..., 0])
+
+
+def test_assignment_weighs_a_pair_against_leaving_both_to_miss_and_birth():
+    """Two poor pairs (each inside the gate) never beat one good pair plus a miss and a birth:
+    assigning the most pairs would give object 1's clear detection to object 2."""
+    a2 = A + np.array([0.0, 1.0, 0.0])
+    state = _state({1: A, 2: a2}, std=0.3)
+    tracker = _tracker()
+    za, zb = _z(state, [A, a2])
+    x = za + 0.02 * (zb - za)  # object 1's, also inside object 2's gate
+    y = za - (zb - za)  # on the far side of object 1, outside object 2's gate
+    d2 = _d2(tracker, state, np.stack([x, y]))
+    g = tracker.gate
+    assert d2[0, 0] < d2[1, 0] < g and d2[0, 1] < g < d2[1, 1]
+    assert d2[1, 0] + d2[0, 1] > d2[0, 0] + g  # the two poor pairs cost more
+    frame = tracker.assign(0, np.stack([x, y]), None, state, W)
+    assert frame.ids.tolist() == [1, -1]
+    # …and the other way round when the two pairs are good: both assigned
+    frame = _tracker().assign(0, np.stack([zb, za]), None, state, W)
+    assert frame.ids.tolist() == [2, 1]
+
+
+def test_outer_gate_keeps_a_heavy_tailed_detection_on_its_object():
+    state = _state({4: A}, std=0.05)
+    state.mark_seen(state.object_slots(np.array([4])), 0)
+    tracker = _tracker()
+    za = _z(state, [A])[0]
+    direction = np.array([1.0, 0.0, 1.0, 0.0])
+    # a detection between the gate and the outer gate of its object, and no other target
+    for k in np.linspace(1.0, 40.0, 400):
+        d2 = _d2(tracker, state, (za + k * direction)[None])[0, 0]
+        if tracker.gate < d2 < tracker.birth_gate:
+            break
+    off = za + k * direction
+    assert tracker.gate < d2 < tracker.birth_gate
+    assert tracker.assign(1, off[None], None, state, W).ids.tolist() == [4]
+    # with the outer gate off it is left alone, and starts no track next to its object
+    off_tracker = _tracker(track_birth_probability=CONFIG.track_gate_probability)
+    assert off_tracker.assign(1, off[None], None, state, W).ids.tolist() == [-1]
+    # two such detections: ambiguous, neither is given the object and neither starts a track
+    mirror = za - k * direction
+    both = _tracker()
+    assert both.assign(1, np.stack([off, mirror]), None, state, W).ids.tolist() == [-1, -1]
+    assert both.n_tracks == 0 and both.counters["detections_near_object"] == 2
+
+
+def test_a_detection_near_an_object_that_took_another_one_starts_a_track():
+    """A detector boxes an object once per frame: a second detection next to an object that
+    took its own is a new object (a car parked behind another), not the same one twice."""
+    state = _state({6: A}, std=0.05)
+    tracker = _tracker()
+    za = _z(state, [A])[0]
+    near = za + np.array([12.0, 0.0, 12.0, 0.0])
+    assert tracker.gate < _d2(tracker, state, near[None])[0, 0] < tracker.birth_gate
+    assert tracker.assign(0, np.stack([za, near]), None, state, W).ids.tolist() == [6, -1]
+    assert tracker.n_tracks == 1
