@@ -4,8 +4,10 @@ For each case the same detections are run twice through separate filters (no con
 with the dataset's ids (the oracle) and with the ids removed (``strip_object_ids(to="none")``,
 each robot's :mod:`teamslam.msckf.tracking` naming its detections). Printed: trajectory RMSE
 (mean over robots, as ``teamslam run``), its ratio to the oracle, CLEAR-MOT / IDF1
-(:mod:`teamslam.eval.tracking`), false objects confirmed per 1000 frames, and the tracking time
-as a share of the per-robot-step time.
+(:mod:`teamslam.eval.tracking`), false objects confirmed per 1000 frames, the tracking time
+as a share of the per-robot-step time, and where the IDF1 is lost (missed and false detections,
+wrong ids on a revisit — more than a window of frames from the object's own id — or within a
+pass; :func:`~teamslam.eval.tracking.idf1_losses`).
 
 Usage::
 
@@ -26,7 +28,7 @@ import numpy as np
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.datasets.storage import load_dataset
 from teamslam.eval.metrics import trajectory_rmse
-from teamslam.eval.tracking import hypotheses_of, tracking_metrics
+from teamslam.eval.tracking import hypotheses_of, idf1_losses, tracking_metrics
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.settings import config_for
 from teamslam.sim.lissajous import lissajous_team
@@ -52,7 +54,14 @@ def compare(name: str, dataset, config) -> dict:
     oracle, _, oracle_s = run_separate(dataset, config)
     stripped = strip_object_ids(dataset, to="none")
     own, agents, own_s = run_separate(stripped, config)
-    metrics = tracking_metrics(stripped, hypotheses_of(agents))
+    hypotheses = hypotheses_of(agents)
+    metrics = tracking_metrics(stripped, hypotheses)
+    losses: dict[str, int] = {}
+    for robot, hyp in zip(stripped.robots, hypotheses, strict=True):
+        det = robot.detections
+        part = idf1_losses(det.offsets, det.truth, hyp, revisit_gap=config.window)
+        for key, value in part.items():
+            losses[key] = losses.get(key, 0) + value
     tracking_s = sum(a.timings["tracking"] for a in agents)
     steps = sum(sum(a.timings[k] for k in a.timings) for a in agents)
     team = metrics["team"] if metrics else {}
@@ -69,6 +78,7 @@ def compare(name: str, dataset, config) -> dict:
         "false_per_1000": metrics["false_objects_per_1000_frames"] if metrics else float("nan"),
         "tracking_share": tracking_s / steps if steps else float("nan"),
         "seconds": oracle_s + own_s,
+        "losses": losses,
     }
 
 
@@ -118,6 +128,13 @@ def print_table(rows: list[dict]) -> None:
             f"{r['idf1']:6.3f} {r['mota']:6.3f} {r['id_switches']:5d} {r['fragmentations']:5d} "
             f"{r['objects']:>9} {r['false_per_1000']:8.2f} {100 * r['tracking_share']:7.2f}"
         )
+        loss = r["losses"]
+        if loss.get("loss"):
+            print(
+                f"{'':<44} IDF1 loss {loss['loss']} = missed {loss['missed']} + false "
+                f"{loss['false']} + 2 × wrong ids (revisits {loss['wrong_revisit']}, within a "
+                f"pass {loss['wrong_within_pass']}, of unmapped objects {loss['wrong_unmapped']})"
+            )
 
 
 if __name__ == "__main__":

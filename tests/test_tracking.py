@@ -9,7 +9,7 @@ import pytest
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.datasets.model import DatasetError, FrameDetections
 from teamslam.datasets.storage import load_dataset, save_dataset
-from teamslam.eval.tracking import hypotheses_of, mot_metrics, tracking_metrics
+from teamslam.eval.tracking import hypotheses_of, idf1_losses, mot_metrics, tracking_metrics
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.models import observe
@@ -155,6 +155,14 @@ def test_mot_metrics_by_hand():
     # IDF1: a↔1 or a↔3 agree on 2 frames, b↔2 on 3: IDTP 5, 8 truths, 8 hypotheses
     assert m["idtp"] == 5 and m["idf1"] == pytest.approx(10 / 16)
     assert (m["objects_true"], m["objects_created"], m["false_objects"]) == (2, 4, 1)
+    # the IDF1 loss 8 + 8 − 2·5 = 6: one miss, one false, a's two detections under its other id
+    # (1 and 2 frames from its mapped id's: revisits beyond a gap of 0, one each beyond 1)
+    losses = idf1_losses(offsets, truth, hyp, revisit_gap=0)
+    assert losses["loss"] == 8 + 8 - 2 * m["idtp"] == 6
+    assert (losses["missed"], losses["false"], losses["wrong_revisit"]) == (1, 1, 2)
+    assert losses["wrong_within_pass"] == losses["wrong_unmapped"] == 0
+    losses = idf1_losses(offsets, truth, hyp, revisit_gap=1)
+    assert (losses["wrong_revisit"], losses["wrong_within_pass"]) == (1, 1)
 
 
 @pytest.fixture(scope="module")
