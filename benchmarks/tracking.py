@@ -7,7 +7,9 @@ each robot's :mod:`teamslam.msckf.tracking` naming its detections). Printed: tra
 (:mod:`teamslam.eval.tracking`), false objects confirmed per 1000 frames, the tracking time
 as a share of the per-robot-step time, and where the IDF1 is lost (missed and false detections,
 wrong ids on a revisit — more than a window of frames from the object's own id — or within a
-pass; :func:`~teamslam.eval.tracking.idf1_losses`).
+pass; :func:`~teamslam.eval.tracking.idf1_losses`), and how many of the tracker's
+re-identifications (a detection given to an object not seen for ``N`` frames) were right
+(:func:`~teamslam.eval.tracking.revisit_precision`).
 
 Usage::
 
@@ -28,7 +30,12 @@ import numpy as np
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.datasets.storage import load_dataset
 from teamslam.eval.metrics import trajectory_rmse
-from teamslam.eval.tracking import hypotheses_of, idf1_losses, tracking_metrics
+from teamslam.eval.tracking import (
+    hypotheses_of,
+    idf1_losses,
+    revisit_precision,
+    tracking_metrics,
+)
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.settings import config_for
 from teamslam.sim.lissajous import lissajous_team
@@ -57,11 +64,16 @@ def compare(name: str, dataset, config) -> dict:
     hypotheses = hypotheses_of(agents)
     metrics = tracking_metrics(stripped, hypotheses)
     losses: dict[str, int] = {}
-    for robot, hyp in zip(stripped.robots, hypotheses, strict=True):
+    revisits = [0, 0, 0]  # taken, judged, right
+    for robot, hyp, agent in zip(stripped.robots, hypotheses, agents, strict=True):
         det = robot.detections
         part = idf1_losses(det.offsets, det.truth, hyp, revisit_gap=config.window)
         for key, value in part.items():
             losses[key] = losses.get(key, 0) + value
+        right, judged = revisit_precision(det.offsets, det.truth, hyp, agent.tracker.revisits)
+        revisits[0] += len(agent.tracker.revisits)
+        revisits[1] += judged
+        revisits[2] += right
     tracking_s = sum(a.timings["tracking"] for a in agents)
     steps = sum(sum(a.timings[k] for k in a.timings) for a in agents)
     team = metrics["team"] if metrics else {}
@@ -79,6 +91,7 @@ def compare(name: str, dataset, config) -> dict:
         "tracking_share": tracking_s / steps if steps else float("nan"),
         "seconds": oracle_s + own_s,
         "losses": losses,
+        "revisits": revisits,
     }
 
 
@@ -135,6 +148,8 @@ def print_table(rows: list[dict]) -> None:
                 f"{loss['false']} + 2 × wrong ids (revisits {loss['wrong_revisit']}, within a "
                 f"pass {loss['wrong_within_pass']}, of unmapped objects {loss['wrong_unmapped']})"
             )
+        taken, judged, right = r["revisits"]
+        print(f"{'':<44} re-identifications {taken}: {right} right of {judged} with ground truth")
 
 
 if __name__ == "__main__":

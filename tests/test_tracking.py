@@ -9,7 +9,13 @@ import pytest
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.datasets.model import DatasetError, FrameDetections
 from teamslam.datasets.storage import load_dataset, save_dataset
-from teamslam.eval.tracking import hypotheses_of, idf1_losses, mot_metrics, tracking_metrics
+from teamslam.eval.tracking import (
+    hypotheses_of,
+    idf1_losses,
+    mot_metrics,
+    revisit_precision,
+    tracking_metrics,
+)
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.models import observe
@@ -247,8 +253,10 @@ def test_an_object_unseen_for_long_is_taken_again_only_unambiguously():
     # the same pair seen recently is no revisit: the nearer detection gets the object
     recent = _tracker()
     assert sorted(recent.assign(3, two, None, state, W).ids.tolist()) == [-1, 1]
-    # alone in its gate, the long-unseen object takes its detection
-    assert _tracker().assign(10, za, None, state, W).ids.tolist() == [1]
+    # alone in its gate, the long-unseen object takes its detection (a re-identification)
+    alone = _tracker()
+    assert alone.assign(10, za, None, state, W).ids.tolist() == [1]
+    assert alone.revisits == [(10, 0, 1)] and alone.counters["revisits_taken"] == 1
 
 
 def test_an_object_followed_frame_to_frame_is_served_before_a_long_unseen_one():
@@ -328,3 +336,29 @@ def test_a_detection_near_an_object_that_took_another_one_starts_a_track():
     assert tracker.gate < _d2(tracker, state, near[None])[0, 0] < tracker.birth_gate
     assert tracker.assign(0, np.stack([za, near]), None, state, W).ids.tolist() == [6, -1]
     assert tracker.n_tracks == 1
+
+
+def test_no_reidentification_with_two_objects_in_the_gate():
+    """Two long-unseen objects in a detection's gate: neither takes it (never guess), whether
+    or not a tentative track also holds it."""
+    a2 = A + np.array([0.0, 0.5, 0.0])
+    state = _state({1: A, 2: a2}, std=1.0)
+    za, zb = _z(state, [A, a2])
+    mid = 0.5 * (za + zb)
+    d2 = _d2(_tracker(), state, mid[None])[:, 0]
+    assert np.all(d2 < _tracker().gate)
+    tracker = _tracker()
+    ids = [tracker.assign(t, mid[None], None, state, W).ids[0] for t in range(10, 14)]
+    assert 1 not in ids and 2 not in ids
+    assert tracker.revisits == [] and tracker.counters["revisits_refused"] >= 2
+    # the track the detections start is confirmed as an object of its own
+    assert ids[-1] >= track_id_base(0)
+
+
+def test_revisit_precision_by_hand():
+    offsets = np.array([0, 1, 2, 3, 4])
+    truth = np.array([5, 5, 6, 5])
+    hyp = np.array([1, 1, 1, 1])
+    # frame 2: object 1 was truth 5 before, the detection is 6 (wrong); frame 3: right;
+    # frame 0: nothing before, not judged
+    assert revisit_precision(offsets, truth, hyp, [(2, 0, 1), (3, 0, 1), (0, 0, 1)]) == (1, 2)

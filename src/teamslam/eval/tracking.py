@@ -26,7 +26,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["hypotheses_of", "idf1_losses", "mot_metrics", "tracking_metrics"]
+__all__ = [
+    "hypotheses_of",
+    "idf1_losses",
+    "mot_metrics",
+    "revisit_precision",
+    "tracking_metrics",
+]
 
 
 def mot_metrics(offsets: np.ndarray, truth: np.ndarray, hypothesis: np.ndarray) -> dict:
@@ -164,6 +170,46 @@ def idf1_losses(
         "wrong_unmapped": unmapped,
         "loss": fn + fp + 2 * int(wrong.size),
     }
+
+
+def revisit_precision(
+    offsets: np.ndarray,
+    truth: np.ndarray,
+    hypothesis: np.ndarray,
+    revisits: list[tuple[int, int, int]],
+) -> tuple[int, int]:
+    """How many of a robot's re-identifications were right.
+
+    Parameters
+    ----------
+    offsets, truth, hypothesis
+        As :func:`mot_metrics`.
+    revisits
+        ``(frame, row of the frame's detections, object id)`` of each detection given to an
+        object not seen for a while (:attr:`ObjectTracker.revisits
+        <teamslam.msckf.tracking.ObjectTracker.revisits>`).
+
+    Returns
+    -------
+    tuple
+        ``(right, judged)``: a re-identification is judged when the object's earlier detections
+        (before that frame) include true ones, and right when the detection is of the true
+        object most of them were.
+    """
+    offsets = np.asarray(offsets, dtype=np.int64)
+    truth = np.asarray(truth, dtype=np.int64)
+    hyp = np.asarray(hypothesis, dtype=np.int64)
+    right = judged = 0
+    for frame, row, oid in revisits:
+        k = offsets[frame] + row
+        before = truth[: offsets[frame]][(hyp[: offsets[frame]] == oid)]
+        before = before[before >= 0]
+        if not before.size:
+            continue
+        values, counts = np.unique(before, return_counts=True)
+        judged += 1
+        right += int(truth[k] == values[np.argmax(counts)])
+    return right, judged
 
 
 def tracking_metrics(dataset, hypotheses: list[np.ndarray]) -> dict | None:

@@ -135,11 +135,15 @@ class ObjectTracker:
             "detections_rejected_depth": 0,
             "detections_near_object": 0,
             "revisits_refused": 0,
+            "revisits_taken": 0,
         }
         #: per frame the id the filter used each detection as (``-1``: none); a track's
         #: detections before its confirmation are named when it is confirmed
         self.log: list[np.ndarray] = []
         self._first_logged: int | None = None
+        #: every re-identification: ``(frame, row of the frame's detections, object id)`` of a
+        #: detection given to an object not seen for ``N`` frames
+        self.revisits: list[tuple[int, int, int]] = []
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -213,6 +217,9 @@ class ObjectTracker:
             lone &= (allowed.sum(axis=1) == 1)[:, None] & (allowed.sum(axis=0) == 1)[None, :]
             lone &= left[None, :]
             stale_hits = _take_unambiguous(lone, assigned_target)
+            for j in np.flatnonzero(stale_hits).tolist():
+                self.revisits.append((t, int(index[j]), int(target_ids[assigned_target[j]])))
+            self.counters["revisits_taken"] += int(stale_hits.sum())
             # objects not seen for N frames that had a detection in their gate and took none
             wanted = (allowed & ~fresh[:, None] & left[None, :]).any(axis=1)
             wanted[assigned_target[stale_hits]] = False
