@@ -338,6 +338,37 @@ def test_a_detection_near_an_object_that_took_another_one_starts_a_track():
     assert tracker.n_tracks == 1
 
 
+@pytest.mark.parametrize("where", ["state", "persistent map"])
+def test_a_revisited_object_keeps_its_id_after_a_track_started_on_it(where):
+    """A revisited object whose first detection was ambiguous (two in its gate: both start
+    tracks) is continued by the track whose next detections are alone in its gate: when the
+    track is confirmed it takes the object's id instead of a new one."""
+    state = _state({1: A}, std=1.0)  # last seen at frame 0, uncertain by now
+    if where == "persistent map":
+        state.retire_objects(np.array([0]))
+    za = _z(state, [A])[0]
+    tracker = _tracker()
+    step = np.array([6.0, 0.0, 6.0, 0.0])
+    two = np.stack([za + step, za - step])
+    assert tracker.assign(10, two, None, state, W).ids.tolist() == [-1, -1]
+    assert tracker.n_tracks == 2
+    # the next detections are inside the gate of a tentative track and of the object
+    d2 = _d2(tracker, state, za[None])[:, 0]
+    assert (d2 < tracker.gate).sum() >= 2
+    assert tracker.assign(11, za[None], None, state, W).ids.tolist() == [-1]
+    frame = tracker.assign(12, za[None], None, state, W)
+    assert frame.ids.tolist() == [1] and frame.confirmed == []
+    assert tracker.revisits == [(12, 0, 1)] and tracker.counters["revisits_taken"] == 1
+    # the filter then holds it (re-entered from the persistent map) and sees it
+    if where == "persistent map":
+        state.reenter_objects(np.array([1]), 12)
+    state.mark_seen(state.object_slots(np.array([1])), 12)
+    for t in range(13, 17):  # it keeps its id; the other track expires unconfirmed
+        assert tracker.assign(t, za[None], None, state, W).ids.tolist() == [1]
+        state.mark_seen(state.object_slots(np.array([1])), t)
+    assert tracker.n_tracks == 0 and tracker.counters["tracks_confirmed"] == 0
+
+
 def test_no_reidentification_with_two_objects_in_the_gate():
     """Two long-unseen objects in a detection's gate: neither takes it (never guess), whether
     or not a tentative track also holds it."""

@@ -43,6 +43,18 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    ambiguous: one object, one id); near an object that took another detection it is another
    object (a detector boxes an object once per frame) and starts a track; objects not seen
    for ``N`` frames block no new track.
+5. **Re-identification by a track.** A revisited object's first detection often starts a
+   track (two detections in its gate, or another target in the detection's), and the track,
+   followed frame to frame, then takes its next detections before the long-unseen object can.
+   So each track counts its detections that were alone in the gate of one object not seen for
+   ``N`` frames (that object alone, of those, in the detection's gate, and no object followed
+   frame to frame holding the detection in its outer gate). When the track is confirmed, its
+   detection of that frame is such a one, and more than half of its detections were, all
+   for the same object (a second object spoils it), the track continues that object: the
+   detection gets the object's id (an object of the persistent map re-enters the state), no
+   new object is made and the track is dropped (its earlier detections stay unnamed). The
+   gate is the filter's own: the rule is only as right as the filter's covariance after the
+   drive away and back (:attr:`ObjectTracker.revisits` records every re-identification).
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
@@ -122,6 +134,10 @@ class ObjectTracker:
         self.hits = np.zeros(0, np.int64)
         self.classes = np.zeros(0, np.int64)
         self.confirmed = np.zeros(0, bool)
+        # per track the object not seen for N frames its detections were alone in the gate of
+        # (-1: none yet, -2: two different ones) and how many of them were
+        self.revisit_of = np.zeros(0, np.int64)
+        self.revisit_hits = np.zeros(0, np.int64)
         # per track its detections: (frame, measurement, row of the frame's detections)
         self.history: dict[int, list[tuple[int, np.ndarray, int]]] = {}
         # class label of every confirmed id (sorted by id)
@@ -183,6 +199,7 @@ class ObjectTracker:
         n_targets = target_ids.size
         assigned_target = np.full(d, -1, np.int64)
         near_target = np.zeros(d, bool)
+        lone_stale = np.full(d, -1, np.int64)  # the long-unseen object a detection is alone for
         if n_targets and d:
             chol = np.linalg.cholesky(s)  # (T, 4, 4)
             r = z[None, :, :] - pred[:, None, :]  # (T, D, 4)
@@ -224,6 +241,15 @@ class ObjectTracker:
             wanted = (allowed & ~fresh[:, None] & left[None, :]).any(axis=1)
             wanted[assigned_target[stale_hits]] = False
             self.counters["revisits_refused"] += int(wanted.sum())
+            # each detection the only one in the gate of an object not seen for N frames, that
+            # object alone (of those) in the detection's gate, and no object followed frame to
+            # frame holding it in its outer gate: evidence for a track to continue that object
+            stale = allowed & ~fresh[:, None]
+            stale &= (stale.sum(axis=1) == 1)[:, None] & (stale.sum(axis=0) == 1)[None, :]
+            owned = (d2 <= self.birth_gate) & agree & (fresh & (kinds < 2))[:, None]
+            stale &= ~owned.any(axis=0)[None, :]
+            has = stale.any(axis=0)
+            lone_stale[has] = target_ids[np.argmax(stale[:, has], axis=0)]
             # a detection in the outer gate of an object followed frame to frame that took no
             # detection, and not given to it (ambiguous), starts no track (one object, one id);
             # a detection near an object that took another one is another object (one
@@ -240,12 +266,12 @@ class ObjectTracker:
         on_track = np.flatnonzero(hit & ~mapped)
         if on_track.size:
             self._update_tracks(
-                t, z, index, on_track, assigned_target, kinds, pred, s, h_point, frame
+                t, z, index, on_track, assigned_target, kinds, pred, s, h_point, frame, lone_stale
             )
         self.counters["detections_near_object"] += int((~hit & near_target).sum())
         new = np.flatnonzero(~hit & ~near_target)
         if new.size:
-            self._start_tracks(t, z[new], index[new], labels[new], state)
+            self._start_tracks(t, z[new], index[new], labels[new], state, lone_stale[new])
         self._drop_stale(t)
         every[index] = frame.ids
         frame.ids = every
@@ -362,10 +388,11 @@ class ObjectTracker:
         return kind, ids, np.concatenate(seen), pred, s, d_point, in_front, labels
 
     def _update_tracks(
-        self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame
+        self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame, lone_stale
     ) -> None:
         """Kalman update of each assigned track's point; confirm the tracks with enough hits
-        (their earlier detections named in the log as the filter then uses them)."""
+        (their earlier detections named in the log as the filter then uses them), or continue
+        the long-unseen object a track revisits (:meth:`_note_revisit`)."""
         targets = assigned[detections]
         rows = targets - int(np.flatnonzero(kinds == 2)[0])  # tracks come last
         hp = h_point[targets]  # (k, 4, 3)
@@ -378,11 +405,32 @@ class ObjectTracker:
         self.covs[rows] = 0.5 * (cov + np.swapaxes(cov, 1, 2))
         self.last[rows] = t
         self.hits[rows] += 1
+        self._note_revisit(rows, lone_stale[detections])
         confirmed_before = self.confirmed[rows].copy()
         newly = ~confirmed_before & (self.hits[rows] >= self.hits_needed)
         newly &= t - self.first[rows] < self.frames_allowed
+        # a track confirmed now whose detections were mostly alone in the gate of one object not
+        # seen for N frames, this one too, continues that object: a re-identification
+        revisit = (
+            newly & (self.revisit_of[rows] >= 0) & (lone_stale[detections] == self.revisit_of[rows])
+        )
+        revisit &= 2 * self.revisit_hits[rows] > self.hits[rows]
+        taken = set(frame.ids[frame.ids >= 0].tolist())
+        gone = np.zeros(self.ids.size, bool)
+        for det, row in zip(detections[revisit].tolist(), rows[revisit].tolist(), strict=True):
+            oid = int(self.revisit_of[row])
+            if oid in taken:
+                continue
+            taken.add(oid)
+            frame.ids[det] = oid
+            self.revisits.append((t, int(index[det]), oid))
+            self.counters["revisits_taken"] += 1
+            gone[row] = True
+        newly &= ~gone[rows]
         self.confirmed[rows[newly]] = True
         for det, row, new in zip(detections.tolist(), rows.tolist(), newly.tolist(), strict=True):
+            if gone[row]:
+                continue
             tid = int(self.ids[row])
             past = self.history.setdefault(tid, [])
             if new:
@@ -396,9 +444,30 @@ class ObjectTracker:
             if self.confirmed[row]:
                 frame.ids[det] = tid
             past.append((t, z[det].copy(), int(index[det])))
+        if gone.any():
+            for i in self.ids[gone].tolist():
+                self.history.pop(i, None)
+            self._keep(~gone)
+
+    def _note_revisit(self, rows: np.ndarray, lone_stale: np.ndarray) -> None:
+        """Tracks ``rows`` took detections alone in the gate of long-unseen objects
+        ``lone_stale`` (``-1``: none): count each for the object it first named, spoil it
+        (``-2``) on a different one."""
+        alone = lone_stale >= 0
+        first = alone & (self.revisit_of[rows] == -1)
+        self.revisit_of[rows[first]] = lone_stale[first]
+        same = alone & (self.revisit_of[rows] == lone_stale)
+        self.revisit_hits[rows[same]] += 1
+        self.revisit_of[rows[alone & ~same]] = -2
 
     def _start_tracks(
-        self, t: int, z: np.ndarray, index: np.ndarray, labels: np.ndarray, state
+        self,
+        t: int,
+        z: np.ndarray,
+        index: np.ndarray,
+        labels: np.ndarray,
+        state,
+        lone_stale: np.ndarray,
     ) -> None:
         """Tentative tracks from unassigned detections, stereo-triangulated at the current pose."""
         cfg = self.config
@@ -411,6 +480,7 @@ class ObjectTracker:
         if not ok.any():
             return
         points, z, labels, index = points[ok], z[ok], labels[ok], index[ok]
+        lone_stale = lone_stale[ok]
         _, _, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, points)
         info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.object_std**2
         covs = np.linalg.solve(info, np.broadcast_to(np.eye(3), info.shape))
@@ -425,6 +495,8 @@ class ObjectTracker:
         self.hits = np.concatenate([self.hits, np.ones(k, np.int64)])
         self.classes = np.concatenate([self.classes, labels])
         self.confirmed = np.concatenate([self.confirmed, np.zeros(k, bool)])
+        self.revisit_of = np.concatenate([self.revisit_of, lone_stale])
+        self.revisit_hits = np.concatenate([self.revisit_hits, (lone_stale >= 0).astype(np.int64)])
         for tid, row, j in zip(ids.tolist(), z, index.tolist(), strict=True):
             self.history[tid] = [(t, row.copy(), j)]
         self.counters["tracks_started"] += k
@@ -446,7 +518,18 @@ class ObjectTracker:
             self._keep(~drop)
 
     def _keep(self, mask: np.ndarray) -> None:
-        for name in ("ids", "points", "covs", "first", "last", "hits", "classes", "confirmed"):
+        for name in (
+            "ids",
+            "points",
+            "covs",
+            "first",
+            "last",
+            "hits",
+            "classes",
+            "confirmed",
+            "revisit_of",
+            "revisit_hits",
+        ):
             setattr(self, name, getattr(self, name)[mask])
 
     def _add_labels(self, ids: np.ndarray, labels: np.ndarray) -> None:
