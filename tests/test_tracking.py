@@ -9,7 +9,13 @@ import pytest
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.datasets.model import DatasetError, FrameDetections
 from teamslam.datasets.storage import load_dataset, save_dataset
-from teamslam.eval.tracking import hypotheses_of, mot_metrics, tracking_metrics
+from teamslam.eval.tracking import (
+    hypotheses_of,
+    idf1_losses,
+    mot_metrics,
+    revisit_precision,
+    tracking_metrics,
+)
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.models import observe
@@ -155,6 +161,14 @@ def test_mot_metrics_by_hand():
     # IDF1: a↔1 or a↔3 agree on 2 frames, b↔2 on 3: IDTP 5, 8 truths, 8 hypotheses
     assert m["idtp"] == 5 and m["idf1"] == pytest.approx(10 / 16)
     assert (m["objects_true"], m["objects_created"], m["false_objects"]) == (2, 4, 1)
+    # the IDF1 loss 8 + 8 − 2·5 = 6: one miss, one false, a's two detections under its other id
+    # (1 and 2 frames from its mapped id's: revisits beyond a gap of 0, one each beyond 1)
+    losses = idf1_losses(offsets, truth, hyp, revisit_gap=0)
+    assert losses["loss"] == 8 + 8 - 2 * m["idtp"] == 6
+    assert (losses["missed"], losses["false"], losses["wrong_revisit"]) == (1, 1, 2)
+    assert losses["wrong_within_pass"] == losses["wrong_unmapped"] == 0
+    losses = idf1_losses(offsets, truth, hyp, revisit_gap=1)
+    assert (losses["wrong_revisit"], losses["wrong_within_pass"]) == (1, 1)
 
 
 @pytest.fixture(scope="module")
@@ -239,8 +253,10 @@ def test_an_object_unseen_for_long_is_taken_again_only_unambiguously():
     # the same pair seen recently is no revisit: the nearer detection gets the object
     recent = _tracker()
     assert sorted(recent.assign(3, two, None, state, W).ids.tolist()) == [-1, 1]
-    # alone in its gate, the long-unseen object takes its detection
-    assert _tracker().assign(10, za, None, state, W).ids.tolist() == [1]
+    # alone in its gate, the long-unseen object takes its detection (a re-identification)
+    alone = _tracker()
+    assert alone.assign(10, za, None, state, W).ids.tolist() == [1]
+    assert alone.revisits == [(10, 0, 1)] and alone.counters["revisits_taken"] == 1
 
 
 def test_an_object_followed_frame_to_frame_is_served_before_a_long_unseen_one():
@@ -257,3 +273,123 @@ def test_an_object_followed_frame_to_frame_is_served_before_a_long_unseen_one():
     tracker = _tracker()
     assert tracker.assign(10, z[None], None, state, W).ids.tolist() == [1]
     assert tracker.n_tracks == 0
+
+
+def _d2(tracker: ObjectTracker, state: MsckfState, z: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distance of each (target, detection) pair, as the tracker gates."""
+    _, _, _, pred, s, _, _, _ = tracker._predict(0, state, W)
+    r = z[None, :, :] - pred[:, None, :]
+    return np.einsum("tdi,tdi->td", r, np.linalg.solve(s[:, None], r[..., None])[..., 0])
+
+
+def test_assignment_weighs_a_pair_against_leaving_both_to_miss_and_birth():
+    """Two poor pairs (each inside the gate) never beat one good pair plus a miss and a birth:
+    assigning the most pairs would give object 1's clear detection to object 2."""
+    a2 = A + np.array([0.0, 1.0, 0.0])
+    state = _state({1: A, 2: a2}, std=0.3)
+    tracker = _tracker()
+    za, zb = _z(state, [A, a2])
+    x = za + 0.02 * (zb - za)  # object 1's, also inside object 2's gate
+    y = za - (zb - za)  # on the far side of object 1, outside object 2's gate
+    d2 = _d2(tracker, state, np.stack([x, y]))
+    g = tracker.gate
+    assert d2[0, 0] < d2[1, 0] < g and d2[0, 1] < g < d2[1, 1]
+    assert d2[1, 0] + d2[0, 1] > d2[0, 0] + g  # the two poor pairs cost more
+    frame = tracker.assign(0, np.stack([x, y]), None, state, W)
+    assert frame.ids.tolist() == [1, -1]
+    # …and the other way round when the two pairs are good: both assigned
+    frame = _tracker().assign(0, np.stack([zb, za]), None, state, W)
+    assert frame.ids.tolist() == [2, 1]
+
+
+def test_outer_gate_keeps_a_heavy_tailed_detection_on_its_object():
+    state = _state({4: A}, std=0.05)
+    state.mark_seen(state.object_slots(np.array([4])), 0)
+    tracker = _tracker()
+    za = _z(state, [A])[0]
+    direction = np.array([1.0, 0.0, 1.0, 0.0])
+    # a detection between the gate and the outer gate of its object, and no other target
+    for k in np.linspace(1.0, 40.0, 400):
+        d2 = _d2(tracker, state, (za + k * direction)[None])[0, 0]
+        if tracker.gate < d2 < tracker.birth_gate:
+            break
+    off = za + k * direction
+    assert tracker.gate < d2 < tracker.birth_gate
+    assert tracker.assign(1, off[None], None, state, W).ids.tolist() == [4]
+    # with the outer gate off it is left alone, and starts no track next to its object
+    off_tracker = _tracker(track_birth_probability=CONFIG.track_gate_probability)
+    assert off_tracker.assign(1, off[None], None, state, W).ids.tolist() == [-1]
+    # two such detections: ambiguous, neither is given the object and neither starts a track
+    mirror = za - k * direction
+    both = _tracker()
+    assert both.assign(1, np.stack([off, mirror]), None, state, W).ids.tolist() == [-1, -1]
+    assert both.n_tracks == 0 and both.counters["detections_near_object"] == 2
+
+
+def test_a_detection_near_an_object_that_took_another_one_starts_a_track():
+    """A detector boxes an object once per frame: a second detection next to an object that
+    took its own is a new object (a car parked behind another), not the same one twice."""
+    state = _state({6: A}, std=0.05)
+    tracker = _tracker()
+    za = _z(state, [A])[0]
+    near = za + np.array([12.0, 0.0, 12.0, 0.0])
+    assert tracker.gate < _d2(tracker, state, near[None])[0, 0] < tracker.birth_gate
+    assert tracker.assign(0, np.stack([za, near]), None, state, W).ids.tolist() == [6, -1]
+    assert tracker.n_tracks == 1
+
+
+@pytest.mark.parametrize("where", ["state", "persistent map"])
+def test_a_revisited_object_keeps_its_id_after_a_track_started_on_it(where):
+    """A revisited object whose first detection was ambiguous (two in its gate: both start
+    tracks) is continued by the track whose next detections are alone in its gate: when the
+    track is confirmed it takes the object's id instead of a new one."""
+    state = _state({1: A}, std=1.0)  # last seen at frame 0, uncertain by now
+    if where == "persistent map":
+        state.retire_objects(np.array([0]))
+    za = _z(state, [A])[0]
+    tracker = _tracker()
+    step = np.array([6.0, 0.0, 6.0, 0.0])
+    two = np.stack([za + step, za - step])
+    assert tracker.assign(10, two, None, state, W).ids.tolist() == [-1, -1]
+    assert tracker.n_tracks == 2
+    # the next detections are inside the gate of a tentative track and of the object
+    d2 = _d2(tracker, state, za[None])[:, 0]
+    assert (d2 < tracker.gate).sum() >= 2
+    assert tracker.assign(11, za[None], None, state, W).ids.tolist() == [-1]
+    frame = tracker.assign(12, za[None], None, state, W)
+    assert frame.ids.tolist() == [1] and frame.confirmed == []
+    assert tracker.revisits == [(12, 0, 1)] and tracker.counters["revisits_taken"] == 1
+    # the filter then holds it (re-entered from the persistent map) and sees it
+    if where == "persistent map":
+        state.reenter_objects(np.array([1]), 12)
+    state.mark_seen(state.object_slots(np.array([1])), 12)
+    for t in range(13, 17):  # it keeps its id; the other track expires unconfirmed
+        assert tracker.assign(t, za[None], None, state, W).ids.tolist() == [1]
+        state.mark_seen(state.object_slots(np.array([1])), t)
+    assert tracker.n_tracks == 0 and tracker.counters["tracks_confirmed"] == 0
+
+
+def test_no_reidentification_with_two_objects_in_the_gate():
+    """Two long-unseen objects in a detection's gate: neither takes it (never guess), whether
+    or not a tentative track also holds it."""
+    a2 = A + np.array([0.0, 0.5, 0.0])
+    state = _state({1: A, 2: a2}, std=1.0)
+    za, zb = _z(state, [A, a2])
+    mid = 0.5 * (za + zb)
+    d2 = _d2(_tracker(), state, mid[None])[:, 0]
+    assert np.all(d2 < _tracker().gate)
+    tracker = _tracker()
+    ids = [tracker.assign(t, mid[None], None, state, W).ids[0] for t in range(10, 14)]
+    assert 1 not in ids and 2 not in ids
+    assert tracker.revisits == [] and tracker.counters["revisits_refused"] >= 2
+    # the track the detections start is confirmed as an object of its own
+    assert ids[-1] >= track_id_base(0)
+
+
+def test_revisit_precision_by_hand():
+    offsets = np.array([0, 1, 2, 3, 4])
+    truth = np.array([5, 5, 6, 5])
+    hyp = np.array([1, 1, 1, 1])
+    # frame 2: object 1 was truth 5 before, the detection is 6 (wrong); frame 3: right;
+    # frame 0: nothing before, not judged
+    assert revisit_precision(offsets, truth, hyp, [(2, 0, 1), (3, 0, 1), (0, 0, 1)]) == (1, 2)

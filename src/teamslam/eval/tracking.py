@@ -26,7 +26,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["hypotheses_of", "mot_metrics", "tracking_metrics"]
+__all__ = [
+    "hypotheses_of",
+    "idf1_losses",
+    "mot_metrics",
+    "revisit_precision",
+    "tracking_metrics",
+]
 
 
 def mot_metrics(offsets: np.ndarray, truth: np.ndarray, hypothesis: np.ndarray) -> dict:
@@ -74,14 +80,7 @@ def mot_metrics(offsets: np.ndarray, truth: np.ndarray, hypothesis: np.ndarray) 
     fragmentations = int(np.sum(np.maximum(starts_per_object - 1, 0)))
     # IDF1: the best one-to-one map of true objects to ids
     both = real & named
-    idtp = 0
-    if both.any():
-        gu, gi = np.unique(truth[both], return_inverse=True)
-        hu, hi = np.unique(hyp[both], return_inverse=True)
-        counts = np.zeros((gu.size, hu.size))
-        np.add.at(counts, (gi, hi), 1.0)
-        rows, cols = linear_sum_assignment(-counts)
-        idtp = int(counts[rows, cols].sum())
+    idtp = int(np.sum(_identity_map(truth, hyp) == hyp) if both.any() else 0)
     hypotheses = int(named.sum())
     true_ids = set(np.unique(hyp[both]).tolist())
     created = np.unique(hyp[named])
@@ -99,6 +98,118 @@ def mot_metrics(offsets: np.ndarray, truth: np.ndarray, hypothesis: np.ndarray) 
         "objects_created": int(created.size),
         "false_objects": int(sum(1 for i in created.tolist() if i not in true_ids)),
     }
+
+
+def _identity_map(truth: np.ndarray, hyp: np.ndarray) -> np.ndarray:
+    """Per detection the id its true object has under the one-to-one map of true objects to
+    ids agreeing on the most detections (IDF1's map; Ristani et al. 2016); ``-2`` for a false
+    detection or an object the map leaves without an id."""
+    both = (truth >= 0) & (hyp >= 0)
+    out = np.full(truth.size, -2, np.int64)
+    if not both.any():
+        return out
+    gu, gi = np.unique(truth[both], return_inverse=True)
+    hu, hi = np.unique(hyp[both], return_inverse=True)
+    counts = np.zeros((gu.size, hu.size))
+    np.add.at(counts, (gi, hi), 1.0)
+    rows, cols = linear_sum_assignment(-counts)
+    keep = counts[rows, cols] > 0
+    mapped = np.full(gu.size, -2, np.int64)
+    mapped[rows[keep]] = hu[cols[keep]]
+    real = truth >= 0
+    pos = np.clip(np.searchsorted(gu, truth[real]), 0, gu.size - 1)
+    out[real] = np.where(gu[pos] == truth[real], mapped[pos], -2)
+    return out
+
+
+def idf1_losses(
+    offsets: np.ndarray, truth: np.ndarray, hypothesis: np.ndarray, revisit_gap: int
+) -> dict:
+    """Where one robot's IDF1 is lost: ``GT + H − 2·IDTP = FN + FP + 2·(wrong ids)``.
+
+    Parameters
+    ----------
+    offsets, truth, hypothesis
+        As :func:`mot_metrics`.
+    revisit_gap
+        Frames: a true detection named with an id other than its object's (under IDF1's map)
+        is a *revisit* loss when that id's detections of the object are all more than this
+        many frames away (the object was left and seen again, and named anew), else a loss
+        *within a pass* (a switch to a neighbour, a track lost and restarted, a merge).
+
+    Returns
+    -------
+    dict
+        ``missed`` (FN), ``false`` (FP), ``wrong_revisit``, ``wrong_within_pass``,
+        ``wrong_unmapped`` (of an object IDF1's map leaves without an id), and ``loss``
+        (``GT + H − 2·IDTP``).
+    """
+    offsets = np.asarray(offsets, dtype=np.int64)
+    truth = np.asarray(truth, dtype=np.int64)
+    hyp = np.asarray(hypothesis, dtype=np.int64)
+    frame = np.repeat(np.arange(offsets.size - 1), np.diff(offsets))
+    real, named = truth >= 0, hyp >= 0
+    mapped = _identity_map(truth, hyp)
+    wrong = np.flatnonzero(real & named & (mapped != hyp))
+    revisit = within = unmapped = 0
+    for k in wrong.tolist():
+        if mapped[k] < 0:
+            unmapped += 1
+            continue
+        own = frame[(hyp == mapped[k]) & (truth == truth[k])]
+        if np.min(np.abs(own - frame[k])) > revisit_gap:
+            revisit += 1
+        else:
+            within += 1
+    fn, fp = int((real & ~named).sum()), int((~real & named).sum())
+    return {
+        "missed": fn,
+        "false": fp,
+        "wrong_revisit": revisit,
+        "wrong_within_pass": within,
+        "wrong_unmapped": unmapped,
+        "loss": fn + fp + 2 * int(wrong.size),
+    }
+
+
+def revisit_precision(
+    offsets: np.ndarray,
+    truth: np.ndarray,
+    hypothesis: np.ndarray,
+    revisits: list[tuple[int, int, int]],
+) -> tuple[int, int]:
+    """How many of a robot's re-identifications were right.
+
+    Parameters
+    ----------
+    offsets, truth, hypothesis
+        As :func:`mot_metrics`.
+    revisits
+        ``(frame, row of the frame's detections, object id)`` of each detection given to an
+        object not seen for a while (:attr:`ObjectTracker.revisits
+        <teamslam.msckf.tracking.ObjectTracker.revisits>`).
+
+    Returns
+    -------
+    tuple
+        ``(right, judged)``: a re-identification is judged when the object's earlier detections
+        (before that frame) include true ones, and right when the detection is of the true
+        object most of them were.
+    """
+    offsets = np.asarray(offsets, dtype=np.int64)
+    truth = np.asarray(truth, dtype=np.int64)
+    hyp = np.asarray(hypothesis, dtype=np.int64)
+    right = judged = 0
+    for frame, row, oid in revisits:
+        k = offsets[frame] + row
+        before = truth[: offsets[frame]][(hyp[: offsets[frame]] == oid)]
+        before = before[before >= 0]
+        if not before.size:
+            continue
+        values, counts = np.unique(before, return_counts=True)
+        judged += 1
+        right += int(truth[k] == values[np.argmax(counts)])
+    return right, judged
 
 
 def tracking_metrics(dataset, hypotheses: list[np.ndarray]) -> dict | None:

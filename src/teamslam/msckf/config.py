@@ -161,12 +161,14 @@ class MsckfConfig:
         Mahalanobis distance under the filter's innovation covariance is at most this quantile
         of χ²(4).
     track_birth_probability
-        An unassigned detection starts a tentative track only when it lies outside this
-        quantile of χ²(4) around every object of the state seen within the last ``N``
-        frames (``track_confirm_frames``; a detection of a known object that missed the
-        assignment gate, or lost it to another detection, makes no second object; objects
-        unseen for longer block nothing). Set it to ``track_gate_probability`` or below to
-        let every unassigned detection start a track.
+        The outer gate, a wider quantile of χ²(4) than ``track_gate_probability``: an object
+        of the state seen within the last ``N`` frames (``track_confirm_frames``), or a track,
+        that took no detection this frame takes one left outside every gate but inside its
+        outer gate when the pair is alone there (a detector's heavy-tailed error keeps its
+        object); such a detection, when not alone, starts no track (one object, one id). A
+        detection near an object that took another one starts a track (a detector boxes an
+        object once per frame); objects unseen for longer block nothing. Set it to
+        ``track_gate_probability`` to turn the outer gate off.
     track_confirm_hits, track_confirm_frames
         A tentative track is confirmed after ``M = track_confirm_hits`` detections within its
         first ``N = track_confirm_frames`` frames, and dropped otherwise; a confirmed track not
@@ -222,7 +224,7 @@ class MsckfConfig:
     object_init_max_relative_std: float = 0.0
     object_update_iterations: int = 1
     track_gate_probability: float = 0.99
-    track_birth_probability: float = 0.9999
+    track_birth_probability: float = 0.999999
     track_confirm_hits: int = 0
     track_confirm_frames: int = 0
     association: str = "oracle"

@@ -13,16 +13,22 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    ``S = H P Hᵀ + R``: the squared Mahalanobis distance of the detection from the prediction at
    most the ``track_gate_probability`` quantile of χ²(4); class labels, when the detector gives
    them, must agree.
-3. **Assign** one-to-one over the gated pairs by global nearest neighbour (the assignment of
-   least total squared distance among those of the most gated pairs,
-   :func:`scipy.optimize.linear_sum_assignment`), in two passes: first the targets seen within
-   the last ``N`` frames (the tracks, and the objects followed frame to frame), then the
-   detections left against the objects not seen for ``N`` frames (the state's or the
-   persistent map's), each such pair only when unambiguous (no other detection in the object's
-   gate and no other target in the detection's): a drifted robot's wrong revisit would pull
-   its whole map, a second object for the same one only costs a loop closure. A long-unseen
-   object's gate is wide; served first, it would take the detections of the objects followed
-   frame to frame next to it.
+3. **Assign** one-to-one over the gated pairs by global nearest neighbour with explicit miss
+   and birth costs: a pair costs its squared distance ``d²``, a detection left to start a new
+   track and a target left missed together cost the gate ``g`` (the same χ² quantile), so the
+   assignment (:func:`scipy.optimize.linear_sum_assignment`) minimises ``Σ (d² − g)`` over the
+   pairs it keeps and never trades a good pair for two poor ones just to assign more. Three
+   passes: first the targets seen within the last ``N`` frames (the tracks, and the objects
+   followed frame to frame); then each of those left without a detection against the
+   detections left outside every gate, inside the wider ``track_birth_probability`` quantile
+   (the outer gate) and only when the pair is alone there — a detector's heavy-tailed error
+   (a box cut by the image border or an occluder) keeps its object rather than starting a
+   second one; last the detections left against the objects not seen for ``N`` frames (the
+   state's or the persistent map's), each such pair only when unambiguous (no other
+   detection in the object's gate and no other target in the detection's): a drifted robot's
+   wrong revisit would pull its whole map, a second object for the same one only costs a
+   loop closure. A long-unseen object's gate is wide; served first, it would take the
+   detections of the objects followed frame to frame next to it.
 4. A detection assigned to an object of the state or the persistent map gets that object's id.
    A detection assigned to a track updates the track's point (a Kalman update of the point).
    An unassigned detection starts a **tentative** track, stereo-triangulated at the current
@@ -32,9 +38,23 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    detections — the earlier ones at once — go to the filter under its id, where the object
    initialisation (eqs. 29–30) takes it into the state; from then on the state predicts it and
    the tracker forgets it. A confirmed track not taken into the state is dropped after ``N``
-   frames without a detection. An unassigned detection inside the ``track_birth_probability``
-   quantile around an object followed frame to frame starts no track (one object, one id);
-   objects not seen for ``N`` frames block no new track.
+   frames without a detection. An unassigned detection inside the outer gate of an object
+   followed frame to frame that took no detection this frame starts no track (the pair was
+   ambiguous: one object, one id); near an object that took another detection it is another
+   object (a detector boxes an object once per frame) and starts a track; objects not seen
+   for ``N`` frames block no new track.
+5. **Re-identification by a track.** A revisited object's first detection often starts a
+   track (two detections in its gate, or another target in the detection's), and the track,
+   followed frame to frame, then takes its next detections before the long-unseen object can.
+   So each track counts its detections that were alone in the gate of one object not seen for
+   ``N`` frames (that object alone, of those, in the detection's gate, and no object followed
+   frame to frame holding the detection in its outer gate). When the track is confirmed, its
+   detection of that frame is such a one, and more than half of its detections were, all
+   for the same object (a second object spoils it), the track continues that object: the
+   detection gets the object's id (an object of the persistent map re-enters the state), no
+   new object is made and the track is dropped (its earlier detections stay unnamed). The
+   gate is the filter's own: the rule is only as right as the filter's covariance after the
+   drive away and back (:attr:`ObjectTracker.revisits` records every re-identification).
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
@@ -55,9 +75,6 @@ from teamslam.msckf.models import observe_jacobians, points_in_camera
 from teamslam.msckf.update import stereo_point
 
 __all__ = ["ObjectTracker", "TrackerFrame", "track_id_base"]
-
-#: Cost of a pair outside the gate in the assignment (never kept).
-_OUTSIDE = 1e12
 
 
 def track_id_base(robot: int) -> int:
@@ -117,6 +134,10 @@ class ObjectTracker:
         self.hits = np.zeros(0, np.int64)
         self.classes = np.zeros(0, np.int64)
         self.confirmed = np.zeros(0, bool)
+        # per track the object not seen for N frames its detections were alone in the gate of
+        # (-1: none yet, -2: two different ones) and how many of them were
+        self.revisit_of = np.zeros(0, np.int64)
+        self.revisit_hits = np.zeros(0, np.int64)
         # per track its detections: (frame, measurement, row of the frame's detections)
         self.history: dict[int, list[tuple[int, np.ndarray, int]]] = {}
         # class label of every confirmed id (sorted by id)
@@ -130,11 +151,15 @@ class ObjectTracker:
             "detections_rejected_depth": 0,
             "detections_near_object": 0,
             "revisits_refused": 0,
+            "revisits_taken": 0,
         }
         #: per frame the id the filter used each detection as (``-1``: none); a track's
         #: detections before its confirmation are named when it is confirmed
         self.log: list[np.ndarray] = []
         self._first_logged: int | None = None
+        #: every re-identification: ``(frame, row of the frame's detections, object id)`` of a
+        #: detection given to an object not seen for ``N`` frames
+        self.revisits: list[tuple[int, int, int]] = []
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -174,21 +199,32 @@ class ObjectTracker:
         n_targets = target_ids.size
         assigned_target = np.full(d, -1, np.int64)
         near_target = np.zeros(d, bool)
+        lone_stale = np.full(d, -1, np.int64)  # the long-unseen object a detection is alone for
         if n_targets and d:
             chol = np.linalg.cholesky(s)  # (T, 4, 4)
             r = z[None, :, :] - pred[:, None, :]  # (T, D, 4)
             y = np.linalg.solve(chol[:, None], r[..., None])[..., 0]
             d2 = np.einsum("tdi,tdi->td", y, y)
-            allowed = (d2 <= self.gate) & in_front[:, None]
-            allowed &= (
+            agree = in_front[:, None] & (
                 (target_labels[:, None] < 0)
                 | (labels[None, :] < 0)
                 | (target_labels[:, None] == labels[None, :])
             )
+            allowed = (d2 <= self.gate) & agree
             # pass 1: the targets seen within the last N frames (tracks, and objects followed
-            # frame to frame) by global nearest neighbour
+            # frame to frame) by global nearest neighbour, a pair kept only when it costs less
+            # than leaving the detection to a new track and the target missed
             fresh = (kinds == 2) | ((kinds == 0) & (t - seen <= self.frames_allowed))
-            _nearest_neighbour(allowed & fresh[:, None], d2, assigned_target)
+            _nearest_neighbour(allowed & fresh[:, None], d2 - self.gate, assigned_target)
+            # pass 1b: a fresh target left without a detection and a detection left outside
+            # every gate, inside each other's outer gate (a heavy-tailed detector error) and
+            # alone there: the detection is that object's
+            left = assigned_target < 0
+            taken = np.zeros(n_targets, bool)
+            taken[assigned_target[~left]] = True
+            outer = (d2 <= self.birth_gate) & agree & (fresh & ~taken)[:, None] & left[None, :]
+            outer &= ~allowed.any(axis=0)[None, :]
+            _take_unambiguous(outer, assigned_target)
             # pass 2: the detections left against the objects not seen for N frames (the
             # state's or the persistent map's), each pair only when unambiguous: no other
             # detection in the object's gate, no other target in the detection's (a wrong
@@ -197,15 +233,29 @@ class ObjectTracker:
             lone = allowed & ~fresh[:, None]
             lone &= (allowed.sum(axis=1) == 1)[:, None] & (allowed.sum(axis=0) == 1)[None, :]
             lone &= left[None, :]
-            stale_hits = lone.any(axis=0)
-            assigned_target[stale_hits] = np.argmax(lone[:, stale_hits], axis=0)
+            stale_hits = _take_unambiguous(lone, assigned_target)
+            for j in np.flatnonzero(stale_hits).tolist():
+                self.revisits.append((t, int(index[j]), int(target_ids[assigned_target[j]])))
+            self.counters["revisits_taken"] += int(stale_hits.sum())
             # objects not seen for N frames that had a detection in their gate and took none
             wanted = (allowed & ~fresh[:, None] & left[None, :]).any(axis=1)
             wanted[assigned_target[stale_hits]] = False
             self.counters["revisits_refused"] += int(wanted.sum())
-            # a detection near an object followed frame to frame that it was not given starts
-            # no track (one object, one id); objects not seen for N frames block nothing
+            # each detection the only one in the gate of an object not seen for N frames, that
+            # object alone (of those) in the detection's gate, and no object followed frame to
+            # frame holding it in its outer gate: evidence for a track to continue that object
+            stale = allowed & ~fresh[:, None]
+            stale &= (stale.sum(axis=1) == 1)[:, None] & (stale.sum(axis=0) == 1)[None, :]
+            owned = (d2 <= self.birth_gate) & agree & (fresh & (kinds < 2))[:, None]
+            stale &= ~owned.any(axis=0)[None, :]
+            has = stale.any(axis=0)
+            lone_stale[has] = target_ids[np.argmax(stale[:, has], axis=0)]
+            # a detection in the outer gate of an object followed frame to frame that took no
+            # detection, and not given to it (ambiguous), starts no track (one object, one id);
+            # a detection near an object that took another one is another object (one
+            # detection per object and frame), and objects not seen for N frames block nothing
             blocking = in_front & fresh & (kinds < 2)
+            blocking[assigned_target[assigned_target >= 0]] = False
             near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
@@ -216,12 +266,12 @@ class ObjectTracker:
         on_track = np.flatnonzero(hit & ~mapped)
         if on_track.size:
             self._update_tracks(
-                t, z, index, on_track, assigned_target, kinds, pred, s, h_point, frame
+                t, z, index, on_track, assigned_target, kinds, pred, s, h_point, frame, lone_stale
             )
         self.counters["detections_near_object"] += int((~hit & near_target).sum())
         new = np.flatnonzero(~hit & ~near_target)
         if new.size:
-            self._start_tracks(t, z[new], index[new], labels[new], state)
+            self._start_tracks(t, z[new], index[new], labels[new], state, lone_stale[new])
         self._drop_stale(t)
         every[index] = frame.ids
         frame.ids = every
@@ -338,10 +388,11 @@ class ObjectTracker:
         return kind, ids, np.concatenate(seen), pred, s, d_point, in_front, labels
 
     def _update_tracks(
-        self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame
+        self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame, lone_stale
     ) -> None:
         """Kalman update of each assigned track's point; confirm the tracks with enough hits
-        (their earlier detections named in the log as the filter then uses them)."""
+        (their earlier detections named in the log as the filter then uses them), or continue
+        the long-unseen object a track revisits (:meth:`_note_revisit`)."""
         targets = assigned[detections]
         rows = targets - int(np.flatnonzero(kinds == 2)[0])  # tracks come last
         hp = h_point[targets]  # (k, 4, 3)
@@ -354,11 +405,32 @@ class ObjectTracker:
         self.covs[rows] = 0.5 * (cov + np.swapaxes(cov, 1, 2))
         self.last[rows] = t
         self.hits[rows] += 1
+        self._note_revisit(rows, lone_stale[detections])
         confirmed_before = self.confirmed[rows].copy()
         newly = ~confirmed_before & (self.hits[rows] >= self.hits_needed)
         newly &= t - self.first[rows] < self.frames_allowed
+        # a track confirmed now whose detections were mostly alone in the gate of one object not
+        # seen for N frames, this one too, continues that object: a re-identification
+        revisit = (
+            newly & (self.revisit_of[rows] >= 0) & (lone_stale[detections] == self.revisit_of[rows])
+        )
+        revisit &= 2 * self.revisit_hits[rows] > self.hits[rows]
+        taken = set(frame.ids[frame.ids >= 0].tolist())
+        gone = np.zeros(self.ids.size, bool)
+        for det, row in zip(detections[revisit].tolist(), rows[revisit].tolist(), strict=True):
+            oid = int(self.revisit_of[row])
+            if oid in taken:
+                continue
+            taken.add(oid)
+            frame.ids[det] = oid
+            self.revisits.append((t, int(index[det]), oid))
+            self.counters["revisits_taken"] += 1
+            gone[row] = True
+        newly &= ~gone[rows]
         self.confirmed[rows[newly]] = True
         for det, row, new in zip(detections.tolist(), rows.tolist(), newly.tolist(), strict=True):
+            if gone[row]:
+                continue
             tid = int(self.ids[row])
             past = self.history.setdefault(tid, [])
             if new:
@@ -372,9 +444,30 @@ class ObjectTracker:
             if self.confirmed[row]:
                 frame.ids[det] = tid
             past.append((t, z[det].copy(), int(index[det])))
+        if gone.any():
+            for i in self.ids[gone].tolist():
+                self.history.pop(i, None)
+            self._keep(~gone)
+
+    def _note_revisit(self, rows: np.ndarray, lone_stale: np.ndarray) -> None:
+        """Tracks ``rows`` took detections alone in the gate of long-unseen objects
+        ``lone_stale`` (``-1``: none): count each for the object it first named, spoil it
+        (``-2``) on a different one."""
+        alone = lone_stale >= 0
+        first = alone & (self.revisit_of[rows] == -1)
+        self.revisit_of[rows[first]] = lone_stale[first]
+        same = alone & (self.revisit_of[rows] == lone_stale)
+        self.revisit_hits[rows[same]] += 1
+        self.revisit_of[rows[alone & ~same]] = -2
 
     def _start_tracks(
-        self, t: int, z: np.ndarray, index: np.ndarray, labels: np.ndarray, state
+        self,
+        t: int,
+        z: np.ndarray,
+        index: np.ndarray,
+        labels: np.ndarray,
+        state,
+        lone_stale: np.ndarray,
     ) -> None:
         """Tentative tracks from unassigned detections, stereo-triangulated at the current pose."""
         cfg = self.config
@@ -387,6 +480,7 @@ class ObjectTracker:
         if not ok.any():
             return
         points, z, labels, index = points[ok], z[ok], labels[ok], index[ok]
+        lone_stale = lone_stale[ok]
         _, _, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, points)
         info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.object_std**2
         covs = np.linalg.solve(info, np.broadcast_to(np.eye(3), info.shape))
@@ -401,6 +495,8 @@ class ObjectTracker:
         self.hits = np.concatenate([self.hits, np.ones(k, np.int64)])
         self.classes = np.concatenate([self.classes, labels])
         self.confirmed = np.concatenate([self.confirmed, np.zeros(k, bool)])
+        self.revisit_of = np.concatenate([self.revisit_of, lone_stale])
+        self.revisit_hits = np.concatenate([self.revisit_hits, (lone_stale >= 0).astype(np.int64)])
         for tid, row, j in zip(ids.tolist(), z, index.tolist(), strict=True):
             self.history[tid] = [(t, row.copy(), j)]
         self.counters["tracks_started"] += k
@@ -422,7 +518,18 @@ class ObjectTracker:
             self._keep(~drop)
 
     def _keep(self, mask: np.ndarray) -> None:
-        for name in ("ids", "points", "covs", "first", "last", "hits", "classes", "confirmed"):
+        for name in (
+            "ids",
+            "points",
+            "covs",
+            "first",
+            "last",
+            "hits",
+            "classes",
+            "confirmed",
+            "revisit_of",
+            "revisit_hits",
+        ):
             setattr(self, name, getattr(self, name)[mask])
 
     def _add_labels(self, ids: np.ndarray, labels: np.ndarray) -> None:
@@ -435,16 +542,26 @@ class ObjectTracker:
 
 
 def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarray) -> None:
-    """One-to-one assignment of least total ``cost`` among the ``allowed`` (target, detection)
-    pairs (of the most pairs); writes each assigned detection's target into ``assigned``."""
+    """One-to-one assignment of least total ``cost`` over the ``allowed`` (target, detection)
+    pairs, leaving a detection or a target unassigned at cost 0 (so only pairs of negative
+    cost are ever worth keeping); writes each assigned detection's target into ``assigned``."""
     rows_idx = np.flatnonzero(allowed.any(axis=1))
     if not rows_idx.size:
         return
     cols_idx = np.flatnonzero(allowed.any(axis=0))
     sub = allowed[np.ix_(rows_idx, cols_idx)]
-    ra, ca = linear_sum_assignment(np.where(sub, cost[np.ix_(rows_idx, cols_idx)], _OUTSIDE))
+    ra, ca = linear_sum_assignment(np.where(sub, cost[np.ix_(rows_idx, cols_idx)], 0.0))
     keep = sub[ra, ca]
     assigned[cols_idx[ca[keep]]] = rows_idx[ra[keep]]
+
+
+def _take_unambiguous(pairs: np.ndarray, assigned: np.ndarray) -> np.ndarray:
+    """Assign each detection that is the only one of its target's ``pairs`` and whose target is
+    the only one of its own; returns the detections assigned."""
+    lone = pairs & (pairs.sum(axis=1) == 1)[:, None] & (pairs.sum(axis=0) == 1)[None, :]
+    hits = lone.any(axis=0)
+    assigned[hits] = np.argmax(lone[:, hits], axis=0)
+    return hits
 
 
 def _chi2(probability: float, dof: int) -> float:
