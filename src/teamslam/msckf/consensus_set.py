@@ -79,7 +79,7 @@ from scipy.linalg import LinAlgError, cho_factor, solve_triangular
 
 from teamslam.msckf.state import MsckfState
 
-__all__ = ["active_objects", "pose_mutual_information"]
+__all__ = ["active_objects", "pose_mutual_information", "settling_thresholds"]
 
 
 def pose_mutual_information(
@@ -128,3 +128,18 @@ def active_objects(state: MsckfState, object_covs: np.ndarray, information: floa
     unseen = np.flatnonzero(~active)
     active[unseen] = pose_mutual_information(state, object_covs[unseen], unseen) > information
     return active
+
+
+def settling_thresholds(
+    thresholds: np.ndarray, exchanged_at: np.ndarray, exchange: int, kl_threshold: float
+) -> np.ndarray:
+    """How far each object on record with one neighbour must have moved to be averaged again.
+
+    ``thresholds`` are the objects' own (``consensus_kl_threshold`` when active, the inactive
+    threshold otherwise); ``exchanged_at`` the number of the exchange in which the pair last
+    averaged each. An object the pair averaged in the previous exchange is tested against
+    ``kl_threshold`` whatever its own threshold: an average, once started, runs until the pair
+    agrees to within the paper's threshold (module docstring, *settling*).
+    """
+    settling = np.asarray(exchanged_at) == int(exchange) - 1
+    return np.where(settling, np.minimum(thresholds, kl_threshold), thresholds)

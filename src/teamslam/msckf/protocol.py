@@ -119,7 +119,7 @@ from teamslam.msckf.consensus import (
     shared_prior,
 )
 from teamslam.msckf.consensus_checks import ReceivedMarginal, check_message
-from teamslam.msckf.consensus_set import active_objects
+from teamslam.msckf.consensus_set import active_objects, settling_thresholds
 from teamslam.msckf.messages import (
     CommonMarginalMessage,
     MapIdsMessage,
@@ -168,8 +168,9 @@ class ConsensusProtocol:
         config = agent.config
         self.bounded = config.consensus_set == "active" and self.max_age == 0
         self._thresholds: np.ndarray | None = None
-        # per neighbour: our own per-object marginals as they were at the last exchange
-        self._agreed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # per neighbour: our own per-object marginals as they were at the last exchange, and
+        # the number of that exchange
+        self._agreed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._moved: dict[int, np.ndarray] = {}
         self._pending: dict[int, np.ndarray] = {}
         # our own information of each object set we sent this step (ids bytes → Σ⁻¹), which
@@ -342,7 +343,7 @@ class ConsensusProtocol:
         order = np.argsort(ids)
         sorted_ids = ids[order]
         pairs = []  # per neighbour: our slots, its record's slots
-        for j, (a_ids, _, _) in self._agreed.items():
+        for j, (a_ids, *_) in self._agreed.items():
             if a_ids.size == 0:
                 continue
             # a_ids is sorted: where each of our ids sits in j's record
@@ -359,8 +360,16 @@ class ConsensusProtocol:
             np.concatenate([self._agreed[j][2][theirs] for j, _, theirs in pairs]),
         )
         split = np.cumsum([mine.size for _, mine, _ in pairs])[:-1]
-        for (j, mine, _), kl_j in zip(pairs, np.split(kl, split), strict=True):
-            limit = self.kl_threshold if self._thresholds is None else self._thresholds[mine]
+        for (j, mine, theirs), kl_j in zip(pairs, np.split(kl, split), strict=True):
+            if self._thresholds is None:
+                limit = self.kl_threshold
+            else:  # an average once started runs to agreement (consensus_set)
+                limit = settling_thresholds(
+                    self._thresholds[mine],
+                    self._agreed[j][3][theirs],
+                    self.round,
+                    self.kl_threshold,
+                )
             out[j][mine] = kl_j > limit
         return out
 
@@ -668,17 +677,19 @@ class ConsensusProtocol:
         """Remember our pre-average marginals of the objects just exchanged with ``j``."""
         ids, means, covs = self._own
         take = _members(ids, exchanged)
+        now = np.full(int(take.sum()), self.round, dtype=np.int64)
         old = self._agreed.get(j)
         if old is not None:
             # still in our map and not just exchanged (``exchanged`` and ``old[0]`` are sorted)
             keep = _members(old[0], np.sort(ids)) & ~_members(old[0], exchanged)
-            new_ids = np.concatenate([old[0][keep], ids[take]])
-            new_means = np.concatenate([old[1][keep], means[take]])
-            new_covs = np.concatenate([old[2][keep], covs[take]])
+            new = [
+                np.concatenate([kept[keep], fresh])
+                for kept, fresh in zip(old, (ids[take], means[take], covs[take], now), strict=True)
+            ]
         else:
-            new_ids, new_means, new_covs = ids[take], means[take], covs[take]
-        order = np.argsort(new_ids)
-        self._agreed[j] = (new_ids[order], new_means[order], new_covs[order])
+            new = [ids[take], means[take], covs[take], now]
+        order = np.argsort(new[0])
+        self._agreed[j] = tuple(a[order] for a in new)
 
 
 def _reordered_prior(message: CommonMarginalMessage, order: np.ndarray) -> dict:
