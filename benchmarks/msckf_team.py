@@ -347,8 +347,9 @@ def _published_params(what, checkout, cfg, ds, window):
     """The published code's parameters for this team: its own file for the kind of data, with
     consensus on, objects only (``use_msckf`` off; the teams here carry no geometric tracks it
     could use), no result file, a window of ``window`` poses (as ours), and for the simulated
-    team the sensor model the data was made with (its own file is for data in normalised
-    coordinates: ``K = I``, a 0.02 reprojection gate)."""
+    team its reprojection gates scaled from normalised coordinates (its simulated teams have
+    ``K = I``) to this camera's pixels, with the noise and depth range of the sensor model the
+    data was made with."""
     import yaml
 
     name = PUBLISHED_LAYOUT[what][0]
@@ -358,20 +359,18 @@ def _published_params(what, checkout, cfg, ds, window):
     params = yaml.safe_load(source.read_text())
     params.update(consensus_average=True, use_msckf=False, save_result=False, max_num_cam=window)
     if what == "team":
-        from scipy.stats import chi2
-
+        # its file is for data in normalised coordinates (K = I), where its two reprojection
+        # gates are in those units: here they are scaled to this camera's pixels; the noise
+        # and depth range are the sensor model the data was made with
         fx = float(ds.calibration.camera.intrinsics[0, 0])
-        # its gates are in pixels on one camera's 2-vector; ours is the χ² gate at the same
-        # probability on the measurement noise
-        gate = cfg.object_std * float(np.sqrt(chi2.ppf(cfg.gate_probability, 2)))
         params.update(
             motion_noise=float(np.mean(np.square(cfg.odometry_std))),
             obj_obs_noise=float((cfg.object_std / fx) ** 2),
             obj_init_fnum_thre=int(cfg.object_init_observations),
             obj_init_dist_min_thre=float(cfg.object_min_depth),
             obj_init_dist_max_thre=float(cfg.object_max_depth),
-            obj_init_reproj_thre=gate,
-            obj_update_reproj_thre=gate,
+            obj_init_reproj_thre=float(params["obj_init_reproj_thre"]) * fx,
+            obj_update_reproj_thre=float(params["obj_update_reproj_thre"]) * fx,
         )
     return params
 
