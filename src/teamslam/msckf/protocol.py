@@ -32,9 +32,10 @@ once its neighbour's marginal arrived, so a lost message never hides a change. W
 With a bounded consensus set (``consensus_set = active``, lock-step only) an object counts as
 moved at that threshold only while the robot's window can still change it — observed within the
 window or correlated with its poses — and otherwise only beyond
-``consensus_inactive_kl_threshold``, so the joint a pair averages follows what the robots see
-now, not everything they mapped (:mod:`teamslam.msckf.consensus_set`); the round-1 flags carry
-the result, so the wire is unchanged.
+``consensus_inactive_kl_threshold`` — unless the pair averaged it in the previous exchange:
+an average once started runs until the pair agrees — so the joint a pair averages follows what
+the robots see now, not everything they mapped (:mod:`teamslam.msckf.consensus_set`); the
+round-1 flags carry the result, so the wire is unchanged.
 
 **Hybrid consensus** (``consensus_hybrid``, lock-step only): the new information each robot
 gathered since its last exchange enters the average at full weight instead of ``A_ij`` — its
