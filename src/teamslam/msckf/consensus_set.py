@@ -43,9 +43,11 @@ beyond what our own conditional ``p(I | J)`` predicts from the averaged ``J``:
 * ``I``'s own marginal follows ``p̄(J)`` through our conditional instead of being averaged, so
   a neighbour's information on ``I`` arrives only when ``I`` moves by more than the inactive
   threshold (then it is in ``J`` again), or when ``I`` becomes active (observed by either robot
-  of the pair). Between two such exchanges the pair's marginals of an inactive object differ by
-  at most about the threshold plus what the two conditionals add — the disagreement is bounded
-  by the threshold, not driven to ``consensus_kl_threshold``;
+  of the pair). Each such average runs until the pair agrees to within
+  ``consensus_kl_threshold`` (*settling*, below); between two of them the pair's marginals of
+  an inactive object drift apart by at most about the threshold on each side plus what the two
+  conditionals add — that drift is bounded by the threshold, not driven to
+  ``consensus_kl_threshold``;
 * the window poses are corrected through ``J`` only (``A = Σ_xJ Σ_J⁻¹`` instead of
   ``Σ_xy Σ_y⁻¹``). With the correlation test at ``ε`` nats an inactive object is weakly
   correlated with them: ``I(o; x) = −½ Σ_k log(1 − ρ_k²) ≤ ε`` over its canonical
