@@ -60,8 +60,8 @@ beyond what our own conditional ``p(I | J)`` predicts from the averaged ``J``:
   bound; the benchmark above measures it (over 1,000 frames, with the settling rule below:
   trajectory RMSE 1.000×, object error 1.002×, disagreement 2.01× the paper's set — the pairs'
   disagreement is flat in the frames since they last averaged an object, and as large on the
-  objects they averaged in the last two frames, so it is this price on the poses, not left-out
-  objects drifting apart).
+  objects they averaged in the last two frames, so it is not left-out objects drifting apart;
+  most likely it is this price on the poses).
 
 **Settling: an average once started runs to agreement.** The moved flags compare a robot's
 marginal with its own marginal at the pair's last exchange, so a residual disagreement shows
