@@ -10,6 +10,7 @@ from teamslam.msckf.consensus_kernels import (
     NON_FINITE,
     NOT_SYMMETRIC,
     checked_symmetric_part,
+    single_rounding,
 )
 
 
@@ -47,3 +48,29 @@ def test_checked_symmetric_part_verdicts():
     # a non-finite entry is named as such even where the matrix is also asymmetric
     skewed[5, 5] = -np.inf
     assert checked_symmetric_part(mean, skewed)[0] == NON_FINITE
+
+
+def _numpy_rounding_bound(mean, cov, info, mean32, info32):
+    """The estimate of ``information_rounding_bound`` written out in numpy."""
+    std = np.sqrt(np.diagonal(cov))
+    scale = np.outer(std, std)
+    correlation_norm = (np.abs(cov) / scale).sum(axis=0).max()
+    scaled_info_norm = (np.abs(info) * scale).sum(axis=0).max()
+    d_info = np.sum(((info32 - info) * scale) ** 2)
+    d_mean = np.sum(((mean32 - mean) / std) ** 2)
+    return 0.25 * correlation_norm**2 * d_info + 0.5 * scaled_info_norm * d_mean
+
+
+def test_single_rounding_is_the_float32_rounding_and_its_bound():
+    rng = np.random.default_rng(2)
+    for d in (3, 30, 90):
+        # objects known to very different precisions, as in a team's joint marginal
+        scales = np.exp(rng.uniform(-4, 4, size=d))
+        cov = _spd(rng, d) * np.outer(scales, scales)
+        info = np.linalg.inv(cov)
+        mean = rng.normal(size=d) * 100
+        mean32, info32, bound = single_rounding(mean, cov, info)
+        assert np.array_equal(mean32, mean.astype(np.float32).astype(float))
+        assert np.array_equal(info32, info.astype(np.float32).astype(float))
+        assert bound > 0
+        assert np.isclose(bound, _numpy_rounding_bound(mean, cov, info, mean32, info32), rtol=1e-12)

@@ -7,7 +7,13 @@ compiled pass over a message's arrays that gives the same numbers as the numpy e
 replaces (element by element the same floating-point operations, no reassociation):
 
 * :func:`checked_symmetric_part` — the receiver's finiteness and symmetry checks of a joint
-  marginal and its symmetric part (:func:`~teamslam.msckf.consensus_checks.receive_marginal`).
+  marginal and its symmetric part (:func:`~teamslam.msckf.consensus_checks.receive_marginal`);
+* :func:`single_rounding` — a sender's marginal in information form rounded to single
+  precision with the estimate of what that costs (:func:`rounding_bound`, which is
+  :func:`~teamslam.msckf.consensus_messages.information_rounding_bound`; its two sums of
+  squares are added in another order than numpy's, so the estimate may differ in its last
+  bits — it decides against a threshold, :data:`~teamslam.msckf.consensus_messages.
+  FLOAT32_MAX_KL`, that it is never that close to).
 """
 
 from __future__ import annotations
@@ -15,7 +21,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["FINITE", "NON_FINITE", "NOT_SYMMETRIC", "checked_symmetric_part"]
+__all__ = [
+    "FINITE",
+    "NON_FINITE",
+    "NOT_SYMMETRIC",
+    "checked_symmetric_part",
+    "rounding_bound",
+    "single_rounding",
+]
 
 FINITE, NON_FINITE, NOT_SYMMETRIC = 0, 1, 2
 """What :func:`checked_symmetric_part` found."""
@@ -54,3 +67,50 @@ def checked_symmetric_part(mean: np.ndarray, matrix: np.ndarray) -> tuple[int, n
     if asymmetry > 1e-9 * largest + 1e-12:
         return NOT_SYMMETRIC, out
     return FINITE, out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def rounding_bound(
+    mean: np.ndarray,
+    cov: np.ndarray,
+    info: np.ndarray,
+    mean_rounded: np.ndarray,
+    info_rounded: np.ndarray,
+) -> float:
+    """:func:`~teamslam.msckf.consensus_messages.information_rounding_bound` in one pass."""
+    d = mean.size
+    std = np.empty(d)
+    for i in range(d):
+        std[i] = np.sqrt(cov[i, i])
+    correlation_sums = np.zeros(d)
+    info_sums = np.zeros(d)
+    d_info = 0.0
+    for i in range(d):
+        for j in range(d):
+            scale = std[i] * std[j]
+            correlation_sums[j] += abs(cov[i, j]) / scale
+            info_sums[j] += abs(info[i, j]) * scale
+            change = (info_rounded[i, j] - info[i, j]) * scale
+            d_info += change**2
+    d_mean = 0.0
+    for i in range(d):
+        change = (mean_rounded[i] - mean[i]) / std[i]
+        d_mean += change**2
+    correlation_norm = correlation_sums.max()
+    scaled_info_norm = info_sums.max()
+    return 0.25 * correlation_norm**2 * d_info + 0.5 * scaled_info_norm * d_mean
+
+
+@numba.njit(cache=True, error_model="numpy")
+def single_rounding(
+    mean: np.ndarray, cov: np.ndarray, info: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(mean₃₂, info₃₂, bound)``: the mean and information matrix rounded to single precision
+    (as doubles) and :func:`rounding_bound` of that rounding."""
+    mean_rounded = mean.astype(np.float32).astype(np.float64)
+    info_rounded = info.astype(np.float32).astype(np.float64)
+    return (
+        mean_rounded,
+        info_rounded,
+        rounding_bound(mean, cov, info, mean_rounded, info_rounded),
+    )
