@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from teamslam._gaussian_kernels import add_weighted_difference_at
+from teamslam.gaussian import add_weighted_difference
 from teamslam.msckf.consensus_kernels import (
     FINITE,
     NON_FINITE,
@@ -74,3 +76,18 @@ def test_single_rounding_is_the_float32_rounding_and_its_bound():
         assert np.array_equal(info32, info.astype(np.float32).astype(float))
         assert bound > 0
         assert np.isclose(bound, _numpy_rounding_bound(mean, cov, info, mean32, info32), rtol=1e-12)
+
+
+def test_add_weighted_difference_at_is_the_numpy_scatter_add():
+    rng = np.random.default_rng(3)
+    d = 60
+    info, eta = _spd(rng, d), rng.normal(size=d)
+    sub = np.sort(rng.choice(d, size=24, replace=False))
+    their, own = _spd(rng, 24), _spd(rng, 24)
+    their_eta, own_eta = rng.normal(size=24), rng.normal(size=24)
+    want_info, want_eta = info.copy(), eta.copy()
+    add_weighted_difference(
+        want_info, want_eta, np.ix_(sub, sub), sub, 0.3, (their, their_eta), (own, own_eta)
+    )
+    add_weighted_difference_at(info, eta, sub, 0.3, their, their_eta, own, own_eta)
+    assert np.array_equal(info, want_info) and np.array_equal(eta, want_eta)
