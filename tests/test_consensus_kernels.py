@@ -11,9 +11,12 @@ from teamslam.msckf.consensus_kernels import (
     FINITE,
     NON_FINITE,
     NOT_SYMMETRIC,
+    all_single,
     checked_symmetric_part,
+    encoded_ids_bytes,
     single_rounding,
 )
+from teamslam.msckf.messages import encode_ids
 
 
 def _spd(rng, d):
@@ -91,3 +94,30 @@ def test_add_weighted_difference_at_is_the_numpy_scatter_add():
     )
     add_weighted_difference_at(info, eta, sub, 0.3, their, their_eta, own, own_eta)
     assert np.array_equal(info, want_info) and np.array_equal(eta, want_eta)
+
+
+def test_encoded_ids_bytes_is_the_length_of_the_written_varints():
+    rng = np.random.default_rng(4)
+    extremes = np.array([-(2**63), -1, 0, 1, 2**63 - 1], dtype=np.int64)
+    for trial in range(300):
+        low = (-(2**63), -1000, 0, 2**40)[trial % 4]
+        high = 2**63 - 1 if trial % 3 else low + 10**6
+        ids = np.unique(rng.integers(low, high, size=rng.integers(0, 40), dtype=np.int64))
+        assert encoded_ids_bytes(ids) == len(encode_ids(ids))
+    assert encoded_ids_bytes(extremes) == len(encode_ids(extremes))
+    assert encoded_ids_bytes(np.array([4, 4], dtype=np.int64)) == -1
+    assert encoded_ids_bytes(np.array([5, 2], dtype=np.int64)) == -1
+
+
+def test_all_single_is_exact_float32_equality():
+    rng = np.random.default_rng(5)
+    single = rng.normal(size=(20, 20)).astype(np.float32).astype(float)
+    assert all_single(single)
+    for value in (1.0 + 2.0**-40, np.nan, 1e300):
+        changed = single.copy()
+        changed[7, 3] = value
+        assert not all_single(changed)
+        assert not np.array_equal(changed.astype(np.float32), changed)
+    changed = single.copy()
+    changed[0, 0] = np.inf  # inf is a float32
+    assert all_single(changed)

@@ -13,7 +13,10 @@ replaces (element by element the same floating-point operations, no reassociatio
   :func:`~teamslam.msckf.consensus_messages.information_rounding_bound`; its two sums of
   squares are added in another order than numpy's, so the estimate may differ in its last
   bits — it decides against a threshold, :data:`~teamslam.msckf.consensus_messages.
-  FLOAT32_MAX_KL`, that it is never that close to).
+  FLOAT32_MAX_KL`, that it is never that close to);
+* :func:`encoded_ids_bytes` and :func:`all_single` — what a message takes on a wire
+  (:meth:`~teamslam.msckf.messages.CommonMarginalMessage.nbytes`): the length of its ids'
+  varints, counted without writing them, and whether every number is exactly a float32.
 """
 
 from __future__ import annotations
@@ -25,7 +28,9 @@ __all__ = [
     "FINITE",
     "NON_FINITE",
     "NOT_SYMMETRIC",
+    "all_single",
     "checked_symmetric_part",
+    "encoded_ids_bytes",
     "rounding_bound",
     "single_rounding",
 ]
@@ -114,3 +119,42 @@ def single_rounding(
         info_rounded,
         rounding_bound(mean, cov, info, mean_rounded, info_rounded),
     )
+
+
+_SEVEN = np.uint64(7)
+_ONE_BYTE = np.uint64(0x80)
+
+
+@numba.njit(cache=True)
+def _varint_length(value: np.uint64) -> int:
+    """Bytes of one unsigned LEB128 varint (7 bits a byte, at least one)."""
+    length = 1
+    while value >= _ONE_BYTE:
+        value >>= _SEVEN
+        length += 1
+    return length
+
+
+@numba.njit(cache=True)
+def encoded_ids_bytes(ids: np.ndarray) -> int:
+    """Length of :func:`~teamslam.msckf.messages.encode_ids` of ``int64`` ids, or ``-1`` when
+    they are not strictly increasing: the first id zigzag-coded, then the differences (taken
+    as unsigned, exact over the whole 64-bit range)."""
+    if ids.size == 0:
+        return 0
+    first = ids[0]
+    total = _varint_length(np.uint64((first << 1) ^ (first >> 63)))
+    for i in range(1, ids.size):
+        if ids[i] <= ids[i - 1]:
+            return -1
+        total += _varint_length(np.uint64(ids[i]) - np.uint64(ids[i - 1]))
+    return total
+
+
+@numba.njit(cache=True)
+def all_single(values: np.ndarray) -> bool:
+    """Whether every entry of a ``float64`` array is exactly a float32 (``NaN`` never is)."""
+    for value in values.ravel():
+        if np.float64(np.float32(value)) != value:
+            return False
+    return True
