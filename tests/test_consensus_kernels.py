@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from teamslam._gaussian_kernels import add_weighted_difference_at
-from teamslam.gaussian import add_weighted_difference
+from teamslam.gaussian import add_weighted_difference, spd_inverse, symmetrize
 from teamslam.msckf.consensus_kernels import (
     FINITE,
     NON_FINITE,
@@ -15,6 +15,7 @@ from teamslam.msckf.consensus_kernels import (
     checked_symmetric_part,
     encoded_ids_bytes,
     single_rounding,
+    symmetric_block,
 )
 from teamslam.msckf.messages import encode_ids
 
@@ -121,3 +122,14 @@ def test_all_single_is_exact_float32_equality():
     changed = single.copy()
     changed[0, 0] = np.inf  # inf is a float32
     assert all_single(changed)
+
+
+def test_symmetric_block_is_the_gathered_symmetric_part_and_inverts_alike():
+    rng = np.random.default_rng(6)
+    matrix = _spd(rng, 50)
+    matrix += 1e-12 * rng.normal(size=(50, 50))  # not exactly symmetric
+    index = rng.permutation(50)[:21]
+    block = symmetric_block(matrix, index)
+    want = symmetrize(matrix[np.ix_(index, index)])
+    assert np.array_equal(block, want)
+    assert np.array_equal(spd_inverse(block, symmetric=True), spd_inverse(want))

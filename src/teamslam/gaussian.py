@@ -71,9 +71,13 @@ def _cholesky(matrix: np.ndarray, what: str) -> np.ndarray:
         raise NotPositiveDefiniteError(f"{what} is not positive definite") from exc
 
 
-def spd_inverse(matrix: np.ndarray, what: str = "matrix") -> np.ndarray:
-    """Inverse of a symmetric positive-definite matrix (batched) through its Cholesky factor."""
-    matrix = symmetrize(matrix)
+def spd_inverse(matrix: np.ndarray, what: str = "matrix", symmetric: bool = False) -> np.ndarray:
+    """Inverse of a symmetric positive-definite matrix (batched) through its Cholesky factor.
+
+    The matrix's symmetric part is inverted; ``symmetric`` says that ``matrix`` is exactly
+    that already (e.g. a block gathered with its symmetric part), so no pass makes it.
+    """
+    matrix = np.asarray(matrix, dtype=float) if symmetric else symmetrize(matrix)
     if matrix.ndim == 2:
         # LAPACK potrf + potri: the inverse straight from the Cholesky factor
         factor, info = scipy.linalg.lapack.dpotrf(matrix, lower=True, clean=True)

@@ -6,6 +6,8 @@ at a few dozen objects the cost is the passes, not the arithmetic. Each function
 compiled pass over a message's arrays that gives the same numbers as the numpy expressions it
 replaces (element by element the same floating-point operations, no reassociation):
 
+* :func:`symmetric_block` — the symmetric part of the sender's joint covariance of the objects
+  it sends, gathered in one pass (the matrix it inverts for the message);
 * :func:`checked_symmetric_part` — the receiver's finiteness and symmetry checks of a joint
   marginal and its symmetric part (:func:`~teamslam.msckf.consensus_checks.receive_marginal`);
 * :func:`single_rounding` — a sender's marginal in information form rounded to single
@@ -33,6 +35,7 @@ __all__ = [
     "encoded_ids_bytes",
     "rounding_bound",
     "single_rounding",
+    "symmetric_block",
 ]
 
 FINITE, NON_FINITE, NOT_SYMMETRIC = 0, 1, 2
@@ -158,3 +161,18 @@ def all_single(values: np.ndarray) -> bool:
         if np.float64(np.float32(value)) != value:
             return False
     return True
+
+
+@numba.njit(cache=True)
+def symmetric_block(matrix: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``(B + Bᵀ) / 2`` of the block ``B = matrix[np.ix_(index, index)]``."""
+    k = index.size
+    out = np.empty((k, k))
+    for a in range(k):
+        row = index[a]
+        out[a, a] = 0.5 * (matrix[row, row] + matrix[row, row])
+        for b in range(a + 1, k):
+            value = 0.5 * (matrix[row, index[b]] + matrix[index[b], row])
+            out[a, b] = value
+            out[b, a] = value
+    return out

@@ -17,7 +17,7 @@ from scipy.linalg import lapack, solve_triangular
 from teamslam.errors import InternalError
 from teamslam.gaussian import spd_inverse
 from teamslam.msckf.consensus_average import SharedPrior, prior_marginal
-from teamslam.msckf.consensus_kernels import rounding_bound, single_rounding
+from teamslam.msckf.consensus_kernels import rounding_bound, single_rounding, symmetric_block
 from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
 
@@ -80,7 +80,10 @@ def common_marginal_message(
     if source is None:
         cols = state.object(slots[held]).columns
         mean = state.objects[slots[held]].ravel().copy()
-        cov = state.covariance(cols if per_object else cols.ravel())
+        if information and not per_object:  # the symmetric part, which is what is inverted
+            cov = symmetric_block(state.cov, cols.ravel())
+        else:
+            cov = state.covariance(cols if per_object else cols.ravel())
     else:
         source_ids, source_mean, full_cov = source
         pos = np.minimum(np.searchsorted(source_ids, ids[held]), source_ids.size - 1)
@@ -94,7 +97,7 @@ def common_marginal_message(
             flat = cols.ravel()
             cov = full_cov[np.ix_(flat, flat)]
     if information and not per_object:
-        info = spd_inverse(cov, "own marginal covariance")
+        info = spd_inverse(cov, "own marginal covariance", symmetric=source is None)
         if keep is not None:
             keep[ids[held].tobytes()] = info
         message_info = info
