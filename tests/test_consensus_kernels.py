@@ -14,6 +14,7 @@ from teamslam.msckf.consensus_kernels import (
     all_single,
     checked_symmetric_part,
     encoded_ids_bytes,
+    merged_record,
     single_rounding,
     symmetric_block,
 )
@@ -133,3 +134,35 @@ def test_symmetric_block_is_the_gathered_symmetric_part_and_inverts_alike():
     want = symmetrize(matrix[np.ix_(index, index)])
     assert np.array_equal(block, want)
     assert np.array_equal(spd_inverse(block, symmetric=True), spd_inverse(want))
+
+
+def _numpy_record(old, ids, means, covs, exchanged, step):
+    """The record of a link after an exchange, the numpy way: concatenate and sort."""
+    take = np.isin(ids, exchanged)
+    now = np.full(int(take.sum()), step, dtype=np.int64)
+    keep = np.isin(old[0], ids) & ~np.isin(old[0], exchanged)
+    new = [
+        np.concatenate([kept[keep], fresh])
+        for kept, fresh in zip(old, (ids[take], means[take], covs[take], now), strict=True)
+    ]
+    order = np.argsort(new[0])
+    return tuple(a[order] for a in new)
+
+
+def test_merged_record_keeps_the_untouched_objects_and_renews_the_exchanged_ones():
+    rng = np.random.default_rng(7)
+    empty = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, np.int64))
+    old, ages = empty, 0
+    for step in range(12):
+        ids = np.sort(rng.choice(60, size=rng.integers(30, 55), replace=False)).astype(np.int64)
+        means, covs = rng.normal(size=(ids.size, 3)), rng.normal(size=(ids.size, 3, 3))
+        exchanged = np.sort(rng.choice(60, size=rng.integers(0, 30), replace=False))
+        exchanged = exchanged.astype(np.int64)
+        got = merged_record(*old, ids, means, covs, exchanged, step)
+        want = _numpy_record(old, ids, means, covs, exchanged, step)
+        for a, b in zip(got, want, strict=True):
+            assert np.array_equal(a, b)
+        assert np.all(np.diff(got[0]) > 0)
+        ages = max(ages, np.unique(got[3]).size)
+        old = got
+    assert ages > 1  # records of earlier steps were kept beside the new ones

@@ -16,6 +16,9 @@ replaces (element by element the same floating-point operations, no reassociatio
   squares are added in another order than numpy's, so the estimate may differ in its last
   bits — it decides against a threshold, :data:`~teamslam.msckf.consensus_messages.
   FLOAT32_MAX_KL`, that it is never that close to);
+* :func:`merged_record` — what a robot remembers of an exchange with a neighbour (its own
+  per-object marginals as they were), the record of the objects just exchanged merged into the
+  one kept from before (:class:`~teamslam.msckf.protocol.ConsensusProtocol`);
 * :func:`encoded_ids_bytes` and :func:`all_single` — what a message takes on a wire
   (:meth:`~teamslam.msckf.messages.CommonMarginalMessage.nbytes`): the length of its ids'
   varints, counted without writing them, and whether every number is exactly a float32.
@@ -33,6 +36,7 @@ __all__ = [
     "all_single",
     "checked_symmetric_part",
     "encoded_ids_bytes",
+    "merged_record",
     "rounding_bound",
     "single_rounding",
     "symmetric_block",
@@ -176,3 +180,58 @@ def symmetric_block(matrix: np.ndarray, index: np.ndarray) -> np.ndarray:
             out[a, b] = value
             out[b, a] = value
     return out
+
+
+@numba.njit(cache=True)
+def _is_in(sorted_values: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Whether each of the increasing ``values`` is in the increasing ``sorted_values``."""
+    out = np.zeros(values.size, dtype=np.bool_)
+    at = 0
+    for i in range(values.size):
+        while at < sorted_values.size and sorted_values[at] < values[i]:
+            at += 1
+        out[i] = at < sorted_values.size and sorted_values[at] == values[i]
+    return out
+
+
+@numba.njit(cache=True)
+def merged_record(
+    old_ids: np.ndarray,
+    old_means: np.ndarray,
+    old_covs: np.ndarray,
+    old_steps: np.ndarray,
+    ids: np.ndarray,
+    means: np.ndarray,
+    covs: np.ndarray,
+    exchanged: np.ndarray,
+    step: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The record of a link after an exchange, ordered by id: the old record's objects that are
+    still in the map (``ids``) and were not exchanged now, and the objects of ``ids`` that were
+    (their ``means``, ``covs`` and ``step``). ``old_ids``, ``ids`` and ``exchanged`` increase."""
+    take = _is_in(exchanged, ids)
+    keep = _is_in(ids, old_ids) & ~_is_in(exchanged, old_ids)
+    count = int(take.sum() + keep.sum())
+    out_ids = np.empty(count, dtype=np.int64)
+    out_means = np.empty((count, 3))
+    out_covs = np.empty((count, 3, 3))
+    out_steps = np.empty(count, dtype=np.int64)
+    a, i = 0, 0
+    for row in range(count):
+        while a < old_ids.size and not keep[a]:
+            a += 1
+        while i < ids.size and not take[i]:
+            i += 1
+        if i >= ids.size or (a < old_ids.size and old_ids[a] < ids[i]):
+            out_ids[row] = old_ids[a]
+            out_means[row] = old_means[a]
+            out_covs[row] = old_covs[a]
+            out_steps[row] = old_steps[a]
+            a += 1
+        else:
+            out_ids[row] = ids[i]
+            out_means[row] = means[i]
+            out_covs[row] = covs[i]
+            out_steps[row] = step
+            i += 1
+    return out_ids, out_means, out_covs, out_steps

@@ -120,6 +120,7 @@ from teamslam.msckf.consensus import (
     shared_prior,
 )
 from teamslam.msckf.consensus_checks import ReceivedMarginal, check_message
+from teamslam.msckf.consensus_kernels import merged_record
 from teamslam.msckf.consensus_set import active_objects, settling_thresholds
 from teamslam.msckf.messages import (
     CommonMarginalMessage,
@@ -675,22 +676,15 @@ class ConsensusProtocol:
         return averaged
 
     def _record_exchange(self, j: int, exchanged: np.ndarray) -> None:
-        """Remember our pre-average marginals of the objects just exchanged with ``j``."""
+        """Remember our pre-average marginals of the objects just exchanged with ``j`` (our ids,
+        ``exchanged`` and the record are increasing; one compiled merge)."""
         ids, means, covs = self._own
-        take = _members(ids, exchanged)
-        now = np.full(int(take.sum()), self.round, dtype=np.int64)
         old = self._agreed.get(j)
-        if old is not None:
-            # still in our map and not just exchanged (``exchanged`` and ``old[0]`` are sorted)
-            keep = _members(old[0], np.sort(ids)) & ~_members(old[0], exchanged)
-            new = [
-                np.concatenate([kept[keep], fresh])
-                for kept, fresh in zip(old, (ids[take], means[take], covs[take], now), strict=True)
-            ]
-        else:
-            new = [ids[take], means[take], covs[take], now]
-        order = np.argsort(new[0])
-        self._agreed[j] = tuple(a[order] for a in new)
+        if old is None:
+            old = (ids[:0], means[:0], covs[:0], np.zeros(0, dtype=np.int64))
+        self._agreed[j] = merged_record(
+            *old, ids, means, covs, np.asarray(exchanged, dtype=np.int64), self.round
+        )
 
 
 def _reordered_prior(message: CommonMarginalMessage, order: np.ndarray) -> dict:
