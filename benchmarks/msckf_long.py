@@ -340,6 +340,15 @@ def revisit(frames: int, seed: int, overrides: dict) -> None:
                 f"{stage:<16} {name:<7} {a:10.2f} {m:10.2f} {b:10.2f} {b / a:10.2f} "
                 f"{b / m:10.2f}{unit}"
             )
+    # consensus against the filter's own step: both rebuild or update the same dense covariance
+    consensus_k, step_k = labels.index("consensus CPU"), labels.index("filter step CPU")
+    for name in rows:
+        ratio = [c / f for c, f in zip(rows[name][consensus_k], rows[name][step_k], strict=True)]
+        print(
+            f"consensus CPU / filter step CPU, {name}: "
+            + " → ".join(f"{r:.2f}" for r in ratio)
+            + " (first 100, middle, last 100)"
+        )
     print(f"\n{'set':<7} {'traj RMSE':>10} {'obj err':>10} {'disagree':>10}")
     keys = ("trajectory_rmse_avg_m", "object_error_avg_m", "object_disagreement_avg_m")
     for name in rows:

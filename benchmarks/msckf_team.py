@@ -33,13 +33,23 @@ the accuracy, pose NEES/6 and object disagreement; ratios are to ``L = 1`` of th
 (``consensus_set = active`` with the ``--set`` overrides) — and prints the median time per
 robot-step of each stage, bytes per robot-step and accuracy of both, and the ratio of the
 published code's time to each (``team``: ``--robots`` robots, objects only, ``--steps``;
-``kitti``: KITTI 00).
+``kitti``: KITTI 00). With ``--published-code DIR`` (a checkout of the paper's code: ``run.py``,
+``src/``, ``params/``) it also writes the same team in the published layout, runs that code's
+``run.py`` on it in a subprocess (single-threaded BLAS; ``--published-python`` names an
+interpreter with its packages) and prints the CPU time per robot-step of both — the child's from
+``resource.getrusage``, less the CPU time of a child that only imports its modules; ours the
+process time of the whole in-process run — and their ratio, all from this one run. Without it
+the ratio is to a figure recorded earlier (``PUBLISHED_MS``), labelled as such::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py bounded team --robots 15 --steps 100 \
+        --published-code DIR --published-python PYTHON
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -310,13 +320,132 @@ def iterations(robots, steps, window):
                 )
 
 
-#: ms per robot-step of the published code on these runs (same machine, single-threaded BLAS,
-#: recorded when the speed work began; the code itself is not part of this repository)
+#: ms per robot-step of the published code on these runs (same machine, single-threaded BLAS),
+#: *recorded* when the speed work began — a fallback printed only without ``--published-code``
 PUBLISHED_MS = {"team": 19.9, "kitti": 25.0}
 
+#: the published code's parameter file for each team (in its ``params/`` directory) and the name
+#: and sequence it is run under; ``simulated`` makes its ``run.py`` invert the odometry
+PUBLISHED_LAYOUT = {
+    "team": ("simulated_nrobot_15.yaml", "simulated", "team"),
+    "kitti": ("kitti_00.yaml", "kitti", "00"),
+}
 
-def bounded(what, robots, steps, window, overrides):
-    """The paper's consensus set against the bounded one, on one team, in one process."""
+SINGLE_THREAD = {
+    name: "1"
+    for name in (
+        "OPENBLAS_NUM_THREADS",
+        "OMP_NUM_THREADS",
+        "MKL_NUM_THREADS",
+        "NUMBA_NUM_THREADS",
+        "VECLIB_MAXIMUM_THREADS",
+    )
+}
+
+
+def _published_params(what, checkout, cfg, ds, window):
+    """The published code's parameters for this team: its own file for the kind of data, with
+    consensus on, objects only (``use_msckf`` off; the teams here carry no geometric tracks it
+    could use), no result file, a window of ``window`` poses (as ours), and for the simulated
+    team its reprojection gates scaled from normalised coordinates (its simulated teams have
+    ``K = I``) to this camera's pixels, with the noise and depth range of the sensor model the
+    data was made with."""
+    import yaml
+
+    name = PUBLISHED_LAYOUT[what][0]
+    source = Path(checkout) / "params" / name
+    if not source.is_file():
+        raise SystemExit(f"--published-code: {source} not found (the checkout lacks params/{name})")
+    params = yaml.safe_load(source.read_text())
+    params.update(consensus_average=True, use_msckf=False, save_result=False, max_num_cam=window)
+    if what == "team":
+        # its file is for data in normalised coordinates (K = I), where its two reprojection
+        # gates are in those units: here they are scaled to this camera's pixels; the noise
+        # and depth range are the sensor model the data was made with
+        fx = float(ds.calibration.camera.intrinsics[0, 0])
+        params.update(
+            motion_noise=float(np.mean(np.square(cfg.odometry_std))),
+            obj_obs_noise=float((cfg.object_std / fx) ** 2),
+            obj_init_fnum_thre=int(cfg.object_init_observations),
+            obj_init_dist_min_thre=float(cfg.object_min_depth),
+            obj_init_dist_max_thre=float(cfg.object_max_depth),
+            obj_init_reproj_thre=float(params["obj_init_reproj_thre"]) * fx,
+            obj_update_reproj_thre=float(params["obj_update_reproj_thre"]) * fx,
+        )
+    return params
+
+
+def run_published_code(what, ds, cfg, window, checkout, python):
+    """Run the published code (``run.py`` of a checkout) on ``ds`` in a subprocess.
+
+    The team is written in the published layout (:func:`teamslam.datasets.export_reference`, an
+    empty geometric-track file when the team has none) in a temporary working directory with the
+    parameters of :func:`_published_params`; ``run.py`` runs there with single-threaded BLAS and
+    a non-interactive plotting backend. Returns the child's CPU seconds (user + system, from
+    ``resource.getrusage(RUSAGE_CHILDREN)``), the CPU seconds of a child that only imports its
+    modules, its robot-steps, and the last lines it printed.
+    """
+    import pickle
+    import resource
+    import subprocess
+    import tempfile
+
+    import yaml
+
+    from teamslam.datasets import export_reference
+
+    checkout = Path(checkout).resolve()
+    if not (checkout / "run.py").is_file():
+        raise SystemExit(f"--published-code: no run.py in {checkout}")
+    params = _published_params(what, checkout, cfg, ds, window)
+    _, dataset, sequence = PUBLISHED_LAYOUT[what]
+    env = {**os.environ, **SINGLE_THREAD, "MPLBACKEND": "Agg"}
+
+    def child_cpu(args, cwd):
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        done = subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if done.returncode != 0:
+            tail = "\n".join(done.stderr.strip().splitlines()[-15:])
+            raise SystemExit(f"the published code failed ({' '.join(args)}):\n{tail}")
+        spent = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        return spent, done.stdout
+
+    with tempfile.TemporaryDirectory(prefix="published-") as work:
+        data = Path(work) / "Data" / dataset / sequence
+        export_reference(ds, data, inverted_odometry=dataset == "simulated")
+        if not (data / "geo_features_messages").exists():
+            empty = [[{} for _ in range(r.frames)] for r in ds.robots]
+            (data / "geo_features_messages").write_bytes(pickle.dumps(empty))
+        (Path(work) / "params").mkdir()
+        (Path(work) / "params" / f"{dataset}_{sequence}.yaml").write_text(yaml.safe_dump(params))
+        imports = "import src.agent, matplotlib.pyplot, tqdm, yaml"
+        startup, _ = child_cpu([python, "-c", imports], cwd=checkout)
+        cpu, out = child_cpu(
+            [python, str(checkout / "run.py"), "--dataset", dataset, "--data_id", sequence], work
+        )
+    steps = sum(r.odometry.shape[0] for r in ds.robots)
+    return cpu, startup, steps, _published_counts(out), params
+
+
+def _published_counts(out):
+    """Totals over robots of what the published ``run.py`` prints at the end."""
+    import re
+
+    patterns = {
+        "objects in the state": r"robot \d+ has (\d+) objects",
+        "steps with a known object observed": r"robot \d+ has (\d+) EKF update chances",
+        "steps with an object update": r"robot \d+ EKF updated (\d+) times",
+        "consensus averages applied": r"robot \d+ fused (\d+) times",
+    }
+    return {
+        what: sum(int(n) for n in re.findall(pattern, out)) for what, pattern in patterns.items()
+    }
+
+
+def bounded(what, robots, steps, window, overrides, published_code=None, python=None):
+    """The paper's consensus set against the bounded one, on one team, in one process (and the
+    published code on the same team in a subprocess, given its checkout)."""
     from msckf_long import ConsensusCpu  # the benchmarks' directory is on the path
 
     if what == "kitti":
@@ -330,14 +459,20 @@ def bounded(what, robots, steps, window, overrides):
         ds = lissajous_team(robots=robots, steps=steps, seed=0)
         base = {"use_geometric_features": False}
     print(f"{what}: {ds.n_robots} robots, {ds.robots[0].frames} frames; bounded: {overrides}")
-    rows = {}
+    rows, work = {}, {}
     for name, extra in (("all", {}), ("active", {"consensus_set": "active", **overrides})):
         cfg = config_for(ds, window=window, **base, **extra)
         cpu = ConsensusCpu()
+        begin = time.process_time()
         try:
             result = run_team(ds, cfg, consensus=True, progress=False)
         finally:
             cpu.close()
+        process_ms = 1e3 * (time.process_time() - begin) / sum(r.frames for r in ds.robots)
+        work[name] = (
+            sum(len(ids) for ids in result.object_ids),
+            sum(c.get("updates", 0) for c in result.counters),
+        )
         times = 1e3 * np.concatenate([f[1:] for f in result.frame_times])
         m = team_metrics(ds, result)
         sent, _ = _bytes_and_consensus_ms(ds, result)
@@ -348,31 +483,63 @@ def bounded(what, robots, steps, window, overrides):
             sent,
             m,
             consensus_cpu,
+            process_ms,
         )
     print(
         f"{'set':<7} "
         + " ".join(f"{s:>14}" for s in (*STAGES, "total"))
         + f" {'B/step':>9} {'consensus CPU':>14}"
     )
-    for name, (stages, total, sent, _, consensus_cpu) in rows.items():
+    for name, (stages, total, sent, _, consensus_cpu, _) in rows.items():
         print(
             f"{name:<7} "
             + " ".join(f"{v:14.2f}" for v in (*stages, total))
             + f" {sent:9.0f} {consensus_cpu:14.2f}"
         )
     a, b = rows["all"][1], rows["active"][1]
-    published = PUBLISHED_MS.get(what if what == "kitti" else "team")
     print(
         f"active/all total {b / a:.3f}; consensus {rows['active'][0][0] / rows['all'][0][0]:.3f}"
         f"; consensus CPU {rows['active'][4] / rows['all'][4]:.3f}"
     )
-    if what == "kitti" or (robots == 15 and steps == 100):
+    ours = {name: row[5] for name, row in rows.items()}
+    print(
+        "CPU per robot-step, whole run (process time): "
+        + ", ".join(f"{name} {ms:.2f} ms" for name, ms in ours.items())
+    )
+    print(
+        "ours, totals over robots: "
+        + "; ".join(
+            f"{name}: objects in the state {n}, steps with an update {u}"
+            for name, (n, u) in work.items()
+        )
+    )
+    if published_code is not None:
+        cfg = config_for(ds, window=window, **base)
+        cpu, startup, robot_steps, tail, params = run_published_code(
+            what, ds, cfg, window, published_code, python or sys.executable
+        )
+        theirs = 1e3 * (cpu - startup) / robot_steps
         print(
-            f"published code {published} ms: ×{published / a:.2f} (all), "
-            f"×{published / b:.2f} (active)"
+            f"published code, same team, this run: {cpu:.1f} s CPU (its imports alone "
+            f"{startup:.1f} s, subtracted) over {robot_steps} robot-steps = {theirs:.2f} ms per "
+            f"robot-step; window {params['max_num_cam']}, consensus on, objects only"
+        )
+        print(
+            "published code, totals over robots: "
+            + ", ".join(f"{what} {count}" for what, count in tail.items())
+        )
+        print(
+            "published code / ours (CPU per robot-step, one run): "
+            + ", ".join(f"×{theirs / ms:.2f} ({name})" for name, ms in ours.items())
+        )
+    elif what == "kitti" or (robots == 15 and steps == 100):
+        published = PUBLISHED_MS.get(what if what == "kitti" else "team")
+        print(
+            f"published code {published} ms (recorded, not this run; median wall time): "
+            f"×{published / a:.2f} (all), ×{published / b:.2f} (active)"
         )
     keys = ("trajectory_rmse_avg_m", "object_error_avg_m", "object_disagreement_avg_m")
-    for name, (*_, m, _) in rows.items():
+    for name, (*_, m, _, _) in rows.items():
         print(f"{name:<7} RMSE/obj/disagree " + " ".join(f"{m[k]:.5f}" for k in keys))
     ratio = [rows["active"][3][k] / rows["all"][3][k] for k in keys]
     print("ratio   " + " ".join(f"{r:.3f}" for r in ratio))
@@ -401,6 +568,18 @@ def main():
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--window", type=int, default=10)
     parser.add_argument("--objects-only", action="store_true")
+    parser.add_argument(
+        "--published-code",
+        type=Path,
+        default=None,
+        help="bounded: a checkout of the published code (run.py, src/, params/) to run on the "
+        "same team in a subprocess",
+    )
+    parser.add_argument(
+        "--published-python",
+        default=None,
+        help="bounded: the Python that runs the published code (default: this one)",
+    )
     args = parser.parse_args()
     if args.what == "bounded":
         from teamslam.msckf.settings import parse_assignments
@@ -411,6 +590,8 @@ def main():
             args.steps,
             args.window,
             parse_assignments(args.set),
+            args.published_code,
+            args.published_python,
         )
     elif args.what == "accuracy":
         accuracy(

@@ -14,7 +14,11 @@ import numpy as np
 import pytest
 
 from teamslam.msckf import config_for, run_team
-from teamslam.msckf.consensus_set import active_objects, pose_mutual_information
+from teamslam.msckf.consensus_set import (
+    active_objects,
+    pose_mutual_information,
+    settling_thresholds,
+)
 from teamslam.msckf.protocol import ConsensusProtocol
 from teamslam.msckf.transport import MemoryNetwork
 from teamslam.sim import lissajous_team
@@ -99,10 +103,11 @@ def team4():
     return lissajous_team(robots=4, steps=30, seed=2, landmarks=600), None
 
 
-def test_objects_left_out_keep_their_conditional_and_move_back_in_when_they_change(team4):
-    agents = _agents(team4[0], 2)
-    # two more common objects, last observed before the window and each correlated with one of
-    # the objects every robot observes now (a noisy copy of it)
+def _with_inactive_copies(agents, inactive_threshold):
+    """Two more common objects on every agent, last observed before the window and each
+    correlated with one of the objects every robot observes now (a noisy copy of it); only
+    objects observed within the window are active, inactive ones move back in only beyond
+    ``inactive_threshold`` nats."""
     for a in agents:
         state = a.state
         for source, oid in ((1000, 1002), (1001, 1003)):
@@ -113,19 +118,25 @@ def test_objects_left_out_keep_their_conditional_and_move_back_in_when_they_chan
                 oid, state.objects[slot] + 0.1, cross[:, columns] + 0.5 * np.eye(3), cross
             )
             state.object_last_seen[-1] = state.frames.min() - 1
-    # only objects observed within the window are active; inactive ones only after a big move
-    for a in agents:
         a.config = a.config.with_(
             consensus_set="active",
             consensus_active_information=np.inf,
-            consensus_inactive_kl_threshold=20.0,
+            consensus_inactive_kl_threshold=inactive_threshold,
         )
+    return agents
+
+
+def test_objects_left_out_keep_their_conditional_and_move_back_in_when_they_change(team4):
+    agents = _with_inactive_copies(_agents(team4[0], 2), 20.0)
     protocols = [ConsensusProtocol(a, [1 - a.robot], kl_threshold=1e-3) for a in agents]
     network = MemoryNetwork(2)
     ends = [network.endpoint(i) for i in range(2)]
     first = _exchange(protocols, ends, 15)  # nothing on record: every common object
     common = np.intersect1d(agents[0].state.object_ids, agents[1].state.object_ids)
     assert first == [common.size] * 2
+    # the averages started run until the pair agrees (settling), then nothing is exchanged
+    rounds = [_exchange(protocols, ends, 16 + k) for k in range(30)]
+    assert rounds[-1] == [0, 0], rounds
     # which common objects each robot's window still changes
     active = [
         a.state.object_ids[active_objects(a.state, a.state.object_covs(), np.inf)] for a in agents
@@ -133,10 +144,13 @@ def test_objects_left_out_keep_their_conditional_and_move_back_in_when_they_chan
     joint = np.intersect1d(common, np.union1d(*active))
     left_out = np.setdiff1d(common, joint)
     assert joint.size > 0 and left_out.size > 0, (joint.size, left_out.size)
+    # an update on robot 0 moves its active objects (a later step: nothing is settling)
+    state = agents[0].state
+    slots = state.object_slots(joint)
+    state.objects[slots] += 3.0 * np.sqrt(np.diagonal(state.object_covs()[slots], axis1=1, axis2=2))
     before = [np.array(a.state.cov) for a in agents]
-    second = _exchange(protocols, ends, 16)
-    # the pair averages the same set, only common objects active on either side (an active
-    # object that has not moved since the first exchange may be skipped)
+    second = _exchange(protocols, ends, 60)
+    # the pair averages the same set, only common objects active on either side
     averaged = protocols[0]._pending[1]
     np.testing.assert_array_equal(averaged, protocols[1]._pending[0])
     assert second == [averaged.size] * 2
@@ -152,7 +166,62 @@ def test_objects_left_out_keep_their_conditional_and_move_back_in_when_they_chan
     moved = left_out[:1]
     slot = agents[1].state.object_slots(moved)[0]
     agents[1].state.objects[slot] += 20.0 * np.sqrt(np.diag(agents[1].state.object_covs()[slot]))
-    third = _exchange(protocols, ends, 17)
+    third = _exchange(protocols, ends, 80)
     assert third[0] == third[1]
     assert protocols[0]._pending[1].tolist().count(int(moved[0])) == 1
     assert not np.isin(np.setdiff1d(left_out, moved), protocols[0]._pending[1]).any()
+
+
+def test_settling_thresholds_test_the_previous_exchange_at_the_paper_threshold():
+    thresholds = np.array([1e-3, 0.3, 0.3, -np.inf])
+    at = np.array([4, 4, 2, 4])
+    np.testing.assert_array_equal(
+        settling_thresholds(thresholds, at, 5, 1e-3), [1e-3, 1e-3, 0.3, -np.inf]
+    )
+    np.testing.assert_array_equal(settling_thresholds(thresholds, at, 7, 1e-3), thresholds)
+
+
+def _pair_kl(agents, a, b, ids):
+    """Symmetrised Kullback–Leibler divergence (nats) between robots ``a`` and ``b``'s
+    marginals of each object in ``ids``."""
+    out = []
+    for oid in ids:
+        m, c = [], []
+        for r in (a, b):
+            state = agents[r].state
+            slot = state.object_slots(np.array([oid]))[0]
+            m.append(state.objects[slot])
+            c.append(state.object_covs()[slot])
+        d = m[0] - m[1]
+        kl = 0.5 * (
+            np.trace(np.linalg.solve(c[1], c[0]) + np.linalg.solve(c[0], c[1])) - 6
+        ) + 0.25 * d @ (np.linalg.solve(c[0], d) + np.linalg.solve(c[1], d))
+        out.append(kl)
+    return np.array(out)
+
+
+def test_left_out_objects_averaged_on_part_of_the_team_are_averaged_until_it_agrees(team4):
+    """On a path 0 – 1 – 2 one average leaves robots 0 and 2 apart (each mixes only robot 1's
+    marginal into its own). An average once started runs until the pair agrees to within the
+    paper's threshold, so an inactive object — which its own threshold would not bring back,
+    and uncorrelated with every other, so no other average moves it — ends in agreement along
+    the path instead of keeping that first residual."""
+    agents = _with_inactive_copies(_agents(team4[0], 3), 20.0)
+    rng = np.random.default_rng(7)
+    inactive = np.array([1004, 1005])
+    for a in agents:
+        for oid in inactive:
+            cov = np.eye(3) * rng.uniform(0.5, 2)
+            a.state.add_object(oid, rng.normal(size=3), cov, np.zeros((3, a.state.dim)))
+            a.state.object_last_seen[-1] = a.state.frames.min() - 1
+    path = {0: [1], 1: [0, 2], 2: [1]}
+    protocols = [ConsensusProtocol(a, path[a.robot], kl_threshold=1e-3) for a in agents]
+    network = MemoryNetwork(3)
+    ends = [network.endpoint(i) for i in range(3)]
+    start = _pair_kl(agents, 0, 2, inactive)
+    _exchange(protocols, ends, 15)
+    after_one = _pair_kl(agents, 0, 2, inactive)
+    assert (after_one > 0.05).all() and (after_one < start).all(), (start, after_one)
+    rounds = [_exchange(protocols, ends, 16 + k) for k in range(60)]
+    assert rounds[-1] == [0, 0, 0], rounds
+    assert (_pair_kl(agents, 0, 2, inactive) < 0.1 * after_one).all()

@@ -71,9 +71,13 @@ def _cholesky(matrix: np.ndarray, what: str) -> np.ndarray:
         raise NotPositiveDefiniteError(f"{what} is not positive definite") from exc
 
 
-def spd_inverse(matrix: np.ndarray, what: str = "matrix") -> np.ndarray:
-    """Inverse of a symmetric positive-definite matrix (batched) through its Cholesky factor."""
-    matrix = symmetrize(matrix)
+def spd_inverse(matrix: np.ndarray, what: str = "matrix", symmetric: bool = False) -> np.ndarray:
+    """Inverse of a symmetric positive-definite matrix (batched) through its Cholesky factor.
+
+    The matrix's symmetric part is inverted; ``symmetric`` says that ``matrix`` is exactly
+    that already (e.g. a block gathered with its symmetric part), so no pass makes it.
+    """
+    matrix = np.asarray(matrix, dtype=float) if symmetric else symmetrize(matrix)
     if matrix.ndim == 2:
         # LAPACK potrf + potri: the inverse straight from the Cholesky factor
         factor, info = scipy.linalg.lapack.dpotrf(matrix, lower=True, clean=True)
@@ -393,6 +397,8 @@ def completed_geometric_average(
         if extra is not None:
             raise InputError("extra information applies to joint averages only")
         return _per_block_average(mean, cov, terms, block)
+    from teamslam._gaussian_kernels import add_weighted_difference_at  # numba, on first use
+
     own_info = spd_inverse(cov, "own marginal covariance") if info is None else info
     info_bar = own_info.copy()
     eta_bar = own_info @ mean
@@ -405,14 +411,15 @@ def completed_geometric_average(
             own_sub = known[0]
         else:
             own_sub = _marginal_information(own_info, cov, sub, _complement(sub, d))
-        add_weighted_difference(
+        add_weighted_difference_at(
             info_bar,
             eta_bar,
-            np.ix_(sub, sub),
             sub,
-            weight,
-            (m_info, m_eta),
-            (own_sub, own_sub @ mean[sub]),
+            float(weight),
+            np.ascontiguousarray(m_info, dtype=float),
+            np.ascontiguousarray(m_eta, dtype=float),
+            np.ascontiguousarray(own_sub, dtype=float),
+            own_sub @ mean[sub],
         )
     if extra is not None:
         info_bar += extra[0]

@@ -85,7 +85,9 @@ class MsckfConfig:
     consensus_inactive_kl_threshold
         With ``consensus_set = active``: an inactive object is averaged with a neighbour when
         its marginal moved by more than this Kullback–Leibler divergence (nats) since the pair
-        last exchanged it (active objects use ``consensus_kl_threshold``).
+        last exchanged it (active objects, and objects the pair averaged in the previous
+        exchange — an average once started runs to agreement — use
+        ``consensus_kl_threshold``).
     consensus_per_object
         Send each common object's own 3×3 marginal instead of the joint marginal of all of
         them (the cross-object covariances are dropped from the message, not from the filter):

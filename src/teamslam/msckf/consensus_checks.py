@@ -18,6 +18,12 @@ import numpy as np
 from scipy.linalg import lapack
 
 from teamslam.gaussian import NotPositiveDefiniteError, spd_inverse
+from teamslam.msckf.consensus_kernels import (
+    FINITE,
+    NON_FINITE,
+    NOT_SYMMETRIC,
+    checked_symmetric_part,
+)
 from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.state import MsckfState
 
@@ -151,14 +157,23 @@ def receive_marginal(
     shape = (k, 3, 3) if per_object else (3 * k, 3 * k)
     if np.shape(message.mean) != (3 * k,) or np.shape(message.matrix) != shape:
         return f"mean/{name} sizes do not match the ids", None
-    mean = np.asarray(message.mean, dtype=float)
-    matrix = np.asarray(message.matrix, dtype=float)
-    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(matrix))):
+    mean = np.ascontiguousarray(message.mean, dtype=float)
+    matrix = np.ascontiguousarray(message.matrix, dtype=float)
+    if per_object:
+        transposed = np.swapaxes(matrix, -1, -2)
+        if not (np.isfinite(mean).all() and np.isfinite(matrix).all()):
+            status = NON_FINITE
+        elif np.abs(matrix - transposed).max() > 1e-9 * np.abs(matrix).max() + 1e-12:
+            status = NOT_SYMMETRIC
+        else:
+            status = FINITE
+        matrix = 0.5 * (matrix + transposed)
+    else:  # one compiled pass
+        status, matrix = checked_symmetric_part(mean, matrix)
+    if status == NON_FINITE:
         return f"non-finite mean or {name}", None
-    transposed = np.swapaxes(matrix, -1, -2)
-    if np.abs(matrix - transposed).max() > 1e-9 * np.abs(matrix).max() + 1e-12:
+    if status == NOT_SYMMETRIC:
         return f"{name} is not symmetric", None
-    matrix = 0.5 * (matrix + transposed)
     absent = state.object_slots(ids) < 0
     if absent.any():
         # an asynchronous message may be older than our last retirement: objects that left our

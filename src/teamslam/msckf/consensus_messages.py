@@ -17,6 +17,7 @@ from scipy.linalg import lapack, solve_triangular
 from teamslam.errors import InternalError
 from teamslam.gaussian import spd_inverse
 from teamslam.msckf.consensus_average import SharedPrior, prior_marginal
+from teamslam.msckf.consensus_kernels import rounding_bound, single_rounding, symmetric_block
 from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
 
@@ -79,7 +80,10 @@ def common_marginal_message(
     if source is None:
         cols = state.object(slots[held]).columns
         mean = state.objects[slots[held]].ravel().copy()
-        cov = state.covariance(cols if per_object else cols.ravel())
+        if information and not per_object:  # the symmetric part, which is what is inverted
+            cov = symmetric_block(state.cov, cols.ravel())
+        else:
+            cov = state.covariance(cols if per_object else cols.ravel())
     else:
         source_ids, source_mean, full_cov = source
         pos = np.minimum(np.searchsorted(source_ids, ids[held]), source_ids.size - 1)
@@ -93,7 +97,7 @@ def common_marginal_message(
             flat = cols.ravel()
             cov = full_cov[np.ix_(flat, flat)]
     if information and not per_object:
-        info = spd_inverse(cov, "own marginal covariance")
+        info = spd_inverse(cov, "own marginal covariance", symmetric=source is None)
         if keep is not None:
             keep[ids[held].tobytes()] = info
         message_info = info
@@ -135,8 +139,12 @@ def _rounded_information(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(mean, info)`` rounded to single precision when that is within
     :data:`FLOAT32_MAX_KL` (:func:`information_rounding_bound`), else as they are."""
-    mean32, info32 = _single(mean), _single(info)
-    if information_rounding_bound(mean, cov, info, mean32, info32) <= FLOAT32_MAX_KL:
+    mean32, info32, bound = single_rounding(
+        np.ascontiguousarray(mean, dtype=float),
+        np.ascontiguousarray(cov, dtype=float),
+        np.ascontiguousarray(info, dtype=float),
+    )
+    if bound <= FLOAT32_MAX_KL:
         return mean32, info32
     return mean, info
 
@@ -188,15 +196,14 @@ def information_rounding_bound(
     ``F = D ΔΩ D``, so ``‖E‖_F ≤ ‖C‖₂ ‖F‖_F``, and ``Δμᵀ Ω Δμ ≤ ‖D Ω D‖₂ ‖D⁻¹ Δμ‖²``; for a
     symmetric matrix ``‖·‖₂ ≤ ‖·‖₁`` (the largest column sum of absolute values). Scaling by
     ``D`` first keeps the estimate independent of units and of how differently the objects
-    are known.
+    are known. One compiled pass (:func:`~teamslam.msckf.consensus_kernels.rounding_bound`).
     """
-    std = np.sqrt(np.diagonal(cov))
-    scale = np.outer(std, std)
-    correlation_norm = float((np.abs(cov) / scale).sum(axis=0).max())
-    scaled_info_norm = float((np.abs(info) * scale).sum(axis=0).max())
-    d_info = float(np.sum(((info_rounded - info) * scale) ** 2))
-    d_mean = float(np.sum(((mean_rounded - mean) / std) ** 2))
-    return 0.25 * correlation_norm**2 * d_info + 0.5 * scaled_info_norm * d_mean
+    as_array = np.ascontiguousarray
+    return float(
+        rounding_bound(
+            *(as_array(a, dtype=float) for a in (mean, cov, info, mean_rounded, info_rounded))
+        )
+    )
 
 
 def rounding_divergence(

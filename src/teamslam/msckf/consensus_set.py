@@ -43,9 +43,11 @@ beyond what our own conditional ``p(I | J)`` predicts from the averaged ``J``:
 * ``I``'s own marginal follows ``p̄(J)`` through our conditional instead of being averaged, so
   a neighbour's information on ``I`` arrives only when ``I`` moves by more than the inactive
   threshold (then it is in ``J`` again), or when ``I`` becomes active (observed by either robot
-  of the pair). Between two such exchanges the pair's marginals of an inactive object differ by
-  at most about the threshold plus what the two conditionals add — the disagreement is bounded
-  by the threshold, not driven to ``consensus_kl_threshold``;
+  of the pair). Each such average runs until the pair agrees to within
+  ``consensus_kl_threshold`` (*settling*, below); between two of them the pair's marginals of
+  an inactive object drift apart by at most about the threshold on each side plus what the two
+  conditionals add — that drift is bounded by the threshold, not driven to
+  ``consensus_kl_threshold``;
 * the window poses are corrected through ``J`` only (``A = Σ_xJ Σ_J⁻¹`` instead of
   ``Σ_xy Σ_y⁻¹``). With the correlation test at ``ε`` nats an inactive object is weakly
   correlated with them: ``I(o; x) = −½ Σ_k log(1 − ρ_k²) ≤ ε`` over its canonical
@@ -55,8 +57,33 @@ beyond what our own conditional ``p(I | J)`` predicts from the averaged ``J``:
   bound holds: an object seen a few frames before the window may still be strongly correlated
   with the poses, and what a neighbour knows about it beyond our conditional reaches our poses
   only once it moves past the inactive threshold or is seen again. That is the price of the
-  bound; the benchmark above measures it (trajectory RMSE 0.998×, object error 1.006×,
-  disagreement 1.10× the paper's set).
+  bound; the benchmark above measures it (over 1,000 frames, with the settling rule below:
+  trajectory RMSE 1.000×, object error 1.002×, disagreement 2.01× the paper's set — the pairs'
+  disagreement is flat in the frames since they last averaged an object, and as large on the
+  objects they averaged in the last two frames, so it is not left-out objects drifting apart;
+  most likely it is this price on the poses).
+
+**Settling: an average once started runs to agreement.** The moved flags compare a robot's
+marginal with its own marginal at the pair's last exchange, so a residual disagreement shows
+up as movement only while the pair keeps averaging. Averages are often partial: an object one
+robot flags is averaged on that robot's links only, and each neighbour moves only ``A_ij`` of
+the way towards it. The paper's set then keeps averaging (the neighbour moved by more than
+``consensus_kl_threshold``, so it flags the object on all its links); with the inactive
+threshold alone an inactive object whose first average moved it by less than that threshold
+kept the residual of the partial average for good. Over 300 frames of the ``make run`` team
+the objects averaged 10–200 frames before the end were where the rule below took the pairs'
+disagreement down (mean pair distance 2.9 / 2.0 / 2.1 mm for 10–50 / 50–100 / 100–200 frames
+without it, 1.9 / 1.2 / 1.8 mm with it); over 1,000 frames it took the benchmark's
+disagreement from 2.16× to 2.01× the paper's set. So an object a pair averaged in the
+previous exchange is tested at ``consensus_kl_threshold``, whatever its own threshold
+(:func:`settling_thresholds`): the inactive threshold only decides when drift starts a new
+average, and each average started runs until the pair agrees to within the paper's
+threshold. Its cost is the few exchanges a pair's average takes to settle (it contracts
+geometrically), not the map. (Of the disagreement the benchmark reports at the end of a run,
+most can come from objects a robot initialised at the very last frame, which no consensus set
+has averaged yet: over 300 frames 28 of 2,614 robot-pair estimates of an object, never
+exchanged, carried 82% of it in a run of the bounded set, and the paper's set's run had such
+an object too.)
 
 Left out of a step's average, an object keeps its *conditional* given the averaged objects
 exactly, not its marginal: keeping the marginals of the left-out objects as well would mean
@@ -79,7 +106,7 @@ from scipy.linalg import LinAlgError, cho_factor, solve_triangular
 
 from teamslam.msckf.state import MsckfState
 
-__all__ = ["active_objects", "pose_mutual_information"]
+__all__ = ["active_objects", "pose_mutual_information", "settling_thresholds"]
 
 
 def pose_mutual_information(
@@ -128,3 +155,18 @@ def active_objects(state: MsckfState, object_covs: np.ndarray, information: floa
     unseen = np.flatnonzero(~active)
     active[unseen] = pose_mutual_information(state, object_covs[unseen], unseen) > information
     return active
+
+
+def settling_thresholds(
+    thresholds: np.ndarray, exchanged_at: np.ndarray, exchange: int, kl_threshold: float
+) -> np.ndarray:
+    """How far each object on record with one neighbour must have moved to be averaged again.
+
+    ``thresholds`` are the objects' own (``consensus_kl_threshold`` when active, the inactive
+    threshold otherwise); ``exchanged_at`` the number of the exchange in which the pair last
+    averaged each. An object the pair averaged in the previous exchange is tested against
+    ``kl_threshold`` whatever its own threshold: an average, once started, runs until the pair
+    agrees to within the paper's threshold (module docstring, *settling*).
+    """
+    settling = np.asarray(exchanged_at) == int(exchange) - 1
+    return np.where(settling, np.minimum(thresholds, kl_threshold), thresholds)

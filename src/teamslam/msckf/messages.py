@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teamslam.association.summary import ObjectSummary
+from teamslam.msckf.consensus_kernels import all_single, encoded_ids_bytes
 
 __all__ = [
     "CommonMarginalMessage",
@@ -81,9 +82,21 @@ def encode_ids(ids: np.ndarray) -> bytes:
 
 
 def encoded_ids_size(ids: np.ndarray) -> int:
-    """``len(encode_ids(ids))`` without building the bytes."""
-    values = _varint_values(ids)
-    return int(_varint_lengths(values).sum()) if values.size else 0
+    """``len(encode_ids(ids))`` without building the bytes (one compiled pass,
+    :func:`~teamslam.msckf.consensus_kernels.encoded_ids_bytes`).
+
+    Raises
+    ------
+    ValueError
+        When the ids are not strictly increasing.
+    """
+    ids = np.ascontiguousarray(ids, dtype=np.int64)
+    if ids.ndim != 1:
+        raise ValueError("ids must be one-dimensional")
+    size = encoded_ids_bytes(ids)
+    if size < 0:
+        raise ValueError("ids must be strictly increasing")
+    return int(size)
 
 
 def decode_ids(data: bytes | np.ndarray, count: int) -> np.ndarray:
@@ -241,7 +254,7 @@ class CommonMarginalMessage:
         arrays = [self.mean, self.matrix]
         if self.has_prior:
             arrays += [self.prior_mean, self.prior_info]
-        return all(np.array_equal(np.asarray(a).astype(np.float32), np.asarray(a)) for a in arrays)
+        return all(_exactly_single(np.asarray(a)) for a in arrays)
 
     def nbytes(self) -> int:
         """Payload size on a wire: ids, mean and the matrix's upper triangle(s); with a prior,
@@ -255,6 +268,13 @@ class CommonMarginalMessage:
             h = int(np.size(self.prior_mean))
             prior = (k + 7) // 8 + width * (h + h * (h + 1) // 2)
         return HEADER_BYTES + encoded_ids_size(self.ids) + width * (d + upper) + prior
+
+
+def _exactly_single(values: np.ndarray) -> bool:
+    """Whether every number of ``values`` is exactly a float32."""
+    if values.dtype == np.float64:
+        return bool(all_single(np.ascontiguousarray(values)))
+    return np.array_equal(values.astype(np.float32), values)
 
 
 Message = MapIdsMessage | CommonMarginalMessage

@@ -32,9 +32,10 @@ once its neighbour's marginal arrived, so a lost message never hides a change. W
 With a bounded consensus set (``consensus_set = active``, lock-step only) an object counts as
 moved at that threshold only while the robot's window can still change it — observed within the
 window or correlated with its poses — and otherwise only beyond
-``consensus_inactive_kl_threshold``, so the joint a pair averages follows what the robots see
-now, not everything they mapped (:mod:`teamslam.msckf.consensus_set`); the round-1 flags carry
-the result, so the wire is unchanged.
+``consensus_inactive_kl_threshold`` — unless the pair averaged it in the previous exchange:
+an average once started runs until the pair agrees — so the joint a pair averages follows what
+the robots see now, not everything they mapped (:mod:`teamslam.msckf.consensus_set`); the
+round-1 flags carry the result, so the wire is unchanged.
 
 **Hybrid consensus** (``consensus_hybrid``, lock-step only): the new information each robot
 gathered since its last exchange enters the average at full weight instead of ``A_ij`` — its
@@ -119,7 +120,8 @@ from teamslam.msckf.consensus import (
     shared_prior,
 )
 from teamslam.msckf.consensus_checks import ReceivedMarginal, check_message
-from teamslam.msckf.consensus_set import active_objects
+from teamslam.msckf.consensus_kernels import merged_record
+from teamslam.msckf.consensus_set import active_objects, settling_thresholds
 from teamslam.msckf.messages import (
     CommonMarginalMessage,
     MapIdsMessage,
@@ -168,8 +170,9 @@ class ConsensusProtocol:
         config = agent.config
         self.bounded = config.consensus_set == "active" and self.max_age == 0
         self._thresholds: np.ndarray | None = None
-        # per neighbour: our own per-object marginals as they were at the last exchange
-        self._agreed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # per neighbour: our own per-object marginals as they were at the last exchange, and
+        # the number of that exchange
+        self._agreed: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._moved: dict[int, np.ndarray] = {}
         self._pending: dict[int, np.ndarray] = {}
         # our own information of each object set we sent this step (ids bytes → Σ⁻¹), which
@@ -342,7 +345,7 @@ class ConsensusProtocol:
         order = np.argsort(ids)
         sorted_ids = ids[order]
         pairs = []  # per neighbour: our slots, its record's slots
-        for j, (a_ids, _, _) in self._agreed.items():
+        for j, (a_ids, *_) in self._agreed.items():
             if a_ids.size == 0:
                 continue
             # a_ids is sorted: where each of our ids sits in j's record
@@ -359,8 +362,16 @@ class ConsensusProtocol:
             np.concatenate([self._agreed[j][2][theirs] for j, _, theirs in pairs]),
         )
         split = np.cumsum([mine.size for _, mine, _ in pairs])[:-1]
-        for (j, mine, _), kl_j in zip(pairs, np.split(kl, split), strict=True):
-            limit = self.kl_threshold if self._thresholds is None else self._thresholds[mine]
+        for (j, mine, theirs), kl_j in zip(pairs, np.split(kl, split), strict=True):
+            if self._thresholds is None:
+                limit = self.kl_threshold
+            else:  # an average once started runs to agreement (consensus_set)
+                limit = settling_thresholds(
+                    self._thresholds[mine],
+                    self._agreed[j][3][theirs],
+                    self.round,
+                    self.kl_threshold,
+                )
             out[j][mine] = kl_j > limit
         return out
 
@@ -665,20 +676,15 @@ class ConsensusProtocol:
         return averaged
 
     def _record_exchange(self, j: int, exchanged: np.ndarray) -> None:
-        """Remember our pre-average marginals of the objects just exchanged with ``j``."""
+        """Remember our pre-average marginals of the objects just exchanged with ``j`` (our ids,
+        ``exchanged`` and the record are increasing; one compiled merge)."""
         ids, means, covs = self._own
-        take = _members(ids, exchanged)
         old = self._agreed.get(j)
-        if old is not None:
-            # still in our map and not just exchanged (``exchanged`` and ``old[0]`` are sorted)
-            keep = _members(old[0], np.sort(ids)) & ~_members(old[0], exchanged)
-            new_ids = np.concatenate([old[0][keep], ids[take]])
-            new_means = np.concatenate([old[1][keep], means[take]])
-            new_covs = np.concatenate([old[2][keep], covs[take]])
-        else:
-            new_ids, new_means, new_covs = ids[take], means[take], covs[take]
-        order = np.argsort(new_ids)
-        self._agreed[j] = (new_ids[order], new_means[order], new_covs[order])
+        if old is None:
+            old = (ids[:0], means[:0], covs[:0], np.zeros(0, dtype=np.int64))
+        self._agreed[j] = merged_record(
+            *old, ids, means, covs, np.asarray(exchanged, dtype=np.int64), self.round
+        )
 
 
 def _reordered_prior(message: CommonMarginalMessage, order: np.ndarray) -> dict:
