@@ -28,6 +28,7 @@ from teamslam.association.core import (
     _distinct,
     _separated,
     chi2_quantile,
+    consistent_with,
     fit_transform,
     gate_pairs,
 )
@@ -403,8 +404,37 @@ def _extend(
     added[added] = _separated(
         a, b, t, a.means[ia], b.means[ib], keep_rows[added], keep_cols[added], settings
     )
-    pairs = np.column_stack([a.ids[keep_rows[added]], b.ids[keep_cols[added]]])
+    rows, cols = keep_rows[added], keep_cols[added]
+    ok = _consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
+    pairs = np.column_stack([a.ids[rows[ok]], b.ids[cols[ok]]])
     return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
+
+
+def _consistent_members(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    held_rows: np.ndarray,
+    held_cols: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    cost: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Which new pairs keep the held set pairwise consistent, as a consistent set's members are.
+
+    A gate under the held transform tests a pair against the transform alone; a wrong pair
+    whose gate is wide in some direction passes it although its distances to the held objects
+    disagree between the two maps. Here each new pair must be consistent
+    (:func:`~teamslam.association.core.consistent_with`) with every held pair and with the new
+    pairs taken before it (best gate cost first, ties by index): the table then stays a set of
+    pairs whose distances agree two by two.
+    """
+    with_held = consistent_with(a, b, rows, cols, held_rows, held_cols, settings).all(axis=1)
+    among = consistent_with(a, b, rows, cols, rows, cols, settings)
+    keep = np.zeros(rows.size, dtype=bool)
+    for k in np.argsort(cost, kind="stable"):
+        keep[k] = with_held[k] and bool(among[k, keep].all())
+    return keep
 
 
 def _merge_gate(
