@@ -542,11 +542,12 @@ def test_extend_refuses_a_pair_whose_gate_spans_its_neighbours():
         )
 
 
-def _with_an_object_off_its_distances(offset: float, settings: AssociationSettings):
+def _with_an_object_off_its_distances(offset, settings: AssociationSettings):
     """Two maps sharing 40 objects (held by the table) and one more object in each, both placed
     loosely (1 m standard deviation) in an empty region, ``offset`` metres apart along the line
     from the nearest held object: a pair whose Mahalanobis distance passes the ``χ²₃`` gate while
-    its distance to that held object differs between the maps by ``offset``."""
+    its distance to that held object differs between the maps by ``offset``. With several
+    offsets the second map holds one object (ids 99 999, 99 998, …) at each."""
     a, b, *_ = _two_maps(seed=0)
     base = associate(a, b, settings)
     table = CorrespondenceTable(a.robot, b.robot, settings)
@@ -564,12 +565,18 @@ def _with_an_object_off_its_distances(offset: float, settings: AssociationSettin
     u /= np.linalg.norm(u)
     cov = np.eye(3)[None]
 
-    def plus(s: ObjectSummary, new_id: int, mean: np.ndarray) -> ObjectSummary:
+    def plus(s: ObjectSummary, new_ids, means: np.ndarray) -> ObjectSummary:
+        covs = np.repeat(cov, len(means), axis=0)
         return ObjectSummary(
-            s.robot, np.append(s.ids, new_id), np.vstack([s.means, mean]), np.vstack([s.covs, cov])
+            s.robot,
+            np.append(s.ids, new_ids),
+            np.vstack([s.means, means]),
+            np.vstack([s.covs, covs]),
         )
 
-    return table, other, plus(a, 77_777, p), plus(b, 99_999, p + offset * u)
+    offsets = np.atleast_1d(offset)
+    their = plus(b, 99_999 - np.arange(offsets.size), p + offsets[:, None] * u)
+    return table, other, plus(a, [77_777], p[None]), their
 
 
 def test_extend_refuses_a_pair_inconsistent_with_the_held_pairs():
@@ -585,5 +592,19 @@ def test_extend_refuses_a_pair_inconsistent_with_the_held_pairs():
     assert other.extend(b, a, step=1).size == 0 and (99_999, 77_777) not in other
     # the same objects placed alike in both maps make a pair
     table, other, a, b = _with_an_object_off_its_distances(0.5, settings)
+    assert table.extend(a, b, step=1).tolist() == [[77_777, 99_999]]
+    assert other.extend(b, a, step=1).tolist() == [[99_999, 77_777]]
+
+
+def test_extend_refuses_a_pair_with_a_second_object_in_its_gate():
+    # the partner 0.3 m away (Mahalanobis distance² 0.05) and a second object 3.5 m away (6.1):
+    # both in the χ²₃ gate (11.3), the assignment prefers the first by more than the distinctness
+    # margin, but the gate alone cannot tell which one is the same object; extension adds no pair
+    settings = AssociationSettings(drift_ratio=0.01)
+    table, other, a, b = _with_an_object_off_its_distances([0.3, -3.5], settings)
+    assert table.extend(a, b, step=1).size == 0 and len(table) == 40
+    assert other.extend(b, a, step=1).size == 0 and len(other) == 40
+    # the second object outside the gate (6 m away: 18 > 11.3): the pair enters
+    table, other, a, b = _with_an_object_off_its_distances([0.3, -6.0], settings)
     assert table.extend(a, b, step=1).tolist() == [[77_777, 99_999]]
     assert other.extend(b, a, step=1).tolist() == [[99_999, 77_777]]
