@@ -540,3 +540,71 @@ def test_extend_refuses_a_pair_whose_gate_spans_its_neighbours():
         assert np.array_equal(
             other.pairs()[:, ::-1][np.argsort(other.pairs()[:, 1])], table.pairs()
         )
+
+
+def _with_an_object_off_its_distances(offset, settings: AssociationSettings):
+    """Two maps sharing 40 objects (held by the table) and one more object in each, both placed
+    loosely (1 m standard deviation) in an empty region, ``offset`` metres apart along the line
+    from the nearest held object: a pair whose Mahalanobis distance passes the ``χ²₃`` gate while
+    its distance to that held object differs between the maps by ``offset``. With several
+    offsets the second map holds one object (ids 99 999, 99 998, …) at each."""
+    a, b, *_ = _two_maps(seed=0)
+    base = associate(a, b, settings)
+    table = CorrespondenceTable(a.robot, b.robot, settings)
+    table.merge(base, a, b, step=0)
+    other = CorrespondenceTable(b.robot, a.robot, settings)  # the other end of the link
+    other.merge(base.swapped(), b, a, step=0)
+    assert len(table) == len(other) == 40
+    shared = a.means[np.isin(a.ids, table.pairs()[:, 0])]
+    # the grid point farthest from every object of both maps
+    grid = np.stack(np.meshgrid(np.arange(0, 121, 2.0), np.arange(0, 121, 2.0)), -1).reshape(-1, 2)
+    grid = np.column_stack([grid, np.ones(len(grid))])
+    every = np.vstack([a.means, b.means])
+    p = grid[np.argmax(np.min(np.linalg.norm(grid[:, None] - every[None], axis=2), axis=1))]
+    u = p - shared[np.argmin(np.linalg.norm(shared - p, axis=1))]
+    u /= np.linalg.norm(u)
+    cov = np.eye(3)[None]
+
+    def plus(s: ObjectSummary, new_ids, means: np.ndarray) -> ObjectSummary:
+        covs = np.repeat(cov, len(means), axis=0)
+        return ObjectSummary(
+            s.robot,
+            np.append(s.ids, new_ids),
+            np.vstack([s.means, means]),
+            np.vstack([s.covs, covs]),
+        )
+
+    offsets = np.atleast_1d(offset)
+    their = plus(b, 99_999 - np.arange(offsets.size), p + offsets[:, None] * u)
+    return table, other, plus(a, [77_777], p[None]), their
+
+
+def test_extend_refuses_a_pair_inconsistent_with_the_held_pairs():
+    # 4.3 m apart with 1 m on each side: Mahalanobis distance² 9.2, inside the χ²₃(0.99) gate
+    # (11.3), but the distance to the nearest held object (22 m away) differs by 4.3 m against a
+    # standard deviation of 1.5 m with the drift allowance (χ²₁ 8.4 > 6.6): not consistent
+    settings = AssociationSettings(drift_ratio=0.01)
+    table, other, a, b = _with_an_object_off_its_distances(4.3, settings)
+    t = table.T_own_their
+    nu = a.means[-1] - (t[:3, :3] @ b.means[-1] + t[:3, 3])
+    assert nu @ nu / 2.0 < settings.gate_threshold
+    assert table.extend(a, b, step=1).size == 0 and (77_777, 99_999) not in table
+    assert other.extend(b, a, step=1).size == 0 and (99_999, 77_777) not in other
+    # the same objects placed alike in both maps make a pair
+    table, other, a, b = _with_an_object_off_its_distances(0.5, settings)
+    assert table.extend(a, b, step=1).tolist() == [[77_777, 99_999]]
+    assert other.extend(b, a, step=1).tolist() == [[99_999, 77_777]]
+
+
+def test_extend_refuses_a_pair_with_a_second_object_in_its_gate():
+    # the partner 0.3 m away (Mahalanobis distance² 0.05) and a second object 3.5 m away (6.1):
+    # both in the χ²₃ gate (11.3), the assignment prefers the first by more than the distinctness
+    # margin, but the gate alone cannot tell which one is the same object; extension adds no pair
+    settings = AssociationSettings(drift_ratio=0.01)
+    table, other, a, b = _with_an_object_off_its_distances([0.3, -3.5], settings)
+    assert table.extend(a, b, step=1).size == 0 and len(table) == 40
+    assert other.extend(b, a, step=1).size == 0 and len(other) == 40
+    # the second object outside the gate (6 m away: 18 > 11.3): the pair enters
+    table, other, a, b = _with_an_object_off_its_distances([0.3, -6.0], settings)
+    assert table.extend(a, b, step=1).tolist() == [[77_777, 99_999]]
+    assert other.extend(b, a, step=1).tolist() == [[99_999, 77_777]]

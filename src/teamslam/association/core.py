@@ -99,6 +99,7 @@ __all__ = [
     "AssociationSettings",
     "associate",
     "consistency_graph",
+    "consistent_with",
     "fit_transform",
     "gate_pairs",
 ]
@@ -388,6 +389,62 @@ def consistency_graph(
         np.float32(0.25 * settings.drift_ratio**2),
         np.float32(settings.consistency_threshold),
     )
+
+
+def consistent_with(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    held_rows: np.ndarray,
+    held_cols: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Pairwise consistency of pairs ``(rows[k], cols[k])`` with pairs ``(held_rows[h],
+    held_cols[h])`` — the test of :func:`consistency_graph`, for a few pairs against a set.
+
+    Pairs ``(a, b)`` and ``(a', b')`` are consistent when they name four different objects and
+    ``(‖a − a'‖ − ‖b − b'‖)² ≤ χ²₁ · (σₐ² + σ_b² + ρ²/4 · (‖a − a'‖ + ‖b − b'‖)²)``, with
+    ``σ²`` each distance's variance along its direction from its map's two covariances.
+
+    Parameters
+    ----------
+    first, second
+        The two summaries.
+    rows, cols
+        ``(k,)`` indices of the tested pairs' objects in ``first`` and ``second``.
+    held_rows, held_cols
+        ``(h,)`` indices of the set's pairs.
+    settings
+        The ``χ²₁`` probability and the drift ratio.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k, h)`` boolean.
+    """
+    rows, cols, held_rows, held_cols = (
+        np.asarray(x, dtype=np.int64).reshape(-1) for x in (rows, cols, held_rows, held_cols)
+    )
+    if rows.shape != cols.shape or held_rows.shape != held_cols.shape:
+        raise InputError("consistent_with: the indices of a set of pairs differ in length")
+
+    def distance(summary: ObjectSummary, x: np.ndarray, y: np.ndarray):
+        delta = summary.means[x][:, None, :] - summary.means[y][None, :, :]
+        dist = np.linalg.norm(delta, axis=2)
+        unit = delta / np.maximum(dist, np.finfo(float).tiny)[..., None]
+        var = np.einsum("khi,kij,khj->kh", unit, summary.covs[x], unit) + np.einsum(
+            "khi,hij,khj->kh", unit, summary.covs[y], unit
+        )
+        return dist, var
+
+    d_a, v_a = distance(first, rows, held_rows)
+    d_b, v_b = distance(second, cols, held_cols)
+    diff = d_a - d_b
+    total = d_a + d_b
+    var = v_a + v_b + 0.25 * settings.drift_ratio**2 * total**2
+    distinct = (rows[:, None] != held_rows[None, :]) & (cols[:, None] != held_cols[None, :])
+    return distinct & (diff**2 <= settings.consistency_threshold * var)
 
 
 def fit_transform(

@@ -28,6 +28,7 @@ from teamslam.association.core import (
     _distinct,
     _separated,
     chi2_quantile,
+    consistent_with,
     fit_transform,
     gate_pairs,
 )
@@ -247,12 +248,22 @@ class CorrespondenceTable:
 
         The objects neither end has matched yet are gated under the transform of the held pairs
         (:func:`~teamslam.association.core.gate_pairs`, drift allowance from the nearest held
-        pair), assigned one to one, and kept when distinct (no other object of either map fits
-        nearly as well, held pairs included) and separated (their gate, with the drift allowance
-        from the held pairs, narrow against their objects' spacing:
-        :attr:`~teamslam.association.AssociationSettings.separation`). Computed in the
-        canonical order of the two robots, like :func:`~teamslam.association.associate`, so both
-        ends add the same pairs.
+        pair), assigned one to one, and kept when
+
+        * alone in each other's gate: no second object of either map, held or not, passes the
+          ``χ²₃`` gate with either of the two (a full association chooses between two objects
+          in a gate with a consistent set behind its answer; here a gate alone would decide —
+          on KITTI 00 the one wrong pair held for hundreds of frames entered so, a car of a row
+          matched to the next one while both were in its gate);
+        * distinct (no other object of either map fits nearly as well, held pairs included);
+        * separated (their gate, with the drift allowance from the held pairs, narrow against
+          their objects' spacing: :attr:`~teamslam.association.AssociationSettings.separation`);
+        * consistent two by two with the held pairs and the pairs added before them, as the
+          members of a full association's consistent set are (:func:`_consistent_members`).
+
+        A pair left out waits for a full association or for covariances that tell its objects
+        apart. Computed in the canonical order of the two robots, like
+        :func:`~teamslam.association.associate`, so both ends add the same pairs.
 
         Parameters
         ----------
@@ -392,8 +403,12 @@ def _extend(
         ra, rb = np.concatenate([ia, rows]), np.concatenate([ib, cols])
         t = fit_transform(a.means[ra], b.means[rb], a.covs[ra], b.covs[rb])
         cost, passed = gate_pairs(a, b, t, a.means[ra], b.means[rb], settings)
+        gated = passed.copy()
         passed &= free_a[:, None] & free_b[None, :]
         rows, cols = _assign(cost, passed)
+        # alone in each other's gate: no second object of either map (held or not) fits
+        alone = (gated[rows].sum(axis=1) == 1) & (gated[:, cols].sum(axis=0) == 1)
+        rows, cols = rows[alone], cols[alone]
     # distinct against every object, the held pairs counting as assigned
     all_rows = np.concatenate([ia, rows])
     all_cols = np.concatenate([ib, cols])
@@ -403,8 +418,37 @@ def _extend(
     added[added] = _separated(
         a, b, t, a.means[ia], b.means[ib], keep_rows[added], keep_cols[added], settings
     )
-    pairs = np.column_stack([a.ids[keep_rows[added]], b.ids[keep_cols[added]]])
+    rows, cols = keep_rows[added], keep_cols[added]
+    ok = _consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
+    pairs = np.column_stack([a.ids[rows[ok]], b.ids[cols[ok]]])
     return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
+
+
+def _consistent_members(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    held_rows: np.ndarray,
+    held_cols: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    cost: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Which new pairs keep the held set pairwise consistent, as a consistent set's members are.
+
+    A gate under the held transform tests a pair against the transform alone; a wrong pair
+    whose gate is wide in some direction passes it although its distances to the held objects
+    disagree between the two maps. Here each new pair must be consistent
+    (:func:`~teamslam.association.core.consistent_with`) with every held pair and with the new
+    pairs taken before it (best gate cost first, ties by index): the table then stays a set of
+    pairs whose distances agree two by two.
+    """
+    with_held = consistent_with(a, b, rows, cols, held_rows, held_cols, settings).all(axis=1)
+    among = consistent_with(a, b, rows, cols, rows, cols, settings)
+    keep = np.zeros(rows.size, dtype=bool)
+    for k in np.argsort(cost, kind="stable"):
+        keep[k] = with_held[k] and bool(among[k, keep].all())
+    return keep
 
 
 def _merge_gate(
