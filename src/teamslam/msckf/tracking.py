@@ -58,14 +58,17 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
-targets and detections (one Cholesky factorisation per target, one triangular solve for all
-pairs); the tracks are kept as arrays.
+targets and detections; the prediction of the targets (Jacobians, ``S``) and the gate (one
+Cholesky factorisation per target, a forward substitution per pair) are compiled loops
+(numba), the same arithmetic as :func:`~teamslam.msckf.models.observe_jacobians` and batched
+products to rounding; the tracks are kept as arrays.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -123,6 +126,11 @@ class ObjectTracker:
         self.hits_needed = config.track_confirm_hits or config.object_init_observations
         self.frames_allowed = config.track_confirm_frames or self.hits_needed + 2
         self.gate = float(_chi2(config.track_gate_probability, 4))
+        # the rig for the compiled prediction: T_cam_body, K, T_left_right stacked (3 × 4 × 4)
+        self._camera_block = np.zeros((3, 4, 4))
+        self._camera_block[0] = T_cam_body
+        self._camera_block[1, :3, :3] = camera.intrinsics
+        self._camera_block[2] = camera.T_left_right
         self.birth_gate = float(_chi2(config.track_birth_probability, 4))
         self.next_id = track_id_base(robot)
         # tracks, as arrays (one row per track)
@@ -201,10 +209,7 @@ class ObjectTracker:
         near_target = np.zeros(d, bool)
         lone_stale = np.full(d, -1, np.int64)  # the long-unseen object a detection is alone for
         if n_targets and d:
-            chol = np.linalg.cholesky(s)  # (T, 4, 4)
-            r = z[None, :, :] - pred[:, None, :]  # (T, D, 4)
-            y = np.linalg.solve(chol[:, None], r[..., None])[..., 0]
-            d2 = np.einsum("tdi,tdi->td", y, y)
+            d2 = _squared_distances(s, pred, np.ascontiguousarray(z, dtype=float))  # (T, D)
             agree = in_front[:, None] & (
                 (target_labels[:, None] < 0)
                 | (labels[None, :] < 0)
@@ -370,14 +375,15 @@ class ObjectTracker:
         points = np.concatenate(parts_points)
         p = np.concatenate(parts_p)
         kind = np.concatenate(kinds)
-        _, p_cam = points_in_camera(pose, points, self.T_cam_body)
-        in_front = p_cam[:, 2] > max(cfg.object_min_depth, 1e-3 * self.camera.baseline) * 0.5
         # a point behind the camera has no projection: evaluate it anywhere harmless
-        safe = np.where(in_front[:, None], points, pose[:3, 3] + pose[:3, :3] @ [10.0, 0, 0])
-        pred, d_pose, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, safe)
-        h = np.concatenate([d_pose, d_point], axis=2)
-        s = h @ p @ np.swapaxes(h, 1, 2) + cfg.object_std**2 * np.eye(4)
-        s = 0.5 * (s + np.swapaxes(s, 1, 2))
+        pred, s, d_point, in_front = _predict_targets(
+            np.ascontiguousarray(pose, dtype=float),
+            self._camera_block,
+            np.ascontiguousarray(points, dtype=float),
+            np.ascontiguousarray(p, dtype=float),
+            max(cfg.object_min_depth, 1e-3 * self.camera.baseline) * 0.5,
+            float(cfg.object_std) ** 2,
+        )
         labels = np.full(ids.size, -1, np.int64)
         if self._label_ids.size and (kind < 2).any():
             pos = np.clip(np.searchsorted(self._label_ids, ids), 0, self._label_ids.size - 1)
@@ -562,6 +568,129 @@ def _take_unambiguous(pairs: np.ndarray, assigned: np.ndarray) -> np.ndarray:
     hits = lone.any(axis=0)
     assigned[hits] = np.argmax(lone[:, hits], axis=0)
     return hits
+
+
+@numba.njit(cache=True)
+def _predict_targets(pose, rig, points, p, min_depth, noise_var):
+    """Every target's stereo prediction, ``S = H P Hᵀ + σ² I`` (symmetrised), ``∂z/∂p`` and
+    whether it is in front of the camera (deeper than ``min_depth``), one target at a time:
+    the arithmetic of :func:`~teamslam.msckf.models.observe_jacobians` and the batched products
+    it replaces, without their per-call overhead on a few dozen targets. A target behind the
+    camera is evaluated 10 m ahead of the body instead (no projection: harmless, never gated)."""
+    n = points.shape[0]
+    rot = pose[:3, :3]
+    r_cb = np.ascontiguousarray(rig[0, :3, :3])
+    t_cb = rig[0, :3, 3]
+    fx, fy, cx, cy = rig[1, 0, 0], rig[1, 1, 1], rig[1, 0, 2], rig[1, 1, 2]
+    r_rl = np.ascontiguousarray(rig[2, :3, :3].T)  # right from left
+    t_rl = -(r_rl @ rig[2, :3, 3])
+    pred = np.empty((n, 4))
+    s = np.empty((n, 4, 4))
+    d_point = np.empty((n, 4, 3))
+    in_front = np.empty(n, np.bool_)
+    p_body = np.empty(3)
+    p_cam = np.empty(3)
+    p_right = np.empty(3)
+    point = np.empty(3)
+    j_cam = np.zeros((4, 3))
+    h = np.empty((4, 9))
+    for i in range(n):
+        for pass_ in range(2):
+            if pass_ == 0:
+                for a in range(3):
+                    point[a] = points[i, a]
+            else:  # behind the camera: evaluate 10 m ahead of the body
+                for a in range(3):
+                    point[a] = pose[a, 3] + rot[a, 0] * 10.0
+            for a in range(3):
+                p_body[a] = (
+                    rot[0, a] * (point[0] - pose[0, 3])
+                    + rot[1, a] * (point[1] - pose[1, 3])
+                    + rot[2, a] * (point[2] - pose[2, 3])
+                )
+            for a in range(3):
+                p_cam[a] = (
+                    p_body[0] * r_cb[a, 0] + p_body[1] * r_cb[a, 1] + p_body[2] * r_cb[a, 2]
+                ) + t_cb[a]
+            if pass_ == 0:
+                in_front[i] = p_cam[2] > min_depth
+                if in_front[i]:
+                    break
+        for a in range(3):
+            p_right[a] = (
+                p_cam[0] * r_rl[a, 0] + p_cam[1] * r_rl[a, 1] + p_cam[2] * r_rl[a, 2]
+            ) + t_rl[a]
+        pred[i, 0] = p_cam[0] / p_cam[2] * fx + cx
+        pred[i, 1] = p_cam[1] / p_cam[2] * fy + cy
+        pred[i, 2] = p_right[0] / p_right[2] * fx + cx
+        pred[i, 3] = p_right[1] / p_right[2] * fy + cy
+        # ∂z/∂p_cam: the pinhole Jacobian of each camera (the right one rotated to the left)
+        inv_z = 1.0 / p_cam[2]
+        j_left = np.zeros((2, 3))
+        j_left[0, 0] = fx * inv_z
+        j_left[0, 2] = -fx * p_cam[0] * inv_z**2
+        j_left[1, 1] = fy * inv_z
+        j_left[1, 2] = -fy * p_cam[1] * inv_z**2
+        inv_z = 1.0 / p_right[2]
+        j_right = np.zeros((2, 3))
+        j_right[0, 0] = fx * inv_z
+        j_right[0, 2] = -fx * p_right[0] * inv_z**2
+        j_right[1, 1] = fy * inv_z
+        j_right[1, 2] = -fy * p_right[1] * inv_z**2
+        j_cam[:2] = j_left
+        j_cam[2:] = j_right @ r_rl
+        d_proj = j_cam @ r_cb  # ∂z/∂p_body
+        # H = [−∂z/∂p_body, ∂z/∂p_body p_body^, ∂z/∂p_body Rᵀ]
+        for r in range(4):
+            a0, a1, a2 = d_proj[r, 0], d_proj[r, 1], d_proj[r, 2]
+            h[r, 0], h[r, 1], h[r, 2] = -a0, -a1, -a2
+            h[r, 3] = a1 * p_body[2] - a2 * p_body[1]
+            h[r, 4] = -a0 * p_body[2] + a2 * p_body[0]
+            h[r, 5] = a0 * p_body[1] - a1 * p_body[0]
+            for c in range(3):
+                v = a0 * rot[c, 0] + a1 * rot[c, 1] + a2 * rot[c, 2]
+                h[r, 6 + c] = v
+                d_point[i, r, c] = v
+        hp = h @ p[i]
+        si = hp @ h.T
+        for r in range(4):
+            si[r, r] += noise_var
+        for r in range(4):
+            for c in range(4):
+                s[i, r, c] = 0.5 * (si[r, c] + si[c, r])
+    return pred, s, d_point, in_front
+
+
+@numba.njit(cache=True)
+def _squared_distances(s, pred, z):
+    """``d²[t, j] = (z_j − ẑ_t)ᵀ S_t⁻¹ (z_j − ẑ_t)`` by one Cholesky factorisation of each
+    ``S_t`` and a forward substitution per pair."""
+    n, d = pred.shape[0], z.shape[0]
+    out = np.empty((n, d))
+    chol = np.zeros((4, 4))
+    y = np.empty(4)
+    for t in range(n):
+        for a in range(4):
+            for b in range(a + 1):
+                acc = s[t, a, b]
+                for k in range(b):
+                    acc -= chol[a, k] * chol[b, k]
+                if a == b:
+                    if not acc > 0.0:
+                        raise np.linalg.LinAlgError("innovation covariance not positive definite")
+                    chol[a, a] = np.sqrt(acc)
+                else:
+                    chol[a, b] = acc / chol[b, b]
+        for j in range(d):
+            total = 0.0
+            for a in range(4):
+                acc = z[j, a] - pred[t, a]
+                for k in range(a):
+                    acc -= chol[a, k] * y[k]
+                y[a] = acc / chol[a, a]
+                total += y[a] * y[a]
+            out[t, j] = total
+    return out
 
 
 def _chi2(probability: float, dof: int) -> float:
