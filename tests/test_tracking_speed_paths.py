@@ -32,6 +32,22 @@ def _assignment_by_solver(allowed: np.ndarray, cost: np.ndarray) -> np.ndarray:
     return out
 
 
+def test_nearest_neighbour_shortcuts_agree_with_the_solver():
+    rng = np.random.default_rng(0)
+    for trial in range(600):
+        t, d = rng.integers(1, 6, size=2)
+        if trial % 3 == 0:
+            t = 1
+        elif trial % 3 == 1:
+            d = 1
+        cost = rng.uniform(-5.0, 1.0, size=(t, d))
+        cost[rng.random((t, d)) < 0.1] = -1.0  # ties
+        allowed = (rng.random((t, d)) < 0.6) & (cost <= 0)
+        got = np.full(d, -1, np.int64)
+        tracking._nearest_neighbour(allowed, cost, got)
+        np.testing.assert_array_equal(got, _assignment_by_solver(allowed, cost))
+
+
 def _predict_reference(camera, T_cam_body, pose, points, p, min_depth, noise_var):
     """The batched numpy arithmetic the compiled prediction replaced."""
     _, p_cam = points_in_camera(pose, points, T_cam_body)

@@ -132,6 +132,8 @@ class ObjectTracker:
         self._camera_block[1, :3, :3] = camera.intrinsics
         self._camera_block[2] = camera.T_left_right
         self.birth_gate = float(_chi2(config.track_birth_probability, 4))
+        # a target no deeper than this is behind the camera (not predicted)
+        self._min_depth = max(config.object_min_depth, 1e-3 * camera.baseline) * 0.5
         self.next_id = track_id_base(robot)
         # tracks, as arrays (one row per track)
         self.ids = np.zeros(0, np.int64)
@@ -216,6 +218,7 @@ class ObjectTracker:
                 | (target_labels[:, None] == labels[None, :])
             )
             allowed = (d2 <= self.gate) & agree
+            inside_birth = d2 <= self.birth_gate
             # pass 1: the targets seen within the last N frames (tracks, and objects followed
             # frame to frame) by global nearest neighbour, a pair kept only when it costs less
             # than leaving the detection to a new track and the target missed
@@ -225,43 +228,47 @@ class ObjectTracker:
             # every gate, inside each other's outer gate (a heavy-tailed detector error) and
             # alone there: the detection is that object's
             left = assigned_target < 0
-            taken = np.zeros(n_targets, bool)
-            taken[assigned_target[~left]] = True
-            outer = (d2 <= self.birth_gate) & agree & (fresh & ~taken)[:, None] & left[None, :]
-            outer &= ~allowed.any(axis=0)[None, :]
-            _take_unambiguous(outer, assigned_target)
+            if left.any():
+                taken = np.zeros(n_targets, bool)
+                taken[assigned_target[~left]] = True
+                outer = inside_birth & agree & (fresh & ~taken)[:, None] & left[None, :]
+                outer &= ~allowed.any(axis=0)[None, :]
+                _take_unambiguous(outer, assigned_target)
             # pass 2: the detections left against the objects not seen for N frames (the
             # state's or the persistent map's), each pair only when unambiguous: no other
             # detection in the object's gate, no other target in the detection's (a wrong
             # revisit would pull the whole map; a second object for the same one is safe)
-            left = assigned_target < 0
-            lone = allowed & ~fresh[:, None]
-            lone &= (allowed.sum(axis=1) == 1)[:, None] & (allowed.sum(axis=0) == 1)[None, :]
-            lone &= left[None, :]
-            stale_hits = _take_unambiguous(lone, assigned_target)
-            for j in np.flatnonzero(stale_hits).tolist():
-                self.revisits.append((t, int(index[j]), int(target_ids[assigned_target[j]])))
-            self.counters["revisits_taken"] += int(stale_hits.sum())
-            # objects not seen for N frames that had a detection in their gate and took none
-            wanted = (allowed & ~fresh[:, None] & left[None, :]).any(axis=1)
-            wanted[assigned_target[stale_hits]] = False
-            self.counters["revisits_refused"] += int(wanted.sum())
-            # each detection the only one in the gate of an object not seen for N frames, that
-            # object alone (of those) in the detection's gate, and no object followed frame to
-            # frame holding it in its outer gate: evidence for a track to continue that object
-            stale = allowed & ~fresh[:, None]
-            stale &= (stale.sum(axis=1) == 1)[:, None] & (stale.sum(axis=0) == 1)[None, :]
-            owned = (d2 <= self.birth_gate) & agree & (fresh & (kinds < 2))[:, None]
-            stale &= ~owned.any(axis=0)[None, :]
-            has = stale.any(axis=0)
-            lone_stale[has] = target_ids[np.argmax(stale[:, has], axis=0)]
+            # (none of it when no object not seen for N frames has a detection in its gate)
+            stale_pairs = allowed & ~fresh[:, None]
+            if stale_pairs.any():
+                left = assigned_target < 0
+                lone = stale_pairs.copy()
+                lone &= (allowed.sum(axis=1) == 1)[:, None] & (allowed.sum(axis=0) == 1)[None, :]
+                lone &= left[None, :]
+                stale_hits = _take_unambiguous(lone, assigned_target)
+                for j in np.flatnonzero(stale_hits).tolist():
+                    self.revisits.append((t, int(index[j]), int(target_ids[assigned_target[j]])))
+                self.counters["revisits_taken"] += int(stale_hits.sum())
+                # objects not seen for N frames that had a detection in their gate and took none
+                wanted = (stale_pairs & left[None, :]).any(axis=1)
+                wanted[assigned_target[stale_hits]] = False
+                self.counters["revisits_refused"] += int(wanted.sum())
+                # each detection the only one in the gate of an object not seen for N frames, that
+                # object alone (of those) in the detection's gate, and no object followed frame to
+                # frame holding it in its outer gate: evidence for a track to continue that object
+                stale = stale_pairs
+                stale &= (stale.sum(axis=1) == 1)[:, None] & (stale.sum(axis=0) == 1)[None, :]
+                owned = inside_birth & agree & (fresh & (kinds < 2))[:, None]
+                stale &= ~owned.any(axis=0)[None, :]
+                has = stale.any(axis=0)
+                lone_stale[has] = target_ids[np.argmax(stale[:, has], axis=0)]
             # a detection in the outer gate of an object followed frame to frame that took no
             # detection, and not given to it (ambiguous), starts no track (one object, one id);
             # a detection near an object that took another one is another object (one
             # detection per object and frame), and objects not seen for N frames block nothing
             blocking = in_front & fresh & (kinds < 2)
             blocking[assigned_target[assigned_target >= 0]] = False
-            near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
+            near_target = np.any(inside_birth & blocking[:, None], axis=0)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
@@ -381,7 +388,7 @@ class ObjectTracker:
             self._camera_block,
             np.ascontiguousarray(points, dtype=float),
             np.ascontiguousarray(p, dtype=float),
-            max(cfg.object_min_depth, 1e-3 * self.camera.baseline) * 0.5,
+            self._min_depth,
             float(cfg.object_std) ** 2,
         )
         labels = np.full(ids.size, -1, np.int64)
@@ -555,6 +562,17 @@ def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarr
     if not rows_idx.size:
         return
     cols_idx = np.flatnonzero(allowed.any(axis=0))
+    if rows_idx.size == 1 or cols_idx.size == 1:
+        # one target or one detection (most frames): every pair is gated, and a unique least
+        # cost below 0 is the solver's unique optimum
+        c = cost[rows_idx[0], cols_idx] if rows_idx.size == 1 else cost[rows_idx, cols_idx[0]]
+        best = int(np.argmin(c))
+        if c[best] < 0 and np.count_nonzero(c == c[best]) == 1:
+            if rows_idx.size == 1:
+                assigned[cols_idx[best]] = rows_idx[0]
+            else:
+                assigned[cols_idx[0]] = rows_idx[best]
+            return
     sub = allowed[np.ix_(rows_idx, cols_idx)]
     ra, ca = linear_sum_assignment(np.where(sub, cost[np.ix_(rows_idx, cols_idx)], 0.0))
     keep = sub[ra, ca]
@@ -564,6 +582,8 @@ def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarr
 def _take_unambiguous(pairs: np.ndarray, assigned: np.ndarray) -> np.ndarray:
     """Assign each detection that is the only one of its target's ``pairs`` and whose target is
     the only one of its own; returns the detections assigned."""
+    if not pairs.any():
+        return np.zeros(pairs.shape[1], bool)
     lone = pairs & (pairs.sum(axis=1) == 1)[:, None] & (pairs.sum(axis=0) == 1)[None, :]
     hits = lone.any(axis=0)
     assigned[hits] = np.argmax(lone[:, hits], axis=0)
@@ -583,7 +603,7 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
     t_cb = rig[0, :3, 3]
     fx, fy, cx, cy = rig[1, 0, 0], rig[1, 1, 1], rig[1, 0, 2], rig[1, 1, 2]
     r_rl = np.ascontiguousarray(rig[2, :3, :3].T)  # right from left
-    t_rl = -(r_rl @ rig[2, :3, 3])
+    t_rl = -(r_rl @ np.ascontiguousarray(rig[2, :3, 3]))
     pred = np.empty((n, 4))
     s = np.empty((n, 4, 4))
     d_point = np.empty((n, 4, 3))
