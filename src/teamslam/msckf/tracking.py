@@ -305,7 +305,7 @@ class ObjectTracker:
         """Tracks whose ids the filter took into its state (or retired) are its, not ours."""
         if not self.ids.size:
             return
-        held = state.object_slots(self.ids) >= 0
+        held = (self.ids[:, None] == state.object_ids[None, :]).any(axis=1)
         if len(state.retired):
             held |= state.retired.contains(self.ids)
         if held.any():
@@ -324,18 +324,16 @@ class ObjectTracker:
         """
         cfg = self.config
         pose = state.current_pose
-        pose_cov = state.current_pose_cov()
         parts_ids, parts_points, parts_p, kinds = [], [], [], []
         seen = []
         reach = 2.0 * cfg.object_max_depth  # farther or behind: no detection can be theirs
         if state.n_objects:
-            _, p_cam = points_in_camera(pose, state.objects, self.T_cam_body)
-            slots = np.flatnonzero((p_cam[:, 2] > 0) & (p_cam[:, 2] < reach))
+            depth = (state.objects - pose[:3, 3]) @ self._depth_axis(pose) + self.T_cam_body[2, 3]
+            slots = np.flatnonzero((depth > 0) & (depth < reach))
             k = slots.size
-            cols = np.concatenate(
-                [np.broadcast_to(state.newest_pose().columns, (k, 6)), state.object(slots).columns],
-                axis=1,
-            )
+            cols = np.empty((k, 9), np.int64)
+            cols[:, :6] = state.newest_pose().columns
+            cols[:, 6:] = state.object(slots).columns
             parts_ids.append(state.object_ids[slots])
             parts_points.append(state.objects[slots])
             parts_p.append(state.covariance(cols))
@@ -349,7 +347,7 @@ class ObjectTracker:
             k = arrays["ids"].size
             seen.append(np.zeros(k, np.int64))
             p = np.zeros((k, 9, 9))
-            p[:, :6, :6] = pose_cov
+            p[:, :6, :6] = state.current_pose_cov()
             p[:, 6:, 6:] = arrays["covs"]
             parts_ids.append(arrays["ids"])
             parts_points.append(arrays["means"])
@@ -399,6 +397,11 @@ class ObjectTracker:
         if self.ids.size:
             labels[kind == 2] = self.classes
         return kind, ids, np.concatenate(seen), pred, s, d_point, in_front, labels
+
+    def _depth_axis(self, pose: np.ndarray) -> np.ndarray:
+        """The camera's optical axis in the world at ``pose``: a point's depth is its offset from
+        the body along it, plus the camera's depth offset in the body frame."""
+        return pose[:3, :3] @ self.T_cam_body[2, :3]
 
     def _update_tracks(
         self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame, lone_stale
@@ -614,6 +617,8 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
     point = np.empty(3)
     j_cam = np.zeros((4, 3))
     h = np.empty((4, 9))
+    hp = np.empty((4, 9))
+    si = np.empty((4, 4))
     for i in range(n):
         for pass_ in range(2):
             if pass_ == 0:
@@ -646,23 +651,21 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
         pred[i, 3] = p_right[1] / p_right[2] * fy + cy
         # ∂z/∂p_cam: the pinhole Jacobian of each camera (the right one rotated to the left)
         inv_z = 1.0 / p_cam[2]
-        j_left = np.zeros((2, 3))
-        j_left[0, 0] = fx * inv_z
-        j_left[0, 2] = -fx * p_cam[0] * inv_z**2
-        j_left[1, 1] = fy * inv_z
-        j_left[1, 2] = -fy * p_cam[1] * inv_z**2
+        a_x, a_y = fx * inv_z, fy * inv_z
+        b_x, b_y = -fx * p_cam[0] * inv_z**2, -fy * p_cam[1] * inv_z**2
         inv_z = 1.0 / p_right[2]
-        j_right = np.zeros((2, 3))
-        j_right[0, 0] = fx * inv_z
-        j_right[0, 2] = -fx * p_right[0] * inv_z**2
-        j_right[1, 1] = fy * inv_z
-        j_right[1, 2] = -fy * p_right[1] * inv_z**2
-        j_cam[:2] = j_left
-        j_cam[2:] = j_right @ r_rl
-        d_proj = j_cam @ r_cb  # ∂z/∂p_body
-        # H = [−∂z/∂p_body, ∂z/∂p_body p_body^, ∂z/∂p_body Rᵀ]
+        c_x, c_y = fx * inv_z, fy * inv_z
+        e_x, e_y = -fx * p_right[0] * inv_z**2, -fy * p_right[1] * inv_z**2
+        for c in range(3):
+            j_cam[0, c] = a_x if c == 0 else (b_x if c == 2 else 0.0)
+            j_cam[1, c] = a_y if c == 1 else (b_y if c == 2 else 0.0)
+            j_cam[2, c] = c_x * r_rl[0, c] + e_x * r_rl[2, c]
+            j_cam[3, c] = c_y * r_rl[1, c] + e_y * r_rl[2, c]
+        # H = [−∂z/∂p_body, ∂z/∂p_body p_body^, ∂z/∂p_body Rᵀ], ∂z/∂p_body = ∂z/∂p_cam R_cb
         for r in range(4):
-            a0, a1, a2 = d_proj[r, 0], d_proj[r, 1], d_proj[r, 2]
+            a0 = j_cam[r, 0] * r_cb[0, 0] + j_cam[r, 1] * r_cb[1, 0] + j_cam[r, 2] * r_cb[2, 0]
+            a1 = j_cam[r, 0] * r_cb[0, 1] + j_cam[r, 1] * r_cb[1, 1] + j_cam[r, 2] * r_cb[2, 1]
+            a2 = j_cam[r, 0] * r_cb[0, 2] + j_cam[r, 1] * r_cb[1, 2] + j_cam[r, 2] * r_cb[2, 2]
             h[r, 0], h[r, 1], h[r, 2] = -a0, -a1, -a2
             h[r, 3] = a1 * p_body[2] - a2 * p_body[1]
             h[r, 4] = -a0 * p_body[2] + a2 * p_body[0]
@@ -671,9 +674,19 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
                 v = a0 * rot[c, 0] + a1 * rot[c, 1] + a2 * rot[c, 2]
                 h[r, 6 + c] = v
                 d_point[i, r, c] = v
-        hp = h @ p[i]
-        si = hp @ h.T
+        # S = H P Hᵀ + σ² I, symmetrised
         for r in range(4):
+            for c in range(9):
+                acc = 0.0
+                for k in range(9):
+                    acc += h[r, k] * p[i, k, c]
+                hp[r, c] = acc
+        for r in range(4):
+            for c in range(4):
+                acc = 0.0
+                for k in range(9):
+                    acc += hp[r, k] * h[c, k]
+                si[r, c] = acc
             si[r, r] += noise_var
         for r in range(4):
             for c in range(4):
