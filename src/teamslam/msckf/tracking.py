@@ -212,11 +212,14 @@ class ObjectTracker:
         lone_stale = np.full(d, -1, np.int64)  # the long-unseen object a detection is alone for
         if n_targets and d:
             d2 = _squared_distances(s, pred, np.ascontiguousarray(z, dtype=float))  # (T, D)
-            agree = in_front[:, None] & (
-                (target_labels[:, None] < 0)
-                | (labels[None, :] < 0)
-                | (target_labels[:, None] == labels[None, :])
-            )
+            if classes is None:  # no labels: every pair of a target in front agrees
+                agree = in_front[:, None]
+            else:
+                agree = in_front[:, None] & (
+                    (target_labels[:, None] < 0)
+                    | (labels[None, :] < 0)
+                    | (target_labels[:, None] == labels[None, :])
+                )
             allowed = (d2 <= self.gate) & agree
             inside_birth = d2 <= self.birth_gate
             # pass 1: the targets seen within the last N frames (tracks, and objects followed
