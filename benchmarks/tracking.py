@@ -5,11 +5,12 @@ with the dataset's ids (the oracle) and with the ids removed (``strip_object_ids
 each robot's :mod:`teamslam.msckf.tracking` naming its detections). Printed: trajectory RMSE
 (mean over robots, as ``teamslam run``), its ratio to the oracle, CLEAR-MOT / IDF1
 (:mod:`teamslam.eval.tracking`), false objects confirmed per 1000 frames, the tracking time
-as a share of the per-robot-step time, and where the IDF1 is lost (missed and false detections,
-wrong ids on a revisit — more than a window of frames from the object's own id — or within a
-pass; :func:`~teamslam.eval.tracking.idf1_losses`), and how many of the tracker's
-re-identifications (a detection given to an object not seen for ``N`` frames) were right
-(:func:`~teamslam.eval.tracking.revisit_precision`).
+as a share of the per-robot-step time (wall, the agent's stage timings; and CPU time of this
+thread, per robot-frame — the measure on a shared machine), and where the IDF1 is lost
+(missed and false detections, wrong ids on a revisit — more than a window of frames from the
+object's own id — or within a pass; :func:`~teamslam.eval.tracking.idf1_losses`), and how
+many of the tracker's re-identifications (a detection given to an object not seen for ``N``
+frames) were right (:func:`~teamslam.eval.tracking.revisit_precision`).
 
 Usage::
 
@@ -44,20 +45,39 @@ from teamslam.sim.lissajous import lissajous_team
 
 def run_separate(dataset, config, revisit_d2: list | None = None) -> tuple[float, list, float]:
     """Every robot's filter alone; mean trajectory RMSE, the agents and the wall time (with
-    ``revisit_d2``, :func:`watch_revisits` fills it)."""
+    ``revisit_d2``, :func:`watch_revisits` fills it). Each agent gets ``cpu``: the CPU time of
+    its steps and of its tracker (thread time, s)."""
     agents, rmse = [], []
     begin = time.perf_counter()
     for i, robot in enumerate(dataset.robots):
         agent = MsckfAgent(i, dataset.calibration, robot, config)
         if revisit_d2 is not None:
             watch_revisits(agent, robot.detections, config.window, revisit_d2)
+        agent.cpu = {"step": 0.0, "tracking": 0.0}
+        if agent.tracker is not None:
+            time_tracker(agent)
         poses = np.empty((robot.frames, 4, 4))
         for t in range(robot.frames):
+            start = time.thread_time()
             agent.step(t)
+            agent.cpu["step"] += time.thread_time() - start
             poses[t] = agent.state.current_pose
         rmse.append(trajectory_rmse(poses, robot.T_world_body))
         agents.append(agent)
     return float(np.mean(rmse)), agents, time.perf_counter() - begin
+
+
+def time_tracker(agent) -> None:
+    """Count the CPU time of ``agent``'s tracker in ``agent.cpu["tracking"]``."""
+    assign = agent.tracker.assign
+
+    def timed(*args):
+        start = time.thread_time()
+        frame = assign(*args)
+        agent.cpu["tracking"] += time.thread_time() - start
+        return frame
+
+    agent.tracker.assign = timed
 
 
 def watch_revisits(agent, detections, gap: int, out: list) -> None:
@@ -113,6 +133,9 @@ def compare(name: str, dataset, config, watch: bool = False) -> dict:
         revisits[2] += right
     tracking_s = sum(a.timings["tracking"] for a in agents)
     steps = sum(sum(a.timings[k] for k in a.timings) for a in agents)
+    frames = sum(robot.frames for robot in stripped.robots)
+    cpu_tracking = sum(a.cpu["tracking"] for a in agents)
+    cpu_steps = sum(a.cpu["step"] for a in agents)
     team = metrics["team"] if metrics else {}
     return {
         "case": name,
@@ -126,6 +149,9 @@ def compare(name: str, dataset, config, watch: bool = False) -> dict:
         "objects": f"{team.get('objects_created', 0)}/{team.get('objects_true', 0)}",
         "false_per_1000": metrics["false_objects_per_1000_frames"] if metrics else float("nan"),
         "tracking_share": tracking_s / steps if steps else float("nan"),
+        "tracking_cpu_share": cpu_tracking / cpu_steps if cpu_steps else float("nan"),
+        "tracking_cpu_ms": 1e3 * cpu_tracking / frames if frames else float("nan"),
+        "step_cpu_ms": 1e3 * cpu_steps / frames if frames else float("nan"),
         "seconds": oracle_s + own_s,
         "losses": losses,
         "revisits": revisits,
@@ -194,6 +220,10 @@ def print_table(rows: list[dict]) -> None:
                 f"{loss['false']} + 2 × wrong ids (revisits {loss['wrong_revisit']}, within a "
                 f"pass {loss['wrong_within_pass']}, of unmapped objects {loss['wrong_unmapped']})"
             )
+        print(
+            f"{'':<44} CPU per robot-frame: tracking {r['tracking_cpu_ms']:.3f} ms of a "
+            f"{r['step_cpu_ms']:.3f} ms step ({100 * r['tracking_cpu_share']:.1f}%)"
+        )
         taken, judged, right = r["revisits"]
         print(f"{'':<44} re-identifications {taken}: {right} right of {judged} with ground truth")
         d2 = r["revisit_d2"]

@@ -58,14 +58,17 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
-targets and detections (one Cholesky factorisation per target, one triangular solve for all
-pairs); the tracks are kept as arrays.
+targets and detections; the prediction of the targets (Jacobians, ``S``) and the gate (one
+Cholesky factorisation per target, a forward substitution per pair) are compiled loops
+(numba), the same arithmetic as :func:`~teamslam.msckf.models.observe_jacobians` and batched
+products to rounding; the tracks are kept as arrays.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -123,7 +126,14 @@ class ObjectTracker:
         self.hits_needed = config.track_confirm_hits or config.object_init_observations
         self.frames_allowed = config.track_confirm_frames or self.hits_needed + 2
         self.gate = float(_chi2(config.track_gate_probability, 4))
+        # the rig for the compiled prediction: T_cam_body, K, T_left_right stacked (3 × 4 × 4)
+        self._camera_block = np.zeros((3, 4, 4))
+        self._camera_block[0] = T_cam_body
+        self._camera_block[1, :3, :3] = camera.intrinsics
+        self._camera_block[2] = camera.T_left_right
         self.birth_gate = float(_chi2(config.track_birth_probability, 4))
+        # a target no deeper than this is behind the camera (not predicted)
+        self._min_depth = max(config.object_min_depth, 1e-3 * camera.baseline) * 0.5
         self.next_id = track_id_base(robot)
         # tracks, as arrays (one row per track)
         self.ids = np.zeros(0, np.int64)
@@ -201,16 +211,17 @@ class ObjectTracker:
         near_target = np.zeros(d, bool)
         lone_stale = np.full(d, -1, np.int64)  # the long-unseen object a detection is alone for
         if n_targets and d:
-            chol = np.linalg.cholesky(s)  # (T, 4, 4)
-            r = z[None, :, :] - pred[:, None, :]  # (T, D, 4)
-            y = np.linalg.solve(chol[:, None], r[..., None])[..., 0]
-            d2 = np.einsum("tdi,tdi->td", y, y)
-            agree = in_front[:, None] & (
-                (target_labels[:, None] < 0)
-                | (labels[None, :] < 0)
-                | (target_labels[:, None] == labels[None, :])
-            )
+            d2 = _squared_distances(s, pred, np.ascontiguousarray(z, dtype=float))  # (T, D)
+            if classes is None:  # no labels: every pair of a target in front agrees
+                agree = in_front[:, None]
+            else:
+                agree = in_front[:, None] & (
+                    (target_labels[:, None] < 0)
+                    | (labels[None, :] < 0)
+                    | (target_labels[:, None] == labels[None, :])
+                )
             allowed = (d2 <= self.gate) & agree
+            inside_birth = d2 <= self.birth_gate
             # pass 1: the targets seen within the last N frames (tracks, and objects followed
             # frame to frame) by global nearest neighbour, a pair kept only when it costs less
             # than leaving the detection to a new track and the target missed
@@ -220,43 +231,47 @@ class ObjectTracker:
             # every gate, inside each other's outer gate (a heavy-tailed detector error) and
             # alone there: the detection is that object's
             left = assigned_target < 0
-            taken = np.zeros(n_targets, bool)
-            taken[assigned_target[~left]] = True
-            outer = (d2 <= self.birth_gate) & agree & (fresh & ~taken)[:, None] & left[None, :]
-            outer &= ~allowed.any(axis=0)[None, :]
-            _take_unambiguous(outer, assigned_target)
+            if left.any():
+                taken = np.zeros(n_targets, bool)
+                taken[assigned_target[~left]] = True
+                outer = inside_birth & agree & (fresh & ~taken)[:, None] & left[None, :]
+                outer &= ~allowed.any(axis=0)[None, :]
+                _take_unambiguous(outer, assigned_target)
             # pass 2: the detections left against the objects not seen for N frames (the
             # state's or the persistent map's), each pair only when unambiguous: no other
             # detection in the object's gate, no other target in the detection's (a wrong
             # revisit would pull the whole map; a second object for the same one is safe)
-            left = assigned_target < 0
-            lone = allowed & ~fresh[:, None]
-            lone &= (allowed.sum(axis=1) == 1)[:, None] & (allowed.sum(axis=0) == 1)[None, :]
-            lone &= left[None, :]
-            stale_hits = _take_unambiguous(lone, assigned_target)
-            for j in np.flatnonzero(stale_hits).tolist():
-                self.revisits.append((t, int(index[j]), int(target_ids[assigned_target[j]])))
-            self.counters["revisits_taken"] += int(stale_hits.sum())
-            # objects not seen for N frames that had a detection in their gate and took none
-            wanted = (allowed & ~fresh[:, None] & left[None, :]).any(axis=1)
-            wanted[assigned_target[stale_hits]] = False
-            self.counters["revisits_refused"] += int(wanted.sum())
-            # each detection the only one in the gate of an object not seen for N frames, that
-            # object alone (of those) in the detection's gate, and no object followed frame to
-            # frame holding it in its outer gate: evidence for a track to continue that object
-            stale = allowed & ~fresh[:, None]
-            stale &= (stale.sum(axis=1) == 1)[:, None] & (stale.sum(axis=0) == 1)[None, :]
-            owned = (d2 <= self.birth_gate) & agree & (fresh & (kinds < 2))[:, None]
-            stale &= ~owned.any(axis=0)[None, :]
-            has = stale.any(axis=0)
-            lone_stale[has] = target_ids[np.argmax(stale[:, has], axis=0)]
+            # (none of it when no object not seen for N frames has a detection in its gate)
+            stale_pairs = allowed & ~fresh[:, None]
+            if stale_pairs.any():
+                left = assigned_target < 0
+                lone = stale_pairs.copy()
+                lone &= (allowed.sum(axis=1) == 1)[:, None] & (allowed.sum(axis=0) == 1)[None, :]
+                lone &= left[None, :]
+                stale_hits = _take_unambiguous(lone, assigned_target)
+                for j in np.flatnonzero(stale_hits).tolist():
+                    self.revisits.append((t, int(index[j]), int(target_ids[assigned_target[j]])))
+                self.counters["revisits_taken"] += int(stale_hits.sum())
+                # objects not seen for N frames that had a detection in their gate and took none
+                wanted = (stale_pairs & left[None, :]).any(axis=1)
+                wanted[assigned_target[stale_hits]] = False
+                self.counters["revisits_refused"] += int(wanted.sum())
+                # each detection the only one in the gate of an object not seen for N frames, that
+                # object alone (of those) in the detection's gate, and no object followed frame to
+                # frame holding it in its outer gate: evidence for a track to continue that object
+                stale = stale_pairs
+                stale &= (stale.sum(axis=1) == 1)[:, None] & (stale.sum(axis=0) == 1)[None, :]
+                owned = inside_birth & agree & (fresh & (kinds < 2))[:, None]
+                stale &= ~owned.any(axis=0)[None, :]
+                has = stale.any(axis=0)
+                lone_stale[has] = target_ids[np.argmax(stale[:, has], axis=0)]
             # a detection in the outer gate of an object followed frame to frame that took no
             # detection, and not given to it (ambiguous), starts no track (one object, one id);
             # a detection near an object that took another one is another object (one
             # detection per object and frame), and objects not seen for N frames block nothing
             blocking = in_front & fresh & (kinds < 2)
             blocking[assigned_target[assigned_target >= 0]] = False
-            near_target = np.any((d2 <= self.birth_gate) & blocking[:, None], axis=0)
+            near_target = np.any(inside_birth & blocking[:, None], axis=0)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
@@ -293,7 +308,7 @@ class ObjectTracker:
         """Tracks whose ids the filter took into its state (or retired) are its, not ours."""
         if not self.ids.size:
             return
-        held = state.object_slots(self.ids) >= 0
+        held = (self.ids[:, None] == state.object_ids[None, :]).any(axis=1)
         if len(state.retired):
             held |= state.retired.contains(self.ids)
         if held.any():
@@ -312,18 +327,16 @@ class ObjectTracker:
         """
         cfg = self.config
         pose = state.current_pose
-        pose_cov = state.current_pose_cov()
         parts_ids, parts_points, parts_p, kinds = [], [], [], []
         seen = []
         reach = 2.0 * cfg.object_max_depth  # farther or behind: no detection can be theirs
         if state.n_objects:
-            _, p_cam = points_in_camera(pose, state.objects, self.T_cam_body)
-            slots = np.flatnonzero((p_cam[:, 2] > 0) & (p_cam[:, 2] < reach))
+            depth = (state.objects - pose[:3, 3]) @ self._depth_axis(pose) + self.T_cam_body[2, 3]
+            slots = np.flatnonzero((depth > 0) & (depth < reach))
             k = slots.size
-            cols = np.concatenate(
-                [np.broadcast_to(state.newest_pose().columns, (k, 6)), state.object(slots).columns],
-                axis=1,
-            )
+            cols = np.empty((k, 9), np.int64)
+            cols[:, :6] = state.newest_pose().columns
+            cols[:, 6:] = state.object(slots).columns
             parts_ids.append(state.object_ids[slots])
             parts_points.append(state.objects[slots])
             parts_p.append(state.covariance(cols))
@@ -337,7 +350,7 @@ class ObjectTracker:
             k = arrays["ids"].size
             seen.append(np.zeros(k, np.int64))
             p = np.zeros((k, 9, 9))
-            p[:, :6, :6] = pose_cov
+            p[:, :6, :6] = state.current_pose_cov()
             p[:, 6:, 6:] = arrays["covs"]
             parts_ids.append(arrays["ids"])
             parts_points.append(arrays["means"])
@@ -370,14 +383,15 @@ class ObjectTracker:
         points = np.concatenate(parts_points)
         p = np.concatenate(parts_p)
         kind = np.concatenate(kinds)
-        _, p_cam = points_in_camera(pose, points, self.T_cam_body)
-        in_front = p_cam[:, 2] > max(cfg.object_min_depth, 1e-3 * self.camera.baseline) * 0.5
         # a point behind the camera has no projection: evaluate it anywhere harmless
-        safe = np.where(in_front[:, None], points, pose[:3, 3] + pose[:3, :3] @ [10.0, 0, 0])
-        pred, d_pose, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, safe)
-        h = np.concatenate([d_pose, d_point], axis=2)
-        s = h @ p @ np.swapaxes(h, 1, 2) + cfg.object_std**2 * np.eye(4)
-        s = 0.5 * (s + np.swapaxes(s, 1, 2))
+        pred, s, d_point, in_front = _predict_targets(
+            np.ascontiguousarray(pose, dtype=float),
+            self._camera_block,
+            np.ascontiguousarray(points, dtype=float),
+            np.ascontiguousarray(p, dtype=float),
+            self._min_depth,
+            float(cfg.object_std) ** 2,
+        )
         labels = np.full(ids.size, -1, np.int64)
         if self._label_ids.size and (kind < 2).any():
             pos = np.clip(np.searchsorted(self._label_ids, ids), 0, self._label_ids.size - 1)
@@ -386,6 +400,11 @@ class ObjectTracker:
         if self.ids.size:
             labels[kind == 2] = self.classes
         return kind, ids, np.concatenate(seen), pred, s, d_point, in_front, labels
+
+    def _depth_axis(self, pose: np.ndarray) -> np.ndarray:
+        """The camera's optical axis in the world at ``pose``: a point's depth is its offset from
+        the body along it, plus the camera's depth offset in the body frame."""
+        return pose[:3, :3] @ self.T_cam_body[2, :3]
 
     def _update_tracks(
         self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame, lone_stale
@@ -549,6 +568,17 @@ def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarr
     if not rows_idx.size:
         return
     cols_idx = np.flatnonzero(allowed.any(axis=0))
+    if rows_idx.size == 1 or cols_idx.size == 1:
+        # one target or one detection (most frames): every pair is gated, and a unique least
+        # cost below 0 is the solver's unique optimum
+        c = cost[rows_idx[0], cols_idx] if rows_idx.size == 1 else cost[rows_idx, cols_idx[0]]
+        best = int(np.argmin(c))
+        if c[best] < 0 and np.count_nonzero(c == c[best]) == 1:
+            if rows_idx.size == 1:
+                assigned[cols_idx[best]] = rows_idx[0]
+            else:
+                assigned[cols_idx[0]] = rows_idx[best]
+            return
     sub = allowed[np.ix_(rows_idx, cols_idx)]
     ra, ca = linear_sum_assignment(np.where(sub, cost[np.ix_(rows_idx, cols_idx)], 0.0))
     keep = sub[ra, ca]
@@ -558,10 +588,145 @@ def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarr
 def _take_unambiguous(pairs: np.ndarray, assigned: np.ndarray) -> np.ndarray:
     """Assign each detection that is the only one of its target's ``pairs`` and whose target is
     the only one of its own; returns the detections assigned."""
+    if not pairs.any():
+        return np.zeros(pairs.shape[1], bool)
     lone = pairs & (pairs.sum(axis=1) == 1)[:, None] & (pairs.sum(axis=0) == 1)[None, :]
     hits = lone.any(axis=0)
     assigned[hits] = np.argmax(lone[:, hits], axis=0)
     return hits
+
+
+@numba.njit(cache=True)
+def _predict_targets(pose, rig, points, p, min_depth, noise_var):
+    """Every target's stereo prediction, ``S = H P Hᵀ + σ² I`` (symmetrised), ``∂z/∂p`` and
+    whether it is in front of the camera (deeper than ``min_depth``), one target at a time:
+    the arithmetic of :func:`~teamslam.msckf.models.observe_jacobians` and the batched products
+    it replaces, without their per-call overhead on a few dozen targets. A target behind the
+    camera is evaluated 10 m ahead of the body instead (no projection: harmless, never gated)."""
+    n = points.shape[0]
+    rot = pose[:3, :3]
+    r_cb = np.ascontiguousarray(rig[0, :3, :3])
+    t_cb = rig[0, :3, 3]
+    fx, fy, cx, cy = rig[1, 0, 0], rig[1, 1, 1], rig[1, 0, 2], rig[1, 1, 2]
+    r_rl = np.ascontiguousarray(rig[2, :3, :3].T)  # right from left
+    t_rl = -(r_rl @ np.ascontiguousarray(rig[2, :3, 3]))
+    pred = np.empty((n, 4))
+    s = np.empty((n, 4, 4))
+    d_point = np.empty((n, 4, 3))
+    in_front = np.empty(n, np.bool_)
+    p_body = np.empty(3)
+    p_cam = np.empty(3)
+    p_right = np.empty(3)
+    point = np.empty(3)
+    j_cam = np.zeros((4, 3))
+    h = np.empty((4, 9))
+    hp = np.empty((4, 9))
+    si = np.empty((4, 4))
+    for i in range(n):
+        for pass_ in range(2):
+            if pass_ == 0:
+                for a in range(3):
+                    point[a] = points[i, a]
+            else:  # behind the camera: evaluate 10 m ahead of the body
+                for a in range(3):
+                    point[a] = pose[a, 3] + rot[a, 0] * 10.0
+            for a in range(3):
+                p_body[a] = (
+                    rot[0, a] * (point[0] - pose[0, 3])
+                    + rot[1, a] * (point[1] - pose[1, 3])
+                    + rot[2, a] * (point[2] - pose[2, 3])
+                )
+            for a in range(3):
+                p_cam[a] = (
+                    p_body[0] * r_cb[a, 0] + p_body[1] * r_cb[a, 1] + p_body[2] * r_cb[a, 2]
+                ) + t_cb[a]
+            if pass_ == 0:
+                in_front[i] = p_cam[2] > min_depth
+                if in_front[i]:
+                    break
+        for a in range(3):
+            p_right[a] = (
+                p_cam[0] * r_rl[a, 0] + p_cam[1] * r_rl[a, 1] + p_cam[2] * r_rl[a, 2]
+            ) + t_rl[a]
+        pred[i, 0] = p_cam[0] / p_cam[2] * fx + cx
+        pred[i, 1] = p_cam[1] / p_cam[2] * fy + cy
+        pred[i, 2] = p_right[0] / p_right[2] * fx + cx
+        pred[i, 3] = p_right[1] / p_right[2] * fy + cy
+        # ∂z/∂p_cam: the pinhole Jacobian of each camera (the right one rotated to the left)
+        inv_z = 1.0 / p_cam[2]
+        a_x, a_y = fx * inv_z, fy * inv_z
+        b_x, b_y = -fx * p_cam[0] * inv_z**2, -fy * p_cam[1] * inv_z**2
+        inv_z = 1.0 / p_right[2]
+        c_x, c_y = fx * inv_z, fy * inv_z
+        e_x, e_y = -fx * p_right[0] * inv_z**2, -fy * p_right[1] * inv_z**2
+        for c in range(3):
+            j_cam[0, c] = a_x if c == 0 else (b_x if c == 2 else 0.0)
+            j_cam[1, c] = a_y if c == 1 else (b_y if c == 2 else 0.0)
+            j_cam[2, c] = c_x * r_rl[0, c] + e_x * r_rl[2, c]
+            j_cam[3, c] = c_y * r_rl[1, c] + e_y * r_rl[2, c]
+        # H = [−∂z/∂p_body, ∂z/∂p_body p_body^, ∂z/∂p_body Rᵀ], ∂z/∂p_body = ∂z/∂p_cam R_cb
+        for r in range(4):
+            a0 = j_cam[r, 0] * r_cb[0, 0] + j_cam[r, 1] * r_cb[1, 0] + j_cam[r, 2] * r_cb[2, 0]
+            a1 = j_cam[r, 0] * r_cb[0, 1] + j_cam[r, 1] * r_cb[1, 1] + j_cam[r, 2] * r_cb[2, 1]
+            a2 = j_cam[r, 0] * r_cb[0, 2] + j_cam[r, 1] * r_cb[1, 2] + j_cam[r, 2] * r_cb[2, 2]
+            h[r, 0], h[r, 1], h[r, 2] = -a0, -a1, -a2
+            h[r, 3] = a1 * p_body[2] - a2 * p_body[1]
+            h[r, 4] = -a0 * p_body[2] + a2 * p_body[0]
+            h[r, 5] = a0 * p_body[1] - a1 * p_body[0]
+            for c in range(3):
+                v = a0 * rot[c, 0] + a1 * rot[c, 1] + a2 * rot[c, 2]
+                h[r, 6 + c] = v
+                d_point[i, r, c] = v
+        # S = H P Hᵀ + σ² I, symmetrised
+        for r in range(4):
+            for c in range(9):
+                acc = 0.0
+                for k in range(9):
+                    acc += h[r, k] * p[i, k, c]
+                hp[r, c] = acc
+        for r in range(4):
+            for c in range(4):
+                acc = 0.0
+                for k in range(9):
+                    acc += hp[r, k] * h[c, k]
+                si[r, c] = acc
+            si[r, r] += noise_var
+        for r in range(4):
+            for c in range(4):
+                s[i, r, c] = 0.5 * (si[r, c] + si[c, r])
+    return pred, s, d_point, in_front
+
+
+@numba.njit(cache=True)
+def _squared_distances(s, pred, z):
+    """``d²[t, j] = (z_j − ẑ_t)ᵀ S_t⁻¹ (z_j − ẑ_t)`` by one Cholesky factorisation of each
+    ``S_t`` and a forward substitution per pair."""
+    n, d = pred.shape[0], z.shape[0]
+    out = np.empty((n, d))
+    chol = np.zeros((4, 4))
+    y = np.empty(4)
+    for t in range(n):
+        for a in range(4):
+            for b in range(a + 1):
+                acc = s[t, a, b]
+                for k in range(b):
+                    acc -= chol[a, k] * chol[b, k]
+                if a == b:
+                    if not acc > 0.0:
+                        raise np.linalg.LinAlgError("innovation covariance not positive definite")
+                    chol[a, a] = np.sqrt(acc)
+                else:
+                    chol[a, b] = acc / chol[b, b]
+        for j in range(d):
+            total = 0.0
+            for a in range(4):
+                acc = z[j, a] - pred[t, a]
+                for k in range(a):
+                    acc -= chol[a, k] * y[k]
+                y[a] = acc / chol[a, a]
+                total += y[a] * y[a]
+            out[t, j] = total
+    return out
 
 
 def _chi2(probability: float, dof: int) -> float:
