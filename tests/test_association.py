@@ -608,3 +608,21 @@ def test_extend_refuses_a_pair_with_a_second_object_in_its_gate():
     table, other, a, b = _with_an_object_off_its_distances([0.3, -6.0], settings)
     assert table.extend(a, b, step=1).tolist() == [[77_777, 99_999]]
     assert other.extend(b, a, step=1).tolist() == [[99_999, 77_777]]
+
+
+def test_full_association_refuses_a_gated_pair_inconsistent_with_its_consistent_set():
+    # the pair of the extension test above, offered to a full association: inside the gate of
+    # the answer's transform, 4.3 m off in its distances to the consistent set's objects
+    settings = AssociationSettings(drift_ratio=0.01)
+    _, _, a, b = _with_an_object_off_its_distances(4.3, settings)
+    result = associate(a, b, settings)
+    t = result.T_first_second
+    nu = a.means[-1] - (t[:3, :3] @ b.means[-1] + t[:3, 3])
+    assert nu @ nu / 2.0 < settings.gate_threshold
+    assert result.matched and (77_777, 99_999) not in set(map(tuple, result.pairs.tolist()))
+    assert len(result.pairs) == 40
+    swapped = associate(b, a, settings)
+    assert (99_999, 77_777) not in set(map(tuple, swapped.pairs.tolist()))
+    # placed alike in both maps, the same objects make a pair
+    _, _, a, b = _with_an_object_off_its_distances(0.5, settings)
+    assert (77_777, 99_999) in set(map(tuple, associate(a, b, settings).pairs.tolist()))

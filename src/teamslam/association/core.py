@@ -576,6 +576,40 @@ def _distinct(
     return rows[keep], cols[keep]
 
 
+def _alone(gated: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Which pairs ``(rows[k], cols[k])`` are alone in each other's gate: no second object of
+    either map passes the gate ``gated`` (``(n_first, n_second)`` boolean) with either of the two
+    — a gate alone does not choose between two objects."""
+    return (gated[rows].sum(axis=1) == 1) & (gated[:, cols].sum(axis=0) == 1)
+
+
+def _consistent_members(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    held_rows: np.ndarray,
+    held_cols: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    cost: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Which new pairs keep the held set pairwise consistent, as a consistent set's members are.
+
+    A gate under the held transform tests a pair against the transform alone; a wrong pair
+    whose gate is wide in some direction passes it although its distances to the held objects
+    disagree between the two maps. Here each new pair must be consistent
+    (:func:`~teamslam.association.core.consistent_with`) with every held pair and with the new
+    pairs taken before it (best gate cost first, ties by index): the table then stays a set of
+    pairs whose distances agree two by two.
+    """
+    with_held = consistent_with(a, b, rows, cols, held_rows, held_cols, settings).all(axis=1)
+    among = consistent_with(a, b, rows, cols, rows, cols, settings)
+    keep = np.zeros(rows.size, dtype=bool)
+    for k in np.argsort(cost, kind="stable"):
+        keep[k] = with_held[k] and bool(among[k, keep].all())
+    return keep
+
+
 def _nearest_neighbour(means: np.ndarray) -> np.ndarray:
     """Distance from each object to its nearest other object of the same map (``inf``: alone)."""
     d2 = np.einsum("abi,abi->ab", means[:, None] - means[None], means[:, None] - means[None])
@@ -671,7 +705,7 @@ def _associate(
     # the largest consistent sets, one after another: each next one among the candidates that
     # the transforms of the earlier ones reject; each judged by the pairs its transform gathers
     pool = np.ones(ia.size, dtype=bool)
-    found = []  # (rows, cols, transform, clique pairs)
+    found = []  # (rows, cols, transform, clique pairs, last gate, clique indices)
     exact = True
     for _ in range(settings.rivals + 1):
         index = np.flatnonzero(pool)
@@ -682,8 +716,8 @@ def _associate(
         if clique.size < need:
             break
         ca, cb = ia[index[clique]], ib[index[clique]]
-        rows, cols, t, passed = _support(a, b, ca, cb, settings)
-        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]])))
+        rows, cols, t, passed, gated = _support(a, b, ca, cb, settings)
+        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), gated, (ca, cb)))
         pool[index[clique]] = False
         pool &= ~passed[ia, ib]
     counts = {
@@ -694,7 +728,7 @@ def _associate(
         return _no_answer(a, b, "too-few", exact=exact, **counts)
     # the answer: the set gathering the most pairs (the first found among equals)
     best = max(range(len(found)), key=lambda k: (found[k][0].size, -k))
-    rows, cols, t, clique_pairs = found[best]
+    rows, cols, t, clique_pairs, gated, (ca, cb) = found[best]
     counts["clique"] = int(clique_pairs.shape[0])
     held = set(zip(rows.tolist(), cols.tolist(), strict=True))
     # a rival: another set whose pairs contradict the answer's (pairs it does not hold)
@@ -716,6 +750,7 @@ def _associate(
     # the answer stands; its pairs too loosely placed to tell from a neighbour are left out
     ok = _separated(a, b, t, a.means[rows], b.means[cols], rows, cols, settings)
     rows, cols = rows[ok], cols[ok]
+    rows, cols = _beyond_the_clique(a, b, rows, cols, ca, cb, gated, t, settings)
     pairs = np.column_stack([a.ids[rows], b.ids[cols]])
     pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
     return AssociationResult(
@@ -741,9 +776,10 @@ def _support(
 
     Returns
     -------
-    rows, cols, T_first_second, passed
-        Indices of the matched objects, the transform they imply, and the first gate (anchored
-        on the set) — what the set's transform accepts.
+    rows, cols, T_first_second, passed, gated
+        Indices of the matched objects, the transform they imply, the first gate (anchored
+        on the set) — what the set's transform accepts — and the last gate, the one that chose
+        the pairs.
     """
     # distances alone let a few wrong pairs into a consistent set; keep its rigid core
     core_a, core_b = _core(a, b, ca, cb, settings)
@@ -766,7 +802,49 @@ def _support(
         rows, cols = _distinct(cost, rows, cols, settings.distinctness)
         if rows.size >= need:
             t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
-    return rows, cols, t, first_gate
+    return rows, cols, t, first_gate, passed
+
+
+def _beyond_the_clique(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    clique_rows: np.ndarray,
+    clique_cols: np.ndarray,
+    gated: np.ndarray,
+    T_first_second: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The answer's pairs, those the gate added beyond the consistent set held to the tests of
+    an extension (:meth:`~teamslam.association.CorrespondenceTable.extend`).
+
+    The consistent set's pairs in the answer stay. A pair the gate added is kept when its two
+    objects are alone in each other's gate (:func:`_alone`) and it is consistent two by two with
+    the set's pairs and the added pairs kept before it (:func:`_consistent_members`): a gate
+    under the set's transform tests a pair against the transform alone, and a wrong pair whose
+    gate is wide in some direction, or that shares its gate with a second object, passes it.
+    """
+    if rows.size == 0:
+        return rows, cols
+    in_clique = np.zeros(gated.shape, dtype=bool)
+    in_clique[clique_rows, clique_cols] = True
+    member = in_clique[rows, cols]
+    added = np.flatnonzero(~member)
+    if added.size == 0:
+        return rows, cols
+    r, c = rows[added], cols[added]
+    alone = _alone(gated, r, c)
+    added, r, c = added[alone], r[alone], c[alone]
+    # the cost to order the added pairs: their Mahalanobis distance under the answer's transform
+    rot = T_first_second[:3, :3]
+    nu = a.means[r] - (b.means[c] @ rot.T + T_first_second[:3, 3])
+    s = a.covs[r] + rot @ b.covs[c] @ rot.T
+    cost = np.einsum("ki,ki->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+    ok = _consistent_members(a, b, rows[member], cols[member], r, c, cost, settings)
+    keep = member.copy()
+    keep[added[ok]] = True
+    return rows[keep], cols[keep]
 
 
 def _core(

@@ -24,11 +24,12 @@ import numpy as np
 from teamslam.association.core import (
     AssociationResult,
     AssociationSettings,
+    _alone,
     _assign,
+    _consistent_members,
     _distinct,
     _separated,
     chi2_quantile,
-    consistent_with,
     fit_transform,
     gate_pairs,
 )
@@ -259,7 +260,8 @@ class CorrespondenceTable:
         * separated (their gate, with the drift allowance from the held pairs, narrow against
           their objects' spacing: :attr:`~teamslam.association.AssociationSettings.separation`);
         * consistent two by two with the held pairs and the pairs added before them, as the
-          members of a full association's consistent set are (:func:`_consistent_members`).
+          members of a full association's consistent set are
+          (:func:`~teamslam.association.core._consistent_members`).
 
         A pair left out waits for a full association or for covariances that tell its objects
         apart. Computed in the canonical order of the two robots, like
@@ -407,7 +409,7 @@ def _extend(
         passed &= free_a[:, None] & free_b[None, :]
         rows, cols = _assign(cost, passed)
         # alone in each other's gate: no second object of either map (held or not) fits
-        alone = (gated[rows].sum(axis=1) == 1) & (gated[:, cols].sum(axis=0) == 1)
+        alone = _alone(gated, rows, cols)
         rows, cols = rows[alone], cols[alone]
     # distinct against every object, the held pairs counting as assigned
     all_rows = np.concatenate([ia, rows])
@@ -422,33 +424,6 @@ def _extend(
     ok = _consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
     pairs = np.column_stack([a.ids[rows[ok]], b.ids[cols[ok]]])
     return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
-
-
-def _consistent_members(
-    a: ObjectSummary,
-    b: ObjectSummary,
-    held_rows: np.ndarray,
-    held_cols: np.ndarray,
-    rows: np.ndarray,
-    cols: np.ndarray,
-    cost: np.ndarray,
-    settings: AssociationSettings,
-) -> np.ndarray:
-    """Which new pairs keep the held set pairwise consistent, as a consistent set's members are.
-
-    A gate under the held transform tests a pair against the transform alone; a wrong pair
-    whose gate is wide in some direction passes it although its distances to the held objects
-    disagree between the two maps. Here each new pair must be consistent
-    (:func:`~teamslam.association.core.consistent_with`) with every held pair and with the new
-    pairs taken before it (best gate cost first, ties by index): the table then stays a set of
-    pairs whose distances agree two by two.
-    """
-    with_held = consistent_with(a, b, rows, cols, held_rows, held_cols, settings).all(axis=1)
-    among = consistent_with(a, b, rows, cols, rows, cols, settings)
-    keep = np.zeros(rows.size, dtype=bool)
-    for k in np.argsort(cost, kind="stable"):
-        keep[k] = with_held[k] and bool(among[k, keep].all())
-    return keep
 
 
 def _merge_gate(
