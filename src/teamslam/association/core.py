@@ -705,7 +705,7 @@ def _associate(
     # the largest consistent sets, one after another: each next one among the candidates that
     # the transforms of the earlier ones reject; each judged by the pairs its transform gathers
     pool = np.ones(ia.size, dtype=bool)
-    found = []  # (rows, cols, transform, clique pairs, last gate, clique indices)
+    found = []  # (rows, cols, transform, clique pairs, clique indices)
     exact = True
     for _ in range(settings.rivals + 1):
         index = np.flatnonzero(pool)
@@ -716,8 +716,8 @@ def _associate(
         if clique.size < need:
             break
         ca, cb = ia[index[clique]], ib[index[clique]]
-        rows, cols, t, passed, gated = _support(a, b, ca, cb, settings)
-        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), gated, (ca, cb)))
+        rows, cols, t, passed = _support(a, b, ca, cb, settings)
+        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
         pool[index[clique]] = False
         pool &= ~passed[ia, ib]
     counts = {
@@ -728,7 +728,7 @@ def _associate(
         return _no_answer(a, b, "too-few", exact=exact, **counts)
     # the answer: the set gathering the most pairs (the first found among equals)
     best = max(range(len(found)), key=lambda k: (found[k][0].size, -k))
-    rows, cols, t, clique_pairs, gated, (ca, cb) = found[best]
+    rows, cols, t, clique_pairs, (ca, cb) = found[best]
     counts["clique"] = int(clique_pairs.shape[0])
     held = set(zip(rows.tolist(), cols.tolist(), strict=True))
     # a rival: another set whose pairs contradict the answer's (pairs it does not hold)
@@ -750,7 +750,7 @@ def _associate(
     # the answer stands; its pairs too loosely placed to tell from a neighbour are left out
     ok = _separated(a, b, t, a.means[rows], b.means[cols], rows, cols, settings)
     rows, cols = rows[ok], cols[ok]
-    rows, cols = _beyond_the_clique(a, b, rows, cols, ca, cb, gated, t, settings)
+    rows, cols = _beyond_the_clique(a, b, rows, cols, ca, cb, t, settings)
     pairs = np.column_stack([a.ids[rows], b.ids[cols]])
     pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
     return AssociationResult(
@@ -776,10 +776,9 @@ def _support(
 
     Returns
     -------
-    rows, cols, T_first_second, passed, gated
-        Indices of the matched objects, the transform they imply, the first gate (anchored
-        on the set) — what the set's transform accepts — and the last gate, the one that chose
-        the pairs.
+    rows, cols, T_first_second, passed
+        Indices of the matched objects, the transform they imply, and the first gate (anchored
+        on the set) — what the set's transform accepts.
     """
     # distances alone let a few wrong pairs into a consistent set; keep its rigid core
     core_a, core_b = _core(a, b, ca, cb, settings)
@@ -802,7 +801,7 @@ def _support(
         rows, cols = _distinct(cost, rows, cols, settings.distinctness)
         if rows.size >= need:
             t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
-    return rows, cols, t, first_gate, passed
+    return rows, cols, t, first_gate
 
 
 def _beyond_the_clique(
@@ -812,31 +811,35 @@ def _beyond_the_clique(
     cols: np.ndarray,
     clique_rows: np.ndarray,
     clique_cols: np.ndarray,
-    gated: np.ndarray,
     T_first_second: np.ndarray,
     settings: AssociationSettings,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The answer's pairs, those the gate added beyond the consistent set held to the tests of
-    an extension (:meth:`~teamslam.association.CorrespondenceTable.extend`).
+    """The answer's pairs, those the gate added beyond the consistent set held to the consistency
+    test of an extension (:meth:`~teamslam.association.CorrespondenceTable.extend`).
 
-    The consistent set's pairs in the answer stay. A pair the gate added is kept when its two
-    objects are alone in each other's gate (:func:`_alone`) and it is consistent two by two with
-    the set's pairs and the added pairs kept before it (:func:`_consistent_members`): a gate
-    under the set's transform tests a pair against the transform alone, and a wrong pair whose
-    gate is wide in some direction, or that shares its gate with a second object, passes it.
+    The consistent set's pairs in the answer stay. A pair the gate added is kept when it is
+    consistent two by two with the set's pairs and the added pairs kept before it, best gate
+    cost first (:func:`_consistent_members`): a gate under the set's transform tests a pair
+    against the transform alone, and a wrong pair whose gate is wide in some direction passes it
+    although its distances to the set's objects disagree between the two maps.
+
+    The extension's other test, both objects alone in each other's gate (:func:`_alone`), is not
+    applied here. Measured on KITTI 00 with per-robot ids (``teamslam run --association own``):
+    with it, the pairs full associations add beyond their consistent sets fall from 27 wrong and
+    36 right (per end of the links) to 16 and 18, the RMSE from 7.724 to 7.687 m, the revoked
+    pairs from 37 to 26, but recall from 0.739 to 0.719; without it (this rule) 25 wrong and 36
+    right, RMSE, recall and held pairs as before, 35 revoked.
     """
     if rows.size == 0:
         return rows, cols
-    in_clique = np.zeros(gated.shape, dtype=bool)
+    in_clique = np.zeros((len(a), len(b)), dtype=bool)
     in_clique[clique_rows, clique_cols] = True
     member = in_clique[rows, cols]
     added = np.flatnonzero(~member)
     if added.size == 0:
         return rows, cols
     r, c = rows[added], cols[added]
-    alone = _alone(gated, r, c)
-    added, r, c = added[alone], r[alone], c[alone]
-    # the cost to order the added pairs: their Mahalanobis distance under the answer's transform
+    # the order of the added pairs: their Mahalanobis distance under the answer's transform
     rot = T_first_second[:3, :3]
     nu = a.means[r] - (b.means[c] @ rot.T + T_first_second[:3, 3])
     s = a.covs[r] + rot @ b.covs[c] @ rot.T
