@@ -430,13 +430,10 @@ def consistent_with(
         raise InputError("consistent_with: the indices of a set of pairs differ in length")
 
     def distance(summary: ObjectSummary, x: np.ndarray, y: np.ndarray):
-        delta = summary.means[x][:, None, :] - summary.means[y][None, :, :]
-        dist = np.linalg.norm(delta, axis=2)
-        unit = delta / np.maximum(dist, np.finfo(float).tiny)[..., None]
-        var = np.einsum("khi,kij,khj->kh", unit, summary.covs[x], unit) + np.einsum(
-            "khi,hij,khj->kh", unit, summary.covs[y], unit
-        )
-        return dist, var
+        # the (x, y) block of the distances among x and y together (_distances)
+        both = np.concatenate([x, y])
+        dist, var = _distances(summary.means[both], summary.covs[both])
+        return dist[: x.size, x.size :], var[: x.size, x.size :]
 
     d_a, v_a = distance(first, rows, held_rows)
     d_b, v_b = distance(second, cols, held_cols)
