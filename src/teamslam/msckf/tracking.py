@@ -245,9 +245,7 @@ class ObjectTracker:
             stale_pairs = allowed & ~fresh[:, None]
             if stale_pairs.any():
                 left = assigned_target < 0
-                lone = stale_pairs.copy()
-                lone &= (allowed.sum(axis=1) == 1)[:, None] & (allowed.sum(axis=0) == 1)[None, :]
-                lone &= left[None, :]
+                lone = _alone(stale_pairs, allowed) & left[None, :]
                 stale_hits = _take_unambiguous(lone, assigned_target)
                 for j in np.flatnonzero(stale_hits).tolist():
                     self.revisits.append((t, int(index[j]), int(target_ids[assigned_target[j]])))
@@ -259,8 +257,7 @@ class ObjectTracker:
                 # each detection the only one in the gate of an object not seen for N frames, that
                 # object alone (of those) in the detection's gate, and no object followed frame to
                 # frame holding it in its outer gate: evidence for a track to continue that object
-                stale = stale_pairs
-                stale &= (stale.sum(axis=1) == 1)[:, None] & (stale.sum(axis=0) == 1)[None, :]
+                stale = _alone(stale_pairs)
                 owned = inside_birth & agree & (fresh & (kinds < 2))[:, None]
                 stale &= ~owned.any(axis=0)[None, :]
                 has = stale.any(axis=0)
@@ -585,12 +582,19 @@ def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarr
     assigned[cols_idx[ca[keep]]] = rows_idx[ra[keep]]
 
 
+def _alone(pairs: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
+    """The (target, detection) ``pairs`` whose target has no other detection and whose detection
+    has no other target among ``among`` (boolean ``(T, D)``; default ``pairs`` itself)."""
+    among = pairs if among is None else among
+    return pairs & (among.sum(axis=1) == 1)[:, None] & (among.sum(axis=0) == 1)[None, :]
+
+
 def _take_unambiguous(pairs: np.ndarray, assigned: np.ndarray) -> np.ndarray:
     """Assign each detection that is the only one of its target's ``pairs`` and whose target is
     the only one of its own; returns the detections assigned."""
     if not pairs.any():
         return np.zeros(pairs.shape[1], bool)
-    lone = pairs & (pairs.sum(axis=1) == 1)[:, None] & (pairs.sum(axis=0) == 1)[None, :]
+    lone = _alone(pairs)
     hits = lone.any(axis=0)
     assigned[hits] = np.argmax(lone[:, hits], axis=0)
     return hits
