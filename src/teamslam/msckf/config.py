@@ -176,6 +176,12 @@ class MsckfConfig:
         first ``N = track_confirm_frames`` frames, and dropped otherwise; a confirmed track not
         yet in the state is dropped after ``N`` frames without a detection. 0 takes the
         defaults ``M = object_init_observations`` and ``N = M + 2``.
+    track_loop_closure
+        Loop closure in each tracking robot's own map (:mod:`teamslam.msckf.loop_closure`): the
+        objects it created last are matched by the shape of the group against its objects
+        unseen for longer than the window (the own association's rules), and each accepted
+        pair is merged in the filter (an EKF update with ``x_new − x_old = 0``, then the new
+        object leaves the state).
     association
         Which objects of two neighbours are the same: ``oracle`` (equal ids — the dataset's ids
         are team-wide) or ``own`` (each robot names its own objects; each link finds its
@@ -229,6 +235,7 @@ class MsckfConfig:
     track_birth_probability: float = 0.999999
     track_confirm_hits: int = 0
     track_confirm_frames: int = 0
+    track_loop_closure: bool = False
     association: str = "oracle"
     association_interval: int = 5
     association_revoke_probability: float = 0.99999

@@ -74,6 +74,7 @@ from scipy.optimize import linear_sum_assignment
 
 from teamslam.geometry.camera import StereoCamera
 from teamslam.msckf.config import MsckfConfig
+from teamslam.msckf.loop_closure import LoopClosure
 from teamslam.msckf.models import observe_jacobians, points_in_camera
 from teamslam.msckf.update import stereo_point
 
@@ -170,6 +171,15 @@ class ObjectTracker:
         #: every re-identification: ``(frame, row of the frame's detections, object id)`` of a
         #: detection given to an object not seen for ``N`` frames
         self.revisits: list[tuple[int, int, int]] = []
+        # every id the tracker created (confirmed) and the frame of its first detection
+        self._created_ids: list[int] = []
+        self._created_frames: list[int] = []
+        #: loop closure in the robot's own map (:mod:`teamslam.msckf.loop_closure`), or None
+        self.loop: LoopClosure | None = (
+            LoopClosure(gap=config.window) if config.track_loop_closure else None
+        )
+        #: every merged object and the object it continues (new id -> old id)
+        self.merged: dict[int, int] = {}
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -195,7 +205,11 @@ class ObjectTracker:
         """
         if self._first_logged is None:
             self._first_logged = t
-        self._forget_mapped(state)
+        self._forget_mapped(state)  # before a loop closure takes a mapped object out
+        if self.loop is not None:
+            self.loop.travel(t, state.current_pose[:3, 3])
+            if self._created_ids and hasattr(state, "retire_objects"):
+                self._close_loops(t, state)
         every = np.full(z.shape[0], -1, np.int64)
         index = np.flatnonzero(np.all(np.isfinite(z), axis=1))
         z = z[index]
@@ -290,10 +304,44 @@ class ObjectTracker:
         return frame
 
     def hypotheses(self) -> np.ndarray:
-        """The id given to every detection so far, in frame order (``-1``: none)."""
+        """The id given to every detection so far, in frame order (``-1``: none); a merged
+        object's detections carry the id of the object it continues (loop closure)."""
         if not self.log:
             return np.zeros(0, np.int64)
-        return np.concatenate(self.log).astype(np.int64)
+        out = np.concatenate(self.log).astype(np.int64)
+        if self.merged:
+            new = np.fromiter(self.merged, np.int64)
+            old = np.array([self._continued(i) for i in new.tolist()], np.int64)
+            order = np.argsort(new)
+            new, old = new[order], old[order]
+            pos = np.clip(np.searchsorted(new, out), 0, new.size - 1)
+            out = np.where(new[pos] == out, old[pos], out)
+        return out
+
+    def _continued(self, object_id: int) -> int:
+        """The object a merged object continues (through merges of merges)."""
+        while object_id in self.merged:
+            object_id = self.merged[object_id]
+        return object_id
+
+    def _close_loops(self, t: int, state) -> None:
+        """Merge the recent objects that are old ones seen again (:mod:`~teamslam.msckf.
+        loop_closure`)."""
+        pairs = self.loop.step(
+            t,
+            state,
+            np.array(self._created_ids, np.int64),
+            np.array(self._created_frames, np.int64),
+            self._labels_of if self._label_ids.size else None,
+        )
+        for n, o in pairs.tolist():
+            self.merged[n] = o
+        self.counters["loop_closures"] = len(self.loop.closures)
+
+    def _labels_of(self, ids: np.ndarray) -> np.ndarray:
+        """Class label of each id (``-1``: none)."""
+        pos = np.clip(np.searchsorted(self._label_ids, ids), 0, self._label_ids.size - 1)
+        return np.where(self._label_ids[pos] == ids, self._labels[pos], -1)
 
     @property
     def n_tracks(self) -> int:
@@ -456,6 +504,8 @@ class ObjectTracker:
                     self.log[f - self._first_logged][j] = tid
                 frame.confirmed.append((tid, frames, zs))
                 self.counters["tracks_confirmed"] += 1
+                self._created_ids.append(tid)
+                self._created_frames.append(int(frames[0]) if frames.size else t)
                 self._add_labels(np.array([tid]), self.classes[row : row + 1])
             if self.confirmed[row]:
                 frame.ids[det] = tid

@@ -1,0 +1,298 @@
+"""Loop closure in a robot's own object map: a revisit re-identified by the shape of a group.
+
+A robot that tracks its own detections (:mod:`teamslam.msckf.tracking`) and drives away and back
+often maps a revisited object a second time: after the drive its filter's estimate of the old
+object is off by the drift, and a single object's gate test at its first detection is mostly
+wrong (the filter is overconfident exactly there). The *shape* of a group of objects survives
+drift: the objects the robot has just mapped on the revisit form a small local map whose
+distances — within their uncertainty — match a part of its old map, whatever the drift. So
+:func:`find_loop` applies the robot's own inter-robot association (:func:`~teamslam.association.
+associate`: drift-invariant candidates, pairwise consistency, maximum clique, rigid transform,
+Mahalanobis gate, rival sets) between
+
+* the **recent** objects: the ``recent`` objects of the state the tracker created last, and
+* the **old** objects: those of the state last seen more than a window of frames before the
+  first of the recent ones was created (an object seen together with a recent one, or just
+  before it, is another object, not the same one seen again), and those of the persistent map.
+
+It never guesses: fewer than ``min_inliers`` pairs, or a rival consistent set nearly as large
+(a row of evenly parked cars, a mirror image of the group), gives nothing
+(:class:`~teamslam.association.AssociationSettings`; every threshold is a χ² quantile, a ratio
+or a count).
+
+:func:`merge_objects` then closes the loop in the filter, for every accepted pair (new object
+``n`` ≙ old object ``o``): one EKF update with the constraint ``x_n − x_o = 0`` — all pairs
+stacked, a noise variance ``ε`` of ``1e-9`` of each pair's own prior variance (relative: no
+unit; the state's Cholesky-factored update keeps the covariance exactly symmetric) — then
+``x_n`` leaves the state. After the update ``x_n`` and ``x_o`` are equal up to ``ε`` and
+perfectly correlated, so dropping ``x_n`` (a marginalisation: its rows and columns leave the
+covariance) loses nothing; the result is, up to ``ε``, Gaussian conditioning on ``x_n = x_o``
+— the batch solution for a linear model. Through the cross-covariances the update moves the
+current pose and every correlated object: the drift accumulated since ``o`` was last seen is
+corrected.
+
+An old object of the **persistent map** holds only its mean and marginal covariance (its
+correlation with the state was dropped at retirement). It re-enters the state first
+(:meth:`~teamslam.msckf.state.MsckfState.reenter_objects`, no cross-covariance — the same
+approximation its re-entry on a re-detection makes) and is then merged in the same update.
+
+The tracker names every later detection of the object ``o`` and relabels ``n``'s earlier
+detections as ``o`` (:meth:`ObjectTracker.hypotheses <teamslam.msckf.tracking.ObjectTracker.
+hypotheses>`), so metrics see one object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from teamslam.association import AssociationResult, AssociationSettings, ObjectSummary, associate
+
+__all__ = ["LoopClosure", "find_loop", "merge_objects"]
+
+#: Noise of the merge constraint, relative to each pair's own prior variance of ``x_n − x_o``.
+MERGE_RELATIVE_NOISE = 1e-9
+
+
+@dataclass
+class LoopClosure:
+    """Which objects of a robot's map are revisits of older ones.
+
+    Parameters
+    ----------
+    gap
+        Frames: an old object was last seen more than this before the first recent object was
+        created (the filter's window).
+    recent
+        How many of the objects the tracker created last form the recent map (twice the
+        association's default ``min_inliers``).
+    settings
+        The association's thresholds (:class:`~teamslam.association.AssociationSettings`).
+
+    Attributes
+    ----------
+    closures
+        Every merged pair: ``(frame, new id, old id)``.
+    attempts
+        Associations run (one per new recent object).
+    refused
+        Answers refused because a pair lay beyond the drift the distance travelled allows.
+    """
+
+    gap: int
+    recent: int = 12
+    settings: AssociationSettings = field(default_factory=AssociationSettings)
+    closures: list[tuple[int, int, int]] = field(default_factory=list)
+    attempts: int = 0
+    refused: int = 0
+    _last_key: tuple[int, ...] = ()
+    # the distance the robot's estimate travelled up to each frame (from the first observed)
+    _path: list[float] = field(default_factory=list)
+    _first_frame: int = 0
+    _last_position: np.ndarray | None = None
+
+    def travel(self, t: int, position: np.ndarray) -> None:
+        """Record the robot's estimated position at frame ``t`` (every frame, in order)."""
+        if self._last_position is None:
+            self._first_frame = t
+            self._path.append(0.0)
+        else:
+            self._path.append(
+                self._path[-1] + float(np.linalg.norm(position - self._last_position))
+            )
+        self._last_position = np.array(position, float)
+
+    def travelled_since(self, frames: np.ndarray) -> np.ndarray:
+        """Distance travelled since each of ``frames`` (before the first recorded: all of it)."""
+        path = np.asarray(self._path)
+        index = np.clip(np.asarray(frames, np.int64) - self._first_frame, 0, path.size - 1)
+        return path[-1] - path[index]
+
+    def step(
+        self,
+        t: int,
+        state,
+        created_ids: np.ndarray,
+        created_frames: np.ndarray,
+        labels=None,
+    ) -> np.ndarray:
+        """Look for a revisit in ``state`` at frame ``t`` and merge it (:func:`merge_objects`).
+
+        Parameters
+        ----------
+        t
+            The current frame.
+        state
+            The robot's :class:`~teamslam.msckf.state.MsckfState`.
+        created_ids, created_frames
+            The ids the tracker created and the frame of each one's first detection (in
+            creation order).
+        labels
+            ``callable(ids) -> classes`` (``-1``: none) or ``None`` without classes.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(k, 2)`` pairs ``(new id, old id)`` merged (empty: none).
+        """
+        none = np.zeros((0, 2), np.int64)
+        in_state = np.isin(created_ids, state.object_ids)
+        ids = created_ids[in_state][-self.recent :]
+        if ids.size < self.settings.min_inliers:
+            return none
+        key = tuple(ids.tolist())
+        if key == self._last_key:
+            return none
+        self._last_key = key
+        since = int(created_frames[in_state][-self.recent :].min()) - self.gap
+        slots = state.object_slots(ids)
+        old_slots = np.flatnonzero(
+            (state.object_last_seen < since) & ~np.isin(state.object_ids, ids)
+        )
+        retired = state.retired.arrays()
+        old = ObjectSummary(
+            1,
+            np.concatenate([state.object_ids[old_slots], retired["ids"]]),
+            np.concatenate([state.objects[old_slots], retired["means"]]),
+            np.concatenate([state.object_covs()[old_slots], retired["covs"]]),
+        )
+        recent = ObjectSummary(0, ids, state.objects[slots], state.object_covs()[slots])
+        # the drift since an old object was last seen: a fraction of the distance travelled
+        # (a retired object's last sighting is not kept: all of the distance)
+        travelled = np.concatenate(
+            [
+                self.travelled_since(state.object_last_seen[old_slots]),
+                self.travelled_since(np.zeros(len(retired["ids"]), np.int64)),
+            ]
+        )
+        reach = drift_gate(recent, old, travelled, self.settings)
+        old = old.take(np.flatnonzero(reach.any(axis=0)))
+        travelled = travelled[reach.any(axis=0)]
+        if len(old) < self.settings.min_inliers:
+            return none
+        if labels is not None:
+            recent = _with_classes(recent, labels(recent.ids))
+            old = _with_classes(old, labels(old.ids))
+        self.attempts += 1
+        result = find_loop(recent, old, self.settings)
+        if not result.matched or result.pairs.shape[0] < self.settings.min_inliers:
+            return none
+        # every pair within the drift the distance travelled allows, or no closure at all (a
+        # group whose shape fits far away is a coincidence, not a revisit)
+        rows = _positions(recent.ids, result.pairs[:, 0])
+        cols = _positions(old.ids, result.pairs[:, 1])
+        if not drift_gate(recent, old, travelled, self.settings)[rows, cols].all():
+            self.refused += 1
+            return none
+        merge_objects(state, result.pairs, t)
+        self.closures.extend((t, int(n), int(o)) for n, o in result.pairs.tolist())
+        return result.pairs
+
+
+def drift_gate(
+    recent: ObjectSummary, old: ObjectSummary, travelled: np.ndarray, settings: AssociationSettings
+) -> np.ndarray:
+    """Which (recent, old) pairs could be one object seen again: ``‖x_n − x_o‖²`` at most the
+    ``χ²₃`` gate times ``λ_max(Σ_n) + λ_max(Σ_o) + (ρ L_o)²``, with ``L_o`` the distance the robot
+    travelled since ``o`` was last seen and ``ρ`` the association's drift ratio (a map deforms
+    by a fraction of the distance covered; no constant in metres). ``(n_recent, n_old)``."""
+    delta = recent.means[:, None, :] - old.means[None, :, :]
+    sq = np.einsum("abi,abi->ab", delta, delta)
+    top_r = np.linalg.eigvalsh(recent.covs)[:, -1] if len(recent) else np.zeros(0)
+    top_o = np.linalg.eigvalsh(old.covs)[:, -1] if len(old) else np.zeros(0)
+    allowed = top_r[:, None] + top_o[None, :] + (settings.drift_ratio * travelled[None, :]) ** 2
+    return sq <= settings.gate_threshold * allowed
+
+
+def _positions(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """Positions of ``wanted`` in ``ids`` (all present)."""
+    order = np.argsort(ids)
+    return order[np.searchsorted(ids[order], wanted)]
+
+
+def _with_classes(summary: ObjectSummary, classes: np.ndarray) -> ObjectSummary:
+    classes = np.asarray(classes, np.int64)
+    if (classes < 0).any():  # an object without a class: compare shapes alone
+        return summary
+    return ObjectSummary(summary.robot, summary.ids, summary.means, summary.covs, classes)
+
+
+def find_loop(
+    recent: ObjectSummary, old: ObjectSummary, settings: AssociationSettings | None = None
+) -> AssociationResult:
+    """Which recent objects are old ones seen again: the association of the two maps of one
+    robot (:func:`~teamslam.association.associate`; ``recent`` plays the first role).
+
+    Parameters
+    ----------
+    recent, old
+        Summaries of the recent and the old objects of the same robot (their ``robot`` fields
+        only tell the two roles apart: ``recent`` must have the smaller).
+    settings
+        The association's thresholds.
+
+    Returns
+    -------
+    AssociationResult
+        ``pairs`` ``(recent id, old id)`` when matched; no pair when too few or ambiguous.
+    """
+    return associate(recent, old, settings)
+
+
+def merge_objects(state, pairs: np.ndarray, frame: int) -> np.ndarray:
+    """Merge object ``n`` into object ``o`` for each row ``(n, o)`` of ``pairs``.
+
+    One EKF update with the stacked constraints ``x_n − x_o = 0`` (noise ``ε`` of
+    :data:`MERGE_RELATIVE_NOISE` times each pair's prior variance), then every ``x_n`` leaves the
+    state (module docstring). An ``o`` of the persistent map re-enters the state first. ``o``
+    counts as last seen when the later of the two was.
+
+    Parameters
+    ----------
+    state
+        A :class:`~teamslam.msckf.state.MsckfState`.
+    pairs
+        ``(k, 2)`` ids ``(n, o)``: each ``n`` in the state, each ``o`` in the state or the
+        persistent map; all ``2k`` ids distinct.
+    frame
+        The current frame (when a re-entering ``o`` counts as seen at the latest).
+
+    Returns
+    -------
+    numpy.ndarray
+        The applied error-state correction (before ``x_n`` left).
+    """
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    if pairs.size == 0:
+        return np.zeros(state.dim)
+    if np.unique(pairs).size != pairs.size:
+        raise ValueError("merge_objects: an object appears twice in the pairs")
+    new, old = pairs[:, 0], pairs[:, 1]
+    if (state.object_slots(new) < 0).any():
+        raise ValueError("merge_objects: a new object is not in the state")
+    back = old[state.retired.contains(old)] if len(state.retired) else old[:0]
+    if back.size:
+        state.reenter_objects(back, frame)
+    slots_n, slots_o = state.object_slots(new), state.object_slots(old)
+    if (slots_o < 0).any():
+        raise ValueError("merge_objects: an old object is neither in the state nor retired")
+    seen = np.maximum(state.object_last_seen[slots_n], state.object_last_seen[slots_o])
+    if back.size:  # a retired object's own last sighting is older than the new one's
+        seen[np.isin(old, back)] = state.object_last_seen[slots_n[np.isin(old, back)]]
+    cols_n = state.object_columns(slots_n)  # (k, 3)
+    cols_o = state.object_columns(slots_o)
+    k = pairs.shape[0]
+    jacobian = np.zeros((3 * k, state.dim))
+    rows = np.arange(3 * k).reshape(k, 3)
+    jacobian[rows, cols_n] = 1.0
+    jacobian[rows, cols_o] = -1.0
+    residual = (state.objects[slots_o] - state.objects[slots_n]).ravel()  # 0 − (x_n − x_o)
+    cov = state.covariance(np.concatenate([cols_n, cols_o], axis=1))  # (k, 6, 6)
+    diff_var = np.einsum("kii->k", cov[:, :3, :3] + cov[:, 3:, 3:] - 2 * cov[:, :3, 3:]) / 3
+    noise = np.diag(np.repeat(MERGE_RELATIVE_NOISE * diff_var, 3))
+    delta = state.update(jacobian, residual, noise)
+    state.object_last_seen[slots_o] = seen
+    state.retire_objects(slots_n)
+    state.retired.take(new)
+    return delta

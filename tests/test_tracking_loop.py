@@ -1,0 +1,179 @@
+"""Loop closure in a robot's own object map: the merge is Gaussian conditioning, a simulated
+revisit is closed with the right pairs, an ambiguous old map gives nothing, and data with ids
+never meet it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from teamslam.association import AssociationSettings, ObjectSummary
+from teamslam.datasets.identity import strip_object_ids
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.loop_closure import find_loop, merge_objects
+from teamslam.msckf.settings import config_for
+from teamslam.msckf.state import MsckfState
+from teamslam.sim.lissajous import lissajous_team
+
+
+def _random_state(rng, ids, retired=()):
+    """A one-pose state holding objects ``ids`` with a random joint covariance (and, retired,
+    objects ``retired`` with random marginals)."""
+    m = len(ids)
+    a = rng.normal(size=(6 + 3 * m, 6 + 3 * m))
+    cov = a @ a.T / (6 + 3 * m) + 0.1 * np.eye(6 + 3 * m)
+    objects = rng.normal(scale=3.0, size=(m, 3))
+    state = MsckfState.from_arrays(np.eye(4)[None], np.array([5]), ids, objects, cov)
+    for oid in retired:
+        b = rng.normal(size=(3, 3))
+        state.retired.store(
+            np.array([oid]), rng.normal(size=(1, 3)), (b @ b.T + np.eye(3))[None], np.zeros((1, 3))
+        )
+    return state
+
+
+def _conditioned(mean, cov, pairs_cols):
+    """Gaussian conditioning of ``N(mean, cov)`` on ``x[n] = x[o]`` for each ``(n, o)`` block of
+    columns: the batch solution."""
+    h = np.zeros((3 * len(pairs_cols), mean.size))
+    for k, (cn, co) in enumerate(pairs_cols):
+        h[3 * k : 3 * k + 3, cn] = np.eye(3)
+        h[3 * k : 3 * k + 3, co] = -np.eye(3)
+    gain = cov @ h.T @ np.linalg.inv(h @ cov @ h.T)
+    return mean - gain @ (h @ mean), cov - gain @ h @ cov
+
+
+def test_merge_equals_gaussian_conditioning_on_a_linear_toy():
+    rng = np.random.default_rng(3)
+    ids = np.array([10, 11, 12, 13, 14])
+    state = _random_state(rng, ids)
+    mean = np.concatenate([np.zeros(6), state.objects.ravel()])
+    cov = state.cov.copy()
+    # merge 13 into 10 and 14 into 12: columns of each object
+    col = {int(i): 6 + 3 * k + np.arange(3) for k, i in enumerate(ids)}
+    want_mean, want_cov = _conditioned(mean, cov, [(col[13], col[10]), (col[14], col[12])])
+    delta = merge_objects(state, np.array([[13, 10], [14, 12]]), frame=5)
+    keep = np.concatenate([np.arange(6), col[10], col[11], col[12]])
+    assert state.object_ids.tolist() == [10, 11, 12]
+    assert len(state.retired) == 0  # the merged objects are gone, not retired
+    np.testing.assert_allclose(delta[:6], want_mean[:6], atol=1e-7)  # the pose's correction
+    np.testing.assert_allclose(state.objects.ravel(), want_mean[keep[6:]], atol=1e-7)
+    np.testing.assert_allclose(state.cov, want_cov[np.ix_(keep, keep)], atol=1e-7)
+    assert np.array_equal(state.cov, state.cov.T)
+    # the merged pair agreed before the new object left: its old partner is their common value
+    np.testing.assert_allclose(want_mean[col[13]], want_mean[col[10]], atol=1e-12)
+
+
+def test_merge_with_a_retired_object_brings_it_back_and_conditions_on_its_marginal():
+    rng = np.random.default_rng(4)
+    state = _random_state(rng, np.array([1, 2, 3]), retired=(9,))
+    means, covs, _ = state.retired.get(np.array([9]))
+    # the batch solution: the retired object independent of the state, with its marginal
+    dim = state.dim
+    mean = np.concatenate([np.zeros(6), state.objects.ravel(), means[0]])
+    cov = np.zeros((dim + 3, dim + 3))
+    cov[:dim, :dim] = state.cov
+    cov[dim:, dim:] = covs[0]
+    n_cols, o_cols = 6 + 3 * 2 + np.arange(3), dim + np.arange(3)
+    want_mean, want_cov = _conditioned(mean, cov, [(n_cols, o_cols)])
+    merge_objects(state, np.array([[3, 9]]), frame=5)
+    assert state.object_ids.tolist() == [1, 2, 9]
+    assert len(state.retired) == 0
+    keep = np.concatenate([np.arange(6 + 6), o_cols])
+    np.testing.assert_allclose(state.objects.ravel(), want_mean[keep[6:]], atol=1e-7)
+    np.testing.assert_allclose(state.cov, want_cov[np.ix_(keep, keep)], atol=1e-7)
+
+
+def test_merge_refuses_bad_pairs():
+    state = _random_state(np.random.default_rng(5), np.array([1, 2, 3]))
+    with pytest.raises(ValueError, match="twice"):
+        merge_objects(state, np.array([[1, 2], [2, 3]]), frame=5)
+    with pytest.raises(ValueError, match="not in the state"):
+        merge_objects(state, np.array([[7, 2]]), frame=5)
+    with pytest.raises(ValueError, match="neither"):
+        merge_objects(state, np.array([[1, 8]]), frame=5)
+
+
+def _rigid(points, angle, shift):
+    c, s = np.cos(angle), np.sin(angle)
+    r = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return points @ r.T + shift
+
+
+def _summary(robot, ids, points, std=0.2):
+    return ObjectSummary(robot, ids, points, np.broadcast_to(std**2 * np.eye(3), (len(ids), 3, 3)))
+
+
+def test_a_group_is_found_in_the_old_map_and_a_mirror_image_makes_it_ambiguous():
+    rng = np.random.default_rng(6)
+    group = np.column_stack([rng.uniform(-20, 20, (8, 2)), np.zeros(8)])  # planar, like cars
+    clutter = np.column_stack([rng.uniform(60, 140, (20, 2)), np.zeros(20)])
+    recent = _summary(0, np.arange(100, 108), group)
+    drifted = _rigid(group, 0.3, np.array([7.0, -4.0, 0.0]))  # the same group, 8 m of drift
+    old_ids = np.arange(8)
+    old = _summary(1, np.concatenate([old_ids, 50 + np.arange(20)]), np.vstack([drifted, clutter]))
+    settings = AssociationSettings()
+    found = find_loop(recent, old, settings)
+    assert found.matched
+    assert found.pairs.tolist() == np.column_stack([np.arange(100, 108), old_ids]).tolist()
+    # a mirror image of the group elsewhere in the old map: as large a rival, no answer
+    mirror = _rigid(group * np.array([-1.0, 1.0, 1.0]), 0.0, np.array([-200.0, 50.0, 0.0]))
+    ambiguous = _summary(
+        1,
+        np.concatenate([old_ids, 50 + np.arange(20), 80 + np.arange(8)]),
+        np.vstack([drifted, clutter, mirror]),
+    )
+    refused = find_loop(recent, ambiguous, settings)
+    assert not refused.matched and refused.pairs.size == 0
+    assert refused.status == "ambiguous"
+    # too few objects seen again: nothing
+    few = _summary(
+        1, np.concatenate([old_ids[:4], 50 + np.arange(20)]), np.vstack([drifted[:4], clutter])
+    )
+    assert not find_loop(recent, few, settings).matched
+
+
+def _truth_majority(truth, raw, oid):
+    own = truth[(raw == oid) & (truth >= 0)]
+    values, counts = np.unique(own, return_counts=True)
+    return int(values[np.argmax(counts)])
+
+
+def test_a_simulated_revisit_is_closed_with_the_right_pairs():
+    team = lissajous_team(robots=1, steps=300, seed=0, clutter=0.05, miss=0.1)
+    config = config_for(team, calibrate="never").with_(track_loop_closure=True)
+    stripped = strip_object_ids(team, to="none")
+    robot = stripped.robots[0]
+    agent = MsckfAgent(0, stripped.calibration, robot, config)
+    for t in range(robot.frames):
+        agent.step(t)
+    closures = agent.tracker.loop.closures
+    assert len(closures) >= 6  # one group at least
+    raw = np.concatenate(agent.tracker.log).astype(np.int64)
+    truth = robot.detections.truth
+    for _, new, old in closures:
+        assert _truth_majority(truth, raw, new) == _truth_majority(truth, raw, old)
+        assert new not in agent.state.object_ids and old in agent.state.object_ids
+    # the metrics see the old id on the new object's detections
+    hyp = agent.tracker.hypotheses()
+    merged = {new for _, new, _ in closures}
+    assert not np.isin(hyp, list(merged)).any()
+    assert agent.counters["loop_closures"] == len(closures)
+
+
+def test_data_with_ids_never_meet_loop_closure():
+    team = lissajous_team(robots=2, steps=60, seed=1)
+    runs = []
+    for on in (False, True):
+        config = config_for(team, calibrate="never").with_(track_loop_closure=on)
+        poses = []
+        for i, robot in enumerate(team.robots):
+            agent = MsckfAgent(i, team.calibration, robot, config)
+            assert agent.tracker is None
+            for t in range(robot.frames):
+                agent.step(t)
+                poses.append(agent.state.current_pose.copy())
+            poses.append(agent.state.cov.copy())
+        runs.append(poses)
+    for a, b in zip(*runs, strict=True):
+        assert np.array_equal(a, b)
