@@ -10,12 +10,16 @@ thread, per robot-frame — the measure on a shared machine), and where the IDF1
 (missed and false detections, wrong ids on a revisit — more than a window of frames from the
 object's own id — or within a pass; :func:`~teamslam.eval.tracking.idf1_losses`), and how
 many of the tracker's re-identifications (a detection given to an object not seen for ``N``
-frames) were right (:func:`~teamslam.eval.tracking.revisit_precision`).
+frames) were right (:func:`~teamslam.eval.tracking.revisit_precision`). Each case runs without
+and with loop closure in each robot's own map (``track_loop_closure``,
+:mod:`teamslam.msckf.loop_closure`; ``--loop-closure off|on|both``), whose CPU time counts as
+tracking; printed with it: the merged pairs and how many were right (both objects' own
+detections mostly of the same true object, :func:`closure_precision`).
 
 Usage::
 
     python benchmarks/tracking.py [--kitti DATASET_DIR] [--robots 5 --steps 300] [--seeds 0 1]
-                                  [--watch-revisits]
+                                  [--watch-revisits] [--loop-closure both]
 
 ``DATASET_DIR`` is a dataset with ids (e.g. ``teamslam data import-reference … K``); its
 settings are resolved (calibrated when it has no sensor model) on the oracle dataset and used
@@ -26,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -110,6 +115,27 @@ def watch_revisits(agent, detections, gap: int, out: list) -> None:
     tracker.assign = watched
 
 
+def closure_precision(truth: np.ndarray, raw: np.ndarray, closures: list) -> tuple[int, int]:
+    """How many loop closures ``(frame, new id, old id)`` were right: ``(right, judged)``; a
+    closure is judged when both objects' own detections (``raw``: the ids before any merge)
+    include true ones, and right when the true object most of each one's were is the same."""
+
+    def majority(oid: int) -> int:
+        own = truth[(raw == oid) & (truth >= 0)]
+        if not own.size:
+            return -1
+        values, counts = np.unique(own, return_counts=True)
+        return int(values[np.argmax(counts)])
+
+    right = judged = 0
+    for _, new, old in closures:
+        a, b = majority(new), majority(old)
+        if a >= 0 and b >= 0:
+            judged += 1
+            right += int(a == b)
+    return right, judged
+
+
 def compare(name: str, dataset, config, watch: bool = False) -> dict:
     """Oracle ids against own tracking on the same detections (``watch``: with
     :func:`watch_revisits`, whose extra prediction is counted in the tracking time)."""
@@ -122,6 +148,7 @@ def compare(name: str, dataset, config, watch: bool = False) -> dict:
     metrics = tracking_metrics(stripped, hypotheses)
     losses: dict[str, int] = {}
     revisits = [0, 0, 0]  # taken, judged, right
+    closures = [0, 0, 0]  # merged pairs, judged, right
     for robot, hyp, agent in zip(stripped.robots, hypotheses, agents, strict=True):
         det = robot.detections
         part = idf1_losses(det.offsets, det.truth, hyp, revisit_gap=config.window)
@@ -131,6 +158,12 @@ def compare(name: str, dataset, config, watch: bool = False) -> dict:
         revisits[0] += len(agent.tracker.revisits)
         revisits[1] += judged
         revisits[2] += right
+        if agent.tracker.loop is not None:
+            raw = np.concatenate(agent.tracker.log).astype(np.int64)
+            right, judged = closure_precision(det.truth, raw, agent.tracker.loop.closures)
+            closures[0] += len(agent.tracker.loop.closures)
+            closures[1] += judged
+            closures[2] += right
     tracking_s = sum(a.timings["tracking"] for a in agents)
     steps = sum(sum(a.timings[k] for k in a.timings) for a in agents)
     frames = sum(robot.frames for robot in stripped.robots)
@@ -155,6 +188,7 @@ def compare(name: str, dataset, config, watch: bool = False) -> dict:
         "seconds": oracle_s + own_s,
         "losses": losses,
         "revisits": revisits,
+        "closures": closures,
         "revisit_d2": d2,
         "gate": agents[0].tracker.gate,
     }
@@ -171,16 +205,26 @@ def main() -> None:
     parser.add_argument("--classes", type=int, default=0)
     parser.add_argument("--no-sim", action="store_true")
     parser.add_argument(
+        "--loop-closure",
+        choices=("on", "off", "both"),
+        default="both",
+        help="loop closure in each robot's own map (track_loop_closure); both: a row for each",
+    )
+    parser.add_argument(
         "--watch-revisits",
         action="store_true",
         help="how often a revisited object is inside its gate (costs tracking time)",
     )
     args = parser.parse_args()
     rows = []
+    closure = {"on": (True,), "off": (False,), "both": (False, True)}[args.loop_closure]
     if args.kitti:
         dataset = load_dataset(args.kitti)
-        rows.append(compare(dataset.name, dataset, config_for(dataset), args.watch_revisits))
-        print_table(rows[-1:])
+        for on in closure:
+            config = replace(config_for(dataset), track_loop_closure=on)
+            name = f"{dataset.name} closure {'on' if on else 'off'}"
+            rows.append(compare(name, dataset, config, args.watch_revisits))
+            print_table(rows[-1:])
     if not args.no_sim:
         for seed in args.seeds:
             team = lissajous_team(
@@ -191,11 +235,14 @@ def main() -> None:
                 miss=args.miss,
                 classes=args.classes,
             )
-            name = f"sim {args.robots}r {args.steps}s seed {seed} c{args.clutter} m{args.miss}"
-            rows.append(
-                compare(name, team, config_for(team, calibrate="never"), args.watch_revisits)
-            )
-            print_table(rows[-1:])
+            for on in closure:
+                name = (
+                    f"sim {args.robots}r {args.steps}s s{seed} c{args.clutter} m{args.miss} "
+                    f"{'loop' if on else 'main'}"
+                )
+                config = replace(config_for(team, calibrate="never"), track_loop_closure=on)
+                rows.append(compare(name, team, config, args.watch_revisits))
+                print_table(rows[-1:])
     print()
     print_table(rows)
 
@@ -226,6 +273,9 @@ def print_table(rows: list[dict]) -> None:
         )
         taken, judged, right = r["revisits"]
         print(f"{'':<44} re-identifications {taken}: {right} right of {judged} with ground truth")
+        merged, judged, right = r["closures"]
+        if merged:
+            print(f"{'':<44} loop closures {merged} pairs: {right} right of {judged} judged")
         d2 = r["revisit_d2"]
         if d2.size:
             print(
