@@ -10,7 +10,7 @@ import pytest
 from teamslam.association import AssociationSettings, ObjectSummary
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.loop_closure import find_loop, merge_objects
+from teamslam.msckf.loop_closure import LoopClosure, find_loop, merge_objects
 from teamslam.msckf.settings import config_for
 from teamslam.msckf.state import MsckfState
 from teamslam.sim.lissajous import lissajous_team
@@ -177,3 +177,51 @@ def test_data_with_ids_never_meet_loop_closure():
         runs.append(poses)
     for a, b in zip(*runs, strict=True):
         assert np.array_equal(a, b)
+
+
+def _map_state(rng, recent_points, old_points):
+    """A one-pose state at frame 500 holding recent objects (ids 100…, created at frames 400…)
+    and old ones (ids 0…, last seen at frame 10), each with 0.2 m standard deviations."""
+    points = np.vstack([recent_points, old_points])
+    ids = np.concatenate([100 + np.arange(len(recent_points)), np.arange(len(old_points))])
+    cov = np.eye(6 + 3 * len(ids)) * 0.04
+    seen = np.concatenate([np.full(len(recent_points), 500), np.full(len(old_points), 10)])
+    state = MsckfState.from_arrays(
+        np.eye(4)[None], np.array([500]), ids, points, cov, object_last_seen=seen
+    )
+    return state, ids[: len(recent_points)], 400 + np.arange(len(recent_points))
+
+
+def _travelled(loop, metres):
+    """The robot drove ``metres`` in a straight line over frames 0…500."""
+    for t in range(501):
+        loop.travel(t, np.array([metres * t / 500, 0.0, 0.0]))
+
+
+def test_loop_closure_merges_a_revisited_group_and_refuses_a_mirrored_rival():
+    rng = np.random.default_rng(8)
+    group = np.column_stack([rng.uniform(-20, 20, (8, 2)), np.zeros(8)])
+    drifted = _rigid(group, 0.05, np.array([3.0, -2.0, 0.0]))
+    elsewhere = np.column_stack([rng.uniform(60, 140, (10, 2)), np.zeros(10)])
+    state, created, frames = _map_state(rng, group, np.vstack([drifted, elsewhere]))
+    loop = LoopClosure(gap=20)
+    _travelled(loop, 1000.0)
+    merged = loop.step(500, state, created, frames)
+    assert sorted(merged.tolist()) == [[100 + k, k] for k in range(8)]
+    assert not np.isin(created, state.object_ids).any()
+    # the old objects took the recent ones' information: the merged ones are where both agree
+    assert loop.closures and all(f == 500 for f, _, _ in loop.closures)
+    # the same with a mirror image of the group in the old map too: no merge
+    mirror = _rigid(group * np.array([-1.0, 1.0, 1.0]), 0.0, np.array([-60.0, 30.0, 0.0]))
+    state, created, frames = _map_state(rng, group, np.vstack([drifted, elsewhere, mirror]))
+    loop = LoopClosure(gap=20)
+    _travelled(loop, 1000.0)
+    assert loop.step(500, state, created, frames).size == 0
+    assert loop.outcomes == {"ambiguous": 1}
+    assert np.isin(created, state.object_ids).all()
+    # nor when the drive was too short for the drift the match implies (3.6 m in 20 m)
+    state, created, frames = _map_state(rng, group, np.vstack([drifted, elsewhere]))
+    loop = LoopClosure(gap=20)
+    _travelled(loop, 1.0)
+    assert loop.step(500, state, created, frames).size == 0
+    assert np.isin(created, state.object_ids).all()

@@ -76,8 +76,10 @@ class LoopClosure:
         Every merged pair: ``(frame, new id, old id)``.
     attempts
         Associations run (one per new recent object).
-    refused
-        Answers refused because a pair lay beyond the drift the distance travelled allows.
+    outcomes
+        How the attempts ended: ``merged``, ``too-few`` (fewer than ``min_inliers`` pairs),
+        ``ambiguous`` (a rival set nearly as large), ``beyond-drift`` (a pair farther apart
+        than the distance travelled allows).
     """
 
     gap: int
@@ -85,7 +87,7 @@ class LoopClosure:
     settings: AssociationSettings = field(default_factory=AssociationSettings)
     closures: list[tuple[int, int, int]] = field(default_factory=list)
     attempts: int = 0
-    refused: int = 0
+    outcomes: dict[str, int] = field(default_factory=dict)
     _last_key: tuple[int, ...] = ()
     # the distance the robot's estimate travelled up to each frame (from the first observed)
     _path: list[float] = field(default_factory=list)
@@ -176,15 +178,21 @@ class LoopClosure:
             old = _with_classes(old, labels(old.ids))
         self.attempts += 1
         result = find_loop(recent, old, self.settings)
-        if not result.matched or result.pairs.shape[0] < self.settings.min_inliers:
+        if not result.matched:
+            self.outcomes[result.status] = self.outcomes.get(result.status, 0) + 1
+            return none
+        # the answer's pairs, once thinned by the association's separation test, still enough
+        if result.pairs.shape[0] < self.settings.min_inliers:
+            self.outcomes["too-few"] = self.outcomes.get("too-few", 0) + 1
             return none
         # every pair within the drift the distance travelled allows, or no closure at all (a
         # group whose shape fits far away is a coincidence, not a revisit)
         rows = _positions(recent.ids, result.pairs[:, 0])
         cols = _positions(old.ids, result.pairs[:, 1])
         if not drift_gate(recent, old, travelled, self.settings)[rows, cols].all():
-            self.refused += 1
+            self.outcomes["beyond-drift"] = self.outcomes.get("beyond-drift", 0) + 1
             return none
+        self.outcomes["merged"] = self.outcomes.get("merged", 0) + 1
         merge_objects(state, result.pairs, t)
         self.closures.extend((t, int(n), int(o)) for n, o in result.pairs.tolist())
         return result.pairs
