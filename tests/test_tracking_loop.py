@@ -225,3 +225,11 @@ def test_loop_closure_merges_a_revisited_group_and_refuses_a_mirrored_rival():
     _travelled(loop, 1.0)
     assert loop.step(500, state, created, frames).size == 0
     assert np.isin(created, state.object_ids).all()
+
+
+def test_track_loop_closure_must_be_a_boolean():
+    from teamslam.errors import InputError
+    from teamslam.msckf.config import MsckfConfig
+
+    with pytest.raises(InputError, match="track_loop_closure"):
+        MsckfConfig(track_loop_closure="yes")

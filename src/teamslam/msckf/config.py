@@ -312,6 +312,10 @@ class MsckfConfig:
         self._validate_tracking()
 
     def _validate_tracking(self) -> None:
+        if not isinstance(self.track_loop_closure, bool | np.bool_):
+            raise InputError(
+                f"track_loop_closure must be true or false, got {self.track_loop_closure!r}"
+            )
         for name in ("track_gate_probability", "track_birth_probability"):
             if not 0 < getattr(self, name) < 1:
                 raise InputError(f"{name} must lie in (0, 1)")
