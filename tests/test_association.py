@@ -12,6 +12,7 @@ from teamslam.association import (
     associate,
     consistency_graph,
     fit_transform,
+    flipped,
     maximum_clique,
     pair_innovation_consistent,
     score_correspondences,
@@ -299,6 +300,10 @@ def test_summary_errors_name_the_field():
     one = ObjectSummary(3, [1], np.zeros((1, 3)), np.eye(3)[None])
     with pytest.raises(InputError, match="both are robot 3's"):
         associate(one, one)
+    with pytest.raises(InputError, match="views must be"):
+        ObjectSummary(0, [1, 2], np.zeros((2, 3)), np.stack([np.eye(3)] * 2), views=np.ones(3))
+    with pytest.raises(InputError, match="views are not finite"):
+        ObjectSummary(0, [1], np.zeros((1, 3)), np.eye(3)[None], views=[[0.0, np.nan, 1.0]])
 
 
 def test_fit_transform_recovers_a_rigid_motion():
@@ -626,3 +631,86 @@ def test_full_association_refuses_a_gated_pair_inconsistent_with_its_consistent_
     # placed alike in both maps, the same objects make a pair
     _, _, a, b = _with_an_object_off_its_distances(0.5, settings)
     assert (77_777, 99_999) in set(map(tuple, associate(a, b, settings).pairs.tolist()))
+
+
+def _street(seed: int, views: bool, planar: bool = True, pairs: int = 10):
+    """Two maps of a street: ``pairs`` objects on each side, each the other's mirror image
+    across the street's axis (as parked cars face each other), within 5 cm of one plane (or,
+    ``planar=False``, spread over 30 m in height); the cameras drove along the axis 1.2 m above
+    them (``views``: the summaries say where). The second map is shifted 20 m and turned 30°.
+    Object ``k`` is ``100 + k`` in the first map and ``500 + k`` in the second."""
+    rng = np.random.default_rng(seed)
+    x = np.sort(rng.uniform(0.0, 80.0, pairs)) + np.arange(pairs) * 4.0
+    y = rng.uniform(3.0, 7.0, pairs)
+    side = np.column_stack([x, y, rng.normal(0.0, 0.05, pairs)])
+    if not planar:
+        side[:, 2] = rng.uniform(0.0, 30.0, pairs)
+    world = np.vstack([side, side * [1.0, -1.0, 1.0]])
+    cameras = np.column_stack([world[:, 0] + rng.uniform(-8, 8, len(world)), np.zeros(len(world))])
+    cameras = np.column_stack([cameras, world[:, 2] + 1.2])
+
+    def summary(robot, first_id, T=None):
+        s = _summary(robot, np.arange(len(world)) + first_id, world, rng)
+        if views:
+            toward = cameras - s.means
+            toward /= np.linalg.norm(toward, axis=1)[:, None]
+            s = ObjectSummary(s.robot, s.ids, s.means, s.covs, views=toward)
+        return s if T is None else s.transformed(T)
+
+    return summary(1, 100), summary(2, 500, _pose(30.0, (20.0, 0.0, 0.0)))
+
+
+def test_the_mirror_image_of_a_street_is_refused_by_the_cameras_side():
+    # distances cannot tell the street from its mirror image (each side's cars matched with
+    # the other side's, the plane turned over): without the cameras no answer, with them the
+    # right one on both ends of the link
+    right = np.column_stack([np.arange(20) + 100, np.arange(20) + 500])
+    for seed in range(5):
+        a, b = _street(seed, views=False)
+        blind = associate(a, b)
+        assert blind.status == "ambiguous" and blind.flipped == 0, (seed, blind.status)
+        a, b = _street(seed, views=True)
+        seen = associate(a, b)
+        assert seen.matched and seen.flipped >= 1, (seed, seen.status)
+        assert np.array_equal(seen.pairs, right)
+        assert np.array_equal(associate(b, a).pairs, right[:, ::-1])
+
+
+def test_the_cameras_side_of_a_transform():
+    a, b = _street(0, views=True)
+    result = associate(a, b)
+    rows, cols = np.arange(20), np.arange(20)
+    assert not flipped(a, b, rows, cols, result.T_first_second)
+    # the same pairs under the transform turned over about the street's axis
+    half_turn = np.eye(4)
+    half_turn[:3, :3] = so3.exp(np.array([np.pi, 0.0, 0.0]))
+    assert flipped(a, b, rows, cols, half_turn @ result.T_first_second)
+    # not near-planar: no side to speak of, never refused
+    a, b = _street(0, views=True, planar=False)
+    assert not flipped(a, b, rows, cols, half_turn @ result.T_first_second)
+    # without views on one side, or views unknown (zero), nothing is refused
+    blind = ObjectSummary(b.robot, b.ids, b.means, b.covs)
+    assert not flipped(a, blind, rows, cols, half_turn @ result.T_first_second)
+    unknown = ObjectSummary(b.robot, b.ids, b.means, b.covs, views=np.zeros((20, 3)))
+    assert not flipped(a, unknown, rows, cols, half_turn @ result.T_first_second)
+
+
+def test_views_change_nothing_on_a_set_that_is_not_planar():
+    # objects spread in height, cameras anywhere (each robot's on its own side of them): the
+    # answer with views is the answer without, pair for pair
+    for seed in range(3):
+        a, b, *_ = _two_maps(seed=seed, yaw=30.0, shift=(20.0, 0.0, 0.0))
+        a = ObjectSummary(a.robot, a.ids, a.means * [1, 1, 15], a.covs)
+        b = ObjectSummary(b.robot, b.ids, b.means * [1, 1, 15], b.covs)
+        rng = np.random.default_rng(seed)
+        with_a = ObjectSummary(a.robot, a.ids, a.means, a.covs, views=rng.normal(0, 1, (60, 3)))
+        with_b = ObjectSummary(b.robot, b.ids, b.means, b.covs, views=rng.normal(0, 1, (60, 3)))
+        blind, seen = associate(a, b), associate(with_a, with_b)
+        assert blind.matched and len(blind.pairs) >= 30
+        assert np.array_equal(blind.pairs, seen.pairs) and blind.status == seen.status
+        rows = np.array([np.flatnonzero(a.ids == i)[0] for i in seen.pairs[:, 0]])
+        cols = np.array([np.flatnonzero(b.ids == i)[0] for i in seen.pairs[:, 1]])
+        turned = np.eye(4)
+        turned[:3, :3] = so3.exp(np.array([np.pi, 0.0, 0.0]))
+        for t in (seen.T_first_second, turned @ seen.T_first_second):
+            assert not flipped(with_a, with_b, rows, cols, t)

@@ -101,6 +101,7 @@ __all__ = [
     "consistency_graph",
     "consistent_with",
     "fit_transform",
+    "flipped",
     "gate_pairs",
 ]
 
@@ -237,6 +238,10 @@ class AssociationResult:
         ``min_inliers`` members.
     exact
         Whether the clique searches finished within their budget.
+    flipped
+        Consistent sets refused because their transform puts the second robot's cameras on
+        the other side of the set's plane than the first's (the mirror image of a near-planar
+        group of objects; see :func:`flipped`).
     clique_pairs
         ``(c, 2)`` the pairs of the largest consistent set (for diagnostics; the answer is
         :attr:`pairs`).
@@ -251,6 +256,7 @@ class AssociationResult:
     clique: int = 0
     rival: int = 0
     exact: bool = True
+    flipped: int = 0
     clique_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
     def swapped(self) -> AssociationResult:
@@ -704,6 +710,7 @@ def _associate(
     pool = np.ones(ia.size, dtype=bool)
     found = []  # (rows, cols, transform, clique pairs, clique indices)
     exact = True
+    refused = 0
     for _ in range(settings.rivals + 1):
         index = np.flatnonzero(pool)
         clique, done = maximum_clique(
@@ -714,12 +721,16 @@ def _associate(
             break
         ca, cb = ia[index[clique]], ib[index[clique]]
         rows, cols, t, passed = _support(a, b, ca, cb, settings)
-        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
         pool[index[clique]] = False
         pool &= ~passed[ia, ib]
+        if rows.size >= need and flipped(a, b, rows, cols, t, settings):
+            refused += 1  # the mirror image of a near-planar group: neither answer nor rival
+            continue
+        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
     counts = {
         "candidates": int(ia.size),
         "clique": int(found[0][3].shape[0]) if found else 0,
+        "flipped": refused,
     }
     if not found:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
@@ -760,6 +771,99 @@ def _associate(
         clique_pairs=clique_pairs[np.argsort(clique_pairs[:, 0], kind="stable")],
         **counts,
     )
+
+
+def flipped(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    T_first_second: np.ndarray,
+    settings: AssociationSettings | None = None,
+) -> bool:
+    """Whether a transform puts the two robots' cameras on opposite sides of a near-planar set.
+
+    Distances cannot tell a near-planar group of objects from its mirror image, and the mirror
+    image of a plane is the plane turned over: a proper rotation (a half-turn about an axis in
+    the plane) fits pairs that match each object with its mirror image's — on a street, the cars
+    of one side with those of the other. The cameras can tell: a robot sees objects from one side
+    of their plane (ground robots, drones and hand-held cameras are not inside the plane of the
+    objects they see), and both robots saw the same objects from the same side. With the
+    summaries' :attr:`~teamslam.association.summary.ObjectSummary.views` (the direction from
+    each object to the cameras that saw it), a transform is refused when
+
+    * the pairs ``(rows[k], cols[k])`` are near-planar: reflected about the plane fitted to
+      their objects (both maps', the second's under the transform, weighted by their
+      variances), they would still pass the ``χ²₃`` gate — each pair's two heights above the
+      plane, summed (the reflection's residual along the normal ``n``), satisfy
+      ``(hₐ + h_b)² ≤ χ²₃ · nᵀ S n`` with ``S`` the pair's innovation covariance (a set that
+      is not near-planar is never refused: its side is no matter of a mirror image);
+    * for each robot, the views' component along the plane's normal (the sine of the angle
+      the cameras looked down or up at the objects), summed over the pairs whose views both
+      robots know (the second robot's turned by the transform), is clear of zero: squared,
+      above ``χ²₁`` times its variance — the pairs' own scatter about their mean, and the
+      normal's uncertainty from the fit (its tilt towards each in-plane axis) times the views'
+      sum along that axis;
+    * and the two heights have opposite signs.
+
+    Every number is from the two summaries: no unit, no up direction. Computed in the canonical
+    order of :func:`associate`, it is the same on both ends of a link.
+
+    Parameters
+    ----------
+    first, second
+        The two summaries.
+    rows, cols
+        ``(k,)`` indices of the pairs' objects in ``first`` and ``second``.
+    T_first_second
+        The transform the pairs imply (``p_first = T · p_second``).
+    settings
+        The gate and consistency probabilities (default :class:`AssociationSettings`).
+    """
+    settings = settings or AssociationSettings()
+    rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+    cols = np.asarray(cols, dtype=np.int64).reshape(-1)
+    if first.views is None or second.views is None or rows.size < 3:
+        return False
+    r = np.asarray(T_first_second, dtype=float)[:3, :3]
+    views_a = first.views[rows]
+    views_b = second.views[cols] @ r.T
+    known = np.any(views_a != 0, axis=1) & np.any(views_b != 0, axis=1)
+    if np.count_nonzero(known) < 3:
+        return False
+    cov_a = first.covs[rows]
+    cov_b = r @ second.covs[cols] @ r.T
+    both = cov_a + cov_b
+    # the plane of the pairs' objects, both maps' (the second's under the transform) weighted
+    # as in fit_transform
+    points = np.vstack([first.means[rows], second.means[cols] @ r.T + T_first_second[:3, 3]])
+    covs = np.concatenate([cov_a, cov_b])
+    w = 1.0 / np.maximum(np.trace(covs, axis1=1, axis2=2), np.finfo(float).tiny)
+    centre = (w / w.sum()) @ points
+    spread = points - centre
+    _, axes = np.linalg.eigh((spread * w[:, None]).T @ spread)
+    normal, in_plane = axes[:, 0], axes[:, 1:]
+    height = spread @ normal
+    # the set turned over about its plane (reflected) leaves each pair a residual of the sum
+    # of its two heights along the normal: near-planar when that passes the gate
+    turned = height[: rows.size] + height[rows.size :]
+    if np.any(turned**2 > settings.gate_threshold * (normal @ both @ normal)):
+        return False  # not near-planar: the set turned over would not fit
+    # the normal's tilt towards each in-plane axis, as fitted: a least-squares slope
+    var = np.einsum("i,kij,j->k", normal, covs, normal)
+    along = spread @ in_plane  # (2k, 2)
+    tilt = 1.0 / np.maximum(np.sum(along**2 / var[:, None], axis=0), np.finfo(float).tiny)
+    chi2 = settings.consistency_threshold
+    sides = []
+    for views in (views_a[known], views_b[known]):
+        heights = views @ normal
+        up = float(np.sum(heights))
+        variance = heights.size * float(np.var(heights, ddof=1))
+        variance += float(np.sum(tilt * np.sum(views @ in_plane, axis=0) ** 2))
+        if up**2 <= chi2 * variance:
+            return False  # the side is not clear
+        sides.append(np.sign(up))
+    return bool(sides[0] != sides[1])
 
 
 def _support(
