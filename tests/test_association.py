@@ -17,8 +17,8 @@ from teamslam.association import (
     pair_innovation_consistent,
     score_correspondences,
 )
-from teamslam.association.core import _distances
-from teamslam.association.kernels import consistent_pairs, descriptor_mismatch
+from teamslam.association.core import _distances, _nearest
+from teamslam.association.kernels import consistent_pairs, shared_neighbourhood
 from teamslam.errors import InputError
 from teamslam.geometry import so3
 
@@ -94,16 +94,10 @@ def test_drift_allowance_is_relative_to_distance():
 
 
 def test_compiled_loops_equal_the_formulas_in_numpy():
-    # the descriptor comparison and the consistency test, written out in numpy (float32 as the
-    # compiled loops): the same booleans and the same values, on maps of random size
+    # the consistency test and the neighbourhood comparison, written out in numpy (float32 as
+    # the compiled loops): the same booleans and the same counts, on maps of random size
     rng = np.random.default_rng(4)
     quarter, chi2 = np.float32(0.25 * 0.05**2), np.float32(6.63)
-    dx, dy = (rng.uniform(1, 30, (n, 6)).astype(np.float32) for n in (40, 35))
-    vx, vy = (rng.uniform(0.01, 2, (n, 6)).astype(np.float32) for n in (40, 35))
-    d = dx[:, None, :, None] - dy[None, :, None, :]
-    s = dx[:, None, :, None] + dy[None, :, None, :]
-    z = d * d / (vx[:, None, :, None] + vy[None, :, None, :] + quarter * s * s)
-    assert np.allclose(descriptor_mismatch(dx, vx, dy, vy, quarter), z.min(axis=3), rtol=1e-6)
     a, b = _scene(rng, 30), _scene(rng, 25)
     geo_a = tuple(x.astype(np.float32) for x in _distances(a, np.tile(0.3 * np.eye(3), (30, 1, 1))))
     geo_b = tuple(x.astype(np.float32) for x in _distances(b, np.tile(0.2 * np.eye(3), (25, 1, 1))))
@@ -114,6 +108,40 @@ def test_compiled_loops_equal_the_formulas_in_numpy():
     graph = consistent_pairs(ia, ib, *geo_a, *geo_b, quarter, chi2)
     assert expected.any() and not expected.all()
     assert np.array_equal(graph, expected)
+    near_a, near_b = _nearest(geo_a[0], 6), _nearest(geo_b[0], 6)
+    allowed = rng.random((30, 25)) < 0.8
+    count, _ = shared_neighbourhood(near_a, *geo_a, near_b, *geo_b, allowed, quarter, chi2)
+
+    def agree(d1, v1, d2, v2):
+        return (d1 - d2) ** 2 <= chi2 * (v1 + v2 + quarter * (d1 + d2) ** 2)
+
+    for x, y in zip(*np.nonzero(allowed), strict=True):
+        da, va = geo_a[0][x, near_a[x]], geo_a[1][x, near_a[x]]
+        db, vb = geo_b[0][y, near_b[y]], geo_b[1][y, near_b[y]]
+        z = (da[:, None] - db[None]) ** 2 / (
+            va[:, None] + vb[None] + quarter * (da[:, None] + db[None]) ** 2
+        )
+        matches = sorted(zip(*np.nonzero(z <= chi2), strict=True), key=lambda p: z[p])
+        ends = [(near_a[x, i], near_b[y, j]) for i, j in matches]
+        fits = np.array(
+            [
+                [
+                    a1 != a2
+                    and b1 != b2
+                    and agree(
+                        geo_a[0][a1, a2], geo_a[1][a1, a2], geo_b[0][b1, b2], geo_b[1][b1, b2]
+                    )
+                    for a2, b2 in ends
+                ]
+                for a1, b1 in ends
+            ]
+        ).reshape(len(ends), len(ends))
+        chosen = []
+        for p in np.argsort(-fits.sum(axis=1), kind="stable"):
+            if all(fits[p, q] for q in chosen):
+                chosen.append(p)
+        assert count[x, y] == len(chosen)
+    assert count[~allowed].max() == 0 and count.max() >= 3
 
 
 def test_compiled_search_and_test_refuse_what_they_cannot_read():
@@ -640,8 +668,8 @@ def _street(seed: int, views: bool, planar: bool = True, pairs: int = 10):
     them (``views``: the summaries say where). The second map is shifted 20 m and turned 30°.
     Object ``k`` is ``100 + k`` in the first map and ``500 + k`` in the second."""
     rng = np.random.default_rng(seed)
-    x = np.sort(rng.uniform(0.0, 80.0, pairs)) + np.arange(pairs) * 4.0
-    y = rng.uniform(3.0, 7.0, pairs)
+    x = np.cumsum(rng.uniform(4.0, 12.0, pairs))
+    y = rng.uniform(3.0, 9.0, pairs)
     side = np.column_stack([x, y, rng.normal(0.0, 0.05, pairs)])
     if not planar:
         side[:, 2] = rng.uniform(0.0, 30.0, pairs)

@@ -6,11 +6,19 @@ positions alone do not match (on KITTI 00 the separate maps are ~8 m off while p
 ~5 m apart); the *shape* of a group of objects survives drift. :func:`associate` works in six
 stages:
 
-1. **Candidates.** Each object gets a drift-invariant descriptor: the distances to its ``k``
-   nearest neighbours in its own map. Two objects are a candidate pair when enough of their
-   neighbour distances agree within their uncertainty (and their classes agree when both maps
-   have classes); each object keeps its best few candidates, so the consistency graph stays far
-   smaller than all pairs.
+1. **Candidates.** Two objects are a candidate pair when their neighbourhoods hold objects that
+   can be the same, as a rigid whole (:func:`~teamslam.association.kernels.
+   shared_neighbourhood`): among the ``k`` nearest neighbours of each, the neighbour pairs
+   whose distances to the two objects agree within their uncertainty, and of those the
+   largest set found greedily whose distances to each other agree as well (one to one; the
+   most mutually consistent first). Each robot maps neighbours the other has not seen, so the
+   two lists differ; a neighbour only one map holds finds no partner and costs nothing, while
+   distances that agree by chance rarely agree with each other too. (An earlier rule compared
+   the two lists of neighbour distances rank-free but element by element, many to one: chance
+   agreements among unrelated neighbours ranked wrong pairs above right ones, and on simulated
+   teams two maps sharing six or more objects often had only three to six of them among the
+   candidates.) Classes must agree when both maps have them; each object keeps its best few
+   candidates, so the consistency graph stays far smaller than all pairs.
 2. **Pairwise consistency** (Mangelson et al., "Pairwise Consistency Maximization for Robust
    Multi-Robot Map Merging", ICRA 2018). Correspondences ``(a, b)`` and ``(a', b')`` are
    consistent when ``(‖a − a'‖ − ‖b − b'‖)² / σ² ≤ χ²₁(p)``, where ``σ²`` is the variance of the
@@ -19,12 +27,17 @@ stages:
    distance — a map's deformation grows with the distance covered, no constant in metres.
 3. **The largest mutually consistent sets**: the maximum clique of the consistency graph
    (:func:`~teamslam.association.clique.maximum_clique`, PCM's solver), then the maximum clique
-   among the candidates its transform rejects, and so on (:attr:`AssociationSettings.rivals`
-   more); each goes through stages 4–5, and the one gathering the most pairs is the answer.
-   Distances alone let a
-   few wrong pairs into it (among clustered objects many distances agree by chance), so its
+   among the candidates its transform rejects, and so on, until
+   :attr:`AssociationSettings.rivals` more sets gathering ``min_inliers`` pairs have been found
+   (a set gathering fewer is neither an answer nor a rival; at most :data:`SEARCHES` searches);
+   each goes through stages 4–5, and the one gathering the most pairs is the answer.
+   Distances alone let wrong pairs into it (among clustered objects many distances agree by
+   chance, and an object with a long covariance agrees with almost any distance), so its
    *rigid core* is kept: trimmed refitting drops the pairs that do not fit the set's rigid
-   transform within their covariances.
+   transform within their covariances; when that leaves fewer than ``min_inliers`` (a fit on
+   all the set's pairs is dragged off by the wrong ones) the core is the largest subset that
+   fits the transform of one of its triples (a consensus of triples, then trimmed), and any
+   core of three pairs or more fixes the transform of stage 4.
 4. **The relative transform** it implies: weighted Horn / Umeyama (no scale), ``SE(3)``.
 5. **Every pair gated under that transform**: Mahalanobis distance with both covariances plus
    the drift allowance ``ρ² (rₐ² + r_b²) / 2`` (``r`` the distance to the nearest anchor pair in
@@ -83,6 +96,7 @@ anyway, and cannot disagree as long as both ends hold the same two summaries.
 from __future__ import annotations
 
 import functools
+import itertools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -90,7 +104,7 @@ import scipy.optimize
 import scipy.stats
 
 from teamslam.association.clique import maximum_clique
-from teamslam.association.kernels import consistent_pairs, descriptor_mismatch
+from teamslam.association.kernels import consistent_pairs, shared_neighbourhood
 from teamslam.association.summary import ObjectSummary
 from teamslam.errors import InputError
 
@@ -128,9 +142,10 @@ class AssociationSettings:
         Standard deviation of a map's deformation per unit of distance: two objects ``d`` apart
         in one map may be ``d ± ρ·d`` apart in the other beyond what their covariances say.
     neighbours
-        Length ``k`` of the nearest-neighbour distance descriptor.
+        Nearest neighbours ``k`` of each object compared for candidates.
     descriptor_matches
-        Neighbour distances two objects must have in common to be a candidate pair.
+        Neighbours two objects must have in common (as a consistent set) to be a candidate
+        pair.
     candidates_per_object
         Each object keeps at most this many candidates (its best by descriptor agreement).
     min_inliers
@@ -299,14 +314,12 @@ def _distances(means: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.ndar
     return dist, along + along.T
 
 
-def _descriptors(dist: np.ndarray, var: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Distances to the ``k`` nearest neighbours (ascending) and their variances."""
+def _nearest(dist: np.ndarray, k: int) -> np.ndarray:
+    """Indices of each object's ``k`` nearest other objects (ascending; ties by index)."""
     n = dist.shape[0]
     k = min(k, n - 1)
     masked = dist + np.diag(np.full(n, np.inf))
-    nearest = np.argsort(masked, axis=1, kind="stable")[:, :k]
-    rows = np.arange(n)[:, None]
-    return dist[rows, nearest], var[rows, nearest]
+    return np.argsort(masked, axis=1, kind="stable")[:, :k]
 
 
 def _candidates(
@@ -316,23 +329,28 @@ def _candidates(
     geo_b: tuple[np.ndarray, np.ndarray],
     settings: AssociationSettings,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate pairs ``(index in first, index in second)`` by descriptor agreement."""
+    """Candidate pairs ``(index in first, index in second)`` by shared neighbourhood."""
     chi2 = np.float32(settings.consistency_threshold)
-    rho2 = np.float32(settings.drift_ratio**2)
-    da, va = (x.astype(np.float32) for x in _descriptors(*geo_a, settings.neighbours))
-    db, vb = (x.astype(np.float32) for x in _descriptors(*geo_b, settings.neighbours))
-    quarter = np.float32(0.25) * rho2
-    z_a = descriptor_mismatch(da, va, db, vb, quarter)  # a's neighbour distances found around b
-    z_b = descriptor_mismatch(db, vb, da, va, quarter).transpose(1, 0, 2)  # b's found around a
-    found_a = np.count_nonzero(z_a <= chi2, axis=2)
-    found_b = np.count_nonzero(z_b <= chi2, axis=2)
-    score = np.minimum(found_a, found_b)
-    # a finer key for ranking among equal counts: the mean normalised descriptor mismatch
-    closeness = -0.5 * (np.minimum(z_a, chi2).mean(axis=2) + np.minimum(z_b, chi2).mean(axis=2))
+    quarter = np.float32(0.25 * settings.drift_ratio**2)
+    dist_a, var_a = (np.ascontiguousarray(x, dtype=np.float32) for x in geo_a)
+    dist_b, var_b = (np.ascontiguousarray(x, dtype=np.float32) for x in geo_b)
+    allowed = np.ones((len(first), len(second)), dtype=bool)
     if first.classes is not None and second.classes is not None:
-        score = np.where(first.classes[:, None] == second.classes[None, :], score, 0)
+        allowed = first.classes[:, None] == second.classes[None, :]
+    score, mismatch = shared_neighbourhood(
+        _nearest(geo_a[0], settings.neighbours),
+        dist_a,
+        var_a,
+        _nearest(geo_b[0], settings.neighbours),
+        dist_b,
+        var_b,
+        np.ascontiguousarray(allowed),
+        quarter,
+        chi2,
+    )
     eligible = score >= max(settings.descriptor_matches, 1)
-    key = score + closeness / (chi2 + 1.0)  # count first, closeness within a count
+    # count first; among equal counts the closer agreement (mean normalised mismatch < χ²)
+    key = score - mismatch / np.maximum(score, 1) / (chi2 + 1.0)
     key = np.where(eligible, key, -np.inf)
     keep = np.zeros_like(eligible)
     top = settings.candidates_per_object
@@ -474,16 +492,26 @@ def fit_transform(
         w = 3.0 / np.maximum(tr, np.finfo(float).tiny)
     else:
         w = np.ones(a.shape[0])
-    w = w / w.sum()
-    ca = w @ a
-    cb = w @ b
-    h = ((b - cb) * w[:, None]).T @ (a - ca)
+    return _horn(a[None], b[None], w[None])[0]
+
+
+def _horn(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted Horn / Umeyama of a batch: ``(T, k, 3)`` points, ``(T, k)`` weights →
+    ``(T, 4, 4)`` transforms with ``a ≈ R b + t``."""
+    w = w / w.sum(axis=1, keepdims=True)
+    ca = np.einsum("tk,tki->ti", w, a)
+    cb = np.einsum("tk,tki->ti", w, b)
+    h = np.einsum("tki,tk,tkj->tij", b - cb[:, None], w, a - ca[:, None])
     u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    out = np.eye(4)
-    out[:3, :3] = r
-    out[:3, 3] = ca - r @ cb
+    v = np.swapaxes(vt, 1, 2)
+    d = np.sign(np.linalg.det(v @ np.swapaxes(u, 1, 2)))
+    d[d == 0] = 1.0
+    fix = np.broadcast_to(np.eye(3), h.shape).copy()
+    fix[:, 2, 2] = d
+    r = v @ fix @ np.swapaxes(u, 1, 2)
+    out = np.broadcast_to(np.eye(4), (h.shape[0], 4, 4)).copy()
+    out[:, :3, :3] = r
+    out[:, :3, 3] = ca - np.einsum("tij,tj->ti", r, cb)
     return out
 
 
@@ -695,6 +723,12 @@ def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> Ass
     return AssociationResult(a.robot, b.robot, np.zeros((0, 2), np.int64), None, status, **counts)
 
 
+#: Clique searches of one association, at most: the answer and its rivals are the sets that
+#: gather ``min_inliers`` pairs, and chance sets that gather fewer are passed over (on the
+#: simulated teams such sets, among dense candidates, came first and used up the searches).
+SEARCHES = 16
+
+
 def _associate(
     a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings
 ) -> AssociationResult:
@@ -711,7 +745,10 @@ def _associate(
     found = []  # (rows, cols, transform, clique pairs, clique indices)
     exact = True
     refused = 0
-    for _ in range(settings.rivals + 1):
+    strong = 0  # sets gathering an answer's worth of pairs: the answer and its rivals
+    for _ in range(SEARCHES):
+        if strong > settings.rivals:
+            break
         index = np.flatnonzero(pool)
         clique, done = maximum_clique(
             graph[np.ix_(index, index)], settings.clique_budget, lower_bound=need - 1
@@ -727,6 +764,7 @@ def _associate(
             refused += 1  # the mirror image of a near-planar group: neither answer nor rival
             continue
         found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
+        strong += rows.size >= need
     counts = {
         "candidates": int(ia.size),
         "clique": int(found[0][3].shape[0]) if found else 0,
@@ -883,7 +921,9 @@ def _support(
     """
     # distances alone let a few wrong pairs into a consistent set; keep its rigid core
     core_a, core_b = _core(a, b, ca, cb, settings)
-    if core_a.size >= settings.min_inliers:
+    if core_a.size < settings.min_inliers:
+        core_a, core_b = _consensus_core(a, b, ca, cb, settings)
+    if core_a.size >= 3:
         ca, cb = core_a, core_b
     t = fit_transform(a.means[ca], b.means[cb], a.covs[ca], b.covs[cb])
     cost, passed = gate_pairs(a, b, t, a.means[ca], b.means[cb], settings)
@@ -949,6 +989,48 @@ def _beyond_the_clique(
     keep = member.copy()
     keep[added[ok]] = True
     return rows[keep], cols[keep]
+
+
+#: Triples of a consistent set's pairs that :func:`_consensus_core` tries, at most
+_TRIPLES = 2_000
+
+
+def _consensus_core(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs of a consistent set that fit one rigid transform, by consensus of triples.
+
+    When wrong pairs that fit the distances only thanks to a long covariance are many in a set,
+    and some of them are precisely placed, no transform fitted on all its pairs fits the right
+    ones, and trimming from it (:func:`_core`) ends with too few. Here every triple of the set's
+    pairs (a deterministic sample of :data:`_TRIPLES` when there are more) fixes a transform;
+    the one under which the most pairs pass the ``χ²₃`` gate within their own covariances wins,
+    ties by the order of the triples, and its pairs are trimmed by :func:`_core`.
+    """
+    k = rows.size
+    if k < 3:
+        return rows[:0], cols[:0]
+    triples = np.array(list(itertools.combinations(range(k), 3)), dtype=np.int64)
+    if triples.shape[0] > _TRIPLES:
+        # the same sample on both ends of a link: the generator's seed is fixed
+        pick = np.random.default_rng(0).choice(triples.shape[0], _TRIPLES, replace=False)
+        triples = triples[np.sort(pick)]
+    ma, mb = a.means[rows], b.means[cols]
+    sa, sb = a.covs[rows], b.covs[cols]
+    w = 3.0 / (np.trace(sa, axis1=1, axis2=2) + np.trace(sb, axis1=1, axis2=2))
+    t = _horn(ma[triples], mb[triples], w[triples])  # (T, 4, 4)
+    r = t[:, :3, :3]
+    nu = ma[None] - (np.einsum("tij,kj->tki", r, mb) + t[:, None, :3, 3])
+    s = sa[None] + np.einsum("tij,kjl,tml->tkim", r, sb, r)
+    nis = np.einsum("tki,tki->tk", nu, np.linalg.solve(s, nu[..., None])[..., 0])
+    inliers = nis <= settings.gate_threshold
+    best = int(np.argmax(inliers.sum(axis=1)))
+    keep = inliers[best]
+    return _core(a, b, rows[keep], cols[keep], settings)
 
 
 def _core(
