@@ -17,7 +17,7 @@ from teamslam.association import (
     pair_innovation_consistent,
     score_correspondences,
 )
-from teamslam.association.core import _candidates, _distances, _nearest
+from teamslam.association.core import _candidates, _distances, _nearest, _neighbourhoods
 from teamslam.association.kernels import consistent_pairs, shared_neighbourhood
 from teamslam.errors import InputError
 from teamslam.geometry import so3
@@ -110,7 +110,9 @@ def test_compiled_loops_equal_the_formulas_in_numpy():
     assert np.array_equal(graph, expected)
     near_a, near_b = _nearest(geo_a[0], 6), _nearest(geo_b[0], 6)
     allowed = rng.random((30, 25)) < 0.8
-    count, _ = shared_neighbourhood(near_a, *geo_a, near_b, *geo_b, allowed, quarter, chi2)
+    count, _ = shared_neighbourhood(
+        *_neighbourhoods(geo_a, 6), *_neighbourhoods(geo_b, 6), allowed, quarter, chi2
+    )
 
     def agree(d1, v1, d2, v2):
         return (d1 - d2) ** 2 <= chi2 * (v1 + v2 + quarter * (d1 + d2) ** 2)

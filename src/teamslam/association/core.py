@@ -27,10 +27,8 @@ stages:
    distance — a map's deformation grows with the distance covered, no constant in metres.
 3. **The largest mutually consistent sets**: the maximum clique of the consistency graph
    (:func:`~teamslam.association.clique.maximum_clique`, PCM's solver), then the maximum clique
-   among the candidates its transform rejects, and so on, until
-   :attr:`AssociationSettings.rivals` more sets gathering ``min_inliers`` pairs have been found
-   (a set gathering fewer is neither an answer nor a rival; at most :data:`SEARCHES` searches);
-   each goes through stages 4–5, and the one gathering the most pairs is the answer.
+   among the candidates its transform rejects, and so on (:attr:`AssociationSettings.rivals`
+   more); each goes through stages 4–5, and the one gathering the most pairs is the answer.
    Distances alone let wrong pairs into it (among clustered objects many distances agree by
    chance, and an object with a long covariance agrees with almost any distance), so its
    *rigid core* is kept: trimmed refitting drops the pairs that do not fit the set's rigid
@@ -322,6 +320,22 @@ def _nearest(dist: np.ndarray, k: int) -> np.ndarray:
     return np.argsort(masked, axis=1, kind="stable")[:, :k]
 
 
+def _neighbourhoods(
+    geo: tuple[np.ndarray, np.ndarray], k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each object's ``k`` nearest neighbours as float32 tables: distances and variances to
+    them ``(n, k)``, and between them ``(n, k, k)`` (the arguments of
+    :func:`~teamslam.association.kernels.shared_neighbourhood` for one map)."""
+    dist, var = geo
+    near = _nearest(dist, k)
+    rows = np.arange(dist.shape[0])[:, None]
+    pair = (near[:, :, None], near[:, None, :])
+    return tuple(
+        np.ascontiguousarray(x, dtype=np.float32)
+        for x in (dist[rows, near], var[rows, near], dist[pair], var[pair])
+    )
+
+
 def _candidates(
     first: ObjectSummary,
     second: ObjectSummary,
@@ -332,18 +346,12 @@ def _candidates(
     """Candidate pairs ``(index in first, index in second)`` by shared neighbourhood."""
     chi2 = np.float32(settings.consistency_threshold)
     quarter = np.float32(0.25 * settings.drift_ratio**2)
-    dist_a, var_a = (np.ascontiguousarray(x, dtype=np.float32) for x in geo_a)
-    dist_b, var_b = (np.ascontiguousarray(x, dtype=np.float32) for x in geo_b)
     allowed = np.ones((len(first), len(second)), dtype=bool)
     if first.classes is not None and second.classes is not None:
         allowed = first.classes[:, None] == second.classes[None, :]
     score, mismatch = shared_neighbourhood(
-        _nearest(geo_a[0], settings.neighbours),
-        dist_a,
-        var_a,
-        _nearest(geo_b[0], settings.neighbours),
-        dist_b,
-        var_b,
+        *_neighbourhoods(geo_a, settings.neighbours),
+        *_neighbourhoods(geo_b, settings.neighbours),
         np.ascontiguousarray(allowed),
         quarter,
         chi2,
@@ -498,10 +506,10 @@ def fit_transform(
 def _horn(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted Horn / Umeyama of a batch: ``(T, k, 3)`` points, ``(T, k)`` weights →
     ``(T, 4, 4)`` transforms with ``a ≈ R b + t``."""
-    w = w / w.sum(axis=1, keepdims=True)
-    ca = np.einsum("tk,tki->ti", w, a)
-    cb = np.einsum("tk,tki->ti", w, b)
-    h = np.einsum("tki,tk,tkj->tij", b - cb[:, None], w, a - ca[:, None])
+    w = (w / w.sum(axis=1, keepdims=True))[:, None, :]
+    ca = (w @ a)[:, 0]
+    cb = (w @ b)[:, 0]
+    h = np.swapaxes(b - cb[:, None], 1, 2) @ ((a - ca[:, None]) * np.swapaxes(w, 1, 2))
     u, _, vt = np.linalg.svd(h)
     v = np.swapaxes(vt, 1, 2)
     d = np.sign(np.linalg.det(v @ np.swapaxes(u, 1, 2)))
@@ -511,7 +519,7 @@ def _horn(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     r = v @ fix @ np.swapaxes(u, 1, 2)
     out = np.broadcast_to(np.eye(4), (h.shape[0], 4, 4)).copy()
     out[:, :3, :3] = r
-    out[:, :3, 3] = ca - np.einsum("tij,tj->ti", r, cb)
+    out[:, :3, 3] = ca - (r @ cb[:, :, None])[:, :, 0]
     return out
 
 
@@ -723,12 +731,6 @@ def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> Ass
     return AssociationResult(a.robot, b.robot, np.zeros((0, 2), np.int64), None, status, **counts)
 
 
-#: Clique searches of one association, at most: the answer and its rivals are the sets that
-#: gather ``min_inliers`` pairs, and chance sets that gather fewer are passed over (on the
-#: simulated teams such sets, among dense candidates, came first and used up the searches).
-SEARCHES = 16
-
-
 def _associate(
     a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings
 ) -> AssociationResult:
@@ -745,10 +747,7 @@ def _associate(
     found = []  # (rows, cols, transform, clique pairs, clique indices)
     exact = True
     refused = 0
-    strong = 0  # sets gathering an answer's worth of pairs: the answer and its rivals
-    for _ in range(SEARCHES):
-        if strong > settings.rivals:
-            break
+    for _ in range(settings.rivals + 1):
         index = np.flatnonzero(pool)
         clique, done = maximum_clique(
             graph[np.ix_(index, index)], settings.clique_budget, lower_bound=need - 1
@@ -764,7 +763,6 @@ def _associate(
             refused += 1  # the mirror image of a near-planar group: neither answer nor rival
             continue
         found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
-        strong += rows.size >= need
     counts = {
         "candidates": int(ia.size),
         "clique": int(found[0][3].shape[0]) if found else 0,

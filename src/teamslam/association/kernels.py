@@ -53,12 +53,14 @@ def consistent_pairs(
 
 @numba.njit(cache=True)
 def shared_neighbourhood(
-    near_x: np.ndarray,
-    dist_x: np.ndarray,
-    var_x: np.ndarray,
-    near_y: np.ndarray,
-    dist_y: np.ndarray,
-    var_y: np.ndarray,
+    dx: np.ndarray,
+    vx: np.ndarray,
+    dxx: np.ndarray,
+    vxx: np.ndarray,
+    dy: np.ndarray,
+    vy: np.ndarray,
+    dyy: np.ndarray,
+    vyy: np.ndarray,
     allowed: np.ndarray,
     quarter_rho2: np.float32,
     chi2: np.float32,
@@ -77,10 +79,11 @@ def shared_neighbourhood(
 
     Parameters
     ----------
-    near_x, near_y
-        ``(n, k)`` indices of each object's nearest neighbours in its own map.
-    dist_x, var_x, dist_y, var_y
-        ``(n, n)`` float32 distances within each map and their variances.
+    dx, vx, dy, vy
+        ``(n, k)`` float32 distances from each object to its ``k`` nearest neighbours in its own
+        map, and their variances.
+    dxx, vxx, dyy, vyy
+        ``(n, k, k)`` float32 distances between those neighbours, and their variances.
     allowed
         ``(n_x, n_y)`` boolean: the pairs to score (others score 0).
 
@@ -90,8 +93,8 @@ def shared_neighbourhood(
         ``(n_x, n_y)`` int64 neighbours in the consistent set and float32 sum of their
         normalised squared distance differences.
     """
-    nx, kx = near_x.shape
-    ny, ky = near_y.shape
+    nx, kx = dx.shape
+    ny, ky = dy.shape
     count = np.zeros((nx, ny), dtype=np.int64)
     mismatch = np.zeros((nx, ny), dtype=np.float32)
     cap = kx * ky
@@ -100,6 +103,7 @@ def shared_neighbourhood(
     lj = np.empty(cap, dtype=np.int64)
     chosen = np.empty(cap, dtype=np.int64)
     degree = np.empty(cap, dtype=np.int64)
+    order = np.empty(cap, dtype=np.int64)
     fits = np.zeros((cap, cap), dtype=np.bool_)
     for x in range(nx):
         for y in range(ny):
@@ -107,15 +111,13 @@ def shared_neighbourhood(
                 continue
             n = 0
             for i in range(kx):
-                a = near_x[x, i]
-                da = dist_x[x, a]
-                va = var_x[x, a]
+                da = dx[x, i]
+                va = vx[x, i]
                 for j in range(ky):
-                    b = near_y[y, j]
-                    db = dist_y[y, b]
+                    db = dy[y, j]
                     d = da - db
                     s = da + db
-                    zz = d * d / (va + var_y[y, b] + quarter_rho2 * (s * s))
+                    zz = d * d / (va + vy[y, j] + quarter_rho2 * (s * s))
                     if zz <= chi2:
                         # insertion in order of agreement (ties: earlier neighbours first)
                         p = n
@@ -128,23 +130,25 @@ def shared_neighbourhood(
                         li[p] = i
                         lj[p] = j
                         n += 1
+            if n <= 1:  # nothing to test against each other
+                count[x, y] = n
+                mismatch[x, y] = z[0] if n else np.float32(0.0)
+                continue
             # the matches' mutual consistency (one to one, distances between neighbours)
             for p in range(n):
                 degree[p] = 0
             for p in range(n):
-                a = near_x[x, li[p]]
-                b = near_y[y, lj[p]]
+                i, j = li[p], lj[p]
                 for q in range(p + 1, n):
-                    a2 = near_x[x, li[q]]
-                    b2 = near_y[y, lj[q]]
+                    i2, j2 = li[q], lj[q]
                     ok = (
-                        a != a2
-                        and b != b2
+                        i != i2
+                        and j != j2
                         and _consistent(
-                            dist_x[a, a2],
-                            var_x[a, a2],
-                            dist_y[b, b2],
-                            var_y[b, b2],
+                            dxx[x, i, i2],
+                            vxx[x, i, i2],
+                            dyy[y, j, j2],
+                            vyy[y, j, j2],
                             quarter_rho2,
                             chi2,
                         )
@@ -154,8 +158,12 @@ def shared_neighbourhood(
                     if ok:
                         degree[p] += 1
                         degree[q] += 1
-            # greedy consistent set: the most consistent match first (ties: closer agreement)
-            order = np.argsort(-degree[:n], kind="mergesort")
+            for r in range(n):  # stable insertion sort by degree, highest first
+                p = r
+                while p > 0 and degree[order[p - 1]] < degree[r]:
+                    order[p] = order[p - 1]
+                    p -= 1
+                order[p] = r
             m = 0
             total = np.float32(0.0)
             for r in range(n):
