@@ -790,3 +790,40 @@ def test_views_change_nothing_on_a_set_that_is_not_planar():
         turned[:3, :3] = so3.exp(np.array([np.pi, 0.0, 0.0]))
         for t in (seen.T_first_second, turned @ seen.T_first_second):
             assert not flipped(with_a, with_b, rows, cols, t)
+
+
+def _row_of_cars(seed: int, off_row: int, along: float = 2.5):
+    """A row of 12 parked cars 5 m apart, placed well across the row but poorly along it
+    (standard deviation ``along`` metres: every car's gate reaches past its neighbours), and
+    ``off_row`` objects placed well beside the row; the second map shifted 20 m and turned 30°.
+    Ids: object ``k`` is ``100 + k`` in the first map and ``500 + k`` in the second."""
+    rng = np.random.default_rng(seed)
+    cars = 12
+    row = np.column_stack([np.arange(cars) * 5.0, np.zeros(cars), np.zeros(cars)])
+    beside = _scene(rng, off_row, extent=40.0, spacing=6.0) + np.array([0.0, 8.0, 0.0])
+    world = np.vstack([row, beside])
+    loose = np.diag([along**2, SIGMA**2, SIGMA**2])
+    covs = np.array([loose if k < cars else SIGMA**2 * np.eye(3) for k in range(len(world))])
+
+    def summary(robot, first_id, T=None):
+        noise = np.array([rng.multivariate_normal(np.zeros(3), c) for c in covs])
+        s = ObjectSummary(robot, np.arange(len(world)) + first_id, world + noise, covs)
+        return s if T is None else s.transformed(T)
+
+    return summary(1, 100), summary(2, 500, _pose(30.0, (20.0, 0.0, 0.0)))
+
+
+def test_an_answer_holds_min_inliers_pairs_told_apart_from_their_neighbours():
+    # the consistent set is the row and the objects beside it; the separation test leaves out
+    # the cars (their gates span the next car). Four objects beside the row are fewer than an
+    # answer needs: no answer (it used to be 'matched' with those four pairs in half the scenes)
+    need = AssociationSettings().min_inliers
+    for seed in range(10):
+        a, b = _row_of_cars(seed, off_row=4)
+        result = associate(a, b)
+        assert result.status == "too-few" and len(result.pairs) == 0, (seed, result.pairs)
+        # eight beside the row are an answer: those eight (or one car more), all right
+        a, b = _row_of_cars(seed, off_row=8)
+        result = associate(a, b)
+        assert result.matched and len(result.pairs) >= need, (seed, result.status)
+        assert np.all(result.pairs[:, 1] - result.pairs[:, 0] == 400)

@@ -51,15 +51,18 @@ stages:
    objects both maps hold: when the true partner of an object is missing from the other map (not
    seen yet) and that object's covariance is long (depth poorly observed: standard deviations of
    tens of metres occur on KITTI 00), the neighbour of the missing partner — the next car of the
-   row — passes the gate with no rival in sight. The test thins an answer once it stands (it
-   does not decide whether there is one) and the pairs :meth:`~teamslam.association.table.
-   CorrespondenceTable.extend` adds. The default 0.5 refuses a pair whose gate
-   reaches twice as far as the nearest other object; the pair enters later, once its objects are
-   placed well enough. On KITTI 00 this removed 6 of the 9 wrong pairs a run ended with (their
-   gates reached 2.5–36 times the spacing).
+   row — passes the gate with no rival in sight. The test thins an answer once it has no
+   rival, and the pairs :meth:`~teamslam.association.table.CorrespondenceTable.extend` adds;
+   an answer left with fewer than ``min_inliers`` pairs is none (``too-few``): pairs that
+   cannot be told from their neighbours are no evidence of the transform either (a row of
+   such cars with four well-placed objects beside it used to be answered with those four).
+   The default 0.5 refuses a pair whose gate reaches twice as far as the nearest other
+   object; the pair enters later, once its objects are placed well enough. On KITTI 00 this
+   removed 6 of the 9 wrong pairs a run ended with (their gates reached 2.5–36 times the
+   spacing).
 
-Never guess: fewer than :attr:`AssociationSettings.min_inliers` pairs, or a *rival* — another
-of the sets of stage 3 — whose pairs contradicting the answer number at least
+Never guess: fewer than :attr:`AssociationSettings.min_inliers` pairs (after stage 6), or a
+*rival* — another of the sets of stage 3 — whose pairs contradicting the answer number at least
 :attr:`AssociationSettings.ambiguity_ratio` times the answer's, give no correspondence. A
 regular grid of objects, a row of evenly parked cars, two maps of different places all end
 there. Three pairs fix a transform, but in maps as dense and uncertain as KITTI 00's (objects
@@ -239,8 +242,8 @@ class AssociationResult:
         ``4 × 4`` transform taking the second map's coordinates into the first's
         (``p_first = T · p_second``), or ``None`` without an answer.
     status
-        ``"matched"``, ``"too-few"`` (fewer than ``min_inliers`` consistent pairs) or
-        ``"ambiguous"`` (a rival set nearly as large).
+        ``"matched"``, ``"too-few"`` (fewer than ``min_inliers`` consistent pairs, or fewer
+        told apart from their neighbours) or ``"ambiguous"`` (a rival set nearly as large).
     candidates
         Number of candidate pairs in the consistency graph.
     clique
@@ -789,10 +792,11 @@ def _associate(
     )
     if counts["rival"] >= max(settings.ambiguity_ratio * rows.size, need):
         return _no_answer(a, b, "ambiguous", exact=exact, **counts)
-    if rows.size < need:
-        return _no_answer(a, b, "too-few", exact=exact, **counts)
-    # the answer stands; its pairs too loosely placed to tell from a neighbour are left out
+    # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
+    # left must still be an answer
     ok = _separated(a, b, t, a.means[rows], b.means[cols], rows, cols, settings)
+    if np.count_nonzero(ok) < need:
+        return _no_answer(a, b, "too-few", exact=exact, **counts)
     rows, cols = rows[ok], cols[ok]
     rows, cols = _beyond_the_clique(a, b, rows, cols, ca, cb, t, settings)
     pairs = np.column_stack([a.ids[rows], b.ids[cols]])
