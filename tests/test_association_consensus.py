@@ -30,7 +30,7 @@ from teamslam.msckf.protocol import ConsensusProtocol
 from teamslam.msckf.team import LockStep, RobotDriver, run_drivers
 from teamslam.msckf.transport import MemoryNetwork
 from teamslam.runtime.team_file import write_team_file
-from teamslam.runtime.wire import decode, encode, team_id
+from teamslam.runtime.wire import WireError, decode, encode, team_id
 from teamslam.sim import lissajous_team
 from test_protocol import _threads_over_memory  # the robot-process driver in threads
 
@@ -269,6 +269,17 @@ def test_summaries_cross_the_wire_and_threads_equal_in_process(stripped3, tmp_pa
     np.testing.assert_array_equal(back.summary.means, summary.means)
     np.testing.assert_array_equal(back.summary.covs, summary.covs)
     assert back.summary.robot == 2 and back.summary.classes is None
+    np.testing.assert_array_equal(back.summary.views, np.zeros((3, 3)))  # none known
+    # where the cameras were: float32 on the wire, the sender's own summary rounded alike
+    seen = replace(summary, views=np.array([[0.1, 0.2, 0.97], [0.0, 0.0, 0.0], [1 / 3, 0, 0]]))
+    assert seen.views[2, 0] == np.float32(1 / 3)
+    back = decode(encode(MapIdsMessage(2, 0, 7, ids, None, seen), team), team, 3)
+    np.testing.assert_array_equal(back.summary.views, seen.views)
+    data = bytearray(encode(MapIdsMessage(2, 0, 7, ids, None, seen), team))
+    at = len(data) - 3 * 3 * 4  # the first view's x, float32
+    data[at : at + 4] = np.float32(np.nan).tobytes()
+    with pytest.raises(WireError, match="non-finite camera positions"):
+        decode(bytes(data), team, 3)
     with_classes = replace(summary, classes=np.array([1, 2, 1]))
     back = decode(encode(MapIdsMessage(2, 0, 7, ids, None, with_classes), team), team, 3)
     np.testing.assert_array_equal(back.summary.classes, [1, 2, 1])
