@@ -934,8 +934,13 @@ def _support(
     need = settings.min_inliers
     if rows.size >= need:
         # the core: the gated pairs that fit their refitted transform within their own
-        # covariances (each is its own nearest anchor: no drift allowance)
-        rows, cols = _core(a, b, rows, cols, settings)
+        # covariances (each is its own nearest anchor: no drift allowance); as for the set,
+        # by a consensus of triples when trimming from a fit dragged off by a wrong pair
+        # leaves too few
+        core_rows, core_cols = _core(a, b, rows, cols, settings)
+        if core_rows.size < need:
+            core_rows, core_cols = _consensus_core(a, b, rows, cols, settings)
+        rows, cols = core_rows, core_cols
     if rows.size >= need:
         # every pair gated again, the drift allowance growing with the distance from the core
         t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
