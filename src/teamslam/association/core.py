@@ -70,11 +70,18 @@ there. Three pairs fix a transform, but in maps as dense and uncertain as KITTI 
 fit one within their covariances; they come with rivals of about their size, so the default
 rival threshold is half the answer, and the default minimum six pairs.
 
-Cost: all pairs of objects within each map, ``n_a · n_b · k²`` descriptor comparisons, ``m²``
-consistency tests for ``m`` candidates (a few per object) and up to ``rivals + 1`` clique
-searches. The descriptor comparison, the consistency test and the clique search are compiled
-loops (:mod:`teamslam.association.kernels`, :mod:`teamslam.association.clique`): a few
-milliseconds for maps of a hundred objects (median 5.9 ms of CPU over the 322 full
+**The mirror image of a near-planar group.** Distances cannot tell a near-planar group of
+objects from its mirror image, which a proper rotation turning the plane over fits (on a street,
+each side's cars matched with the other side's). A consistent set whose transform puts the two
+robots' cameras clearly on opposite sides of its plane (:func:`flipped`, from the summaries'
+``views``) is neither an answer nor a rival.
+
+Cost: all pairs of objects within each map, ``n_a · n_b · k²`` neighbour comparisons (and the
+mutual consistency of the neighbour pairs that agree), ``m²`` consistency tests for ``m``
+candidates (a few per object) and up to ``rivals + 1`` clique searches. The neighbourhood
+comparison, the consistency test and the clique search are compiled loops
+(:mod:`teamslam.association.kernels`, :mod:`teamslam.association.clique`): about ten
+milliseconds for maps of a hundred objects (median 11.6 ms of CPU over the 302 full
 associations of 15 simulated robots on a ring: ``benchmarks/association.py ring``). At run time
 a link runs it when its table is :meth:`~teamslam.association.table.CorrespondenceTable.due`
 (no answer yet and new objects, or maps grown markedly since the last run), and grows its table
