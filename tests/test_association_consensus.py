@@ -318,3 +318,28 @@ def test_the_report_shows_the_association_of_a_run():
     for text in ("12 | 10 | 2", "7 | 1", "0.875", "0.778", "1234", "12.5%", "link 0-1"):
         assert text in html
     assert _association_section(["oracle"], [SimpleNamespace(metrics={})]) == ""
+
+
+def test_a_summary_says_from_where_the_robot_saw_each_object(stripped3):
+    # the views the protocol records (the measured bearing turned by the camera's estimated
+    # orientation) point from each object to the cameras that saw it, as ground truth has them
+    config = config_for(stripped3, window=6).with_(association="own")
+    drivers = _drivers(stripped3, config, MemoryNetwork(3))
+    run_drivers(drivers, "complete", 0.0, None, progress=False)
+    truth = dict(zip(stripped3.object_ids.tolist(), stripped3.object_positions, strict=True))
+    t_body_cam = np.linalg.inv(stripped3.calibration.T_cam_body)
+    for robot, driver in enumerate(drivers):
+        sequence = stripped3.robots[robot]
+        ids = np.array(sorted(driver.protocol._views))
+        views = driver.protocol._views_of(ids)
+        assert ids.size >= 20 and np.all(np.linalg.norm(views, axis=1) <= 1.0 + 1e-6)
+        for oid, view in zip(ids.tolist(), views, strict=True):
+            toward = []
+            for t in range(sequence.frames - 1):  # the last frame's view is not recorded yet
+                if oid in sequence.objects.frame(t)[0].tolist():
+                    pose = sequence.T_world_body[t]
+                    camera = pose[:3, :3] @ t_body_cam[:3, 3] + pose[:3, 3]
+                    toward.append((camera - truth[oid]) / np.linalg.norm(camera - truth[oid]))
+            expected = np.mean(toward, axis=0)
+            cosine = view @ expected / np.linalg.norm(view) / np.linalg.norm(expected)
+            assert cosine > 0.99, (robot, oid, cosine)
