@@ -41,15 +41,17 @@ import numpy as np
 import teamslam.msckf.protocol as protocol
 from teamslam import api
 from teamslam.association import (
+    AssociationSettings,
     CorrespondenceTable,
     ObjectSummary,
     associate,
     score_correspondences,
 )
-from teamslam.datasets import import_reference
+from teamslam.datasets import import_reference, load_dataset
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.geometry import so3
 from teamslam.msckf import run_team
+from teamslam.msckf.protocol import ConsensusProtocol
 from teamslam.msckf.settings import team_configs
 from teamslam.sim import lissajous_team
 
@@ -224,11 +226,96 @@ def ring() -> None:
     )
 
 
+def _truth_of(dataset, robot: int, ids: np.ndarray) -> np.ndarray:
+    """The team object of each of ``robot``'s ids (-1: no truth)."""
+    keys, values = dataset.true_objects(robot)
+    order = np.argsort(keys)
+    keys, values = keys[order], values[order]
+    pos = np.clip(np.searchsorted(keys, ids), 0, max(keys.size - 1, 0))
+    out = np.full(ids.shape, -1, np.int64)
+    if keys.size:
+        hit = keys[pos] == ids
+        out[hit] = values[pos[hit]]
+    return out
+
+
+def delay(directory: str, graph: str, loss: float, window: int) -> None:
+    """First-match delay of own association at run time, per link: the exchange at which the
+    link's table first holds a pair, counted from the first exchange at which both maps hold
+    ``min_inliers`` common objects (ground truth); with the run's RMSE, precision and recall
+    and the recall averaged over every exchange of a link whose maps share objects (and over
+    those from the link's first match on)."""
+    dataset = load_dataset(directory)
+    need = AssociationSettings().min_inliers
+    seen: dict[tuple[int, int], list[tuple[int, int, int, int]]] = {}
+    original = ConsensusProtocol._associate
+
+    def recorded(self, j, request):
+        out = original(self, j, request)
+        own = self._summary
+        if self.robot < j and own is not None and out:
+            truth_a = _truth_of(dataset, self.robot, own.ids)
+            truth_b = _truth_of(dataset, j, np.asarray(request.summary.ids))
+            shared = np.intersect1d(truth_a[truth_a >= 0], truth_b[truth_b >= 0]).size
+            pairs = self.tables[j].pairs()
+            ta = _truth_of(dataset, self.robot, pairs[:, 0])
+            tb = _truth_of(dataset, j, pairs[:, 1])
+            correct = int(np.count_nonzero((ta == tb) & (ta >= 0)))
+            seen.setdefault((self.robot, j), []).append(
+                (self.step, shared, correct, len(pairs) - correct)
+            )
+        return out
+
+    ConsensusProtocol._associate = recorded
+    try:
+        run = api.run(
+            dataset,
+            graph=graph,
+            loss=loss,
+            settings={"window": window},
+            association="own",
+            report=False,
+            progress=False,
+        )
+    finally:
+        ConsensusProtocol._associate = original
+    delays, late, recalls, after = [], [], [], []
+    for (i, j), rows in sorted(seen.items()):
+        rows = np.array(rows)
+        ready = rows[rows[:, 1] >= need]
+        if not ready.size:
+            continue
+        start = ready[0, 0]
+        held = rows[rows[:, 2] + rows[:, 3] > 0]
+        first = held[0, 0] if held.size else rows[-1, 0] + 1
+        delays.append(first - start)
+        late.append((first - start, i, j))
+        active = rows[rows[:, 1] > 0]
+        recalls.extend(active[:, 2] / active[:, 1])
+        answered = active[active[:, 0] >= first]
+        after.extend(answered[:, 2] / answered[:, 1])
+    team = run.metrics["association"]["team"]
+    worst = ", ".join(f"{a}-{b} {d}" for d, a, b in sorted(late, reverse=True)[:3])
+    print(
+        f"{Path(directory).name} {graph} loss {loss:g}: first match after {need} shared objects: "
+        f"median {np.median(delays):.1f} frames, mean {np.mean(delays):.1f}, max "
+        f"{np.max(delays)} over {len(delays)} links (worst {worst}); recall over time "
+        f"{np.mean(recalls):.3f} ({np.mean(after):.3f} after the first match); final precision "
+        f"{team['precision']:.3f} recall {team['recall']:.3f}; "
+        f"RMSE {run.metrics['trajectory_rmse_avg_m']:.4f} m; "
+        f"association share {100 * team['association_time_share']:.1f}%"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "what", nargs="*", default=["kitti", "sim"], choices=("kitti", "sim", "ring")
+        "what", nargs="*", default=["kitti", "sim"], choices=("kitti", "sim", "ring", "delay")
     )
+    parser.add_argument("--dataset", help="delay: a dataset directory with per-robot ids")
+    parser.add_argument("--graph", default="complete", help="delay: communication graph")
+    parser.add_argument("--loss", type=float, default=0.0, help="delay: link loss rate")
+    parser.add_argument("--window", type=int, default=10, help="delay: sliding window")
     parser.add_argument("--frames", type=int, nargs="*", default=[500, 1000, 1500])
     parser.add_argument("--sim-frames", type=int, nargs="*", default=[50, 100])
     args = parser.parse_args()
@@ -239,6 +326,10 @@ def main() -> None:
         sim(args.sim_frames)
     if "ring" in args.what:
         ring()
+    if "delay" in args.what:
+        if not args.dataset:
+            parser.error("delay needs --dataset")
+        delay(args.dataset, args.graph, args.loss, args.window)
 
 
 if __name__ == "__main__":

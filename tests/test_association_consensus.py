@@ -30,7 +30,7 @@ from teamslam.msckf.protocol import ConsensusProtocol
 from teamslam.msckf.team import LockStep, RobotDriver, run_drivers
 from teamslam.msckf.transport import MemoryNetwork
 from teamslam.runtime.team_file import write_team_file
-from teamslam.runtime.wire import decode, encode, team_id
+from teamslam.runtime.wire import WireError, decode, encode, team_id
 from teamslam.sim import lissajous_team
 from test_protocol import _threads_over_memory  # the robot-process driver in threads
 
@@ -269,6 +269,17 @@ def test_summaries_cross_the_wire_and_threads_equal_in_process(stripped3, tmp_pa
     np.testing.assert_array_equal(back.summary.means, summary.means)
     np.testing.assert_array_equal(back.summary.covs, summary.covs)
     assert back.summary.robot == 2 and back.summary.classes is None
+    np.testing.assert_array_equal(back.summary.views, np.zeros((3, 3)))  # none known
+    # where the cameras were: float32 on the wire, the sender's own summary rounded alike
+    seen = replace(summary, views=np.array([[0.1, 0.2, 0.97], [0.0, 0.0, 0.0], [1 / 3, 0, 0]]))
+    assert seen.views[2, 0] == np.float32(1 / 3)
+    back = decode(encode(MapIdsMessage(2, 0, 7, ids, None, seen), team), team, 3)
+    np.testing.assert_array_equal(back.summary.views, seen.views)
+    data = bytearray(encode(MapIdsMessage(2, 0, 7, ids, None, seen), team))
+    at = len(data) - 3 * 3 * 4  # the first view's x, float32
+    data[at : at + 4] = np.float32(np.nan).tobytes()
+    with pytest.raises(WireError, match="non-finite camera positions"):
+        decode(bytes(data), team, 3)
     with_classes = replace(summary, classes=np.array([1, 2, 1]))
     back = decode(encode(MapIdsMessage(2, 0, 7, ids, None, with_classes), team), team, 3)
     np.testing.assert_array_equal(back.summary.classes, [1, 2, 1])
@@ -307,3 +318,28 @@ def test_the_report_shows_the_association_of_a_run():
     for text in ("12 | 10 | 2", "7 | 1", "0.875", "0.778", "1234", "12.5%", "link 0-1"):
         assert text in html
     assert _association_section(["oracle"], [SimpleNamespace(metrics={})]) == ""
+
+
+def test_a_summary_says_from_where_the_robot_saw_each_object(stripped3):
+    # the views the protocol records (the measured bearing turned by the camera's estimated
+    # orientation) point from each object to the cameras that saw it, as ground truth has them
+    config = config_for(stripped3, window=6).with_(association="own")
+    drivers = _drivers(stripped3, config, MemoryNetwork(3))
+    run_drivers(drivers, "complete", 0.0, None, progress=False)
+    truth = dict(zip(stripped3.object_ids.tolist(), stripped3.object_positions, strict=True))
+    t_body_cam = np.linalg.inv(stripped3.calibration.T_cam_body)
+    for robot, driver in enumerate(drivers):
+        sequence = stripped3.robots[robot]
+        ids = np.array(sorted(driver.protocol._views))
+        views = driver.protocol._views_of(ids)
+        assert ids.size >= 20 and np.all(np.linalg.norm(views, axis=1) <= 1.0 + 1e-6)
+        for oid, view in zip(ids.tolist(), views, strict=True):
+            toward = []
+            for t in range(sequence.frames - 1):  # the last frame's view is not recorded yet
+                if oid in sequence.objects.frame(t)[0].tolist():
+                    pose = sequence.T_world_body[t]
+                    camera = pose[:3, :3] @ t_body_cam[:3, 3] + pose[:3, 3]
+                    toward.append((camera - truth[oid]) / np.linalg.norm(camera - truth[oid]))
+            expected = np.mean(toward, axis=0)
+            cosine = view @ expected / np.linalg.norm(view) / np.linalg.norm(expected)
+            assert cosine > 0.99, (robot, oid, cosine)

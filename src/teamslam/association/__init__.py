@@ -17,6 +17,7 @@ from teamslam.association.core import (
     associate,
     consistency_graph,
     fit_transform,
+    flipped,
     gate_pairs,
 )
 from teamslam.association.evaluate import CorrespondenceScore, score_correspondences
@@ -36,6 +37,7 @@ __all__ = [
     "associate",
     "consistency_graph",
     "fit_transform",
+    "flipped",
     "gate_pairs",
     "maximum_clique",
     "pair_innovation_consistent",

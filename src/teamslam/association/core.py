@@ -6,11 +6,19 @@ positions alone do not match (on KITTI 00 the separate maps are ~8 m off while p
 ~5 m apart); the *shape* of a group of objects survives drift. :func:`associate` works in six
 stages:
 
-1. **Candidates.** Each object gets a drift-invariant descriptor: the distances to its ``k``
-   nearest neighbours in its own map. Two objects are a candidate pair when enough of their
-   neighbour distances agree within their uncertainty (and their classes agree when both maps
-   have classes); each object keeps its best few candidates, so the consistency graph stays far
-   smaller than all pairs.
+1. **Candidates.** Two objects are a candidate pair when their neighbourhoods hold objects that
+   can be the same, as a rigid whole (:func:`~teamslam.association.kernels.
+   shared_neighbourhood`): among the ``k`` nearest neighbours of each, the neighbour pairs
+   whose distances to the two objects agree within their uncertainty, and of those the
+   largest set found greedily whose distances to each other agree as well (one to one; the
+   most mutually consistent first). Each robot maps neighbours the other has not seen, so the
+   two lists differ; a neighbour only one map holds finds no partner and costs nothing, while
+   distances that agree by chance rarely agree with each other too. (An earlier rule compared
+   the two lists of neighbour distances rank-free but element by element, many to one: chance
+   agreements among unrelated neighbours ranked wrong pairs above right ones, and on simulated
+   teams two maps sharing six or more objects often had only three to six of them among the
+   candidates.) Classes must agree when both maps have them; each object keeps its best few
+   candidates, so the consistency graph stays far smaller than all pairs.
 2. **Pairwise consistency** (Mangelson et al., "Pairwise Consistency Maximization for Robust
    Multi-Robot Map Merging", ICRA 2018). Correspondences ``(a, b)`` and ``(a', b')`` are
    consistent when ``(‖a − a'‖ − ‖b − b'‖)² / σ² ≤ χ²₁(p)``, where ``σ²`` is the variance of the
@@ -21,10 +29,13 @@ stages:
    (:func:`~teamslam.association.clique.maximum_clique`, PCM's solver), then the maximum clique
    among the candidates its transform rejects, and so on (:attr:`AssociationSettings.rivals`
    more); each goes through stages 4–5, and the one gathering the most pairs is the answer.
-   Distances alone let a
-   few wrong pairs into it (among clustered objects many distances agree by chance), so its
+   Distances alone let wrong pairs into it (among clustered objects many distances agree by
+   chance, and an object with a long covariance agrees with almost any distance), so its
    *rigid core* is kept: trimmed refitting drops the pairs that do not fit the set's rigid
-   transform within their covariances.
+   transform within their covariances; when that leaves fewer than ``min_inliers`` (a fit on
+   all the set's pairs is dragged off by the wrong ones) the core is the largest subset that
+   fits the transform of one of its triples (a consensus of triples, then trimmed), and any
+   core of three pairs or more fixes the transform of stage 4.
 4. **The relative transform** it implies: weighted Horn / Umeyama (no scale), ``SE(3)``.
 5. **Every pair gated under that transform**: Mahalanobis distance with both covariances plus
    the drift allowance ``ρ² (rₐ² + r_b²) / 2`` (``r`` the distance to the nearest anchor pair in
@@ -40,15 +51,18 @@ stages:
    objects both maps hold: when the true partner of an object is missing from the other map (not
    seen yet) and that object's covariance is long (depth poorly observed: standard deviations of
    tens of metres occur on KITTI 00), the neighbour of the missing partner — the next car of the
-   row — passes the gate with no rival in sight. The test thins an answer once it stands (it
-   does not decide whether there is one) and the pairs :meth:`~teamslam.association.table.
-   CorrespondenceTable.extend` adds. The default 0.5 refuses a pair whose gate
-   reaches twice as far as the nearest other object; the pair enters later, once its objects are
-   placed well enough. On KITTI 00 this removed 6 of the 9 wrong pairs a run ended with (their
-   gates reached 2.5–36 times the spacing).
+   row — passes the gate with no rival in sight. The test thins an answer once it has no
+   rival, and the pairs :meth:`~teamslam.association.table.CorrespondenceTable.extend` adds;
+   an answer left with fewer than ``min_inliers`` pairs is none (``too-few``): pairs that
+   cannot be told from their neighbours are no evidence of the transform either (a row of
+   such cars with four well-placed objects beside it used to be answered with those four).
+   The default 0.5 refuses a pair whose gate reaches twice as far as the nearest other
+   object; the pair enters later, once its objects are placed well enough. On KITTI 00 this
+   removed 6 of the 9 wrong pairs a run ended with (their gates reached 2.5–36 times the
+   spacing).
 
-Never guess: fewer than :attr:`AssociationSettings.min_inliers` pairs, or a *rival* — another
-of the sets of stage 3 — whose pairs contradicting the answer number at least
+Never guess: fewer than :attr:`AssociationSettings.min_inliers` pairs (after stage 6), or a
+*rival* — another of the sets of stage 3 — whose pairs contradicting the answer number at least
 :attr:`AssociationSettings.ambiguity_ratio` times the answer's, give no correspondence. A
 regular grid of objects, a row of evenly parked cars, two maps of different places all end
 there. Three pairs fix a transform, but in maps as dense and uncertain as KITTI 00's (objects
@@ -56,11 +70,18 @@ there. Three pairs fix a transform, but in maps as dense and uncertain as KITTI 
 fit one within their covariances; they come with rivals of about their size, so the default
 rival threshold is half the answer, and the default minimum six pairs.
 
-Cost: all pairs of objects within each map, ``n_a · n_b · k²`` descriptor comparisons, ``m²``
-consistency tests for ``m`` candidates (a few per object) and up to ``rivals + 1`` clique
-searches. The descriptor comparison, the consistency test and the clique search are compiled
-loops (:mod:`teamslam.association.kernels`, :mod:`teamslam.association.clique`): a few
-milliseconds for maps of a hundred objects (median 5.9 ms of CPU over the 322 full
+**The mirror image of a near-planar group.** Distances cannot tell a near-planar group of
+objects from its mirror image, which a proper rotation turning the plane over fits (on a street,
+each side's cars matched with the other side's). A consistent set whose transform puts the two
+robots' cameras clearly on opposite sides of its plane (:func:`flipped`, from the summaries'
+``views``) is neither an answer nor a rival.
+
+Cost: all pairs of objects within each map, ``n_a · n_b · k²`` neighbour comparisons (and the
+mutual consistency of the neighbour pairs that agree), ``m²`` consistency tests for ``m``
+candidates (a few per object) and up to ``rivals + 1`` clique searches. The neighbourhood
+comparison, the consistency test and the clique search are compiled loops
+(:mod:`teamslam.association.kernels`, :mod:`teamslam.association.clique`): about ten
+milliseconds for maps of a hundred objects (median 11.6 ms of CPU over the 302 full
 associations of 15 simulated robots on a ring: ``benchmarks/association.py ring``). At run time
 a link runs it when its table is :meth:`~teamslam.association.table.CorrespondenceTable.due`
 (no answer yet and new objects, or maps grown markedly since the last run), and grows its table
@@ -83,6 +104,7 @@ anyway, and cannot disagree as long as both ends hold the same two summaries.
 from __future__ import annotations
 
 import functools
+import itertools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -90,7 +112,7 @@ import scipy.optimize
 import scipy.stats
 
 from teamslam.association.clique import maximum_clique
-from teamslam.association.kernels import consistent_pairs, descriptor_mismatch
+from teamslam.association.kernels import consistent_pairs, shared_neighbourhood
 from teamslam.association.summary import ObjectSummary
 from teamslam.errors import InputError
 
@@ -101,6 +123,7 @@ __all__ = [
     "consistency_graph",
     "consistent_with",
     "fit_transform",
+    "flipped",
     "gate_pairs",
 ]
 
@@ -127,9 +150,10 @@ class AssociationSettings:
         Standard deviation of a map's deformation per unit of distance: two objects ``d`` apart
         in one map may be ``d ± ρ·d`` apart in the other beyond what their covariances say.
     neighbours
-        Length ``k`` of the nearest-neighbour distance descriptor.
+        Nearest neighbours ``k`` of each object compared for candidates.
     descriptor_matches
-        Neighbour distances two objects must have in common to be a candidate pair.
+        Neighbours two objects must have in common (as a consistent set) to be a candidate
+        pair.
     candidates_per_object
         Each object keeps at most this many candidates (its best by descriptor agreement).
     min_inliers
@@ -225,8 +249,8 @@ class AssociationResult:
         ``4 × 4`` transform taking the second map's coordinates into the first's
         (``p_first = T · p_second``), or ``None`` without an answer.
     status
-        ``"matched"``, ``"too-few"`` (fewer than ``min_inliers`` consistent pairs) or
-        ``"ambiguous"`` (a rival set nearly as large).
+        ``"matched"``, ``"too-few"`` (fewer than ``min_inliers`` consistent pairs, or fewer
+        told apart from their neighbours) or ``"ambiguous"`` (a rival set nearly as large).
     candidates
         Number of candidate pairs in the consistency graph.
     clique
@@ -237,6 +261,10 @@ class AssociationResult:
         ``min_inliers`` members.
     exact
         Whether the clique searches finished within their budget.
+    flipped
+        Consistent sets refused because their transform puts the second robot's cameras on
+        the other side of the set's plane than the first's (the mirror image of a near-planar
+        group of objects; see :func:`flipped`).
     clique_pairs
         ``(c, 2)`` the pairs of the largest consistent set (for diagnostics; the answer is
         :attr:`pairs`).
@@ -251,6 +279,7 @@ class AssociationResult:
     clique: int = 0
     rival: int = 0
     exact: bool = True
+    flipped: int = 0
     clique_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
     def swapped(self) -> AssociationResult:
@@ -293,14 +322,28 @@ def _distances(means: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.ndar
     return dist, along + along.T
 
 
-def _descriptors(dist: np.ndarray, var: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Distances to the ``k`` nearest neighbours (ascending) and their variances."""
+def _nearest(dist: np.ndarray, k: int) -> np.ndarray:
+    """Indices of each object's ``k`` nearest other objects (ascending; ties by index)."""
     n = dist.shape[0]
     k = min(k, n - 1)
     masked = dist + np.diag(np.full(n, np.inf))
-    nearest = np.argsort(masked, axis=1, kind="stable")[:, :k]
-    rows = np.arange(n)[:, None]
-    return dist[rows, nearest], var[rows, nearest]
+    return np.argsort(masked, axis=1, kind="stable")[:, :k]
+
+
+def _neighbourhoods(
+    geo: tuple[np.ndarray, np.ndarray], k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each object's ``k`` nearest neighbours as float32 tables: distances and variances to
+    them ``(n, k)``, and between them ``(n, k, k)`` (the arguments of
+    :func:`~teamslam.association.kernels.shared_neighbourhood` for one map)."""
+    dist, var = geo
+    near = _nearest(dist, k)
+    rows = np.arange(dist.shape[0])[:, None]
+    pair = (near[:, :, None], near[:, None, :])
+    return tuple(
+        np.ascontiguousarray(x, dtype=np.float32)
+        for x in (dist[rows, near], var[rows, near], dist[pair], var[pair])
+    )
 
 
 def _candidates(
@@ -310,23 +353,22 @@ def _candidates(
     geo_b: tuple[np.ndarray, np.ndarray],
     settings: AssociationSettings,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate pairs ``(index in first, index in second)`` by descriptor agreement."""
+    """Candidate pairs ``(index in first, index in second)`` by shared neighbourhood."""
     chi2 = np.float32(settings.consistency_threshold)
-    rho2 = np.float32(settings.drift_ratio**2)
-    da, va = (x.astype(np.float32) for x in _descriptors(*geo_a, settings.neighbours))
-    db, vb = (x.astype(np.float32) for x in _descriptors(*geo_b, settings.neighbours))
-    quarter = np.float32(0.25) * rho2
-    z_a = descriptor_mismatch(da, va, db, vb, quarter)  # a's neighbour distances found around b
-    z_b = descriptor_mismatch(db, vb, da, va, quarter).transpose(1, 0, 2)  # b's found around a
-    found_a = np.count_nonzero(z_a <= chi2, axis=2)
-    found_b = np.count_nonzero(z_b <= chi2, axis=2)
-    score = np.minimum(found_a, found_b)
-    # a finer key for ranking among equal counts: the mean normalised descriptor mismatch
-    closeness = -0.5 * (np.minimum(z_a, chi2).mean(axis=2) + np.minimum(z_b, chi2).mean(axis=2))
+    quarter = np.float32(0.25 * settings.drift_ratio**2)
+    allowed = np.ones((len(first), len(second)), dtype=bool)
     if first.classes is not None and second.classes is not None:
-        score = np.where(first.classes[:, None] == second.classes[None, :], score, 0)
+        allowed = first.classes[:, None] == second.classes[None, :]
+    score, mismatch = shared_neighbourhood(
+        *_neighbourhoods(geo_a, settings.neighbours),
+        *_neighbourhoods(geo_b, settings.neighbours),
+        np.ascontiguousarray(allowed),
+        quarter,
+        chi2,
+    )
     eligible = score >= max(settings.descriptor_matches, 1)
-    key = score + closeness / (chi2 + 1.0)  # count first, closeness within a count
+    # count first; among equal counts the closer agreement (mean normalised mismatch < χ²)
+    key = score - mismatch / np.maximum(score, 1) / (chi2 + 1.0)
     key = np.where(eligible, key, -np.inf)
     keep = np.zeros_like(eligible)
     top = settings.candidates_per_object
@@ -468,16 +510,26 @@ def fit_transform(
         w = 3.0 / np.maximum(tr, np.finfo(float).tiny)
     else:
         w = np.ones(a.shape[0])
-    w = w / w.sum()
-    ca = w @ a
-    cb = w @ b
-    h = ((b - cb) * w[:, None]).T @ (a - ca)
+    return _horn(a[None], b[None], w[None])[0]
+
+
+def _horn(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted Horn / Umeyama of a batch: ``(T, k, 3)`` points, ``(T, k)`` weights →
+    ``(T, 4, 4)`` transforms with ``a ≈ R b + t``."""
+    w = (w / w.sum(axis=1, keepdims=True))[:, None, :]
+    ca = (w @ a)[:, 0]
+    cb = (w @ b)[:, 0]
+    h = np.swapaxes(b - cb[:, None], 1, 2) @ ((a - ca[:, None]) * np.swapaxes(w, 1, 2))
     u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    out = np.eye(4)
-    out[:3, :3] = r
-    out[:3, 3] = ca - r @ cb
+    v = np.swapaxes(vt, 1, 2)
+    d = np.sign(np.linalg.det(v @ np.swapaxes(u, 1, 2)))
+    d[d == 0] = 1.0
+    fix = np.broadcast_to(np.eye(3), h.shape).copy()
+    fix[:, 2, 2] = d
+    r = v @ fix @ np.swapaxes(u, 1, 2)
+    out = np.broadcast_to(np.eye(4), (h.shape[0], 4, 4)).copy()
+    out[:, :3, :3] = r
+    out[:, :3, 3] = ca - (r @ cb[:, :, None])[:, :, 0]
     return out
 
 
@@ -704,6 +756,7 @@ def _associate(
     pool = np.ones(ia.size, dtype=bool)
     found = []  # (rows, cols, transform, clique pairs, clique indices)
     exact = True
+    refused = 0
     for _ in range(settings.rivals + 1):
         index = np.flatnonzero(pool)
         clique, done = maximum_clique(
@@ -714,12 +767,16 @@ def _associate(
             break
         ca, cb = ia[index[clique]], ib[index[clique]]
         rows, cols, t, passed = _support(a, b, ca, cb, settings)
-        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
         pool[index[clique]] = False
         pool &= ~passed[ia, ib]
+        if rows.size >= need and flipped(a, b, rows, cols, t, settings):
+            refused += 1  # the mirror image of a near-planar group: neither answer nor rival
+            continue
+        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
     counts = {
         "candidates": int(ia.size),
         "clique": int(found[0][3].shape[0]) if found else 0,
+        "flipped": refused,
     }
     if not found:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
@@ -742,10 +799,11 @@ def _associate(
     )
     if counts["rival"] >= max(settings.ambiguity_ratio * rows.size, need):
         return _no_answer(a, b, "ambiguous", exact=exact, **counts)
-    if rows.size < need:
-        return _no_answer(a, b, "too-few", exact=exact, **counts)
-    # the answer stands; its pairs too loosely placed to tell from a neighbour are left out
+    # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
+    # left must still be an answer
     ok = _separated(a, b, t, a.means[rows], b.means[cols], rows, cols, settings)
+    if np.count_nonzero(ok) < need:
+        return _no_answer(a, b, "too-few", exact=exact, **counts)
     rows, cols = rows[ok], cols[ok]
     rows, cols = _beyond_the_clique(a, b, rows, cols, ca, cb, t, settings)
     pairs = np.column_stack([a.ids[rows], b.ids[cols]])
@@ -760,6 +818,99 @@ def _associate(
         clique_pairs=clique_pairs[np.argsort(clique_pairs[:, 0], kind="stable")],
         **counts,
     )
+
+
+def flipped(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    T_first_second: np.ndarray,
+    settings: AssociationSettings | None = None,
+) -> bool:
+    """Whether a transform puts the two robots' cameras on opposite sides of a near-planar set.
+
+    Distances cannot tell a near-planar group of objects from its mirror image, and the mirror
+    image of a plane is the plane turned over: a proper rotation (a half-turn about an axis in
+    the plane) fits pairs that match each object with its mirror image's — on a street, the cars
+    of one side with those of the other. The cameras can tell: a robot sees objects from one side
+    of their plane (ground robots, drones and hand-held cameras are not inside the plane of the
+    objects they see), and both robots saw the same objects from the same side. With the
+    summaries' :attr:`~teamslam.association.summary.ObjectSummary.views` (the direction from
+    each object to the cameras that saw it), a transform is refused when
+
+    * the pairs ``(rows[k], cols[k])`` are near-planar: reflected about the plane fitted to
+      their objects (both maps', the second's under the transform, weighted by their
+      variances), they would still pass the ``χ²₃`` gate — each pair's two heights above the
+      plane, summed (the reflection's residual along the normal ``n``), satisfy
+      ``(hₐ + h_b)² ≤ χ²₃ · nᵀ S n`` with ``S`` the pair's innovation covariance (a set that
+      is not near-planar is never refused: its side is no matter of a mirror image);
+    * for each robot, the views' component along the plane's normal (the sine of the angle
+      the cameras looked down or up at the objects), summed over the pairs whose views both
+      robots know (the second robot's turned by the transform), is clear of zero: squared,
+      above ``χ²₁`` times its variance — the pairs' own scatter about their mean, and the
+      normal's uncertainty from the fit (its tilt towards each in-plane axis) times the views'
+      sum along that axis;
+    * and the two heights have opposite signs.
+
+    Every number is from the two summaries: no unit, no up direction. Computed in the canonical
+    order of :func:`associate`, it is the same on both ends of a link.
+
+    Parameters
+    ----------
+    first, second
+        The two summaries.
+    rows, cols
+        ``(k,)`` indices of the pairs' objects in ``first`` and ``second``.
+    T_first_second
+        The transform the pairs imply (``p_first = T · p_second``).
+    settings
+        The gate and consistency probabilities (default :class:`AssociationSettings`).
+    """
+    settings = settings or AssociationSettings()
+    rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+    cols = np.asarray(cols, dtype=np.int64).reshape(-1)
+    if first.views is None or second.views is None or rows.size < 3:
+        return False
+    r = np.asarray(T_first_second, dtype=float)[:3, :3]
+    views_a = first.views[rows]
+    views_b = second.views[cols] @ r.T
+    known = np.any(views_a != 0, axis=1) & np.any(views_b != 0, axis=1)
+    if np.count_nonzero(known) < 3:
+        return False
+    cov_a = first.covs[rows]
+    cov_b = r @ second.covs[cols] @ r.T
+    both = cov_a + cov_b
+    # the plane of the pairs' objects, both maps' (the second's under the transform) weighted
+    # as in fit_transform
+    points = np.vstack([first.means[rows], second.means[cols] @ r.T + T_first_second[:3, 3]])
+    covs = np.concatenate([cov_a, cov_b])
+    w = 1.0 / np.maximum(np.trace(covs, axis1=1, axis2=2), np.finfo(float).tiny)
+    centre = (w / w.sum()) @ points
+    spread = points - centre
+    _, axes = np.linalg.eigh((spread * w[:, None]).T @ spread)
+    normal, in_plane = axes[:, 0], axes[:, 1:]
+    height = spread @ normal
+    # the set turned over about its plane (reflected) leaves each pair a residual of the sum
+    # of its two heights along the normal: near-planar when that passes the gate
+    turned = height[: rows.size] + height[rows.size :]
+    if np.any(turned**2 > settings.gate_threshold * (normal @ both @ normal)):
+        return False  # not near-planar: the set turned over would not fit
+    # the normal's tilt towards each in-plane axis, as fitted: a least-squares slope
+    var = np.einsum("i,kij,j->k", normal, covs, normal)
+    along = spread @ in_plane  # (2k, 2)
+    tilt = 1.0 / np.maximum(np.sum(along**2 / var[:, None], axis=0), np.finfo(float).tiny)
+    chi2 = settings.consistency_threshold
+    sides = []
+    for views in (views_a[known], views_b[known]):
+        heights = views @ normal
+        up = float(np.sum(heights))
+        variance = heights.size * float(np.var(heights, ddof=1))
+        variance += float(np.sum(tilt * np.sum(views @ in_plane, axis=0) ** 2))
+        if up**2 <= chi2 * variance:
+            return False  # the side is not clear
+        sides.append(np.sign(up))
+    return bool(sides[0] != sides[1])
 
 
 def _support(
@@ -779,7 +930,9 @@ def _support(
     """
     # distances alone let a few wrong pairs into a consistent set; keep its rigid core
     core_a, core_b = _core(a, b, ca, cb, settings)
-    if core_a.size >= settings.min_inliers:
+    if core_a.size < settings.min_inliers:
+        core_a, core_b = _consensus_core(a, b, ca, cb, settings)
+    if core_a.size >= 3:
         ca, cb = core_a, core_b
     t = fit_transform(a.means[ca], b.means[cb], a.covs[ca], b.covs[cb])
     cost, passed = gate_pairs(a, b, t, a.means[ca], b.means[cb], settings)
@@ -788,8 +941,13 @@ def _support(
     need = settings.min_inliers
     if rows.size >= need:
         # the core: the gated pairs that fit their refitted transform within their own
-        # covariances (each is its own nearest anchor: no drift allowance)
-        rows, cols = _core(a, b, rows, cols, settings)
+        # covariances (each is its own nearest anchor: no drift allowance); as for the set,
+        # by a consensus of triples when trimming from a fit dragged off by a wrong pair
+        # leaves too few
+        core_rows, core_cols = _core(a, b, rows, cols, settings)
+        if core_rows.size < need:
+            core_rows, core_cols = _consensus_core(a, b, rows, cols, settings)
+        rows, cols = core_rows, core_cols
     if rows.size >= need:
         # every pair gated again, the drift allowance growing with the distance from the core
         t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
@@ -845,6 +1003,48 @@ def _beyond_the_clique(
     keep = member.copy()
     keep[added[ok]] = True
     return rows[keep], cols[keep]
+
+
+#: Triples of a consistent set's pairs that :func:`_consensus_core` tries, at most
+_TRIPLES = 2_000
+
+
+def _consensus_core(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs of a consistent set that fit one rigid transform, by consensus of triples.
+
+    When wrong pairs that fit the distances only thanks to a long covariance are many in a set,
+    and some of them are precisely placed, no transform fitted on all its pairs fits the right
+    ones, and trimming from it (:func:`_core`) ends with too few. Here every triple of the set's
+    pairs (a deterministic sample of :data:`_TRIPLES` when there are more) fixes a transform;
+    the one under which the most pairs pass the ``χ²₃`` gate within their own covariances wins,
+    ties by the order of the triples, and its pairs are trimmed by :func:`_core`.
+    """
+    k = rows.size
+    if k < 3:
+        return rows[:0], cols[:0]
+    triples = np.array(list(itertools.combinations(range(k), 3)), dtype=np.int64)
+    if triples.shape[0] > _TRIPLES:
+        # the same sample on both ends of a link: the generator's seed is fixed
+        pick = np.random.default_rng(0).choice(triples.shape[0], _TRIPLES, replace=False)
+        triples = triples[np.sort(pick)]
+    ma, mb = a.means[rows], b.means[cols]
+    sa, sb = a.covs[rows], b.covs[cols]
+    w = 3.0 / (np.trace(sa, axis1=1, axis2=2) + np.trace(sb, axis1=1, axis2=2))
+    t = _horn(ma[triples], mb[triples], w[triples])  # (T, 4, 4)
+    r = t[:, :3, :3]
+    nu = ma[None] - (np.einsum("tij,kj->tki", r, mb) + t[:, None, :3, 3])
+    s = sa[None] + np.einsum("tij,kjl,tml->tkim", r, sb, r)
+    nis = np.einsum("tki,tki->tk", nu, np.linalg.solve(s, nu[..., None])[..., 0])
+    inliers = nis <= settings.gate_threshold
+    best = int(np.argmax(inliers.sum(axis=1)))
+    keep = inliers[best]
+    return _core(a, b, rows[keep], cols[keep], settings)
 
 
 def _core(

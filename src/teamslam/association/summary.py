@@ -12,8 +12,9 @@ from teamslam.gaussian import symmetrize
 __all__ = ["ObjectSummary"]
 
 #: Bytes per object on the wire: id (8), mean (3 × 8), upper triangle of the covariance
-#: (6 × 8), and a class label (8) when the map has classes.
-BYTES_PER_OBJECT = 8 + 3 * 8 + 6 * 8
+#: (6 × 8), the direction to the sender's cameras (3 × 4), and a class label (8) when the map
+#: has classes.
+BYTES_PER_OBJECT = 8 + 3 * 8 + 6 * 8 + 3 * 4
 BYTES_PER_CLASS = 8
 
 
@@ -35,6 +36,13 @@ class ObjectSummary:
     classes
         ``(n,)`` int64 class labels, or ``None`` when the robot's detector gives none.
         Objects of different classes are never matched.
+    views
+        ``(n, 3)`` where the robot's cameras were when they observed each object: the mean of
+        the unit directions from the object to the camera over its observations, in the
+        robot's world frame (a zero row: not known), or ``None`` (none known). It tells on which
+        side of a near-planar group of objects the robot saw them from, which their positions
+        alone cannot (see :func:`~teamslam.association.flipped`). Stored rounded to float32,
+        as the wire carries it, so that both ends of a link compute with the same numbers.
     """
 
     robot: int
@@ -42,6 +50,7 @@ class ObjectSummary:
     means: np.ndarray
     covs: np.ndarray
     classes: np.ndarray | None = None
+    views: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         where = f"object summary of robot {self.robot}"
@@ -71,10 +80,25 @@ class ObjectSummary:
             classes = np.asarray(classes, dtype=np.int64).reshape(-1)
             if classes.shape != (n,):
                 raise InputError(f"{where}: classes must be ({n},), got {classes.shape}")
+        views = self.views
+        if views is not None:
+            try:
+                views = np.asarray(views, dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"{where}: views are not a numeric array ({exc})") from None
+            views = views.reshape(n, 3) if views.size == 3 * n else views
+            if views.shape != (n, 3):
+                raise InputError(f"{where}: views must be ({n}, 3) for {n} ids, got {views.shape}")
+            if not np.all(np.isfinite(views)):
+                raise InputError(f"{where}: views are not finite")
+            if n and np.max(np.abs(views)) > np.finfo(np.float32).max:
+                raise InputError(f"{where}: views exceed the float32 range of the wire")
+            views = views.astype(np.float32).astype(float)
         object.__setattr__(self, "ids", ids)
         object.__setattr__(self, "means", means)
         object.__setattr__(self, "covs", covs)
         object.__setattr__(self, "classes", classes)
+        object.__setattr__(self, "views", views)
 
     def __len__(self) -> int:
         return int(self.ids.size)
@@ -99,6 +123,7 @@ class ObjectSummary:
             self.means[index],
             self.covs[index],
             None if self.classes is None else self.classes[index],
+            None if self.views is None else self.views[index],
         )
 
     def select(self, ids: np.ndarray) -> ObjectSummary:
@@ -115,4 +140,5 @@ class ObjectSummary:
             self.means @ r.T + t[:3, 3],
             r @ self.covs @ r.T,
             self.classes,
+            None if self.views is None else self.views @ r.T,
         )

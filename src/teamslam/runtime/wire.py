@@ -4,7 +4,7 @@ Every message is a fixed little-endian header followed by a payload::
 
     offset size field
     0      4    magic b"TSLM"
-    4      1    format version (6)
+    4      1    format version (7)
     5      1    kind: 1 = map ids; a common marginal: 2 = joint covariance, float64; 3 = joint
                 covariance, float32; 4 = per object, float64; 5 = per object, float32;
                 6 = joint information matrix, float64; 7 = joint information matrix, float32;
@@ -27,7 +27,9 @@ Every message is a fixed little-endian header followed by a payload::
                 covariance block (6 n values); values float64 or float32 by kind; for map
                 ids with a summary (kinds 8, 9), after the flags the objects' means (3 n
                 float64), the upper triangles of their 3×3 marginal covariances (6 n
-                float64) and, kind 9, their class labels (n int64), in the order of the ids;
+                float64), where the sender's cameras were when they observed each object
+                (3 n float32: the mean unit direction from the object to the camera; zeros:
+                not known) and, kind 9, their class labels (n int64), in the order of the ids;
                 kinds 10, 11 then carry the prior: ceil(n / 8) bytes of flags (one bit per id,
                 little bit order: the object was in the sender's prior), the prior mean of
                 the h flagged objects (3 h values) and the upper triangle of their prior
@@ -36,7 +38,9 @@ Every message is a fixed little-endian header followed by a payload::
 Version 2 added the moved flags and the degree (consensus on what changed, one weighting
 rule); version 3 the variable-length ids; version 4 marginals in information form (what
 robots send by default); version 5 the object summaries of association without shared ids
-(kinds 8, 9); version 6 the prior of consensus on information increments (kinds 10, 11).
+(kinds 8, 9); version 6 the prior of consensus on information increments (kinds 10, 11);
+version 7 where the sender's cameras were in an object summary (which side of a near-planar
+group of objects they saw it from).
 Older versions are refused by name.
 
 No pickle, no code: :func:`decode` checks the magic, version, kind, team, robots, sizes (the
@@ -65,7 +69,7 @@ from teamslam.msckf.messages import (
 __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
 
 MAGIC = b"TSLM"
-FORMAT_VERSION = 6
+FORMAT_VERSION = 7
 KIND_IDS = 1
 KIND_IDS_SUMMARY = 8  # 9: with class labels
 _IDS_KINDS = (KIND_IDS, KIND_IDS_SUMMARY, KIND_IDS_SUMMARY + 1)
@@ -198,7 +202,8 @@ def _encode_summary(summary: ObjectSummary, ids: np.ndarray) -> tuple[int, bytes
         raise WireError("an object summary must hold exactly the message's ids, in their order")
     means = np.ascontiguousarray(summary.means, dtype="<f8")
     upper = np.ascontiguousarray(summary.covs[:, _TRIU3[0], _TRIU3[1]], dtype="<f8")
-    out = means.tobytes() + upper.tobytes()
+    views = np.zeros((ids.size, 3)) if summary.views is None else summary.views
+    out = means.tobytes() + upper.tobytes() + np.ascontiguousarray(views, "<f4").tobytes()
     if summary.classes is None:
         return KIND_IDS_SUMMARY, out
     return KIND_IDS_SUMMARY + 1, out + np.ascontiguousarray(summary.classes, "<i8").tobytes()
@@ -210,16 +215,19 @@ def _decode_summary(
     n = ids.size
     means = np.frombuffer(data, dtype="<f8", count=3 * n, offset=offset).astype(float)
     upper = np.frombuffer(data, dtype="<f8", count=6 * n, offset=offset + 24 * n).astype(float)
+    views = np.frombuffer(data, dtype="<f4", count=3 * n, offset=offset + 72 * n).astype(float)
     labels = None
     if classes:
-        labels = np.frombuffer(data, dtype="<i8", count=n, offset=offset + 72 * n).astype(np.int64)
+        labels = np.frombuffer(data, dtype="<i8", count=n, offset=offset + 84 * n).astype(np.int64)
     if not (np.all(np.isfinite(means)) and np.all(np.isfinite(upper))):
         raise WireError("non-finite object summary")
+    if not np.all(np.isfinite(views)):
+        raise WireError("non-finite camera positions in an object summary")
     covs = np.zeros((n, 3, 3))
     covs[:, _TRIU3[0], _TRIU3[1]] = upper.reshape(n, 6)
     covs = covs + np.triu(covs, 1).swapaxes(-1, -2)
     try:
-        return ObjectSummary(sender, ids, means.reshape(n, 3), covs, labels)
+        return ObjectSummary(sender, ids, means.reshape(n, 3), covs, labels, views.reshape(n, 3))
     except InputError as error:
         raise WireError(f"bad object summary: {error}") from error
 
@@ -260,7 +268,7 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
             raise WireError(f"map-ids message with {d} bytes of flags for {n_ids} ids")
         if degree != 0:
             raise WireError("map-ids message with a degree")
-        per_summary = {KIND_IDS: 0, KIND_IDS_SUMMARY: 72, KIND_IDS_SUMMARY + 1: 80}[kind]
+        per_summary = {KIND_IDS: 0, KIND_IDS_SUMMARY: 84, KIND_IDS_SUMMARY + 1: 92}[kind]
         expected = HEADER.size + c + d + per_summary * n_ids
     elif kind in _MARGINAL_KINDS.values() or kind in (KIND_PRIOR, KIND_PRIOR + 1):
         if d != 3 * n_ids or n_ids == 0:
