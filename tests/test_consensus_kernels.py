@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from teamslam._gaussian_kernels import add_weighted_difference_at
+from teamslam._gaussian_kernels import (
+    add_weighted_difference_at,
+    rebuilt_joint,
+)
 from teamslam.gaussian import add_weighted_difference, spd_inverse, symmetrize
 from teamslam.msckf.consensus_kernels import (
     FINITE,
@@ -135,6 +138,22 @@ def test_symmetric_block_is_the_gathered_symmetric_part_and_inverts_alike():
     want = symmetrize(matrix[np.ix_(index, index)])
     assert np.array_equal(block, want)
     assert np.array_equal(spd_inverse(block, symmetric=True), spd_inverse(want))
+
+
+def test_rebuilt_joint_is_the_assembled_and_permuted_joint():
+    rng = np.random.default_rng(8)
+    n = 40
+    cov = _spd(rng, n)
+    iy = rng.permutation(n)[:25]
+    ix = np.setdiff1d(np.arange(n), iy)
+    correction = rng.normal(size=(ix.size, ix.size))
+    new_xy, new_y = rng.normal(size=(ix.size, iy.size)), _spd(rng, iy.size)
+    # numpy: [x, y] blocks in order, then every row and column put back
+    ordered = np.block([[symmetrize(cov[np.ix_(ix, ix)] + correction), new_xy], [new_xy.T, new_y]])
+    back = np.empty(n, dtype=np.intp)
+    back[np.concatenate([ix, iy])] = np.arange(n)
+    want = ordered[np.ix_(back, back)]
+    assert np.array_equal(rebuilt_joint(cov, ix, iy, correction, new_xy, new_y), want)
 
 
 def _numpy_record(old, ids, means, covs, exchanged, step):

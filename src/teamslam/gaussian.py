@@ -212,8 +212,7 @@ def replace_marginal_shift(
     shift[iy] = shift_y
     block_form = ix.size <= iy.size
     if block_form:
-        rows_x = cov.take(ix, axis=0)
-        sigma_xy = rows_x.take(iy, axis=1)
+        sigma_xy = cov.take(ix, axis=0).take(iy, axis=1)
     else:  # the x rows are most of the matrix: gather only the y columns
         sigma_xy = cov.take(iy, axis=1).take(ix, axis=0)
     if info_y is None:
@@ -224,18 +223,11 @@ def replace_marginal_shift(
     shift[ix] = gain @ shift_y
     if not block_form:
         return shift, _low_rank_replace(cov, ix, iy, gain, cov_y)
+    from teamslam._gaussian_kernels import rebuilt_joint  # numba, on first use
+
     new_xy = gain @ cov_y
-    new_xx = symmetrize(rows_x.take(ix, axis=1) + (new_xy - sigma_xy) @ gain.T)
-    # assemble in the order [x, y], then put every row and column back in place
-    nx = ix.size
-    ordered = np.empty((n, n))
-    ordered[:nx, :nx] = new_xx
-    ordered[:nx, nx:] = new_xy
-    ordered[nx:, :nx] = new_xy.T
-    ordered[nx:, nx:] = cov_y
-    back = np.empty(n, dtype=np.intp)
-    back[np.concatenate([ix, iy])] = np.arange(n)
-    return shift, ordered.take(back, axis=0).take(back, axis=1)
+    # Σ̄ˣ = sym(Σˣ + (Σ̄ˣʸ − Σˣʸ) Aᵀ), every block written straight to its rows and columns
+    return shift, rebuilt_joint(cov, ix, iy, (new_xy - sigma_xy) @ gain.T, new_xy, cov_y)
 
 
 def _low_rank_replace(

@@ -125,6 +125,7 @@ from teamslam.gaussian import (
     spd_inverse,
 )
 from teamslam.msckf.consensus_checks import ReceivedMarginal, receive_marginal
+from teamslam.msckf.consensus_kernels import symmetric_block
 from teamslam.msckf.messages import CommonMarginalMessage
 from teamslam.msckf.state import MsckfState
 
@@ -339,7 +340,7 @@ def consensus_average(
     slots = state.object_slots(y_ids)
     cols = state.object(slots).columns.ravel()
     own_mean = state.objects[slots].ravel()
-    own_cov = state.covariance(cols)
+    own_cov = symmetric_block(state.cov, cols)  # the symmetric part, which is what is inverted
     terms = []
     for w, m in zip(weights, marginals, strict=True):
         position = np.searchsorted(y_ids, m.ids)
@@ -354,7 +355,7 @@ def consensus_average(
         # every neighbour's set is the one we sent (y itself), we inverted it already
         own_info = None if own_information is None else own_information.get(y_ids.tobytes())
         if own_info is None:
-            own_info = spd_inverse(own_cov, "own marginal covariance")
+            own_info = spd_inverse(own_cov, "own marginal covariance", symmetric=True)
         if prior is not None and increments:
             increment_terms = [
                 IncrementTerm(w, np.searchsorted(y_ids, m.ids), m.info, m.info_vector, m.prior)
