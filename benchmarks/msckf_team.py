@@ -39,10 +39,14 @@ published code's time to each (``team``: ``--robots`` robots, objects only, ``--
 interpreter with its packages) and prints the CPU time per robot-step of both — the child's from
 ``resource.getrusage``, less the CPU time of a child that only imports its modules; ours the
 process time of the whole in-process run — and their ratio, all from this one run. Without it
-the ratio is to a figure recorded earlier (``PUBLISHED_MS``), labelled as such::
+the ratio is to a figure recorded earlier (``PUBLISHED_MS``), labelled as such. Both runs of
+ours follow a warm-up on a small team (imports and compiled kernels are not timed); a run with
+consensus off gives the filter's own CPU time, the bound on any ratio consensus alone can reach.
+``--baseline DIR`` (another checkout of this library) runs the same team with the paper's set
+through ``DIR/src`` in a subprocess, warmed up alike, for ours before and after in one run::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_team.py bounded team --robots 15 --steps 100 \
-        --published-code DIR --published-python PYTHON
+        --published-code DIR --published-python PYTHON [--baseline CHECKOUT]
 """
 
 from __future__ import annotations
@@ -443,7 +447,48 @@ def _published_counts(out):
     }
 
 
-def bounded(what, robots, steps, window, overrides, published_code=None, python=None):
+BASELINE_CHILD = """
+import json, sys, time
+from pathlib import Path
+from teamslam.datasets import import_reference
+from teamslam.msckf import config_for, run_team
+from teamslam.sim import lissajous_team
+what, robots, steps, window, settings, kitti = json.loads(sys.argv[1])
+warm = lissajous_team(robots=2, steps=5, seed=0)
+run_team(warm, config_for(warm, window=window, **settings), consensus=True, progress=False)
+ds = import_reference(Path(kitti)) if what == "kitti" else lissajous_team(robots, steps, seed=0)
+cfg = config_for(ds, window=window, **settings)
+begin = time.process_time()
+run_team(ds, cfg, consensus=True, progress=False)
+spent = time.process_time() - begin
+print(json.dumps({"ms": 1e3 * spent / sum(r.frames for r in ds.robots)}))
+"""
+
+
+def run_baseline(checkout, what, robots, steps, window, settings, kitti):
+    """CPU milliseconds per robot-step of the same team run by another checkout of this
+    library (``checkout/src`` first on the path) in a subprocess, warmed up on a small team
+    first as the in-process runs are (its imports and compiled kernels not counted)."""
+    import json
+    import subprocess
+
+    src = Path(checkout).resolve() / "src"
+    if not (src / "teamslam").is_dir():
+        raise SystemExit(f"--baseline: no src/teamslam in {checkout}")
+    env = {**os.environ, **SINGLE_THREAD, "PYTHONPATH": str(src)}
+    args = json.dumps([what, robots, steps, window, settings, str(kitti)])
+    done = subprocess.run(
+        [sys.executable, "-c", BASELINE_CHILD, args], env=env, capture_output=True, text=True
+    )
+    if done.returncode != 0:
+        tail = "\n".join(done.stderr.strip().splitlines()[-15:])
+        raise SystemExit(f"the baseline run failed:\n{tail}")
+    return json.loads(done.stdout.strip().splitlines()[-1])["ms"]
+
+
+def bounded(
+    what, robots, steps, window, overrides, published_code=None, python=None, baseline=None
+):
     """The paper's consensus set against the bounded one, on one team, in one process (and the
     published code on the same team in a subprocess, given its checkout)."""
     from msckf_long import ConsensusCpu  # the benchmarks' directory is on the path
@@ -459,6 +504,8 @@ def bounded(what, robots, steps, window, overrides, published_code=None, python=
         ds = lissajous_team(robots=robots, steps=steps, seed=0)
         base = {"use_geometric_features": False}
     print(f"{what}: {ds.n_robots} robots, {ds.robots[0].frames} frames; bounded: {overrides}")
+    warm = lissajous_team(robots=2, steps=5, seed=0)  # imports and compiled kernels, not timed
+    run_team(warm, config_for(warm, window=window, **base), consensus=True, progress=False)
     rows, work = {}, {}
     for name, extra in (("all", {}), ("active", {"consensus_set": "active", **overrides})):
         cfg = config_for(ds, window=window, **base, **extra)
@@ -502,6 +549,22 @@ def bounded(what, robots, steps, window, overrides, published_code=None, python=
         f"; consensus CPU {rows['active'][4] / rows['all'][4]:.3f}"
     )
     ours = {name: row[5] for name, row in rows.items()}
+    cfg = config_for(ds, window=window, **base)
+    begin = time.process_time()
+    run_team(ds, cfg, consensus=False, progress=False)
+    alone = 1e3 * (time.process_time() - begin) / sum(r.frames for r in ds.robots)
+    print(
+        f"CPU per robot-step without consensus (each robot's filter alone): {alone:.2f} ms; "
+        f"consensus costs the rest (all {ours['all'] - alone:.2f} ms)"
+    )
+    if baseline is not None:
+        before = run_baseline(
+            baseline, what, robots, steps, window, base, src if what == "kitti" else ""
+        )
+        print(
+            f"baseline {baseline} (same team, this run, subprocess): {before:.2f} ms per "
+            f"robot-step (all); before/after ×{before / ours['all']:.2f}"
+        )
     print(
         "CPU per robot-step, whole run (process time): "
         + ", ".join(f"{name} {ms:.2f} ms" for name, ms in ours.items())
@@ -531,6 +594,8 @@ def bounded(what, robots, steps, window, overrides, published_code=None, python=
         print(
             "published code / ours (CPU per robot-step, one run): "
             + ", ".join(f"×{theirs / ms:.2f} ({name})" for name, ms in ours.items())
+            + (f", ×{theirs / before:.2f} (baseline, all)" if baseline is not None else "")
+            + f"; at most ×{theirs / alone:.2f} with consensus free"
         )
     elif what == "kitti" or (robots == 15 and steps == 100):
         published = PUBLISHED_MS.get(what if what == "kitti" else "team")
@@ -576,6 +641,13 @@ def main():
         "same team in a subprocess",
     )
     parser.add_argument(
+        "--baseline",
+        type=Path,
+        default=None,
+        help="bounded: another checkout of this library (its src/) to run the same team with "
+        "the paper's set in a subprocess: ours before and after in one run",
+    )
+    parser.add_argument(
         "--published-python",
         default=None,
         help="bounded: the Python that runs the published code (default: this one)",
@@ -592,6 +664,7 @@ def main():
             parse_assignments(args.set),
             args.published_code,
             args.published_python,
+            args.baseline,
         )
     elif args.what == "accuracy":
         accuracy(
