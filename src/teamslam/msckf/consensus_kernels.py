@@ -59,23 +59,30 @@ def checked_symmetric_part(mean: np.ndarray, matrix: np.ndarray) -> tuple[int, n
     finite = True
     for i in range(mean.size):
         finite &= np.isfinite(mean[i])
+    # one pass in memory order (finiteness, largest entry, a copy), then the symmetric part
+    # inside the copy, which stays in cache: reading the matrix by columns costs a cache line
+    # per entry. ``value * 0`` is ±0 for a finite value and NaN otherwise, so their sum tells
+    # whether every entry is finite without a test per entry.
     largest = 0.0
+    probe = 0.0
+    for i in range(d):
+        for j in range(d):
+            value = matrix[i, j]
+            probe += value * 0.0
+            largest = max(largest, abs(value))
+            out[i, j] = value
+    finite &= probe == 0.0
+    if not finite:
+        return NON_FINITE, out
     asymmetry = 0.0
     for i in range(d):
-        value = matrix[i, i]
-        finite &= np.isfinite(value)
-        largest = max(largest, abs(value))
-        out[i, i] = 0.5 * (value + value)
+        out[i, i] = 0.5 * (out[i, i] + out[i, i])
         for j in range(i + 1, d):
-            upper, lower = matrix[i, j], matrix[j, i]
-            finite &= np.isfinite(upper) & np.isfinite(lower)
-            largest = max(largest, abs(upper), abs(lower))
+            upper, lower = out[i, j], out[j, i]
             asymmetry = max(asymmetry, abs(upper - lower))
             value = 0.5 * (upper + lower)
             out[i, j] = value
             out[j, i] = value
-    if not finite:
-        return NON_FINITE, out
     if asymmetry > 1e-9 * largest + 1e-12:
         return NOT_SYMMETRIC, out
     return FINITE, out
@@ -169,14 +176,21 @@ def all_single(values: np.ndarray) -> bool:
 
 @numba.njit(cache=True)
 def symmetric_block(matrix: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """``(B + Bᵀ) / 2`` of the block ``B = matrix[np.ix_(index, index)]``."""
+    """``(B + Bᵀ) / 2`` of the block ``B = matrix[np.ix_(index, index)]``.
+
+    ``B`` is gathered row by row first (each row of ``matrix`` read once, in order), then made
+    symmetric inside the small block, which stays in cache: reading ``matrix`` by columns
+    instead costs a cache line per entry."""
     k = index.size
     out = np.empty((k, k))
     for a in range(k):
         row = index[a]
-        out[a, a] = 0.5 * (matrix[row, row] + matrix[row, row])
+        for b in range(k):
+            out[a, b] = matrix[row, index[b]]
+    for a in range(k):
+        out[a, a] = 0.5 * (out[a, a] + out[a, a])
         for b in range(a + 1, k):
-            value = 0.5 * (matrix[row, index[b]] + matrix[index[b], row])
+            value = 0.5 * (out[a, b] + out[b, a])
             out[a, b] = value
             out[b, a] = value
     return out
