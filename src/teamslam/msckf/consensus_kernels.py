@@ -105,11 +105,14 @@ def rounding_bound(
     info_sums = np.zeros(d)
     d_info = 0.0
     for i in range(d):
+        # the column sums first (each its own chain, so the row is one vector pass), then the
+        # single running sum in the same order
         for j in range(d):
             scale = std[i] * std[j]
             correlation_sums[j] += abs(cov[i, j]) / scale
             info_sums[j] += abs(info[i, j]) * scale
-            change = (info_rounded[i, j] - info[i, j]) * scale
+        for j in range(d):
+            change = (info_rounded[i, j] - info[i, j]) * (std[i] * std[j])
             d_info += change**2
     d_mean = 0.0
     for i in range(d):
