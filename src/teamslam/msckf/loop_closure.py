@@ -118,6 +118,7 @@ class LoopClosure:
         created_ids: np.ndarray,
         created_frames: np.ndarray,
         labels=None,
+        views=None,
     ) -> np.ndarray:
         """Look for a revisit in ``state`` at frame ``t`` and merge it (:func:`merge_objects`).
 
@@ -132,6 +133,12 @@ class LoopClosure:
             creation order).
         labels
             ``callable(ids) -> classes`` (``-1``: none) or ``None`` without classes.
+        views
+            ``callable(ids) -> (n, 3)``: the mean direction from each object to the cameras
+            that saw it (:class:`~teamslam.msckf.views.ObjectViews`), or ``None``. With them
+            the association refuses a group matched to the mirror image of another
+            (:func:`~teamslam.association.flipped`): in a row of parked cars the shape of the
+            group fits a row elsewhere turned over.
 
         Returns
         -------
@@ -153,13 +160,21 @@ class LoopClosure:
             (state.object_last_seen < since) & ~np.isin(state.object_ids, ids)
         )
         retired = state.retired.arrays()
+        old_ids = np.concatenate([state.object_ids[old_slots], retired["ids"]])
         old = ObjectSummary(
             1,
-            np.concatenate([state.object_ids[old_slots], retired["ids"]]),
+            old_ids,
             np.concatenate([state.objects[old_slots], retired["means"]]),
             np.concatenate([state.object_covs()[old_slots], retired["covs"]]),
+            views=None if views is None else views(old_ids),
         )
-        recent = ObjectSummary(0, ids, state.objects[slots], state.object_covs()[slots])
+        recent = ObjectSummary(
+            0,
+            ids,
+            state.objects[slots],
+            state.object_covs()[slots],
+            views=None if views is None else views(ids),
+        )
         # the drift since an old object was last seen: a fraction of the distance travelled
         # (a retired object's last sighting is not kept: all of the distance)
         travelled = np.concatenate(
@@ -223,7 +238,9 @@ def _with_classes(summary: ObjectSummary, classes: np.ndarray) -> ObjectSummary:
     classes = np.asarray(classes, np.int64)
     if (classes < 0).any():  # an object without a class: compare shapes alone
         return summary
-    return ObjectSummary(summary.robot, summary.ids, summary.means, summary.covs, classes)
+    return ObjectSummary(
+        summary.robot, summary.ids, summary.means, summary.covs, classes, summary.views
+    )
 
 
 def find_loop(
