@@ -58,9 +58,10 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
 
 6. **Loop closure** (``track_loop_closure``, :mod:`teamslam.msckf.loop_closure`). Before the
    prediction, the objects the tracker created last are matched, by the shape of the group,
-   against the robot's objects unseen for longer than the window; each accepted pair is merged
-   in the filter (the new object leaves the state, its detections count under the old id:
-   :meth:`ObjectTracker.hypotheses`, :attr:`ObjectTracker.merged`).
+   against the robot's objects unseen for longer than the window, with the robot's views of
+   them (``views``: a group turned over is refused); each accepted pair is merged in the filter
+   (the new object leaves the state, its detections count under the old id:
+   :meth:`ObjectTracker.hypotheses`, :attr:`ObjectTracker.merged`, :attr:`TrackerFrame.merged`).
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
