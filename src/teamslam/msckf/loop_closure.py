@@ -56,6 +56,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from teamslam.association import AssociationResult, AssociationSettings, ObjectSummary, associate
 
@@ -89,7 +90,8 @@ class LoopClosure:
     outcomes
         How the attempts ended: ``merged``, ``too-few`` (fewer than ``min_inliers`` pairs),
         ``ambiguous`` (a rival set nearly as large), ``beyond-drift`` (a pair farther apart
-        than the distance travelled allows).
+        than the distance travelled allows), ``turned`` (a transform turned further than the
+        robot's drift can: :func:`turn_within_drift`).
     """
 
     gap: int
@@ -217,6 +219,9 @@ class LoopClosure:
         if not drift_gate(recent, old, travelled, self.settings)[rows, cols].all():
             self.outcomes["beyond-drift"] = self.outcomes.get("beyond-drift", 0) + 1
             return none
+        if not turn_within_drift(recent, old, rows, cols, result.T_first_second, self.settings):
+            self.outcomes["turned"] = self.outcomes.get("turned", 0) + 1
+            return none
         self.outcomes["merged"] = self.outcomes.get("merged", 0) + 1
         merge_objects(state, result.pairs, t)
         self.closures.extend((t, int(n), int(o)) for n, o in result.pairs.tolist())
@@ -236,6 +241,42 @@ def drift_gate(
     top_o = np.linalg.eigvalsh(old.covs)[:, -1] if len(old) else np.zeros(0)
     allowed = top_r[:, None] + top_o[None, :] + (settings.drift_ratio * travelled[None, :]) ** 2
     return sq <= settings.gate_threshold * allowed
+
+
+def turn_within_drift(
+    recent: ObjectSummary,
+    old: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    T_recent_old: np.ndarray,
+    settings: AssociationSettings,
+) -> bool:
+    """Whether the turn of a revisit's transform is one the robot's drift can make.
+
+    A map whose positions drift by a fraction ``ρ`` of the distance driven (the association's
+    ``drift_ratio``) has turned by about ``2ρ`` radians over that drive: a heading error growing
+    at a steady rate ``κ`` puts the position off by ``κ L² / 2 = ρ L`` after ``L``, having turned
+    by ``κ L = 2ρ`` — whatever ``L``. The transform's rotation vector ``φ`` (``R = exp([φ]×)``)
+    passes when ``φᵀ (I_φ⁻¹ + (2ρ)² I)⁻¹ φ`` is within the ``χ²₃`` gate, with ``I_φ`` the
+    information the pairs hold on the rotation (each pair's position about the pairs' centre,
+    weighted by its two covariances): a turn about an axis the pairs do not fix (a row of
+    objects turned about itself) is free, a row matched with a row turned about the vertical
+    or over is not. Unit-free: a ratio, a χ² quantile.
+    """
+    r = np.asarray(T_recent_old, dtype=float)[:3, :3]
+    points = old.means[cols] @ r.T
+    cov = recent.covs[rows] + r @ old.covs[cols] @ r.T
+    weights = 1.0 / np.trace(cov, axis1=1, axis2=2)
+    q = points - (weights / weights.sum()) @ points
+    skew = np.zeros((q.shape[0], 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -q[:, 2], q[:, 1], -q[:, 0]
+    skew -= np.swapaxes(skew, 1, 2)
+    information = np.einsum("kji,kjl,klm->im", skew, np.linalg.inv(cov), skew)
+    phi = Rotation.from_matrix(r).as_rotvec()
+    # (I⁻¹ + d I)⁻¹ = (1 + d I)⁻¹ I, defined where I is singular too
+    turn = (2 * settings.drift_ratio) ** 2
+    allowed = np.linalg.solve(np.eye(3) + turn * information, information)
+    return bool(phi @ allowed @ phi <= settings.gate_threshold)
 
 
 def _positions(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:
