@@ -30,6 +30,14 @@ of similar spacing turned over by a half-turn about an axis in the ground plane:
 turned by 176°), and the separate RMSE rose from 12.5 to 31.1 m; with the views that group is
 refused.
 
+A robot's own map has not turned far between its old and its recent part: the drift that puts
+positions off by a fraction ``ρ`` of the distance driven turns the map by about ``2ρ`` radians
+(:func:`turn_within_drift`). A transform turned further is no revisit, whatever the distances
+say. The views refuse only a turn that puts the cameras on the other side of the plane: with
+consensus and the own association on KITTI 00 the robots merged rows of cars with rows turned
+by 91° to 180° about the vertical, by 168° about an axis in the ground plane (the side unclear)
+and by 25° — 31 pairs, 3 right — until this test refused them.
+
 :func:`merge_objects` then closes the loop in the filter, for every accepted pair (new object
 ``n`` ≙ old object ``o``): one EKF update with the constraint ``x_n − x_o = 0`` — all pairs
 stacked, a noise variance ``ε`` of ``1e-9`` of each pair's own prior variance (relative: no
