@@ -59,7 +59,8 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
 6. **Loop closure** (``track_loop_closure``, :mod:`teamslam.msckf.loop_closure`). Before the
    prediction, the objects the tracker created last are matched, by the shape of the group,
    against the robot's objects unseen for longer than the window, with the robot's views of
-   them (``views``: a group turned over is refused); each accepted pair is merged in the filter
+   them (``views``: a group turned over is refused, as is one turned further than the robot's
+   drift can turn its map); each accepted pair is merged in the filter
    (the new object leaves the state, its detections count under the old id:
    :meth:`ObjectTracker.hypotheses`, :attr:`ObjectTracker.merged`, :attr:`TrackerFrame.merged`).
 
