@@ -321,8 +321,9 @@ def test_the_report_shows_the_association_of_a_run():
 
 
 def test_a_summary_says_from_where_the_robot_saw_each_object(stripped3):
-    # the views the protocol records (the measured bearing turned by the camera's estimated
-    # orientation) point from each object to the cameras that saw it, as ground truth has them
+    # the views the robot records (the measured bearing turned by the camera's estimated
+    # orientation) and its summary carries point from each object to the cameras that saw it,
+    # as ground truth has them
     config = config_for(stripped3, window=6).with_(association="own")
     drivers = _drivers(stripped3, config, MemoryNetwork(3))
     run_drivers(drivers, "complete", 0.0, None, progress=False)
@@ -330,12 +331,12 @@ def test_a_summary_says_from_where_the_robot_saw_each_object(stripped3):
     t_body_cam = np.linalg.inv(stripped3.calibration.T_cam_body)
     for robot, driver in enumerate(drivers):
         sequence = stripped3.robots[robot]
-        ids = np.array(sorted(driver.protocol._views))
-        views = driver.protocol._views_of(ids)
+        ids = driver.protocol.agent.views.ids
+        views = driver.protocol.agent.views.of(ids)
         assert ids.size >= 20 and np.all(np.linalg.norm(views, axis=1) <= 1.0 + 1e-6)
         for oid, view in zip(ids.tolist(), views, strict=True):
             toward = []
-            for t in range(sequence.frames - 1):  # the last frame's view is not recorded yet
+            for t in range(sequence.frames):
                 if oid in sequence.objects.frame(t)[0].tolist():
                     pose = sequence.T_world_body[t]
                     camera = pose[:3, :3] @ t_body_cam[:3, 3] + pose[:3, 3]

@@ -42,6 +42,23 @@ def test_restored_agent_continues_exactly_like_the_original(solo, linearization)
     assert dict(resumed.counters) == dict(original.counters)
 
 
+def test_a_restored_agent_keeps_the_views_of_its_objects(solo):
+    dataset, config = solo
+    config = config.with_(association="own")
+    original = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
+    for t in range(12):
+        original.step(t)
+    assert len(original.views) > 0
+    resumed = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
+    resumed.restore({k: v.copy() for k, v in original.snapshot().items()})
+    for t in range(12, 30):
+        original.step(t)
+        resumed.step(t)
+    ids = original.views.ids
+    assert np.array_equal(resumed.views.ids, ids)
+    np.testing.assert_array_equal(resumed.views.of(ids), original.views.of(ids))
+
+
 @pytest.mark.parametrize(
     ("edit", "reason"),
     [

@@ -10,7 +10,7 @@ import pytest
 from teamslam.association import AssociationSettings, ObjectSummary
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.loop_closure import LoopClosure, find_loop, merge_objects
+from teamslam.msckf.loop_closure import LoopClosure, find_loop, merge_objects, turn_within_drift
 from teamslam.msckf.settings import config_for
 from teamslam.msckf.state import MsckfState
 from teamslam.sim.lissajous import lissajous_team
@@ -159,6 +159,9 @@ def test_a_simulated_revisit_is_closed_with_the_right_pairs():
     merged = {new for _, new, _ in closures}
     assert not np.isin(hyp, list(merged)).any()
     assert agent.counters["loop_closures"] == len(closures)
+    # the robot recorded from where it saw its objects; a merged object's views are the old one's
+    assert agent.views.of(np.array([old for _, _, old in closures])).any(axis=1).all()
+    assert not np.isin(list(merged), agent.views.ids).any()
 
 
 def test_data_with_ids_never_meet_loop_closure():
@@ -225,6 +228,93 @@ def test_loop_closure_merges_a_revisited_group_and_refuses_a_mirrored_rival():
     _travelled(loop, 1.0)
     assert loop.step(500, state, created, frames).size == 0
     assert np.isin(created, state.object_ids).all()
+
+
+def test_the_mirror_image_of_a_group_seen_from_the_same_side_is_no_revisit():
+    # a near-planar group (parked cars) and, in the old map, only its mirror image elsewhere:
+    # distances cannot tell them apart (a half-turn about an axis in the plane fits), the
+    # cameras can — the robot saw both from above, and the half-turn would put one below
+    rng = np.random.default_rng(9)
+    group = np.column_stack([rng.uniform(-20, 20, (8, 2)), rng.normal(0, 0.05, 8)])
+    mirror = _rigid(group * np.array([-1.0, 1.0, 1.0]), 0.0, np.array([-40.0, 20.0, 0.0]))
+    elsewhere = np.column_stack([rng.uniform(60, 140, (10, 2)), np.zeros(10)])
+
+    def from_above(ids):
+        toward = np.column_stack([rng.normal(0, 0.3, (len(ids), 2)), np.full(len(ids), 0.2)])
+        return toward / np.linalg.norm(toward, axis=1, keepdims=True)
+
+    recent = _summary(0, np.arange(100, 108), group)
+    old = _summary(1, np.arange(18), np.vstack([mirror, elsewhere]))
+    blind = find_loop(recent, old)
+    assert blind.matched and blind.pairs.shape[0] >= 6  # distances alone: the mirror image
+    seen = find_loop(
+        ObjectSummary(0, recent.ids, recent.means, recent.covs, views=from_above(recent.ids)),
+        ObjectSummary(1, old.ids, old.means, old.covs, views=from_above(old.ids)),
+    )
+    assert not seen.matched and seen.flipped >= 1  # the views: the turned-over set is refused
+    # the robot's loop closure merges nothing, with views (refused as turned over) and without
+    # (the half-turn is no drift of the robot's own map: turn_within_drift)
+    outcomes = []
+    for views in (from_above, None):
+        state, created, frames = _map_state(rng, group, np.vstack([mirror, elsewhere]))
+        loop = LoopClosure(gap=20)
+        _travelled(loop, 1000.0)
+        assert loop.step(500, state, created, frames, views=views).size == 0
+        assert np.isin(created, state.object_ids).all()
+        outcomes.append(loop.outcomes)
+    assert outcomes == [{"too-few": 1}, {"turned": 1}]
+
+
+def test_a_revisit_turns_no_further_than_the_drift_allows_except_about_a_row_itself():
+    rng = np.random.default_rng(10)
+    group = np.column_stack([rng.uniform(-20, 20, (8, 2)), rng.normal(0, 0.05, 8)])
+    elsewhere = np.column_stack([rng.uniform(60, 140, (10, 2)), np.zeros(10)])
+    # the group seen again turned by a quarter turn about the vertical: its shape fits, the
+    # turn (1.57 rad) is far beyond the 2ρ = 0.1 rad a drift of ρ = 0.05 makes
+    turned = _rigid(group, np.pi / 2, np.array([5.0, 3.0, 0.0]))
+    state, created, frames = _map_state(rng, group, np.vstack([turned, elsewhere]))
+    loop = LoopClosure(gap=20)
+    _travelled(loop, 1000.0)
+    assert loop.step(500, state, created, frames).size == 0
+    assert loop.outcomes == {"turned": 1}
+    # a row of objects along x turned half about itself (its own axis: the pairs do not fix
+    # that turn) passes; turned half about the vertical (the row reversed) does not
+    row = np.column_stack([np.linspace(-20, 20, 7), np.zeros(7), np.zeros(7)])
+    recent = _summary(0, np.arange(100, 107), row, std=0.5)
+    old = _summary(1, np.arange(7), row, std=0.5)
+    index = np.arange(7)
+    settings = AssociationSettings()
+    about_itself = np.diag([1.0, -1.0, -1.0, 1.0])
+    reversed_row = np.diag([-1.0, -1.0, 1.0, 1.0])
+    assert turn_within_drift(recent, old, index, index, about_itself, settings)
+    assert not turn_within_drift(recent, old, index, index[::-1], reversed_row, settings)
+    assert turn_within_drift(recent, old, index, index, np.eye(4), settings)
+
+
+def test_object_views_are_mean_directions_and_follow_a_merge():
+    from teamslam.msckf.views import ObjectViews
+
+    views = ObjectViews()
+    k = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    # object 1 straight ahead at frames 0 and 1, object 2 seen at frame 1 only, in its centre
+    # row but 500 px to the right (45° off the axis); object 3's newest observation is older
+    history = {
+        1: [(0, np.array([320.0, 240.0, 300.0, 240.0]))],
+        2: [(1, np.array([820.0, 240.0, 800.0, 240.0]))],
+        3: [(0, np.array([320.0, 240.0, 300.0, 240.0]))],
+    }
+    views.record(0, np.eye(3), k, {1: history[1]})
+    history[1].append((1, np.array([320.0, 240.0, 300.0, 240.0])))
+    views.record(1, np.eye(3), k, history)
+    got = views.of(np.array([1, 2, 3, 4]))
+    np.testing.assert_allclose(got[0], [0.0, 0.0, -1.0])
+    np.testing.assert_allclose(got[1], [-np.sqrt(0.5), 0.0, -np.sqrt(0.5)])
+    assert not got[2:].any()  # not seen at the recorded frames; never seen
+    views.merge(2, 1)  # object 2 is object 1 seen again: the mean of the three directions
+    np.testing.assert_allclose(
+        views.of(np.array([1]))[0], [-np.sqrt(0.5) / 3, 0.0, -(2 + np.sqrt(0.5)) / 3]
+    )
+    assert views.ids.tolist() == [1]
 
 
 def test_track_loop_closure_must_be_a_boolean():

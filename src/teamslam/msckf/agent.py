@@ -59,6 +59,7 @@ from teamslam.msckf.update import (
     null_space_rows,
     triangulate,
 )
+from teamslam.msckf.views import ObjectViews
 
 __all__ = ["MsckfAgent"]
 
@@ -139,8 +140,20 @@ class MsckfAgent:
         # detections without ids: the robot names its objects itself (tracking.py)
         self.tracker: ObjectTracker | None = None
         self._tracked: tuple[np.ndarray, np.ndarray] | None = None
-        if sequence.detections is not None and sequence.objects.ids.size == 0:
-            self.tracker = ObjectTracker(robot, self.camera, self.T_cam_body, config)
+        #: from where the cameras saw each object (:mod:`teamslam.msckf.views`): recorded each
+        #: frame when a summary of the map needs it (association without shared ids, loop
+        #: closure in the robot's own map)
+        self.views = ObjectViews()
+        tracking = sequence.detections is not None and sequence.objects.ids.size == 0
+        self._record_views = config.association == "own" or (tracking and config.track_loop_closure)
+        if tracking:
+            self.tracker = ObjectTracker(
+                robot,
+                self.camera,
+                self.T_cam_body,
+                config,
+                views=self.views.of if self._record_views else None,
+            )
 
     # ------------------------------------------------------------------ bookkeeping
     def reject(self, what: str, count: int = 1, reason: str = "") -> None:
@@ -171,7 +184,8 @@ class MsckfAgent:
         """Everything needed to continue from the last processed frame, as arrays only.
 
         The state (:meth:`MsckfState.snapshot`), the open feature tracks and object
-        observation histories, per-frame stage times, counters and timings.
+        observation histories, the objects' views (:class:`~teamslam.msckf.views.ObjectViews`),
+        per-frame stage times, counters and timings.
         """
         out = {f"state_{k}": v for k, v in self.state.snapshot().items()}
         for name, history in (("tracks", self.tracks), ("objhist", self.object_history)):
@@ -184,6 +198,7 @@ class MsckfAgent:
             out[f"{name}_ids"] = np.array(ids, dtype=np.int64)
             out[f"{name}_frames"] = np.array(frames, dtype=np.int64)
             out[f"{name}_z"] = np.array(zs, dtype=float).reshape(-1, 4)
+        out.update({f"views_{k}": v for k, v in self.views.arrays().items()})
         out["frame"] = np.array(self.frame, dtype=np.int64)
         out["frame_times"] = np.array(self.frame_times, dtype=float).reshape(-1, 3)
         out["counter_names"] = np.array(sorted(self.counters), dtype=str)
@@ -217,6 +232,7 @@ class MsckfAgent:
             values = (snapshot["counter_values"].tolist(), snapshot["timing_values"].tolist())
             counters = dict(zip(names[0], values[0], strict=True))
             timings = dict(zip(names[1], values[1], strict=True))
+            views = ObjectViews.from_arrays(snapshot["views_ids"], snapshot["views_sums"])
         except KeyError as exc:
             raise InputError(f"robot {self.robot}: snapshot lacks {exc.args[0]!r}") from None
         if not -1 <= frame < self.sequence.frames or frame_times.shape[0] != frame + 1:
@@ -232,6 +248,9 @@ class MsckfAgent:
         self.object_history = histories["objhist"]
         self.counters = defaultdict(int, counters)
         self.timings = defaultdict(float, timings)
+        self.views = views
+        if self.tracker is not None and self.tracker.views is not None:
+            self.tracker.views = views.of
 
     # ------------------------------------------------------------------ Algorithm 1, steps 2-4
     def step(self, t: int) -> None:
@@ -292,6 +311,9 @@ class MsckfAgent:
         while self.state.n_poses > self.config.window:
             self._odometry_health(0)
             self.state.marginalize_oldest()
+        if self._record_views and self.config.use_objects:
+            r_world_cam = self.state.current_pose[:3, :3] @ self.T_cam_body[:3, :3].T
+            self.views.record(t, r_world_cam, self.camera.intrinsics, self.object_history)
         self._prune_histories()
         end = time.perf_counter()
         stages = (after_propagation - begin, after_update - after_propagation, end - after_update)
@@ -457,6 +479,8 @@ class MsckfAgent:
         if not finite.all():
             self.reject("object_measurements", int((~finite).sum()), "non-finite")
         frame = self.tracker.assign(t, z, classes, self.state, self.config.odometry_cov())
+        for new, old in frame.merged.tolist():  # loop closure: one object seen again
+            self.views.merge(new, old)
         for tid, frames, zs in frame.confirmed:
             self.object_history[tid].extend(
                 (int(f), row) for f, row in zip(frames.tolist(), zs, strict=True)

@@ -206,9 +206,6 @@ class ConsensusProtocol:
         check = self.association == "own" or config.consensus_innovation_check
         self.innovation_probability = config.association_revoke_probability if check else None
         self._summary: ObjectSummary | None = None
-        #: where our cameras were when they observed each object: id → (Σ camera positions,
-        #: observations) — the summary's views (association without shared ids only)
-        self._views: dict[int, np.ndarray] = {}
         #: per link: summaries sent and their bytes, full associations, extensions, seconds
         #: spent associating, objects left out of an average by the innovation test
         self.link_stats: dict[int, dict[str, float]] = {
@@ -313,10 +310,10 @@ class ConsensusProtocol:
             self._own = None
         if self.bounded:
             self._thresholds = self._object_thresholds(covs)[order]
-        if self.association == "own" and self.iteration == 0:
-            self._record_views()
         self._summary = (
-            ObjectSummary(self.robot, ids, means[order], covs[order], views=self._views_of(ids))
+            ObjectSummary(
+                self.robot, ids, means[order], covs[order], views=self.agent.views.of(ids)
+            )
             if exchange
             else None
         )
@@ -329,35 +326,6 @@ class ConsensusProtocol:
                 self.link_stats[j]["summaries_sent"] += 1
                 self.link_stats[j]["summary_bytes"] += summary_wire_bytes(self._summary)
         self.spent = time.perf_counter() - begin
-        return out
-
-    def _record_views(self) -> None:
-        """Add to each object observed at the newest pose the unit direction from it to the
-        camera, from its measurement (the left image's bearing, turned into the world frame by
-        the camera's orientation): once per step, before the summary. Neither the camera's
-        position nor the object's (which consensus moves) enters, only the robot's orientation
-        and what the image shows: whether the object was seen from above or below."""
-        state = self.agent.state
-        frame = int(state.frames[-1])
-        k_inv = np.linalg.inv(self.agent.camera.intrinsics)
-        r_world_cam = state.current_pose[:3, :3] @ self.agent.T_cam_body[:3, :3].T
-        for oid, observations in self.agent.object_history.items():
-            seen, z = observations[-1]
-            if seen != frame:
-                continue
-            bearing = r_world_cam @ (k_inv @ np.array([z[0], z[1], 1.0]))
-            record = self._views.setdefault(oid, np.zeros(4))
-            record[:3] -= bearing / np.linalg.norm(bearing)
-            record[3] += 1.0
-
-    def _views_of(self, ids: np.ndarray) -> np.ndarray:
-        """Per object of ``ids``: the mean unit direction from it to the cameras that observed
-        it (zeros where none is on record)."""
-        out = np.zeros((ids.size, 3))
-        for k, oid in enumerate(ids.tolist()):
-            record = self._views.get(oid)
-            if record is not None:
-                out[k] = record[:3] / record[3]
         return out
 
     def _moved_for(self, j: int) -> np.ndarray | None:

@@ -58,9 +58,11 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
 
 6. **Loop closure** (``track_loop_closure``, :mod:`teamslam.msckf.loop_closure`). Before the
    prediction, the objects the tracker created last are matched, by the shape of the group,
-   against the robot's objects unseen for longer than the window; each accepted pair is merged
-   in the filter (the new object leaves the state, its detections count under the old id:
-   :meth:`ObjectTracker.hypotheses`, :attr:`ObjectTracker.merged`).
+   against the robot's objects unseen for longer than the window, with the robot's views of
+   them (``views``: a group turned over is refused, as is one turned further than the robot's
+   drift can turn its map); each accepted pair is merged in the filter
+   (the new object leaves the state, its detections count under the old id:
+   :meth:`ObjectTracker.hypotheses`, :attr:`ObjectTracker.merged`, :attr:`TrackerFrame.merged`).
 
 Only tentative tracks hold detections the filter has not seen: a false detection that no
 other detection confirms never reaches the filter state. Everything per frame is batched over
@@ -72,6 +74,7 @@ products to rounding; the tracks are kept as arrays.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numba
@@ -105,10 +108,14 @@ class TrackerFrame:
     confirmed
         Tracks confirmed this frame: ``(id, frames, measurements)`` of their earlier
         detections, to go into the filter's object history before this frame's.
+    merged
+        ``(k, 2)`` objects ``(new id, old id)`` merged by loop closure this frame (the new one
+        left the state; it is the old one seen again).
     """
 
     ids: np.ndarray
     confirmed: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
+    merged: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
 
 class ObjectTracker:
@@ -122,12 +129,22 @@ class ObjectTracker:
         The stereo rig.
     config
         The filter settings (noise, gate, depth range, ``track_*`` settings).
+    views
+        ``callable(ids) -> (n, 3)``: from where the robot's cameras saw each object
+        (:meth:`ObjectViews.of <teamslam.msckf.views.ObjectViews.of>`), for loop closure to
+        refuse the mirror image of a group; ``None``: no views (zeros).
     """
 
     def __init__(
-        self, robot: int, camera: StereoCamera, T_cam_body: np.ndarray, config: MsckfConfig
+        self,
+        robot: int,
+        camera: StereoCamera,
+        T_cam_body: np.ndarray,
+        config: MsckfConfig,
+        views: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
         self.camera = camera
+        self.views = views
         self.T_cam_body = T_cam_body
         self.config = config
         self.hits_needed = config.track_confirm_hits or config.object_init_observations
@@ -212,10 +229,11 @@ class ObjectTracker:
         if self._first_logged is None:
             self._first_logged = t
         self._forget_mapped(state)  # before a loop closure takes a mapped object out
+        merged = np.zeros((0, 2), np.int64)
         if self.loop is not None:
             self.loop.travel(t, state.current_pose[:3, 3])
             if self._created_ids and hasattr(state, "retire_objects"):
-                self._close_loops(t, state)
+                merged = self._close_loops(t, state)
         every = np.full(z.shape[0], -1, np.int64)
         index = np.flatnonzero(np.all(np.isfinite(z), axis=1))
         z = z[index]
@@ -293,7 +311,7 @@ class ObjectTracker:
         self.counters["detections_assigned"] += int(hit.sum())
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
         out[mapped] = target_ids[assigned_target[mapped]]
-        frame = TrackerFrame(out)
+        frame = TrackerFrame(out, merged=merged)
         self.log.append(every)
         on_track = np.flatnonzero(hit & ~mapped)
         if on_track.size:
@@ -330,19 +348,21 @@ class ObjectTracker:
             object_id = self.merged[object_id]
         return object_id
 
-    def _close_loops(self, t: int, state) -> None:
+    def _close_loops(self, t: int, state) -> np.ndarray:
         """Merge the recent objects that are old ones seen again (:mod:`~teamslam.msckf.
-        loop_closure`)."""
+        loop_closure`); the pairs ``(new id, old id)`` merged."""
         pairs = self.loop.step(
             t,
             state,
             np.array(self._created_ids, np.int64),
             np.array(self._created_frames, np.int64),
             self._labels_of if self._label_ids.size else None,
+            self.views,
         )
         for n, o in pairs.tolist():
             self.merged[n] = o
         self.counters["loop_closures"] = len(self.loop.closures)
+        return pairs
 
     def _labels_of(self, ids: np.ndarray) -> np.ndarray:
         """Class label of each id (``-1``: none)."""
