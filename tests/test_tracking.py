@@ -393,3 +393,18 @@ def test_revisit_precision_by_hand():
     # frame 2: object 1 was truth 5 before, the detection is 6 (wrong); frame 3: right;
     # frame 0: nothing before, not judged
     assert revisit_precision(offsets, truth, hyp, [(2, 0, 1), (3, 0, 1), (0, 0, 1)]) == (1, 2)
+
+
+def test_a_long_unseen_object_that_cannot_be_detected_takes_no_detection():
+    """Re-identification asks for targets a detector could report: one predicted beside the
+    camera, outside the image, takes no detection, however alone it is in that detection's
+    gate (its wide gate covers the whole image); without the image's size the gate decides."""
+    beside = np.array([1.2, 2.5, 0.0])  # 1.2 m ahead, 2.5 m to the left: far outside the image
+    state = _state({1: beside}, std=3.0)  # last seen at frame 0, uncertain by now
+    z = _z(state, [A])  # an object not in the map, in the image
+    assert _z(state, [beside])[0, 0] < 0  # predicted left of the image
+    unknown_size = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)
+    assert unknown_size.assign(10, z, None, state, W).ids.tolist() == [1]  # the gate's answer
+    sized = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG, image_size=(640, 480))
+    assert sized.assign(10, z, None, state, W).ids.tolist() == [-1]
+    assert sized.revisits == [] and sized.n_tracks == 1

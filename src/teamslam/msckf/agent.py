@@ -153,6 +153,7 @@ class MsckfAgent:
                 self.T_cam_body,
                 config,
                 views=self.views.of if self._record_views else None,
+                image_size=calibration.image_size,
             )
 
     # ------------------------------------------------------------------ bookkeeping

@@ -142,8 +142,11 @@ class ObjectTracker:
         T_cam_body: np.ndarray,
         config: MsckfConfig,
         views: Callable[[np.ndarray], np.ndarray] | None = None,
+        image_size: tuple[int, int] | None = None,
     ) -> None:
         self.camera = camera
+        #: ``(width, height)`` of the images in pixels, or ``None`` when the data does not say
+        self.image_size = image_size
         self.views = views
         self.T_cam_body = T_cam_body
         self.config = config
@@ -280,7 +283,7 @@ class ObjectTracker:
             # detection in the object's gate, no other target in the detection's (a wrong
             # revisit would pull the whole map; a second object for the same one is safe)
             # (none of it when no object not seen for N frames has a detection in its gate)
-            stale_pairs = allowed & ~fresh[:, None]
+            stale_pairs = allowed & ~fresh[:, None] & self._can_be_detected(pred)[:, None]
             if stale_pairs.any():
                 left = assigned_target < 0
                 lone = _alone(stale_pairs, allowed) & left[None, :]
@@ -341,6 +344,23 @@ class ObjectTracker:
             pos = np.clip(np.searchsorted(new, out), 0, new.size - 1)
             out = np.where(new[pos] == out, old[pos], out)
         return out
+
+    def _can_be_detected(self, pred: np.ndarray) -> np.ndarray:
+        """Which targets a detector could report now, for re-identifying long-unseen objects:
+        those predicted inside the image, where the data gives its size (all of them where it
+        does not). Outside the image the detection probability is zero, however wide the gate
+        of an uncertain target beside the camera that covers the whole image."""
+        if self.image_size is None:
+            return np.ones(pred.shape[0], bool)
+        width, height = self.image_size
+        return (
+            (pred[:, 0] >= 0)
+            & (pred[:, 0] < width)
+            & (pred[:, 1] >= 0)
+            & (pred[:, 1] < height)
+            & (pred[:, 2] >= 0)
+            & (pred[:, 2] < width)
+        )
 
     def _continued(self, object_id: int) -> int:
         """The object a merged object continues (through merges of merges)."""
