@@ -180,19 +180,20 @@ class LoopClosure:
             (state.object_last_seen < since) & ~np.isin(state.object_ids, ids)
         )
         retired = state.retired.arrays()
+        covs = state.object_covs()
         old_ids = np.concatenate([state.object_ids[old_slots], retired["ids"]])
         old = ObjectSummary(
             1,
             old_ids,
             np.concatenate([state.objects[old_slots], retired["means"]]),
-            np.concatenate([state.object_covs()[old_slots], retired["covs"]]),
+            np.concatenate([covs[old_slots], retired["covs"]]),
             views=None if views is None else views(old_ids),
         )
         recent = ObjectSummary(
             0,
             ids,
             state.objects[slots],
-            state.object_covs()[slots],
+            covs[slots],
             views=None if views is None else views(ids),
         )
         # the drift since an old object was last seen: a fraction of the distance travelled
@@ -204,8 +205,8 @@ class LoopClosure:
             ]
         )
         reach = drift_gate(recent, old, travelled, self.settings)
-        old = old.take(np.flatnonzero(reach.any(axis=0)))
-        travelled = travelled[reach.any(axis=0)]
+        within = np.flatnonzero(reach.any(axis=0))
+        old, reach = old.take(within), reach[:, within]
         if len(old) < self.settings.min_inliers:
             return none
         if labels is not None:
@@ -224,7 +225,7 @@ class LoopClosure:
         # group whose shape fits far away is a coincidence, not a revisit)
         rows = _positions(recent.ids, result.pairs[:, 0])
         cols = _positions(old.ids, result.pairs[:, 1])
-        if not drift_gate(recent, old, travelled, self.settings)[rows, cols].all():
+        if not reach[rows, cols].all():
             self.outcomes["beyond-drift"] = self.outcomes.get("beyond-drift", 0) + 1
             return none
         if not turn_within_drift(recent, old, rows, cols, result.T_first_second, self.settings):
