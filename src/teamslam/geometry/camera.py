@@ -15,7 +15,7 @@ import numpy as np
 
 from teamslam.errors import InputError
 
-__all__ = ["StereoCamera"]
+__all__ = ["StereoCamera", "in_image"]
 
 
 @dataclass(frozen=True)
@@ -117,17 +117,23 @@ class StereoCamera:
         )
         with np.errstate(divide="ignore", invalid="ignore"):
             z = self.project(np.where(ok[..., None], p_cam, 1.0))
-        inside = (
-            (z[..., 0] >= 0)
-            & (z[..., 0] < width)
-            & (z[..., 1] >= 0)
-            & (z[..., 1] < height)
-            & (z[..., 2] >= 0)
-            & (z[..., 2] < width)
-            & (z[..., 3] >= 0)
-            & (z[..., 3] < height)
-        )
-        return ok & inside & (z[..., 0] - z[..., 2] > 0)
+        return ok & in_image(z, width, height) & (z[..., 0] - z[..., 2] > 0)
+
+
+def in_image(z: np.ndarray, width: float, height: float) -> np.ndarray:
+    """Boolean mask: both pixels of each stereo measurement ``(u_l, v_l, u_r, v_r)`` inside a
+    ``width × height`` image."""
+    z = np.asarray(z, dtype=float)
+    return (
+        (z[..., 0] >= 0)
+        & (z[..., 0] < width)
+        & (z[..., 1] >= 0)
+        & (z[..., 1] < height)
+        & (z[..., 2] >= 0)
+        & (z[..., 2] < width)
+        & (z[..., 3] >= 0)
+        & (z[..., 3] < height)
+    )
 
 
 def _pinhole_jacobian(p: np.ndarray, fx: float, fy: float) -> np.ndarray:

@@ -81,7 +81,7 @@ import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from teamslam.geometry.camera import StereoCamera
+from teamslam.geometry.camera import StereoCamera, in_image
 from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.loop_closure import LoopClosure
 from teamslam.msckf.models import observe_jacobians, points_in_camera
@@ -352,15 +352,7 @@ class ObjectTracker:
         of an uncertain target beside the camera that covers the whole image."""
         if self.image_size is None:
             return np.ones(pred.shape[0], bool)
-        width, height = self.image_size
-        return (
-            (pred[:, 0] >= 0)
-            & (pred[:, 0] < width)
-            & (pred[:, 1] >= 0)
-            & (pred[:, 1] < height)
-            & (pred[:, 2] >= 0)
-            & (pred[:, 2] < width)
-        )
+        return in_image(pred, *self.image_size)
 
     def _continued(self, object_id: int) -> int:
         """The object a merged object continues (through merges of merges)."""
