@@ -995,14 +995,22 @@ def _beyond_the_clique(
         return rows, cols
     r, c = rows[added], cols[added]
     # the order of the added pairs: their Mahalanobis distance under the answer's transform
-    rot = T_first_second[:3, :3]
-    nu = a.means[r] - (b.means[c] @ rot.T + T_first_second[:3, 3])
-    s = a.covs[r] + rot @ b.covs[c] @ rot.T
-    cost = np.einsum("ki,ki->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+    cost = _pair_nis(a, b, r, c, T_first_second)
     ok = _consistent_members(a, b, rows[member], cols[member], r, c, cost, settings)
     keep = member.copy()
     keep[added[ok]] = True
     return rows[keep], cols[keep]
+
+
+def _pair_nis(
+    a: ObjectSummary, b: ObjectSummary, rows: np.ndarray, cols: np.ndarray, T_first_second
+) -> np.ndarray:
+    """Each pair's ``χ²₃`` statistic under a transform: ``νᵀ S⁻¹ ν`` with ``ν = a − (R b + t)``
+    and ``S = Σ_a + R Σ_b Rᵀ`` (no drift allowance). ``(k,)``."""
+    rot = T_first_second[:3, :3]
+    nu = a.means[rows] - (b.means[cols] @ rot.T + T_first_second[:3, 3])
+    s = a.covs[rows] + rot @ b.covs[cols] @ rot.T
+    return np.einsum("ki,ki->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
 
 
 #: Triples of a consistent set's pairs that :func:`_consensus_core` tries, at most
@@ -1063,10 +1071,7 @@ def _core(
     gate = settings.gate_threshold
     while rows.size >= settings.min_inliers:
         t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
-        r = t[:3, :3]
-        nu = a.means[rows] - (b.means[cols] @ r.T + t[:3, 3])
-        s = a.covs[rows] + r @ b.covs[cols] @ r.T
-        nis = np.einsum("ki,ki->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+        nis = _pair_nis(a, b, rows, cols, t)
         if nis.max() <= gate:
             break
         far = nis > 4.0 * gate
