@@ -19,7 +19,7 @@ detections mostly of the same true object, :func:`closure_precision`).
 Usage::
 
     python benchmarks/tracking.py [--kitti DATASET_DIR] [--robots 5 --steps 300] [--seeds 0 1]
-                                  [--watch-revisits] [--loop-closure both]
+                                  [--watch-revisits] [--loop-closure both] [--set KEY=VALUE …]
 
 ``DATASET_DIR`` is a dataset with ids (e.g. ``teamslam data import-reference … K``); its
 settings are resolved (calibrated when it has no sensor model) on the oracle dataset and used
@@ -44,7 +44,7 @@ from teamslam.eval.tracking import (
     tracking_metrics,
 )
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.settings import config_for
+from teamslam.msckf.settings import config_for, parse_assignments
 from teamslam.sim.lissajous import lissajous_team
 
 
@@ -211,17 +211,25 @@ def main() -> None:
         help="loop closure in each robot's own map (track_loop_closure); both: a row for each",
     )
     parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a filter setting for both runs of every case (as teamslam run --set)",
+    )
+    parser.add_argument(
         "--watch-revisits",
         action="store_true",
         help="how often a revisited object is inside its gate (costs tracking time)",
     )
     args = parser.parse_args()
+    settings = parse_assignments(args.set)
     rows = []
     closure = {"on": (True,), "off": (False,), "both": (False, True)}[args.loop_closure]
     if args.kitti:
         dataset = load_dataset(args.kitti)
         for on in closure:
-            config = replace(config_for(dataset), track_loop_closure=on)
+            config = replace(config_for(dataset, **settings), track_loop_closure=on)
             name = f"{dataset.name} closure {'on' if on else 'off'}"
             rows.append(compare(name, dataset, config, args.watch_revisits))
             print_table(rows[-1:])
@@ -240,7 +248,9 @@ def main() -> None:
                     f"sim {args.robots}r {args.steps}s s{seed} c{args.clutter} m{args.miss} "
                     f"{'loop' if on else 'main'}"
                 )
-                config = replace(config_for(team, calibrate="never"), track_loop_closure=on)
+                config = replace(
+                    config_for(team, calibrate="never", **settings), track_loop_closure=on
+                )
                 rows.append(compare(name, team, config, args.watch_revisits))
                 print_table(rows[-1:])
     print()
