@@ -44,7 +44,7 @@ from teamslam.eval.tracking import (
     tracking_metrics,
 )
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.settings import config_for, parse_assignments
+from teamslam.msckf.settings import ConfigError, config_for, parse_assignments
 from teamslam.sim.lissajous import lissajous_team
 
 
@@ -223,7 +223,12 @@ def main() -> None:
         help="how often a revisited object is inside its gate (costs tracking time)",
     )
     args = parser.parse_args()
-    settings = parse_assignments(args.set)
+    try:
+        settings = parse_assignments(args.set)
+    except ConfigError as exc:
+        parser.error(str(exc))
+    if "track_loop_closure" in settings:
+        parser.error("loop closure is chosen by --loop-closure, not --set track_loop_closure")
     rows = []
     closure = {"on": (True,), "off": (False,), "both": (False, True)}[args.loop_closure]
     if args.kitti:
