@@ -341,6 +341,27 @@ def test_unrelated_maps_give_no_correspondence():
         assert not result.matched, (seed, result.status, result.pairs)
 
 
+def test_an_answer_thinned_below_the_minimum_is_no_answer(monkeypatch):
+    # the last stage drops gate-added pairs that disagree with the consistent set; when that
+    # leaves fewer than min_inliers pairs, the answer is refused like any other too-small one
+    from teamslam.association import core
+
+    a, b, _, _ = _two_maps(seed=2)
+    settings = AssociationSettings()
+    assert associate(a, b, settings).matched
+    keep = settings.min_inliers - 1
+    monkeypatch.setattr(
+        core, "_beyond_the_clique", lambda a, b, rows, cols, *rest: (rows[:keep], cols[:keep])
+    )
+    result = associate(a, b, settings)
+    assert result.status == "too-few" and result.pairs.shape == (0, 2)
+    monkeypatch.setattr(
+        core, "_beyond_the_clique", lambda a, b, rows, cols, *rest: (rows[:-1], cols[:-1])
+    )
+    thinned = associate(a, b, settings)
+    assert thinned.matched and thinned.pairs.shape[0] >= settings.min_inliers
+
+
 def test_half_shared_maps_are_matched_with_high_precision_and_recall():
     # 20 shared objects among 20 more in each map that the other does not hold, drifted map
     correct = wrong = shared = 0

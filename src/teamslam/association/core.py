@@ -806,6 +806,10 @@ def _associate(
         return _no_answer(a, b, "too-few", exact=exact, **counts)
     rows, cols = rows[ok], cols[ok]
     rows, cols = _beyond_the_clique(a, b, rows, cols, ca, cb, t, settings)
+    if rows.size < need:
+        # the pairs the gate added beyond the consistent set that disagree with it are gone;
+        # what is left is held to the same minimum as every answer
+        return _no_answer(a, b, "too-few", exact=exact, **counts)
     pairs = np.column_stack([a.ids[rows], b.ids[cols]])
     pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
     return AssociationResult(
