@@ -35,7 +35,13 @@ stages:
    transform within their covariances; when that leaves fewer than ``min_inliers`` (a fit on
    all the set's pairs is dragged off by the wrong ones) the core is the largest subset that
    fits the transform of one of its triples (a consensus of triples, then trimmed), and any
-   core of three pairs or more fixes the transform of stage 4.
+   core of three pairs or more fixes the transform of stage 4. When none of these sets gathers
+   an answer, each candidate pair with its shared neighbourhood's consistent set (three pairs
+   or more, from stage 1) is a seed: the seeds' transforms are ranked by how many objects they
+   could gather (a bounding-sphere count) and the best ``rivals + 1`` are judged like the
+   consistent sets (:func:`_local_hypotheses`). In young maps the right pairs are often only a
+   few of the candidates, a set smaller than chance sets, while the right neighbourhoods
+   still hold them.
 4. **The relative transform** it implies: weighted Horn / Umeyama (no scale), ``SE(3)``.
 5. **Every pair gated under that transform**: Mahalanobis distance with both covariances plus
    the drift allowance ``ρ² (rₐ² + r_b²) / 2`` (``r`` the distance to the nearest anchor pair in
@@ -78,10 +84,11 @@ robots' cameras clearly on opposite sides of its plane (:func:`flipped`, from th
 
 Cost: all pairs of objects within each map, ``n_a · n_b · k²`` neighbour comparisons (and the
 mutual consistency of the neighbour pairs that agree), ``m²`` consistency tests for ``m``
-candidates (a few per object) and up to ``rivals + 1`` clique searches. The neighbourhood
-comparison, the consistency test and the clique search are compiled loops
+candidates (a few per object), up to ``rivals + 1`` clique searches and, when they find no
+answer, one count of ``m · n_a · n_b`` distances for the seeds. The neighbourhood comparison,
+the consistency test, the clique search and the seeds' count are compiled loops
 (:mod:`teamslam.association.kernels`, :mod:`teamslam.association.clique`): about ten
-milliseconds for maps of a hundred objects (median 11.6 ms of CPU over the 302 full
+milliseconds for maps of a hundred objects (median 13.4 ms of CPU over the 294 full
 associations of 15 simulated robots on a ring: ``benchmarks/association.py ring``). At run time
 a link runs it when its table is :meth:`~teamslam.association.table.CorrespondenceTable.due`
 (no answer yet and new objects, or maps grown markedly since the last run), and grows its table
@@ -112,7 +119,11 @@ import scipy.optimize
 import scipy.stats
 
 from teamslam.association.clique import maximum_clique
-from teamslam.association.kernels import consistent_pairs, shared_neighbourhood
+from teamslam.association.kernels import (
+    consistent_pairs,
+    gathered_objects,
+    shared_neighbourhood,
+)
 from teamslam.association.summary import ObjectSummary
 from teamslam.errors import InputError
 
@@ -346,26 +357,37 @@ def _neighbourhoods(
     )
 
 
-def _candidates(
+def _neighbourhood_sets(
     first: ObjectSummary,
     second: ObjectSummary,
     geo_a: tuple[np.ndarray, np.ndarray],
     geo_b: tuple[np.ndarray, np.ndarray],
     settings: AssociationSettings,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate pairs ``(index in first, index in second)`` by shared neighbourhood."""
-    chi2 = np.float32(settings.consistency_threshold)
-    quarter = np.float32(0.25 * settings.drift_ratio**2)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every pair's shared neighbourhood (:func:`~teamslam.association.kernels.
+    shared_neighbourhood`): the size of its consistent set of neighbour pairs, their summed
+    mismatch, and the set's members (``(n_a, n_b, k)``, ``i · k + j`` for neighbour ``i`` of
+    the first object and ``j`` of the second, ``-1`` beyond the set)."""
     allowed = np.ones((len(first), len(second)), dtype=bool)
     if first.classes is not None and second.classes is not None:
         allowed = first.classes[:, None] == second.classes[None, :]
+    members = np.full((len(first), len(second), settings.neighbours), -1, dtype=np.int16)
     score, mismatch = shared_neighbourhood(
         *_neighbourhoods(geo_a, settings.neighbours),
         *_neighbourhoods(geo_b, settings.neighbours),
         np.ascontiguousarray(allowed),
-        quarter,
-        chi2,
+        np.float32(0.25 * settings.drift_ratio**2),
+        np.float32(settings.consistency_threshold),
+        members,
     )
+    return score, mismatch, members
+
+
+def _select_candidates(
+    score: np.ndarray, mismatch: np.ndarray, settings: AssociationSettings
+) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate pairs from the shared neighbourhoods: each object's best few."""
+    chi2 = np.float32(settings.consistency_threshold)
     eligible = score >= max(settings.descriptor_matches, 1)
     # count first; among equal counts the closer agreement (mean normalised mismatch < χ²)
     key = score - mismatch / np.maximum(score, 1) / (chi2 + 1.0)
@@ -378,6 +400,18 @@ def _candidates(
     keep[cols, np.arange(key.shape[1])[None, :]] = True
     ia, ib = np.nonzero(keep & eligible)
     return ia, ib
+
+
+def _candidates(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    geo_a: tuple[np.ndarray, np.ndarray],
+    geo_b: tuple[np.ndarray, np.ndarray],
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate pairs ``(index in first, index in second)`` by shared neighbourhood."""
+    score, mismatch, _ = _neighbourhood_sets(first, second, geo_a, geo_b, settings)
+    return _select_candidates(score, mismatch, settings)
 
 
 def consistency_graph(
@@ -749,7 +783,8 @@ def _associate(
         return _no_answer(a, b, "too-few")
     geo_a = _distances(a.means, a.covs)
     geo_b = _distances(b.means, b.covs)
-    ia, ib = _candidates(a, b, geo_a, geo_b, settings)
+    score, mismatch, members = _neighbourhood_sets(a, b, geo_a, geo_b, settings)
+    ia, ib = _select_candidates(score, mismatch, settings)
     graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
     # the largest consistent sets, one after another: each next one among the candidates that
     # the transforms of the earlier ones reject; each judged by the pairs its transform gathers
@@ -773,6 +808,11 @@ def _associate(
             refused += 1  # the mirror image of a near-planar group: neither answer nor rival
             continue
         found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
+    if not any(f[0].size >= need for f in found):
+        # no consistent set gathered an answer: the candidates' own neighbourhoods as seeds
+        local, flips = _local_hypotheses(a, b, ia, ib, members, geo_a, geo_b, found, settings)
+        found += local
+        refused += flips
     counts = {
         "candidates": int(ia.size),
         "clique": int(found[0][3].shape[0]) if found else 0,
@@ -822,6 +862,84 @@ def _associate(
         clique_pairs=clique_pairs[np.argsort(clique_pairs[:, 0], kind="stable")],
         **counts,
     )
+
+
+def _local_hypotheses(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    ia: np.ndarray,
+    ib: np.ndarray,
+    members: np.ndarray,
+    geo_a: tuple[np.ndarray, np.ndarray],
+    geo_b: tuple[np.ndarray, np.ndarray],
+    found: list,
+    settings: AssociationSettings,
+) -> tuple[list, int]:
+    """Consistent sets seeded by the candidates' neighbourhoods, for a link whose largest
+    consistent sets gathered no answer.
+
+    In young maps the right pairs are often a few among the candidates (each object keeps its
+    best few, and a neighbour only one map holds pushes a right pair out), so they form a set
+    smaller than chance sets among hundreds of candidates, and the largest sets examined are
+    chance ones whose transforms gather too few pairs. Every candidate pair, with its shared
+    neighbourhood's consistent set of neighbour pairs (three pairs or more), fixes a transform;
+    the transforms are ranked by an upper bound on the objects they could gather
+    (:func:`~teamslam.association.kernels.gathered_objects`), and the best ``rivals + 1`` whose
+    seed is not already gathered by an earlier one go through :func:`_support` like a
+    consistent set. What makes an answer is unchanged: the sets found here are judged with
+    the others — the most pairs gathered, rivals, separation and the consistency of the added
+    pairs — and need ``min_inliers`` pairs like any answer.
+
+    Returns
+    -------
+    sets, refused
+        Entries for ``found`` (as in :func:`_associate`), and the number refused as mirror
+        images (:func:`flipped`).
+    """
+    need = settings.min_inliers
+    k = settings.neighbours
+    if ia.size == 0:
+        return [], 0
+    mem = members[ia, ib]  # (h, k): i · k + j, -1 beyond the set
+    valid = mem >= 0
+    score_ok = valid.sum(axis=1) >= 2  # with the anchor, three pairs fix a transform
+    if not score_ok.any():
+        return [], 0
+    xs, ys, mem, valid = ia[score_ok], ib[score_ok], mem[score_ok], valid[score_ok]
+    near_a, near_b = _nearest(geo_a[0], k), _nearest(geo_b[0], k)
+    k_b = near_b.shape[1]  # fewer than k in a map of k objects or fewer
+    slot_a, slot_b = np.where(valid, mem // k_b, 0), np.where(valid, mem % k_b, 0)
+    rows = np.concatenate([xs[:, None], near_a[xs[:, None], slot_a]], axis=1)
+    cols = np.concatenate([ys[:, None], near_b[ys[:, None], slot_b]], axis=1)
+    weight = np.concatenate([np.ones((xs.size, 1)), valid.astype(float)], axis=1)
+    t = _horn(a.means[rows], b.means[cols], weight)
+    reach = gathered_objects(
+        np.ascontiguousarray(t[:, :3, :3]),
+        np.ascontiguousarray(t[:, :3, 3]),
+        a.means,
+        b.means,
+        np.linalg.eigvalsh(a.covs)[:, -1],
+        np.linalg.eigvalsh(b.covs)[:, -1],
+        settings.gate_threshold,
+    )
+    explained = np.zeros((len(a), len(b)), dtype=bool)
+    for rows_f, cols_f, *_ in found:
+        explained[rows_f, cols_f] = True
+    out, refused = [], 0
+    for h in np.lexsort((np.arange(reach.size), -reach)):  # most reach first, ties by order
+        if reach[h] < need or len(out) + refused > settings.rivals:
+            break
+        if explained[xs[h], ys[h]]:
+            continue
+        seed = weight[h] > 0
+        ca, cb = rows[h][seed], cols[h][seed]
+        got_rows, got_cols, t_h, passed = _support(a, b, ca, cb, settings)
+        explained |= passed
+        if got_rows.size >= need and flipped(a, b, got_rows, got_cols, t_h, settings):
+            refused += 1
+            continue
+        out.append((got_rows, got_cols, t_h, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
+    return out, refused
 
 
 def flipped(

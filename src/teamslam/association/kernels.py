@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["consistent_pairs", "shared_neighbourhood"]
+__all__ = ["consistent_pairs", "gathered_objects", "shared_neighbourhood"]
 
 
 @numba.njit(cache=True)
@@ -64,6 +64,7 @@ def shared_neighbourhood(
     allowed: np.ndarray,
     quarter_rho2: np.float32,
     chi2: np.float32,
+    members: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """For every pair ``(x, y)``: how many neighbours of ``x`` and of ``y`` can be the same
     objects, as a rigid whole.
@@ -86,6 +87,10 @@ def shared_neighbourhood(
         ``(n, k, k)`` float32 distances between those neighbours, and their variances.
     allowed
         ``(n_x, n_y)`` boolean: the pairs to score (others score 0).
+    members
+        ``(n_x, n_y, m)`` integer array, filled by the call where the set has two members or
+        more: its ``c``-th member (``c < m``) as ``i · k_y + j`` for neighbour ``i`` of ``x``
+        and ``j`` of ``y``; entries beyond the set are left as they were (pass ``-1`` s).
 
     Returns
     -------
@@ -176,7 +181,65 @@ def shared_neighbourhood(
                 if ok:
                     chosen[m] = p
                     total += z[p]
+                    if m < members.shape[2]:
+                        members[x, y, m] = li[p] * ky + lj[p]
                     m += 1
             count[x, y] = m
             mismatch[x, y] = total
     return count, mismatch
+
+
+@numba.njit(cache=True)
+def gathered_objects(
+    rotations: np.ndarray,
+    translations: np.ndarray,
+    means_first: np.ndarray,
+    means_second: np.ndarray,
+    spread_first: np.ndarray,
+    spread_second: np.ndarray,
+    chi2: float,
+) -> np.ndarray:
+    """For each transform ``(R, t)``: how many objects of the first map have an object of the
+    second within reach, ``‖a − (R b + t)‖² ≤ χ² · (λₐ + λ_b)``.
+
+    ``λ`` is an object's largest covariance eigenvalue, so the test is the bounding sphere of the
+    Mahalanobis gate without drift allowance: a cheap upper bound on the pairs the transform's
+    gate could gather, used to rank many transforms before the few best are tested properly.
+
+    Parameters
+    ----------
+    rotations, translations
+        ``(h, 3, 3)`` and ``(h, 3)``: transforms taking the second map into the first.
+    means_first, means_second
+        ``(n_a, 3)`` and ``(n_b, 3)`` object positions.
+    spread_first, spread_second
+        ``(n_a,)`` and ``(n_b,)`` largest covariance eigenvalues.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(h,)`` int64 counts.
+    """
+    out = np.zeros(rotations.shape[0], dtype=np.int64)
+    moved = np.empty((means_second.shape[0], 3))
+    for h in range(rotations.shape[0]):
+        for j in range(means_second.shape[0]):
+            for u in range(3):
+                moved[j, u] = (
+                    rotations[h, u, 0] * means_second[j, 0]
+                    + rotations[h, u, 1] * means_second[j, 1]
+                    + rotations[h, u, 2] * means_second[j, 2]
+                    + translations[h, u]
+                )
+        n = 0
+        for i in range(means_first.shape[0]):
+            for j in range(means_second.shape[0]):
+                d2 = 0.0
+                for u in range(3):
+                    v = moved[j, u] - means_first[i, u]
+                    d2 += v * v
+                if d2 <= chi2 * (spread_first[i] + spread_second[j]):
+                    n += 1
+                    break
+        out[h] = n
+    return out
