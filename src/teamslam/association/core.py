@@ -366,8 +366,9 @@ def _neighbourhood_sets(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every pair's shared neighbourhood (:func:`~teamslam.association.kernels.
     shared_neighbourhood`): the size of its consistent set of neighbour pairs, their summed
-    mismatch, and the set's members (``(n_a, n_b, k)``, ``i · k + j`` for neighbour ``i`` of
-    the first object and ``j`` of the second, ``-1`` beyond the set)."""
+    mismatch, and the set's members (``(n_a, n_b, k)``, ``i · k_b + j`` for neighbour ``i`` of
+    the first object and ``j`` of the second, ``k_b`` the second map's neighbours per object —
+    fewer than ``k`` in a map of ``k`` objects or fewer — and ``-1`` beyond the set)."""
     allowed = np.ones((len(first), len(second)), dtype=bool)
     if first.classes is not None and second.classes is not None:
         allowed = first.classes[:, None] == second.classes[None, :]
@@ -900,7 +901,7 @@ def _local_hypotheses(
     k = settings.neighbours
     if ia.size == 0:
         return [], 0
-    mem = members[ia, ib]  # (h, k): i · k + j, -1 beyond the set
+    mem = members[ia, ib]  # (h, k): i · k_b + j, -1 beyond the set
     valid = mem >= 0
     score_ok = valid.sum(axis=1) >= 2  # with the anchor, three pairs fix a transform
     if not score_ok.any():
