@@ -261,8 +261,31 @@ def test_reproduce_all_writes_tables_figures_and_report(shared_data, tmp_path):
     assert "fej-table-2" in report and "data:image/png;base64," in report
     cells = json.loads((tmp_path / "paper.json").read_text())["cells"]
     assert len(cells) == 72
-    # environment 2 is ours (no published file): no difference claimed
-    assert all(c["difference"] is None for c in cells)
+    # environment 2's 20 features run on the published files: ours − theirs on every run cell,
+    # the file named in the table; the counts not run claim nothing
+    assert "CheckedTrueState_20features_2.mat" in md
+    for c in cells:
+        assert (c["difference"] is not None) == c["row"].startswith("20 "), c
+
+
+@pytest.mark.parametrize("env", [1, 2])
+@pytest.mark.parametrize("count", [20, 60, 100])
+def test_each_published_fej_environment_is_used(shared_data, env, count):
+    """Every configuration of Tables 1 and 2 has its published pair of files, and the paper's
+    command runs on it: the features and waypoints of the files, said so as the source."""
+    import scipy.io
+
+    from teamslam.paper.experiments import _fej_environment
+
+    folder = shared_data / "fej-environments"
+    environment, source, published = _fej_environment(env, count, shared_data)
+    assert published and f"CheckedTrueState_{count}features_{env}.mat" in source
+    lm = scipy.io.loadmat(folder / f"CheckedTrueState_{count}features_{env}.mat")["lm"]
+    np.testing.assert_array_equal(environment.features, lm.T)
+    waypoints = scipy.io.loadmat(folder / f"RobotsWaypoints_{env}.mat")
+    assert [w.shape[0] for w in environment.waypoints] == [waypoints["wp1"].shape[1]] * 2
+    generated, source, published = _fej_environment(env, count, None)
+    assert not published and "generated" in source and generated.features.shape == (count, 2)
 
 
 def test_missing_data_is_said_not_computed(tmp_path):
