@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-import teamslam.msckf.protocol as protocol
+import teamslam.msckf.consensus.protocol as protocol
 from teamslam import api
 from teamslam.association import (
     AssociationSettings,
@@ -57,8 +57,8 @@ from teamslam.datasets import import_reference, load_dataset
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.geometry import so3
 from teamslam.msckf import run_team
-from teamslam.msckf.protocol import ConsensusProtocol
-from teamslam.msckf.settings import team_configs
+from teamslam.msckf.configure import team_configs
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
 from teamslam.sim import SENSOR_SCENARIOS, lissajous_team, scenario_team
 
 ROOT = Path(__file__).resolve().parents[1]

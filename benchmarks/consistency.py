@@ -42,7 +42,8 @@ from threadpoolctl import threadpool_limits
 from teamslam.datasets import import_reference
 from teamslam.eval.metrics import object_nees, team_metrics
 from teamslam.msckf import run_team
-from teamslam.msckf.settings import parse_assignments, resolve_config
+from teamslam.msckf.configure import resolve_config
+from teamslam.msckf.settings.sources import parse_assignments
 from teamslam.sim import lissajous_team, long_route_team, scenario_team
 
 MODES = ("separate", "consensus", "hybrid", "increments")

@@ -193,7 +193,7 @@ class ConsensusCpu:
     machine wall time also counts waiting for a core; the team runs in one thread)."""
 
     def __init__(self) -> None:
-        from teamslam.msckf.protocol import ConsensusProtocol
+        from teamslam.msckf.consensus.protocol import ConsensusProtocol
 
         self.spent: dict[tuple[int, int], float] = {}
         self.averaged: dict[tuple[int, int], int] = {}
@@ -252,7 +252,7 @@ class ByteProbe:
     """Records the consensus bytes each robot sends at each step (in-process transport)."""
 
     def __init__(self) -> None:
-        from teamslam.msckf.transport import MemoryTransport
+        from teamslam.msckf.consensus.transport import MemoryTransport
 
         self.sent: dict[tuple[int, int], int] = {}
         self._cls = MemoryTransport
@@ -357,7 +357,7 @@ def revisit(frames: int, seed: int, overrides: dict) -> None:
 
 
 def _overrides(pairs: list[str]) -> dict:
-    from teamslam.msckf.settings import parse_assignments
+    from teamslam.msckf.settings.sources import parse_assignments
 
     return dict(parse_assignments(pairs))
 

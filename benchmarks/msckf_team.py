@@ -661,7 +661,7 @@ def main():
     )
     args = parser.parse_args()
     if args.what == "bounded":
-        from teamslam.msckf.settings import parse_assignments
+        from teamslam.msckf.settings.sources import parse_assignments
 
         bounded(
             args.team,

@@ -29,7 +29,7 @@ from teamslam.datasets import save_dataset
 from teamslam.eval.metrics import team_metrics
 from teamslam.eval.outputs import json_safe
 from teamslam.graph import complete
-from teamslam.msckf.settings import parse_assignments
+from teamslam.msckf.settings.sources import parse_assignments
 from teamslam.runtime.agent_process import load_robot_result
 from teamslam.runtime.launch import agent_command, gather
 from teamslam.runtime.netns import EmulatedNetwork, unavailable_reason

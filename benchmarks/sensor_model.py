@@ -29,7 +29,7 @@ from threadpoolctl import threadpool_limits
 from teamslam.datasets import export_reference, import_reference
 from teamslam.eval.metrics import team_metrics
 from teamslam.msckf import MsckfConfig, run_team
-from teamslam.msckf.settings import resolve_config
+from teamslam.msckf.configure import resolve_config
 from teamslam.sim import SENSOR_SCENARIOS, scenario_team
 
 #: what ``teamslam run`` used before datasets carried a sensor model, for anything imported

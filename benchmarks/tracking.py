@@ -2,7 +2,7 @@
 
 For each case the same detections are run twice through separate filters (no consensus):
 with the dataset's ids (the oracle) and with the ids removed (``strip_object_ids(to="none")``,
-each robot's :mod:`teamslam.msckf.tracking` naming its detections). Printed: trajectory RMSE
+each robot's :mod:`teamslam.msckf.objects.tracking` naming its detections). Printed: trajectory RMSE
 (mean over robots, as ``teamslam run``), its ratio to the oracle, CLEAR-MOT / IDF1
 (:mod:`teamslam.eval.tracking`), false objects confirmed per 1000 frames, the tracking time
 as a share of the per-robot-step time (wall, the agent's stage timings; and CPU time of this
@@ -12,7 +12,8 @@ object's own id — or within a pass; :func:`~teamslam.eval.tracking.idf1_losses
 many of the tracker's re-identifications (a detection given to an object not seen for ``N``
 frames) were right (:func:`~teamslam.eval.tracking.revisit_precision`). Each case runs without
 and with loop closure in each robot's own map (``track_loop_closure``,
-:mod:`teamslam.msckf.loop_closure`; ``--loop-closure off|on|both``), whose CPU time counts as
+:mod:`teamslam.msckf.objects.loop_closure`; ``--loop-closure off|on|both``), whose CPU time counts
+as
 tracking; printed with it: the merged pairs and how many were right (both objects' own
 detections mostly of the same true object, :func:`closure_precision`).
 
@@ -44,7 +45,8 @@ from teamslam.eval.tracking import (
     tracking_metrics,
 )
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.settings import ConfigError, config_for, parse_assignments
+from teamslam.msckf.configure import config_for
+from teamslam.msckf.settings.sources import ConfigError, parse_assignments
 from teamslam.sim.lissajous import lissajous_team
 
 

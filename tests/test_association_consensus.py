@@ -23,12 +23,12 @@ from teamslam.eval.metrics import team_metrics, trajectory_rmse
 from teamslam.graph import complete, ring
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.linearization import GroundTruth
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
-from teamslam.msckf.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.transport import MemoryNetwork
+from teamslam.msckf.filter.linearization import GroundTruth
+from teamslam.msckf.settings.values import MsckfConfig
 from teamslam.msckf.team import LockStep, RobotDriver, run_drivers
-from teamslam.msckf.transport import MemoryNetwork
 from teamslam.runtime.team_file import write_team_file
 from teamslam.runtime.wire import WireError, decode, encode, team_id
 from teamslam.sim import lissajous_team

@@ -24,9 +24,9 @@ import pytest
 from teamslam.errors import InputError, InternalError
 from teamslam.graph import complete
 from teamslam.msckf import config_for, run_team
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
-from teamslam.msckf.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.settings.values import MsckfConfig
 from teamslam.msckf.team import exchanges_per_frame
 from teamslam.sim import lissajous_team
 from test_consistent_consensus import (

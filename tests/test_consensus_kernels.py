@@ -10,7 +10,7 @@ from teamslam._gaussian_kernels import (
     rebuilt_joint,
 )
 from teamslam.gaussian import add_weighted_difference, spd_inverse, symmetrize
-from teamslam.msckf.consensus_kernels import (
+from teamslam.msckf.consensus.kernels import (
     FINITE,
     NON_FINITE,
     NOT_SYMMETRIC,
@@ -21,7 +21,7 @@ from teamslam.msckf.consensus_kernels import (
     single_rounding,
     symmetric_block,
 )
-from teamslam.msckf.messages import encode_ids
+from teamslam.msckf.consensus.messages import encode_ids
 
 
 def _spd(rng, d):

@@ -24,12 +24,12 @@ from teamslam.gaussian import (
 )
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
-from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.consensus import ReceivedMarginal, consensus_average
-from teamslam.msckf.models import observe_jacobians, points_in_camera
-from teamslam.msckf.protocol import ConsensusProtocol, _members
-from teamslam.msckf.state import MsckfState
-from teamslam.msckf.update import stereo_point, triangulate
+from teamslam.msckf.consensus.protocol import ConsensusProtocol, _members
+from teamslam.msckf.filter.models import observe_jacobians, points_in_camera
+from teamslam.msckf.filter.state import MsckfState
+from teamslam.msckf.filter.update import stereo_point, triangulate
+from teamslam.msckf.settings.values import MsckfConfig
 
 
 def _spd(rng: np.random.Generator, n: int, scale: float = 1.0) -> np.ndarray:

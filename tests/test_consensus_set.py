@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 from teamslam.msckf import config_for, run_team
-from teamslam.msckf.consensus_set import (
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.selection import (
     active_objects,
     pose_mutual_information,
     settling_thresholds,
 )
-from teamslam.msckf.protocol import ConsensusProtocol
-from teamslam.msckf.transport import MemoryNetwork
+from teamslam.msckf.consensus.transport import MemoryNetwork
 from teamslam.sim import lissajous_team
 from test_consensus_reference import _random_state
 from test_protocol import _agents, _exchange

@@ -27,8 +27,8 @@ import pytest
 from teamslam.dvi.kalman import kalman_update
 from teamslam.errors import InputError
 from teamslam.graph import complete, metropolis_weight, random_geometric, ring
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.settings.values import MsckfConfig
 from test_hybrid_consensus import OBJECTS, _exchange, _marginal, _measure, _rows, _team
 
 
@@ -299,7 +299,7 @@ def test_montecarlo_runs_the_increments_mode_on_a_chosen_graph_with_link_loss(tm
 
 
 def test_the_prior_travels_on_the_wire_and_version_5_is_refused():
-    from teamslam.msckf.messages import CommonMarginalMessage
+    from teamslam.msckf.consensus.messages import CommonMarginalMessage
     from teamslam.runtime.wire import WireError, decode, encode, team_id
 
     team = team_id("increments")

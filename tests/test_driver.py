@@ -24,9 +24,9 @@ from teamslam.eval.outputs import json_safe
 from teamslam.graph import EdgeLoss, from_edges, metropolis_weight, metropolis_weights, ring
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.transport import MemoryNetwork
 from teamslam.msckf.team import PartialRunError, load_result, merge_results, save_result
-from teamslam.msckf.transport import MemoryNetwork
 from teamslam.runtime.agent_process import load_robot_result, run_agent
 from teamslam.runtime.launch import agent_command
 from teamslam.runtime.team_file import load_team_file, write_team_file

@@ -7,8 +7,7 @@ import pytest
 
 from teamslam import dvi, graph
 from teamslam.dvi import kalman_predict, kalman_update
-from teamslam.eval.montecarlo import chi2_band
-from teamslam.gaussian import Gaussian, average_common_marginal, nees
+from teamslam.gaussian import Gaussian, average_common_marginal, chi2_band, nees
 
 
 @pytest.fixture(scope="module")

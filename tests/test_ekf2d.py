@@ -15,7 +15,7 @@ from teamslam.ekf2d import simulate as S
 from teamslam.ekf2d.filter import MultiRobotEKF, StepObservations
 from teamslam.ekf2d.linearization import policy
 from teamslam.ekf2d.start import StartError, gauss_newton_start
-from teamslam.eval.montecarlo import chi2_band
+from teamslam.gaussian import chi2_band
 from teamslam.testing import numerical_jacobian
 
 

@@ -13,7 +13,7 @@ import teamslam.cli
 from teamslam.cli._common import Parser, UsageError
 from teamslam.errors import EstimationError, InputError, InternalError, OutputError
 from teamslam.gaussian import NotPositiveDefiniteError
-from teamslam.msckf.settings import ConfigError
+from teamslam.msckf.settings.sources import ConfigError
 
 
 def _run_raising(monkeypatch, capsys, exc: BaseException) -> tuple[int, str]:

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from teamslam.errors import InputError, InternalError
-from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.consensus import hybrid_marginal, prior_information, shared_prior
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
-from teamslam.msckf.protocol import ConsensusProtocol
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.filter.state import MsckfState
+from teamslam.msckf.settings.values import MsckfConfig
 
 OBJECTS = 4
 

@@ -60,7 +60,7 @@ def test_version_on_the_command_line_imports_no_command_group():
 
 
 def test_public_names_resolve_on_first_access_to_the_defining_objects():
-    from teamslam.msckf.config import MsckfConfig
+    from teamslam.msckf.settings.values import MsckfConfig
     from teamslam.msckf.team import run_team
 
     result = _loaded_after(
@@ -70,14 +70,14 @@ def test_public_names_resolve_on_first_access_to_the_defining_objects():
         "print('numpy' in sys.modules, config.__module__, config.__qualname__)\n"
         "print(teamslam.run_team.__module__, teamslam.run_team.__qualname__)\n"
         "print(teamslam.datasets.__name__, teamslam.sim.lissajous_team.__module__)\n"
-        "print(teamslam.geometry.se3.__name__, teamslam.msckf.state.__name__)"
+        "print(teamslam.geometry.se3.__name__, teamslam.msckf.filter.state.__name__)"
     )
     assert result["printed"] == [
         "False",
         f"True {MsckfConfig.__module__} {MsckfConfig.__qualname__}",
         f"{run_team.__module__} {run_team.__qualname__}",
         "teamslam.datasets teamslam.sim.lissajous",
-        "teamslam.geometry.se3 teamslam.msckf.state",
+        "teamslam.geometry.se3 teamslam.msckf.filter.state",
     ]
 
 
@@ -129,7 +129,10 @@ def test_every_exported_name_is_the_defining_object_even_after_its_submodule_is_
     for exported in set(teamslam.__all__) - {"run", "write_run", "load_run"}:
         assert getattr(teamslam, exported) is not None
         assert exported in dir(teamslam)
-    assert teamslam.MsckfConfig is importlib.import_module("teamslam.msckf.config").MsckfConfig
+    assert (
+        teamslam.MsckfConfig
+        is importlib.import_module("teamslam.msckf.settings.values").MsckfConfig
+    )
     assert {"run", "write_run", "load_run"} <= set(dir(teamslam))
 
 

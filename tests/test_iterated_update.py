@@ -10,8 +10,8 @@ from scipy.optimize import least_squares
 from teamslam.errors import InputError
 from teamslam.geometry import se3
 from teamslam.msckf import MsckfConfig, config_for, run_team
-from teamslam.msckf.models import observe, observe_jacobians
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.filter.models import observe, observe_jacobians
+from teamslam.msckf.filter.state import MsckfState
 from teamslam.sim import lissajous_team
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from teamslam.geometry import se3
-from teamslam.msckf.state import MsckfState
-from teamslam.msckf.update import MeasurementRows, compress
+from teamslam.msckf.filter.state import MsckfState
+from teamslam.msckf.filter.update import MeasurementRows, compress
 
 
 def _posterior(prior_cov, jacobian, residual, variance):

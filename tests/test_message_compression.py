@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from teamslam.msckf.consensus import FLOAT32_MAX_KL, rounding_divergence
-from teamslam.msckf.messages import (
+from teamslam.msckf.consensus.messages import (
     HEADER_BYTES,
     CommonMarginalMessage,
     MapIdsMessage,

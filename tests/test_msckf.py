@@ -11,9 +11,9 @@ from teamslam.geometry import se3
 from teamslam.graph import from_edges
 from teamslam.msckf import MsckfState, config_for, run_team
 from teamslam.msckf.consensus import consensus_average, validate_marginal
-from teamslam.msckf.messages import CommonMarginalMessage
-from teamslam.msckf.models import observe, observe_jacobians
-from teamslam.msckf.update import householder_project, triangulate
+from teamslam.msckf.consensus.messages import CommonMarginalMessage
+from teamslam.msckf.filter.models import observe, observe_jacobians
+from teamslam.msckf.filter.update import householder_project, triangulate
 from teamslam.sim import lissajous_team
 from teamslam.sim.lissajous import T_CAM_BODY
 from teamslam.testing import numerical_jacobian, se3_plus

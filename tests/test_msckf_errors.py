@@ -12,11 +12,11 @@ import pytest
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry import se3
-from teamslam.msckf.config import MsckfConfig
 from teamslam.msckf.consensus import consensus_average
-from teamslam.msckf.persistent_map import PersistentMap
-from teamslam.msckf.protocol import ConsensusProtocol
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.filter.persistent_map import PersistentMap
+from teamslam.msckf.filter.state import MsckfState
+from teamslam.msckf.settings.values import MsckfConfig
 
 
 def _state(rng: np.random.Generator, robot: int | None = 2, first_frame: int = 35) -> MsckfState:
@@ -155,7 +155,7 @@ def test_consensus_errors_name_robot_and_frame():
     )
     protocol = ConsensusProtocol(agent, [1])
     protocol.requests(37)
-    from teamslam.msckf.messages import MapIdsMessage
+    from teamslam.msckf.consensus.messages import MapIdsMessage
 
     request = MapIdsMessage(1, 3, 37, state.object_ids.copy())
     with pytest.raises(NotPositiveDefiniteError, match="robot 3, frame 37: consensus: "):
@@ -164,7 +164,7 @@ def test_consensus_errors_name_robot_and_frame():
 
 @pytest.mark.parametrize("error", [NotPositiveDefiniteError, InternalError])
 def test_an_average_that_fails_names_robot_and_frame(monkeypatch, error):
-    import teamslam.msckf.protocol as protocol_module
+    import teamslam.msckf.consensus.protocol as protocol_module
 
     def failing(*args, **kwargs):
         raise error("averaged information is not positive definite")

@@ -9,8 +9,8 @@ import teamslam.msckf.agent as agent_module
 from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry import se3
 from teamslam.msckf import MsckfAgent, MsckfState, config_for, run_team
-from teamslam.msckf.linearization import GroundTruth, annihilate, unobservable_directions
-from teamslam.msckf.models import observe, observe_jacobians
+from teamslam.msckf.filter.linearization import GroundTruth, annihilate, unobservable_directions
+from teamslam.msckf.filter.models import observe, observe_jacobians
 from teamslam.sim import lissajous_team
 from teamslam.sim.lissajous import T_CAM_BODY
 from teamslam.testing import numerical_jacobian, se3_plus

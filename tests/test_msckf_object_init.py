@@ -8,9 +8,9 @@ from scipy.optimize import least_squares
 
 from teamslam.errors import InputError
 from teamslam.msckf import MsckfAgent, MsckfConfig, config_for
-from teamslam.msckf.linearization import GroundTruth
-from teamslam.msckf.models import observe
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.filter.linearization import GroundTruth
+from teamslam.msckf.filter.models import observe
+from teamslam.msckf.filter.state import MsckfState
 from teamslam.sim import lissajous_team
 
 

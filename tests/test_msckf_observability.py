@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from teamslam.msckf.linearization import linearization_policy
-from teamslam.msckf.observability import (
+from teamslam.msckf.filter.linearization import linearization_policy
+from teamslam.msckf.filter.observability import (
     estimates_like_a_filter,
     falsely_observable,
     nullspace,

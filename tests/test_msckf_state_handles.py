@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from teamslam.geometry import se3
-from teamslam.msckf.state import MsckfState, ObjectHandle, PoseHandle
+from teamslam.msckf.filter.state import MsckfState, ObjectHandle, PoseHandle
 
 
 def _team_state() -> MsckfState:

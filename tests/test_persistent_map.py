@@ -9,8 +9,8 @@ from scipy.linalg import block_diag
 from teamslam.errors import InputError, InternalError
 from teamslam.msckf import MsckfConfig, config_for
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.persistent_map import PersistentMap
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.filter.persistent_map import PersistentMap
+from teamslam.msckf.filter.state import MsckfState
 from teamslam.sim import lissajous_team, long_route_team
 
 
@@ -70,7 +70,7 @@ def test_retirement_and_reentry_keep_the_marginals_exactly():
 def test_a_late_marginal_naming_retired_objects_is_marginalised_to_the_state(form):
     """Asynchronous exchanges can deliver a marginal older than a retirement."""
     from teamslam.msckf.consensus import receive_marginal
-    from teamslam.msckf.messages import CommonMarginalMessage
+    from teamslam.msckf.consensus.messages import CommonMarginalMessage
 
     state = _random_state(2, 5, seed=3)
     ids = np.sort(state.object_ids)

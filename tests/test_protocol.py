@@ -17,9 +17,9 @@ from teamslam.datasets import save_dataset
 from teamslam.graph import EdgeLoss, complete, metropolis_weights, ring
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
-from teamslam.msckf.protocol import ConsensusProtocol
-from teamslam.msckf.transport import MemoryNetwork
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.transport import MemoryNetwork
 from teamslam.runtime.agent_process import load_robot_result, run_agent
 from teamslam.runtime.team_file import load_team_file, write_team_file
 from teamslam.sim import lissajous_team
@@ -272,7 +272,7 @@ def test_consensus_on_what_moved_equals_full_averaging_on_a_team():
 @pytest.mark.parametrize("float32", [False, True])
 def test_compact_marginals_cross_the_wire_exactly(team4, per_object, float32, information):
     from teamslam.msckf.consensus import common_marginal_message, receive_marginal
-    from teamslam.msckf.messages import encoded_ids_size
+    from teamslam.msckf.consensus.messages import encoded_ids_size
     from teamslam.runtime.wire import decode, encode, team_id
 
     dataset, _ = team4

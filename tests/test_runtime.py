@@ -18,8 +18,8 @@ from hypothesis import strategies as st
 from teamslam.datasets import save_dataset
 from teamslam.graph import complete, path
 from teamslam.msckf import config_for, run_team
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
-from teamslam.msckf.transport import MemoryNetwork
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.consensus.transport import MemoryNetwork
 from teamslam.runtime.agent_process import load_robot_result, run_agent
 from teamslam.runtime.launch import agent_command, frames_done
 from teamslam.runtime.team_file import TeamFileError, load_team_file, write_team_file

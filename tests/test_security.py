@@ -27,7 +27,7 @@ from teamslam.datasets import save_dataset
 from teamslam.errors import InputError
 from teamslam.graph import complete
 from teamslam.msckf import config_for, run_team
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.runtime.agent_process import load_robot_result
 from teamslam.runtime.launch import agent_command
 from teamslam.runtime.security import (

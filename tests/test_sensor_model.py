@@ -23,14 +23,14 @@ from teamslam.datasets import (
 from teamslam.geometry import se3
 from teamslam.msckf import MsckfConfig, config_for, resolve_config, run_team
 from teamslam.msckf.calibration import epipolar_noise, nis_ratio
-from teamslam.msckf.health import (
+from teamslam.msckf.settings.health import (
     InnovationRecord,
     SensorHealth,
     health_warnings,
     odometry_lag_residuals,
     odometry_step_residual,
 )
-from teamslam.msckf.settings import (
+from teamslam.msckf.settings.sources import (
     ConfigError,
     camera_defaults,
     load_config_file,

@@ -17,10 +17,10 @@ from teamslam.eval.tracking import (
     tracking_metrics,
 )
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.models import observe
-from teamslam.msckf.state import MsckfState
-from teamslam.msckf.tracking import ObjectTracker, track_id_base
+from teamslam.msckf.filter.models import observe
+from teamslam.msckf.filter.state import MsckfState
+from teamslam.msckf.objects.tracking import ObjectTracker, track_id_base
+from teamslam.msckf.settings.values import MsckfConfig
 from teamslam.sim.lissajous import T_CAM_BODY, SimulationConfig, lissajous_team
 
 CAMERA = SimulationConfig().camera()

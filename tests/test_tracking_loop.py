@@ -10,9 +10,14 @@ import pytest
 from teamslam.association import AssociationSettings, ObjectSummary
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.loop_closure import LoopClosure, find_loop, merge_objects, turn_within_drift
-from teamslam.msckf.settings import config_for
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.configure import config_for
+from teamslam.msckf.filter.state import MsckfState
+from teamslam.msckf.objects.loop_closure import (
+    LoopClosure,
+    find_loop,
+    merge_objects,
+    turn_within_drift,
+)
 from teamslam.sim.lissajous import lissajous_team
 
 
@@ -292,7 +297,7 @@ def test_a_revisit_turns_no_further_than_the_drift_allows_except_about_a_row_its
 
 
 def test_object_views_are_mean_directions_and_follow_a_merge():
-    from teamslam.msckf.views import ObjectViews
+    from teamslam.msckf.filter.views import ObjectViews
 
     views = ObjectViews()
     k = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
@@ -319,7 +324,7 @@ def test_object_views_are_mean_directions_and_follow_a_merge():
 
 def test_track_loop_closure_must_be_a_boolean():
     from teamslam.errors import InputError
-    from teamslam.msckf.config import MsckfConfig
+    from teamslam.msckf.settings.values import MsckfConfig
 
     with pytest.raises(InputError, match="track_loop_closure"):
         MsckfConfig(track_loop_closure="yes")

@@ -11,10 +11,10 @@ from teamslam.datasets.identity import strip_object_ids
 from teamslam.datasets.storage import load_dataset
 from teamslam.geometry import so3
 from teamslam.geometry.camera import StereoCamera
-from teamslam.msckf import tracking
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.models import observe_jacobians, points_in_camera
-from teamslam.msckf.settings import config_for
+from teamslam.msckf.configure import config_for
+from teamslam.msckf.filter.models import observe_jacobians, points_in_camera
+from teamslam.msckf.objects import tracking
 from teamslam.sim.lissajous import T_CAM_BODY, lissajous_team
 
 

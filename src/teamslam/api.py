@@ -133,7 +133,7 @@ def resolve_settings(
     calibrate: str = "auto",
     calibration_frames: int | None = None,
 ):
-    """The effective settings of a run (:class:`~teamslam.msckf.settings.EffectiveConfig`).
+    """The effective settings of a run (:class:`~teamslam.msckf.settings.sources.EffectiveConfig`).
 
     Parameters
     ----------
@@ -143,7 +143,7 @@ def resolve_settings(
     config_file
         YAML file of settings (below ``settings``).
     calibrate, calibration_frames
-        See :func:`~teamslam.msckf.settings.resolve_config`.
+        See :func:`~teamslam.msckf.configure.resolve_config`.
 
     Raises
     ------
@@ -151,11 +151,11 @@ def resolve_settings(
         A setting that does not exist or has a wrong value (an
         :class:`~teamslam.errors.InputError`).
     """
-    from teamslam.msckf.settings import (
+    from teamslam.msckf.configure import resolve_config
+    from teamslam.msckf.settings.sources import (
         coerce_settings,
         load_config_file,
         parse_assignments,
-        resolve_config,
     )
 
     file_values = load_config_file(config_file) if config_file is not None else {}
@@ -201,7 +201,7 @@ def run(
     seed
         Seed of the link loss and of a random graph.
     settings
-        An :class:`~teamslam.msckf.settings.EffectiveConfig` (:func:`resolve_settings`), or
+        An :class:`~teamslam.msckf.settings.sources.EffectiveConfig` (:func:`resolve_settings`), or
         settings for it (``{name: value}`` or ``["name=value", …]``), or ``None`` (the
         dataset's sensor model; a calibration where it lacks noise levels).
     out
@@ -232,7 +232,7 @@ def run(
         first.
     """
     from teamslam.graph import make
-    from teamslam.msckf.settings import EffectiveConfig
+    from teamslam.msckf.settings.sources import EffectiveConfig
 
     if mode not in MODES:
         raise InputError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
@@ -457,7 +457,7 @@ def launch(team_path: str | Path, out: str | Path, settings=None, progress=None)
     Parameters
     ----------
     settings
-        The :class:`~teamslam.msckf.settings.EffectiveConfig` to report with the metrics.
+        The :class:`~teamslam.msckf.settings.sources.EffectiveConfig` to report with the metrics.
     """
     from teamslam.eval.outputs import write_team_outputs
     from teamslam.runtime.launch import exit_summary, gather, launch_team
@@ -598,7 +598,7 @@ def calibrate(
     """
     from teamslam.datasets import save_dataset
     from teamslam.msckf.calibration import calibrate as run_calibration
-    from teamslam.msckf.settings import calibration_start
+    from teamslam.msckf.settings.sources import calibration_start
 
     path = dataset if isinstance(dataset, str | os.PathLike) else source
     dataset = _dataset(dataset)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import scipy.linalg
@@ -34,6 +35,8 @@ __all__ = [
     "NotPositiveDefiniteError",
     "add_weighted_difference",
     "average_common_marginal",
+    "chi2_band",
+    "chi2_quantile",
     "completed_geometric_average",
     "geometric_average",
     "geometric_average_arrays",
@@ -48,6 +51,27 @@ __all__ = [
 ]
 
 IndexLike = Sequence[int] | np.ndarray | slice
+
+
+@lru_cache(maxsize=1024)
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The ``probability`` quantile of χ²(``dof``), computed once per pair of values (gates ask
+    for the same few thresholds at every call)."""
+    from scipy import stats
+
+    return float(stats.chi2.ppf(probability, dof))
+
+
+def chi2_band(dof: int, samples: int, probability: float = 0.95) -> tuple[float, float]:
+    """Two-sided band of the *average NEES normalised by dof* over ``samples`` samples.
+
+    ``samples · dof · NEES`` is χ²(samples · dof) for a consistent filter.
+    """
+    from scipy import stats
+
+    total = samples * dof
+    lo, hi = stats.chi2.ppf([(1 - probability) / 2, (1 + probability) / 2], total)
+    return float(lo / total), float(hi / total)
 
 
 class NotPositiveDefiniteError(EstimationError, ValueError):

@@ -110,7 +110,6 @@ anyway, and cannot disagree as long as both ends hold the same two summaries.
 
 from __future__ import annotations
 
-import functools
 import itertools
 from dataclasses import dataclass, field, replace
 
@@ -126,6 +125,7 @@ from teamslam.association.kernels import (
 )
 from teamslam.association.summary import ObjectSummary
 from teamslam.errors import InputError
+from teamslam.gaussian import chi2_quantile
 
 __all__ = [
     "AssociationResult",
@@ -137,13 +137,6 @@ __all__ = [
     "flipped",
     "gate_pairs",
 ]
-
-
-@functools.lru_cache(maxsize=64)
-def chi2_quantile(probability: float, dof: int) -> float:
-    """The ``χ²`` quantile of ``probability`` with ``dof`` degrees of freedom (computed once per
-    pair of values: the tests ask for the same few thresholds at every call)."""
-    return float(scipy.stats.chi2.ppf(probability, dof))
 
 
 @dataclass(frozen=True)

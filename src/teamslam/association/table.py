@@ -29,12 +29,12 @@ from teamslam.association.core import (
     _consistent_members,
     _distinct,
     _separated,
-    chi2_quantile,
     fit_transform,
     gate_pairs,
 )
 from teamslam.association.summary import ObjectSummary
 from teamslam.errors import InputError
+from teamslam.gaussian import chi2_quantile
 
 __all__ = ["CorrespondenceTable", "pair_innovation_consistent", "pair_innovation_nis"]
 

@@ -176,7 +176,7 @@ def print_mcap_summary(summary: dict) -> None:
 
 def print_health(name: str, metrics: dict) -> None:
     """The health warnings of a run's metrics, on standard error."""
-    from teamslam.msckf.health import health_warnings
+    from teamslam.msckf.settings.health import health_warnings
 
     for line in health_warnings(
         {

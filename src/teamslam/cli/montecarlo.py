@@ -17,7 +17,7 @@ def _names(text: str) -> tuple[str, ...]:
 
 def _cmd_montecarlo(args: argparse.Namespace) -> int:
     from teamslam.eval.team_montecarlo import MonteCarloSpec, table, write_montecarlo
-    from teamslam.msckf.settings import parse_assignments
+    from teamslam.msckf.settings.sources import parse_assignments
 
     spec = MonteCarloSpec(
         robots=args.robots,

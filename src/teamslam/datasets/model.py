@@ -332,7 +332,8 @@ class RobotSequence:
     detections
         Object detections without ids (:class:`FrameDetections`), or ``None``. A robot whose
         ``objects`` hold no observation and that has detections tracks them itself
-        (:mod:`teamslam.msckf.tracking`); with ids the detections are not read by the filter.
+        (:mod:`teamslam.msckf.objects.tracking`); with ids the detections are not read by the
+        filter.
     """
 
     T_world_body: np.ndarray

@@ -22,7 +22,7 @@ from teamslam.ekf2d.linearization import policy as make_policy
 from teamslam.ekf2d.run import RunMetrics, run_filter
 from teamslam.ekf2d.simulate import PlanarTruth, simulate, truth_of
 from teamslam.errors import InputError
-from teamslam.eval.montecarlo import run_parallel
+from teamslam.parallel import run_parallel
 
 __all__ = [
     "FILTERS",

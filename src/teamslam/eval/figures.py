@@ -25,9 +25,9 @@ import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.colors import Normalize
 
-from teamslam.eval.montecarlo import chi2_band
 from teamslam.eval.runs import STAGES
 from teamslam.eval.trajectory import TeamEvaluation
+from teamslam.gaussian import chi2_band
 
 __all__ = [
     "ape_over_time_figure",
@@ -156,7 +156,7 @@ def ape_path_figure(names: list[str], evaluations: list[TeamEvaluation]):
 
 def nees_band(dof: int, probability: float = 0.95) -> tuple[float, float]:
     """Two-sided ``probability`` interval of NEES / dof for a consistent estimator
-    (:func:`~teamslam.eval.montecarlo.chi2_band` of one sample)."""
+    (:func:`~teamslam.gaussian.chi2_band` of one sample)."""
     return chi2_band(dof, 1, probability)
 
 

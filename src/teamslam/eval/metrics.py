@@ -9,7 +9,8 @@
 * pose NEES per robot per frame from the current pose's 6×6 covariance, with the error in the
   filter's own convention ``T_true = T_est · exp(ε^)``, normalised by 6 (1 when consistent);
 * time per robot per frame for each stage;
-* sensor health (:mod:`teamslam.msckf.health`): per sensor the mean NIS / dof and the share of
+* sensor health (:mod:`teamslam.msckf.settings.health`): per sensor the mean NIS / dof and the
+  share of
   measurements the χ² gate rejected, and the odometry's smoothed-residual ratio;
 * with association by the robots themselves (``association = own``) or the consensus
   innovation check: per link the summary bytes per step, the correspondences proposed,
@@ -206,7 +207,8 @@ def association_metrics(dataset: TeamDataset, result: TeamResult, per_robot: lis
     result
         The run (final maps, timings, frames).
     per_robot
-        Per robot (in ``result.robots`` order) :meth:`~teamslam.msckf.protocol.ConsensusProtocol.
+        Per robot (in ``result.robots`` order)
+        :meth:`~teamslam.msckf.consensus.protocol.ConsensusProtocol.
         association_summary`: per neighbour the table's counts and pairs and the exchange
         statistics.
 

@@ -408,7 +408,7 @@ def _consistency_section(names: list[str], runs: list[TeamRun]) -> str:
 
 
 def _health_section(names: list[str], runs: list[TeamRun]) -> str:
-    from teamslam.msckf.health import health_warnings
+    from teamslam.msckf.settings.health import health_warnings
 
     rows = []
     for sensor in ("features", "objects"):

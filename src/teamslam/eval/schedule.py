@@ -6,7 +6,7 @@ the longest chain of tasks that wait on it (list scheduling by "bottom level", A
 Dickson 1974, "A comparison of list schedules for parallel processing systems", CACM 17(12)) —
 and never more than ``workers`` at a time, so a long chain does not start last and the pool
 ends with the short tasks. Every worker has BLAS pinned to one thread, as in
-:func:`~teamslam.eval.montecarlo.run_parallel`.
+:func:`~teamslam.parallel.run_parallel`.
 
 Results do not depend on the order or the number of workers (each task is deterministic on its
 inputs); only the times do. :class:`Schedule` keeps each task's CPU and wall seconds and the
@@ -27,7 +27,7 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from teamslam.errors import InputError
-from teamslam.eval.montecarlo import _init_worker, default_workers
+from teamslam.parallel import default_workers, init_worker
 
 __all__ = ["Schedule", "Task", "run_tasks"]
 
@@ -190,7 +190,7 @@ def run_tasks(
                     task = next_task()
                     finish(task, _timed(task.call, *args(task)))
         else:
-            with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
+            with ProcessPoolExecutor(max_workers=workers, initializer=init_worker) as pool:
                 running: dict[Future, Task] = {}
                 try:
                     while ready or running:

@@ -2,14 +2,15 @@
 
 ``N`` noise realisations of one simulated team (same paths and map, fresh odometry and
 measurement noise, :func:`~teamslam.sim.lissajous_team` with ``noise_seed``), each run through
-every linearisation policy (:mod:`teamslam.msckf.linearization`) and every mode — ``separate``
+every linearisation policy (:mod:`teamslam.msckf.filter.linearization`) and every mode —
+``separate``
 filters, ``consensus`` (the distributed MSCKF, on a complete graph unless ``graph`` says
 otherwise, with link loss ``loss``), ``hybrid`` (the same with hybrid consensus,
 ``consensus_hybrid``: new information at full weight, :mod:`teamslam.msckf.consensus`),
 ``increments`` (consensus on information increments, ``consensus_increments``: each robot's
-new information counted once, :mod:`teamslam.msckf.consensus_average`) and ``centralised``
+new information counted once, :mod:`teamslam.msckf.consensus.average`) and ``centralised``
 (:mod:`teamslam.msckf.centralised`).
-Runs are spread over processes (:func:`~teamslam.eval.montecarlo.run_parallel`, BLAS pinned
+Runs are spread over processes (:func:`~teamslam.parallel.run_parallel`, BLAS pinned
 to one thread per worker).
 
 Per filter and mode:
@@ -47,8 +48,9 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from teamslam.eval.montecarlo import chi2_band, run_parallel
+from teamslam.gaussian import chi2_band
 from teamslam.geometry import se3
+from teamslam.parallel import run_parallel
 
 __all__ = [
     "MODES",

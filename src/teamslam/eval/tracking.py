@@ -1,13 +1,14 @@
 """How well each robot tracked its own object detections (against the truth of each detection).
 
-The tracker (:mod:`teamslam.msckf.tracking`) gives every detection an object id or none; the
+The tracker (:mod:`teamslam.msckf.objects.tracking`) gives every detection an object id or none; the
 dataset says what each detection truly is (:attr:`~teamslam.datasets.model.FrameDetections.truth`:
 a team object id, or ``-1`` for a false detection). The ground-truth objects of a frame are the
 true objects detected in it (an object the detector missed cannot be tracked in that frame), and
 a hypothesis matches the true object of the detection it was given to. Then:
 
 The ids are those the filter used each detection as (:attr:`ObjectTracker.log
-<teamslam.msckf.tracking.ObjectTracker.log>`): a confirmed track's detections from before its
+<teamslam.msckf.objects.tracking.ObjectTracker.log>`): a confirmed track's detections from before
+its
 confirmation count under its id, as the filter's object initialisation uses them.
 
 * **CLEAR-MOT** (Bernardin & Stiefelhagen 2008): ``MOTA = 1 − (FN + FP + IDSW) / GT`` with
@@ -187,7 +188,7 @@ def revisit_precision(
     revisits
         ``(frame, row of the frame's detections, object id)`` of each detection given to an
         object not seen for a while (:attr:`ObjectTracker.revisits
-        <teamslam.msckf.tracking.ObjectTracker.revisits>`).
+        <teamslam.msckf.objects.tracking.ObjectTracker.revisits>`).
 
     Returns
     -------

@@ -8,7 +8,7 @@ neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.ste
    window) — MSCKF null-space rows (eq. 24) — and with the objects already in the map, in one
    stacked Kalman update (eqs. 26–28), each feature or object chi-square gated (with
    ``object_update_iterations > 1``: the features first, then the objects by an iterated EKF,
-   :meth:`~teamslam.msckf.state.MsckfState.iterated_update`);
+   :meth:`~teamslam.msckf.filter.state.MsckfState.iterated_update`);
 4. initialises objects seen often enough inside the window by QR (eqs. 29–30) — optionally
    once their initial position is certain enough relative to their distance
    (``object_init_max_relative_std``) — then uses the rest of their rows to update the poses;
@@ -16,7 +16,7 @@ neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.ste
 and finally slides the window. With ``object_retire_after = N > 0`` objects unobserved for
 ``N`` frames then leave the state for the persistent map, and a retired object observed again
 re-enters the state right after propagation, before the update
-(:mod:`teamslam.msckf.persistent_map`); everything the agent keeps is then bounded over a
+(:mod:`teamslam.msckf.filter.persistent_map`); everything the agent keeps is then bounded over a
 mission — the window, open feature tracks and object observations inside it, the state —
 except the persistent map (15 numbers per distinct object retired) and the per-frame stage
 times (allocated once for the whole sequence). Bad inputs (non-finite odometry or
@@ -24,11 +24,12 @@ measurements) are rejected and counted; the estimate is left as it was.
 
 A robot whose data has detections without ids (``RobotSequence.detections`` and no object
 observation with an id) names them itself right after propagation
-(:mod:`teamslam.msckf.tracking`); everything above then reads the tracker's ids. With ids the
+(:mod:`teamslam.msckf.objects.tracking`); everything above then reads the tracker's ids. With ids
+the
 tracker does not exist and nothing changes.
 
 Every Jacobian is evaluated where the configured linearisation policy says
-(:mod:`teamslam.msckf.linearization`: standard, first-estimate or ideal); residuals always at
+(:mod:`teamslam.msckf.filter.linearization`: standard, first-estimate or ideal); residuals always at
 the current estimate. The agent's state may be its own or its window in a team state
 (:mod:`teamslam.msckf.centralised`): the same code serves both.
 """
@@ -46,20 +47,24 @@ from teamslam.datasets.model import Calibration, RobotSequence
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry import se3
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.health import SensorHealth, odometry_lag_residuals, odometry_step_residual
-from teamslam.msckf.linearization import GroundTruth, linearization_policy
-from teamslam.msckf.models import observe, observe_jacobians, points_in_camera
-from teamslam.msckf.state import MsckfState, RobotWindow
-from teamslam.msckf.tracking import ObjectTracker
-from teamslam.msckf.update import (
+from teamslam.msckf.filter.linearization import GroundTruth, linearization_policy
+from teamslam.msckf.filter.models import observe, observe_jacobians, points_in_camera
+from teamslam.msckf.filter.state import MsckfState, RobotWindow
+from teamslam.msckf.filter.update import (
     MeasurementRows,
     compress,
     householder_project,
     null_space_rows,
     triangulate,
 )
-from teamslam.msckf.views import ObjectViews
+from teamslam.msckf.filter.views import ObjectViews
+from teamslam.msckf.objects.tracking import ObjectTracker
+from teamslam.msckf.settings.health import (
+    SensorHealth,
+    odometry_lag_residuals,
+    odometry_step_residual,
+)
+from teamslam.msckf.settings.values import MsckfConfig
 
 __all__ = ["MsckfAgent"]
 
@@ -140,7 +145,8 @@ class MsckfAgent:
         # detections without ids: the robot names its objects itself (tracking.py)
         self.tracker: ObjectTracker | None = None
         self._tracked: tuple[np.ndarray, np.ndarray] | None = None
-        #: from where the cameras saw each object (:mod:`teamslam.msckf.views`): recorded each
+        #: from where the cameras saw each object (:mod:`teamslam.msckf.filter.views`): recorded
+        # each
         #: frame when a summary of the map needs it (association without shared ids, loop
         #: closure in the robot's own map)
         self.views = ObjectViews()
@@ -185,7 +191,8 @@ class MsckfAgent:
         """Everything needed to continue from the last processed frame, as arrays only.
 
         The state (:meth:`MsckfState.snapshot`), the open feature tracks and object
-        observation histories, the objects' views (:class:`~teamslam.msckf.views.ObjectViews`),
+        observation histories, the objects' views
+        (:class:`~teamslam.msckf.filter.views.ObjectViews`),
         per-frame stage times, counters and timings.
         """
         out = {f"state_{k}": v for k, v in self.state.snapshot().items()}

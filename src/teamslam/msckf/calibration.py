@@ -34,7 +34,8 @@ How
      pose leaves the window it and every later window pose have been smoothed by all
      measurements of the window; the composed odometry from it to each of them has the
      residual second moment ``ê êᵀ + J Σ Jᵀ`` with expectation ``M_L · diag W``
-     (:func:`~teamslam.msckf.health.odometry_lag_residuals`). The variances ``diag W`` are the
+     (:func:`~teamslam.msckf.settings.health.odometry_lag_residuals`). The variances ``diag W`` are
+     the
      non-negative least-squares fit of these equations over every lag — the long lags, where
      the measurements rather than the odometry decide the motion, make it converge in a few
      passes where one-step EM crawls (cf. the autocovariance least-squares method, Odelson,
@@ -60,9 +61,9 @@ from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.datasets.stats import robust_std
 from teamslam.errors import InputError
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.health import SENSORS, InnovationRecord, SensorHealth
-from teamslam.msckf.update import stereo_point
+from teamslam.msckf.filter.update import stereo_point
+from teamslam.msckf.settings.health import SENSORS, InnovationRecord, SensorHealth
+from teamslam.msckf.settings.values import MsckfConfig
 
 __all__ = [
     "CalibrationResult",
@@ -402,7 +403,8 @@ def calibration_table(dataset: TeamDataset, result: CalibrationResult) -> str:
 def params_check(dataset: TeamDataset) -> list[tuple[str, float, float]]:
     """A params file's noise levels (the dataset's sensor model) beside a calibration from
     the data: ``(label, given, found)`` per level both give."""
-    from teamslam.msckf.settings import calibration_start, resolve_config
+    from teamslam.msckf.configure import resolve_config
+    from teamslam.msckf.settings.sources import calibration_start
 
     start = calibration_start(dataset, resolve_config(dataset, calibrate="never").config)
     found_noise = calibrate(dataset, start).sensor_model.team

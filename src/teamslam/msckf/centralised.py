@@ -1,10 +1,10 @@
 """The centralised MSCKF: one filter holding every robot's window and every object.
 
 What a single server receiving all the team's data would run, and the accuracy reference of the
-distributed filter. One :class:`~teamslam.msckf.state.MsckfState` holds the windows of all
+distributed filter. One :class:`~teamslam.msckf.filter.state.MsckfState` holds the windows of all
 robots (each robot's poses kept together) and one map of objects; robot ``i`` is processed by
 an ordinary :class:`~teamslam.msckf.agent.MsckfAgent` whose state is its
-:class:`~teamslam.msckf.state.RobotWindow` into the joint state, driven by the
+:class:`~teamslam.msckf.filter.state.RobotWindow` into the joint state, driven by the
 :class:`~teamslam.msckf.team.RobotDriver` of every run (here without a transport) — the same
 propagation, feature and object updates, object initialisation and linearisation policy as a
 robot alone, but every update acts on the joint covariance, so an object seen by two robots
@@ -25,9 +25,9 @@ import numpy as np
 
 from teamslam.datasets.model import TeamDataset
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.linearization import GroundTruth
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.filter.linearization import GroundTruth
+from teamslam.msckf.filter.state import MsckfState
+from teamslam.msckf.settings.values import MsckfConfig
 from teamslam.msckf.team import RobotDriver, TeamResult, run_drivers
 
 __all__ = ["run_centralised"]
@@ -46,7 +46,7 @@ def run_centralised(
         The team's data.
     config
         Filter settings, one for the team or one per robot (default:
-        :func:`~teamslam.msckf.settings.resolve_config`). The first robot's ``debug`` and
+        :func:`~teamslam.msckf.configure.resolve_config`). The first robot's ``debug`` and
         ``initial_pose_std`` apply to the joint state.
     progress
         Show a progress bar (default: when standard error is a terminal).
@@ -57,7 +57,7 @@ def run_centralised(
         ``consensus=False``, ``graph="centralised"``; ``object_ids``/``objects`` of every robot
         are the joint map; timings are per robot (its share of the joint work).
     """
-    from teamslam.msckf.settings import team_configs  # settings calibrate with a team run
+    from teamslam.msckf.configure import team_configs  # settings calibrate with a team run
 
     n = dataset.n_robots
     configs = team_configs(dataset, config)

@@ -3,7 +3,7 @@
 Every way of running the filter goes through the same per-frame code, :class:`RobotDriver`:
 
 * a robot first takes part in consensus (from the second frame on, when it has a
-  :class:`~teamslam.msckf.protocol.ConsensusProtocol`): round 1 sends its map ids, round 2
+  :class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`): round 1 sends its map ids, round 2
   answers the requests heard with the marginals of the common objects, round 3 averages the
   marginals heard (:meth:`RobotDriver.requests`, :meth:`RobotDriver.answer`,
   :meth:`RobotDriver.average`) — ``consensus_iterations`` times per frame, each exchange with
@@ -11,8 +11,9 @@ Every way of running the filter goes through the same per-frame code, :class:`Ro
 * then it processes the frame (:meth:`RobotDriver.step`) and records the filtered pose of
   frame ``k`` and its covariance (:meth:`RobotDriver.record`).
 
-Messages move through a :class:`~teamslam.msckf.transport.Transport` — the in-memory
-:class:`~teamslam.msckf.transport.MemoryNetwork` or Zenoh — and the waiting follows a policy:
+Messages move through a :class:`~teamslam.msckf.consensus.transport.Transport` — the in-memory
+:class:`~teamslam.msckf.consensus.transport.MemoryNetwork` or Zenoh — and the waiting follows a
+policy:
 :class:`LockStep` (wait for the messages of this step, up to a timeout) or :class:`Asynchronous`
 (never wait; use each neighbour's newest message no older than ``max_age`` steps). A neighbour
 silent for ``lost_after`` frames in a row is reported lost and no longer awaited (it is awaited
@@ -50,12 +51,12 @@ from teamslam.datasets.model import TeamDataset
 from teamslam.errors import EstimationError, InputError, OutputError
 from teamslam.graph import CommunicationGraph, EdgeLoss, complete
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.health import SensorHealth
-from teamslam.msckf.linearization import GroundTruth
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
-from teamslam.msckf.protocol import ConsensusProtocol
-from teamslam.msckf.transport import MemoryNetwork, Transport
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.transport import MemoryNetwork, Transport
+from teamslam.msckf.filter.linearization import GroundTruth
+from teamslam.msckf.settings.health import SensorHealth
+from teamslam.msckf.settings.values import MsckfConfig
 
 __all__ = [
     "Asynchronous",
@@ -118,10 +119,10 @@ class TeamResult:
     consensus
         Whether consensus ran.
     health
-        Sensor health (:meth:`~teamslam.msckf.health.SensorHealth.summary`): ``team`` over
+        Sensor health (:meth:`~teamslam.msckf.settings.health.SensorHealth.summary`): ``team`` over
         every robot, ``robots`` per robot.
     sensor_health
-        Per robot :meth:`~teamslam.msckf.health.SensorHealth.to_json`, to combine results
+        Per robot :meth:`~teamslam.msckf.settings.health.SensorHealth.to_json`, to combine results
         computed apart (:func:`merge_results`).
     robots
         The robots' ids (default: ``0 … n − 1``).
@@ -340,7 +341,8 @@ class RobotDriver:
         return None if tracker is None else tracker.hypotheses().tolist()
 
     def association(self) -> dict:
-        """:meth:`~teamslam.msckf.protocol.ConsensusProtocol.association_summary` (empty without
+        """:meth:`~teamslam.msckf.consensus.protocol.ConsensusProtocol.association_summary` (empty
+        without
         a protocol)."""
         return {} if self.protocol is None else self.protocol.association_summary()
 
@@ -622,7 +624,7 @@ def run_team(
         The team's data.
     config
         Filter settings, one for the team or one per robot (default:
-        :func:`~teamslam.msckf.settings.resolve_config` — the dataset's sensor model, or a
+        :func:`~teamslam.msckf.configure.resolve_config` — the dataset's sensor model, or a
         calibration from the data when it has none).
     graph
         Communication graph (default: complete).
@@ -641,7 +643,7 @@ def run_team(
         A filter failed (an :class:`~teamslam.errors.EstimationError` naming robot and frame);
         its ``result`` holds the frames done.
     """
-    from teamslam.msckf.settings import team_configs  # settings calibrate with a team run
+    from teamslam.msckf.configure import team_configs  # settings calibrate with a team run
 
     n = dataset.n_robots
     configs = team_configs(dataset, config)

@@ -76,7 +76,7 @@ def write_mcap(
     """Write the estimates of one or more runs (``{topic prefix: robots}``) to ``out``.
 
     ``associations``: per topic prefix, per robot the run's per-link association (``pairs`` of
-    own and neighbour ids, :meth:`~teamslam.msckf.protocol.ConsensusProtocol.
+    own and neighbour ids, :meth:`~teamslam.msckf.consensus.protocol.ConsensusProtocol.
     association_summary`), drawn as lines on ``<prefix>/association``.
 
     Returns a summary: messages per topic, bytes, seconds.

@@ -286,7 +286,7 @@ class Ros2Publisher:
 
     def publish(self, frame: int, poses: np.ndarray, state) -> None:
         """Publish frame ``frame``: ``poses`` are the filtered poses of frames ``0..frame``,
-        ``state`` the robot's :class:`~teamslam.msckf.state.MsckfState` (its map)."""
+        ``state`` the robot's :class:`~teamslam.msckf.filter.state.MsckfState` (its map)."""
         with self._lock:
             stamp = int(self.stamps_ns[frame])
             last = frame == len(self.stamps_ns) - 1

@@ -1,8 +1,9 @@
 """Robots as processes: the wire format, the team file, a Zenoh transport and team launch.
 
 This layer sits above :mod:`teamslam.msckf`: it implements the
-:class:`~teamslam.msckf.transport.Transport` over a network and drives the consensus protocol
-(:class:`~teamslam.msckf.protocol.ConsensusProtocol`) in one process per robot.
+:class:`~teamslam.msckf.consensus.transport.Transport` over a network and drives the consensus
+protocol
+(:class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`) in one process per robot.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ through a :class:`~teamslam.runtime.zenoh_transport.ZenohTransport`:
 
 Each frame is :meth:`teamslam.msckf.team.RobotDriver.frame` — the per-frame code of every run
 (in-process team, centralised filter): what is sent, what is accepted, the weights and the
-average are :class:`~teamslam.msckf.protocol.ConsensusProtocol`, the waiting and the
+average are :class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`, the waiting and the
 lost-neighbour bookkeeping the driver's. This module adds the robot's settings (the team file's
 ``filter`` over the dataset's sensor model; ground truth for the ``ideal`` linearisation, as in
 the in-process run), checkpoints and result files. The result (trajectory, covariances, map
@@ -39,9 +39,11 @@ import numpy as np
 from teamslam.datasets import SensorModel, TeamDataset, load_dataset
 from teamslam.errors import EstimationError, InputError, OutputError
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.linearization import GroundTruth, linearization_policy
-from teamslam.msckf.settings import ConfigError, resolve_config
+from teamslam.msckf.configure import resolve_config
+from teamslam.msckf.consensus.transport import Transport
+from teamslam.msckf.filter.linearization import GroundTruth, linearization_policy
+from teamslam.msckf.settings.sources import ConfigError
+from teamslam.msckf.settings.values import MsckfConfig
 from teamslam.msckf.team import (
     ARRAYS,
     Asynchronous,
@@ -52,7 +54,6 @@ from teamslam.msckf.team import (
     save_result,
     write_atomic,
 )
-from teamslam.msckf.transport import Transport
 from teamslam.runtime.team_file import TeamFile
 
 __all__ = ["load_robot_result", "robot_setup", "run_agent"]
@@ -100,7 +101,7 @@ def robot_setup(
     ------
     InputError
         The dataset has no such robot, or the settings are wrong (a
-        :class:`~teamslam.msckf.settings.ConfigError`): a configuration error.
+        :class:`~teamslam.msckf.settings.sources.ConfigError`): a configuration error.
     """
     dataset_path, index = team.dataset_of(robot)
     dataset = load_dataset(dataset_path)

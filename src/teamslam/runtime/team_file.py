@@ -44,7 +44,8 @@ router, multicast scouting off so it runs on closed networks). The consensus wei
 fixed by the file: at each step they are the Metropolis–Hastings weights of the links that
 worked, ``A_ij = 1 / (1 + max(d_i, d_j))`` with ``d_i`` the neighbours robot ``i`` heard that
 step (its degree travels in its marginals), as in the in-process run
-(:class:`~teamslam.msckf.protocol.ConsensusProtocol`, :func:`teamslam.graph.metropolis_weight`).
+(:class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`,
+:func:`teamslam.graph.metropolis_weight`).
 Loading validates everything and names the first problem; the ``filter`` settings are checked
 for every robot again before a launch (:func:`teamslam.api.launch`).
 """
@@ -58,7 +59,7 @@ import numpy as np
 import yaml
 
 from teamslam.errors import InputError
-from teamslam.msckf.settings import ConfigError, coerce_settings
+from teamslam.msckf.settings.sources import ConfigError, coerce_settings
 from teamslam.runtime.security import RobotCredentials, SecuritySection
 from teamslam.textio import read_yaml
 

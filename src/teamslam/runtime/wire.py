@@ -58,7 +58,7 @@ import numpy as np
 
 from teamslam.association.summary import ObjectSummary
 from teamslam.errors import InputError
-from teamslam.msckf.messages import (
+from teamslam.msckf.consensus.messages import (
     CommonMarginalMessage,
     MapIdsMessage,
     Message,

@@ -34,8 +34,8 @@ from collections import defaultdict
 
 import numpy as np
 
-from teamslam.msckf.messages import MapIdsMessage, Message
-from teamslam.msckf.transport import Mailbox
+from teamslam.msckf.consensus.messages import MapIdsMessage, Message
+from teamslam.msckf.consensus.transport import Mailbox
 from teamslam.runtime.team_file import TeamFile
 from teamslam.runtime.wire import WireError, decode, encode, team_id
 
@@ -58,7 +58,7 @@ def _key_sender(key_expr) -> int | None:
 
 
 class ZenohTransport:
-    """A :class:`~teamslam.msckf.transport.Transport` over a Zenoh peer session.
+    """A :class:`~teamslam.msckf.consensus.transport.Transport` over a Zenoh peer session.
 
     Parameters
     ----------
@@ -249,7 +249,7 @@ class ZenohTransport:
         timeout: float,
         also: set[int] | frozenset[int] = frozenset(),
     ) -> list[Message]:
-        """See :meth:`teamslam.msckf.transport.Transport.collect`.
+        """See :meth:`teamslam.msckf.consensus.transport.Transport.collect`.
 
         A sender from which a message of a later step has already arrived is not waited for:
         links deliver in order, so it has moved on (a robot that resumed behind its team
@@ -264,7 +264,7 @@ class ZenohTransport:
         )
 
     def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
-        """See :meth:`teamslam.msckf.transport.Transport.newest`."""
+        """See :meth:`teamslam.msckf.consensus.transport.Transport.newest`."""
         return self._mailbox.newest(kind, senders, max_age, step)
 
     def statistics(self) -> dict:

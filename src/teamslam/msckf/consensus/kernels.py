@@ -9,18 +9,18 @@ replaces (element by element the same floating-point operations, no reassociatio
 * :func:`symmetric_block` — the symmetric part of the sender's joint covariance of the objects
   it sends, gathered in one pass (the matrix it inverts for the message);
 * :func:`checked_symmetric_part` — the receiver's finiteness and symmetry checks of a joint
-  marginal and its symmetric part (:func:`~teamslam.msckf.consensus_checks.receive_marginal`);
+  marginal and its symmetric part (:func:`~teamslam.msckf.consensus.checks.receive_marginal`);
 * :func:`single_rounding` — a sender's marginal in information form rounded to single
   precision with the estimate of what that costs (:func:`rounding_bound`, which is
-  :func:`~teamslam.msckf.consensus_messages.information_rounding_bound`; its two sums of
+  :func:`~teamslam.msckf.consensus.marginals.information_rounding_bound`; its two sums of
   squares are added in another order than numpy's, so the estimate may differ in its last
-  bits — it decides against a threshold, :data:`~teamslam.msckf.consensus_messages.
+  bits — it decides against a threshold, :data:`~teamslam.msckf.consensus.marginals.
   FLOAT32_MAX_KL`, that it is never that close to);
 * :func:`merged_record` — what a robot remembers of an exchange with a neighbour (its own
   per-object marginals as they were), the record of the objects just exchanged merged into the
-  one kept from before (:class:`~teamslam.msckf.protocol.ConsensusProtocol`);
+  one kept from before (:class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`);
 * :func:`encoded_ids_bytes` and :func:`all_single` — what a message takes on a wire
-  (:meth:`~teamslam.msckf.messages.CommonMarginalMessage.nbytes`): the length of its ids'
+  (:meth:`~teamslam.msckf.consensus.messages.CommonMarginalMessage.nbytes`): the length of its ids'
   varints, counted without writing them, and whether every number is exactly a float32.
 """
 
@@ -96,7 +96,7 @@ def rounding_bound(
     mean_rounded: np.ndarray,
     info_rounded: np.ndarray,
 ) -> float:
-    """:func:`~teamslam.msckf.consensus_messages.information_rounding_bound` in one pass."""
+    """:func:`~teamslam.msckf.consensus.marginals.information_rounding_bound` in one pass."""
     d = mean.size
     std = np.empty(d)
     for i in range(d):
@@ -154,7 +154,8 @@ def _varint_length(value: np.uint64) -> int:
 
 @numba.njit(cache=True)
 def encoded_ids_bytes(ids: np.ndarray) -> int:
-    """Length of :func:`~teamslam.msckf.messages.encode_ids` of ``int64`` ids, or ``-1`` when
+    """Length of :func:`~teamslam.msckf.consensus.messages.encode_ids` of ``int64`` ids, or ``-1``
+    when
     they are not strictly increasing: the first id zigzag-coded, then the differences (taken
     as unsigned, exact over the whole 64-bit range)."""
     if ids.size == 0:

@@ -18,14 +18,14 @@ import numpy as np
 from scipy.linalg import lapack
 
 from teamslam.gaussian import NotPositiveDefiniteError, spd_inverse
-from teamslam.msckf.consensus_kernels import (
+from teamslam.msckf.consensus.kernels import (
     FINITE,
     NON_FINITE,
     NOT_SYMMETRIC,
     checked_symmetric_part,
 )
-from teamslam.msckf.messages import CommonMarginalMessage, MapIdsMessage
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.filter.state import MsckfState
 
 __all__ = [
     "ReceivedMarginal",
@@ -54,8 +54,9 @@ def check_message(
     message
         What arrived.
     kind
-        What this round expects: :class:`~teamslam.msckf.messages.MapIdsMessage` (round 1) or
-        :class:`~teamslam.msckf.messages.CommonMarginalMessage` (round 2).
+        What this round expects: :class:`~teamslam.msckf.consensus.messages.MapIdsMessage` (round
+        1) or
+        :class:`~teamslam.msckf.consensus.messages.CommonMarginalMessage` (round 2).
     step, max_age
         The current step and the oldest one accepted (``step − max_age``).
     robot, neighbours

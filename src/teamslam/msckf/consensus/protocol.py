@@ -3,7 +3,7 @@
 :class:`ConsensusProtocol` decides what a robot sends, how it answers and how it averages; the
 two drivers — the in-process team runner (:func:`teamslam.msckf.team.run_team`) and the robot
 process (:func:`teamslam.runtime.agent_process.run_agent`) — only schedule it and move its
-messages through a :class:`~teamslam.msckf.transport.Transport`. One step is::
+messages through a :class:`~teamslam.msckf.consensus.transport.Transport`. One step is::
 
     transport.send(*protocol.requests(t, neighbours))          # round 1: my map ids
     for reply in protocol.answer(t, <ids messages heard>):     # round 2: our common marginal
@@ -34,7 +34,7 @@ moved at that threshold only while the robot's window can still change it — ob
 window or correlated with its poses — and otherwise only beyond
 ``consensus_inactive_kl_threshold`` — unless the pair averaged it in the previous exchange:
 an average once started runs until the pair agrees — so the joint a pair averages follows what
-the robots see now, not everything they mapped (:mod:`teamslam.msckf.consensus_set`); the
+the robots see now, not everything they mapped (:mod:`teamslam.msckf.consensus.selection`); the
 round-1 flags carry the result, so the wire is unchanged.
 
 **Hybrid consensus** (``consensus_hybrid``, lock-step only): the new information each robot
@@ -57,11 +57,12 @@ the objects that still moved. With hybrid consensus or increments the prior is r
 every exchange, so each increment is sent — at the gain ``1 + d_j`` — in the first exchange after
 it was gathered and only inside priors afterwards: the later exchanges of a step are eq. 42 on
 the priors, a convex combination, and the condition stays ``A_ij γ_j ≤ 1`` for any ``L``
-(:mod:`teamslam.msckf.consensus_average`). The counters ``objects_averaged``,
+(:mod:`teamslam.msckf.consensus.average`). The counters ``objects_averaged``,
 ``hybrid_fallbacks`` and ``links_lost`` count per exchange, ``objects_inactive`` per step.
 
 Only objects in the filter state take part: objects retired to the persistent map
-(``object_retire_after``, :mod:`teamslam.msckf.persistent_map`) are neither announced, sent nor
+(``object_retire_after``, :mod:`teamslam.msckf.filter.persistent_map`) are neither announced, sent
+nor
 averaged until they are observed again and re-enter the state.
 
 **Objects without shared ids** (``association = own``). Each robot names its own objects; each
@@ -81,7 +82,7 @@ this step's average and revoked for good. With oracle ids the same test runs onl
 ``consensus_innovation_check`` is set (objects that fail are left out of that step's average).
 
 Every received message is checked once, by one function
-(:func:`~teamslam.msckf.consensus_checks.check_message`): kind, step (``step − max_age ≤ s ≤
+(:func:`~teamslam.msckf.consensus.checks.check_message`): kind, step (``step − max_age ≤ s ≤
 step``), a sender that is a neighbour, and for a marginal the ids, sizes, finiteness and one
 Cholesky factorisation (of the information matrix a joint marginal carries, or of a covariance,
 which it then inverts). Joint marginals are sent in information form: the sender keeps the
@@ -96,6 +97,7 @@ import time
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import replace
+from typing import Protocol
 
 import numpy as np
 
@@ -109,27 +111,42 @@ from teamslam.association import (
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError, kl_divergence, spd_inverse
 from teamslam.graph import metropolis_weight
-from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.consensus import (
+from teamslam.msckf.consensus.average import (
     SharedPrior,
-    common_marginal_message,
     consensus_average,
     hybrid_marginal,
-    object_marginals,
     prior_information,
     shared_prior,
 )
-from teamslam.msckf.consensus_checks import ReceivedMarginal, check_message
-from teamslam.msckf.consensus_kernels import merged_record
-from teamslam.msckf.consensus_set import active_objects, settling_thresholds
-from teamslam.msckf.messages import (
+from teamslam.msckf.consensus.checks import ReceivedMarginal, check_message
+from teamslam.msckf.consensus.kernels import merged_record
+from teamslam.msckf.consensus.marginals import common_marginal_message, object_marginals
+from teamslam.msckf.consensus.messages import (
     CommonMarginalMessage,
     MapIdsMessage,
     Message,
     summary_wire_bytes,
 )
+from teamslam.msckf.consensus.selection import active_objects, settling_thresholds
+from teamslam.msckf.filter.state import MsckfState
+from teamslam.msckf.filter.views import ObjectViews
+from teamslam.msckf.settings.values import MsckfConfig
 
 __all__ = ["ConsensusProtocol"]
+
+
+class ConsensusMember(Protocol):
+    """What consensus needs of a robot's filter (:class:`~teamslam.msckf.agent.MsckfAgent` is
+    one): its state, settings, index and views, and where rejections and times are counted."""
+
+    robot: int
+    state: MsckfState
+    config: MsckfConfig
+    views: ObjectViews
+    counters: dict[str, int]
+    timings: dict[str, float]
+
+    def reject(self, what: str, count: int = 1, reason: str = "") -> None: ...
 
 
 class ConsensusProtocol:
@@ -151,7 +168,7 @@ class ConsensusProtocol:
 
     def __init__(
         self,
-        agent: MsckfAgent,
+        agent: ConsensusMember,
         neighbours: Iterable[int],
         max_age: int = 0,
         kl_threshold: float | None = None,
@@ -166,7 +183,7 @@ class ConsensusProtocol:
         # asynchronous exchanges mix steps: there every common object is averaged
         self.kl_threshold = float(threshold) if self.max_age == 0 else 0.0
         # a bounded consensus set (lock-step only): inactive objects are flagged only when they
-        # moved by more than their own threshold (:mod:`teamslam.msckf.consensus_set`)
+        # moved by more than their own threshold (:mod:`teamslam.msckf.consensus.selection`)
         config = agent.config
         self.bounded = config.consensus_set == "active" and self.max_age == 0
         self._thresholds: np.ndarray | None = None
@@ -240,7 +257,7 @@ class ConsensusProtocol:
             raise named from exc
 
     def _check(self, message: object, kind: type, taken: dict, heard: set | None = None):
-        """The message's usable content (:func:`~teamslam.msckf.consensus_checks.check_message`),
+        """The message's usable content (:func:`~teamslam.msckf.consensus.checks.check_message`),
         or ``None``: ignored (a second message of a sender in ``taken``) or rejected (counted on
         the agent with its reason)."""
         problem, usable = check_message(

@@ -17,7 +17,7 @@ from typing import TypeVar
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-__all__ = ["chi2_band", "default_workers", "run_parallel"]
+__all__ = ["default_workers", "init_worker", "run_parallel"]
 
 T = TypeVar("T")
 
@@ -30,7 +30,7 @@ def default_workers() -> int:
         return os.cpu_count() or 1
 
 
-def _init_worker() -> None:
+def init_worker() -> None:
     threadpool_limits(1)
 
 
@@ -66,22 +66,10 @@ def run_parallel(
                     bar.update()
             return results
         chunk = max(1, len(seeds) // (4 * workers))
-        with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
+        with ProcessPoolExecutor(max_workers=workers, initializer=init_worker) as pool:
             for result in pool.map(job, seeds, chunksize=chunk):
                 results.append(result)
                 bar.update()
         return results
     finally:
         bar.close()
-
-
-def chi2_band(dof: int, samples: int, probability: float = 0.95) -> tuple[float, float]:
-    """Two-sided band of the *average NEES normalised by dof* over ``samples`` samples.
-
-    ``samples · dof · NEES`` is χ²(samples · dof) for a consistent filter.
-    """
-    from scipy import stats
-
-    total = samples * dof
-    lo, hi = stats.chi2.ppf([(1 - probability) / 2, (1 + probability) / 2], total)
-    return float(lo / total), float(hi / total)

@@ -5,7 +5,7 @@
   covers ``C_ij ⊆ y`` and is completed with ``i``'s own conditional ``p_i(y∖C_ij | C_ij)``
   (Prop. 2) — :func:`teamslam.gaussian.completed_geometric_average` — then the joint is rebuilt
   with Prop. 2 and the window poses corrected with ``exp`` (eq. 21) by
-  :meth:`~teamslam.msckf.state.MsckfState.replace_marginal`;
+  :meth:`~teamslam.msckf.filter.state.MsckfState.replace_marginal`;
 * :func:`shared_prior`, :func:`prior_information`, :func:`new_information` and
   :func:`hybrid_marginal` — the optional hybrid weighting (``consensus_hybrid``), below.
 
@@ -124,10 +124,10 @@ from teamslam.gaussian import (
     completed_geometric_average,
     spd_inverse,
 )
-from teamslam.msckf.consensus_checks import ReceivedMarginal, receive_marginal
-from teamslam.msckf.consensus_kernels import symmetric_block
-from teamslam.msckf.messages import CommonMarginalMessage
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.consensus.checks import ReceivedMarginal, receive_marginal
+from teamslam.msckf.consensus.kernels import symmetric_block
+from teamslam.msckf.consensus.messages import CommonMarginalMessage
+from teamslam.msckf.filter.state import MsckfState
 
 __all__ = [
     "IncrementTerm",

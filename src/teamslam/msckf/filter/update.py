@@ -18,8 +18,8 @@ import scipy.linalg
 
 from teamslam.errors import EstimationError, InternalError
 from teamslam.geometry.camera import StereoCamera
-from teamslam.msckf.kernels import gauss_newton_points
-from teamslam.msckf.models import points_in_camera
+from teamslam.msckf.filter.kernels import gauss_newton_points
+from teamslam.msckf.filter.models import points_in_camera
 
 __all__ = [
     "MeasurementRows",

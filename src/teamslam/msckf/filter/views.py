@@ -6,8 +6,8 @@ can. :class:`ObjectViews` keeps, per object, the sum of the unit directions from
 the camera over the frames it was observed, and their count; :meth:`ObjectViews.of` gives their
 mean — the :attr:`~teamslam.association.summary.ObjectSummary.views` of a summary. The robot
 records them once per frame (:meth:`ObjectViews.record`); the summaries it sends to its
-neighbours (:mod:`teamslam.msckf.protocol`) and those its own loop closure compares
-(:mod:`teamslam.msckf.loop_closure`) read the same record.
+neighbours (:mod:`teamslam.msckf.consensus.protocol`) and those its own loop closure compares
+(:mod:`teamslam.msckf.objects.loop_closure`) read the same record.
 """
 
 from __future__ import annotations

@@ -3,15 +3,17 @@
 The 3D counterpart of :mod:`teamslam.ekf2d.observability` (FEJ multi-robot EKF paper, §3,
 eq. 13). State: the current pose of each of ``R`` robots (right perturbation, 6 each) and ``m``
 object landmarks (3 each); odometry propagates each pose (``Φ = Ad(δ⁻¹)``,
-:meth:`~teamslam.msckf.state.MsckfState.augment`) and every robot observes objects by stereo
-(:func:`~teamslam.msckf.models.observe_jacobians`). The local observability matrix over frames
+:meth:`~teamslam.msckf.filter.state.MsckfState.augment`) and every robot observes objects by stereo
+(:func:`~teamslam.msckf.filter.models.observe_jacobians`). The local observability matrix over
+frames
 ``0 … K``
 
     M = [ H_0 ; H_1 Φ_0 ; … ; H_K Φ_{K−1} ⋯ Φ_0 ]
 
 has, for the true system, a 6-dimensional nullspace: a rigid motion of the whole world
-(:func:`~teamslam.msckf.linearization.unobservable_directions`). Which Jacobians enter ``M``
-is decided by the filter's :class:`~teamslam.msckf.linearization.LinearizationPolicy` — the very
+(:func:`~teamslam.msckf.filter.linearization.unobservable_directions`). Which Jacobians enter ``M``
+is decided by the filter's :class:`~teamslam.msckf.filter.linearization.LinearizationPolicy` — the
+very
 objects the filter uses — fed with the values a filter has at each frame: the propagated pose
 ``T̂_{k|k−1}`` (the first estimate of pose ``k``), the updated pose ``T̂_{k|k}``, the measured
 odometry, and an object estimate that each frame's update moves. :func:`estimates_like_a_filter`
@@ -32,8 +34,8 @@ import numpy as np
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
 from teamslam.linalg import nullspace, rank
-from teamslam.msckf.linearization import LinearizationPolicy, unobservable_directions
-from teamslam.msckf.models import observe_jacobians
+from teamslam.msckf.filter.linearization import LinearizationPolicy, unobservable_directions
+from teamslam.msckf.filter.models import observe_jacobians
 
 __all__ = [
     "FilterValues",

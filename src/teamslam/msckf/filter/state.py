@@ -6,13 +6,13 @@ object landmark. One joint covariance covers it all, and **every covariance edit
 this class**: :meth:`augment` (propagation, eqs. 22–23), :meth:`marginalize_oldest`,
 :meth:`add_object` (initialisation, eq. 30), :meth:`update` (eqs. 26–28) and
 :meth:`replace_marginal` (consensus, Prop. 2 / eq. 21), :meth:`retire_objects` and
-:meth:`reenter_objects` (the persistent map, :mod:`teamslam.msckf.persistent_map`). With
+:meth:`reenter_objects` (the persistent map, :mod:`teamslam.msckf.filter.persistent_map`). With
 ``debug=True`` each edit checks that the covariance stays symmetric positive definite.
 
 Callers reach the layout through **handles** (OpenVINS' ``Type``): :meth:`MsckfState.pose`
 and :meth:`MsckfState.object` give :class:`PoseHandle` and :class:`ObjectHandle`, which know
 their window positions or map slots and their error-state columns; measurement Jacobians are
-built compact over those columns (:class:`~teamslam.msckf.update.MeasurementRows`, OpenVINS'
+built compact over those columns (:class:`~teamslam.msckf.filter.update.MeasurementRows`, OpenVINS'
 ``H_order``) and :meth:`MsckfState.update` takes the column list. ``cov`` is a read-only view;
 :meth:`MsckfState.covariance` gives the block of some columns or handles. A measurement that is
 not finite is refused before any edit (:class:`~teamslam.errors.EstimationError` naming robot
@@ -20,7 +20,7 @@ and frame).
 
 The state also keeps each window pose's and each object's **first estimate** (the pose as it
 entered the window, the object as it was initialised) for first-estimate Jacobians
-(:mod:`teamslam.msckf.linearization`); consensus and updates never change it.
+(:mod:`teamslam.msckf.filter.linearization`); consensus and updates never change it.
 
 One state can hold the windows of several robots (the centralised filter,
 :mod:`teamslam.msckf.centralised`): poses are kept sorted by robot, then frame, and
@@ -39,8 +39,8 @@ import scipy.linalg
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError, replace_marginal_shift
 from teamslam.geometry import se3
-from teamslam.msckf.persistent_map import PersistentMap
-from teamslam.msckf.update import MeasurementRows
+from teamslam.msckf.filter.persistent_map import PersistentMap
+from teamslam.msckf.filter.update import MeasurementRows
 
 __all__ = ["MsckfState", "ObjectHandle", "PoseHandle", "RobotWindow"]
 
@@ -449,7 +449,7 @@ class MsckfState:
             Whose window grows (the new pose goes after that robot's newest pose).
         jacobian_step
             The relative pose at which the Jacobian ``Ad(δ⁻¹)`` is evaluated (default
-            ``odometry``); see :mod:`teamslam.msckf.linearization`.
+            ``odometry``); see :mod:`teamslam.msckf.filter.linearization`.
         """
         odometry = np.asarray(odometry, dtype=float)
         mine = np.flatnonzero(self.robots == robot)
@@ -570,7 +570,7 @@ class MsckfState:
         """Bring retired objects ``ids`` back into the state, observed at ``frame``.
 
         Each comes back with its stored mean, marginal covariance and first estimate and no
-        cross-covariance with the rest of the state (:mod:`teamslam.msckf.persistent_map`).
+        cross-covariance with the rest of the state (:mod:`teamslam.msckf.filter.persistent_map`).
         """
         ids = np.asarray(ids, dtype=np.int64).ravel()
         if ids.size == 0:
@@ -633,7 +633,7 @@ class MsckfState:
         """Kalman update (eqs. 26–28, ``S = 0``) with a Cholesky-factored innovation covariance.
 
         ``jacobian`` is compact over the error-state ``columns`` (increasing; OpenVINS'
-        ``H_order``, e.g. :class:`~teamslam.msckf.update.MeasurementRows`), or full width
+        ``H_order``, e.g. :class:`~teamslam.msckf.filter.update.MeasurementRows`), or full width
         (``columns=None``). Returns the applied correction.
 
         Raises
@@ -674,7 +674,7 @@ class MsckfState:
     ) -> tuple[np.ndarray, int]:
         """Iterated EKF update: Gauss–Newton on the prior and a nonlinear measurement.
 
-        ``rows_at()`` returns the rows — :class:`~teamslam.msckf.update.MeasurementRows`
+        ``rows_at()`` returns the rows — :class:`~teamslam.msckf.filter.update.MeasurementRows`
         (compact over their columns) or ``(H, r, σ²)`` over the whole error state: Jacobian,
         residual ``z − h(x)`` and per-row noise variance — linearised at the state's current
         mean; it must return the same rows (same measurements, same order) every time. With
@@ -758,7 +758,7 @@ class MsckfState:
 
         The error-state mean of every other entry shifts by ``A (μ̄ʸ − μʸ)``; window poses take
         that shift through ``T ← T · exp(δ)`` (eq. 21), other objects additively. First
-        estimates are left as they were (why: :mod:`teamslam.msckf.linearization`). ``info``
+        estimates are left as they were (why: :mod:`teamslam.msckf.filter.linearization`). ``info``
         is the inverse of the block's current covariance when the caller already has it.
         The joint is rebuilt block by block (:func:`~teamslam.gaussian.replace_marginal_shift`).
 

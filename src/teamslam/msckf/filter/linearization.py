@@ -16,7 +16,8 @@ error state, an infinitesimal ``G = exp(ξ^)``, ``ξ = (δt, δθ)`` moves
 
 So the unobservable directions ``N(x)`` depend on the poses and points. With
 ``p_body = Rᵀ(p − t)`` and ``∂z/∂ε = D [−I, p_body^]``, ``∂z/∂p = D Rᵀ`` (``D = ∂z/∂p_body``,
-:mod:`teamslam.msckf.models`), one observation's Jacobian annihilates ``N`` exactly when pose and
+:mod:`teamslam.msckf.filter.models`), one observation's Jacobian annihilates ``N`` exactly when
+pose and
 point in ``N`` are the ones the Jacobian was evaluated at:
 ``D Rᵀ[−(δt + δθ × t) − δθ × (p − t) + δt + δθ × p] = 0``.
 
@@ -33,7 +34,7 @@ at which ``N`` is taken. The local observability matrix ``[H_k; H_{k+1} Φ_k; �
 The standard filter breaks both: it evaluates ``H`` at the current estimate, which each update
 moves, and ``Φ`` at the measured odometry ``δT = T̂_{k|k}⁻¹ T̂_{k+1|k}``, which does not compose to
 the poses it later linearises ``H`` at. The result (shown by
-:mod:`teamslam.msckf.observability`) is a rank increase: the filter treats global rotation
+:mod:`teamslam.msckf.filter.observability`) is a rank increase: the filter treats global rotation
 directions as observable and becomes overconfident.
 
 The first estimates that satisfy 1 and 2 with the values a filter has:

@@ -10,7 +10,8 @@ Two rounds per step:
    prior (its marginal of the same objects right after its last exchange, in information form,
    over the objects it then held), so the receiver can tell the prior from the new information.
 
-Messages are plain data. How they travel is a :class:`~teamslam.msckf.transport.Transport`;
+Messages are plain data. How they travel is a
+:class:`~teamslam.msckf.consensus.transport.Transport`;
 their byte layout on a network is :mod:`teamslam.runtime.wire`, which writes the ids — always
 strictly increasing in a message — as variable-length deltas (:func:`encode_ids`), about one
 byte per id instead of eight.
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teamslam.association.summary import ObjectSummary
-from teamslam.msckf.consensus_kernels import all_single, encoded_ids_bytes
+from teamslam.msckf.consensus.kernels import all_single, encoded_ids_bytes
 
 __all__ = [
     "CommonMarginalMessage",
@@ -83,7 +84,7 @@ def encode_ids(ids: np.ndarray) -> bytes:
 
 def encoded_ids_size(ids: np.ndarray) -> int:
     """``len(encode_ids(ids))`` without building the bytes (one compiled pass,
-    :func:`~teamslam.msckf.consensus_kernels.encoded_ids_bytes`).
+    :func:`~teamslam.msckf.consensus.kernels.encoded_ids_bytes`).
 
     Raises
     ------

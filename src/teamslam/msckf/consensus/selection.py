@@ -25,7 +25,8 @@ a large map cost more than the smaller joint saved (1.22× the paper's consensus
 0.53× without it).
 
 The other common objects (*inactive*) keep their agreement by the cheaper rule of averaging only
-when they change: the protocol's moved flags (:mod:`teamslam.msckf.protocol`) flag an active
+when they change: the protocol's moved flags (:mod:`teamslam.msckf.consensus.protocol`) flag an
+active
 object when its marginal moved by more than ``consensus_kl_threshold`` since the pair last
 exchanged it, and an inactive one only when it moved by more than
 ``consensus_inactive_kl_threshold``. Both ends of a link average the objects flagged by either,
@@ -104,7 +105,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, solve_triangular
 
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.filter.state import MsckfState
 
 __all__ = ["active_objects", "pose_mutual_information", "settling_thresholds"]
 

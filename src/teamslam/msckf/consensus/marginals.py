@@ -1,10 +1,11 @@
 """Consensus, building messages: our marginal of the objects a neighbour asked about.
 
-Round 2 of the protocol (:mod:`teamslam.msckf.protocol`): :func:`common_marginal_message` takes
+Round 2 of the protocol (:mod:`teamslam.msckf.consensus.protocol`): :func:`common_marginal_message`
+takes
 our marginal of the common objects — in information form by default (we invert it anyway for our
 own average, eq. 42; the neighbour then only checks it) — and rounds it to single precision where
 that is safe (:data:`FLOAT32_MAX_KL`, with the divergence estimates below). What a receiver checks
-is :mod:`teamslam.msckf.consensus_checks`; the average, :mod:`teamslam.msckf.consensus_average`.
+is :mod:`teamslam.msckf.consensus.checks`; the average, :mod:`teamslam.msckf.consensus.average`.
 """
 
 from __future__ import annotations
@@ -16,10 +17,10 @@ from scipy.linalg import lapack, solve_triangular
 
 from teamslam.errors import InternalError
 from teamslam.gaussian import spd_inverse
-from teamslam.msckf.consensus_average import SharedPrior, prior_marginal
-from teamslam.msckf.consensus_kernels import rounding_bound, single_rounding, symmetric_block
-from teamslam.msckf.messages import CommonMarginalMessage
-from teamslam.msckf.state import MsckfState
+from teamslam.msckf.consensus.average import SharedPrior, prior_marginal
+from teamslam.msckf.consensus.kernels import rounding_bound, single_rounding, symmetric_block
+from teamslam.msckf.consensus.messages import CommonMarginalMessage
+from teamslam.msckf.filter.state import MsckfState
 
 __all__ = [
     "FLOAT32_MAX_KL",
@@ -196,7 +197,7 @@ def information_rounding_bound(
     ``F = D ΔΩ D``, so ``‖E‖_F ≤ ‖C‖₂ ‖F‖_F``, and ``Δμᵀ Ω Δμ ≤ ‖D Ω D‖₂ ‖D⁻¹ Δμ‖²``; for a
     symmetric matrix ``‖·‖₂ ≤ ‖·‖₁`` (the largest column sum of absolute values). Scaling by
     ``D`` first keeps the estimate independent of units and of how differently the objects
-    are known. One compiled pass (:func:`~teamslam.msckf.consensus_kernels.rounding_bound`).
+    are known. One compiled pass (:func:`~teamslam.msckf.consensus.kernels.rounding_bound`).
     """
     as_array = np.ascontiguousarray
     return float(

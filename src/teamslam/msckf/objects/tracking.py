@@ -6,7 +6,8 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
 
 1. **Predict** every target into the current stereo pair: the objects in the filter state
    (their joint covariance with the current pose), the objects of the persistent map
-   (:mod:`teamslam.msckf.persistent_map`; their 3×3 marginal and the current pose's covariance)
+   (:mod:`teamslam.msckf.filter.persistent_map`; their 3×3 marginal and the current pose's
+   covariance)
    and every track of the tracker itself (a stereo-triangulated point with its covariance, and
    the odometry noise of the frames since its last detection).
 2. **Gate** each (target, detection) pair with the filter's own innovation covariance
@@ -56,7 +57,7 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    gate is the filter's own: the rule is only as right as the filter's covariance after the
    drive away and back (:attr:`ObjectTracker.revisits` records every re-identification).
 
-6. **Loop closure** (``track_loop_closure``, :mod:`teamslam.msckf.loop_closure`). Before the
+6. **Loop closure** (``track_loop_closure``, :mod:`teamslam.msckf.objects.loop_closure`). Before the
    prediction, the objects the tracker created last are matched, by the shape of the group,
    against the robot's objects unseen for longer than the window, with the robot's views of
    them (``views``: a group turned over is refused, as is one turned further than the robot's
@@ -68,7 +69,7 @@ Only tentative tracks hold detections the filter has not seen: a false detection
 other detection confirms never reaches the filter state. Everything per frame is batched over
 targets and detections; the prediction of the targets (Jacobians, ``S``) and the gate (one
 Cholesky factorisation per target, a forward substitution per pair) are compiled loops
-(numba), the same arithmetic as :func:`~teamslam.msckf.models.observe_jacobians` and batched
+(numba), the same arithmetic as :func:`~teamslam.msckf.filter.models.observe_jacobians` and batched
 products to rounding; the tracks are kept as arrays.
 """
 
@@ -81,11 +82,12 @@ import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from teamslam.gaussian import chi2_quantile
 from teamslam.geometry.camera import StereoCamera, in_image
-from teamslam.msckf.config import MsckfConfig
-from teamslam.msckf.loop_closure import LoopClosure
-from teamslam.msckf.models import observe_jacobians, points_in_camera
-from teamslam.msckf.update import stereo_point
+from teamslam.msckf.filter.models import observe_jacobians, points_in_camera
+from teamslam.msckf.filter.update import stereo_point
+from teamslam.msckf.objects.loop_closure import LoopClosure
+from teamslam.msckf.settings.values import MsckfConfig
 
 __all__ = ["ObjectTracker", "TrackerFrame", "track_id_base"]
 
@@ -131,7 +133,7 @@ class ObjectTracker:
         The filter settings (noise, gate, depth range, ``track_*`` settings).
     views
         ``callable(ids) -> (n, 3)``: from where the robot's cameras saw each object
-        (:meth:`ObjectViews.of <teamslam.msckf.views.ObjectViews.of>`), for loop closure to
+        (:meth:`ObjectViews.of <teamslam.msckf.filter.views.ObjectViews.of>`), for loop closure to
         refuse the mirror image of a group; ``None``: no views (zeros).
     """
 
@@ -152,13 +154,13 @@ class ObjectTracker:
         self.config = config
         self.hits_needed = config.track_confirm_hits or config.object_init_observations
         self.frames_allowed = config.track_confirm_frames or self.hits_needed + 2
-        self.gate = float(_chi2(config.track_gate_probability, 4))
+        self.gate = chi2_quantile(config.track_gate_probability, 4)
         # the rig for the compiled prediction: T_cam_body, K, T_left_right stacked (3 × 4 × 4)
         self._camera_block = np.zeros((3, 4, 4))
         self._camera_block[0] = T_cam_body
         self._camera_block[1, :3, :3] = camera.intrinsics
         self._camera_block[2] = camera.T_left_right
-        self.birth_gate = float(_chi2(config.track_birth_probability, 4))
+        self.birth_gate = chi2_quantile(config.track_birth_probability, 4)
         # a target no deeper than this is behind the camera (not predicted)
         self._min_depth = max(config.object_min_depth, 1e-3 * camera.baseline) * 0.5
         self.next_id = track_id_base(robot)
@@ -200,7 +202,7 @@ class ObjectTracker:
         # every id the tracker created (confirmed) and the frame of its first detection
         self._created_ids: list[int] = []
         self._created_frames: list[int] = []
-        #: loop closure in the robot's own map (:mod:`teamslam.msckf.loop_closure`), or None
+        #: loop closure in the robot's own map (:mod:`teamslam.msckf.objects.loop_closure`), or None
         self.loop: LoopClosure | None = (
             LoopClosure(gap=config.window) if config.track_loop_closure else None
         )
@@ -225,7 +227,8 @@ class ObjectTracker:
         z, classes
             The detections and their class labels (``None``: no classes).
         state
-            The robot's filter state (:class:`~teamslam.msckf.state.MsckfState` or its window).
+            The robot's filter state (:class:`~teamslam.msckf.filter.state.MsckfState` or its
+            window).
         odometry_cov
             ``W``, the odometry noise per frame (6×6).
         """
@@ -692,7 +695,8 @@ def _take_unambiguous(pairs: np.ndarray, assigned: np.ndarray) -> np.ndarray:
 def _predict_targets(pose, rig, points, p, min_depth, noise_var):
     """Every target's stereo prediction, ``S = H P Hᵀ + σ² I`` (symmetrised), ``∂z/∂p`` and
     whether it is in front of the camera (deeper than ``min_depth``), one target at a time:
-    the arithmetic of :func:`~teamslam.msckf.models.observe_jacobians` and the batched products
+    the arithmetic of :func:`~teamslam.msckf.filter.models.observe_jacobians` and the batched
+    products
     it replaces, without their per-call overhead on a few dozen targets. A target behind the
     camera is evaluated 10 m ahead of the body instead (no projection: harmless, never gated)."""
     n = points.shape[0]
@@ -819,9 +823,3 @@ def _squared_distances(s, pred, z):
                 total += y[a] * y[a]
             out[t, j] = total
     return out
-
-
-def _chi2(probability: float, dof: int) -> float:
-    from scipy import stats
-
-    return float(stats.chi2.ppf(probability, dof))

@@ -2,7 +2,8 @@
 
 An agent never reaches into another agent: everything it learns about a neighbour arrives as a
 message through its own :class:`Transport` endpoint. The operations are those a robot needs to
-run the consensus protocol (:mod:`teamslam.msckf.protocol`) in lock-step or asynchronously:
+run the consensus protocol (:mod:`teamslam.msckf.consensus.protocol`) in lock-step or
+asynchronously:
 send a message, wait for one message of a kind and step from each of a set of neighbours
 (:meth:`Transport.collect`), take each neighbour's newest message (:meth:`Transport.newest`),
 and wait for the neighbours to come up.
@@ -24,7 +25,7 @@ from typing import Protocol
 import numpy as np
 
 from teamslam.errors import InputError
-from teamslam.msckf.messages import Message
+from teamslam.msckf.consensus.messages import Message
 
 __all__ = ["Mailbox", "MemoryNetwork", "MemoryTransport", "Transport"]
 

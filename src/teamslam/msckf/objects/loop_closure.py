@@ -1,6 +1,7 @@
 """Loop closure in a robot's own object map: a revisit re-identified by the shape of a group.
 
-A robot that tracks its own detections (:mod:`teamslam.msckf.tracking`) and drives away and back
+A robot that tracks its own detections (:mod:`teamslam.msckf.objects.tracking`) and drives away and
+back
 often maps a revisited object a second time: after the drive its filter's estimate of the old
 object is off by the drift, and a single object's gate test at its first detection is mostly
 wrong (the filter is overconfident exactly there). The *shape* of a group of objects survives
@@ -20,7 +21,7 @@ It never guesses: fewer than ``min_inliers`` pairs, or a rival consistent set ne
 (:class:`~teamslam.association.AssociationSettings`; every threshold is a χ² quantile, a ratio
 or a count).
 
-Both summaries carry the robot's **views** of its objects (:class:`~teamslam.msckf.views.
+Both summaries carry the robot's **views** of its objects (:class:`~teamslam.msckf.filter.views.
 ObjectViews`: the mean direction from each object to the cameras that saw it), so a consistent
 set whose transform turns the group over — matches it with the mirror image of another, the
 cameras of one then below the plane — is neither an answer nor a rival
@@ -51,11 +52,11 @@ corrected.
 
 An old object of the **persistent map** holds only its mean and marginal covariance (its
 correlation with the state was dropped at retirement). It re-enters the state first
-(:meth:`~teamslam.msckf.state.MsckfState.reenter_objects`, no cross-covariance — the same
+(:meth:`~teamslam.msckf.filter.state.MsckfState.reenter_objects`, no cross-covariance — the same
 approximation its re-entry on a re-detection makes) and is then merged in the same update.
 
 The tracker names every later detection of the object ``o`` and relabels ``n``'s earlier
-detections as ``o`` (:meth:`ObjectTracker.hypotheses <teamslam.msckf.tracking.ObjectTracker.
+detections as ``o`` (:meth:`ObjectTracker.hypotheses <teamslam.msckf.objects.tracking.ObjectTracker.
 hypotheses>`), so metrics see one object.
 """
 
@@ -147,7 +148,7 @@ class LoopClosure:
         t
             The current frame.
         state
-            The robot's :class:`~teamslam.msckf.state.MsckfState`.
+            The robot's :class:`~teamslam.msckf.filter.state.MsckfState`.
         created_ids, created_frames
             The ids the tracker created and the frame of each one's first detection (in
             creation order).
@@ -155,7 +156,7 @@ class LoopClosure:
             ``callable(ids) -> classes`` (``-1``: none) or ``None`` without classes.
         views
             ``callable(ids) -> (n, 3)``: the mean direction from each object to the cameras
-            that saw it (:class:`~teamslam.msckf.views.ObjectViews`), or ``None``. With them
+            that saw it (:class:`~teamslam.msckf.filter.views.ObjectViews`), or ``None``. With them
             the association refuses a group matched to the mirror image of another
             (:func:`~teamslam.association.flipped`): in a row of parked cars the shape of the
             group fits a row elsewhere turned over.
@@ -336,7 +337,7 @@ def merge_objects(state, pairs: np.ndarray, frame: int) -> np.ndarray:
     Parameters
     ----------
     state
-        A :class:`~teamslam.msckf.state.MsckfState`.
+        A :class:`~teamslam.msckf.filter.state.MsckfState`.
     pairs
         ``(k, 2)`` ids ``(n, o)``: each ``n`` in the state, each ``o`` in the state or the
         persistent map; all ``2k`` ids distinct.

@@ -2,7 +2,8 @@
 
 Without it the MSCKF keeps every object it ever initialised in its state, so the state
 dimension — and the cost of every update, which is quadratic in it — grows with the length of
-the mission. With ``object_retire_after = N > 0`` (:class:`~teamslam.msckf.config.MsckfConfig`)
+the mission. With ``object_retire_after = N > 0``
+(:class:`~teamslam.msckf.settings.values.MsckfConfig`)
 an object not observed for ``N`` frames **retires**: it leaves the filter state for this map.
 
 **Retirement is exact marginalisation.** The object's mean, its 3×3 marginal covariance and its
@@ -21,7 +22,7 @@ correlations have become through the odometry noise added since, and the less th
 ``N = 0`` never retires anything (the filter of the paper, exactly).
 
 **Consensus and retired objects.** Only objects in the filter state take part in consensus:
-a robot's round-1 map ids are its in-state ids (:class:`~teamslam.msckf.protocol.\
+a robot's round-1 map ids are its in-state ids (:class:`~teamslam.msckf.consensus.protocol.\
 ConsensusProtocol` reads ``state.object_ids``). A retired object is therefore neither sent nor
 averaged: it keeps the marginal it retired with until it re-enters, and then takes part again
 (as an object whose marginal moved, so it is averaged at once with every neighbour that has it

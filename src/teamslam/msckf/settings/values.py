@@ -1,27 +1,21 @@
 """Settings of one robot's distributed MSCKF.
 
 Where a run's settings come from — camera-scaled defaults, the dataset's sensor model,
-calibration, a config file, flags — is decided in :mod:`teamslam.msckf.settings`; this module
+calibration, a config file, flags — is decided in :mod:`teamslam.msckf.settings.sources`; this
+module
 only holds and validates them.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
-from functools import lru_cache
 
 import numpy as np
-from scipy import stats
 
 from teamslam.errors import InputError
+from teamslam.gaussian import chi2_quantile
 
 __all__ = ["MsckfConfig"]
-
-
-@lru_cache(maxsize=1024)
-def _chi2_quantile(probability: float, dof: int) -> float:
-    """The ``probability`` quantile of χ²(``dof``)."""
-    return float(stats.chi2.ppf(probability, dof))
 
 
 def _is_count(value, least: int) -> bool:
@@ -76,7 +70,7 @@ class MsckfConfig:
         the window, or with mutual information above ``consensus_active_information`` with the
         window poses — and the others only when they moved by more than
         ``consensus_inactive_kl_threshold``); lock-step exchanges only;
-        :mod:`teamslam.msckf.consensus_set` derives what it loses.
+        :mod:`teamslam.msckf.consensus.selection` derives what it loses.
     consensus_active_information
         With ``consensus_set = active``: an object not observed within the window is active
         while its mutual information with the window poses exceeds this (nats, unit-free;
@@ -111,7 +105,7 @@ class MsckfConfig:
         our current marginal — so partial maps and partial exchanges no longer dilute it (the
         hybrid rule counts it less than once wherever a message lacks some averaged object).
         Never counts an increment twice on any graph, with link loss and partial maps; joint
-        marginals, lock-step exchanges only; :mod:`teamslam.msckf.consensus_average`.
+        marginals, lock-step exchanges only; :mod:`teamslam.msckf.consensus.average`.
     consensus_iterations
         Consensus exchanges per step (``L``, default 1): both rounds and the average are run
         ``L`` times before each frame, every exchange with its own messages and link losses, so
@@ -120,17 +114,17 @@ class MsckfConfig:
         its gain in the first exchange only (the later ones average the fused estimates, a
         convex combination), so no increment is counted twice for any ``L``. Lock-step only
         (asynchronous robots exchange once per step); every robot of a team must use the same
-        ``L``; :mod:`teamslam.msckf.protocol`.
+        ``L``; :mod:`teamslam.msckf.consensus.protocol`.
     linearization
         Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates)
         ``ideal`` (ground truth, simulation only) or ``oc`` (observability-constrained);
-        :mod:`teamslam.msckf.linearization`.
+        :mod:`teamslam.msckf.filter.linearization`.
     object_retire_after
         Frames an object may go unobserved before it leaves the filter state for the robot's
         persistent map (its mean and 3×3 marginal kept; it re-enters with them when observed
         again): this bounds the state, and so the cost per frame, over a long mission. 0 never
         retires an object (the state keeps every object it initialised). Policy, exactness and
-        what it means for consensus: :mod:`teamslam.msckf.persistent_map`.
+        what it means for consensus: :mod:`teamslam.msckf.filter.persistent_map`.
     debug
         Check the covariance after every edit.
     object_init_max_relative_std
@@ -158,7 +152,8 @@ class MsckfConfig:
         filters markedly more overconfident; on small simulated teams it moved ``fej``'s RMSE
         either way by up to 58%; a KITTI 00 run takes about 3× as long. Off by default.
     track_gate_probability
-        Object tracking (a robot with detections without ids, :mod:`teamslam.msckf.tracking`):
+        Object tracking (a robot with detections without ids,
+        :mod:`teamslam.msckf.objects.tracking`):
         a detection may be assigned to a predicted object or track only when its squared
         Mahalanobis distance under the filter's innovation covariance is at most this quantile
         of χ²(4).
@@ -177,7 +172,8 @@ class MsckfConfig:
         yet in the state is dropped after ``N`` frames without a detection. 0 takes the
         defaults ``M = object_init_observations`` and ``N = M + 2``.
     track_loop_closure
-        Loop closure in each tracking robot's own map (:mod:`teamslam.msckf.loop_closure`): the
+        Loop closure in each tracking robot's own map (:mod:`teamslam.msckf.objects.loop_closure`):
+        the
         objects it created last are matched by the shape of the group against its objects
         unseen for longer than the window (the own association's rules), and each accepted
         pair is merged in the filter (an EKF update with ``x_new − x_old = 0``, then the new
@@ -352,9 +348,9 @@ class MsckfConfig:
         """Chi-square threshold for residuals of ``dof`` entries (each quantile computed once)."""
         dof = np.asarray(dof, dtype=np.int64)
         if dof.ndim == 0:
-            return _chi2_quantile(self.gate_probability, int(dof))
+            return chi2_quantile(self.gate_probability, int(dof))
         values, index = np.unique(dof, return_inverse=True)
-        table = np.array([_chi2_quantile(self.gate_probability, int(d)) for d in values])
+        table = np.array([chi2_quantile(self.gate_probability, int(d)) for d in values])
         return table[index].reshape(dof.shape)
 
     def with_(self, **changes) -> MsckfConfig:
