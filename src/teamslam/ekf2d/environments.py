@@ -123,15 +123,22 @@ def _loop(centre, radius, count, start_angle, direction=1.0, wobble=0.0, rng=Non
 
 
 def _features_along(
-    paths: list[np.ndarray], count: int, spread: float, start: np.ndarray, rng: np.random.Generator
+    paths: list[np.ndarray],
+    count: int,
+    spread: float,
+    first: np.ndarray,
+    rng: np.random.Generator,
+    private_start: float | None = None,
 ) -> np.ndarray:
     """``count`` features near the paths.
 
-    The first two lie near the common start (both robots see them at step 0); the next 18 are
-    spread evenly along the loops, so every step of every robot sees some feature; the rest
-    are scattered at random along the paths. Larger sets therefore extend smaller ones.
+    ``first`` are the first features (those both robots see at step 0); the next 18 are spread
+    evenly along the loops, so every step of every robot sees some feature; the rest are
+    scattered at random along the paths. Larger sets therefore extend smaller ones. With
+    ``private_start`` (a sensing range), no feature after ``first`` lies within that range of
+    both robots' first waypoints (those are left out and others drawn along the paths): at step
+    0 the robots share exactly ``first``.
     """
-    near = start + rng.uniform(-4.0, 4.0, (2, 2))
     even = []
     per_path = 9
     for path in paths:
@@ -140,7 +147,35 @@ def _features_along(
     even = np.concatenate(even)[:18]
     pts = np.concatenate(paths)
     extra = pts[rng.integers(0, len(pts), 80)] + rng.uniform(-spread, spread, (80, 2))
-    return np.vstack([near, even, extra])[:count]
+    rest = np.vstack([even, extra])
+    if private_start is not None:
+        starts = np.array([path[0] for path in paths])
+
+        def private(points: np.ndarray) -> np.ndarray:
+            near = np.linalg.norm(points[:, None] - starts[None], axis=-1) < private_start
+            return points[~np.all(near, axis=1)]
+
+        rest = private(rest)
+        while len(first) + len(rest) < count:  # refill what step 0 left out, along the paths
+            more = pts[rng.integers(0, len(pts), 20)] + rng.uniform(-spread, spread, (20, 2))
+            rest = np.vstack([rest, private(more)])
+    return np.vstack([first, rest])[:count]
+
+
+#: Distance between the robots' first waypoints in environment 1 (the published file's)
+START_SEPARATION = 18.8
+
+
+def _lens_starts(wp1, circle2, wp2, circle1, separation: float) -> tuple[int, int]:
+    """Indices of a waypoint of loop 1 inside circle 2 and one of loop 2 inside circle 1 whose
+    distance is closest to ``separation`` (the robots start inside the loops' overlap)."""
+    inside1 = np.linalg.norm(wp1 - circle2[0], axis=1) < circle2[1]
+    inside2 = np.linalg.norm(wp2 - circle1[0], axis=1) < circle1[1]
+    gap = np.abs(np.linalg.norm(wp1[:, None] - wp2[None], axis=-1) - separation)
+    gap[~inside1] = np.inf
+    gap[:, ~inside2] = np.inf
+    i, j = np.unravel_index(np.argmin(gap), gap.shape)
+    return int(i), int(j)
 
 
 def environment(number: int, features: int = 20) -> PlanarEnvironment:
@@ -149,17 +184,21 @@ def environment(number: int, features: int = 20) -> PlanarEnvironment:
         raise PlanarEnvironmentError(f"feature count must be 20, 60 or 100, got {features}")
     rng = np.random.default_rng(1000 + number)
     if number == 1:
-        # two hand-drawn-like circles (radii 23.5 m and 22 m, centres 16 m apart), both robots
-        # start at a crossing point; features lie within a few metres of the paths
+        # two hand-drawn-like circles (radii 23.5 m and 22 m, centres 16 m apart); as in the
+        # published environment, the robots start on either side of the loops' overlap
+        # START_SEPARATION apart and share exactly two features at step 0, 3.8 m apart on the
+        # line between them: robot 2's heading relative to robot 1 is then poorly known at the
+        # start, which is what makes the standard EKF's inconsistency show
         r1, r2, d = 23.5, 22.0, 8.0
         c1, c2 = np.array([0.0, -d]), np.array([0.0, d])
-        y = (r1**2 - r2**2) / (4.0 * d)
-        cross = np.array([-np.sqrt(r1**2 - (y + d) ** 2), y])
-        a1 = np.arctan2(*(cross - c1)[::-1])
-        a2 = np.arctan2(*(cross - c2)[::-1])
-        wp1 = _loop(c1, r1, 63, a1, +1.0, 0.3, rng)
-        wp2 = _loop(c2, r2, 63, a2, -1.0, 0.3, rng)
-        feats = _features_along([wp1, wp2], 100, 2.5, cross, rng)
+        wp1 = _loop(c1, r1, 63, 0.0, +1.0, 0.3, rng)
+        wp2 = _loop(c2, r2, 63, 0.0, -1.0, 0.3, rng)
+        i, j = _lens_starts(wp1, (c2, r2), wp2, (c1, r1), START_SEPARATION)
+        wp1, wp2 = np.roll(wp1, -i, axis=0), np.roll(wp2, -j, axis=0)
+        along = (wp2[0] - wp1[0]) / np.linalg.norm(wp2[0] - wp1[0])
+        middle = 0.5 * (wp1[0] + wp2[0])
+        first = np.array([middle - 1.9 * along, middle + 1.9 * along])
+        feats = _features_along([wp1, wp2], 100, 2.5, first, rng, private_start=15.0)
         return PlanarEnvironment(
             "env1",
             [wp1, wp2],
@@ -175,7 +214,7 @@ def environment(number: int, features: int = 20) -> PlanarEnvironment:
         t = -np.pi / 2 + 2.0 * np.pi * np.arange(40) / 40
         eight = np.column_stack([16.0 * np.sin(2.0 * t), 31.0 * np.sin(t)])
         start = 0.5 * (outer[0] + eight[0])
-        feats = _features_along([outer, eight], 100, 2.5, start, rng)
+        feats = _features_along([outer, eight], 100, 2.5, start + rng.uniform(-4, 4, (2, 2)), rng)
         return PlanarEnvironment(
             "env2",
             [outer, eight],

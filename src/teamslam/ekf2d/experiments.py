@@ -39,9 +39,13 @@ LABELS = {"std": "Standard", "ideal": "Ideal", "fej": "FEJ"}
 
 
 def _one_run(
-    seed: int, env: PlanarEnvironment, truth: PlanarTruth, filters: tuple[str, ...]
+    seed: int,
+    env: PlanarEnvironment,
+    truth: PlanarTruth,
+    filters: tuple[str, ...],
+    observation_noise_scale: tuple[float, float] = (1.0, 1.0),
 ) -> dict[str, RunMetrics]:
-    run = simulate(env, truth, np.random.default_rng(seed))
+    run = simulate(env, truth, np.random.default_rng(seed), observation_noise_scale)
     return {name: run_filter(env, run, make_policy(name)) for name in filters}
 
 
@@ -102,13 +106,22 @@ def monte_carlo(
     filters: tuple[str, ...] = FILTERS,
     workers: int | None = None,
     progress: bool | None = None,
+    observation_noise_scale: tuple[float, float] = (1.0, 1.0),
 ) -> MonteCarloResult:
-    """Run ``runs`` seeded Monte Carlo runs of every filter on ``env``."""
+    """Run ``runs`` seeded Monte Carlo runs of every filter on ``env`` (the data's observation
+    noise scaled per axis by ``observation_noise_scale``, see
+    :func:`~teamslam.ekf2d.simulate.simulate`)."""
     if runs < 1:
         raise InputError("runs must be positive")
     for name in filters:
         make_policy(name)
-    job = partial(_one_run, env=env, truth=truth_of(env), filters=tuple(filters))
+    job = partial(
+        _one_run,
+        env=env,
+        truth=truth_of(env),
+        filters=tuple(filters),
+        observation_noise_scale=tuple(observation_noise_scale),
+    )
     seeds = run_seeds_of(runs, seed)
     results = run_parallel(job, seeds, workers, progress, description=f"{env.name} Monte Carlo")
     return summarise_runs(env, results, filters)
