@@ -8,8 +8,9 @@ robot-1 pose NEES over the same Monte Carlo runs on:
   the filters assume the full σ: how the published generator's truncated noise draws it;
 * ``generated`` — :func:`teamslam.ekf2d.environments.environment`, the environment users make;
 
-beside the paper's value. A cell is ``mean (median, runs above the 97.5% χ² bound)``: single
-divergent runs dominate a mean. Run on demand::
+beside the paper's value. A cell is ``mean ± 2 standard errors (median, runs above the 97.5% χ²
+bound)``: single divergent runs dominate a mean, whose Monte Carlo error is then wide.
+Run on demand::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/fej_environments.py --data ../shared/data \
         --runs 100 [--markdown docs/results/generated/fej-environments.md]
@@ -42,7 +43,8 @@ def _paper_nees(env: int) -> dict[tuple[int, str], float]:
 
 def _cell(table: dict) -> str:
     return (
-        f"{table['r1_pose_nees']:.2f} ({table['r1_pose_nees_median']:.2f}, "
+        f"{table['r1_pose_nees']:.2f} ± {2 * table['r1_pose_nees_sem']:.2f} "
+        f"({table['r1_pose_nees_median']:.2f}, "
         f"{table['r1_runs_above_bound']})"
     )
 

@@ -428,3 +428,25 @@ def test_filter_matches_a_plain_dense_reference(
         np.testing.assert_allclose(ekf.cov, ref.p, rtol=0, atol=1e-9)
         np.testing.assert_array_equal(ekf.cov, ekf.cov.T)
     assert ekf.n_features >= 20  # the run really grew the state
+
+
+def test_generated_environment_1_starts_like_the_published_one():
+    """The robots start 18.8 m apart inside the loops' overlap and share exactly the first two
+    features at step 0, 3.8 m apart on the line between them (what leaves robot 2's relative
+    heading poorly known and lets the standard EKF's inconsistency show)."""
+    from teamslam.ekf2d.simulate import truth_of
+
+    for count in (20, 60, 100):
+        env = E.environment(1, count)
+        assert env.features.shape == (count, 2)
+        start1, start2 = (w[0] for w in env.waypoints)
+        assert np.linalg.norm(start1 - start2) == pytest.approx(E.START_SEPARATION, abs=0.5)
+        truth = truth_of(env)
+        a, b = truth.obs_offsets[0], truth.obs_offsets[1]
+        robot, feature = truth.obs_robot[a:b], truth.obs_feature[a:b]
+        assert set(feature[robot == 0]) & set(feature[robot == 1]) == {0, 1}
+        first = env.features[:2]
+        assert np.linalg.norm(first[0] - first[1]) == pytest.approx(3.8)
+        along = (start2 - start1) / np.linalg.norm(start2 - start1)
+        assert abs(np.cross(along, first[1] - first[0])) < 1e-9  # on the line between
+    assert E.environment(1, 100).features[:60].tolist() == E.environment(1, 60).features.tolist()

@@ -90,6 +90,12 @@ def _summarise(metrics: list[RunMetrics], n_robots: int) -> tuple[dict, dict]:
         table[f"{r}_position_rmse"] = float(curves["position_rmse"][1:, i].mean())
         table[f"{r}_heading_rmse"] = float(curves["heading_rmse"][1:, i].mean())
         table[f"{r}_pose_nees_median"] = float(np.median(per_run_pose[:, i]))
+        # the mean's Monte Carlo standard error, from the spread of the runs' averages
+        table[f"{r}_pose_nees_sem"] = float(
+            np.std(per_run_pose[:, i], ddof=1) / np.sqrt(len(per_run_pose))
+            if len(per_run_pose) > 1
+            else np.nan
+        )
         table[f"{r}_runs_above_bound"] = int(np.sum(per_run_pose[:, i] > bound3))
     per_run_feat = np.nanmean(feature_nees, axis=1)
     table["feature_nees"] = float(np.nanmean(curves["feature_nees"]))
