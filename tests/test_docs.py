@@ -89,6 +89,15 @@ def test_dataset_example_writes_a_dataset_that_loads_and_runs(tmp_path, capsys):
     assert consensus["object_disagreement_avg_m"] < 0.5 * separate["object_disagreement_avg_m"]
 
 
+def test_api_example_runs(capsys):
+    namespace = runpy.run_path(str(DOCS / "reference" / "api_example.py"), run_name="__main__")
+    assert len(namespace["run"].means) == 4  # the distributed filter's agents
+    separate, consensus = namespace["results"][False], namespace["results"][True]
+    assert len(separate.poses) == len(consensus.poses) == 3
+    printed = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in printed] == ["False", "True"]
+
+
 def test_wire_example_runs():
     runpy.run_path(str(DOCS / "reference" / "wire_example.py"), run_name="__main__")
 

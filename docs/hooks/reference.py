@@ -28,6 +28,7 @@ import griffe
 
 MARKER = re.compile(r"^<!-- teamslam:(settings|cli)(?: +([\w.]+):(\w+))? -->$", re.M)
 ROLE = re.compile(r":(?:py:)?[a-z]+:`~?([^`<]*?)(?: *<([^>]+)>)?`")
+LITERAL_MARKER = re.compile(r"(?<=\S)::$", re.M)  # reST "text::" before an indented block
 
 
 def roles_as_code(text: str) -> str:
@@ -43,11 +44,14 @@ def roles_as_code(text: str) -> str:
 
 
 class RolesAsCode(griffe.Extension):
-    """Rewrite Sphinx roles in every docstring as inline code before it is rendered."""
+    """Rewrite Sphinx roles in every docstring as inline code before it is rendered, and a
+    reST literal-block marker ``text::`` as ``text:`` (the indented block after it is code in
+    Markdown as it is)."""
 
     def on_object(self, *, obj: griffe.Object, **kwargs: typing.Any) -> None:
         if obj.docstring is not None:
-            obj.docstring.value = roles_as_code(obj.docstring.value)
+            text = roles_as_code(obj.docstring.value)
+            obj.docstring.value = LITERAL_MARKER.sub(":", text)
 
 
 # --------------------------------------------------------------------------------------------
