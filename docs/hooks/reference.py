@@ -206,7 +206,7 @@ def expand(markdown: str) -> str:
         return settings_markdown(cls)
 
     previous = os.environ.get("COLUMNS")
-    os.environ["COLUMNS"] = "100"  # argparse wraps help to the terminal; the page is fixed
+    os.environ["COLUMNS"] = "88"  # argparse wraps help to the terminal; the page has a width
     try:
         return MARKER.sub(replace, markdown)
     finally:
