@@ -77,7 +77,7 @@ def _attribute_docs(cls: type) -> dict[str, str]:
         if section.kind is griffe.DocstringSectionKind.attributes:
             for item in section.value:
                 for name in item.name.split(","):
-                    docs[name.strip()] = " ".join(item.description.split())
+                    docs[name.strip()] = item.description.strip()  # Markdown as written
     return docs
 
 
