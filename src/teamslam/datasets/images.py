@@ -238,37 +238,39 @@ def dataset_from_images(
             raise InputError(f"{f}: {len(s)} stamps for {len(pairs[i])} image pairs")
         stamps.append(s)
     bar = tqdm(total=sum(len(p) for p in pairs), desc="images", disable=not progress)
-    robots, info = [], []
-    next_id = 0
-    for i in range(n):
-        frames = len(pairs[i])
-        odo = None
-        if odo_files[i] is not None:
-            odo = _poses_at(Path(odo_files[i]), stamps[i], frames, "odometry")
-        truth = None
-        if gt_files[i] is not None:
-            truth = _poses_at(Path(gt_files[i]), stamps[i], frames, "ground-truth")
-        images = (
-            (read_image(lp, rig.image_size), read_image(rp, rig.image_size), str(lp))
-            for lp, rp in pairs[i]
-        )
-        robot, record, next_id = _robot_sequence(
-            images, rig, config, next_id, odo, truth, stamps[i], bar
-        )
-        record.update(
-            {
-                "name": names[i],
-                "left": str(left_dirs[i]),
-                "right": str(right_dirs[i]),
-                "odometry": f"file {odo_files[i]}" if odo is not None else record["odometry"],
-                "ground_truth": (
-                    f"file {gt_files[i]}" if truth is not None else record["ground_truth"]
-                ),
-            }
-        )
-        robots.append(robot)
-        info.append(record)
-    bar.close()
+    try:
+        robots, info = [], []
+        next_id = 0
+        for i in range(n):
+            frames = len(pairs[i])
+            odo = None
+            if odo_files[i] is not None:
+                odo = _poses_at(Path(odo_files[i]), stamps[i], frames, "odometry")
+            truth = None
+            if gt_files[i] is not None:
+                truth = _poses_at(Path(gt_files[i]), stamps[i], frames, "ground-truth")
+            images = (
+                (read_image(lp, rig.image_size), read_image(rp, rig.image_size), str(lp))
+                for lp, rp in pairs[i]
+            )
+            robot, record, next_id = _robot_sequence(
+                images, rig, config, next_id, odo, truth, stamps[i], bar
+            )
+            record.update(
+                {
+                    "name": names[i],
+                    "left": str(left_dirs[i]),
+                    "right": str(right_dirs[i]),
+                    "odometry": f"file {odo_files[i]}" if odo is not None else record["odometry"],
+                    "ground_truth": (
+                        f"file {gt_files[i]}" if truth is not None else record["ground_truth"]
+                    ),
+                }
+            )
+            robots.append(robot)
+            info.append(record)
+    finally:  # closed before any error is printed
+        bar.close()
     return _team(robots, info, rig, config, markers, name, {"camera": str(camera)})
 
 

@@ -267,18 +267,21 @@ def load_dataset(directory: str | Path) -> TeamDataset:
     ):
         raise DatasetError(f"{manifest_path}: calibration.image_size must be [width, height]")
     try:
-        calibration = Calibration(
-            StereoCamera(
-                _matrix(cal["K"], (3, 3), f"{manifest_path}: calibration.K"),
-                _matrix(cal["T_left_right"], (4, 4), f"{manifest_path}: calibration.T_left_right"),
-            ),
-            _matrix(cal["T_cam_body"], (4, 4), f"{manifest_path}: calibration.T_cam_body"),
-            tuple(int(v) for v in image_size) if image_size else None,
+        k = _matrix(cal["K"], (3, 3), f"{manifest_path}: calibration.K")
+        t_left_right = _matrix(
+            cal["T_left_right"], (4, 4), f"{manifest_path}: calibration.T_left_right"
         )
+        t_cam_body = _matrix(cal["T_cam_body"], (4, 4), f"{manifest_path}: calibration.T_cam_body")
     except KeyError as exc:
         raise DatasetError(f"{manifest_path}: calibration field {exc} is missing") from None
+    try:
+        calibration = Calibration(
+            StereoCamera(k, t_left_right),
+            t_cam_body,
+            tuple(int(v) for v in image_size) if image_size else None,
+        )
     except ValueError as exc:
-        raise DatasetError(f"{manifest_path}: {exc}") from None
+        raise DatasetError(f"{manifest_path}: calibration: {exc}") from None
 
     robot_fields = {
         "T_world_body": "f",
@@ -330,10 +333,19 @@ def load_dataset(directory: str | Path) -> TeamDataset:
             robot.validate(f"robot {i}")
         except DatasetError as exc:
             raise DatasetError(f"{path}: {exc}") from None
-        if meta.get("frames") != robot.frames:
+        frames = meta.get("frames")
+        if frames is None:
             raise DatasetError(
-                f"{path}: manifest says {meta.get('frames')} frames, file holds {robot.frames}"
+                f"{manifest_path}: robots[{i}].frames is missing ({name} holds {robot.frames} "
+                "frames)"
             )
+        if isinstance(frames, bool) or not isinstance(frames, int):
+            raise DatasetError(
+                f"{manifest_path}: robots[{i}].frames must be a whole number of frames, got "
+                f"{frames!r} ({name} holds {robot.frames})"
+            )
+        if frames != robot.frames:
+            raise DatasetError(f"{path}: manifest says {frames} frames, file holds {robot.frames}")
         robots.append(robot)
 
     metadata = manifest.get("metadata") or {}
