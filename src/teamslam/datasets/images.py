@@ -89,15 +89,20 @@ def read_image(path: Path, image_size: tuple[int, int]) -> np.ndarray:
 
 
 def read_timestamps(path: str | Path) -> np.ndarray:
-    """Stamps (first column of each line, seconds); out-of-order stamps are an error."""
+    """Stamps (first column of each line, seconds); a negative, non-finite or out-of-order
+    stamp is an error."""
     path = Path(path)
     try:
         rows = np.loadtxt(path, ndmin=2, comments="#")
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot read timestamps ({exc})") from None
     stamps = rows[:, 0] if rows.size else np.zeros(0)
-    if not np.all(np.isfinite(stamps)):
-        raise InputError(f"{path}: non-finite timestamp")
+    bad = np.flatnonzero(~np.isfinite(stamps) | (stamps < 0))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(
+            f"{path}: stamp {float(stamps[k])!r} (line {k + 1}); stamps must be finite and ≥ 0"
+        )
     bad = np.flatnonzero(np.diff(stamps) <= 0)
     if bad.size:
         k = int(bad[0]) + 1

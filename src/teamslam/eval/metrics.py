@@ -200,6 +200,11 @@ def team_metrics(dataset: TeamDataset, result: TeamResult) -> dict:
             )
         ),
         "wall_seconds": result.wall_seconds,
+        # numba kernels compiled (the first run after an install or a change) and loaded from
+        # the cache (the first run of a process) while the clock ran: their one-off cost is in
+        # time_per_robot_step_ms
+        "compilations": int(result.extra.get("compilations", 0)),
+        "kernels_loaded": int(result.extra.get("kernels_loaded", 0)),
         **_health(result.health),
         **_association(dataset, result),
         **_tracking(dataset, result),

@@ -45,10 +45,16 @@ def team_table(runs: dict[str, dict]) -> str:
             f"{'odometry residual ratio (t | r)':<36}"
             + "".join(_odometry_cell(runs[n], width) for n in names)
         )
+    once = {n: _one_off(runs[n]) for n in names}
+    mark = " *" if any(once.values()) else ""
     for stage in ("consensus", "propagation", "update", "initialisation", "total"):
         lines.append(
-            f"{f'time {stage} [ms/robot/frame]':<36}"
+            f"{f'time {stage} [ms/robot/frame]{mark}':<36}"
             + "".join(f"{runs[n]['time_per_robot_step_ms'][stage]:>{width}.2f}" for n in names)
+        )
+    if mark:
+        lines.append(
+            "  * include one-off costs: " + "; ".join(f"{n} {w}" for n, w in once.items() if w)
         )
     for key, rows in (("association", _ASSOCIATION_ROWS), ("tracking", _TRACKING_ROWS)):
         if not any(key in runs[n] for n in names):
@@ -64,6 +70,21 @@ def team_table(runs: dict[str, dict]) -> str:
                 )
             )
     return "\n".join(lines)
+
+
+def _one_off(run: dict) -> str:
+    """What a run's stage times include that the next run will not pay (numba's compilation
+    of kernels, their loading from its cache), or ``""``."""
+    compiled, loaded = run.get("compilations", 0), run.get("kernels_loaded", 0)
+    parts = []
+    if compiled:
+        parts.append(f"compiling {compiled} kernel{'s' if compiled > 1 else ''} (first run only)")
+    if loaded:
+        parts.append(
+            f"loading {loaded} compiled kernel{'s' if loaded > 1 else ''} from the cache "
+            "(first run of a process)"
+        )
+    return ", ".join(parts)
 
 
 def _number(value, width: int, digits: int) -> str:

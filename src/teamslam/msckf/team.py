@@ -66,6 +66,7 @@ __all__ = [
     "RobotDriver",
     "TeamResult",
     "assemble_result",
+    "compilations",
     "exchanges_per_frame",
     "load_result",
     "merge_results",
@@ -618,6 +619,7 @@ def run_drivers(
     """:func:`run_lockstep` then :func:`assemble_result`; a failing filter raises
     :class:`PartialRunError` with the result of the frames every robot finished."""
     begin = time.perf_counter()
+    compiled = np.array(compilations())
     try:
         wall = run_lockstep(drivers, before, progress)
     except EstimationError as exc:
@@ -634,7 +636,34 @@ def run_drivers(
             complete=False,
         )
         raise PartialRunError(exc, partial) from exc
-    return assemble_result(drivers, graph, loss, wall, maps=None if maps is None else maps())
+    result = assemble_result(drivers, graph, loss, wall, maps=None if maps is None else maps())
+    # kernels compiled or loaded from the cache while the clock ran: a one-off cost of the
+    # process, in the stage times
+    result.extra["compilations"], result.extra["kernels_loaded"] = (
+        np.array(compilations()) - compiled
+    ).tolist()
+    return result
+
+
+def compilations() -> tuple[int, int]:
+    """How many of teamslam's compiled kernels numba has, in this process so far, compiled
+    (a signature not in its cache) and loaded from its cache (a kernel compiled inside
+    another counts with it). Both are one-off costs of a process, paid by the run that
+    first calls the kernel: compiling takes seconds, loading milliseconds."""
+    compiled = loaded = 0
+    seen = set()
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("teamslam") or module is None:
+            continue
+        for value in list(vars(module).values()):
+            stats = getattr(value, "stats", None)
+            misses = getattr(stats, "cache_misses", None)
+            if misses is None or not hasattr(value, "signatures") or id(value) in seen:
+                continue
+            seen.add(id(value))
+            compiled += sum(misses.values())
+            loaded += sum(stats.cache_hits.values())
+    return compiled, loaded
 
 
 def run_team(
