@@ -12,8 +12,11 @@ A dataset is a directory::
 Arrays are compressed numpy ``.npz`` files read with ``allow_pickle=False``; ragged per-frame
 observations are flat arrays plus offsets. Floats in the manifest are written with Python's
 shortest round-trip representation, so a save/load round trip is bit-exact. Loading validates
-every field and names the file and field of the first problem; writing is atomic (a reader never
-sees half a dataset).
+every field once and names the file and field of the first problem and what it holds (among
+others: the camera through :func:`~teamslam.geometry.camera.check_stereo`, at least two frames
+per robot, object ids ``≥ 0``, timestamps finite and ``≥ 0`` — a negative stamp is refused, not
+shifted, so that every export writes the times the data holds); writing is atomic (a reader
+never sees half a dataset).
 
 Versions: 2 adds the ``sensor_model`` section (:mod:`~teamslam.datasets.sensor_model`; absent
 when unknown). Version 1 datasets still load: without a sensor model, except that a simulated
