@@ -46,6 +46,7 @@ from teamslam.errors import InputError
 from teamslam.eval.estimates import has_ground_truth, stamps_ns
 from teamslam.geometry.camera import StereoCamera
 from teamslam.ros2 import messages as m
+from teamslam.textio import yaml_problem
 
 __all__ = [
     "RobotTopics",
@@ -96,8 +97,10 @@ def read_camera(path: str | Path) -> Calibration:
     path = Path(path)
     try:
         data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise InputError(f"{path}: cannot read the camera file ({exc})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the camera file ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: camera file is not valid YAML: {yaml_problem(exc)}") from None
     if not isinstance(data, dict) or not {"K", "T_left_right", "T_cam_body"} <= set(data):
         raise InputError(f"{path}: a camera file needs K, T_left_right and T_cam_body")
     try:
