@@ -1,6 +1,7 @@
 # teamslam: two commands do everything on a fresh machine.
 #   make run   create .venv, install teamslam, run the default job
-#   make test  create .venv, install teamslam with its test extras, lint, run the test suite
+#   make test  create .venv, install teamslam with every extra and the test tools, lint, run
+#              the test suite
 #              (never installs system packages; .ci/run does that in CI)
 
 PYTHON ?= python3
@@ -15,7 +16,7 @@ $(BIN)/python:
 
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[all,test]'
 	touch $(STAMP)
 
 run: $(STAMP)
@@ -25,8 +26,8 @@ run: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam run results/team5 --compare --set window=10 --out results/team5-run --mcap
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks examples
+	$(BIN)/ruff format --check src tests benchmarks examples
 
 # -ra: the reason of every skipped test (and every failure) is listed at the end
 # -n auto: one pytest-xdist worker per CPU (PYTEST_XDIST_AUTO_NUM_WORKERS=N to choose);
