@@ -1,8 +1,8 @@
 # teamslam: two commands do everything on a fresh machine.
 #   make run   create .venv, install teamslam, run the default job
-#   make test  create .venv, install teamslam with its test extras, lint, build the docs
-#              strictly, run the test suite (never installs system packages; .ci/run does that
-#              in CI)
+#   make test  create .venv, install teamslam with every extra and the test tools, lint,
+#              build the docs strictly, run the test suite (never installs system packages;
+#              .ci/run does that in CI)
 #   make docs  the documentation site into site/ (mkdocs build --strict: a broken link, a
 #              missing page or an unresolved reference fails; builds offline)
 
@@ -18,7 +18,7 @@ $(BIN)/python:
 
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[all,test]'
 	touch $(STAMP)
 
 run: $(STAMP)
@@ -31,8 +31,8 @@ run: $(STAMP)
 DOCS_PY := $(wildcard docs/*/*.py)
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks $(DOCS_PY)
-	$(BIN)/ruff format --check src tests benchmarks $(DOCS_PY)
+	$(BIN)/ruff check src tests benchmarks examples $(DOCS_PY)
+	$(BIN)/ruff format --check src tests benchmarks examples $(DOCS_PY)
 
 docs: $(STAMP)
 	$(BIN)/python -m mkdocs build --strict --site-dir site

@@ -6,7 +6,8 @@ Exit status
     Success.
 2
     The input is wrong: a flag, a value out of range, a setting, a malformed or inconsistent
-    file (:class:`teamslam.errors.InputError`), or an input file that cannot be read.
+    file (:class:`teamslam.errors.InputError`), an input file that cannot be read, or an
+    optional extra the command needs that is not installed (the message names it).
 1
     The inputs were valid but the run failed: the estimate could not be computed
     (:class:`teamslam.errors.EstimationError`, naming robot and frame), a result could not be

@@ -170,6 +170,7 @@ def export_bag(
     ``period``) plus ``metadata["ros2"]["stamp_origin_ns"]`` when the dataset came from a bag.
     ``camera`` also writes the calibration file :func:`import_bag` needs.
     """
+    m.rosbags("rosbag2", "writing a ROS 2 bag")
     begin = time.perf_counter()
     out = Path(out)
     origin = int(dataset.metadata.get("ros2", {}).get("stamp_origin_ns", 0))
@@ -207,7 +208,8 @@ def export_bag(
 # ----------------------------------------------------------------------------- import
 def _read_topics(bag: Path, topics: set[str]) -> dict[str, list[tuple[int, object]]]:
     """``{topic: [(header stamp ns, message)]}`` for the topics asked for, sorted by stamp."""
-    from rosbags.highlevel import AnyReader, AnyReaderError
+    highlevel = m.rosbags("highlevel", "reading a ROS 2 bag")
+    AnyReader, AnyReaderError = highlevel.AnyReader, highlevel.AnyReaderError
 
     if not bag.exists():
         raise InputError(f"{bag}: no such bag")
@@ -300,6 +302,7 @@ def import_bag(
         Largest stamp difference in seconds between an observation (or ground-truth) message
         and its frame (default: half the smallest median odometry period).
     """
+    m.rosbags("highlevel", "reading a ROS 2 bag")
     bag = Path(bag)
     if not robots:
         raise InputError("import-bag needs at least one --robot")

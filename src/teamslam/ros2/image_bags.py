@@ -292,11 +292,13 @@ def dataset_from_bag(
     TeamDataset
         The same measurements as :func:`dataset_from_images` on the same images.
     """
-    from rosbags.highlevel import AnyReader, AnyReaderError
     from tqdm import tqdm
 
     from teamslam.frontend.camera import rig_from_camera_info
     from teamslam.ros2 import messages as m
+
+    highlevel = m.rosbags("highlevel", "reading a ROS 2 bag of images")
+    AnyReader, AnyReaderError = highlevel.AnyReader, highlevel.AnyReaderError
 
     bag = Path(bag)
     if not bag.exists():
