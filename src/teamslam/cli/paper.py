@@ -79,6 +79,13 @@ def _table_name(item) -> str:
     return roman[item.number] if item.paper == "dvi" else item.number
 
 
+def _header() -> str:
+    """The first line of each Markdown file: commit, date, this command, the machine."""
+    from teamslam.eval.provenance import command_line, measured_header
+
+    return measured_header(command_line("teamslam"))
+
+
 def _cmd_one(args: argparse.Namespace) -> int:
     from teamslam.paper import Reproducer, item_key
 
@@ -93,7 +100,7 @@ def _cmd_one(args: argparse.Namespace) -> int:
         print(settings.describe(), flush=True)
     result = Reproducer(settings, args.data).build(key)
     _show(result, args.json)
-    written = [] if args.out is None else [str(p) for p in result.write(args.out)]
+    written = [] if args.out is None else [str(p) for p in result.write(args.out, _header())]
     return _finish([result], args, written)
 
 
@@ -104,7 +111,7 @@ def _cmd_all(args: argparse.Namespace) -> int:
     if not args.json:
         print(settings.describe(), flush=True)
     results, reproducer = reproduce_all(
-        args.out, settings, args.data, on_done=lambda r: _show(r, args.json)
+        args.out, settings, args.data, on_done=lambda r: _show(r, args.json), header=_header()
     )
     if not args.json:
         print(reproducer.time_text(), file=sys.stderr)
