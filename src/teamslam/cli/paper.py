@@ -80,7 +80,8 @@ def _table_name(item) -> str:
 
 
 def _header() -> str:
-    """The first line of each Markdown file: commit, date, this command, the machine."""
+    """The first line of each Markdown file: commit, date, this command, the machine (taken as
+    the run starts, so that edits made while it runs are not blamed on it)."""
     from teamslam.eval.provenance import command_line, measured_header
 
     return measured_header(command_line("teamslam"))
@@ -96,11 +97,12 @@ def _cmd_one(args: argparse.Namespace) -> int:
     else:
         key = item_key(args.paper, "figure", args.figure)
     settings = _settings(args)
+    header = _header()  # the code and machine as the run starts
     if not args.json:
         print(settings.describe(), flush=True)
     result = Reproducer(settings, args.data).build(key)
     _show(result, args.json)
-    written = [] if args.out is None else [str(p) for p in result.write(args.out, _header())]
+    written = [] if args.out is None else [str(p) for p in result.write(args.out, header)]
     return _finish([result], args, written)
 
 

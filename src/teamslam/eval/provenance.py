@@ -6,9 +6,10 @@ Every Markdown table a measuring command writes (``teamslam paper … --out``, t
     measured on commit `abc1234` (clean), 2026-01-31 12:00 UTC, `teamslam paper all --out DIR`;
     2 cores, BLAS threads 1, load average 1.9
 
-``clean``/``dirty`` says whether the code (``src/``, ``benchmarks/``, ``pyproject.toml``) had
-uncommitted changes; outside a git checkout the commit is ``unknown`` and the version is named.
-The command is the one that ran, with absolute paths made relative to the source tree.
+``clean``/``dirty`` says whether the code that made the numbers (``src/`` and ``pyproject.toml``,
+and the benchmark script that ran) had uncommitted changes; outside a git checkout the commit is
+``unknown`` and the version is named. The command is the one that ran, with absolute paths made
+relative to the source tree.
 """
 
 from __future__ import annotations
@@ -20,13 +21,13 @@ import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
-__all__ = ["HEADER_PREFIX", "command_line", "measured_header", "source_root"]
+__all__ = ["CODE", "HEADER_PREFIX", "command_line", "measured_header", "source_root"]
 
 #: the start of every header line (what ``tests`` look for in a generated table)
 HEADER_PREFIX = "measured on commit `"
 
-# the files whose changes change a number
-_CODE = ("src", "benchmarks", "pyproject.toml")
+# the files whose changes change a number (a benchmark adds its own script)
+CODE = ("src", "pyproject.toml")
 
 
 def source_root() -> Path:
@@ -44,13 +45,13 @@ def _git(root: Path, *args: str) -> str | None:
     return done.stdout.strip() if done.returncode == 0 else None
 
 
-def _commit(root: Path) -> str:
+def _commit(root: Path, code: tuple[str, ...]) -> str:
     commit = _git(root, "rev-parse", "--short", "HEAD")
     if commit is None:
         from teamslam._version import __version__
 
         return f"`unknown` (teamslam {__version__}, not a git checkout)"
-    changes = _git(root, "status", "--porcelain", "--", *_CODE)
+    changes = _git(root, "status", "--porcelain", "--", *code)
     return f"`{commit}` ({'dirty' if changes else 'clean'})"
 
 
@@ -77,13 +78,14 @@ def _relative(arg: str, root: Path) -> str:
     return os.path.relpath(arg, root)
 
 
-def measured_header(command: str) -> str:
-    """The one-line header of a measured table: commit (clean or dirty), UTC date, the exact
-    command, the machine's cores, BLAS threads and the 1-minute load average when written."""
+def measured_header(command: str, code: tuple[str, ...] = CODE) -> str:
+    """The one-line header of a measured table: commit (``dirty`` if a path of ``code``, relative
+    to the source tree, has uncommitted changes), UTC date, the exact command, the machine's
+    cores, BLAS threads and the 1-minute load average when called."""
     date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return (
-        f"measured on commit {_commit(source_root())}"
+        f"measured on commit {_commit(source_root(), code)}"
         f", {date}, `{command}`; {os.cpu_count()} cores, BLAS threads {_blas_threads()}, "
         f"load average {load:.1f}"
     )
