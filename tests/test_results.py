@@ -125,3 +125,10 @@ def test_the_pages_include_generated_tables_only():
     for path in _generated():
         if path.parent == GENERATED:
             assert path.resolve() in included, f"{path.relative_to(ROOT)} is on no page"
+
+
+def test_paper_all_only_names_known_tables(tmp_path, capsys):
+    from teamslam.cli import main
+
+    assert main(["paper", "all", "--only", "dvi-table-9", "--out", str(tmp_path)]) == 2
+    assert "--only: no table or figure dvi-table-9" in capsys.readouterr().err
