@@ -68,6 +68,16 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/association-default.md",
         f"{GENERATED}/association-default.md",
     ),
+    "association-ring": (
+        "python benchmarks/association.py oracle --teams ring "
+        f"--markdown {GENERATED}/association-ring.md",
+        f"{GENERATED}/association-ring.md",
+    ),
+    "association-kitti": (
+        "python benchmarks/association.py oracle --teams kitti00 "
+        f"--markdown {GENERATED}/association-kitti.md",
+        f"{GENERATED}/association-kitti.md",
+    ),
     "tracking-sim": (
         "python benchmarks/tracking.py --seeds 0 --loop-closure both "
         f"--markdown {GENERATED}/tracking-sim.md",
