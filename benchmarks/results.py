@@ -87,6 +87,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/tracking-sim.md",
         f"{GENERATED}/tracking-sim.md",
     ),
+    "consistency-kitti": (
+        "python benchmarks/consistency.py --teams kitti --variants std fej oc "
+        f"--modes separate consensus --markdown {GENERATED}/consistency-kitti.md",
+        f"{GENERATED}/consistency-kitti.md",
+    ),
     "consistency-make-run": (
         "python benchmarks/consistency.py --teams make-run --variants std fej oc "
         f"--modes separate consensus --markdown {GENERATED}/consistency-make-run.md",
