@@ -33,6 +33,15 @@ it prints the table's precision and recall and the CPU time of both calls.
   noise levels; 3 robots, 200 steps, complete graph, ``window = 10``) run with consensus twice:
   with the simulator's global ids (``association = oracle``) and with ids made per robot
   (``own``). Prints both RMSEs, their ratio, and the own association's precision and recall.
+* ``oracle`` — the same comparison, with the separate filters beside it, on the ``--teams``
+  named: ``default`` (``teamslam simulate --robots 5 --steps 150 --seed 0``, ``window = 10``),
+  ``ring`` (15 robots on a ring with 30% link loss, 150 steps, ``window = 10``) and ``kitti00``
+  (KITTI 00, objects only, the settings ``teamslam run`` resolves; each dataset calibrated
+  once). Prints the RMSEs, own / oracle, precision, recall, held / revoked pairs and the
+  summary bytes per robot per frame.
+
+``--markdown FILE`` (``oracle``, ``scenarios``) writes the table as Markdown headed by the
+commit, date, command and machine (``benchmarks/_markdown.py``).
 """
 
 from __future__ import annotations
@@ -45,6 +54,7 @@ from pathlib import Path
 import numpy as np
 
 import teamslam.msckf.consensus.protocol as protocol
+from _markdown import Markdown, add_option
 from teamslam import api
 from teamslam.association import (
     AssociationSettings,
@@ -313,10 +323,22 @@ def delay(directory: str, graph: str, loss: float, window: int) -> None:
     )
 
 
-def scenarios(window: int) -> None:
+def scenarios(window: int, md: Markdown) -> None:
     """Consensus RMSE with oracle ids against own association on each sensor scenario."""
     print(
         f"{'scenario':32} {'oracle m':>9} {'own m':>9} {'ratio':>6} {'precision':>9} {'recall':>7}"
+    )
+    md.table(
+        f"Sensor scenarios (3 robots, 200 steps, complete graph, window {window}): consensus "
+        "with the simulator's ids and with own association",
+        [
+            "scenario",
+            "oracle ids RMSE [m]",
+            "own association RMSE [m]",
+            "own / oracle",
+            "precision",
+            "recall",
+        ],
     )
     for name in SENSOR_SCENARIOS:
         team = scenario_team(name)
@@ -338,6 +360,108 @@ def scenarios(window: int) -> None:
             f"{scored['precision']:9.3f} {scored['recall']:7.3f}",
             flush=True,
         )
+        md.row(
+            f"`{name}`",
+            f"{oracle:.4f}",
+            f"{own:.4f}",
+            f"{own / oracle:.3f}",
+            f"{scored['precision']:.3f}",
+            f"{scored['recall']:.3f}",
+        )
+    md.end()
+
+
+#: the teams of ``oracle``: what they are, and how each is made and run
+ORACLE_TEAMS = {
+    "default": "`make run` team: 5 robots, 150 steps, complete graph, window 10",
+    "ring": "15 robots on a ring, 30% link loss, 150 steps, window 10",
+    "kitti00": "KITTI 00: 3 robots, objects only, the settings `teamslam run` resolves",
+}
+
+
+def _oracle_team(name: str, window: int):
+    """``(team with global ids, the same with ids per robot, graph, loss, settings)``."""
+    if name == "kitti00":
+        src = DATA / "distributed-msckf" / "kitti00"
+        if not src.is_dir():
+            raise SystemExit(f"oracle: KITTI 00 not found at {src}")
+        team = import_reference(src)
+        stripped = import_reference(src, object_ids="per-robot", seed=0)
+        return team, stripped, "complete", 0.0, {}
+    robots, graph, loss = (5, "complete", 0.0) if name == "default" else (15, "ring", 0.3)
+    team = lissajous_team(robots=robots, steps=150, seed=0)
+    return team, strip_object_ids(team, seed=0), graph, loss, {"window": window}
+
+
+def oracle(teams: list[str], window: int, md: Markdown) -> None:
+    """Consensus with the data's global ids, with own association, and separate filters."""
+    print(
+        f"{'team':9} {'oracle m':>9} {'own m':>9} {'ratio':>6} {'separate m':>10} "
+        f"{'precision':>9} {'recall':>7} {'held':>5} {'revoked':>7} {'kB/robot-frame':>14} share"
+    )
+    md.table(
+        "Consensus with the data's object ids (oracle), with own association (ids made per "
+        "robot), and the separate filters",
+        [
+            "team",
+            "oracle ids RMSE [m]",
+            "own association RMSE [m]",
+            "own / oracle",
+            "separate RMSE [m]",
+            "precision",
+            "recall",
+            "held / revoked",
+            "summary kB",
+            "association time share",
+        ],
+        note="RMSE: trajectory RMSE averaged over the robots; precision and recall of own "
+        "association against the objects both final maps hold; summary kB: object summaries "
+        "sent per robot per frame; time share: the association's share of the robots' step "
+        "time.",
+    )
+    for name in teams:
+        team, stripped, graph, loss, settings = _oracle_team(name, window)
+        resolved = api.resolve_settings(team, settings)  # calibrated once per dataset
+        runs = {}
+        for label, data, mode, association, config in (
+            ("oracle", team, "consensus", "oracle", resolved),
+            ("own", stripped, "consensus", "own", api.resolve_settings(stripped, settings)),
+            ("separate", team, "separate", None, resolved),
+        ):
+            runs[label] = api.run(
+                data,
+                mode=mode,
+                graph=graph,
+                loss=loss,
+                settings=config,
+                association=association,
+                report=False,
+                progress=False,
+            ).metrics
+        rmse = {k: runs[k]["trajectory_rmse_avg_m"] for k in ("oracle", "own", "separate")}
+        scored = runs["own"]["association"]["team"]
+        kb = scored["summary_bytes_per_robot_step"] / 1e3
+        share = 100 * scored["association_time_share"]
+        ratio = rmse["own"] / rmse["oracle"]
+        print(
+            f"{name:9} {rmse['oracle']:9.4f} {rmse['own']:9.4f} {ratio:6.3f} "
+            f"{rmse['separate']:10.4f} {scored['precision']:9.3f} {scored['recall']:7.3f} "
+            f"{scored['held']:5d} {scored['revoked']:7d} {kb:14.2f} {share:5.1f}%",
+            flush=True,
+        )
+        md.row(
+            ORACLE_TEAMS[name],
+            f"{rmse['oracle']:.4f}",
+            f"{rmse['own']:.4f}",
+            f"{ratio:.3f}",
+            f"{rmse['separate']:.4f}",
+            f"{scored['precision']:.3f}",
+            f"{scored['recall']:.3f}",
+            f"{scored['held']} / {scored['revoked']}",
+            f"{kb:.2f}",
+            f"{share:.1f}%",
+        )
+    md.end()
 
 
 def main() -> None:
@@ -346,7 +470,14 @@ def main() -> None:
         "what",
         nargs="*",
         default=["kitti", "sim"],
-        choices=("kitti", "sim", "ring", "delay", "scenarios"),
+        choices=("kitti", "sim", "ring", "delay", "scenarios", "oracle"),
+    )
+    parser.add_argument(
+        "--teams",
+        nargs="+",
+        default=list(ORACLE_TEAMS),
+        choices=list(ORACLE_TEAMS),
+        help="oracle: the teams",
     )
     parser.add_argument("--dataset", help="delay: a dataset directory with per-robot ids")
     parser.add_argument("--graph", default="complete", help="delay: communication graph")
@@ -354,8 +485,13 @@ def main() -> None:
     parser.add_argument("--window", type=int, default=10, help="delay, scenarios: sliding window")
     parser.add_argument("--frames", type=int, nargs="*", default=[500, 1000, 1500])
     parser.add_argument("--sim-frames", type=int, nargs="*", default=[50, 100])
+    add_option(parser)
     args = parser.parse_args()
-    _header()
+    if args.markdown is not None and not {"oracle", "scenarios"} & set(args.what):
+        parser.error("--markdown: only oracle and scenarios write Markdown")
+    md = Markdown(args.markdown)
+    if {"kitti", "sim"} & set(args.what):
+        _header()
     if "kitti" in args.what:
         kitti(args.frames)
     if "sim" in args.what:
@@ -366,8 +502,11 @@ def main() -> None:
         if not args.dataset:
             parser.error("delay needs --dataset")
         delay(args.dataset, args.graph, args.loss, args.window)
+    if "oracle" in args.what:
+        oracle(args.teams, args.window, md)
     if "scenarios" in args.what:
-        scenarios(args.window)
+        scenarios(args.window, md)
+    md.write()
 
 
 if __name__ == "__main__":

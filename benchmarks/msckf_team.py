@@ -59,6 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _markdown import Markdown, add_option
 from teamslam.datasets import import_reference
 from teamslam.eval.metrics import team_metrics
 from teamslam.msckf import config_for, run_team
@@ -80,20 +81,38 @@ def _settings(window, objects_only=False):
     return settings
 
 
-def _print_stages(label, stage_ms):
+STAGE_COLUMNS = ["team", "stage", "mean [ms]", "median [ms]", "p95 [ms]"]
+
+
+def _print_stages(label, stage_ms, md):
     """Mean, median and p95 per robot per frame of each stage and of the total, in ms."""
     for stage in (*STAGES, "total"):
         mean, median, p95 = stage_ms[stage]
         print(f"{label:>6} {stage:>15} {mean:8.2f} {median:8.2f} {p95:8.2f}")
+        md.row(label, stage, f"{mean:.2f}", f"{median:.2f}", f"{p95:.2f}")
 
 
-def _stage_table(label, result):
-    _print_stages(label, stage_statistics(result))
+def _stage_table(label, result, md):
+    _print_stages(label, stage_statistics(result), md)
 
 
-def accuracy(robots, seeds, steps, objects_only, window):
+def accuracy(robots, seeds, steps, objects_only, window, md):
     """Paper Table IV: the library's experiment (``teamslam paper dvi --table 4``)."""
     pairs = team_pairs(robots, seeds, steps, _settings(window, objects_only), progress=False)
+    md.table(
+        f"Separate vs consensus, simulated teams ({steps} steps, {seeds} seed(s), window "
+        f"{window}{', objects only' if objects_only else ''}; means over the seeds)",
+        [
+            "robots",
+            "separate trajectory RMSE [m]",
+            "consensus trajectory RMSE [m]",
+            "change",
+            "separate object error [m]",
+            "consensus object error [m]",
+            "change",
+            "odometry RMSE [m]",
+        ],
+    )
     print(
         f"{'robots':>6} {'sep traj':>9} {'con traj':>9} {'change':>7} "
         f"{'sep obj':>8} {'con obj':>8} {'change':>7} {'odometry':>9}"
@@ -114,6 +133,17 @@ def accuracy(robots, seeds, steps, objects_only, window):
             f"{n:>6} {st:9.3f} {ct:9.3f} {100 * (ct / st - 1):6.0f}% {so:8.3f} {co:8.3f} "
             f"{100 * (co / so - 1):6.0f}% {odo:9.3f}"
         )
+        md.row(
+            n,
+            f"{st:.3f}",
+            f"{ct:.3f}",
+            f"{100 * (ct / st - 1):.0f}%",
+            f"{so:.3f}",
+            f"{co:.3f}",
+            f"{100 * (co / so - 1):.0f}%",
+            f"{odo:.3f}",
+        )
+    md.end()
 
 
 def loss_sweep(robots, steps, objects_only, window):
@@ -133,7 +163,7 @@ def loss_sweep(robots, steps, objects_only, window):
             )
 
 
-def kitti(window):
+def kitti(window, md):
     """Paper Tables I–III and Fig. 3 on KITTI 00: the library's experiment (``teamslam paper
     dvi --table 1``), the two filters one after the other so that the times are alone."""
     src = DATA / "distributed-msckf" / "kitti00"
@@ -142,12 +172,17 @@ def kitti(window):
         return
     m = kitti_pair(src, settings=_settings(window), workers=1, progress=False).metrics
     print(f"{'':<12} {'robot 1':>8} {'robot 2':>8} {'robot 3':>8} {'avg':>8}  obj err  disagree")
+    md.table(
+        f"KITTI 00, three robots, objects only, window {window}: trajectory RMSE per robot [m]",
+        ["", "robot 1", "robot 2", "robot 3", "average", "object error", "disagreement"],
+    )
     odometry = m["separate"]["odometry_rmse_m"]
     print(
         f"{'odometry':<12} "
         + " ".join(f"{v:8.2f}" for v in odometry)
         + f" {float(np.mean(odometry)):8.2f}"
     )
+    md.row("odometry", *(f"{v:.2f}" for v in odometry), f"{float(np.mean(odometry)):.2f}", "", "")
     for name in ("separate", "consensus"):
         r = m[name]
         print(
@@ -156,12 +191,29 @@ def kitti(window):
             + f" {r['trajectory_rmse_avg_m']:8.2f} {r['object_error_avg_m']:8.2f} "
             f"{r['object_disagreement_avg_m']:8.2f}"
         )
+        md.row(
+            name,
+            *(f"{v:.2f}" for v in r["trajectory_rmse_m"]),
+            f"{r['trajectory_rmse_avg_m']:.2f}",
+            f"{r['object_error_avg_m']:.2f}",
+            f"{r['object_disagreement_avg_m']:.2f}",
+        )
+    md.end()
     print(f"\n{'':>6} {'stage':>15} {'mean ms':>8} {'med ms':>8} {'p95 ms':>8}")
-    _print_stages("kitti", m["consensus"]["stage_ms"])
+    md.table("KITTI 00, consensus: time per robot per frame (frame 0 excluded)", STAGE_COLUMNS)
+    _print_stages("kitti", m["consensus"]["stage_ms"], md)
+    md.end()
 
 
-def speed(robots, steps, window, objects_only=False):
+def speed(robots, steps, window, md, objects_only=False):
     print(f"{'robots':>6} {'stage':>15} {'mean ms':>8} {'med ms':>8} {'p95 ms':>8}")
+    accuracy = []
+    md.table(
+        f"Time per robot per frame by stage (frame 0 excluded): Lissajous teams, {steps} steps, "
+        f"window {window}, {'objects only' if objects_only else 'features and objects'}, "
+        "complete graph, consensus",
+        STAGE_COLUMNS,
+    )
     for n in robots:
         ds = lissajous_team(robots=n, steps=steps, seed=0)
         cfg = config_for(ds, window=window, use_geometric_features=not objects_only)
@@ -169,18 +221,51 @@ def speed(robots, steps, window, objects_only=False):
         result = run_team(ds, cfg, consensus=True, progress=False)
         wall = time.perf_counter() - begin
         frames = ds.robots[0].frames
-        _stage_table(str(n), result)
+        _stage_table(f"{n} robots", result, md)
         print(f"{n:>6} {'team wall/frame':>15} {1e3 * wall / frames:8.2f}")
         m = team_metrics(ds, result)
         print(
             f"{n:>6} {'accuracy':>15} RMSE {m['trajectory_rmse_avg_m']:.6f} "
             f"obj {m['object_error_avg_m']:.6f} disagree {m['object_disagreement_avg_m']:.6f}"
         )
+        accuracy.append((n, 1e3 * wall / frames, m))
+    md.end()
+    md.table(
+        "The same runs: wall time per team frame and accuracy",
+        [
+            "robots",
+            "team wall per frame [ms]",
+            "trajectory RMSE [m]",
+            "object error [m]",
+            "disagreement [m]",
+        ],
+    )
+    for n, wall, m in accuracy:
+        md.row(
+            n,
+            f"{wall:.1f}",
+            f"{m['trajectory_rmse_avg_m']:.6f}",
+            f"{m['object_error_avg_m']:.6f}",
+            f"{m['object_disagreement_avg_m']:.6f}",
+        )
+    md.end()
 
 
-def scaling(robots, steps, window):
+def scaling(robots, steps, window, md):
     from teamslam.graph import random_geometric
 
+    md.table(
+        f"Team size on a random geometric graph (expected degree max(6, 2 ln n)); {steps} steps, "
+        f"window {window}, features and objects; medians per robot-step",
+        [
+            "robots",
+            "mean degree",
+            "ms per robot-step",
+            "consensus ms",
+            "ratio to first",
+            "trajectory RMSE [m]",
+        ],
+    )
     print(
         f"{'robots':>6} {'degree':>6} {'ms/robot-step':>14} {'consensus ms':>13} "
         f"{'ratio':>6} {'traj RMSE':>10}"
@@ -204,6 +289,15 @@ def scaling(robots, steps, window):
             f"{per_step / first:6.2f} {rmse:10.3f}",
             flush=True,
         )
+        md.row(
+            n,
+            f"{degree:.1f}",
+            f"{per_step:.2f}",
+            f"{np.median(times[:, 0]):.2f}",
+            f"{per_step / first:.2f}",
+            f"{rmse:.3f}",
+        )
+    md.end()
 
 
 MESSAGE_VARIANTS = {
@@ -228,10 +322,23 @@ def _bytes_and_consensus_ms(dataset, result):
     return sent, cons
 
 
-def messages(robots, steps, window):
+def messages(robots, steps, window, md):
     """Accuracy and bytes of each kind of consensus message on one team."""
     n = robots[0]
     ds = lissajous_team(robots=n, steps=steps, seed=0)
+    md.table(
+        f"Consensus messages on one Lissajous team ({n} robots, {steps} steps, seed 0, window "
+        f"{window}, complete graph)",
+        [
+            "messages",
+            "trajectory RMSE [m]",
+            "object error [m]",
+            "disagreement [m]",
+            "pose NEES/6",
+            "bytes per robot-step",
+            "consensus median [ms]",
+        ],
+    )
     print(
         f"{'messages':<40} {'RMSE':>7} {'obj err':>8} {'disagree':>9} {'NEES/6':>7} "
         f"{'B/robot-step':>13} {'consensus ms':>13}"
@@ -247,6 +354,16 @@ def messages(robots, steps, window):
             f"{sent:13.0f} {cons:13.2f}",
             flush=True,
         )
+        md.row(
+            name,
+            f"{m['trajectory_rmse_avg_m']:.4f}",
+            f"{m['object_error_avg_m']:.4f}",
+            f"{m['object_disagreement_avg_m']:.4f}",
+            f"{np.mean(m['nees_pose_avg']):.2f}",
+            f"{sent:,.0f}",
+            f"{cons:.2f}",
+        )
+    md.end()
 
 
 def hybrid(robots, steps, window, seeds):
@@ -617,6 +734,10 @@ def bounded(
     print("ratio   " + " ".join(f"{r:.3f}" for r in ratio))
 
 
+#: the subcommands that write ``--markdown``
+MARKDOWN = ("accuracy", "kitti", "speed", "scaling", "messages")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -659,7 +780,11 @@ def main():
         default=None,
         help="bounded: the Python that runs the published code (default: this one)",
     )
+    add_option(parser)
     args = parser.parse_args()
+    if args.markdown is not None and args.what not in MARKDOWN:
+        parser.error(f"--markdown: {args.what} writes no Markdown (only {', '.join(MARKDOWN)})")
+    md = Markdown(args.markdown)
     if args.what == "bounded":
         from teamslam.msckf.settings.sources import parse_assignments
 
@@ -675,22 +800,28 @@ def main():
         )
     elif args.what == "accuracy":
         accuracy(
-            args.robots or [3, 5, 10, 15], args.seeds, args.steps, args.objects_only, args.window
+            args.robots or [3, 5, 10, 15],
+            args.seeds,
+            args.steps,
+            args.objects_only,
+            args.window,
+            md,
         )
     elif args.what == "loss":
         loss_sweep(args.robots or [5, 15], args.steps, args.objects_only, args.window)
     elif args.what == "kitti":
-        kitti(args.window)
+        kitti(args.window, md)
     elif args.what == "messages":
-        messages(args.robots or [5], args.steps, args.window)
+        messages(args.robots or [5], args.steps, args.window, md)
     elif args.what == "hybrid":
         hybrid(args.robots or [5], args.steps, args.window, args.seeds)
     elif args.what == "iterations":
         iterations(args.robots or [5], args.steps, args.window)
     elif args.what == "scaling":
-        scaling(args.robots or [5, 10, 25, 50, 100], args.steps, args.window)
+        scaling(args.robots or [5, 10, 25, 50, 100], args.steps, args.window, md)
     else:
-        speed(args.robots or [5, 15], args.steps, args.window, args.objects_only)
+        speed(args.robots or [5, 15], args.steps, args.window, md, args.objects_only)
+    md.write()
 
 
 if __name__ == "__main__":

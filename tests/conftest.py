@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -14,6 +16,49 @@ def shared_data_dir() -> Path:
     """``$TEAMSLAM_DATA`` or ``../shared/data`` next to the project root."""
     env = os.environ.get("TEAMSLAM_DATA")
     return Path(env) if env else (PROJECT_ROOT.parent / "shared" / "data")
+
+
+def chromium_path() -> str | None:
+    """The installed Chromium (or Chrome), or ``None``."""
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+@pytest.fixture
+def chromium(tmp_path):
+    """Headless Chromium as a function: ``chromium(*args, timeout=90)`` runs it with ``args``
+    (``--dump-dom URL``, ``--screenshot=FILE URL``) in a fresh profile, every host but
+    127.0.0.1 resolving to nothing (so any fetch from the network fails), and returns the
+    ``CompletedProcess``.
+    Skips with a reason when Chromium is not installed."""
+    browser = chromium_path()
+    if browser is None:
+        pytest.skip("Chromium not installed (Debian: apt-get install chromium)")
+    base = [
+        browser,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--hide-scrollbars",
+        "--no-first-run",
+        f"--user-data-dir={tmp_path / 'chromium-profile'}",
+        "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",  # loopback only
+        "--window-size=1280,1400",
+    ]
+    env = {**os.environ, "HOME": str(tmp_path)}
+
+    def run(*args: str, timeout: float = 90) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [*base, *args], capture_output=True, text=True, timeout=timeout, env=env
+        )
+
+    return run
 
 
 @pytest.fixture(scope="session")

@@ -17,7 +17,8 @@ from teamslam.association import (
     pair_innovation_consistent,
     score_correspondences,
 )
-from teamslam.association.core import _candidates, _distances, _nearest, _neighbourhoods
+from teamslam.association.candidates import _neighbourhoods, neighbourhood_sets, select_candidates
+from teamslam.association.distances import nearest_neighbours, pair_distances
 from teamslam.association.kernels import (
     consistent_pairs,
     gathered_objects,
@@ -71,8 +72,8 @@ def test_pairwise_consistency_of_a_known_configuration():
     pts = np.array([[0.0, 0, 0], [10, 0, 0], [0, 20, 0], [30, 30, 1]])
     covs = np.repeat((0.01 * np.eye(3))[None], 4, axis=0)
     moved = pts @ so3.exp(np.array([0.1, -0.2, 0.7])).T + [5.0, -3.0, 2.0]
-    geo_a = _distances(pts, covs)
-    geo_b = _distances(moved + rng.normal(0, 0.01, moved.shape), covs)
+    geo_a = pair_distances(pts, covs)
+    geo_b = pair_distances(moved + rng.normal(0, 0.01, moved.shape), covs)
     settings = AssociationSettings(drift_ratio=0.0)
     # candidates: the four true pairs, and object 0 wrongly paired with 3
     ia = np.array([0, 1, 2, 3, 0])
@@ -90,7 +91,7 @@ def test_drift_allowance_is_relative_to_distance():
     pts = np.array([[0.0, 0, 0], [100.0, 0, 0]])
     covs = np.repeat((1e-4 * np.eye(3))[None], 2, axis=0)
     stretched = pts * 1.02  # a 2 % deformation
-    geo_a, geo_b = _distances(pts, covs), _distances(stretched, covs)
+    geo_a, geo_b = pair_distances(pts, covs), pair_distances(stretched, covs)
     ia = ib = np.array([0, 1])
     strict = consistency_graph(ia, ib, geo_a, geo_b, AssociationSettings(drift_ratio=0.0))
     loose = consistency_graph(ia, ib, geo_a, geo_b, AssociationSettings(drift_ratio=0.02))
@@ -103,8 +104,12 @@ def test_compiled_loops_equal_the_formulas_in_numpy():
     rng = np.random.default_rng(4)
     quarter, chi2 = np.float32(0.25 * 0.05**2), np.float32(6.63)
     a, b = _scene(rng, 30), _scene(rng, 25)
-    geo_a = tuple(x.astype(np.float32) for x in _distances(a, np.tile(0.3 * np.eye(3), (30, 1, 1))))
-    geo_b = tuple(x.astype(np.float32) for x in _distances(b, np.tile(0.2 * np.eye(3), (25, 1, 1))))
+    geo_a = tuple(
+        x.astype(np.float32) for x in pair_distances(a, np.tile(0.3 * np.eye(3), (30, 1, 1)))
+    )
+    geo_b = tuple(
+        x.astype(np.float32) for x in pair_distances(b, np.tile(0.2 * np.eye(3), (25, 1, 1)))
+    )
     ia, ib = rng.integers(0, 30, 400), rng.integers(0, 25, 400)
     d1, d2 = geo_a[0][np.ix_(ia, ia)], geo_b[0][np.ix_(ib, ib)]
     var = geo_a[1][np.ix_(ia, ia)] + geo_b[1][np.ix_(ib, ib)] + quarter * (d1 + d2) ** 2
@@ -112,7 +117,7 @@ def test_compiled_loops_equal_the_formulas_in_numpy():
     graph = consistent_pairs(ia, ib, *geo_a, *geo_b, quarter, chi2)
     assert expected.any() and not expected.all()
     assert np.array_equal(graph, expected)
-    near_a, near_b = _nearest(geo_a[0], 6), _nearest(geo_b[0], 6)
+    near_a, near_b = nearest_neighbours(geo_a[0], 6), nearest_neighbours(geo_b[0], 6)
     allowed = rng.random((30, 25)) < 0.8
     members = np.full((30, 25, 6), -1, dtype=np.int16)
     count, _ = shared_neighbourhood(
@@ -167,8 +172,8 @@ def test_compiled_search_and_test_refuse_what_they_cannot_read():
         maximum_clique(one_sided)
     rng = np.random.default_rng(1)
     a, b = _scene(rng, 6), _scene(rng, 5)
-    geo_a = _distances(a, np.tile(0.3 * np.eye(3), (6, 1, 1)))
-    geo_b = _distances(b, np.tile(0.3 * np.eye(3), (5, 1, 1)))
+    geo_a = pair_distances(a, np.tile(0.3 * np.eye(3), (6, 1, 1)))
+    geo_b = pair_distances(b, np.tile(0.3 * np.eye(3), (5, 1, 1)))
     settings = AssociationSettings()
     good = consistency_graph(np.array([0, 1]), np.array([0, 1]), geo_a, geo_b, settings)
     assert good.shape == (2, 2)
@@ -328,8 +333,10 @@ def test_shared_objects_with_different_neighbours_are_candidates_and_matched():
     complete = 0
     for seed in range(10):
         a, b = _shared_patch(seed)
-        geo_a, geo_b = _distances(a.means, a.covs), _distances(b.means, b.covs)
-        ia, ib = _candidates(a, b, geo_a, geo_b, AssociationSettings())
+        geo_a, geo_b = pair_distances(a.means, a.covs), pair_distances(b.means, b.covs)
+        settings = AssociationSettings()
+        score, mismatch, _ = neighbourhood_sets(a, b, geo_a, geo_b, settings)
+        ia, ib = select_candidates(score, mismatch, settings)
         complete += np.count_nonzero((ia < 8) & (ia == ib)) == 8
         result = associate(a, b)
         assert result.matched, (seed, result.status)
@@ -353,19 +360,19 @@ def test_unrelated_maps_give_no_correspondence():
 def test_an_answer_thinned_below_the_minimum_is_no_answer(monkeypatch):
     # the last stage drops gate-added pairs that disagree with the consistent set; when that
     # leaves fewer than min_inliers pairs, the answer is refused like any other too-small one
-    from teamslam.association import core
+    from teamslam.association import answer
 
     a, b, _, _ = _two_maps(seed=2)
     settings = AssociationSettings()
     assert associate(a, b, settings).matched
     keep = settings.min_inliers - 1
     monkeypatch.setattr(
-        core, "_beyond_the_clique", lambda a, b, rows, cols, *rest: (rows[:keep], cols[:keep])
+        answer, "_beyond_the_clique", lambda a, b, rows, cols, *rest: (rows[:keep], cols[:keep])
     )
     result = associate(a, b, settings)
     assert result.status == "too-few" and result.pairs.shape == (0, 2)
     monkeypatch.setattr(
-        core, "_beyond_the_clique", lambda a, b, rows, cols, *rest: (rows[:-1], cols[:-1])
+        answer, "_beyond_the_clique", lambda a, b, rows, cols, *rest: (rows[:-1], cols[:-1])
     )
     thinned = associate(a, b, settings)
     assert thinned.matched and thinned.pairs.shape[0] >= settings.min_inliers

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from teamslam.errors import InputError
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
 from teamslam.testing import numerical_jacobian
@@ -49,5 +50,20 @@ def test_in_view_checks_depth_bounds_and_disparity():
 def test_bad_camera_is_rejected():
     with pytest.raises(ValueError, match="3×3"):
         StereoCamera(np.eye(2), np.eye(4))
-    with pytest.raises(ValueError, match="NaN"):
+    with pytest.raises(ValueError, match=r"K\[0\]\[0\] must be finite, got nan"):
         StereoCamera(np.full((3, 3), np.nan), np.eye(4))
+
+
+@pytest.mark.parametrize(
+    ("fx", "fy", "cx", "baseline", "message"),
+    [
+        (-420.0, 420.0, 320.0, 0.5, r"fx = K\[0\]\[0\] must be > 0, got -420"),
+        (420.0, 0.0, 320.0, 0.5, r"fy = K\[1\]\[1\] must be > 0, got 0"),
+        (420.0, 420.0, np.inf, 0.5, r"K\[0\]\[2\] must be finite, got inf"),
+        (420.0, 420.0, 320.0, 0.0, r"stereo baseline must be > 0, got 0"),
+    ],
+)
+def test_every_camera_passes_the_one_check(fx, fy, cx, baseline, message):
+    # focal lengths and baseline > 0, principal point finite: the message names the entry
+    with pytest.raises(InputError, match=message):
+        StereoCamera.from_baseline(fx, fy, cx, 240.0, baseline)

@@ -350,5 +350,7 @@ def test_settings_scale_with_the_image():
 
 def test_without_opencv_the_error_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "cv2", None)
-    with pytest.raises(InputError, match=r"pip install teamslam\[images\]"):
+    with pytest.raises(
+        InputError, match=r"needs the 'images' extra: pip install 'teamslam\[images\]'"
+    ):
         require_cv2()

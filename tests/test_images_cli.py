@@ -233,7 +233,7 @@ def test_without_opencv_the_commands_name_the_extra(rendered, tmp_path, monkeypa
 
     def no_cv2(name, *args, **kwargs):
         if name == "cv2":
-            raise ImportError("No module named 'cv2'")
+            raise ModuleNotFoundError("No module named 'cv2'", name="cv2")
         return real_import(name, *args, **kwargs)
 
     monkeypatch.delitem(sys.modules, "cv2")
@@ -257,5 +257,5 @@ def test_without_opencv_the_commands_name_the_extra(rendered, tmp_path, monkeypa
     ]
     for argv in commands:
         assert main(argv) == 2
-        assert "pip install teamslam[images]" in capsys.readouterr().err
+        assert "needs the 'images' extra: pip install 'teamslam[images]'" in capsys.readouterr().err
     assert not (tmp_path / "s" / "robot_0" / "left").exists()

@@ -21,6 +21,7 @@ ROOT = Path(teamslam.__file__).parent
 # below its own (the same layer: only itself)
 LAYERS: list[set[str]] = [
     {"errors", "_lazy", "_version", "textio", "linalg", "parallel", "_gaussian_kernels"},
+    {"_optional"},
     {"geometry"},
     {"gaussian", "graph", "testing"},
     {"association", "frontend", "dvi"},

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from teamslam._optional import require
 from teamslam.errors import EstimationError, InputError
 
 if TYPE_CHECKING:
@@ -47,6 +48,7 @@ __all__ = [
     "export",
     "launch",
     "load_run",
+    "require_extras",
     "resolve_settings",
     "run",
     "run_robot",
@@ -242,6 +244,7 @@ def run(
         raise InputError("secure needs processes (robots as processes on loopback)")
     if processes and (out is None or mode != "consensus"):
         raise InputError("processes need a run directory (out) and run consensus only")
+    require_extras(processes=processes, secure=secure, mcap=bool(mcap))
     path = dataset if isinstance(dataset, str | os.PathLike) else source
     dataset = _dataset(dataset)
     effective = (
@@ -268,6 +271,25 @@ def run(
     if out is not None:
         write_run(result, out, report=report, mcap=mcap)
     return result
+
+
+def require_extras(processes=False, secure=False, mcap=False, ros2=False) -> None:
+    """Check that the optional extras a workflow needs are installed, before it starts.
+
+    Raises
+    ------
+    teamslam._optional.MissingExtra
+        An :class:`InputError` naming the feature, the extra and how to install it.
+    """
+    if processes:
+        require("zenoh", "network", "running robots as processes")
+    if secure:
+        require("cryptography", "network", "a secured team")
+    if mcap:
+        require("rosbags", "ros2", "MCAP output")
+    if ros2:
+        require("rosbags", "ros2", "publishing ROS 2 topics")
+        require("xxhash", "ros2", "publishing ROS 2 topics")
 
 
 def with_association(effective, dataset, association: str):
@@ -465,6 +487,7 @@ def launch(team_path: str | Path, out: str | Path, settings=None, progress=None)
 
     team_path, out = Path(team_path), Path(out)
     team = load_team_file(team_path)
+    require_extras(processes=True, secure=team.security is not None, ros2=team.ros2 is not None)
     validate_team(team)
     codes = launch_team(team, team_path, out, progress=progress)
     finished = [r for r, c in sorted(codes.items()) if c == 0]
@@ -541,6 +564,9 @@ def run_robot(
     team = load_team_file(team_path)
     if not 0 <= robot < team.n:
         raise InputError(f"robot must lie in 0..{team.n - 1}, got {robot}")
+    require_extras(
+        processes=True, secure=team.security is not None, ros2=ros2 or team.ros2 is not None
+    )
     if team.security is not None:
         from teamslam.runtime.security import check_credentials
 
@@ -669,6 +695,7 @@ def export(result_dir: str | Path, out: str | Path, path_messages: int = 100) ->
     from teamslam.eval.outputs import writing
     from teamslam.ros2.mcap_export import export_mcap
 
+    require_extras(mcap=True)
     with writing(Path(out)):
         return export_mcap(result_dir, out, path_messages=path_messages)
 
@@ -825,6 +852,9 @@ def simulate_images(
     from teamslam.ros2.image_bags import images_to_bag
     from teamslam.sim.render import RenderConfig, render_team
 
+    require("cv2", "images", "rendering images")
+    if bag:
+        require("rosbags", "ros2", "the ROS 2 bag of rendered images")
     config = RenderConfig(robots=robots, steps=steps, seed=seed, **overrides)
     team = render_team(config, out, progress=progress)
     if bag:

@@ -41,7 +41,6 @@ __all__ = [
     "geometric_average",
     "geometric_average_arrays",
     "kl_divergence",
-    "marginal_information",
     "nees",
     "replace_marginal",
     "replace_marginal_arrays",
@@ -336,24 +335,15 @@ def add_weighted_difference(
     eta[vector_index] += weight * (their[1] - own[1])
 
 
-def marginal_information(
-    info: np.ndarray, cov: np.ndarray | None, index_y: IndexLike
+def _marginal_information(
+    info: np.ndarray, cov: np.ndarray | None, iy: np.ndarray, ix: np.ndarray
 ) -> np.ndarray:
-    """Information matrix of the marginal of ``index_y``, the cheaper way round.
+    """Information matrix of the marginal of ``iy`` (``ix`` the rest), the cheaper way round.
 
     Either the Schur complement of the rest in the joint information,
     ``Λʸʸ − Λʸˣ (Λˣˣ)⁻¹ Λˣʸ`` (``|x|³``), or — when ``cov`` is given and ``y`` is the smaller
     block — the inverse of ``Σʸʸ`` (``|y|³``). Both are the same matrix.
     """
-    n = info.shape[0]
-    iy = _as_index(index_y, n, "marginal_information index_y")
-    return _marginal_information(info, cov, iy, _complement(iy, n))
-
-
-def _marginal_information(
-    info: np.ndarray, cov: np.ndarray | None, iy: np.ndarray, ix: np.ndarray
-) -> np.ndarray:
-    """:func:`marginal_information` on checked, complementary index sets."""
     if ix.size == 0:
         return info.take(iy, axis=0).take(iy, axis=1)
     if cov is not None and ix.size >= iy.size:

@@ -8,7 +8,7 @@ from typing import Any
 
 import yaml
 
-__all__ = ["format_value", "read_yaml"]
+__all__ = ["format_value", "read_yaml", "yaml_problem"]
 
 
 def read_yaml(path: str | Path, error: type[Exception]) -> Any:
@@ -19,7 +19,22 @@ def read_yaml(path: str | Path, error: type[Exception]) -> Any:
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
     except yaml.YAMLError as exc:
-        raise error(f"{path}: not valid YAML ({exc})") from None
+        raise error(f"{path}: not valid YAML: {yaml_problem(exc)}") from None
+
+
+def yaml_problem(exc: Exception) -> str:
+    """A YAML parser's error on one line: where (line and column, counted from 1), what."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None)
+    if problem is None:
+        return " ".join(str(exc).split())
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    context, context_mark = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+    if not context:
+        return f"{where}{problem}"
+    if context_mark is not None and context_mark is not mark:
+        context += f" at line {context_mark.line + 1}, column {context_mark.column + 1}"
+    return f"{where}{problem} ({context})"
 
 
 def format_value(value: Any, digits: int = 4) -> str:

@@ -10,23 +10,20 @@ pairs across steps, grows them, revokes a pair whose consensus innovation fails 
 against ground truth.
 """
 
+from teamslam.association.answer import AssociationResult, associate
 from teamslam.association.clique import maximum_clique
-from teamslam.association.core import (
-    AssociationResult,
-    AssociationSettings,
-    associate,
-    consistency_graph,
-    fit_transform,
-    flipped,
-    gate_pairs,
-)
+from teamslam.association.consistency import consistency_graph
 from teamslam.association.evaluate import CorrespondenceScore, score_correspondences
+from teamslam.association.gate import gate_pairs
+from teamslam.association.mirror import flipped
+from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
 from teamslam.association.table import (
     CorrespondenceTable,
     pair_innovation_consistent,
     pair_innovation_nis,
 )
+from teamslam.association.transform import fit_transform
 
 __all__ = [
     "AssociationResult",

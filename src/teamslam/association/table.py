@@ -21,20 +21,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from teamslam.association.core import (
-    AssociationResult,
-    AssociationSettings,
-    _alone,
-    _assign,
-    _consistent_members,
-    _distinct,
-    _separated,
-    fit_transform,
-    gate_pairs,
-)
+from teamslam.association.answer import AssociationResult
+from teamslam.association.consistency import consistent_members
+from teamslam.association.distances import anchor_distance
+from teamslam.association.gate import alone, assign, distinct, gate_pairs, separated
+from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
+from teamslam.association.transform import fit_transform
 from teamslam.errors import InputError
 from teamslam.gaussian import chi2_quantile
+from teamslam.geometry import se3
 
 __all__ = ["CorrespondenceTable", "pair_innovation_consistent", "pair_innovation_nis"]
 
@@ -230,7 +226,7 @@ class CorrespondenceTable:
             ok, t = _merge_gate(own, their, held, proposal, self.settings)
         else:
             ok, t = _merge_gate(their, own, held[:, ::-1], proposal[:, ::-1], self.settings)
-            t = None if t is None else np.linalg.inv(t)
+            t = None if t is None else se3.inverse(t)
         if t is not None:
             self.T_own_their = t
         elif result.T_first_second is not None:
@@ -248,7 +244,7 @@ class CorrespondenceTable:
         """Grow the held pairs without a full association (cheap: one gate, one assignment).
 
         The objects neither end has matched yet are gated under the transform of the held pairs
-        (:func:`~teamslam.association.core.gate_pairs`, drift allowance from the nearest held
+        (:func:`~teamslam.association.gate.gate_pairs`, drift allowance from the nearest held
         pair), assigned one to one, and kept when
 
         * alone in each other's gate: no second object of either map, held or not, passes the
@@ -261,7 +257,7 @@ class CorrespondenceTable:
           their objects' spacing: :attr:`~teamslam.association.AssociationSettings.separation`);
         * consistent two by two with the held pairs and the pairs added before them, as the
           members of a full association's consistent set are
-          (:func:`~teamslam.association.core._consistent_members`).
+          (:func:`~teamslam.association.consistency.consistent_members`).
 
         A pair left out waits for a full association or for covariances that tell its objects
         apart. Computed in the canonical order of the two robots, like
@@ -398,7 +394,7 @@ def _extend(
     free_b = np.ones(len(b), bool)
     free_b[ib] = False
     passed &= free_a[:, None] & free_b[None, :]
-    rows, cols = _assign(cost, passed)
+    rows, cols = assign(cost, passed)
     if rows.size:
         # once more with the new pairs as anchors too, as in the association: a new pair must
         # then fit the refitted transform within its own covariances
@@ -407,21 +403,21 @@ def _extend(
         cost, passed = gate_pairs(a, b, t, a.means[ra], b.means[rb], settings)
         gated = passed.copy()
         passed &= free_a[:, None] & free_b[None, :]
-        rows, cols = _assign(cost, passed)
+        rows, cols = assign(cost, passed)
         # alone in each other's gate: no second object of either map (held or not) fits
-        alone = _alone(gated, rows, cols)
-        rows, cols = rows[alone], cols[alone]
+        single = alone(gated, rows, cols)
+        rows, cols = rows[single], cols[single]
     # distinct against every object, the held pairs counting as assigned
     all_rows = np.concatenate([ia, rows])
     all_cols = np.concatenate([ib, cols])
-    keep_rows, keep_cols = _distinct(cost, all_rows, all_cols, settings.distinctness)
+    keep_rows, keep_cols = distinct(cost, all_rows, all_cols, settings.distinctness)
     added = free_a[keep_rows]
     # the drift allowance from the held pairs: a new pair does not vouch for itself
-    added[added] = _separated(
+    added[added] = separated(
         a, b, t, a.means[ia], b.means[ib], keep_rows[added], keep_cols[added], settings
     )
     rows, cols = keep_rows[added], keep_cols[added]
-    ok = _consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
+    ok = consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
     pairs = np.column_stack([a.ids[rows[ok]], b.ids[cols[ok]]])
     return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
 
@@ -450,8 +446,8 @@ def _merge_gate(
     ca = np.array([index_a[int(x)] for x in proposal[:, 0]])
     cb = np.array([index_b[int(y)] for y in proposal[:, 1]])
     # the drift allowance grows with the distance from the nearest held pair
-    near_a = np.min(np.linalg.norm(a.means[ca][:, None] - a.means[ia][None], axis=2), axis=1)
-    near_b = np.min(np.linalg.norm(b.means[cb][:, None] - b.means[ib][None], axis=2), axis=1)
+    near_a = anchor_distance(a.means[ca], a.means[ia])
+    near_b = anchor_distance(b.means[cb], b.means[ib])
     extra = 0.5 * settings.drift_ratio**2 * (near_a**2 + near_b**2)
     nis = pair_innovation_nis(
         a.means[ca], a.covs[ca] + extra[:, None, None] * np.eye(3), b.means[cb], b.covs[cb], t

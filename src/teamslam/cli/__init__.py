@@ -6,13 +6,15 @@ Exit status
     Success.
 2
     The input is wrong: a flag, a value out of range, a setting, a malformed or inconsistent
-    file (:class:`teamslam.errors.InputError`), or an input file that cannot be read.
+    file (:class:`teamslam.errors.InputError`), an input file that cannot be read, or an
+    optional extra the command needs that is not installed (the message names it).
 1
     The inputs were valid but the run failed: the estimate could not be computed
     (:class:`teamslam.errors.EstimationError`, naming robot and frame), a result could not be
     written (:class:`teamslam.errors.OutputError` or a full or read-only disk, naming the
     path), a broken invariant of teamslam itself (:class:`teamslam.errors.InternalError`, a
-    bug to report), or a robot process failed.
+    bug to report), or a robot process failed. Also, without a message, when standard output
+    is a pipe whose reader has gone (``teamslam eval R | head``).
 130
     Interrupted.
 
@@ -25,6 +27,8 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import os
+import stat
 import sys
 from collections.abc import Sequence
 
@@ -115,6 +119,23 @@ def _message(exc: BaseException, word: str) -> str:
     return f": {text}"
 
 
+def _stdout_is_pipe() -> bool:
+    try:
+        return stat.S_ISFIFO(os.fstat(sys.stdout.fileno()).st_mode)
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _reader_gone() -> int:
+    """Standard output is a pipe whose reader has gone (``teamslam eval R | head``): stop
+    without a word. As Python's documentation recommends (``signal``, "Note on SIGPIPE"):
+    standard output is pointed at ``/dev/null`` so that the flush at exit raises nothing, and
+    the status is 1."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    return EXIT_FAILURE
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``teamslam`` console script; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -127,7 +148,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return EXIT_USAGE
     try:
-        return int(args.handler(args))
+        status = int(args.handler(args))
+        sys.stdout.flush()  # a reader that went away shows here, not at the interpreter's exit
+        return status
+    except BrokenPipeError:
+        if not _stdout_is_pipe():
+            raise
+        return _reader_gone()
     except (InputError, EstimationError, InternalError, OSError, KeyboardInterrupt) as exc:
         status, word = exit_status(exc)
         sys.stderr.write(f"teamslam {args.command}: {word}{_message(exc, word)}\n")

@@ -145,6 +145,8 @@ def settings_line(dataset, effective) -> str:
 
 def print_run(run, out: Path | None = None) -> None:
     """The table of a :class:`teamslam.api.Run`, its health warnings, notes and files."""
+    from teamslam.eval.estimates import has_ground_truth
+    from teamslam.eval.metrics import pose_nees_warning
     from teamslam.eval.tables import team_table
 
     for warning in run.warnings:
@@ -154,9 +156,13 @@ def print_run(run, out: Path | None = None) -> None:
     if not run.by_mode:
         return
     print(team_table(run.by_mode))
+    truth = run.dataset is not None and has_ground_truth(run.dataset)
     for name, m in run.by_mode.items():
         if "nis" in m:
             print_health(name, m)
+        line = pose_nees_warning(m) if truth else None
+        if line:
+            print(f"warning ({name}): {line}", file=sys.stderr)
     if out is None:
         return
     print(f"\nwrote {out}/metrics.json, TUM trajectories, topview.png, errors.png")

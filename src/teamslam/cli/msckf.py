@@ -32,6 +32,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("--secure needs --processes (robots as processes on loopback)")
     if args.processes and (args.out is None or args.compare or args.separate or args.centralised):
         raise UsageError("--processes needs --out and runs consensus only")
+    api.require_extras(processes=args.processes, secure=args.secure, mcap=args.mcap is not None)
     dataset = load_dataset(args.dataset)
     if args.association is not None:
         args.set = [*(args.set or []), f"association={args.association}"]

@@ -79,6 +79,14 @@ def _table_name(item) -> str:
     return roman[item.number] if item.paper == "dvi" else item.number
 
 
+def _header() -> str:
+    """The first line of each Markdown file: commit, date, this command, the machine (taken as
+    the run starts, so that edits made while it runs are not blamed on it)."""
+    from teamslam.eval.provenance import command_line, measured_header
+
+    return measured_header(command_line("teamslam"))
+
+
 def _cmd_one(args: argparse.Namespace) -> int:
     from teamslam.paper import Reproducer, item_key
 
@@ -89,22 +97,34 @@ def _cmd_one(args: argparse.Namespace) -> int:
     else:
         key = item_key(args.paper, "figure", args.figure)
     settings = _settings(args)
+    header = _header()  # the code and machine as the run starts
     if not args.json:
         print(settings.describe(), flush=True)
     result = Reproducer(settings, args.data).build(key)
     _show(result, args.json)
-    written = [] if args.out is None else [str(p) for p in result.write(args.out)]
+    written = [] if args.out is None else [str(p) for p in result.write(args.out, header)]
     return _finish([result], args, written)
 
 
 def _cmd_all(args: argparse.Namespace) -> int:
-    from teamslam.paper import reproduce_all
+    from teamslam.errors import InputError
+    from teamslam.paper import ITEMS, reproduce_all
 
+    unknown = [k for k in args.only or [] if k not in ITEMS]
+    if unknown:
+        raise InputError(
+            f"--only: no table or figure {', '.join(unknown)} (see teamslam paper list)"
+        )
     settings = _settings(args)
     if not args.json:
         print(settings.describe(), flush=True)
     results, reproducer = reproduce_all(
-        args.out, settings, args.data, on_done=lambda r: _show(r, args.json)
+        args.out,
+        settings,
+        args.data,
+        keys=args.only,
+        on_done=lambda r: _show(r, args.json),
+        header=_header(),
     )
     if not args.json:
         print(reproducer.time_text(), file=sys.stderr)
@@ -186,5 +206,13 @@ def register(sub) -> None:
         p.set_defaults(handler=_cmd_one, paper=name)
     everything = paper_sub.add_parser("all", help="every table and figure, and report.html")
     _common(everything)
+    everything.add_argument(
+        "--only",
+        nargs="+",
+        default=None,
+        metavar="KEY",
+        help="only these tables and figures (keys of teamslam paper list); the experiments "
+        "they share run once",
+    )
     everything.add_argument("--out", type=Path, required=True, help="output directory")
     everything.set_defaults(handler=_cmd_all)

@@ -89,15 +89,20 @@ def read_image(path: Path, image_size: tuple[int, int]) -> np.ndarray:
 
 
 def read_timestamps(path: str | Path) -> np.ndarray:
-    """Stamps (first column of each line, seconds); out-of-order stamps are an error."""
+    """Stamps (first column of each line, seconds); a negative, non-finite or out-of-order
+    stamp is an error."""
     path = Path(path)
     try:
         rows = np.loadtxt(path, ndmin=2, comments="#")
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot read timestamps ({exc})") from None
     stamps = rows[:, 0] if rows.size else np.zeros(0)
-    if not np.all(np.isfinite(stamps)):
-        raise InputError(f"{path}: non-finite timestamp")
+    bad = np.flatnonzero(~np.isfinite(stamps) | (stamps < 0))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(
+            f"{path}: stamp {float(stamps[k])!r} (line {k + 1}); stamps must be finite and ≥ 0"
+        )
     bad = np.flatnonzero(np.diff(stamps) <= 0)
     if bad.size:
         k = int(bad[0]) + 1
@@ -238,37 +243,39 @@ def dataset_from_images(
             raise InputError(f"{f}: {len(s)} stamps for {len(pairs[i])} image pairs")
         stamps.append(s)
     bar = tqdm(total=sum(len(p) for p in pairs), desc="images", disable=not progress)
-    robots, info = [], []
-    next_id = 0
-    for i in range(n):
-        frames = len(pairs[i])
-        odo = None
-        if odo_files[i] is not None:
-            odo = _poses_at(Path(odo_files[i]), stamps[i], frames, "odometry")
-        truth = None
-        if gt_files[i] is not None:
-            truth = _poses_at(Path(gt_files[i]), stamps[i], frames, "ground-truth")
-        images = (
-            (read_image(lp, rig.image_size), read_image(rp, rig.image_size), str(lp))
-            for lp, rp in pairs[i]
-        )
-        robot, record, next_id = _robot_sequence(
-            images, rig, config, next_id, odo, truth, stamps[i], bar
-        )
-        record.update(
-            {
-                "name": names[i],
-                "left": str(left_dirs[i]),
-                "right": str(right_dirs[i]),
-                "odometry": f"file {odo_files[i]}" if odo is not None else record["odometry"],
-                "ground_truth": (
-                    f"file {gt_files[i]}" if truth is not None else record["ground_truth"]
-                ),
-            }
-        )
-        robots.append(robot)
-        info.append(record)
-    bar.close()
+    try:
+        robots, info = [], []
+        next_id = 0
+        for i in range(n):
+            frames = len(pairs[i])
+            odo = None
+            if odo_files[i] is not None:
+                odo = _poses_at(Path(odo_files[i]), stamps[i], frames, "odometry")
+            truth = None
+            if gt_files[i] is not None:
+                truth = _poses_at(Path(gt_files[i]), stamps[i], frames, "ground-truth")
+            images = (
+                (read_image(lp, rig.image_size), read_image(rp, rig.image_size), str(lp))
+                for lp, rp in pairs[i]
+            )
+            robot, record, next_id = _robot_sequence(
+                images, rig, config, next_id, odo, truth, stamps[i], bar
+            )
+            record.update(
+                {
+                    "name": names[i],
+                    "left": str(left_dirs[i]),
+                    "right": str(right_dirs[i]),
+                    "odometry": f"file {odo_files[i]}" if odo is not None else record["odometry"],
+                    "ground_truth": (
+                        f"file {gt_files[i]}" if truth is not None else record["ground_truth"]
+                    ),
+                }
+            )
+            robots.append(robot)
+            info.append(record)
+    finally:  # closed before any error is printed
+        bar.close()
     return _team(robots, info, rig, config, markers, name, {"camera": str(camera)})
 
 

@@ -69,9 +69,9 @@ class Calibration:
     def __post_init__(self) -> None:
         t = np.asarray(self.T_cam_body, dtype=float)
         if t.shape != (4, 4) or not np.all(np.isfinite(t)):
-            raise DatasetError("calibration.T_cam_body must be a finite 4×4 matrix")
+            raise DatasetError("T_cam_body must be a finite 4×4 matrix")
         if not np.allclose(t[:3, :3] @ t[:3, :3].T, np.eye(3), atol=1e-6):
-            raise DatasetError("calibration.T_cam_body rotation is not orthonormal")
+            raise DatasetError("T_cam_body rotation is not orthonormal")
         object.__setattr__(self, "T_cam_body", t)
 
 
@@ -325,7 +325,9 @@ class RobotSequence:
     objects
         Object detections (box centres) per frame, keyed by object id.
     timestamps
-        ``(N + 1,)`` seconds, or ``None``.
+        ``(N + 1,)`` seconds, finite, ``≥ 0`` and increasing, or ``None``. Negative stamps are
+        refused rather than shifted: every export (ROS 2 stamps are unsigned) then writes the
+        times the data holds.
     object_classes
         ``(C, 2)`` int64 rows ``(object id, class label)`` from the robot's detector, or
         ``None`` when it gives no class. Filter-visible, like the detections themselves.
@@ -377,8 +379,16 @@ class RobotSequence:
     def validate(self, where: str) -> None:
         """Raise :class:`DatasetError` naming ``where`` and the field on any inconsistency."""
         poses, odo = self.T_world_body, self.odometry
-        if poses.ndim != 3 or poses.shape[1:] != (4, 4) or poses.shape[0] < 1:
-            raise DatasetError(f"{where}.T_world_body must be (N + 1, 4, 4), got {poses.shape}")
+        if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+            raise DatasetError(
+                f"{where}.T_world_body must be (N + 1, 4, 4) poses, got shape {poses.shape}"
+            )
+        if poses.shape[0] < 2:
+            raise DatasetError(
+                f"{where} has {poses.shape[0]} frame{'' if poses.shape[0] == 1 else 's'} "
+                f"(T_world_body holds {poses.shape[0]} poses); a robot needs at least two: "
+                "one step of odometry to estimate"
+            )
         n = poses.shape[0] - 1
         if odo.shape != (n, 4, 4):
             raise DatasetError(f"{where}.odometry must be ({n}, 4, 4), got {odo.shape}")
@@ -393,6 +403,13 @@ class RobotSequence:
                 raise DatasetError(f"{where}.{name}: rotation at frame {k} is not orthonormal")
         for name, obs in (("features", self.features), ("objects", self.objects)):
             obs.validate(f"{where}.{name}")
+            if name == "objects" and np.any(obs.ids < 0):
+                j = int(np.flatnonzero(obs.ids < 0)[0])
+                frame = int(np.searchsorted(obs.offsets, j, side="right") - 1)
+                raise DatasetError(
+                    f"{where}.objects: object id {int(obs.ids[j])} in frame {frame}; object ids "
+                    "must be ≥ 0"
+                )
             if obs.frames != n + 1:
                 raise DatasetError(
                     f"{where}.{name}: {obs.frames} frames of observations for {n + 1} poses"
@@ -406,10 +423,23 @@ class RobotSequence:
                 )
         if self.timestamps is not None:
             ts = self.timestamps
-            if ts.shape != (n + 1,) or not np.all(np.isfinite(ts)):
-                raise DatasetError(f"{where}.timestamps must be ({n + 1},) finite")
+            if ts.shape != (n + 1,):
+                raise DatasetError(
+                    f"{where}.timestamps must be one per frame, ({n + 1},), got shape {ts.shape}"
+                )
+            bad = ~np.isfinite(ts) | (ts < 0)
+            if np.any(bad):
+                k = int(np.flatnonzero(bad)[0])
+                raise DatasetError(
+                    f"{where}.timestamps[{k}] is {ts[k]:g} s; timestamps must be finite and ≥ 0 "
+                    "(seconds since an epoch before the recording, as ROS 2 stamps)"
+                )
             if np.any(np.diff(ts) <= 0):
-                raise DatasetError(f"{where}.timestamps must increase")
+                k = int(np.flatnonzero(np.diff(ts) <= 0)[0])
+                raise DatasetError(
+                    f"{where}.timestamps must increase, but [{k + 1}] = {ts[k + 1]:g} s follows "
+                    f"[{k}] = {ts[k]:g} s"
+                )
         if self.object_classes is not None:
             classes = self.object_classes
             if np.unique(classes[:, 0]).size != len(classes):

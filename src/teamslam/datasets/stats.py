@@ -9,7 +9,7 @@ from teamslam.datasets.model import FrameObservations, TeamDataset
 from teamslam.geometry import se3
 from teamslam.textio import format_value
 
-__all__ = ["dataset_info", "format_info", "ground_truth_noise", "robust_std"]
+__all__ = ["dataset_info", "format_info", "ground_truth_noise", "robust_std", "seen_once"]
 
 
 def robust_std(x: np.ndarray, axis: int = 0) -> np.ndarray:
@@ -91,6 +91,25 @@ def _tracks(obs: FrameObservations) -> np.ndarray:
     return lengths
 
 
+def seen_once(dataset: TeamDataset) -> list[tuple[int, int]]:
+    """``(robot, object id)`` of every object observed in one frame by one robot and never
+    again by anyone: nothing to estimate it from (with ``per-robot`` ids an id is the robot's
+    own, so "anyone" is that robot). Not an error of the data — a detector can see an object
+    once — but worth knowing."""
+    once: list[tuple[int, int]] = []
+    if dataset.object_id_scope == "global":
+        everywhere = [r.objects.ids for r in dataset.robots]
+        ids, counts = np.unique(np.concatenate(everywhere), return_counts=True)
+        single = set(ids[counts == 1].tolist())
+        for i, robot_ids in enumerate(everywhere):
+            once += [(i, int(k)) for k in robot_ids.tolist() if k in single]
+        return sorted(once)
+    for i, robot in enumerate(dataset.robots):
+        ids, counts = np.unique(robot.objects.ids, return_counts=True)
+        once += [(i, int(k)) for k in ids[counts == 1].tolist()]
+    return once
+
+
 def dataset_info(dataset: TeamDataset) -> dict:
     """Robots, frames, objects observed and shared, observations per frame, geometric tracks."""
     seen_by = [np.unique(r.objects.ids) for r in dataset.robots]
@@ -105,6 +124,7 @@ def dataset_info(dataset: TeamDataset) -> dict:
         "objects_in_map": int(dataset.object_ids.size),
         "objects_observed": int(ids.size),
         "objects_shared": int((robots_per_object >= 2).sum()),
+        "objects_seen_once": [list(pair) for pair in seen_once(dataset)],
         "object_observations_per_frame": _per_frame([r.objects for r in dataset.robots]),
         "feature_observations_per_frame": _per_frame([r.features for r in dataset.robots]),
         "geometric_tracks": int(track_lengths.size),
@@ -126,6 +146,7 @@ def format_info(info: dict) -> str:
             f"frames per robot   {', '.join(str(n) for n in info['frames_per_robot'])}",
             f"objects            {info['objects_observed']} observed "
             f"({info['objects_shared']} by ≥ 2 robots), {info['objects_in_map']} in the map",
+            *_seen_once_line(info.get("objects_seen_once") or []),
             f"object obs/frame   mean {o['mean']:.2f}, max {o['max']} ({o['total']} in all)",
             f"feature obs/frame  mean {f['mean']:.2f}, max {f['max']} ({f['total']} in all)",
             f"geometric tracks   {info['geometric_tracks']}, mean length "
@@ -134,6 +155,18 @@ def format_info(info: dict) -> str:
             *_noise_lines(info),
         ]
     )
+
+
+def _seen_once_line(once: list) -> list[str]:
+    if not once:
+        return []
+    named = ", ".join(f"robot {r} id {k}" for r, k in once[:3])
+    more = f" and {len(once) - 3} more" if len(once) > 3 else ""
+    return [
+        f"seen once          {len(once)} object{'s' if len(once) > 1 else ''} in one frame of "
+        f"one robot only, nothing to estimate {'them' if len(once) > 1 else 'it'} from: "
+        f"{named}{more}"
+    ]
 
 
 def _noise_lines(info: dict) -> list[str]:

@@ -12,8 +12,11 @@ A dataset is a directory::
 Arrays are compressed numpy ``.npz`` files read with ``allow_pickle=False``; ragged per-frame
 observations are flat arrays plus offsets. Floats in the manifest are written with Python's
 shortest round-trip representation, so a save/load round trip is bit-exact. Loading validates
-every field and names the file and field of the first problem; writing is atomic (a reader never
-sees half a dataset).
+every field once and names the file and field of the first problem and what it holds (among
+others: the camera through :func:`~teamslam.geometry.camera.check_stereo`, at least two frames
+per robot, object ids ``≥ 0``, timestamps finite and ``≥ 0`` — a negative stamp is refused, not
+shifted, so that every export writes the times the data holds); writing is atomic (a reader
+never sees half a dataset).
 
 Versions: 2 adds the ``sensor_model`` section (:mod:`~teamslam.datasets.sensor_model`; absent
 when unknown). Version 1 datasets still load: without a sensor model, except that a simulated
@@ -267,18 +270,21 @@ def load_dataset(directory: str | Path) -> TeamDataset:
     ):
         raise DatasetError(f"{manifest_path}: calibration.image_size must be [width, height]")
     try:
-        calibration = Calibration(
-            StereoCamera(
-                _matrix(cal["K"], (3, 3), f"{manifest_path}: calibration.K"),
-                _matrix(cal["T_left_right"], (4, 4), f"{manifest_path}: calibration.T_left_right"),
-            ),
-            _matrix(cal["T_cam_body"], (4, 4), f"{manifest_path}: calibration.T_cam_body"),
-            tuple(int(v) for v in image_size) if image_size else None,
+        k = _matrix(cal["K"], (3, 3), f"{manifest_path}: calibration.K")
+        t_left_right = _matrix(
+            cal["T_left_right"], (4, 4), f"{manifest_path}: calibration.T_left_right"
         )
+        t_cam_body = _matrix(cal["T_cam_body"], (4, 4), f"{manifest_path}: calibration.T_cam_body")
     except KeyError as exc:
         raise DatasetError(f"{manifest_path}: calibration field {exc} is missing") from None
+    try:
+        calibration = Calibration(
+            StereoCamera(k, t_left_right),
+            t_cam_body,
+            tuple(int(v) for v in image_size) if image_size else None,
+        )
     except ValueError as exc:
-        raise DatasetError(f"{manifest_path}: {exc}") from None
+        raise DatasetError(f"{manifest_path}: calibration: {exc}") from None
 
     robot_fields = {
         "T_world_body": "f",
@@ -330,10 +336,19 @@ def load_dataset(directory: str | Path) -> TeamDataset:
             robot.validate(f"robot {i}")
         except DatasetError as exc:
             raise DatasetError(f"{path}: {exc}") from None
-        if meta.get("frames") != robot.frames:
+        frames = meta.get("frames")
+        if frames is None:
             raise DatasetError(
-                f"{path}: manifest says {meta.get('frames')} frames, file holds {robot.frames}"
+                f"{manifest_path}: robots[{i}].frames is missing ({name} holds {robot.frames} "
+                "frames)"
             )
+        if isinstance(frames, bool) or not isinstance(frames, int):
+            raise DatasetError(
+                f"{manifest_path}: robots[{i}].frames must be a whole number of frames, got "
+                f"{frames!r} ({name} holds {robot.frames})"
+            )
+        if frames != robot.frames:
+            raise DatasetError(f"{path}: manifest says {frames} frames, file holds {robot.frames}")
         robots.append(robot)
 
     metadata = manifest.get("metadata") or {}

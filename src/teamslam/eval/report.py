@@ -278,6 +278,11 @@ def _img(png: bytes, alt: str, caption: str) -> str:
     )
 
 
+def _ratio(value) -> str:
+    """A precision or recall to three decimals; ``—`` when there was nothing to measure."""
+    return "—" if value is None else f"{value:.3f}"
+
+
 def _metric_cells(runs: list[TeamRun], get) -> list[str]:
     out = []
     for run in runs:
@@ -637,7 +642,7 @@ def _association_section(names: list[str], runs: list[TeamRun]) -> str:
             elif "precision" in link:
                 cells.append(
                     f"{link.get('held', 0)} held, {link.get('revoked', 0)} revoked, "
-                    f"P {link['precision']:.3f} R {link['recall']:.3f}"
+                    f"P {_ratio(link['precision'])} R {_ratio(link['recall'])}"
                 )
             else:
                 cells.append(f"{link.get('held', 0)} held, {link.get('revoked', 0)} revoked")

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import math
+
 __all__ = ["team_table"]
 
 
 def team_table(runs: dict[str, dict]) -> str:
-    """Side-by-side summary of team runs (separate vs consensus)."""
+    """Side-by-side summary of team runs (separate vs consensus); ``—`` where a metric had
+    nothing to measure."""
     names = list(runs)
     rows = [
         ("trajectory RMSE avg [m]", "trajectory_rmse_avg_m"),
@@ -18,18 +21,18 @@ def team_table(runs: dict[str, dict]) -> str:
     width = max(14, *(len(n) + 2 for n in names))
     lines = [f"{'':<36}" + "".join(f"{n:>{width}}" for n in names)]
     for label, key in rows:
-        lines.append(f"{label:<36}" + "".join(f"{runs[n][key]:>{width}.3f}" for n in names))
+        lines.append(f"{label:<36}" + "".join(_number(runs[n][key], width, 3) for n in names))
     n_robots = runs[names[0]]["robots"]
     for i in range(n_robots):
         lines.append(
             f"{f'robot {i} trajectory RMSE [m]':<36}"
-            + "".join(f"{runs[n]['trajectory_rmse_m'][i]:>{width}.3f}" for n in names)
+            + "".join(_number(runs[n]["trajectory_rmse_m"][i], width, 3) for n in names)
         )
     linearization = runs[names[0]].get("config", {}).get("linearization", "std")
     for i in range(n_robots):
         lines.append(
             f"{f'robot {i} pose NEES / 6 ({linearization})':<36}"
-            + "".join(f"{runs[n]['nees_pose_avg'][i]:>{width}.2f}" for n in names)
+            + "".join(_number(runs[n]["nees_pose_avg"][i], width, 2) for n in names)
         )
     for sensor, label in (("features", "features"), ("objects", "objects")):
         if any(runs[n].get("nis", {}).get(sensor) is not None for n in names):
@@ -42,10 +45,16 @@ def team_table(runs: dict[str, dict]) -> str:
             f"{'odometry residual ratio (t | r)':<36}"
             + "".join(_odometry_cell(runs[n], width) for n in names)
         )
+    once = {n: _one_off(runs[n]) for n in names}
+    mark = " *" if any(once.values()) else ""
     for stage in ("consensus", "propagation", "update", "initialisation", "total"):
         lines.append(
-            f"{f'time {stage} [ms/robot/frame]':<36}"
+            f"{f'time {stage} [ms/robot/frame]{mark}':<36}"
             + "".join(f"{runs[n]['time_per_robot_step_ms'][stage]:>{width}.2f}" for n in names)
+        )
+    if mark:
+        lines.append(
+            "  * include one-off costs: " + "; ".join(f"{n} {w}" for n, w in once.items() if w)
         )
     for key, rows in (("association", _ASSOCIATION_ROWS), ("tracking", _TRACKING_ROWS)):
         if not any(key in runs[n] for n in names):
@@ -63,9 +72,32 @@ def team_table(runs: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def _one_off(run: dict) -> str:
+    """What a run's stage times include that the next run will not pay (numba's compilation
+    of kernels, their loading from its cache), or ``""``."""
+    compiled, loaded = run.get("compilations", 0), run.get("kernels_loaded", 0)
+    parts = []
+    if compiled:
+        parts.append(f"compiling {compiled} kernel{'s' if compiled > 1 else ''} (first run only)")
+    if loaded:
+        parts.append(
+            f"loading {loaded} compiled kernel{'s' if loaded > 1 else ''} from the cache "
+            "(first run of a process)"
+        )
+    return ", ".join(parts)
+
+
+def _number(value, width: int, digits: int) -> str:
+    """A number right-aligned in ``width``; ``—`` when there was nothing to measure (``None``,
+    NaN: no object shared, no frame to score)."""
+    if value is None or not math.isfinite(value):
+        return f"{'—':>{width}}"
+    return f"{value:>{width}.{digits}f}"
+
+
 def _share(team: dict, key: str, digits: int) -> str:
     value = team.get(key)
-    return "—" if value is None else f"{value:.{digits}f}"
+    return "—" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
 #: rows of the run table when a run associated objects itself (``association = own``)

@@ -30,6 +30,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from teamslam.errors import InputError
+from teamslam.geometry import se3
+from teamslam.geometry.alignment import align
 
 __all__ = [
     "ALIGNMENTS",
@@ -139,10 +141,8 @@ class Trajectory:
 def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> Similarity:
     """The similarity (or rigid transform) taking ``source`` points onto ``target`` points.
 
-    Minimises ``Σ_i ‖y_i − (s R x_i + t)‖²`` in closed form (Umeyama 1991, Lemma and eqs.
-    40–42): with ``Σ = (1/n) Σ_i (y_i − μ_y)(x_i − μ_x)ᵀ = U D Vᵀ``, ``R = U S Vᵀ`` where
-    ``S = diag(1, 1, det(U) det(V))`` keeps ``R`` a rotation, ``s = tr(D S) / σ_x²`` (1 when
-    ``with_scale`` is false) and ``t = μ_y − s R μ_x``.
+    Minimises ``Σ_i ‖y_i − (s R x_i + t)‖²`` in closed form, all points weighted alike
+    (:func:`teamslam.geometry.alignment.align`), and refuses collinear points.
 
     Parameters
     ----------
@@ -166,29 +166,14 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> Similar
     n = source.shape[0]
     if n < 3:
         raise InputError(f"alignment needs at least 3 corresponding positions, got {n}")
-    mu_x = source.mean(axis=0)
-    mu_y = target.mean(axis=0)
-    dx = source - mu_x
-    dy = target - mu_y
-    cov = dy.T @ dx / n
-    u, d, vt = np.linalg.svd(cov)
+    found = align(source, target, with_scale=with_scale)
+    d = found.singular_values
     if not d[1] > 1e-12 * max(d[0], np.finfo(float).tiny):
         raise InputError(
             "alignment is not determined: the positions are collinear (a straight-line "
             "trajectory leaves the rotation about it free); use --align none or first-pose"
         )
-    s_diag = np.ones(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
-        s_diag[2] = -1.0
-    rotation = (u * s_diag) @ vt
-    scale = 1.0
-    if with_scale:
-        var_x = float(np.mean(np.sum(dx**2, axis=1)))
-        if not var_x > 0.0:
-            raise InputError("alignment is not determined: the estimated positions coincide")
-        scale = float(np.dot(d, s_diag) / var_x)
-    translation = mu_y - scale * rotation @ mu_x
-    return Similarity(rotation, translation, scale)
+    return Similarity(found.rotation, found.translation, float(found.scale))
 
 
 def first_pose_alignment(estimate: np.ndarray, reference: np.ndarray) -> Similarity:
@@ -336,25 +321,15 @@ def relative_errors(
     """Per-pair RPE of associated ``(N, 4, 4)`` poses: ``translation_m``, ``rotation_deg``,
     and the pairs ``i``, ``j``."""
     i, j = rpe_pairs(reference, delta, unit, all_pairs)
-    q_rel = _inverse(reference[i]) @ reference[j]
-    p_rel = _inverse(estimate[i]) @ estimate[j]
-    e = _inverse(q_rel) @ p_rel
+    q_rel = se3.inverse(reference[i]) @ reference[j]
+    p_rel = se3.inverse(estimate[i]) @ estimate[j]
+    e = se3.inverse(q_rel) @ p_rel
     return {
         "translation_m": np.linalg.norm(e[:, :3, 3], axis=1),
         "rotation_deg": _rotation_angle_deg(e[:, :3, :3]),
         "i": i,
         "j": j,
     }
-
-
-def _inverse(poses: np.ndarray) -> np.ndarray:
-    """Inverse of ``(N, 4, 4)`` rigid transforms."""
-    out = np.zeros_like(poses)
-    rt = np.swapaxes(poses[:, :3, :3], -1, -2)
-    out[:, :3, :3] = rt
-    out[:, :3, 3] = -(rt @ poses[:, :3, 3, None])[..., 0]
-    out[:, 3, 3] = 1.0
-    return out
 
 
 def error_statistics(values: np.ndarray, squared: np.ndarray | None = None) -> dict[str, float]:

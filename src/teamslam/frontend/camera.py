@@ -25,7 +25,8 @@ import numpy as np
 
 from teamslam.errors import InputError
 from teamslam.frontend._cv import require_cv2
-from teamslam.geometry.camera import StereoCamera
+from teamslam.geometry.camera import StereoCamera, check_stereo
+from teamslam.textio import yaml_problem
 
 __all__ = ["DEFAULT_T_CAM_BODY", "StereoRig", "load_camera", "rig_from_camera_info"]
 
@@ -195,6 +196,11 @@ def rig_from_camera_info(left, right, T_cam_body: np.ndarray | None = None) -> S
     T_left_right = np.eye(4)
     T_left_right[:3, :3] = R_l.T @ R_r
     T_left_right[:3, 3] = R_l.T @ np.array([baseline, 0.0, 0.0])
+    for side, K in (("left", K_l), ("right", K_r)):
+        try:  # each camera through the one stereo-camera check, as a camera file's
+            check_stereo(K, T_left_right)
+        except InputError as exc:
+            raise InputError(f"camera info ({side}): {exc}") from None
     size = (int(left.width), int(left.height))
     if (int(right.width), int(right.height)) != size:
         raise InputError("left and right camera infos give different image sizes")
@@ -209,8 +215,10 @@ def load_camera(path: str | Path) -> StereoRig:
     path = Path(path)
     try:
         data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise InputError(f"{path}: cannot read camera file ({exc})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read camera file ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: camera file is not valid YAML: {yaml_problem(exc)}") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: camera file must be a mapping")
     where = str(path)
@@ -239,4 +247,9 @@ def load_camera(path: str | Path) -> StereoRig:
     for name, t in (("T_left_right", T_left_right), ("T_cam_body", T_cam_body)):
         if not np.allclose(t[:3, :3] @ t[:3, :3].T, np.eye(3), atol=1e-6):
             raise InputError(f"{path}: {name} rotation is not orthonormal")
+    for side, (K, _) in zip(("left", "right"), cams, strict=True):
+        try:  # each raw camera through the one stereo-camera check
+            check_stereo(K, T_left_right)
+        except InputError as exc:
+            raise InputError(f"{path}: {side}: {exc}") from None
     return StereoRig(size, cams[0][0], cams[1][0], cams[0][1], cams[1][1], T_left_right, T_cam_body)

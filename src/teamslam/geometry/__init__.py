@@ -23,14 +23,14 @@ from typing import TYPE_CHECKING
 
 from teamslam._lazy import attach
 
-__all__ = ["se2", "se3", "so3"]
+__all__ = ["alignment", "se2", "se3", "so3"]
 
 __getattr__, __dir__ = attach(
     __name__,
-    ("camera", "se2", "se3", "so3"),
+    ("alignment", "camera", "se2", "se3", "so3"),
     {},
 )
 
 
 if TYPE_CHECKING:  # what a type checker and an IDE see; nothing is imported at run time
-    from teamslam.geometry import se2, se3, so3
+    from teamslam.geometry import alignment, se2, se3, so3

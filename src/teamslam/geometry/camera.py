@@ -15,7 +15,7 @@ import numpy as np
 
 from teamslam.errors import InputError
 
-__all__ = ["StereoCamera", "in_image"]
+__all__ = ["StereoCamera", "check_stereo", "in_image"]
 
 
 @dataclass(frozen=True)
@@ -34,16 +34,7 @@ class StereoCamera:
     T_left_right: np.ndarray
 
     def __post_init__(self) -> None:
-        k = np.asarray(self.intrinsics, dtype=float)
-        t = np.asarray(self.T_left_right, dtype=float)
-        if k.shape != (3, 3) or t.shape != (4, 4):
-            raise InputError(
-                f"StereoCamera needs K 3×3 and T_left_right 4×4, got {k.shape}, {t.shape}"
-            )
-        if not (np.all(np.isfinite(k)) and np.all(np.isfinite(t))):
-            raise InputError("StereoCamera: intrinsics or extrinsics contain NaN/inf")
-        if k[0, 0] <= 0 or k[1, 1] <= 0:
-            raise InputError("StereoCamera: focal lengths must be positive")
+        k, t = check_stereo(self.intrinsics, self.T_left_right)
         object.__setattr__(self, "intrinsics", k)
         object.__setattr__(self, "T_left_right", t)
 
@@ -118,6 +109,43 @@ class StereoCamera:
         with np.errstate(divide="ignore", invalid="ignore"):
             z = self.project(np.where(ok[..., None], p_cam, 1.0))
         return ok & in_image(z, width, height) & (z[..., 0] - z[..., 2] > 0)
+
+
+def check_stereo(intrinsics, T_left_right) -> tuple[np.ndarray, np.ndarray]:
+    """The one check of a stereo camera, whatever file it came from: ``K`` 3×3 and
+    ``T_left_right`` 4×4, every entry finite, focal lengths ``fx = K[0][0]`` and ``fy = K[1][1]``
+    positive, the baseline (the length of ``T_left_right``'s translation) positive.
+
+    Returns
+    -------
+    K, T_left_right
+        As float arrays.
+
+    Raises
+    ------
+    InputError
+        Naming the entry that is wrong and what it holds.
+    """
+    k = np.asarray(intrinsics, dtype=float)
+    t = np.asarray(T_left_right, dtype=float)
+    if k.shape != (3, 3):
+        raise InputError(f"K must be 3×3, got shape {k.shape}")
+    if t.shape != (4, 4):
+        raise InputError(f"T_left_right must be 4×4, got shape {t.shape}")
+    for name, m in (("K", k), ("T_left_right", t)):
+        if not np.all(np.isfinite(m)):
+            r, c = np.argwhere(~np.isfinite(m))[0]
+            raise InputError(f"{name}[{r}][{c}] must be finite, got {m[r, c]}")
+    for name, (r, c) in (("fx", (0, 0)), ("fy", (1, 1))):
+        if not k[r, c] > 0:
+            raise InputError(f"focal length {name} = K[{r}][{c}] must be > 0, got {k[r, c]:g}")
+    baseline = float(np.linalg.norm(t[:3, 3]))
+    if not baseline > 0:
+        raise InputError(
+            f"stereo baseline must be > 0, got {baseline:g} (T_left_right translation "
+            f"{t[:3, 3].tolist()}: the right camera sits on the left one)"
+        )
+    return k, t
 
 
 def in_image(z: np.ndarray, width: float, height: float) -> np.ndarray:

@@ -279,7 +279,7 @@ class MsckfAgent:
             )
         try:
             self._step(t)
-        except NotPositiveDefiniteError as exc:
+        except (NotPositiveDefiniteError, np.linalg.LinAlgError, FloatingPointError) as exc:
             raise EstimationError(f"robot {self.robot}, frame {t}: {exc}") from exc
 
     def _step(self, t: int) -> None:

@@ -40,7 +40,8 @@ import os
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -65,6 +66,7 @@ __all__ = [
     "RobotDriver",
     "TeamResult",
     "assemble_result",
+    "compilations",
     "exchanges_per_frame",
     "load_result",
     "merge_results",
@@ -236,17 +238,43 @@ class RobotDriver:
         """Consensus exchanges per frame (``consensus_iterations``; 1 without consensus)."""
         return 1 if self.protocol is None else self.protocol.iterations
 
+    @contextmanager
+    def _named(self, t: int, stage: str) -> Iterator[None]:
+        """A numerical failure of this robot at frame ``t`` (a linear-algebra error, a
+        covariance that lost positive definiteness) becomes an :class:`EstimationError` naming
+        the robot, the frame and ``stage``."""
+        try:
+            yield
+        except (np.linalg.LinAlgError, FloatingPointError, EstimationError) as exc:
+            where = f"robot {self.agent.robot}, frame {t}"
+            if isinstance(exc, EstimationError) and str(exc).startswith(where):
+                raise
+            raise EstimationError(f"{where}: {stage}: {exc}") from exc
+
     # ------------------------------------------------------------------ consensus rounds
     def requests(self, t: int, iteration: int = 0) -> None:
         """Round 1 of exchange ``iteration``: send our map ids to every neighbour the transport
         can reach."""
-        reachable = self.transport.reachable(self.protocol.exchange(t, iteration), self.neighbours)
-        for message in self.protocol.requests(t, reachable, iteration):
-            self.transport.send(message)
+        with self._named(t, "consensus"):
+            self._requests(t, iteration)
 
     def answer(self, t: int, iteration: int = 0) -> None:
         """Round 2: take the neighbours' ids, answer each with our common marginal (a
         neighbour's silence is judged on a frame's first exchange)."""
+        with self._named(t, "consensus"):
+            self._answer(t, iteration)
+
+    def average(self, t: int, iteration: int = 0) -> None:
+        """Round 3: take the marginals we expect, average (eq. 19, Prop. 2)."""
+        with self._named(t, "consensus"):
+            self._average(t, iteration)
+
+    def _requests(self, t: int, iteration: int) -> None:
+        reachable = self.transport.reachable(self.protocol.exchange(t, iteration), self.neighbours)
+        for message in self.protocol.requests(t, reachable, iteration):
+            self.transport.send(message)
+
+    def _answer(self, t: int, iteration: int) -> None:
         number = self.protocol.exchange(t, iteration)
         if isinstance(self.wait, LockStep):
             waiting = {j for j in self.neighbours if self.silent[j] < self.lost_after}
@@ -268,8 +296,7 @@ class RobotDriver:
                 self.lost_reported.add(j)
                 self.agent.counters["neighbours_lost"] += 1
 
-    def average(self, t: int, iteration: int = 0) -> None:
-        """Round 3: take the marginals we expect, average (eq. 19, Prop. 2)."""
+    def _average(self, t: int, iteration: int) -> None:
         if isinstance(self.wait, LockStep):
             heard = self.transport.collect(
                 self.protocol.exchange(t, iteration),
@@ -295,12 +322,14 @@ class RobotDriver:
     # ------------------------------------------------------------------ filter
     def step(self, t: int) -> None:
         """Process frame ``t`` (Algorithm 1, steps 2–4)."""
-        self.agent.step(t)
+        with self._named(t, "filter"):
+            self.agent.step(t)
 
     def record(self, t: int) -> None:
         """Keep the filtered pose of frame ``t`` and its covariance."""
-        self.poses[t] = self.agent.state.current_pose
-        self.covs[t] = self.agent.state.current_pose_cov()
+        with self._named(t, "filter"):
+            self.poses[t] = self.agent.state.current_pose
+            self.covs[t] = self.agent.state.current_pose_cov()
         self.done = t + 1
 
     def frame(self, t: int) -> None:
@@ -372,22 +401,24 @@ def run_lockstep(
     frames = [d.frames for d in drivers]
     show = sys.stderr.isatty() if progress is None else progress
     begin = time.perf_counter()
-    for t in tqdm(range(max(frames)), desc="frames", disable=not show, leave=False):
-        running = [i for i, f in enumerate(frames) if t < f]
-        ended = {i for i, f in enumerate(frames) if f == t}
-        for i in running:  # a robot whose sequence ended is no neighbour, not a lost link
-            drivers[i].neighbours -= ended
-        if before is not None:
-            before(t, running)
-        talking = [drivers[i] for i in running if drivers[i].exchanges(t)]
-        for iteration in range(exchanges_per_frame(talking)):
-            for phase in (RobotDriver.requests, RobotDriver.answer, RobotDriver.average):
-                for d in talking:
-                    phase(d, t, iteration)
-        for i in running:
-            drivers[i].step(t)
-        for i in running:  # after every robot's update of this frame
-            drivers[i].record(t)
+    with tqdm(total=max(frames), desc="frames", disable=not show, leave=False) as bar:
+        for t in range(max(frames)):
+            running = [i for i, f in enumerate(frames) if t < f]
+            ended = {i for i, f in enumerate(frames) if f == t}
+            for i in running:  # a robot whose sequence ended is no neighbour, not a lost link
+                drivers[i].neighbours -= ended
+            if before is not None:
+                before(t, running)
+            talking = [drivers[i] for i in running if drivers[i].exchanges(t)]
+            for iteration in range(exchanges_per_frame(talking)):
+                for phase in (RobotDriver.requests, RobotDriver.answer, RobotDriver.average):
+                    for d in talking:
+                        phase(d, t, iteration)
+            for i in running:
+                drivers[i].step(t)
+            for i in running:  # after every robot's update of this frame
+                drivers[i].record(t)
+            bar.update()
     return time.perf_counter() - begin
 
 
@@ -588,6 +619,7 @@ def run_drivers(
     """:func:`run_lockstep` then :func:`assemble_result`; a failing filter raises
     :class:`PartialRunError` with the result of the frames every robot finished."""
     begin = time.perf_counter()
+    compiled = np.array(compilations())
     try:
         wall = run_lockstep(drivers, before, progress)
     except EstimationError as exc:
@@ -604,7 +636,34 @@ def run_drivers(
             complete=False,
         )
         raise PartialRunError(exc, partial) from exc
-    return assemble_result(drivers, graph, loss, wall, maps=None if maps is None else maps())
+    result = assemble_result(drivers, graph, loss, wall, maps=None if maps is None else maps())
+    # kernels compiled or loaded from the cache while the clock ran: a one-off cost of the
+    # process, in the stage times
+    result.extra["compilations"], result.extra["kernels_loaded"] = (
+        np.array(compilations()) - compiled
+    ).tolist()
+    return result
+
+
+def compilations() -> tuple[int, int]:
+    """How many of teamslam's compiled kernels numba has, in this process so far, compiled
+    (a signature not in its cache) and loaded from its cache (a kernel compiled inside
+    another counts with it). Both are one-off costs of a process, paid by the run that
+    first calls the kernel: compiling takes seconds, loading milliseconds."""
+    compiled = loaded = 0
+    seen = set()
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("teamslam") or module is None:
+            continue
+        for value in list(vars(module).values()):
+            stats = getattr(value, "stats", None)
+            misses = getattr(stats, "cache_misses", None)
+            if misses is None or not hasattr(value, "signatures") or id(value) in seen:
+                continue
+            seen.add(id(value))
+            compiled += sum(misses.values())
+            loaded += sum(stats.cache_hits.values())
+    return compiled, loaded
 
 
 def run_team(

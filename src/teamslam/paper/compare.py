@@ -193,8 +193,12 @@ class Reproduction:
         out += [f"- {s}" for s in self.setting]
         return "\n".join(out) + "\n"
 
-    def write(self, out: str | Path) -> list[Path]:
-        """Write ``KEY.md``, ``KEY.json`` and, with a figure, ``KEY.png`` into ``out``."""
+    def write(self, out: str | Path, header: str | None = None) -> list[Path]:
+        """Write ``KEY.md``, ``KEY.json`` and, with a figure, ``KEY.png`` into ``out``.
+
+        ``header``, if given, is the first line of ``KEY.md`` (where the numbers come from:
+        :func:`teamslam.eval.provenance.measured_header`).
+        """
         from teamslam.eval.outputs import write_json, writing
 
         out = Path(out)
@@ -202,7 +206,7 @@ class Reproduction:
         with writing(out):
             out.mkdir(parents=True, exist_ok=True)
             md = out / f"{self.key}.md"
-            md.write_text(self.markdown())
+            md.write_text(self.markdown() if header is None else f"{header}\n\n{self.markdown()}")
             written.append(md)
             if self.figure is not None:
                 png = out / f"{self.key}.png"

@@ -8,8 +8,8 @@ numbers. ``benchmarks/msckf_team.py`` calls the same functions.
   I–III, Fig. 3);
 * :func:`team_pairs` — separate and consensus on simulated Lissajous teams (DVI Table IV);
 * :func:`loss_sweep` — consensus under link loss (DVI Fig. 4);
-* :func:`fej_tables` — Monte Carlo of the standard, ideal and FEJ planar EKFs (FEJ Tables 1–2,
-  Figs. 4–5).
+* :func:`fej_experiment` — Monte Carlo of the standard, ideal and FEJ planar EKFs (FEJ Tables
+  1–2, Figs. 4–5).
 
 Each is also an :class:`Experiment` — its independent tasks and how its result is built from
 theirs (:func:`kitti_experiment`, :func:`team_experiment`, :func:`loss_experiment`,
@@ -34,7 +34,6 @@ __all__ = [
     "Experiment",
     "PaperSettings",
     "fej_experiment",
-    "fej_tables",
     "kitti_experiment",
     "kitti_pair",
     "loss_experiment",
@@ -498,8 +497,12 @@ def _fej_environment(env: int, count: int, data: str | Path | None):
 def fej_experiment(
     env: int, features: Sequence[int], runs: int, data: str | Path | None = None, seed: int = 0
 ) -> Experiment:
-    """:func:`fej_tables` as tasks: the Monte Carlo runs of each feature count in parts of
-    :data:`FEJ_RUNS_PER_TASK` runs."""
+    """Monte Carlo of the standard, ideal and FEJ EKFs on FEJ environment ``env`` for each
+    feature count, as tasks: the runs of each count in parts of :data:`FEJ_RUNS_PER_TASK` runs.
+
+    Where ``data/fej-environments`` holds the paper's own environment files for a feature
+    count they are used; otherwise the generated environment with the paper's parameters.
+    """
     from teamslam.ekf2d.experiments import run_seeds, run_seeds_of, summarise_runs
     from teamslam.eval.schedule import Task
 
@@ -534,27 +537,6 @@ def fej_experiment(
         )
 
     return Experiment([t for tasks in parts.values() for t in tasks], collect)
-
-
-def fej_tables(
-    env: int,
-    features: Sequence[int],
-    runs: int,
-    data: str | Path | None = None,
-    seed: int = 0,
-    workers: int | None = None,
-    progress: bool | None = None,
-) -> FejTables:
-    """Monte Carlo of the standard, ideal and FEJ EKFs on FEJ environment ``env`` for each
-    feature count, as ``teamslam fej table`` runs it (the same numbers).
-
-    Where ``data/fej-environments`` holds the paper's own environment files for a feature
-    count (``RobotsWaypoints_<env>.mat`` and ``CheckedTrueState_<F>features_<env>.mat``) they
-    are used; otherwise the generated environment with the paper's parameters.
-    """
-    experiment = fej_experiment(env, features, runs, data, seed)
-    name = f"fej-env{env}"
-    return run_experiments({name: experiment}, workers, progress, f"FEJ environment {env}")[0][name]
 
 
 def _victoria_park(path: Path) -> tuple[dict, bytes]:

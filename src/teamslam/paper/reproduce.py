@@ -599,11 +599,13 @@ def reproduce_all(
     data: str | Path | None = None,
     keys: list[str] | None = None,
     on_done: Callable[[Reproduction], None] | None = None,
+    header: str | None = None,
 ) -> tuple[list[Reproduction], Reproducer]:
     """Every table and figure (or those of ``keys``), each written into ``out`` (Markdown,
     JSON, PNG), then ``out/report.html`` and ``out/paper.json`` (every cell).
 
-    ``on_done`` is called with each reproduction as soon as it is built.
+    ``on_done`` is called with each reproduction as soon as it is built; ``header``, if given,
+    is the first line of every Markdown file (:meth:`Reproduction.write`).
     """
     from teamslam.eval.outputs import write_json
     from teamslam.paper.report import write_paper_report
@@ -613,7 +615,7 @@ def reproduce_all(
     done = []
     for key in keys or list(ITEMS):
         result = reproducer.build(key)
-        result.write(out)
+        result.write(out, header)
         done.append(result)
         if on_done is not None:
             on_done(result)

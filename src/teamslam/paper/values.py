@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from functools import cache
 from importlib import resources
 
-__all__ = ["PaperValue", "paper_titles", "paper_values"]
+__all__ = ["PaperValue", "paper_values"]
 
 
 @dataclass(frozen=True)
@@ -60,11 +60,6 @@ class PaperValue:
 @cache
 def _load() -> dict:
     return json.loads(resources.files("teamslam.paper").joinpath("values.json").read_text())
-
-
-def paper_titles() -> dict[str, str]:
-    """Per paper (``dvi``, ``fej``) what its values are."""
-    return dict(_load()["papers"])
 
 
 def paper_values(paper: str | None = None, table: str | None = None) -> list[PaperValue]:

@@ -46,6 +46,7 @@ from teamslam.errors import InputError
 from teamslam.eval.estimates import has_ground_truth, stamps_ns
 from teamslam.geometry.camera import StereoCamera
 from teamslam.ros2 import messages as m
+from teamslam.textio import yaml_problem
 
 __all__ = [
     "RobotTopics",
@@ -96,8 +97,10 @@ def read_camera(path: str | Path) -> Calibration:
     path = Path(path)
     try:
         data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise InputError(f"{path}: cannot read the camera file ({exc})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the camera file ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: camera file is not valid YAML: {yaml_problem(exc)}") from None
     if not isinstance(data, dict) or not {"K", "T_left_right", "T_cam_body"} <= set(data):
         raise InputError(f"{path}: a camera file needs K, T_left_right and T_cam_body")
     try:
@@ -167,6 +170,7 @@ def export_bag(
     ``period``) plus ``metadata["ros2"]["stamp_origin_ns"]`` when the dataset came from a bag.
     ``camera`` also writes the calibration file :func:`import_bag` needs.
     """
+    m.rosbags("rosbag2", "writing a ROS 2 bag")
     begin = time.perf_counter()
     out = Path(out)
     origin = int(dataset.metadata.get("ros2", {}).get("stamp_origin_ns", 0))
@@ -204,7 +208,8 @@ def export_bag(
 # ----------------------------------------------------------------------------- import
 def _read_topics(bag: Path, topics: set[str]) -> dict[str, list[tuple[int, object]]]:
     """``{topic: [(header stamp ns, message)]}`` for the topics asked for, sorted by stamp."""
-    from rosbags.highlevel import AnyReader, AnyReaderError
+    highlevel = m.rosbags("highlevel", "reading a ROS 2 bag")
+    AnyReader, AnyReaderError = highlevel.AnyReader, highlevel.AnyReaderError
 
     if not bag.exists():
         raise InputError(f"{bag}: no such bag")
@@ -297,6 +302,7 @@ def import_bag(
         Largest stamp difference in seconds between an observation (or ground-truth) message
         and its frame (default: half the smallest median odometry period).
     """
+    m.rosbags("highlevel", "reading a ROS 2 bag")
     bag = Path(bag)
     if not robots:
         raise InputError("import-bag needs at least one --robot")

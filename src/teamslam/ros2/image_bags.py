@@ -142,60 +142,62 @@ def images_to_bag(
     gt_files = _per_robot(ground_truth, n, "ground-truth files")
     records = []
     bar = tqdm(desc="bag", disable=not progress)
-    for i in range(n):
-        pairs = image_pairs(left_dirs[i], right_dirs[i])
-        stamps = read_timestamps(timestamps[i])
-        if len(stamps) != len(pairs):
-            raise InputError(f"{timestamps[i]}: {len(stamps)} stamps for {len(pairs)} pairs")
-        if np.any(stamps < 0):
-            raise InputError(f"{timestamps[i]}: ROS stamps cannot be negative")
-        ns = np.rint(stamps * 1e9).astype(np.int64)
-        topics = ImageTopics.default(names[i])
-        odo = None if odo_files[i] is None else _poses_at(Path(odo_files[i]), stamps, 0, "odom")
-        gt = None if gt_files[i] is None else _poses_at(Path(gt_files[i]), stamps, 0, "truth")
-        for k, (lp, rp) in enumerate(pairs):
-            s = int(ns[k])
-            for topic, path, frame in (
-                (topics.left, lp, f"{names[i]}/left_camera"),
-                (topics.right, rp, f"{names[i]}/right_camera"),
-            ):
-                img = read_image(path, rig.image_size)
-                msg = t[IMAGE](
-                    header=m.header(s, frame),
-                    height=img.shape[0],
-                    width=img.shape[1],
-                    encoding="mono8",
-                    is_bigendian=0,
-                    step=img.shape[1],
-                    data=img.ravel(),
-                )
-                records.append((s, topic, IMAGE, m.serialize(msg, IMAGE)))
-            if k == 0:
-                for right, topic in zip((False, True), topics.camera_info, strict=True):
-                    info = _camera_info_msg(store, s, f"{names[i]}/left_camera", rig, right)
-                    records.append((s, topic, CAMERA_INFO, m.serialize(info, CAMERA_INFO)))
-            if odo is not None:
-                pose = m.pose_stamped(odo[k], s, f"{names[i]}/odom")
-                msg = t[ODOMETRY](
-                    header=pose.header,
-                    child_frame_id=f"{names[i]}/base_link",
-                    pose=t["geometry_msgs/msg/PoseWithCovariance"](
-                        pose=pose.pose, covariance=np.zeros(36)
-                    ),
-                    twist=t["geometry_msgs/msg/TwistWithCovariance"](
-                        twist=t["geometry_msgs/msg/Twist"](
-                            linear=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
-                            angular=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+    try:
+        for i in range(n):
+            pairs = image_pairs(left_dirs[i], right_dirs[i])
+            stamps = read_timestamps(timestamps[i])
+            if len(stamps) != len(pairs):
+                raise InputError(f"{timestamps[i]}: {len(stamps)} stamps for {len(pairs)} pairs")
+            if np.any(stamps < 0):
+                raise InputError(f"{timestamps[i]}: ROS stamps cannot be negative")
+            ns = np.rint(stamps * 1e9).astype(np.int64)
+            topics = ImageTopics.default(names[i])
+            odo = None if odo_files[i] is None else _poses_at(Path(odo_files[i]), stamps, 0, "odom")
+            gt = None if gt_files[i] is None else _poses_at(Path(gt_files[i]), stamps, 0, "truth")
+            for k, (lp, rp) in enumerate(pairs):
+                s = int(ns[k])
+                for topic, path, frame in (
+                    (topics.left, lp, f"{names[i]}/left_camera"),
+                    (topics.right, rp, f"{names[i]}/right_camera"),
+                ):
+                    img = read_image(path, rig.image_size)
+                    msg = t[IMAGE](
+                        header=m.header(s, frame),
+                        height=img.shape[0],
+                        width=img.shape[1],
+                        encoding="mono8",
+                        is_bigendian=0,
+                        step=img.shape[1],
+                        data=img.ravel(),
+                    )
+                    records.append((s, topic, IMAGE, m.serialize(msg, IMAGE)))
+                if k == 0:
+                    for right, topic in zip((False, True), topics.camera_info, strict=True):
+                        info = _camera_info_msg(store, s, f"{names[i]}/left_camera", rig, right)
+                        records.append((s, topic, CAMERA_INFO, m.serialize(info, CAMERA_INFO)))
+                if odo is not None:
+                    pose = m.pose_stamped(odo[k], s, f"{names[i]}/odom")
+                    msg = t[ODOMETRY](
+                        header=pose.header,
+                        child_frame_id=f"{names[i]}/base_link",
+                        pose=t["geometry_msgs/msg/PoseWithCovariance"](
+                            pose=pose.pose, covariance=np.zeros(36)
                         ),
-                        covariance=np.zeros(36),
-                    ),
-                )
-                records.append((s, topics.odometry, ODOMETRY, m.serialize(msg, ODOMETRY)))
-            if gt is not None:
-                pose = m.pose_stamped(gt[k], s, "world")
-                records.append((s, topics.ground_truth, POSE, m.serialize(pose, POSE)))
-            bar.update()
-    bar.close()
+                        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+                            twist=t["geometry_msgs/msg/Twist"](
+                                linear=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                                angular=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                            ),
+                            covariance=np.zeros(36),
+                        ),
+                    )
+                    records.append((s, topics.odometry, ODOMETRY, m.serialize(msg, ODOMETRY)))
+                if gt is not None:
+                    pose = m.pose_stamped(gt[k], s, "world")
+                    records.append((s, topics.ground_truth, POSE, m.serialize(pose, POSE)))
+                bar.update()
+    finally:  # closed before any error is printed
+        bar.close()
     out = Path(out)
     counts = m.write_mcap_records(records, out)
     return {"path": str(out), "messages": sum(counts.values()), "bytes": out.stat().st_size}
@@ -290,11 +292,13 @@ def dataset_from_bag(
     TeamDataset
         The same measurements as :func:`dataset_from_images` on the same images.
     """
-    from rosbags.highlevel import AnyReader, AnyReaderError
     from tqdm import tqdm
 
     from teamslam.frontend.camera import rig_from_camera_info
     from teamslam.ros2 import messages as m
+
+    highlevel = m.rosbags("highlevel", "reading a ROS 2 bag of images")
+    AnyReader, AnyReaderError = highlevel.AnyReader, highlevel.AnyReaderError
 
     bag = Path(bag)
     if not bag.exists():
@@ -344,46 +348,48 @@ def dataset_from_bag(
     bar = tqdm(
         total=sum(len(data[r.left]) for r in robots), desc="bag images", disable=not progress
     )
-    out, info, next_id = [], [], 0
-    for r in robots:
-        left_stamps = np.array([s for s, _ in data[r.left]], np.int64)
-        right_by_stamp = dict(data[r.right])
-        missing = [s for s in left_stamps.tolist() if s not in right_by_stamp]
-        if missing:
-            raise InputError(f"{r.right}: no image with the stamp {missing[0]} ns of {r.left}")
-        if not left_stamps.size:
-            raise InputError(f"{r.left}: no images")
-        seconds = left_stamps / 1e9
-        poses = {}
-        for kind, topic in (("odometry", r.odometry), ("ground truth", r.ground_truth)):
-            if topic is None:
-                poses[kind] = None
-                continue
-            items = sorted(data[topic], key=lambda item: item[0])
-            if not items:
-                raise InputError(f"{topic}: no messages")
-            t = np.array([s for s, _ in items], np.float64) / 1e9
-            p = np.stack([_pose(msg) for _, msg in items])
-            poses[kind] = _interpolate(t, p, seconds, topic)
-        images = (
-            (
-                _check_size(_decode(msg, r.left, s), rig, r.left, s),
-                _check_size(_decode(right_by_stamp[s], r.right, s), rig, r.right, s),
-                f"{r.left} at stamp {s} ns",
+    try:
+        out, info, next_id = [], [], 0
+        for r in robots:
+            left_stamps = np.array([s for s, _ in data[r.left]], np.int64)
+            right_by_stamp = dict(data[r.right])
+            missing = [s for s in left_stamps.tolist() if s not in right_by_stamp]
+            if missing:
+                raise InputError(f"{r.right}: no image with the stamp {missing[0]} ns of {r.left}")
+            if not left_stamps.size:
+                raise InputError(f"{r.left}: no images")
+            seconds = left_stamps / 1e9
+            poses = {}
+            for kind, topic in (("odometry", r.odometry), ("ground truth", r.ground_truth)):
+                if topic is None:
+                    poses[kind] = None
+                    continue
+                items = sorted(data[topic], key=lambda item: item[0])
+                if not items:
+                    raise InputError(f"{topic}: no messages")
+                t = np.array([s for s, _ in items], np.float64) / 1e9
+                p = np.stack([_pose(msg) for _, msg in items])
+                poses[kind] = _interpolate(t, p, seconds, topic)
+            images = (
+                (
+                    _check_size(_decode(msg, r.left, s), rig, r.left, s),
+                    _check_size(_decode(right_by_stamp[s], r.right, s), rig, r.right, s),
+                    f"{r.left} at stamp {s} ns",
+                )
+                for s, msg in data[r.left]
             )
-            for s, msg in data[r.left]
-        )
-        robot, record, next_id = _robot_sequence(
-            images, rig, config, next_id, poses["odometry"], poses["ground truth"], seconds, bar
-        )
-        record.update({"name": r.name, "left": r.left, "right": r.right})
-        if r.odometry:
-            record["odometry"] = f"topic {r.odometry}"
-        if r.ground_truth:
-            record["ground_truth"] = f"topic {r.ground_truth}"
-        out.append(robot)
-        info.append(record)
-    bar.close()
+            robot, record, next_id = _robot_sequence(
+                images, rig, config, next_id, poses["odometry"], poses["ground truth"], seconds, bar
+            )
+            record.update({"name": r.name, "left": r.left, "right": r.right})
+            if r.odometry:
+                record["odometry"] = f"topic {r.odometry}"
+            if r.ground_truth:
+                record["ground_truth"] = f"topic {r.ground_truth}"
+            out.append(robot)
+            info.append(record)
+    finally:  # closed before any error is printed
+        bar.close()
     source = {"bag": str(bag), "camera": str(camera) if camera else "camera_info topics"}
     return _team(out, info, rig, config, markers, name, source)
 

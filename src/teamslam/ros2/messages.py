@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from teamslam._optional import require
+
 __all__ = [
     "OBSERVATIONS_TYPE",
     "dds_type_name",
@@ -49,13 +51,19 @@ def observations_msgdef() -> str:
     )
 
 
+def rosbags(module: str, what: str = "ROS 2 interchange (bags, MCAP, topics)"):
+    """The module ``rosbags.<module>`` (the ``ros2`` extra); ``what`` names the feature in the
+    error when the extra is not installed."""
+    return require(f"rosbags.{module}", "ros2", what)
+
+
 @cache
 def typestore():
     """The Jazzy typestore with ``teamslam_msgs/msg/StereoObservations`` registered."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    typesys = rosbags("typesys")
 
-    store = get_typestore(Stores.ROS2_JAZZY)
-    store.register(get_types_from_msg(observations_msgdef(), OBSERVATIONS_TYPE))
+    store = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
+    store.register(typesys.get_types_from_msg(observations_msgdef(), OBSERVATIONS_TYPE))
     return store
 
 
@@ -304,8 +312,10 @@ def write_mcap_records(records: list[tuple[int, str, str, bytes]], out: Path) ->
     The file is written beside ``out`` and moved into place, so a partial file never replaces
     a complete one.
     """
-    from rosbags.rosbag2 import Writer
-    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+    Writer = rosbags("rosbag2").Writer
+    enums = rosbags("rosbag2.enums")
+    CompressionFormat, CompressionMode = enums.CompressionFormat, enums.CompressionMode
+    StoragePlugin = enums.StoragePlugin
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

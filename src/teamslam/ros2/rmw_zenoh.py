@@ -34,6 +34,7 @@ import time
 
 import numpy as np
 
+from teamslam._optional import require
 from teamslam.ros2 import messages as m
 
 __all__ = [
@@ -47,6 +48,9 @@ __all__ = [
     "ros2_settings",
     "topic_key",
 ]
+
+#: what needs the extras, in the error when one is missing
+WHAT = "publishing ROS 2 topics (rmw_zenoh)"
 
 POSE = "geometry_msgs/msg/PoseStamped"
 PATH = "nav_msgs/msg/Path"
@@ -91,15 +95,15 @@ def liveliness_key(
 
 def publisher_gid(token_key: str) -> bytes:
     """rmw_zenoh's GID of an entity: XXH3-128 of its token key, low then high 64 bits (LE)."""
-    import xxhash
-
+    xxhash = require("xxhash", "ros2", WHAT)
     value = xxhash.xxh3_128(token_key.encode()).intdigest()
     return (value & (2**64 - 1)).to_bytes(8, "little") + (value >> 64).to_bytes(8, "little")
 
 
 def attachment(sequence_number: int, source_timestamp_ns: int, gid: bytes) -> bytes:
     """The sample attachment: int64 sequence number, int64 timestamp, GID length + bytes."""
-    from zenoh.ext import Int64, z_serialize
+    ext = require("zenoh.ext", "network", WHAT)
+    Int64, z_serialize = ext.Int64, ext.z_serialize
 
     if len(gid) != 16:
         raise ValueError(f"a publisher GID has 16 bytes, got {len(gid)}")
@@ -207,8 +211,7 @@ class Ros2Publisher:
         n_sigma: float = 3.0,
         wait_s: float = 0.0,
     ) -> None:
-        import zenoh
-
+        zenoh = require("zenoh", "network", WHAT)
         self.robot = robot
         self.stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
         self.domain_id = int(domain_id)

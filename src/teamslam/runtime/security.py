@@ -40,6 +40,7 @@ from pathlib import Path
 
 import yaml
 
+from teamslam._optional import require
 from teamslam.errors import InputError
 
 __all__ = [
@@ -126,6 +127,11 @@ def endpoint_host(endpoint: str) -> str:
 
 
 # ------------------------------------------------------------------ certificates
+def _crypto(name: str):
+    """The module ``cryptography.<name>`` (the ``network`` extra)."""
+    return require(f"cryptography.{name}", "network", "a secured team (its certificates)")
+
+
 def _write_private(path: Path, data: bytes) -> None:
     """Write ``data`` readable by its owner only (mode 0600), also when ``path`` existed."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
@@ -137,7 +143,7 @@ def _write_private(path: Path, data: bytes) -> None:
 
 
 def _san(host: str):
-    from cryptography import x509
+    x509 = _crypto("x509")
 
     try:
         return x509.IPAddress(ipaddress.ip_address(host))
@@ -146,13 +152,13 @@ def _san(host: str):
 
 
 def _new_key():
-    from cryptography.hazmat.primitives.asymmetric import ec
+    ec = _crypto("hazmat.primitives.asymmetric.ec")
 
     return ec.generate_private_key(ec.SECP256R1())
 
 
 def _key_pem(key) -> bytes:
-    from cryptography.hazmat.primitives import serialization
+    serialization = _crypto("hazmat.primitives.serialization")
 
     return key.private_bytes(
         serialization.Encoding.PEM,
@@ -162,14 +168,14 @@ def _key_pem(key) -> bytes:
 
 
 def _cert_pem(cert) -> bytes:
-    from cryptography.hazmat.primitives import serialization
+    serialization = _crypto("hazmat.primitives.serialization")
 
     return cert.public_bytes(serialization.Encoding.PEM)
 
 
 def _load_ca(cert_path: Path, key_path: Path):
-    from cryptography import x509
-    from cryptography.hazmat.primitives import serialization
+    x509 = _crypto("x509")
+    serialization = _crypto("hazmat.primitives.serialization")
 
     try:
         cert = x509.load_pem_x509_certificate(cert_path.read_bytes())
@@ -180,9 +186,9 @@ def _load_ca(cert_path: Path, key_path: Path):
 
 
 def _issue_ca(team: str, days: int):
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes
-    from cryptography.x509.oid import NameOID
+    x509 = _crypto("x509")
+    hashes = _crypto("hazmat.primitives.hashes")
+    NameOID = _crypto("x509.oid").NameOID
 
     key = _new_key()
     name = x509.Name(
@@ -222,9 +228,10 @@ def _issue_ca(team: str, days: int):
 
 
 def _issue_robot(ca_cert, ca_key, name: str, host: str, days: int):
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes
-    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+    x509 = _crypto("x509")
+    hashes = _crypto("hazmat.primitives.hashes")
+    oid = _crypto("x509.oid")
+    ExtendedKeyUsageOID, NameOID = oid.ExtendedKeyUsageOID, oid.NameOID
 
     key = _new_key()
     now = _dt.datetime.now(_dt.UTC)
@@ -293,6 +300,7 @@ def make_team_certificates(
     """
     if days < 1:
         raise InputError(f"certificate validity must be at least one day, got {days}")
+    _crypto("x509")  # the extra is there before anything is written
     names = [name for name, _ in robots.values()]
     if len(set(names)) != len(names):
         raise InputError("robot names must be distinct: each is a certificate's common name")
@@ -320,8 +328,8 @@ def make_team_certificates(
 
 def check_credentials(security: SecuritySection, robot: int) -> RobotCredentials:
     """The robot's own credentials, checked readable and well-formed; one-line error if not."""
-    from cryptography import x509
-    from cryptography.hazmat.primitives import serialization
+    x509 = _crypto("x509")
+    serialization = _crypto("hazmat.primitives.serialization")
 
     creds = security.robots.get(robot)
     if creds is None:

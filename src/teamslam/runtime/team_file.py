@@ -153,6 +153,34 @@ def _mapping(data: dict, key: str) -> dict | None:
     return value
 
 
+def _endpoint_key(endpoint: str) -> str:
+    """What an endpoint binds: ``HOST:PORT`` whatever the protocol (``tcp/`` and ``tls/`` on
+    one port collide), ``localhost`` as ``127.0.0.1``."""
+    address = endpoint.split("/", 1)[1].strip().lower()
+    host, _, port = address.rpartition(":")
+    return f"{'127.0.0.1' if host == 'localhost' else host}:{port}"
+
+
+def _check_id(robots_raw: list, k: int) -> None:
+    """``robots[k].id`` must be ``k``; else say what it holds and why that is wrong."""
+    rid = robots_raw[k].get("id")
+    if rid == k and not isinstance(rid, bool):
+        return
+    if rid is None:
+        raise TeamFileError(f"robots[{k}].id is missing (robots are numbered 0..N-1 in order)")
+    earlier = [
+        j for j in range(k) if isinstance(robots_raw[j], dict) and robots_raw[j].get("id") == rid
+    ]
+    if earlier:
+        raise TeamFileError(
+            f"robots[{k}].id is {rid!r}, the id of robots[{earlier[0]}] too; ids must be distinct, "
+            f"0..N-1 in order (this one {k})"
+        )
+    raise TeamFileError(
+        f"robots[{k}].id is {rid!r}; robots are numbered 0..N-1 in order, so this one is {k}"
+    )
+
+
 def load_team_file(path: str | Path) -> TeamFile:
     """Read and validate a team file; relative paths are relative to the file."""
     path = Path(path)
@@ -203,8 +231,7 @@ def _parse(data, path: Path) -> TeamFile:
     for k, r in enumerate(robots_raw):
         if not isinstance(r, dict):
             raise TeamFileError(f"robots[{k}] must be a mapping")
-        if r.get("id") != k:
-            raise TeamFileError(f"robots[{k}].id must be {k} (robots are numbered 0..N-1 in order)")
+        _check_id(robots_raw, k)
         neighbours = r.get("neighbours", [])
         if not isinstance(neighbours, list) or not all(isinstance(j, int) for j in neighbours):
             raise TeamFileError(f"robots[{k}].neighbours must be a list of robot ids")
@@ -224,9 +251,16 @@ def _parse(data, path: Path) -> TeamFile:
                 name,
             )
         )
-    names = [r.name for r in robots]
-    if len(set(names)) != len(names):
-        raise TeamFileError("robot names must be distinct")
+    for field_name, key in (("name", str), ("listen", _endpoint_key)):
+        first: dict[str, int] = {}
+        for r in robots:
+            value = getattr(r, field_name)
+            if key(value) in first:
+                raise TeamFileError(
+                    f"robots[{r.id}].{field_name} {value} is robots[{first[key(value)]}]'s too; "
+                    f"each robot needs its own {'endpoint' if field_name == 'listen' else 'name'}"
+                )
+            first[key(value)] = r.id
     n = len(robots)
     for r in robots:
         for j in r.neighbours:

@@ -34,6 +34,7 @@ from collections import defaultdict
 
 import numpy as np
 
+from teamslam._optional import require
 from teamslam.msckf.consensus.messages import MapIdsMessage, Message
 from teamslam.msckf.consensus.transport import Mailbox
 from teamslam.runtime.team_file import TeamFile
@@ -71,7 +72,7 @@ class ZenohTransport:
     """
 
     def __init__(self, team: TeamFile, robot: int, seed: int = 0) -> None:
-        import zenoh
+        zenoh = require("zenoh", "network", "a robot process (the Zenoh transport)")
 
         self.team = team
         self.robot = robot

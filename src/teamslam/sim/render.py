@@ -276,7 +276,7 @@ class TexturedRoom:
     """
 
     def __init__(self, config: RenderConfig) -> None:
-        cv2 = require_cv2()
+        cv2 = require_cv2("rendering images")
         self.config = config
         rng = np.random.default_rng(np.random.SeedSequence([config.seed, 29]))
         X, Y, Z = config.room
@@ -448,7 +448,7 @@ def apply_effects(
         grey = grey + config.pixel_noise * rng.standard_normal(grey.shape)
     img = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
     if config.jpeg_quality is not None:
-        cv2 = require_cv2()
+        cv2 = require_cv2("rendering images")
         ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(config.jpeg_quality)])
         if not ok:  # pragma: no cover - OpenCV always encodes a grey image
             raise InputError("JPEG encoding failed")
@@ -632,7 +632,7 @@ def render_team(
     RenderedTeam
         Paths, noisy odometry, timestamps and the world with its markers.
     """
-    cv2 = require_cv2()
+    cv2 = require_cv2("rendering images")
     from tqdm import tqdm
 
     room = TexturedRoom(config)

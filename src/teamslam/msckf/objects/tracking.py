@@ -698,7 +698,8 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
     the arithmetic of :func:`~teamslam.msckf.filter.models.observe_jacobians` and the batched
     products
     it replaces, without their per-call overhead on a few dozen targets. A target behind the
-    camera is evaluated 10 m ahead of the body instead (no projection: harmless, never gated)."""
+    camera is evaluated 10 m ahead of the camera instead (no projection: harmless, never
+    gated, but finite whatever the rig)."""
     n = points.shape[0]
     rot = pose[:3, :3]
     r_cb = np.ascontiguousarray(rig[0, :3, :3])
@@ -714,6 +715,7 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
     p_cam = np.empty(3)
     p_right = np.empty(3)
     point = np.empty(3)
+    ahead = np.empty(3)
     j_cam = np.zeros((4, 3))
     h = np.empty((4, 9))
     hp = np.empty((4, 9))
@@ -723,9 +725,16 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
             if pass_ == 0:
                 for a in range(3):
                     point[a] = points[i, a]
-            else:  # behind the camera: evaluate 10 m ahead of the body
+            else:  # behind the camera: evaluate 10 m ahead of the camera, on its optical axis
+                for a in range(3):  # (body x for the usual rig; not so when the body is the
+                    # optical frame, where body x has depth 0 and the projection divides by it)
+                    ahead[a] = r_cb[2, a] * 10.0 - (
+                        r_cb[0, a] * t_cb[0] + r_cb[1, a] * t_cb[1] + r_cb[2, a] * t_cb[2]
+                    )
                 for a in range(3):
-                    point[a] = pose[a, 3] + rot[a, 0] * 10.0
+                    point[a] = pose[a, 3] + (
+                        rot[a, 0] * ahead[0] + rot[a, 1] * ahead[1] + rot[a, 2] * ahead[2]
+                    )
             for a in range(3):
                 p_body[a] = (
                     rot[0, a] * (point[0] - pose[0, 3])

@@ -1,0 +1,148 @@
+"""Every table of the results pages, regenerated: each command that writes one, run in turn.
+
+Run from the repository root (BLAS pinned to one thread for every command)::
+
+    python benchmarks/results.py                 # every command, one after another
+    python benchmarks/results.py --list          # the commands and the files they write
+    python benchmarks/results.py --only speed-stages paper
+
+Each command writes its own Markdown under ``docs/results/generated/`` (a benchmark's
+``--markdown FILE``, ``teamslam paper … --out DIR``), headed by the commit, date, the exact
+command and the machine (:mod:`teamslam.eval.provenance`); the pages under ``docs/results/``
+include those files. :data:`COMMANDS` is the one list of them: ``tests/test_results.py`` checks
+that every generated file names its command from it. The sizes are those the pages were measured
+with: ``paper`` runs the paper's sizes for the tables on real data and the FEJ Monte Carlo (KITTI
+00 whole, 100 runs), ``paper-sim`` the simulated teams at ``--quick`` sizes with 150 steps per
+robot (the full sizes of ``teamslam paper all`` took 19.5 min on two idle workers, more than a
+shared machine gave); change them here, rerun, commit the generated files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+GENERATED = "docs/results/generated"
+
+#: name → the command (as run from the repository root) and what it writes
+COMMANDS: dict[str, tuple[str, str]] = {
+    "paper": (
+        "teamslam paper all --runs 100 --workers 1 --data ../shared/data --only dvi-table-1 "
+        "dvi-table-2 dvi-table-3 fej-table-1 fej-table-2 fej-figure-4 fej-figure-5 fej-figure-6 "
+        f"fej-victoria-park --out {GENERATED}/paper",
+        f"{GENERATED}/paper",
+    ),
+    "paper-sim": (
+        "teamslam paper all --quick --steps 150 --workers 1 --data ../shared/data --only "
+        f"dvi-table-4 dvi-figure-4 --out {GENERATED}/paper-sim",
+        f"{GENERATED}/paper-sim",
+    ),
+    "consensus-default-team": (
+        "python benchmarks/msckf_team.py accuracy --robots 5 --seeds 1 --steps 150 "
+        f"--markdown {GENERATED}/consensus-default-team.md",
+        f"{GENERATED}/consensus-default-team.md",
+    ),
+    "consensus-messages": (
+        "python benchmarks/msckf_team.py messages --robots 5 --steps 150 "
+        f"--markdown {GENERATED}/consensus-messages.md",
+        f"{GENERATED}/consensus-messages.md",
+    ),
+    "speed-stages": (
+        "python benchmarks/msckf_team.py speed --robots 5 15 --steps 100 "
+        f"--markdown {GENERATED}/speed-stages.md",
+        f"{GENERATED}/speed-stages.md",
+    ),
+    "speed-kitti": (
+        f"python benchmarks/msckf_team.py kitti --markdown {GENERATED}/speed-kitti.md",
+        f"{GENERATED}/speed-kitti.md",
+    ),
+    "speed-scaling": (
+        "python benchmarks/msckf_team.py scaling --robots 5 10 25 50 --steps 60 "
+        f"--markdown {GENERATED}/speed-scaling.md",
+        f"{GENERATED}/speed-scaling.md",
+    ),
+    "association-default": (
+        "python benchmarks/association.py oracle --teams default "
+        f"--markdown {GENERATED}/association-default.md",
+        f"{GENERATED}/association-default.md",
+    ),
+    "association-ring": (
+        "python benchmarks/association.py oracle --teams ring "
+        f"--markdown {GENERATED}/association-ring.md",
+        f"{GENERATED}/association-ring.md",
+    ),
+    "association-kitti": (
+        "python benchmarks/association.py oracle --teams kitti00 "
+        f"--markdown {GENERATED}/association-kitti.md",
+        f"{GENERATED}/association-kitti.md",
+    ),
+    "tracking-sim": (
+        "python benchmarks/tracking.py --seeds 0 --loop-closure both "
+        f"--markdown {GENERATED}/tracking-sim.md",
+        f"{GENERATED}/tracking-sim.md",
+    ),
+    "consistency-kitti": (
+        "python benchmarks/consistency.py --teams kitti --variants std fej oc "
+        f"--modes separate consensus --markdown {GENERATED}/consistency-kitti.md",
+        f"{GENERATED}/consistency-kitti.md",
+    ),
+    "consistency-make-run": (
+        "python benchmarks/consistency.py --teams make-run --variants std fej oc "
+        f"--modes separate consensus --markdown {GENERATED}/consistency-make-run.md",
+        f"{GENERATED}/consistency-make-run.md",
+    ),
+}
+
+#: one BLAS / OpenMP / numba thread: times comparable across machines with other work
+SINGLE_THREAD = {
+    name: "1"
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+}
+
+
+def argv_of(command: str) -> list[str]:
+    """The process to start for ``command`` (this interpreter for ``python`` and ``teamslam``)."""
+    words = shlex.split(command)
+    if words[0] == "teamslam":
+        return [sys.executable, "-m", "teamslam", *words[1:]]
+    if words[0] == "python":
+        return [sys.executable, *words[1:]]
+    raise ValueError(f"not a command of the results pages: {command}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--list", action="store_true", help="print the commands, run nothing")
+    parser.add_argument(
+        "--only", nargs="+", choices=list(COMMANDS), default=None, help="run only these"
+    )
+    args = parser.parse_args()
+    chosen = args.only or list(COMMANDS)
+    if args.list:
+        for name in chosen:
+            command, writes = COMMANDS[name]
+            print(f"{name:<24} {writes}\n    {command}")
+        return 0
+    env = {**os.environ, **SINGLE_THREAD}
+    src = str(ROOT / "src")
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (src, env.get("PYTHONPATH")) if p)
+    for name in chosen:
+        command, writes = COMMANDS[name]
+        print(f"== {name}: {command}", flush=True)
+        begin = time.perf_counter()
+        done = subprocess.run(argv_of(command), cwd=ROOT, env=env)
+        if done.returncode != 0:
+            print(f"{name} failed (exit {done.returncode}); {writes} not rewritten", flush=True)
+            return done.returncode
+        print(f"== {name}: wrote {writes} in {time.perf_counter() - begin:.0f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,275 @@
+"""Which objects of two robots' maps are the same, without shared ids: :func:`associate`.
+
+The stages in order — candidates (:mod:`~teamslam.association.candidates`), pairwise consistency
+(:mod:`~teamslam.association.consistency`), the largest consistent sets
+(:mod:`~teamslam.association.clique`), their transforms (:mod:`~teamslam.association.transform`)
+and gates (:mod:`~teamslam.association.gate`), the mirror test (:mod:`~teamslam.association.
+mirror`) and the seeds (:mod:`~teamslam.association.seeds`) — give an answer of at least
+``min_inliers`` pairs, or none (``too-few``, ``ambiguous``): never a guess. The result is a
+deterministic function of the two summaries in a canonical order (the smaller robot id first,
+objects by id, ties by index), so both ends of a link hold the same correspondences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from teamslam.association.candidates import neighbourhood_sets, select_candidates
+from teamslam.association.clique import maximum_clique
+from teamslam.association.consistency import consistency_graph, consistent_members
+from teamslam.association.distances import pair_distances
+from teamslam.association.gate import separated, support
+from teamslam.association.mirror import flipped
+from teamslam.association.seeds import seed_sets
+from teamslam.association.settings import AssociationSettings
+from teamslam.association.summary import ObjectSummary
+from teamslam.association.transform import pair_nis
+from teamslam.errors import InputError
+from teamslam.geometry import se3
+
+__all__ = ["AssociationResult", "associate"]
+
+
+@dataclass(frozen=True)
+class AssociationResult:
+    """The correspondences between two summaries, as seen from the first.
+
+    Attributes
+    ----------
+    first, second
+        Robot ids of the two summaries (``first`` is the caller's own).
+    pairs
+        ``(k, 2)`` int64 rows ``(first's id, second's id)``, sorted by the first column; empty
+        when there is no answer.
+    T_first_second
+        ``4 × 4`` transform taking the second map's coordinates into the first's
+        (``p_first = T · p_second``), or ``None`` without an answer.
+    status
+        ``"matched"``, ``"too-few"`` (fewer than ``min_inliers`` consistent pairs, or fewer
+        told apart from their neighbours) or ``"ambiguous"`` (a rival set nearly as large).
+    candidates
+        Number of candidate pairs in the consistency graph.
+    clique
+        Size of the consistent set behind the answer (without an answer, of the first set
+        examined: the maximum clique of all candidates).
+    rival
+        Most pairs gathered by another set examined (a rival) that the answer does not hold;
+        0 without another set. The answer is refused as ambiguous when this reaches
+        ``ambiguity_ratio`` times its pairs and ``min_inliers``.
+    exact
+        Whether the clique searches finished within their budget.
+    flipped
+        Consistent sets refused because their transform puts the second robot's cameras on
+        the other side of the set's plane than the first's (the mirror image of a near-planar
+        group of objects; see :func:`flipped`).
+    clique_pairs
+        ``(c, 2)`` the pairs of the consistent set behind the answer (for diagnostics; the
+        answer is :attr:`pairs`).
+    """
+
+    first: int
+    second: int
+    pairs: np.ndarray
+    T_first_second: np.ndarray | None
+    status: str
+    candidates: int = 0
+    clique: int = 0
+    rival: int = 0
+    exact: bool = True
+    flipped: int = 0
+    clique_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+
+    def swapped(self) -> AssociationResult:
+        """The same result seen from the second robot."""
+
+        def flip(pairs: np.ndarray) -> np.ndarray:
+            out = pairs[:, ::-1].copy()
+            return out[np.argsort(out[:, 0], kind="stable")] if out.size else out
+
+        t = self.T_first_second
+        return replace(
+            self,
+            first=self.second,
+            second=self.first,
+            pairs=flip(self.pairs),
+            clique_pairs=flip(self.clique_pairs),
+            T_first_second=None if t is None else se3.inverse(t),
+        )
+
+    @property
+    def matched(self) -> bool:
+        """Whether the association gave correspondences."""
+        return self.status == "matched"
+
+
+def _canonical_key(summary: ObjectSummary) -> int:
+    return summary.robot
+
+
+def associate(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    settings: AssociationSettings | None = None,
+) -> AssociationResult:
+    """Correspondences between two robots' objects, from their summaries alone.
+
+    The stages are those of the module docstring (their reasons: the association concept
+    page). The result depends only on the two summaries, not on their order:
+    ``associate(b, a)`` is ``associate(a, b).swapped()``.
+
+    Parameters
+    ----------
+    first
+        The caller's own summary.
+    second
+        The neighbour's summary.
+    settings
+        Thresholds (default :class:`AssociationSettings`).
+
+    Returns
+    -------
+    AssociationResult
+        Pairs ``(first's id, second's id)`` and the transform they imply, or no pair with the
+        reason (``too-few``, ``ambiguous``).
+    """
+    settings = settings or AssociationSettings()
+    if not isinstance(first, ObjectSummary) or not isinstance(second, ObjectSummary):
+        raise InputError("associate takes two ObjectSummary")
+    if first.robot == second.robot:
+        raise InputError(
+            f"associate needs the summaries of two robots, both are robot {first.robot}'s"
+        )
+    if _canonical_key(second) < _canonical_key(first):
+        return _associate(second.sorted(), first.sorted(), settings).swapped()
+    return _associate(first.sorted(), second.sorted(), settings)
+
+
+def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> AssociationResult:
+    return AssociationResult(a.robot, b.robot, np.zeros((0, 2), np.int64), None, status, **counts)
+
+
+def _associate(
+    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings
+) -> AssociationResult:
+    need = settings.min_inliers
+    if len(a) < need or len(b) < need:
+        return _no_answer(a, b, "too-few")
+    geo_a = pair_distances(a.means, a.covs)
+    geo_b = pair_distances(b.means, b.covs)
+    score, mismatch, members = neighbourhood_sets(a, b, geo_a, geo_b, settings)
+    ia, ib = select_candidates(score, mismatch, settings)
+    graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
+    # the largest consistent sets, one after another: each next one among the candidates that
+    # the transforms of the earlier ones reject; each judged by the pairs its transform gathers
+    pool = np.ones(ia.size, dtype=bool)
+    found = []  # (rows, cols, transform, clique pairs, clique indices)
+    exact = True
+    refused = 0
+    for _ in range(settings.rivals + 1):
+        index = np.flatnonzero(pool)
+        clique, done = maximum_clique(
+            graph[np.ix_(index, index)], settings.clique_budget, lower_bound=need - 1
+        )
+        exact = exact and done
+        if clique.size < need:
+            break
+        ca, cb = ia[index[clique]], ib[index[clique]]
+        rows, cols, t, passed = support(a, b, ca, cb, settings)
+        pool[index[clique]] = False
+        pool &= ~passed[ia, ib]
+        if rows.size >= need and flipped(a, b, rows, cols, t, settings):
+            refused += 1  # the mirror image of a near-planar group: neither answer nor rival
+            continue
+        found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
+    if not any(f[0].size >= need for f in found):
+        # no consistent set gathered an answer: the candidates' own neighbourhoods as seeds
+        local, flips = seed_sets(a, b, ia, ib, members, geo_a, geo_b, found, settings)
+        found += local
+        refused += flips
+    counts = {
+        "candidates": int(ia.size),
+        "clique": int(found[0][3].shape[0]) if found else 0,
+        "flipped": refused,
+    }
+    if not found:
+        return _no_answer(a, b, "too-few", exact=exact, **counts)
+    # the answer: the set gathering the most pairs (the first found among equals)
+    best = max(range(len(found)), key=lambda k: (found[k][0].size, -k))
+    rows, cols, t, clique_pairs, (ca, cb) = found[best]
+    counts["clique"] = int(clique_pairs.shape[0])
+    held = set(zip(rows.tolist(), cols.tolist(), strict=True))
+    # a rival: another set whose pairs contradict the answer's (pairs it does not hold)
+    counts["rival"] = max(
+        (
+            sum(
+                (r, c) not in held
+                for r, c in zip(other[0].tolist(), other[1].tolist(), strict=True)
+            )
+            for k, other in enumerate(found)
+            if k != best
+        ),
+        default=0,
+    )
+    if counts["rival"] >= max(settings.ambiguity_ratio * rows.size, need):
+        return _no_answer(a, b, "ambiguous", exact=exact, **counts)
+    # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
+    # left must still be an answer
+    ok = separated(a, b, t, a.means[rows], b.means[cols], rows, cols, settings)
+    if np.count_nonzero(ok) < need:
+        return _no_answer(a, b, "too-few", exact=exact, **counts)
+    rows, cols = rows[ok], cols[ok]
+    rows, cols = _beyond_the_clique(a, b, rows, cols, ca, cb, t, settings)
+    if rows.size < need:
+        # the pairs the gate added beyond the consistent set that disagree with it are gone;
+        # what is left is held to the same minimum as every answer
+        return _no_answer(a, b, "too-few", exact=exact, **counts)
+    pairs = np.column_stack([a.ids[rows], b.ids[cols]])
+    pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
+    return AssociationResult(
+        a.robot,
+        b.robot,
+        pairs,
+        t,
+        "matched",
+        exact=exact,
+        clique_pairs=clique_pairs[np.argsort(clique_pairs[:, 0], kind="stable")],
+        **counts,
+    )
+
+
+def _beyond_the_clique(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    clique_rows: np.ndarray,
+    clique_cols: np.ndarray,
+    T_first_second: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The answer's pairs, those the gate added beyond the consistent set held to the consistency
+    test of an extension (:meth:`~teamslam.association.CorrespondenceTable.extend`).
+
+    The consistent set's pairs in the answer stay. A pair the gate added is kept when it is
+    consistent two by two with the set's pairs and the added pairs kept before it, best gate
+    cost first (:func:`~teamslam.association.consistency.consistent_members`). The extension's
+    other test, both objects alone in each other's gate
+    (:func:`~teamslam.association.gate.alone`), is not applied here.
+    """
+    if rows.size == 0:
+        return rows, cols
+    in_clique = np.zeros((len(a), len(b)), dtype=bool)
+    in_clique[clique_rows, clique_cols] = True
+    member = in_clique[rows, cols]
+    added = np.flatnonzero(~member)
+    if added.size == 0:
+        return rows, cols
+    r, c = rows[added], cols[added]
+    # the order of the added pairs: their Mahalanobis distance under the answer's transform
+    cost = pair_nis(a, b, r, c, T_first_second)
+    ok = consistent_members(a, b, rows[member], cols[member], r, c, cost, settings)
+    keep = member.copy()
+    keep[added[ok]] = True
+    return rows[keep], cols[keep]

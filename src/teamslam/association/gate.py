@@ -1,0 +1,190 @@
+"""Stages 5 and 6 of the association: every pair gated under a transform, one to one, told apart.
+
+:func:`gate_pairs` is the ``χ²₃`` Mahalanobis gate under a transform with a drift allowance
+growing with the distance from the anchors; :func:`assign` makes the gated pairs one to one;
+:func:`distinct` and :func:`alone` drop pairs with a competitor; :func:`separated` drops pairs
+whose gate is wide against their objects' spacing. :func:`support` chains them: what a
+consistent set gathers under its transform.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.optimize
+
+from teamslam.association.distances import anchor_distance, nearest_distance
+from teamslam.association.settings import AssociationSettings
+from teamslam.association.summary import ObjectSummary
+from teamslam.association.transform import consensus_core, fit_transform, rigid_core
+
+__all__ = ["alone", "assign", "distinct", "gate_pairs", "separated", "support"]
+
+
+def gate_pairs(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    T_first_second: np.ndarray,
+    anchors_first: np.ndarray,
+    anchors_second: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mahalanobis distances of every pair under a transform, and which pass the ``χ²₃`` gate.
+
+    The innovation covariance of pair ``(a, b)`` is ``Σₐ + R Σ_b Rᵀ + ρ² (rₐ² + r_b²) / 2 · I``,
+    with ``rₐ`` (``r_b``) the distance from ``a`` (``b``) to the nearest anchor — a matched
+    object — in its own map: the transform holds near the objects it was fitted on, and a map
+    deforms with the distance from them.
+
+    Returns
+    -------
+    mahalanobis, passed
+        ``(n_first, n_second)`` squared Mahalanobis distances (``inf`` where not computed) and
+        the gate.
+    """
+    r = T_first_second[:3, :3]
+    b_in_a = second.means @ r.T + T_first_second[:3, 3]
+    covs_b = r @ second.covs @ r.T
+    rho2 = settings.drift_ratio**2
+    ra = anchor_distance(first.means, anchors_first)
+    rb = anchor_distance(second.means, anchors_second)
+    extra = 0.5 * rho2 * (ra[:, None] ** 2 + rb[None, :] ** 2)
+    chi2 = settings.gate_threshold
+    delta = first.means[:, None, :] - b_in_a[None, :, :]
+    sq = np.einsum("abi,abi->ab", delta, delta)
+    top_a = np.linalg.eigvalsh(first.covs)[:, -1]
+    top_b = np.linalg.eigvalsh(covs_b)[:, -1]
+    bound = top_a[:, None] + top_b[None, :] + extra  # largest eigenvalue of the sum, at most
+    near = sq <= chi2 * bound
+    out = np.full(sq.shape, np.inf)
+    ia, ib = np.nonzero(near)
+    if ia.size:
+        s = first.covs[ia] + covs_b[ib] + extra[ia, ib][:, None, None] * np.eye(3)
+        d = delta[ia, ib]
+        out[ia, ib] = np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0])
+    if first.classes is not None and second.classes is not None:
+        out[first.classes[:, None] != second.classes[None, :]] = np.inf
+    return out, out <= chi2
+
+
+def assign(cost: np.ndarray, passed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one pairs among the gated ones, minimising the total Mahalanobis distance."""
+    rows = np.flatnonzero(passed.any(axis=1))
+    cols = np.flatnonzero(passed.any(axis=0))
+    if rows.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    sub = cost[np.ix_(rows, cols)]
+    ok = passed[np.ix_(rows, cols)]
+    big = 1e6 * (1.0 + np.max(sub[ok]))
+    r, c = scipy.optimize.linear_sum_assignment(np.where(ok, sub, big))
+    good = ok[r, c]
+    return rows[r[good]], cols[c[good]]
+
+
+def distinct(
+    cost: np.ndarray, rows: np.ndarray, cols: np.ndarray, margin: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the assigned pairs with no close competitor (never guess between two objects).
+
+    Pair ``(a, b)`` is dropped when another object ``b'`` of the second map has a cost within
+    ``margin`` of ``(a, b)``'s — unless ``b'`` is itself assigned to an object it fits better
+    by at least ``margin`` — and likewise for the objects of the first map competing for ``b``.
+    """
+    if rows.size == 0 or margin <= 0:
+        return rows, cols
+    best = cost[rows, cols]
+    own_col = np.full(cost.shape[1], np.inf)
+    own_col[cols] = best
+    own_row = np.full(cost.shape[0], np.inf)
+    own_row[rows] = best
+    k = np.arange(rows.size)
+    across = cost[rows]  # rivals for each assigned row: (k, n_second)
+    rival = (across < best[:, None] + margin) & ~(own_col[None, :] + margin <= across)
+    rival[k, cols] = False
+    down = cost[:, cols].T  # rivals for each assigned column: (k, n_first)
+    rival_col = (down < best[:, None] + margin) & ~(own_row[None, :] + margin <= down)
+    rival_col[k, rows] = False
+    keep = ~rival.any(axis=1) & ~rival_col.any(axis=1)
+    return rows[keep], cols[keep]
+
+
+def alone(gated: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Which pairs ``(rows[k], cols[k])`` are alone in each other's gate: no second object of
+    either map passes the gate ``gated`` (``(n_first, n_second)`` boolean) with either of the two
+    — a gate alone does not choose between two objects."""
+    return (gated[rows].sum(axis=1) == 1) & (gated[:, cols].sum(axis=0) == 1)
+
+
+def separated(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    T_first_second: np.ndarray,
+    anchors_first: np.ndarray,
+    anchors_second: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Which pairs ``(rows[k], cols[k])`` have a gate narrower than their objects' spacing.
+
+    The squared longest semi-axis of the pair's ``χ²₃`` gate is ``χ²₃ · λ_max(S)`` with ``S``
+    the innovation covariance of :func:`gate_pairs` (bounded above by the sum of the largest
+    eigenvalues of its terms); the pair passes when ``separation² · χ²₃ · λ_max(S)`` is at most
+    the squared distance from each of its two objects to its nearest neighbour in its own map.
+    All distances are the maps' own: no unit enters.
+    """
+    if settings.separation <= 0 or rows.size == 0:
+        return np.ones(rows.size, dtype=bool)
+    r = T_first_second[:3, :3]
+    top_a = np.linalg.eigvalsh(a.covs[rows])[:, -1]
+    top_b = np.linalg.eigvalsh(r @ b.covs[cols] @ r.T)[:, -1]
+    ra = anchor_distance(a.means[rows], anchors_first)
+    rb = anchor_distance(b.means[cols], anchors_second)
+    extent = top_a + top_b + 0.5 * settings.drift_ratio**2 * (ra**2 + rb**2)
+    spacing = np.minimum(nearest_distance(a.means)[rows], nearest_distance(b.means)[cols])
+    return settings.separation**2 * settings.gate_threshold * extent <= spacing**2
+
+
+def support(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    ca: np.ndarray,
+    cb: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs a consistent set gathers: its transform, the gate, one to one, and again.
+
+    Returns
+    -------
+    rows, cols, T_first_second, passed
+        Indices of the matched objects, the transform they imply, and the first gate (anchored
+        on the set) — what the set's transform accepts.
+    """
+    # distances alone let a few wrong pairs into a consistent set; keep its rigid core
+    core_a, core_b = rigid_core(a, b, ca, cb, settings)
+    if core_a.size < settings.min_inliers:
+        core_a, core_b = consensus_core(a, b, ca, cb, settings)
+    if core_a.size >= 3:
+        ca, cb = core_a, core_b
+    t = fit_transform(a.means[ca], b.means[cb], a.covs[ca], b.covs[cb])
+    cost, passed = gate_pairs(a, b, t, a.means[ca], b.means[cb], settings)
+    first_gate = passed
+    rows, cols = assign(cost, passed)
+    need = settings.min_inliers
+    if rows.size >= need:
+        # the core: the gated pairs that fit their refitted transform within their own
+        # covariances (each is its own nearest anchor: no drift allowance); as for the set,
+        # by a consensus of triples when trimming from a fit dragged off by a wrong pair
+        # leaves too few
+        core_rows, core_cols = rigid_core(a, b, rows, cols, settings)
+        if core_rows.size < need:
+            core_rows, core_cols = consensus_core(a, b, rows, cols, settings)
+        rows, cols = core_rows, core_cols
+    if rows.size >= need:
+        # every pair gated again, the drift allowance growing with the distance from the core
+        t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
+        cost, passed = gate_pairs(a, b, t, a.means[rows], b.means[cols], settings)
+        rows, cols = assign(cost, passed)
+        rows, cols = distinct(cost, rows, cols, settings.distinctness)
+        if rows.size >= need:
+            t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
+    return rows, cols, t, first_gate
