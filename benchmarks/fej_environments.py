@@ -19,11 +19,10 @@ Run on demand::
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
-from datetime import UTC, datetime
 from pathlib import Path
 
+from _markdown import Markdown, add_option
 from teamslam import api
 from teamslam.ekf2d.experiments import FILTERS, LABELS, monte_carlo
 from teamslam.paper.values import paper_values
@@ -84,40 +83,29 @@ def measure(data: Path, runs: int, workers: int | None) -> list[list[str]]:
     return rows
 
 
-def markdown(rows: list[list[str]], command: str) -> str:
-    """The table with the line saying where and when it was measured."""
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True
-    ).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain", "src"], capture_output=True, text=True)
-    state = " (uncommitted changes)" if dirty.stdout.strip() else ""
-    when = datetime.now(UTC).strftime("%Y-%m-%d")
-    head = ["env", "features", "EKF", "paper", *VARIANTS]
-    lines = [
-        f"Measured on commit `{commit}`{state}, {when}, with `{command}`.",
-        "",
-        "| " + " | ".join(head) + " |",
-        "|" + "|".join("---" for _ in head) + "|",
-    ]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines) + "\n"
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=Path("../shared/data"))
     parser.add_argument("--runs", type=int, default=100)
     parser.add_argument("--workers", type=int, default=None)
-    parser.add_argument("--markdown", type=Path, default=None, help="write the table here")
+    add_option(parser)
     args = parser.parse_args()
     if not (args.data / "fej-environments").is_dir():
         parser.error(f"{args.data / 'fej-environments'} does not exist")
+    md = Markdown(args.markdown)
     rows = measure(args.data, args.runs, args.workers)
-    text = markdown(rows, "python benchmarks/fej_environments.py " + " ".join(sys.argv[1:]))
-    print(text)
-    if args.markdown is not None:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(text)
+    head = ["env", "features", "EKF", "paper", *VARIANTS]
+    md.table(
+        f"Robot-1 pose NEES, {args.runs} Monte Carlo runs: mean ± 2 SE (median, runs above the "
+        "97.5% χ² bound)",
+        head,
+    )
+    print(" | ".join(head))
+    for row in rows:
+        md.row(*row)
+        print(" | ".join(row))
+    md.end()
+    md.write()
 
 
 if __name__ == "__main__":

@@ -43,6 +43,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"dvi-table-4 dvi-figure-4 --out {GENERATED}/paper-sim",
         f"{GENERATED}/paper-sim",
     ),
+    "fej-environments": (
+        "python benchmarks/fej_environments.py --data ../shared/data --runs 100 --workers 1 "
+        f"--markdown {GENERATED}/fej-environments.md",
+        f"{GENERATED}/fej-environments.md",
+    ),
     "consensus-default-team": (
         "python benchmarks/msckf_team.py accuracy --robots 5 --seeds 1 --steps 150 "
         f"--markdown {GENERATED}/consensus-default-team.md",
