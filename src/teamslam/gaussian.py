@@ -1,20 +1,12 @@
 """Gaussians in moment and information form, and the two operations consensus is made of.
 
-Distributed-MSCKF paper, §IV-C:
-
-* :func:`replace_marginal` — Proposition 2 (eq. 14): when the marginal of ``y`` in a joint
-  ``N(μ, Σ)`` over ``(x, y)`` is replaced by ``N(μ̄ʸ, Σ̄ʸ)`` while the conditional ``p(x | y)``
-  is kept, the new joint is ``μ̄ = [A μ̄ʸ + b; μ̄ʸ]``, ``Σ̄ = [[A Σ̄ʸ Aᵀ + P, A Σ̄ʸ], [Σ̄ʸ Aᵀ, Σ̄ʸ]]``
-  with ``A = Σˣʸ Σʸ⁻¹``, ``b = μˣ - A μʸ``, ``P = Σˣ - A Σʸˣ``;
-* :func:`geometric_average` — Proposition 3 (eq. 15) / eq. 19: the weighted geometric mean
-  ``∏ⱼ N(μⱼ, Σⱼ)^{wⱼ}`` (normalised), which in information form is the weighted *sum*
-  ``Σ̄⁻¹ = Σⱼ wⱼ Σⱼ⁻¹``, ``Σ̄⁻¹ μ̄ = Σⱼ wⱼ Σⱼ⁻¹ μⱼ``.
-
-Both work on *index sets*, so a caller holding a large joint can average and replace just the
-block of its common landmarks. Array-level functions (``*_arrays``) are what the filters call in
-their hot paths; :class:`Gaussian` and :class:`InformationGaussian` wrap them for readable code.
-Every inverse is done through a Cholesky factorisation; a matrix that is not symmetric positive
-definite raises :class:`NotPositiveDefiniteError` naming what was wrong.
+:func:`replace_marginal` is Proposition 2 (eq. 14): replace the marginal of ``y`` in a joint over
+``(x, y)`` while keeping ``p(x | y)``; :func:`geometric_average` is Proposition 3 (eq. 15) /
+eq. 19: the weighted geometric mean of Gaussians, a weighted sum in information form. Both work
+on index sets; the ``*_arrays`` functions serve the filters' hot paths, :class:`Gaussian` and
+:class:`InformationGaussian` wrap them. Every inverse goes through a Cholesky factorisation; a
+matrix that is not symmetric positive definite raises :class:`NotPositiveDefiniteError`.
+Equations: the concept page *Consensus* (``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations

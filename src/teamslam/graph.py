@@ -1,16 +1,11 @@
 """Communication graphs and their doubly-stochastic consensus weights.
 
-The distributed-MSCKF paper (§III) lets robot ``i`` talk to its one-hop neighbours
-``𝒩ᵢ`` (including itself) in an undirected graph and weights their marginals by a
-doubly-stochastic adjacency matrix ``A`` with ``Aᵢⱼ > 0`` exactly on the edges and the
-diagonal. teamslam uses Metropolis–Hastings weights,
-
-    Aᵢⱼ = 1 / (1 + max(dᵢ, dⱼ))   for an edge (i, j),    Aᵢᵢ = 1 - Σⱼ Aᵢⱼ,
-
-which are symmetric, non-negative and doubly stochastic on any undirected graph and need only
-the degrees of the two ends of an edge — each robot can compute its own row. Communication
-loss (§VI-B) removes each edge independently with probability ``r`` at each step; the weights
-are recomputed on the surviving edges (:class:`EdgeLoss`), so they stay doubly stochastic.
+Robot ``i`` talks to its one-hop neighbours in an undirected graph (distributed-MSCKF paper,
+§III), weighted by Metropolis–Hastings weights ``Aᵢⱼ = 1 / (1 + max(dᵢ, dⱼ))``,
+``Aᵢᵢ = 1 − Σⱼ Aᵢⱼ``: symmetric, non-negative and doubly stochastic on any undirected graph, and
+computable by each robot from the two degrees of an edge. Communication loss (§VI-B) removes
+each edge with probability ``r`` at each step and the weights are recomputed on the surviving
+edges (:class:`EdgeLoss`).
 """
 
 from __future__ import annotations

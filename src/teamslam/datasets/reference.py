@@ -1,26 +1,12 @@
 """Importer for the data published with the distributed-MSCKF paper (KITTI 00 and simulated teams).
 
-The published files are Python pickles and ``.npz`` archives. Unpickling an untrusted file can
-run arbitrary code, so :class:`RestrictedUnpickler` resolves exactly the four numpy globals the
-published pickles reference — ``numpy.core.multiarray._reconstruct``,
-``numpy.core.multiarray.scalar``, ``numpy.ndarray``, ``numpy.dtype`` (also under their numpy ≥ 2
-module name ``numpy._core.multiarray``, which are the same objects) — and refuses every other
-global with :class:`UnsafePickleError` *before* anything is called. ``.npz`` files are read
-with ``allow_pickle=False``.
-
-Files of a published set (see the data README): ``calib``, ``inputs.npz`` (odometry),
-``poses.npz`` (ground truth), ``obj_features_messages``, ``obj_features_gt`` and, when
-available, ``geo_features_messages``. The simulated sets store the *inverse* relative pose in
-``inputs.npz`` (``inverted_odometry=True``) and object truth as an ``(M, 3)`` array indexed by id.
-
-The published files carry no noise levels; a publisher's parameter file (``params.yaml``) can
-be given to :func:`read_reference_params`. The published code uses its numbers as
-**variances**: the odometry noise is ``W = q·I₆`` with ``q = motion_noise`` (so σ = √q for every
-translation axis in metres *and* every rotation axis in radians), the measurement noise
-``V = r·I₄`` with ``r = geo_obs_noise`` (geometric features) or ``obj_obs_noise`` (objects), in
-the units of the measurements (σ = √r); ``obj_init_dist_min_thre`` / ``obj_init_dist_max_thre``
-are the object depth range in metres. :func:`export_reference` writes a team in the published
-layout (for tests and for tools that read it).
+The published pickles are read by :class:`RestrictedUnpickler`, which resolves exactly the four
+numpy globals they reference and refuses every other global with :class:`UnsafePickleError`
+before anything is called; ``.npz`` files are read with ``allow_pickle=False``. The simulated
+sets store the inverse relative pose (``inverted_odometry=True``). A publisher's ``params.yaml``
+(:func:`read_reference_params`) gives the noise levels, used by the published code as
+variances (``W = q·I₆``, ``V = r·I₄``, so σ = √q and √r). :func:`export_reference` writes a team
+in the published layout.
 """
 
 from __future__ import annotations

@@ -1,26 +1,12 @@
 """The sensor model of a team dataset: how noisy its odometry and its stereo measurements are.
 
-A dataset carries the noise of its own sensors, so that a filter run on it needs no hand-set
-numbers and no setting ever depends on where the data came from. The section is versioned and
-stored in the dataset manifest (``"sensor_model"``)::
-
-    {
-      "version": 1,
-      "origin": "simulation",            # simulation | params file | calibration | user
-      "note": "true noise of the generator",
-      "odometry_std": [0.02, 0.02, 0.02, 0.004, 0.004, 0.004],
-      "feature_std": 1.0,                # geometric features, units of K
-      "object_std": 2.0,                 # object box centres, units of K (K = I: normalised)
-      "object_depth_range": [1.0, 25.0], # metres
-      "robots": {"3": {"object_std": 4.0}}   # optional per-robot values (robot index → fields)
-    }
-
-``odometry_std`` is the per-axis standard deviation of the relative-pose noise per step,
-``δT_measured = δT_true · exp(n)``, ``n = (ρ, φ)`` (metres, radians) in the body frame of the
-step's start — the filter's right-perturbation convention. Measurement σ are isotropic per
-coordinate of ``(u_l, v_l, u_r, v_r)`` and in the units of the camera intrinsics ``K``: pixels
-for a pixel camera, normalised image coordinates when ``K = I``. Any field may be ``null``
-(unknown); the filter then takes it from calibration or a camera-scaled default.
+A versioned ``"sensor_model"`` section of the dataset manifest: its ``origin`` and ``note``,
+team-wide ``odometry_std`` (six per-axis σ per step, metres then radians, right perturbation
+``δT_measured = δT_true · exp(n)``), ``feature_std`` and ``object_std`` (σ per stereo coordinate
+in the units of ``K``), ``object_depth_range`` (metres), and optional per-robot overrides. Any
+field may be ``null`` (unknown): the filter then takes it from calibration or a camera-scaled
+default. Layout and conventions: the concept page *Calibration*
+(``docs/concepts/calibration.md``).
 """
 
 from __future__ import annotations

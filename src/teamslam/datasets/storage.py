@@ -1,38 +1,13 @@
 """teamslam's own on-disk team-dataset format (no pickle anywhere).
 
-A dataset is a directory::
-
-    manifest.json        format name, version, calibration, sensor model, robots, metadata
-    robot_000.npz        T_world_body, odometry, feature_{offsets,ids,measurements},
-    robot_001.npz        object_{offsets,ids,measurements}, [timestamps], [object_classes]
-    ...
-    map.npz              object_ids, object_positions, landmark_ids, landmark_positions,
-                         track_landmarks, [object_identity]
-
-Arrays are compressed numpy ``.npz`` files read with ``allow_pickle=False``; ragged per-frame
-observations are flat arrays plus offsets. Floats in the manifest are written with Python's
-shortest round-trip representation, so a save/load round trip is bit-exact. Loading validates
-every field once and names the file and field of the first problem and what it holds (among
-others: the camera through :func:`~teamslam.geometry.camera.check_stereo`, at least two frames
-per robot, object ids ``≥ 0``, timestamps finite and ``≥ 0`` — a negative stamp is refused, not
-shifted, so that every export writes the times the data holds); writing is atomic (a reader
-never sees half a dataset).
-
-Versions: 2 adds the ``sensor_model`` section (:mod:`~teamslam.datasets.sensor_model`; absent
-when unknown). Version 1 datasets still load: without a sensor model, except that a simulated
-team's recorded generator noise (``metadata.simulation``) becomes its sensor model.
-3 adds what object ids mean: the manifest's ``object_ids`` is ``"global"`` (the same object has
-the same id in every robot's data — what every dataset of versions 1 and 2 meant, and the
-default) or ``"per-robot"``; ``map.npz`` may hold ``object_identity``, ``(K, 3)`` rows ``(robot,
-the robot's object id, team object id)`` — ground truth of which per-robot ids are the same
-object, for evaluation only; a robot file may hold ``object_classes``, ``(C, 2)`` rows
-``(object id, class label)`` from the robot's detector.
-4 adds detections without ids: a robot file may hold ``detection_offsets`` and
-``detection_measurements`` (``(M, 4)``), optionally ``detection_classes``, ``detection_scores``
-and (ground truth, evaluation only) ``detection_truth`` — the team object id of each detection,
-``-1`` for a false one; the manifest's ``object_ids`` may then be ``"none"`` (no ids at all:
-each robot tracks its detections itself). A dataset without detections is still written as
-version 3.
+A dataset is a directory: ``manifest.json`` (format, version, calibration, sensor model, robots,
+metadata), one ``robot_NNN.npz`` per robot (poses, odometry, ragged observations as flat arrays
+plus offsets, optional detections) and ``map.npz`` (the truth). Arrays are compressed ``.npz``
+read with ``allow_pickle=False``; manifest floats round-trip bit-exactly. Loading validates
+every field and names the file and field of the first problem (a negative timestamp is
+refused, not shifted); writing is atomic. Older
+versions still load. Field by field, and what each version added: the docs' reference page
+*Dataset format*.
 """
 
 from __future__ import annotations

@@ -1,18 +1,10 @@
 """The recursive distributed Kalman filter and its centralised reference.
 
-Distributed-MSCKF paper, end of §IV-C: taking two consecutive time steps of the lifted form
-(Prop. 3 with α = 1) gives a Kalman filter, and the averaging step (15) makes it distributed.
-Each agent ``i`` keeps ``N(μ_i, Σ_i)`` over ``s_i = [x_i; y]`` and at every step
-
-1. **consensus averaging** — it receives its neighbours' marginals of the common block ``y``,
-   forms the weighted geometric average (eq. 15 / 19) with the row ``A_i·`` of the
-   doubly-stochastic weights, and replaces its own ``y`` marginal by it keeping
-   ``p(x_i | y)`` (Prop. 2);
-2. **prediction** with its motion model;
-3. **update** with its own observations (eqs. 65–67; ``S = 0`` unless given).
-
-The agent's view of its neighbours is only the messages it is handed — a
-:class:`NeighbourMarginal` per neighbour — never the neighbours' filters.
+Distributed-MSCKF paper, end of §IV-C: each agent keeps ``N(μ_i, Σ_i)`` over ``[x_i; y]`` and at
+every step averages its marginal of ``y`` with its neighbours' (eq. 15 / 19, Prop. 2), predicts
+and updates with its own observations (eqs. 65–67). An agent sees its neighbours only through
+the :class:`NeighbourMarginal` messages it is handed. See the concept page *Consensus*
+(``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """Kalman filtering blocks: prediction, update, and the update with correlated noise (App. C).
 
-Distributed-MSCKF paper, Appendix C: when the motion noise ``w_{t-1}`` and the observation
-noise ``v_t`` are correlated, ``S = E[w_{t-1} v_tᵀ]`` (eq. 45), the filter becomes
-
-    K  = (Σ⁺ Hᵀ + S) (H Σ⁺ Hᵀ + V + H S + Sᵀ Hᵀ)⁻¹            (65)
-    Σ  = (I - K H) Σ⁺ - K Sᵀ                                   (66)
-    μ  = μ⁺ + K (z - H μ⁺)                                      (67)
-
-which is exactly Gaussian conditioning of the predicted state on ``z``, since
-``Cov(s_t, z_t) = Σ⁺ Hᵀ + S`` and ``Cov(z_t) = H Σ⁺ Hᵀ + V + H S + Sᵀ Hᵀ``. With ``S = 0`` it is
-the standard Kalman update. ``S`` is expressed in the state space (the motion noise enters the
-state additively), shape ``(n, m)``.
+:func:`kalman_update` is Gaussian conditioning of the predicted state on ``z`` with motion and
+observation noise correlated by ``S = E[w_{t-1} v_tᵀ]`` (eqs. 65–67; ``S = 0``: the standard
+update), ``S`` of shape ``(n, m)`` in the state space. See the concept page *Consensus*
+(``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations

@@ -1,24 +1,11 @@
 """Distributed mirror descent for linear-Gaussian models in lifted form (Prop. 3, eqs. 11–17).
 
-Over the whole horizon, agent ``i``'s states ``s_i = [s_{i,0}; …; s_{i,T}]`` satisfy the lifted
-model (11)–(12), and its local posterior ``p_i(s_i | u_i, z_i)`` has information
-
-    Λ_i = F̄⁻ᵀ W̄⁻¹ F̄⁻¹ + H̄ᵀ V̄⁻¹ H̄,      λ_i = F̄⁻ᵀ W̄⁻¹ Ḡ u_i + H̄ᵀ V̄⁻¹ z_i      (17)
-
-Iteration ``k`` of the distributed mirror descent (16) is, in information form (App. B,
-eq. 42), with ``M_j`` / ``m_j`` the information matrix / vector of agent ``j``'s marginal of the
-common block (all ``y_t``) and ``L`` the selector of that block:
-
-    Ω̄_i = Ω_i - Lᵀ M_i L + Lᵀ (Σ_j A_ij M_j) L,    ω̄_i = ω_i - Lᵀ m_i + Lᵀ (Σ_j A_ij m_j)
-    Ω_i ← Ω̄_i + α_k (Λ_i - Ω_i),                  ω_i ← ω̄_i + α_k (λ_i - ω_i)
-
-which is the same as averaging the marginals (15), rebuilding the joint by Prop. 2 and adding
-the step term (16) — :func:`mirror_descent_step_moment` does it that way and the tests check
-both agree. Agents already in consensus with ``α = 1`` land on their local posterior (17) in
-one step. On a connected graph with steps ``α_k → 0``, ``Σ α_k = ∞``, the agents' common
-marginals reach consensus and their means reach the centralised posterior mean, provided the
-common block's prior is shared out (:func:`split_common_prior`) so that the product of the
-local posteriors is the centralised posterior.
+Local posteriors (eq. 17) of each agent's lifted model, and the iterations of the distributed
+mirror descent (eq. 16) in information form (:func:`mirror_descent_step`, App. B eq. 42) and as
+average + Prop. 2 + step (:func:`mirror_descent_step_moment`); the two agree. With steps
+``α_k → 0``, ``Σ α_k = ∞`` on a connected graph the agents reach the centralised posterior
+mean, provided the common prior is shared out (:func:`split_common_prior`). Derivation: the
+concept page *Consensus* (``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations

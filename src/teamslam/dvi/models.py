@@ -1,15 +1,9 @@
 """Linear-Gaussian agent models (eq. 10) and a generated team tracking problem.
 
-Each agent ``i`` holds a state ``s_{i,t} = [x_{i,t}; y_t]`` — its private part ``x`` first, the
-common part ``y`` (landmarks shared by the whole team) last — and the model
-
-    s_{i,t+1} = F_i s_{i,t} + G_i u_{i,t} + w_{i,t},   w ~ N(0, W_i)
-    z_{i,t}   = H_i s_{i,t} + v_{i,t},                 v ~ N(0, V_i)        (10)
-
-:func:`tracking_problem` generates a team of such agents: each agent moves in the plane with
-a constant-velocity model and a weak absolute position fix, the team shares ``m`` planar
-landmarks that drift as a slow random walk, and each agent measures the relative position of
-only *some* landmarks, so no agent sees the whole map and agents overlap in what they see.
+Each agent ``i`` holds ``s_{i,t} = [x_{i,t}; y_t]`` — private part first, the common part
+(landmarks shared by the team) last — with linear-Gaussian motion and observation (eq. 10).
+:func:`tracking_problem` generates a team of constant-velocity agents with weak position fixes
+sharing slowly drifting planar landmarks, each agent seeing only some of them.
 """
 
 from __future__ import annotations

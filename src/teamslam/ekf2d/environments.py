@@ -1,21 +1,11 @@
 """Planar simulation environments of the FEJ multi-robot EKF paper (§4.1), and their files.
 
-An environment is, per robot, a closed loop of waypoints (one waypoint per step) plus the true
-feature positions, the number of loops, the sensing range and the noise levels:
-
-* **environment 1** — two intersecting, near-circular loops (radii ≈ 22–24 m, 63 waypoints a
-  loop, steps ≈ 2.3 m); σ_u = 0.3 m, σ_φ = 2°, σ_obs = 0.5 m / 0.6 m;
-* **environment 2** — an outer loop (radius 39 m, 40 waypoints) and an 8 inside it;
-  σ_u = 0.2 m, σ_φ = 3°, σ_obs = 0.5 m / 0.6 m.
-
-Both have 20, 60 or 100 features; the larger sets extend the smaller (same first features),
-and at least two features are within sensing range of both robots at step 0. Robots follow
-their waypoints for 5 loops; every feature within 15 m is observed, in any direction.
-
-Files: teamslam's JSON format (:func:`save_environment`, :func:`load_environment`) and the
-published MATLAB pairs — a waypoints file with ``wp1``, ``wp2`` (2×K) and a features file with
-``lm`` (2×F) — read by :func:`load_matlab_environment`, which merges the variables of all files
-given.
+An environment is, per robot, a closed loop of waypoints (one per step), the true features
+(20, 60 or 100; the larger sets extend the smaller), the number of loops, the sensing range and
+the noise levels (:func:`environment`): **1**, two intersecting near-circular loops,
+σ_u = 0.3 m, σ_φ = 2°; **2**, an outer loop with an 8 inside it, σ_u = 0.2 m, σ_φ = 3°; both
+σ_obs = 0.5 m / 0.6 m, 5 loops, 15 m range. Files: teamslam's JSON (:func:`save_environment`,
+:func:`load_environment`) and the published MATLAB pairs (:func:`load_matlab_environment`).
 """
 
 from __future__ import annotations

@@ -1,35 +1,13 @@
 """The multi-robot EKF over ``[robot poses, features]`` (FEJ multi-robot EKF paper, §2.2).
 
-One class serves the standard, first-estimate and ideal filters: the only difference is the
-:class:`~teamslam.ekf2d.linearization.Policy` that says where Jacobians are evaluated. The
-state (eq. 1) is ``[x_r1, …, x_rN, x_f1, …, x_fF]`` with features appended in the order they
-are first seen.
-
-Per step ``k → k + 1`` (:meth:`MultiRobotEKF.step`): propagate every robot (eqs. 4–6), initialise
-features seen for the first time from their first observation (with full cross-covariances),
-then one batch update with every other observation of the step (eqs. 8–11).
-
-Storage and cost. The covariance ``P`` is one contiguous ``dim × dim`` array. Up to
-``FULL_STORAGE_MAX`` state entries both triangles are kept, so any column of ``P`` is read as a
-row, and the update's rank-``2m`` downdate ``P ← P − Wᵀ W`` is one in-place BLAS ``gemm``; above
-it only the lower triangle is kept (the upper one is no longer read), the downdate is one
-in-place ``syrk`` over half the matrix, and the columns the update needs are read from rows
-left of the diagonal and from columns below it. Either way ``P`` is symmetric by construction
-(:attr:`MultiRobotEKF.cov` mirrors the lower triangle). The steps touch only what changes:
-
-* propagation: ``Φ`` is the identity outside the robot block, so only the robot block
-  (``Φ_r P_rr Φ_rᵀ + G Q Gᵀ``, one small product) and the robot–feature cross block
-  (``P_fr Φ_rᵀ``) are rewritten;
-* update: ``H`` has five non-zero columns per observation (its robot's pose and its feature), so
-  ``P Hᵀ`` reads only those columns of ``P``; with ``S = Uᵀ U`` (Cholesky) and
-  ``[W | v] = U⁻ᵀ [H P | r]`` (one triangular solve), the mean moves by ``Wᵀ v`` and ``P`` by
-  ``− Wᵀ W``;
-* a new feature appends rows (the lower triangle's new rows are exactly the cross-covariances
-  and the new block), so the matrix is copied once per step that adds features.
-
-With a small state (full storage) the cost is the number of numpy calls, not the arithmetic, so
-propagation and update each run as one compiled call (:mod:`teamslam.ekf2d.kernels`, numba);
-the numpy path above serves large states and runs that record their Jacobians.
+One class, :class:`MultiRobotEKF`, serves the standard, first-estimate and ideal filters; only
+its :class:`~teamslam.ekf2d.linearization.Policy` differs. Per step (:meth:`MultiRobotEKF.step`):
+propagate every robot (eqs. 4–6), initialise new features from their first observation (with
+full cross-covariances), then one batch update with the step's other observations
+(eqs. 8–11). ``P`` is one contiguous array, kept whole up to ``FULL_STORAGE_MAX`` entries and
+as its lower triangle above (symmetric by construction either way); each step touches only
+the blocks that change, and small states run as one compiled call
+(:mod:`teamslam.ekf2d.kernels`).
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """Compiled inner loop of the multi-robot EKF update for small states (numba).
 
-With a few dozen state entries the batch update (:meth:`MultiRobotEKF._batch_update`) is a few
-thousand multiply-adds spread over ~50 small numpy calls, so its cost is the calls, not the
-arithmetic. :func:`update_full` does the same update — eqs. 8–11 with ``H`` evaluated where the
-policy says and the innovation at the current estimate — in one compiled call on the fully
-stored symmetric ``P``. Larger states keep the numpy/BLAS path, whose ``syrk`` wins there.
+:func:`update_full` does the batch update of :meth:`MultiRobotEKF._batch_update` — eqs. 8–11
+with ``H`` evaluated where the policy says and the innovation at the current estimate — in one
+compiled call on the fully stored symmetric ``P``; larger states keep the numpy/BLAS path.
 """
 
 from __future__ import annotations

@@ -1,21 +1,10 @@
 """Where the EKF evaluates its Jacobians: the one pluggable piece that separates the filters.
 
-FEJ multi-robot EKF paper, §3: the three filters run the same propagation and update and differ
-only in the point at which ``Φ`` (eq. 5) and ``H`` (eqs. 10–11) are evaluated:
-
-=========== ============================================== =====================================
-policy      propagation ``Φ_k``: ``J (x_p(k+1) - x_p(k))``  update ``H``: robot pose, feature
-=========== ============================================== =====================================
-standard    ``x̂_{k+1|k} - x̂_{k|k}`` (current estimates)      ``x̂_{k+1|k}``, current ``x̂_f``
-first       ``x̂_{k+1|k} - x̂_{k|k-1}`` (propagated           ``x̂_{k+1|k}`` (propagated),
-estimate    positions, eq. 24)                               first estimate ``x̂_{f,τ|τ}`` (eq. 24)
-ideal       ``x_{k+1} - x_k`` (ground truth)                 ground truth (eqs. 21–22)
-=========== ============================================== =====================================
-
-With the first-estimate or ideal choices, products ``H_{k+t} Φ_{k+t-1} … Φ_k`` telescope to the
-same heading column for every ``t``, the local observability matrix keeps rank ``dim - 3``, and
-the filter gains no spurious information along the three unobservable directions (global
-translation and rotation); the standard choice breaks the telescoping and has rank ``dim - 2``.
+FEJ multi-robot EKF paper, §3: the standard, first-estimate and ideal filters differ only in
+the points at which ``Φ`` (eq. 5) and ``H`` (eqs. 10–11) are evaluated, which a :class:`Policy`
+picks from the :class:`LinearizationPoints` of a step. With first estimates or the truth the
+observability matrix keeps rank ``dim − 3``; the standard choice reaches ``dim − 2``. Table of
+the choices and derivation: the concept page *Linearisation* (``docs/concepts/linearization.md``).
 """
 
 from __future__ import annotations

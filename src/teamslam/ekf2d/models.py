@@ -1,18 +1,10 @@
 """Planar robot motion and point-feature observation models (FEJ multi-robot EKF paper, §2.2).
 
-A robot pose is ``x_r = (x_p, φ)`` with position ``x_p ∈ R²`` and heading ``φ``; a point feature
-is ``x_f ∈ R²``; ``C(φ)`` is the 2×2 rotation and ``J = [[0, -1], [1, 0]]``.
-
-* motion (eq. 2): ``x_p' = x_p + C(φ) u``, ``φ' = φ + v``; odometry ``(u, v)`` is measured in
-  the robot frame with noise ``w ~ N(0, diag(Q, Ω))``;
-* its Jacobians (eqs. 5–6): ``Φ = [[I, J (x_p' - x_p)], [0, 1]]``, ``G = [[C(φ), 0], [0, 1]]``;
-* observation (eq. 7): ``z = C(φ)ᵀ (x_f - x_p) + e``, ``e ~ N(0, R)``;
-* its Jacobians (eqs. 10–11): ``H_f = C(φ)ᵀ``, ``H_r = C(φ)ᵀ [-I, -J (x_f - x_p)]``;
-* feature initialisation from one observation: ``x_f = x_p + C(φ) z``.
-
-Every function is batched over leading axes. The *linearisation point* of each Jacobian is an
-argument, so the filter can evaluate it where its policy says (current estimate, first
-estimate, or ground truth) — see :mod:`teamslam.ekf2d.linearization`.
+Motion (eq. 2) with its Jacobians ``Φ``, ``G`` (eqs. 5–6), observation (eq. 7) with ``H_r``,
+``H_f`` (eqs. 10–11), and feature initialisation from one observation; batched over leading
+axes. The linearisation point of each Jacobian is an argument, so the filter evaluates it where
+its policy says. Equations: the concept page *Linearisation*
+(``docs/concepts/linearization.md``).
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """Local observability matrix of a linearised filter (FEJ multi-robot EKF paper, §3, eq. 13).
 
-Over steps ``k … k + m``
-
-    M = [ H_k ; H_{k+1} Φ_k ; … ; H_{k+m} Φ_{k+m-1} ⋯ Φ_k ]                              (13)
-
-built from the Jacobians a run actually used (:class:`~teamslam.ekf2d.filter.JacobianRecord`).
-For two robots and two features (state dimension 10) the underlying system has 3 unobservable
-directions (global translation and rotation): the ideal and first-estimate filters keep
-``rank M = 7``, the standard filter reaches ``rank M = 8`` (Lemma 1) — it believes it can see
-a direction it cannot.
+``M = [H_k; H_{k+1} Φ_k; …]`` from the Jacobians a run used
+(:class:`~teamslam.ekf2d.filter.JacobianRecord`), and its rank: ``dim − 3`` for the ideal and
+first-estimate filters, ``dim − 2`` for the standard one (Lemma 1). See the concept page
+*Linearisation* (``docs/concepts/linearization.md``).
 """
 
 from __future__ import annotations

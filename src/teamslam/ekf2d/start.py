@@ -1,16 +1,9 @@
 """Step-0 start of the multi-robot EKF by Gauss–Newton (FEJ multi-robot EKF paper, §2.2, eq. 12).
 
-Robot 1 is anchored (its pose is known and has zero covariance). The poses of the other robots
-and the positions of the features seen at step 0 by at least two robots are unknown; they
-minimise
-
-    Σ_i Σ_j ‖ z_ij − C(φ_i)ᵀ (x_fj − x_pi) ‖²_{R_i}                                     (12)
-
-over every step-0 observation of those shared features. Gauss–Newton starts from a closed-form
-guess — shared features placed by the robot that sees them first, then each other robot's pose
-by a 2D Procrustes alignment of its observations to those positions — so it does not need a
-prior pose guess (the Victoria Park split gives one 76.6 m and 2.1 rad off). The covariance of
-the solution is ``P_s = (Jᵀ R⁻¹ J)⁻¹`` and the filter starts from ``P_0 = diag(0, P_s)``.
+Robot 1 is anchored; the other robots' step-0 poses and the features seen at step 0 by at least
+two robots minimise eq. 12, from a closed-form guess (no prior pose guess needed). The filter
+starts from ``P_0 = diag(0, (Jᵀ R⁻¹ J)⁻¹)``. Derivation: the concept page *Linearisation*
+(``docs/concepts/linearization.md``).
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """Two-robot EKF on the Victoria Park split (FEJ multi-robot EKF paper, §4.2, Fig. 6).
 
 Robot 1 starts at its reference pose (anchored); robot 2's step-0 pose and the features both
-robots see at step 0 come from the Gauss–Newton start (its guess in the published files is
-76.6 m and 2.1 rad off, and is not needed). Both robots then step together, each measurement
-with its own covariance. Estimates are compared with the reference batch Gauss–Newton solution.
+robots see at step 0 come from the Gauss–Newton start (the published guess is not needed).
+Both robots then step together, each measurement with its own covariance; estimates are
+compared with the reference batch Gauss–Newton solution.
 """
 
 from __future__ import annotations

@@ -1,18 +1,10 @@
 """A run's estimates on disk: what the trajectory files leave out (covariances, the map).
 
-``estimates.npz`` (compressed numpy, read with ``allow_pickle=False``) holds, per robot ``i``:
-
-* ``robot_<i>_poses`` — ``(N_i, 4, 4)`` filtered ``T_world_body`` of every frame;
-* ``robot_<i>_pose_covs`` — ``(N_i, 6, 6)`` their covariances (right perturbation);
-* ``robot_<i>_stamps_ns`` — ``(N_i,)`` int64 stamps: the dataset's timestamps, or the frame
-  index × ``period`` when it has none;
-* ``robot_<i>_ground_truth`` — ``(N_i, 4, 4)`` the dataset's ``T_world_body`` (absent when the
-  dataset says it has no ground truth);
-* ``robot_<i>_object_ids``, ``robot_<i>_objects``, ``robot_<i>_object_covs`` — the final map:
-  ids, ``(m, 3)`` positions in the world frame and ``(m, 3, 3)`` covariances (covariances
-  absent when the run did not keep them);
-
-and ``meta`` — a JSON string: dataset name, robot count, whether stamps are the dataset's.
+``estimates.npz`` (compressed numpy, read with ``allow_pickle=False``) holds per robot ``i``
+``robot_<i>_poses``, ``robot_<i>_pose_covs``, ``robot_<i>_stamps_ns``, optionally
+``robot_<i>_ground_truth``, and the final map ``robot_<i>_object_ids``, ``robot_<i>_objects``
+and (when kept) ``robot_<i>_object_covs``; ``meta`` is a JSON string (dataset name, robot count,
+whether stamps are the dataset's).
 """
 
 from __future__ import annotations

@@ -1,24 +1,11 @@
 """Accuracy, agreement and consistency of a team run (distributed MSCKF paper, §VI).
 
-* trajectory RMSE per robot, **without alignment** (as the paper: aligning would hide the map
-  errors that consensus is meant to fix);
-* odometry-only RMSE (dead reckoning from the known start);
-* object error: mean distance of a robot's estimated objects to the truth (Table II);
-* object disagreement: for each robot, the mean distance between its estimate of an object and
-  the other robots' estimates of the same object (Table III);
-* pose NEES per robot per frame from the current pose's 6×6 covariance, with the error in the
-  filter's own convention ``T_true = T_est · exp(ε^)``, normalised by 6 (1 when consistent);
-* time per robot per frame for each stage;
-* sensor health (:mod:`teamslam.msckf.settings.health`): per sensor the mean NIS / dof and the
-  share of
-  measurements the χ² gate rejected, and the odometry's smoothed-residual ratio;
-* with association by the robots themselves (``association = own``) or the consensus
-  innovation check: per link the summary bytes per step, the correspondences proposed,
-  accepted, revoked and held, and where ground truth exists (per-robot ids with
-  ``object_identity``, or global ids) the correct and wrong ones, precision and recall against
-  the objects both final maps hold (:func:`association_metrics`); ``None`` where there was
-  nothing to measure (no pair, no object both maps hold).
-
+Per robot: trajectory RMSE **without alignment** (as the paper: aligning would hide the map
+errors consensus is meant to fix) and odometry-only RMSE; object error (Table II) and object
+disagreement with the other robots (Table III); pose NEES per frame, in the filter's convention
+``T_true = T_est · exp(ε^)``, divided by 6; stage times; sensor health; and, with the robots'
+own association or the consensus innovation check, per-link association figures
+(:func:`association_metrics`; ``None`` where there was nothing to measure).
 :func:`pose_nees_warning` says when the team's pose NEES leaves its χ² band.
 """
 

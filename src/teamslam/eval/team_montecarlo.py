@@ -1,41 +1,12 @@
 """Monte Carlo consistency of the 3D team filter: linearisation × team mode.
 
-``N`` noise realisations of one simulated team (same paths and map, fresh odometry and
-measurement noise, :func:`~teamslam.sim.lissajous_team` with ``noise_seed``), each run through
-every linearisation policy (:mod:`teamslam.msckf.filter.linearization`) and every mode —
-``separate``
-filters, ``consensus`` (the distributed MSCKF, on a complete graph unless ``graph`` says
-otherwise, with link loss ``loss``), ``hybrid`` (the same with hybrid consensus,
-``consensus_hybrid``: new information at full weight, :mod:`teamslam.msckf.consensus`),
-``increments`` (consensus on information increments, ``consensus_increments``: each robot's
-new information counted once, :mod:`teamslam.msckf.consensus.average`) and ``centralised``
-(:mod:`teamslam.msckf.centralised`).
-Runs are spread over processes (:func:`~teamslam.parallel.run_parallel`, BLAS pinned
-to one thread per worker).
-
-Per filter and mode:
-
-* ``anees_pose`` — the average NEES of the current pose, divided by 6: at each frame the
-  mean over the ``N`` runs (ANEES, Bar-Shalom et al. 2001), then averaged over frames and
-  robots; a consistent filter's per-frame ANEES lies inside ``band`` (the two-sided 95 % χ²
-  band of ``χ²(6N) / 6N``) 95 % of the time;
-* ``anees_object`` — the NEES of each object of the final maps, divided by 3, averaged over
-  objects, robots and runs; ``band_object`` the χ² band for ``N`` runs and 3 dof;
-* ``position_rmse_m``, ``heading_rmse_rad`` — RMSE over runs, robots and frames of the
-  position error and of the rotation angle of ``R_estᵀ R_true``;
-* ``median_run`` — the run whose own average pose NEES is the median, with that value;
-  ``runs_above_band`` — the runs whose own average pose NEES exceeds the upper band edge;
-* ``anees_pose_per_frame``, ``position_rmse_per_frame_m`` — the curves of the figures;
-* ``position_rmse_per_run_m`` — each run's own position RMSE (over robots and frames).
-
-Every filter and mode sees the same ``N`` noise realisations, so filters can be compared run by
-run: ``paired_rmse["<filter>-std"][mode]`` (for every filter besides ``std``, when ``std`` is
-in the study), and the averaging rules against the paper's average,
-``paired_rmse["<hybrid|increments>-consensus"][filter]`` (when ``consensus`` is in the study),
-hold the mean over runs of the difference of the per-run position RMSEs, its 95 % Student-t
-confidence interval, the same relative to the reference's mean, and in how many runs the
-filter (rule) was the more accurate one. A difference whose interval contains 0 is one this many
-runs cannot tell from noise.
+``N`` noise realisations of one simulated team, each run through every linearisation policy and
+every mode (``separate``, ``consensus``, ``hybrid``, ``increments``, ``centralised``) over a
+process pool. Per filter and mode: pose ANEES (per frame, mean over runs, divided by 6) with its
+two-sided 95 % χ² band, object ANEES with its band, position and heading RMSE, the median run
+and the runs above the band, and the per-frame curves. Every filter and mode sees the same
+realisations, so ``paired_rmse`` compares them run by run: the mean per-run RMSE difference with
+its 95 % Student-t interval, relative difference, and how many runs each won.
 """
 
 from __future__ import annotations

@@ -1,25 +1,11 @@
 """How well each robot tracked its own object detections (against the truth of each detection).
 
-The tracker (:mod:`teamslam.msckf.objects.tracking`) gives every detection an object id or none; the
-dataset says what each detection truly is (:attr:`~teamslam.datasets.model.FrameDetections.truth`:
-a team object id, or ``-1`` for a false detection). The ground-truth objects of a frame are the
-true objects detected in it (an object the detector missed cannot be tracked in that frame), and
-a hypothesis matches the true object of the detection it was given to. Then:
-
-The ids are those the filter used each detection as (:attr:`ObjectTracker.log
-<teamslam.msckf.objects.tracking.ObjectTracker.log>`): a confirmed track's detections from before
-its
-confirmation count under its id, as the filter's object initialisation uses them.
-
-* **CLEAR-MOT** (Bernardin & Stiefelhagen 2008): ``MOTA = 1 − (FN + FP + IDSW) / GT`` with
-  ``FN`` true detections without an id (of tracks never confirmed, or refused), ``FP`` ids
-  given to false detections, ``IDSW`` identity switches (a true object matched to an id
-  other than the one it was last matched to); **fragmentations**: a true object's matched run
-  interrupted and resumed.
-* **IDF1** (Ristani et al. 2016): the one-to-one map of true objects to ids maximising the
-  detections on which they agree (``IDTP``); ``IDF1 = 2 IDTP / (GT + hypotheses)``.
-* **objects created vs true**: distinct ids given against distinct true objects detected; ids
-  given only to false detections (false objects) counted apart.
+Each detection's id, as the filter used it (:attr:`ObjectTracker.log
+<teamslam.msckf.objects.tracking.ObjectTracker.log>`), is scored against the dataset's truth of
+that detection (:attr:`~teamslam.datasets.model.FrameDetections.truth`): CLEAR-MOT
+(``MOTA = 1 − (FN + FP + IDSW) / GT``, fragmentations; Bernardin & Stiefelhagen 2008), IDF1
+(Ristani et al. 2016), and objects created against true objects detected (false objects
+apart).
 """
 
 from __future__ import annotations

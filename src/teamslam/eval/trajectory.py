@@ -1,25 +1,11 @@
 """Trajectory evaluation of a team: alignment, absolute and relative pose errors.
 
-Conventions (those of ``evo`` and of Sturm et al., IROS 2012, so numbers compare):
-
-* an estimate ``P_k = T_world_body`` is compared with the reference ``Q_k`` at the same time;
-* **APE**: translation part ``‖t(Q_k) − t(P_k)‖`` in metres, rotation part the angle of
-  ``R(Q_k)ᵀ R(P_k)`` in degrees;
-* **RPE** over a step ``Δ``: ``E_k = (Q_k⁻¹ Q_{k+Δ})⁻¹ (P_k⁻¹ P_{k+Δ})``, its translation norm
-  and rotation angle; ``Δ`` counted in frames, or in metres travelled along the reference;
-* statistics: RMSE, mean, median, population std, max, min over the frames (or pairs).
-
-Alignment, applied to the estimate before the errors:
-
-* ``none`` — the estimate as it is, in the reference's world frame (the distributed MSCKF
-  paper's choice: aligning would hide the map errors consensus is meant to fix);
-* ``se3`` / ``sim3`` — the rigid / similarity transform minimising the summed squared position
-  error, in closed form (Umeyama, IEEE TPAMI 13(4), 1991; equivalently Horn, JOSA A 4(4), 1987);
-* ``first-pose`` — ``Q_0 P_0⁻¹``: the estimate's first pose put on the reference's.
-
-For a team the alignment is either per robot, or one transform for the whole team estimated
-from every robot's positions at once (``first-pose``: the first robot's first pose): the honest
-choice for a shared map, where per-robot alignment would hide the robots' disagreement.
+Conventions of ``evo`` and Sturm et al. (IROS 2012), so numbers compare: **APE** is the position
+error ``‖t(Q_k) − t(P_k)‖`` (m) and the angle of ``R(Q_k)ᵀ R(P_k)`` (degrees); **RPE** over a
+step ``Δ`` (frames or metres travelled) is that of ``(Q_k⁻¹ Q_{k+Δ})⁻¹ (P_k⁻¹ P_{k+Δ})``; with
+their RMSE, mean, median, population std, max and min. Alignment before the errors: ``none``
+(the paper's choice), ``se3`` / ``sim3`` (Umeyama 1991, closed form) or ``first-pose``; per robot
+or one transform for the whole team (the honest choice for a shared map).
 """
 
 from __future__ import annotations

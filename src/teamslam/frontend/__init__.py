@@ -1,18 +1,11 @@
 """Stereo front-end: from a robot's stereo images to the measurements teamslam filters.
 
-* :mod:`~teamslam.frontend.config` — :class:`FrontendConfig`, every setting;
-* :mod:`~teamslam.frontend.camera` — :func:`load_camera`, :class:`StereoRig` (rectification);
-* :mod:`~teamslam.frontend.tracking` — :class:`FeatureTracker` (corners + pyramidal
-  Lucas–Kanade, forward–backward check, persistent ids);
-* :mod:`~teamslam.frontend.stereo` — :func:`match_stereo` (epipolar NCC, uniqueness,
-  left–right check, Lucas–Kanade refinement; tracked points followed from their previous
-  disparity);
-* :mod:`~teamslam.frontend.markers` — :class:`MarkerDetector` (ArUco / AprilTag objects);
-* :mod:`~teamslam.frontend.odometry` — :func:`stereo_motion` (PnP + RANSAC);
-* :mod:`~teamslam.frontend.pipeline` — :class:`StereoFrontend`, all of it per frame.
-
-OpenCV is the optional ``images`` extra (``pip install teamslam[images]``), imported only
-when a function needs it.
+:mod:`~teamslam.frontend.config` (settings), :mod:`~teamslam.frontend.camera` (camera files,
+rectification), :mod:`~teamslam.frontend.tracking` (feature tracks),
+:mod:`~teamslam.frontend.stereo` (stereo matching), :mod:`~teamslam.frontend.markers`
+(fiducial objects), :mod:`~teamslam.frontend.odometry` (stereo visual odometry) and
+:mod:`~teamslam.frontend.pipeline` (all of it per frame). OpenCV is the optional ``images``
+extra, imported only when a function needs it.
 """
 
 from teamslam.frontend.camera import StereoRig, load_camera, rig_from_camera_info

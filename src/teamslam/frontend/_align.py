@@ -1,16 +1,10 @@
 """Affine + gain/offset alignment of many small patches at once (Gauss–Newton, compiled).
 
-Both the track alignment to a track's first appearance and the stereo alignment of a left
-patch in the right image solve, per patch, for a centre ``uv``, a 2×2 warp ``A`` and a gain
-and offset ``(g, b)`` minimising the Gaussian-weighted
-
-    Σ_x w(x) · (g · I(uv + A x) + b − T(x))²
-
-over the window's offsets ``x``. The image and its two (Sobel) gradients are sampled
-bilinearly, with the border replicated, at ``uv + A x``; the normal equations
-``(JᵀWJ + 10⁻⁶ I) δ = −JᵀW r`` of the eight parameters are solved by Cholesky. One compiled
-call (numba) runs every step of every patch: sampling, normal equations and solve, patch by
-patch, with no per-pixel Jacobian array of all patches in memory.
+Per patch, solves for a centre ``uv``, a 2×2 warp ``A``, gain ``g`` and offset ``b`` minimising
+``Σ_x w(x) · (g · I(uv + A x) + b − T(x))²`` with Gaussian weights ``w``: bilinear sampling of
+the image and its Sobel gradients (border replicated), normal equations
+``(JᵀWJ + 10⁻⁶ I) δ = −JᵀW r`` solved by Cholesky, every step of every patch in one compiled
+call (numba).
 """
 
 from __future__ import annotations

@@ -1,19 +1,11 @@
 """Stereo camera files and rectification.
 
-A camera file is YAML (written by :func:`teamslam.sim.render.write_camera_file`)::
-
-    image_width: 640
-    image_height: 480
-    left:  {K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], distortion: [k1, k2, p1, p2, k3]}
-    right: {K: ..., distortion: ...}
-    T_left_right: 4×4 pose of the right camera in the left camera frame
-    T_cam_body: 4×4 body → left optical frame (optional; default: body x forward, y left,
-                z up, so T_cam_body maps it to optical x right, y down, z forward)
-
-A pair that is already rectified (no distortion, equal intrinsics, right camera translated
-along x only) is used as it is; otherwise OpenCV's ``stereoRectify`` gives the rectifying
-rotations and a common pinhole camera, and images are remapped. The rectified left frame is
-rotated from the original left frame, so ``T_cam_body`` is rotated with it.
+A camera file is YAML (written by :func:`teamslam.sim.render.write_camera_file`):
+``image_width``, ``image_height``, ``left`` and ``right`` (``K`` and ``distortion``),
+``T_left_right`` (the right camera in the left camera frame) and optionally ``T_cam_body``
+(default: body x forward, y left, z up). An already rectified pair is used as it is; otherwise
+OpenCV's ``stereoRectify`` gives the rectifying rotations and a common pinhole camera, and
+``T_cam_body`` is rotated with the rectified left frame.
 """
 
 from __future__ import annotations

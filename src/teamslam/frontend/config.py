@@ -60,19 +60,15 @@ class FrontendConfig:
     max_track_length
         Most frames a track is followed (0: no limit); a longer one ends and its corner may
         start a new track with a fresh template and id. Aligned to its first appearance, a
-        track's error grows with its age as the view changes (on the rendered team the
-        left-image error's RMS is 0.10 px one frame after the first sighting, 0.13 px ten
-        frames and 0.17 px forty frames after it), and the error is the same from frame to frame.
+        track's error grows with its age as the view changes, and the error is the same from
+        frame to frame.
     max_track_warp
         Largest change of a track's appearance since its first sighting, unit-free: the
         largest ``|log σ|`` of the singular values ``σ`` of the track's affine warp (0.1 is
         a patch grown, shrunk or sheared by about 10 %; 0: no limit). A track past it ends,
         and its corner may start a new track with a fresh template and id. Unlike
         ``max_track_length`` it does not depend on the frame rate: a track ends when the
-        view of its patch has changed, not after a number of frames. On the rendered
-        3-robot team 0.2 took the consensus RMSE from 7.43 to 6.10 mm and the pose NEES per
-        degree of freedom from 4–6 to 1.0–1.1 (0.1: 6.78 mm), tracks being 7.1 instead of
-        14.1 frames long on average.
+        view of its patch has changed, not after a number of frames.
     min_depth, max_depth
         Depth range (metres) of stereo matches: the disparity search range is
         ``[fx·b / max_depth, fx·b / min_depth]``.
@@ -92,18 +88,13 @@ class FrontendConfig:
     stereo_from_guess
         Match a tracked point whose disparity in the previous frame is known by pyramidal
         Lucas–Kanade from that disparity into the right image and back (the left–right
-        check), instead of searching the row by NCC: the search, point by point, was the
-        front-end's largest cost. New points are always searched.
+        check), instead of searching the row by NCC. New points are always searched.
     stereo_affine_iterations
         Gauss–Newton steps aligning each left patch in the right image with an affine warp,
         gain and offset after the Lucas–Kanade refinement (0: translation-only Lucas–Kanade).
         On slanted surfaces the two cameras see a patch foreshortened differently, and a
-        translation-only match is biased by the same amount frame after frame along a track:
-        on the rendered team 3 steps cut the disparity error's spread from 0.127 to 0.094 px
-        and the team's consensus RMSE from 8.08 to 7.19 mm (set 0 when time matters more).
-        Two steps (the default, like ``affine_iterations``, and ``lk_levels`` 2) are as
-        accurate as three on the rendered team from the Lucas–Kanade start: the three
-        together take 22 % off the front-end's time.
+        translation-only match is biased by the same amount frame after frame along a track
+        (set 0 when time matters more).
     marker_dictionary
         ArUco / AprilTag family of the fiducial markers (``None``: no markers).
     marker_row_share
@@ -111,8 +102,8 @@ class FrontendConfig:
     marker_min_perimeter_share
         Smallest marker perimeter looked for, share of the larger image side (OpenCV's
         ``minMarkerPerimeterRate``; 0.08 is a side of 13 px in a 640-px image: smaller
-        markers are not measured to a pixel anyway, and fewer candidate contours halve the
-        detection time).
+        markers are not measured to a pixel anyway, and fewer candidate contours are
+        faster).
     marker_threshold_passes
         Adaptive-threshold window sizes tried by the marker detector (OpenCV's 3 to 23 px
         in this many steps; each pass is one thresholding and contour search of the image).
@@ -121,9 +112,7 @@ class FrontendConfig:
         (one of its black or white squares; OpenCV's ``relativeCornerRefinmentWinSize``,
         whose window is at most 5 px). At OpenCV's own 0.3, a marker of 26 px side (4×4
         bits plus the border: a module of 4.3 px) is refined in a window of about one
-        pixel; the default 0.4 measured the centre of markers ≥ 25 px on the rendered team
-        to 0.31 px at most, against 0.75 px at 0.3 (0.5: 0.99 px), and gave the team a
-        lower trajectory and object error end to end.
+        pixel.
     vo_reprojection_share, vo_min_inliers
         RANSAC threshold of stereo visual odometry (share of the diagonal) and the least
         number of inliers for a motion to be accepted.

@@ -1,30 +1,13 @@
 """Stereo matching of left-image points on a rectified pair, with an outlier gate.
 
-For each left point the right image is searched along the same row over the disparity range
-(from the depth range and ``fx · b``) by normalised cross-correlation (NCC, insensitive to a
-gain and offset between the cameras); the integer peak is refined by a parabola. A match is
-rejected when
-
-* its NCC is below ``ncc_min``;
-* it is not unique: the best NCC more than two pixels away from the peak reaches
-  ``uniqueness`` times the peak;
-* the left–right check fails: searching the left image for the right patch does not return to
-  the left point (an occlusion, or a repeated pattern);
-* Lucas–Kanade refinement along the row (after a global gain correction of the right image)
-  moves the disparity, or the row, by more than the refine threshold.
-
-The accepted match is the Lucas–Kanade refined position ``(u_r, v_r)``, then (with
-``stereo_affine_iterations``, the default) the left patch aligned in the right image with an
-affine warp, gain and offset (:func:`affine_align`): a slanted surface is foreshortened
-differently in the two cameras, which biases a translation-only match by the same amount frame
-after frame along a track; an aligned patch correlating below ``ncc_min`` is rejected.
-
-A tracked point whose disparity in the previous frame is known (``disparity_guess``, with
-``stereo_from_guess``, the default) is not searched: pyramidal Lucas–Kanade follows it from that
-disparity into the right image and back to the left one; it is rejected when the way back
-misses the left point by more than the left–right threshold, when the match leaves the row by
-more than the refine threshold or leaves ``guess ± max(3, 20 %)`` pixels, and then by the same
-alignment gate. The search, point by point in Python, was the front-end's largest cost.
+:func:`match_stereo` searches the right image along the same row over the disparity range by
+normalised cross-correlation, refines the peak (parabola, then Lucas–Kanade along the row after
+a global gain correction, then with ``stereo_affine_iterations`` an affine warp with gain and
+offset, :func:`affine_align`), and rejects a match below ``ncc_min``, not unique, failing the
+left–right check, or moved by more than the refine threshold. A tracked point with a known
+disparity (``stereo_from_guess``) is followed by pyramidal Lucas–Kanade from it instead, and
+rejected when the way back misses, or the match leaves the row or ``guess ± max(3, 20 %)``
+pixels, and by the same alignment gate.
 """
 
 from __future__ import annotations

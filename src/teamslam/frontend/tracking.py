@@ -1,22 +1,12 @@
 """Feature tracks with persistent ids: Shi–Tomasi corners followed by pyramidal Lucas–Kanade.
 
-Every frame the previous frame's tracks are followed forward and then back again; a track is
-kept when it lands inside the image and the backward track returns within the
-forward–backward threshold. Where the image has no tracks (outside a disc of the feature
-spacing around each survivor) new corners are taken, with fresh ids, up to
-``max_features``.
-
-Frame-to-frame Lucas–Kanade drifts: its translation-only model puts the point at the centre of
-the window's gradient energy, and as the patch grows or shears (the camera approaches, the
-view turns) that centre moves relative to the surface. With ``affine_refinement`` each track
-is then aligned to its own first appearance (Shi and Tomasi's feature monitoring): an affine
-warp plus gain and offset, Gauss–Newton on all tracks at once, the point being the warp of the
-template's centre. A track whose aligned patch no longer correlates with its template
-(``template_ncc_min``), or whose warp degenerates, ends; so does, with ``max_track_warp``, a
-track whose patch has grown, shrunk or been sheared by more than that (the largest ``|log σ|``
-of the warp's singular values, :func:`warp_change`): the affine model fits the first
-appearance less well the more the view has changed, and the error it leaves is repeated frame
-after frame.
+Each frame the tracks are followed forward and back; a track is kept when it stays inside the
+image and returns within the forward–backward threshold, and new corners with fresh ids fill
+the empty parts of the image up to ``max_features``. With ``affine_refinement`` each track is
+aligned to its own first appearance (affine warp, gain and offset; Shi and Tomasi's feature
+monitoring), which frame-to-frame Lucas–Kanade drifts from; a track ends when its aligned patch
+no longer correlates with its template (``template_ncc_min``), its warp degenerates, or it
+changed by more than ``max_track_warp`` (:func:`warp_change`).
 """
 
 from __future__ import annotations

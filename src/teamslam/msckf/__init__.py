@@ -1,18 +1,12 @@
 """The distributed multi-state constraint Kalman filter (distributed MSCKF paper, §V).
 
-Rooms, each importing only from those listed before it:
-
-* :mod:`~teamslam.msckf.settings` — the settings' values, where each came from, sensor health;
-* :mod:`~teamslam.msckf.filter` — one robot's state (window of poses and objects, the one door
-  to its covariance), models, updates, linearisation policies, persistent map, observability;
-* :mod:`~teamslam.msckf.objects` — a robot's own object tracker and loop closure;
-* :mod:`~teamslam.msckf.consensus` — what robots exchange and how they average it: protocol,
-  messages, transport, averaging rules, checks;
-* at the top: :mod:`~teamslam.msckf.agent` (Algorithm 1 for one robot),
-  :mod:`~teamslam.msckf.team` (the one frame loop, lock-step team runner),
-  :mod:`~teamslam.msckf.centralised` (one filter for the whole team, the reference),
-  :mod:`~teamslam.msckf.calibration` (the sensor model estimated from the data by running the
-  filter) and :mod:`~teamslam.msckf.configure` (a run's settings, built once).
+Rooms, each importing only from those listed before it: :mod:`~teamslam.msckf.settings`
+(values, their sources, sensor health), :mod:`~teamslam.msckf.filter` (one robot's state,
+models, updates, linearisation, persistent map, observability), :mod:`~teamslam.msckf.objects`
+(tracking, loop closure), :mod:`~teamslam.msckf.consensus` (what robots exchange and how they
+average), and at the top :mod:`~teamslam.msckf.agent`, :mod:`~teamslam.msckf.team`,
+:mod:`~teamslam.msckf.centralised`, :mod:`~teamslam.msckf.calibration` and
+:mod:`~teamslam.msckf.configure`.
 """
 
 from __future__ import annotations

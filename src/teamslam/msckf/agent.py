@@ -1,37 +1,15 @@
 """One robot running the distributed MSCKF (Algorithm 1 of the distributed MSCKF paper).
 
-At every frame ``t`` the team runner first lets the agent average the common objects with its
-neighbours (step 1, :mod:`teamslam.msckf.consensus`); then :meth:`MsckfAgent.step`
-
-2. propagates with the odometry ``t − 1 → t`` (eqs. 22–23);
-3. updates with the geometric features whose tracks ended (or span the pose about to leave the
-   window) — MSCKF null-space rows (eq. 24) — and with the objects already in the map, in one
-   stacked Kalman update (eqs. 26–28), each feature or object chi-square gated (with
-   ``object_update_iterations > 1``: the features first, then the objects by an iterated EKF,
-   :meth:`~teamslam.msckf.filter.state.MsckfState.iterated_update`);
-4. initialises objects seen often enough inside the window by QR (eqs. 29–30) — optionally
-   once their initial position is certain enough relative to their distance
-   (``object_init_max_relative_std``) — then uses the rest of their rows to update the poses;
-
-and finally slides the window. With ``object_retire_after = N > 0`` objects unobserved for
-``N`` frames then leave the state for the persistent map, and a retired object observed again
-re-enters the state right after propagation, before the update
-(:mod:`teamslam.msckf.filter.persistent_map`); everything the agent keeps is then bounded over a
-mission — the window, open feature tracks and object observations inside it, the state —
-except the persistent map (15 numbers per distinct object retired) and the per-frame stage
-times (allocated once for the whole sequence). Bad inputs (non-finite odometry or
-measurements) are rejected and counted; the estimate is left as it was.
-
-A robot whose data has detections without ids (``RobotSequence.detections`` and no object
-observation with an id) names them itself right after propagation
-(:mod:`teamslam.msckf.objects.tracking`); everything above then reads the tracker's ids. With ids
-the
-tracker does not exist and nothing changes.
-
-Every Jacobian is evaluated where the configured linearisation policy says
-(:mod:`teamslam.msckf.filter.linearization`: standard, first-estimate or ideal); residuals always at
-the current estimate. The agent's state may be its own or its window in a team state
-(:mod:`teamslam.msckf.centralised`): the same code serves both.
+After the team runner's consensus (step 1, :mod:`teamslam.msckf.consensus`),
+:meth:`MsckfAgent.step` propagates with the odometry (eqs. 22–23), updates with the finished
+geometric features (null-space rows, eq. 24) and the objects in the map in one stacked,
+χ²-gated Kalman update (eqs. 26–28), initialises objects seen often enough (eqs. 29–30) and
+slides the window; objects may retire to and re-enter from the persistent map, and detections
+without ids are named by the robot's own tracker first. Jacobians are evaluated where the
+linearisation policy says. Bad inputs are rejected and counted, the estimate left as it was;
+a numerical failure raises :class:`~teamslam.errors.EstimationError` naming robot and frame.
+The same code serves a state of its own or a robot's window in a team state. See the concept
+page *The filter* (``docs/concepts/filter.md``).
 """
 
 from __future__ import annotations

@@ -1,50 +1,12 @@
 """Self-calibration of a team's sensor model from its data alone (no ground truth).
 
-What is estimated: the odometry noise per step (one σ for the translation axes and one for the
-rotation axes, or six with ``odometry_per_axis``) and the measurement noise σ of geometric
-features and of object box centres, in the camera's own units. (The object depth range is not:
-it stays the dataset's, a file's, a flag's or the camera-scaled default.)
-
-How
----
-1. **Start** (filter-free). A stereo observation has four coordinates and a point three, so each
-   single observation leaves one residual: for a rectified rig it is ``v_l − v_r``, in general
-   the component of its triangulation residual orthogonal to the point Jacobian
-   (:func:`epipolar_noise`). Its robust spread is the part of the measurement noise that is
-   independent between the two images; noise common to both images (a detector's box offset
-   seen in both) is invisible to it, so it is a lower bound, used only to start from above it
-   (``3×`` it, or the camera-scaled default when larger). The odometry starts at three times
-   its camera-scaled default: a filter that trusts its odometry too much explains the data by
-   odometry and the odometry estimate then crawls; one that trusts it too little lets the data
-   speak.
-2. **Iterate** — filter passes of every robot alone (no consensus) over its first ``frames``
-   frames, at most ``max_iterations``, until no σ moves by more than ``tolerance``:
-
-   * *measurement σ by covariance matching of the innovations* (Mehra 1972, "Approaches to
-     adaptive filtering", IEEE TAC 17(5); Bar-Shalom, Li & Kirubarajan 2001, *Estimation with
-     Applications to Tracking and Navigation*, §5.4): each sensor's σ is moved until its
-     innovations' mean NIS equals their degrees of freedom (:func:`nis_ratio`: winsorised at
-     the χ² quantile 1 − 10⁻⁶, counted over the directions the state can explain). The state's
-     own uncertainty — object covariances grown from the same σ — changes with σ, so each step
-     is a secant step on ``log ratio`` against ``log σ`` across passes, never more than twice
-     the plain ``σ·√ratio``;
-   * *odometry σ by expectation–maximisation over the smoothed window* (Shumway & Stoffer 1982,
-     "An approach to time series smoothing and forecasting using the EM algorithm", J. Time
-     Series Analysis 3(4); Särkkä 2013, *Bayesian Filtering and Smoothing*, §12.3.3): when a
-     pose leaves the window it and every later window pose have been smoothed by all
-     measurements of the window; the composed odometry from it to each of them has the
-     residual second moment ``ê êᵀ + J Σ Jᵀ`` with expectation ``M_L · diag W``
-     (:func:`~teamslam.msckf.settings.health.odometry_lag_residuals`). The variances ``diag W`` are
-     the
-     non-negative least-squares fit of these equations over every lag — the long lags, where
-     the measurements rather than the odometry decide the motion, make it converge in a few
-     passes where one-step EM crawls (cf. the autocovariance least-squares method, Odelson,
-     Rajamani & Rawlings 2006, Automatica 42).
-
-The fixed point is a sensor model under which the filter's innovations are χ²-consistent and
-the odometry noise is what the smoothed motion shows; for Gaussian noise and a consistent filter
-that is the true noise. A detector with heavy tails gets the σ that covers its errors on
-average (and the gate's nominal 5% rejection is then exceeded: the run reports it).
+:func:`calibrate` estimates the odometry noise per step and the measurement σ of geometric
+features and object box centres: a filter-free start above the epipolar lower bound
+(:func:`epipolar_noise`), then filter passes of every robot alone until no σ moves by more than
+``tolerance`` — measurement σ by covariance matching of the innovations (:func:`nis_ratio`),
+odometry σ by expectation–maximisation over the smoothed window (every lag, non-negative least
+squares). The object depth range is not estimated. Derivation and references: the concept page
+*Calibration* (``docs/concepts/calibration.md``).
 """
 
 from __future__ import annotations
@@ -114,20 +76,11 @@ NIS_WINSOR_PROBABILITY = 1.0 - 1e-6
 def nis_ratio(record: InnovationRecord, std: float) -> float | None:
     """Mean NIS of a sensor's innovations over its model value (1 when σ is right).
 
-    Covariance matching (Mehra 1972, "Approaches to adaptive filtering", IEEE TAC 17(5);
-    Bar-Shalom, Li & Kirubarajan 2001, *Estimation with Applications to Tracking and
-    Navigation*, §5.4): for a consistent filter the NIS of an innovation with ``d`` degrees of
-    freedom averages ``d``. Each NIS is winsorised at the χ² quantile ``1 − 10⁻⁶`` of its dof
-    — ``Σ min(NIS_i, g_i) / Σ E[min(χ²(d_i), g_i)]`` — so that a handful of absurd
-    measurements (a mismatched id) cannot decide σ, while the heavy, frequent tails of a real
-    detector still count in full: a σ fitted to the core of such a detector and a gate throwing
-    away the rest leaves the filter overconfident on the data it keeps.
-
-    The NIS is taken over the directions the state can explain (eigenvalue of ``H P Hᵀ`` above
-    zero): a direction with none — for a rectified rig, ``v_l − v_r`` — carries only the noise
-    that is independent between the two images, which the update never uses (its Kalman gain is
-    zero) and which, for a detector whose left and right errors are correlated, is far smaller
-    than the noise that matters. ``None`` with fewer than 20 innovations.
+    ``Σ min(NIS_i, g_i) / Σ E[min(χ²(d_i), g_i)]``, each NIS winsorised at the χ² quantile
+    ``g_i`` of probability ``1 − 10⁻⁶`` of its dof ``d_i`` and taken over the directions the state
+    can explain (eigenvalues of ``H P Hᵀ`` above zero) — covariance matching (Mehra 1972;
+    Bar-Shalom, Li & Kirubarajan 2001, §5.4). Why winsorised, and why only those directions: the
+    concept page *Calibration*. ``None`` with fewer than 20 innovations.
     """
     dof, nis = [], []
     variance = std**2
@@ -255,7 +208,7 @@ def calibrate(
     tolerance: float = 0.05,
     odometry_per_axis: bool = False,
 ) -> CalibrationResult:
-    """Estimate the team's sensor model from its data (see the module docstring).
+    """Estimate the team's sensor model from its data (concept page *Calibration*).
 
     Parameters
     ----------

@@ -1,20 +1,12 @@
 """The centralised MSCKF: one filter holding every robot's window and every object.
 
-What a single server receiving all the team's data would run, and the accuracy reference of the
-distributed filter. One :class:`~teamslam.msckf.filter.state.MsckfState` holds the windows of all
-robots (each robot's poses kept together) and one map of objects; robot ``i`` is processed by
-an ordinary :class:`~teamslam.msckf.agent.MsckfAgent` whose state is its
-:class:`~teamslam.msckf.filter.state.RobotWindow` into the joint state, driven by the
-:class:`~teamslam.msckf.team.RobotDriver` of every run (here without a transport) — the same
-propagation, feature and object updates, object initialisation and linearisation policy as a
-robot alone, but every update acts on the joint covariance, so an object seen by two robots
-correlates and corrects both. At each frame the robots' steps are applied one after the other
-(sequential Kalman updates of independent measurements) and the poses are recorded after the
-last (:func:`~teamslam.msckf.team.run_lockstep`). An object enters the map once, from
-whichever robot first sees it often enough; afterwards every robot updates it.
-
-The result has the shape of :class:`~teamslam.msckf.team.TeamResult` (each robot's "map" is the
-one joint map), so :func:`~teamslam.eval.metrics.team_metrics` gives the same keys.
+The accuracy reference of the distributed filter. One
+:class:`~teamslam.msckf.filter.state.MsckfState` holds every robot's window and one map; each
+robot runs an ordinary :class:`~teamslam.msckf.agent.MsckfAgent` on its
+:class:`~teamslam.msckf.filter.state.RobotWindow`, so every update acts on the joint covariance.
+At each frame the robots' steps are applied one after the other (sequential updates of
+independent measurements). The result has the shape of
+:class:`~teamslam.msckf.team.TeamResult` (each robot's map is the joint map).
 """
 
 from __future__ import annotations

@@ -1,36 +1,14 @@
 """The team driver: one robot's frame loop, the lock-step schedule of a team, one result.
 
-Every way of running the filter goes through the same per-frame code, :class:`RobotDriver`:
-
-* a robot first takes part in consensus (from the second frame on, when it has a
-  :class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`): round 1 sends its map ids, round 2
-  answers the requests heard with the marginals of the common objects, round 3 averages the
-  marginals heard (:meth:`RobotDriver.requests`, :meth:`RobotDriver.answer`,
-  :meth:`RobotDriver.average`) — ``consensus_iterations`` times per frame, each exchange with
-  its own messages and, in the in-process team, its own link-loss draw;
-* then it processes the frame (:meth:`RobotDriver.step`) and records the filtered pose of
-  frame ``k`` and its covariance (:meth:`RobotDriver.record`).
-
-Messages move through a :class:`~teamslam.msckf.consensus.transport.Transport` — the in-memory
-:class:`~teamslam.msckf.consensus.transport.MemoryNetwork` or Zenoh — and the waiting follows a
-policy:
-:class:`LockStep` (wait for the messages of this step, up to a timeout) or :class:`Asynchronous`
-(never wait; use each neighbour's newest message no older than ``max_age`` steps). A neighbour
-silent for ``lost_after`` frames in a row is reported lost and no longer awaited (it is awaited
-again as soon as it speaks); each neighbour silent in an exchange counts as a link lost.
-
-The robot process runs one driver to the end (:meth:`RobotDriver.frame` per frame); a team in
-one process runs every robot's driver phase by phase (:func:`run_lockstep`): all requests go
-out before anyone answers, all answers before anyone averages, and every robot steps before
-any pose is recorded — which is what the centralised filter (robots sharing one state) needs;
-a robot whose sequence has ended is no longer anyone's neighbour (not a lost link).
-The in-process team (:func:`run_team`) schedules its drivers over a memory network whose links
-follow the loss draws; the weights are therefore the Metropolis–Hastings weights of the links
-that work among the robots still running.
-
-:func:`assemble_result` builds the one :class:`TeamResult` of any run from its drivers;
-:func:`save_result` and :func:`load_result` write and read it (the robot processes write
-theirs, one robot each, and :func:`merge_results` joins them).
+Every way of running the filter goes through :class:`RobotDriver`: per frame, consensus
+(``consensus_iterations`` exchanges: requests, answers, average) over a
+:class:`~teamslam.msckf.consensus.transport.Transport`, then the filter step and the record of
+the filtered pose. Waiting follows :class:`LockStep` or :class:`Asynchronous`; a neighbour
+silent for ``lost_after`` frames is reported lost. :func:`run_lockstep` runs a team in one
+process phase by phase (all requests before any answer, all answers before any average, every
+step before any record); :func:`run_team` runs it over a memory network with link losses.
+:func:`assemble_result` builds the one :class:`TeamResult`; :func:`save_result`,
+:func:`load_result` and :func:`merge_results` write, read and join results.
 """
 
 from __future__ import annotations

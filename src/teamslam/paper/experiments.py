@@ -1,21 +1,11 @@
 """The experiments behind the papers' tables and figures, as library calls.
 
-Each runs what ``teamslam run`` (or ``teamslam fej``) would run — the settings resolved from the
-data by :func:`teamslam.api.resolve_settings`, no noise level set by hand — and returns plain
-numbers. ``benchmarks/msckf_team.py`` calls the same functions.
-
-* :func:`kitti_pair` — separate and consensus MSCKFs on the published KITTI 00 team (DVI Tables
-  I–III, Fig. 3);
-* :func:`team_pairs` — separate and consensus on simulated Lissajous teams (DVI Table IV);
-* :func:`loss_sweep` — consensus under link loss (DVI Fig. 4);
-* :func:`fej_experiment` — Monte Carlo of the standard, ideal and FEJ planar EKFs (FEJ Tables
-  1–2, Figs. 4–5).
-
-Each is also an :class:`Experiment` — its independent tasks and how its result is built from
-theirs (:func:`kitti_experiment`, :func:`team_experiment`, :func:`loss_experiment`,
-:func:`fej_experiment`, :func:`victoria_park_experiment`) — so that :func:`run_experiments` can
-run the tasks of many in one process pool, longest first, each task once. The results do not
-depend on the number of workers.
+Each runs what ``teamslam run`` (or ``teamslam fej``) would run, with settings resolved from
+the data (:func:`teamslam.api.resolve_settings`), and returns plain numbers:
+:func:`kitti_pair`, :func:`team_pairs`, :func:`loss_sweep`, :func:`fej_experiment`. Each is also an
+:class:`Experiment` (its independent tasks and how its result is built from theirs), so that
+:func:`run_experiments` runs the tasks of many in one process pool, longest first, each task
+once; the results do not depend on the number of workers.
 """
 
 from __future__ import annotations

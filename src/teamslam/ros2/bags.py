@@ -1,27 +1,11 @@
 """Team bags: a team dataset from a ROS 2 bag, and a dataset as a ROS 2 bag.
 
-Layout (what :func:`export_bag` writes and :func:`import_bag` reads), per robot ``NAME``:
-
-* odometry — ``nav_msgs/msg/Odometry``: the dead-reckoned body pose in the robot's odometry
-  frame; the relative motion of frame ``k`` is ``T_kᵀ⁻¹ T_{k+1}`` of consecutive messages. Its
-  pose covariance (ROS order x, y, z, rot x, rot y, rot z) gives the odometry σ when present:
-  a covariance that grows from message to message (dead reckoning, REP 105) gives the per-step
-  σ² as the median increase of its diagonal; a constant one is taken as the per-step σ² itself;
-* ground truth (optional) — ``geometry_msgs/msg/PoseStamped`` or ``nav_msgs/msg/Odometry`` in
-  the world frame;
-* stereo observations — ``teamslam_msgs/msg/StereoObservations`` (the ``.msg`` ships with
-  teamslam and is written into the bag's schema): ids, kinds (feature / object) and
-  ``(u_l, v_l, u_r, v_r)`` in the units of ``K``.
-
-Frames are the odometry messages, by header stamp. Each observation message goes to the frame
-with the nearest stamp when it lies within the tolerance (default: half the smallest median
-odometry period), the nearest one wins when two fall on one frame; ground truth must have a
-message within the tolerance of every frame. Streams that do not overlap in time raise
-:class:`~teamslam.errors.InputError` naming the robot, topics and time spans.
-
-Stamps become dataset timestamps in seconds since the earliest odometry stamp of the team,
-which is kept in ``metadata["ros2"]["stamp_origin_ns"]``, so a bag → dataset → bag trip gives
-back the same integer nanoseconds (for runs shorter than about three weeks).
+Per robot: odometry (``nav_msgs/msg/Odometry``, whose covariance gives the odometry σ when
+present), optional ground truth, and ``teamslam_msgs/msg/StereoObservations``. Frames are the
+odometry messages; each observation message goes to the frame with the nearest stamp within the
+tolerance, and streams that do not overlap raise :class:`~teamslam.errors.InputError` naming
+robot, topics and time spans. Stamps are kept so that a bag → dataset → bag trip gives back the
+same integer nanoseconds. Topic by topic: the docs' guide *ROS 2*.
 """
 
 from __future__ import annotations

@@ -1,26 +1,10 @@
 """A run as one MCAP file with standard ROS 2 schemas (Foxglove, RViz via rosbag2, rosbags).
 
-Topics, per robot ``i`` (the team's robot index, from 0):
-
-* ``/robot_<i>/pose`` — ``geometry_msgs/msg/PoseStamped``, frame ``world``, the filtered
-  ``T_world_body`` of every frame, stamped with the dataset's timestamps (or frame index ×
-  period);
-* ``/robot_<i>/path`` — ``nav_msgs/msg/Path``, the trajectory so far, every ``path_every``-th
-  frame and at the last one (a path per frame would grow the file quadratically);
-* ``/robot_<i>/objects`` — ``visualization_msgs/msg/MarkerArray``, the robot's final map at its
-  last stamp: each object a sphere and its 3σ ellipsoid (when the run kept the covariances);
-* ``/ground_truth/robot_<i>/pose`` — ``PoseStamped`` of the dataset's ground truth, when it has
-  one (written once, with the main run);
-* ``/tf`` — ``tf2_msgs/msg/TFMessage``: ``world → robot_<i>/base_link`` (estimate) and
-  ``world → robot_<i>/ground_truth``;
-* ``/association`` — ``MarkerArray``, for a run whose robots associated their objects themselves
-  (``association = own``): per link ``i–j`` one ``LINE_LIST`` (namespace ``link_i_j``) joining
-  each matched pair's two estimates at the last stamp.
-
-With ``--compare`` results (``separate/`` and ``consensus/``) the consensus run has the topics
-above and the separate run the same under ``/separate``. The file is written by ``rosbags``'
-rosbag2 MCAP storage (zstd chunks, schemas ``ros2msg``, rosbag2 metadata) and moved out of its
-bag directory, so it is a plain ``.mcap`` that ``ros2 bag play`` also accepts.
+Per robot ``i``: ``/robot_<i>/pose``, ``/robot_<i>/path`` (every ``path_every``-th frame),
+``/robot_<i>/objects`` (final map with 3σ ellipsoids), ``/ground_truth/robot_<i>/pose``,
+``/tf``, and ``/association`` for a run with the robots' own association; a ``--compare`` run's
+separate filters under ``/separate``. Written by ``rosbags``' rosbag2 MCAP storage and moved out
+of its bag directory, so it is a plain ``.mcap`` that ``ros2 bag play`` also accepts.
 """
 
 from __future__ import annotations

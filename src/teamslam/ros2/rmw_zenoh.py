@@ -1,29 +1,11 @@
 """Live ROS 2 topics over Zenoh, as ``rmw_zenoh`` lays them out — no ROS installation needed.
 
-Follows ``rmw_zenoh``'s design document (``docs/design.md`` of ros2/rmw_zenoh, 2025):
-
-* a topic ``/robot_0/pose`` of type ``geometry_msgs/msg/PoseStamped`` is published on the key
-  expression ``<domain_id>/robot_0/pose/geometry_msgs::msg::dds_::PoseStamped_/RIHS01_<hash>``
-  — the fully qualified name without its leading slash, the DDS type name, and the RIHS01 type
-  hash of REP 2011 (ROS 2 Iron, Jazzy and later; Humble has no type hashes: its rmw_zenoh
-  builds put ``TypeHashNotSupported`` there and would not match these keys);
-* the payload is the CDR serialisation with its 4-byte encapsulation header (``00 01 00 00``,
-  little-endian CDR);
-* every sample carries the attachment rmw_zenoh subscribers require: the sequence number
-  (int64, from 1), the source timestamp (int64 ns since the UNIX epoch, taken at publication)
-  and the publisher GID length (one byte, 16) then its 16 bytes — ``zenoh.ext``'s serialiser
-  writes exactly that layout;
-* liveliness tokens announce a node and one ``MP`` publisher per topic:
-  ``@ros2_lv/<domain>/<zid>/<nid>/<nid>/NN/%/%/<node>`` and
-  ``@ros2_lv/<domain>/<zid>/<nid>/<eid>/MP/%/%/<node>/<%mangled%name>/<type>/<hash>/<qos>``
-  (``/`` mangled to ``%``; QoS in rmw_zenoh's compact form against its defaults — reliable,
-  volatile, keep-last 42 — here keep-last 10: ``::,10:,:,:,,``), which is what lets
-  ``ros2 topic list`` show the topics; the GID is rmw_zenoh's: the XXH3 128-bit hash of the
-  publisher's token key, low 64 bits then high 64 bits, little endian.
-
-The session follows rmw_zenoh's default session configuration: peer mode, connect to the
-router at ``tcp/localhost:7447`` (``ros2 run rmw_zenoh_cpp rmw_zenohd``), listen on
-``tcp/localhost:0``, multicast scouting off.
+Following ``rmw_zenoh``'s design document: a topic is published on
+``<domain_id>/<name>/<DDS type name>/RIHS01_<hash>`` (REP 2011 type hashes: Iron, Jazzy and
+later, not Humble) with a CDR payload and the attachment rmw_zenoh subscribers require
+(sequence number, source timestamp, publisher GID); liveliness tokens announce the node and one
+publisher per topic so that ``ros2 topic list`` shows them. The session uses rmw_zenoh's
+defaults: peer mode, router at ``tcp/localhost:7447``, multicast scouting off.
 """
 
 from __future__ import annotations

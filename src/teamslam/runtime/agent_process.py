@@ -1,29 +1,13 @@
 """One robot's distributed MSCKF as its own process (``teamslam agent``).
 
-The agent runs Algorithm 1 over its slice of the team dataset and talks to its neighbours only
-through a :class:`~teamslam.runtime.zenoh_transport.ZenohTransport`:
-
-* **lock-step** — at frame ``t`` it sends its map ids to every neighbour, waits (up to the
-  timeout) for theirs, answers each with the marginal of the objects they share, waits for the
-  answers it expects (it knows which neighbours share objects from their ids), then averages.
-  A neighbour that stays silent past the timeout is a link lost for that exchange (with
-  ``consensus_iterations`` > 1 it is not awaited again in the frame's later exchanges); after
-  ``lost_after`` silent frames in a row it is reported lost and no longer waited for (it is
-  waited for again as soon as it speaks).
-* **async** — it never waits: it answers any ids request it has, and averages with each
-  neighbour's newest marginal no older than ``max_age_steps``.
-
-Each frame is :meth:`teamslam.msckf.team.RobotDriver.frame` — the per-frame code of every run
-(in-process team, centralised filter): what is sent, what is accepted, the weights and the
-average are :class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`, the waiting and the
-lost-neighbour bookkeeping the driver's. This module adds the robot's settings (the team file's
-``filter`` over the dataset's sensor model; ground truth for the ``ideal`` linearisation, as in
-the in-process run), checkpoints and result files. The result (trajectory, covariances, map
-with object covariances, counters, timings, transport figures) is a one-robot
-:class:`~teamslam.msckf.team.TeamResult`, written atomically by
-:func:`~teamslam.msckf.team.save_result` at the end — or, when the filter fails, with the frames
-done before the error is raised; a checkpoint every ``checkpoint_every`` frames lets
-``--resume`` continue.
+The agent runs :meth:`teamslam.msckf.team.RobotDriver.frame` over its slice of the team dataset
+and talks to its neighbours only through a
+:class:`~teamslam.runtime.zenoh_transport.ZenohTransport`, lock-step (wait up to the timeout
+for each round; a silent neighbour is a link lost, and after ``lost_after`` frames reported
+lost) or asynchronous (never wait; newest marginal no older than ``max_age_steps``). It adds
+the robot's settings, checkpoints every ``checkpoint_every`` frames (``--resume`` continues)
+and a one-robot :class:`~teamslam.msckf.team.TeamResult` written atomically at the end — or,
+when the filter fails, with the frames done before the error is raised.
 """
 
 from __future__ import annotations

@@ -1,20 +1,11 @@
 """Several hosts on one machine: each robot in its own Linux network namespace.
 
-:class:`EmulatedNetwork` makes one namespace per host plus a hub namespace holding a bridge;
-each host is joined to the bridge by a veth pair (one end, ``eth0``, inside the host, the other
-on the bridge), so a host reaches the others only through its own link and nothing outside the
-namespaces it made (no link to the machine's own network). Per link it can add
-
-* a bandwidth cap: a token-bucket filter (``tc qdisc … tbf``) on both ends of the veth, so each
-  direction of every link carries at most ``rate_mbit``;
-* random packet loss: ``iptables -m statistic --mode random --probability p -j DROP`` on what
-  a host receives (TCP retransmits; a lossy radio under a reliable transport).
-
-Latency is not emulated here (this needs netem, which not every kernel has): the transport's
-injected delay (``message_delay_ms`` of the team file) adds it. Everything runs through
-``ip`` (iproute2), ``tc`` and ``iptables`` as root or with CAP_NET_ADMIN;
-:func:`unavailable_reason` says why a machine cannot. The context manager removes every
-namespace it made, also when the body raises, and stops the processes it started.
+:class:`EmulatedNetwork` makes one namespace per host, joined by veth pairs to a bridge in a hub
+namespace and to nothing else, with an optional bandwidth cap per link (``tc`` token bucket)
+and random packet loss (``iptables`` statistic match); latency comes from the transport's
+injected delay. Needs ``ip``, ``tc`` and ``iptables`` as root or with CAP_NET_ADMIN
+(:func:`unavailable_reason` says why not); the context manager removes every namespace and
+stops every process it started, also when the body raises.
 """
 
 from __future__ import annotations

@@ -1,31 +1,12 @@
 """Only the team's robots get in: certificates, mutual TLS and access control for Zenoh.
 
-A secured team has its own certificate authority (CA). Every robot holds a private key and a
-certificate the CA signed, whose common name (CN) is the robot's name and whose
-subjectAltName is the host of the robot's endpoint. Links are Zenoh ``tls/`` links with mutual
-authentication: each side proves its key and checks the other's certificate against the team
-CA (and, on connect, that the certificate names the host it dialled). On top of that, Zenoh's
-access control runs with ``default_permission: deny`` and allows, per member, only:
-
-* publications *from* that member: a put arriving over robot ``i``'s link must be on
-  ``teamslam/<team>/to/*/from/<i>/**`` — so a member can never speak in another member's name;
-* publications *to* that member: a put leaving over robot ``i``'s link must be on
-  ``teamslam/<team>/to/<i>/**``;
-* the declarations the team needs (subscriptions, liveliness tokens and queries) on the
-  team's keys.
-
-A certificate from another CA fails the TLS handshake; a certificate of the team's CA whose CN
-is not a member completes it but is denied every message; a peer without TLS cannot connect at
-all (only ``tls`` links are enabled). Zenoh refuses such peers silently — the session of the
-robot still opens — so :func:`authenticated_peers` reads the authenticated names of the live
-links from the session, and the transport names every neighbour it has no authenticated link to.
-
-Claimed sender against authenticated peer: Zenoh's Python API exposes the CN of each link
-(``Link.auth_identifier``, with the peer's Zenoh id) but not which link a received sample came
-in on (``Sample.source_info`` is empty unless the publisher sets it, and a peer could set any
-value there). The binding is therefore enforced by the access-control rules above, at ingress,
-on the authenticated link; the receiver then checks that the sender in the decoded message
-equals the ``from/<i>`` of the key it arrived on.
+A secured team has its own certificate authority; each robot holds a key and a certificate
+naming the robot (CN) and its endpoint's host (subjectAltName). Links are Zenoh ``tls/`` links
+with mutual authentication, and access control (``default_permission: deny``) allows robot
+``i``'s link only puts on ``teamslam/<team>/to/*/from/<i>/**`` from it and on
+``teamslam/<team>/to/<i>/**`` to it, plus the team's declarations: a member can never speak in
+another's name. Zenoh refuses other peers silently, so :func:`authenticated_peers` reads the
+authenticated names of the live links and the transport names every neighbour without one.
 """
 
 from __future__ import annotations

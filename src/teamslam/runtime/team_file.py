@@ -1,53 +1,13 @@
 """The team file (``team.yaml``): who the robots are, what they run on, whom they talk to.
 
-Example::
-
-    team: lissajous-demo             # name; also separates teams on a shared network
-    dataset: results/team3           # a teamslam team dataset (each robot uses its slice)
-    sync: lockstep                   # or: async
-    timeout_s: 5.0                   # lock-step: how long to wait for a neighbour's messages
-    max_age_steps: 3                 # async: oldest neighbour marginal still used
-    checkpoint_every: 25             # frames between checkpoints (0: never)
-    message_loss: 0.0                # injected loss rate of sent messages (experiments)
-    message_delay_ms: 0.0            # injected delay before each send
-    shared_memory: true              # Zenoh may hand large messages to robots on the same
-                                     # machine through shared memory instead of the network
-    filter: {window: 10, object_std: 2.0}   # any filter setting (teamslam config show lists
-                                     # them); objects_only: true = use_geometric_features: false
-    ros2: {domain_id: 0}             # optional: every robot publishes ROS 2 topics over
-                                     # rmw_zenoh (teamslam.ros2.rmw_zenoh.ros2_settings)
-    robots:
-      - id: 0
-        listen: tcp/127.0.0.1:17400  # default: tcp/127.0.0.1:<17400 + id>
-        name: robot-0                # default: robot-<id>; the common name of its certificate
-        neighbours: [1, 2]
-      - id: 1
-        neighbours: [0, 2]
-      - id: 2
-        neighbours: [0, 1]
-        dataset: other/team          # optional: another dataset …
-        dataset_robot: 0             # … and which of its robots
-
-A secured team (mutual TLS and access control, :mod:`teamslam.runtime.security`) adds::
-
-    security:
-      ca_certificate: certs/ca.pem   # the team CA: the only authority a robot trusts
-      verify_name: true              # on connect, the neighbour's certificate must name its host
-      robots:                        # each robot's key and certificate (a robot's machine
-        - {id: 0, key: certs/robot-0.key, certificate: certs/robot-0.pem}   # needs only its own)
-        - ...
-
-and every endpoint is then a ``tls/HOST:PORT`` endpoint (``teamslam team certs`` writes both).
-
-Each agent listens on its own endpoint and connects to its neighbours' (Zenoh peer mode, no
-router, multicast scouting off so it runs on closed networks). The consensus weights are not
-fixed by the file: at each step they are the Metropolis–Hastings weights of the links that
-worked, ``A_ij = 1 / (1 + max(d_i, d_j))`` with ``d_i`` the neighbours robot ``i`` heard that
-step (its degree travels in its marginals), as in the in-process run
-(:class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`,
-:func:`teamslam.graph.metropolis_weight`).
-Loading validates everything and names the first problem; the ``filter`` settings are checked
-for every robot again before a launch (:func:`teamslam.api.launch`).
+:func:`load_team_file` reads the team's name, dataset, synchronisation (``lockstep`` or ``async``
+with its timeout or maximum age), checkpoints, injected loss and delay, the ``filter`` and
+optional ``ros2`` and ``security`` sections, and per robot its id, endpoint, name, neighbours
+and optional dataset. Loading validates everything and names the first problem; the
+``filter`` settings are checked for every robot again before a launch. Consensus weights are
+not fixed by the file: they are the Metropolis–Hastings weights of the links that worked
+(:func:`teamslam.graph.metropolis_weight`). Field by field: the docs' reference page
+*Team file*.
 """
 
 from __future__ import annotations

@@ -1,52 +1,12 @@
 """teamslam's wire format for consensus messages: versioned, compact, validated binary.
 
-Every message is a fixed little-endian header followed by a payload::
-
-    offset size field
-    0      4    magic b"TSLM"
-    4      1    format version (7)
-    5      1    kind: 1 = map ids; a common marginal: 2 = joint covariance, float64; 3 = joint
-                covariance, float32; 4 = per object, float64; 5 = per object, float32;
-                6 = joint information matrix, float64; 7 = joint information matrix, float32;
-                map ids with the sender's object summary: 8 = without classes, 9 = with;
-                a joint information matrix with the sender's prior: 10 = float64, 11 = float32
-    6      2    marginal: the sender's degree this step (neighbours heard); map ids: 0
-    8      8    team id (64-bit hash of the team name)
-    16     2    sender robot
-    18     2    receiver robot
-    20     4    step
-    24     4    number of ids n
-    28     4    length c of the ids' bytes
-    32     4    marginal: mean length d = 3 n; map ids: length b of the moved flags
-                (0: none, all moved; else ceil(n / 8))
-    36     ...  the n ids in c bytes (strictly increasing: LEB128 varints of the first id,
-                zigzag-coded, then of each difference — about one byte per id); then for map
-                ids b bytes of moved flags (one bit per id, little bit order); for a marginal
-                d mean values, then the upper triangle (row-major) of the joint covariance
-                or information matrix (d (d + 1) / 2 values) or of each object's 3×3
-                covariance block (6 n values); values float64 or float32 by kind; for map
-                ids with a summary (kinds 8, 9), after the flags the objects' means (3 n
-                float64), the upper triangles of their 3×3 marginal covariances (6 n
-                float64), where the sender's cameras were when they observed each object
-                (3 n float32: the mean unit direction from the object to the camera; zeros:
-                not known) and, kind 9, their class labels (n int64), in the order of the ids;
-                kinds 10, 11 then carry the prior: ceil(n / 8) bytes of flags (one bit per id,
-                little bit order: the object was in the sender's prior), the prior mean of
-                the h flagged objects (3 h values) and the upper triangle of their prior
-                information matrix (3h (3h + 1) / 2 values), in the order of the ids
-
-Version 2 added the moved flags and the degree (consensus on what changed, one weighting
-rule); version 3 the variable-length ids; version 4 marginals in information form (what
-robots send by default); version 5 the object summaries of association without shared ids
-(kinds 8, 9); version 6 the prior of consensus on information increments (kinds 10, 11);
-version 7 where the sender's cameras were in an object summary (which side of a near-planar
-group of objects they saw it from).
-Older versions are refused by name.
-
-No pickle, no code: :func:`decode` checks the magic, version, kind, team, robots, sizes (the
-byte length must match the header exactly and stay under a limit), ids without repeats and
-finite numbers, and raises :class:`WireError` naming the first problem. A transport catches that
-error, drops the message and counts it — nothing malformed ever reaches a filter.
+A fixed little-endian header (magic ``b"TSLM"``, :data:`FORMAT_VERSION`, kind, degree, team
+id, sender, receiver, step, sizes) followed by the payload: ids as LEB128 varint deltas, then
+moved flags, or a mean and the upper triangle of a covariance or information matrix in float64
+or float32, object summaries, or a prior, by kind. Older versions are refused by name.
+No pickle, no code: :func:`decode` checks every field and raises :class:`WireError` naming the
+first problem, and a transport drops and counts such a message. Byte by byte: the docs'
+reference page *Wire format*.
 """
 
 from __future__ import annotations

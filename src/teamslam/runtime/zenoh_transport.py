@@ -1,27 +1,12 @@
 """Consensus messages over Zenoh, one process per robot, peer to peer.
 
-Each agent opens a Zenoh session in peer mode that listens on its own endpoint and connects to
-its neighbours' endpoints, with multicast scouting off (no router, closed networks work). A
-message from ``i`` to ``j`` at step ``t`` is published on the key
-``teamslam/<team>/to/<j>/from/<i>/step/<t>/<kind>`` in teamslam's wire format; each agent
-subscribes to ``teamslam/<team>/to/<itself>/**``. Received bytes are decoded and validated in
-the subscriber callback: anything malformed, from another team or from an unknown robot is
-dropped and counted, never handed to the filter.
-
-With a ``security`` section in the team file the session uses mutual TLS and access control
-(:mod:`teamslam.runtime.security`): only the team's robots get a link, and a put is accepted
-from robot ``i``'s link only on keys ``.../from/<i>/...``. Every transport also drops a message
-whose decoded sender is not the ``from/<i>`` of the key it arrived on.
-
-Optional injected loss (each send dropped with a probability) and delay (sleep before each
-send) make lossy-radio experiments reproducible.
-
-Zenoh drops a put whose link queue is full unless told to wait (its default congestion control
-for publications is *drop*). A lock-step team needs every message of a step — one dropped
-silently costs the receiver a whole timeout and a lost link — so lock-step puts wait for queue
-space (*block*); on a slow or lossy link a TCP retransmission stall otherwise fills the queue
-with a frame's few messages. Asynchronous robots use the newest message they have, and keep
-*drop*: a late message is worth less than not stalling the filter.
+Each agent's session listens on its own endpoint and connects to its neighbours' (peer mode,
+multicast scouting off). A message from ``i`` to ``j`` at step ``t`` is published in the wire
+format on ``teamslam/<team>/to/<j>/from/<i>/step/<t>/<kind>``; received bytes are decoded and
+validated in the subscriber callback, and anything malformed, from another team, from an
+unknown robot or whose sender differs from the key's is dropped and counted. Lock-step puts
+wait for queue space (congestion control *block*: a step needs every message), asynchronous
+ones keep *drop*. Optional injected loss and delay make lossy-radio experiments reproducible.
 """
 
 from __future__ import annotations

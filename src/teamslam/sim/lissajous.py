@@ -1,21 +1,11 @@
 """Simulated stereo robot teams flying 3D Lissajous curves (distributed-MSCKF paper, §VI-B).
 
-Each robot follows its own Lissajous curve (own frequencies and phases) through one shared
-arena, so robots cross each other's paths and see common objects. The camera looks along the
-direction of travel. Objects and geometric landmarks are drawn from Gaussians centred on random
-trajectory points. Observations are stereo projections with pixel noise, kept only when the
-point is inside both images, within the depth range and at positive disparity; a geometric
-feature track starts when its landmark enters the view and ends when it leaves. Odometry is the
-true relative pose perturbed on SE(3): ``δT = δT_true · exp(n)``,
-``n ~ N(0, diag(σ_t² I, σ_r² I))``.
-
-Measurements are in pixels, or — with ``normalised_coordinates=True`` — in normalised image
-coordinates (``K = I``, as the published simulated teams), the noise σ being given in the
-units written. The team's sensor model (:mod:`teamslam.datasets.sensor_model`) records the
-generator's true noise levels.
-
-Everything is drawn from ``numpy.random.SeedSequence(seed)``, so a seed gives the same team in
-every process and on every platform numpy supports.
+Each robot follows its own Lissajous curve through one shared arena, camera along the direction
+of travel, seeing objects and geometric landmarks drawn around the trajectories; observations
+are stereo projections with noise (pixels, or normalised coordinates with
+``normalised_coordinates=True``), odometry the true relative pose perturbed on SE(3),
+``δT = δT_true · exp(n)``. The team's sensor model records the true noise levels. Everything is
+drawn from ``numpy.random.SeedSequence(seed)``: the same team in every process and platform.
 """
 
 from __future__ import annotations

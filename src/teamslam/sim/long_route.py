@@ -1,17 +1,11 @@
 """A long mission: a stereo robot team driving side by side along a long, winding route.
 
-The route never comes back on itself, so the team keeps discovering new objects and leaves
-the old ones behind — the workload of a long mission, unlike the Lissajous arena
-(:mod:`teamslam.sim.lissajous`) where the same few hundred objects are seen again and again.
-The route's centreline runs along ``x`` and winds in ``y`` (two sines of incommensurate
-wavelengths) and gently in ``z``; robot ``i`` drives its own lane, ``lane_spacing`` metres to
-the side, ``stagger`` metres behind the robot before it, so neighbours see the same objects a
-few frames apart. Objects (about ``objects_per_metre`` per metre of route) and geometric
-landmarks (``landmarks_per_metre``) are scattered along it, beyond the end of the route by one
-detection range. Sensing — stereo camera, depth ranges, noise, odometry — is the Lissajous
-simulator's (:class:`~teamslam.sim.lissajous.SimulationConfig`, shared code).
-
-Everything is drawn from ``numpy.random.SeedSequence(seed)``.
+The route never comes back on itself, so the team keeps discovering new objects and leaving old
+ones behind (unlike the Lissajous arena). Robot ``i`` drives its own lane, ``lane_spacing``
+metres to the side and ``stagger`` metres behind the robot before it; objects and landmarks are
+scattered along the route at ``objects_per_metre`` and ``landmarks_per_metre``. Sensing is the
+Lissajous simulator's (:class:`~teamslam.sim.lissajous.SimulationConfig`). Drawn from
+``numpy.random.SeedSequence(seed)``.
 """
 
 from __future__ import annotations

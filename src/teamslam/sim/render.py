@@ -1,26 +1,12 @@
 """A rendered team: stereo images of a textured room with ArUco markers, and their exact truth.
 
-The world is a closed room (floor, ceiling, four walls) whose surfaces carry procedural
-textures — band-limited fractal noise ("gravel") on the floor and ceiling, bricks with mortar
-and per-brick albedo over fractal noise on the walls — generated from the seed, so nothing
-with a licence is shipped. ArUco markers (OpenCV's dictionaries, with a white quiet zone) hang
-on the walls; a marker's id is its object id.
-
-Rendering is a vectorised ray caster: one ray per pixel through the pixel centre (OpenCV's
-convention: pixel ``(i, j)`` is centred at ``u = j, v = i``), intersected with the room's six
-planes at once, textures sampled with trilinear mip-mapping (the level follows the pixel's
-footprint on the surface, so distant texture does not alias). Image effects: vignetting
-(a share of the cos⁴ fall-off), a different gain and offset in the right camera, sensor noise
-and JPEG compression.
-
-Truth: :meth:`TexturedRoom.cast` returns the exact 3D point behind any pixel, so the projection
-of whatever a front-end tracks can be recomputed in every other view; marker centres and
-corners are known in the world frame; robot paths are exact ``T_world_body``.
-
-:func:`render_team` writes, per robot, ``robot_k/left/000000.png``, ``robot_k/right/…``,
-``camera.yaml``, ``timestamps.txt``, ``groundtruth.tum`` and ``odometry.tum`` (dead-reckoned
-noisy odometry), plus ``markers.txt`` (``id x y z``) and ``render.json`` (the configuration)
-at the top; :func:`teamslam.api.simulate_images` also writes the team as a ROS 2 bag.
+A closed room with procedural textures generated from the seed (nothing licensed is shipped)
+and ArUco markers on the walls (a marker's id is its object id), rendered by a vectorised ray
+caster (OpenCV's pixel-centre convention, trilinear mip-mapping) with vignetting, a right-camera
+gain and offset, sensor noise and JPEG compression. :meth:`TexturedRoom.cast` gives the exact 3D
+point behind any pixel. :func:`render_team` writes per robot the left and right images,
+``camera.yaml``, ``timestamps.txt``, ``groundtruth.tum`` and ``odometry.tum``, plus
+``markers.txt`` and ``render.json``.
 """
 
 from __future__ import annotations

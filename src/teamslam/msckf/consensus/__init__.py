@@ -1,17 +1,13 @@
 """Consensus between robots (distributed MSCKF paper, §V-B, eqs. 19–21, Props. 1–3).
 
-* :mod:`~teamslam.msckf.consensus.protocol` — one robot's protocol: who sends what, which
-  messages are accepted, the weights, the association between maps;
-* :mod:`~teamslam.msckf.consensus.messages` and :mod:`~teamslam.msckf.consensus.transport` —
-  what a robot may tell a neighbour, and the seam through which it hears them;
-* :mod:`~teamslam.msckf.consensus.marginals` — our marginal of the objects a neighbour asked
-  about; :mod:`~teamslam.msckf.consensus.checks` — every received message checked once;
-* :mod:`~teamslam.msckf.consensus.average` — the averaging rules (eq. 19 and Prop. 2, hybrid,
-  information increments); :mod:`~teamslam.msckf.consensus.selection` — which common objects
-  are averaged jointly; :mod:`~teamslam.msckf.consensus.kernels` — compiled per-message passes.
-
-The public names of the averaging, checking and message modules are re-exported here and
-loaded on first use.
+:mod:`~teamslam.msckf.consensus.protocol` runs one robot's side;
+:mod:`~teamslam.msckf.consensus.messages` and :mod:`~teamslam.msckf.consensus.transport` say
+what robots tell each other and how; :mod:`~teamslam.msckf.consensus.marginals` and
+:mod:`~teamslam.msckf.consensus.checks` build and check messages;
+:mod:`~teamslam.msckf.consensus.average` holds the averaging rules,
+:mod:`~teamslam.msckf.consensus.selection` the bounded consensus set and
+:mod:`~teamslam.msckf.consensus.kernels` compiled passes. The public names of the averaging,
+checking and message modules are re-exported here and loaded on first use.
 """
 
 from __future__ import annotations

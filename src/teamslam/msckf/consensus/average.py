@@ -1,113 +1,11 @@
 """Consensus, averaging: eq. 19 over the common objects and the rebuilt joint (Prop. 2).
 
-* :func:`consensus_average` — agent ``i`` forms one weighted geometric average (eq. 19) over
-  ``y``, the objects it shares with at least one neighbour it heard: neighbour ``j``'s message
-  covers ``C_ij ⊆ y`` and is completed with ``i``'s own conditional ``p_i(y∖C_ij | C_ij)``
-  (Prop. 2) — :func:`teamslam.gaussian.completed_geometric_average` — then the joint is rebuilt
-  with Prop. 2 and the window poses corrected with ``exp`` (eq. 21) by
-  :meth:`~teamslam.msckf.filter.state.MsckfState.replace_marginal`;
-* :func:`shared_prior`, :func:`prior_information`, :func:`new_information` and
-  :func:`hybrid_marginal` — the optional hybrid weighting (``consensus_hybrid``), below.
-
-**Hybrid consensus: new information at full weight.** Eq. 19 averages whole marginals, so
-information that robot ``j`` gathered since the last exchange enters robot ``i``'s estimate with
-the weight ``A_ij``: on a complete graph of ``N`` robots one average keeps ``1/N`` of the team's
-new information, and the filter ends up markedly conservative (pose ANEES ≈ 0.7, object ANEES ≈
-0.25 where the centralised filter gives 1). After Battistelli, Chisci, Mugnai, Farina and
-Graziano's hybrid consensus on measurements and on information (HCMCI, IEEE TAC 2015), each
-marginal is split into the prior ``P`` — the robot's marginal right after its last exchange — and
-the new information ``Δ = Ω − P`` gathered since (``Ω`` its marginal information now; objects
-initialised since have ``P = 0``), and the new part is scaled by a gain ``γ``:
-
-    ``Ω' = P + γ Δ = Ω + (γ − 1)(Ω − P)``,  ``η' = η + (γ − 1)(η − η_P)``.
-
-The average of these is eq. 19 on the priors plus ``γ`` times eq. 19 on the new information. The
-gains are the largest that never count one robot's new information more than once in any estimate.
-A sender scales what it sends by ``γ = 1 + d_i`` (``d_i`` the neighbours it heard this step), which
-a receiver weighs with ``A_ji = 1/(1 + max(d_i, d_j)) ≤ 1/(1 + d_i)``. In its own average (eq. 42)
-a robot's own marginal already enters with its own weight and, on the objects a neighbour's message
-lacks, with that neighbour's weight (the completion by its own conditional); so it adds its new
-information ``Ω − P`` (and ``η − η_P``) once more with the total weight of the messages that hold
-every averaged object, which brings that weight to one where every message holds the object and
-never above one elsewhere. On a complete graph with every link up (``A_ij = 1/N``) this sums the
-new information of all robots — for the common objects, one exchange then equals centralised fusion
-of everyone's new information; on a sparse graph with partial maps no robot ever holds more
-information than the centralised filter (both tested on a linear model; scaling the own marginal
-before the average, even with the largest gain that counts it once per object, fails the second
-test). The new information is a difference of two marginals; when it is not positive semi-definite
-enough for the result to stay positive definite (after relinearisation, or an object re-entering
-from the persistent map) the plain marginal is used (``hybrid_fallbacks``).
-
-**Consensus on information increments** (``consensus_increments``; :func:`increment_average`).
-The hybrid rule adds our own new information with the weight of the messages that hold *every*
-averaged object; where a message lacks some object of ``y`` — partial maps, or pairs that
-exchange different subsets because only some objects moved — our own new information on the
-objects it does hold enters with less than full weight, and with the map of our team (objects
-seen by two to five robots) that is most averages. And a message of one matrix cannot tell the
-sender's prior from its scaled new information: when an object enters a robot's map after a
-neighbour has held it for a while, the newcomer (prior zero) would keep ``A_ij`` of the
-neighbour's prior and the old holder ``1 − A_ij`` of its own, for good. So each message of this
-rule carries two parts: the hybrid marginal ``M_j = P_j + γ_j Δ_j`` of ``C_j`` (the new
-information scaled in the sender's joint, then marginalised) and the sender's *prior* ``P_j`` of
-the objects ``H_j ⊆ C_j`` it held at its last exchange (flags, mean, information matrix). Robot
-``i`` forms
-
-    ``Ω̄ = P̄ + (Ω − P_y) + Σ_j A_ij Lⱼᵀ (M_j − P_j) Lⱼ``  (and ``η̄`` alike),
-
-``Ω = P + Δ`` its own marginal of ``y`` and ``P_y`` its prior of ``y`` (zero on objects it
-initialised since), with the average of the priors
-
-    ``P̄ = R + Σ_j A_ij L_{H_j}ᵀ (P_j − R_{H_j}) L_{H_j}``.
-
-``R`` is the *reference*: our prior of ``y``, completed on the objects it lacks by the prior
-conditional ``p_j(new | rest of H_j)`` of the heaviest neighbour that holds them; ``R_{H_j}`` is
-its marginal of ``H_j``. ``P̄`` is eq. 42 on the priors — each neighbour's prior completed by the
-reference's conditional, weights summing to one: a convex combination — so an object new to us
-takes the old holders' prior whole, and an object new to a neighbour (not in ``H_j``) keeps ours
-whole. Then comes our own increment, once on every object of ``y``, and each neighbour's,
-``γ_j Δ_j``, with weight ``A_ij``. Where every prior holds every object of ``y`` this equals the
-one-matrix form ``Ω + Σ_j A_ij Lⱼᵀ (M_j − P_{C_j}) Lⱼ``.
-
-*The condition.* An increment — the information one robot gathered between two exchanges, from
-measurement noise independent of every prior — must enter any estimate with a total weight of
-at most one. In one exchange robot ``i`` receives ``Δ_j`` only from ``j`` itself, with weight
-``A_ij γ_j``; so the condition is ``A_ij γ_j ≤ 1`` for every receiver ``i`` of ``j``. With
-Metropolis weights ``A_ij = 1/(1 + max(d_i, d_j)) ≤ 1/(1 + d_j)``, the largest gain the sender
-can use without knowing its receivers' degrees is ``γ_j = 1 + d_j`` (``d_j`` the neighbours it
-heard this step): the weight is then exactly one wherever ``d_i ≤ d_j`` — on a complete graph
-everywhere, where one exchange equals the centralised Kalman filter on the common objects — and
-``(1 + d_j)/(1 + d_i) < 1`` elsewhere. Later exchanges carry the increment only inside priors,
-which enter ``P̄`` as one convex combination (the reference takes each object's prior from one
-robot: ours, or the heaviest neighbour's conditional), so by induction — with the completion by
-a conditional that eq. 42 and Prop. 2 rest on — no increment ever weighs more than one in any
-estimate: never more information than the centralised filter (tested, not proved, where
-completions meet partial maps).
-*Link loss*: a robot renews its prior after every step in which it sent a marginal, whether or not
-it arrived, so an increment is sent at gain ``γ`` once; a lost message loses that increment for
-that neighbour (it arrives later only inside a prior, at a Metropolis weight) but never doubles it;
-a neighbour heard in round 1 whose marginal did not arrive keeps its weight on the reference.
-*Partial maps*: a neighbour's increment only enters on the objects its message holds; ours enters
-on all of ``y`` once; objects initialised since the prior have ``P = 0``, so their whole marginal
-counts as new — once — and their prior comes from the neighbours that held them. A marginal without
-a prior (a neighbour not on this rule, or one whose objects had to be marginalised in translation)
-counts as a prior only: its new information is then lost, never doubled.
-*Iterations* (``consensus_iterations = L`` exchanges per step): HCMCI averages the increments
-``L`` times and then scales the result by one ``ω``, so robot ``k``'s increment ends in robot
-``i`` with the weight ``ω (Π^L)_ik``; never counting it twice needs ``ω ≤ 1 / max_ik (Π^L)_ik``,
-which on a sparse graph is close to one (the diagonal of ``Π^L`` stays large) and needs ``Π^L``,
-which no robot knows. Here a robot renews its prior after every exchange, so its increment is
-sent — at the gain ``γ_j = 1 + d_j`` — in the first exchange after it was gathered and never
-again: exchanges ``2 … L`` of a step find no new information (``Ω = P``) and are eq. 42 on the
-priors. After them ``Δ_k`` weighs ``Σ_j (Π^{L−1})_ij c_jk`` in robot ``i`` (``c_kk = 1``,
-``c_jk = A_jk γ_k ≤ 1``): a convex combination of weights of at most one. So the condition is
-``A_ij γ_j ≤ 1`` in the exchange that carries the increment, for any ``L``; on a complete graph
-the first exchange is the centralised Kalman filter and the others change nothing, on a sparse
-graph they spread each increment beyond one hop inside the priors (tested with ``L = 3``, link
-loss and partial maps).
-*Asynchronous exchanges*
-may use one marginal at several steps, counting its increment again, so the rule (like hybrid) is
-lock-step only. All of this is tested on a linear team (``tests/test_consistent_consensus.py``),
-including objects that enter a second robot's map late.
+:func:`consensus_average` forms one weighted geometric average (eq. 19) over ``y``, the objects
+shared with at least one neighbour heard — each neighbour's marginal completed by our own
+conditional (Prop. 2) — and rebuilds the joint. :func:`hybrid_marginal` and
+:func:`increment_average` implement the optional rules ``consensus_hybrid`` and
+``consensus_increments`` (lock-step only), whose gains never count one robot's new information
+more than once. Derivations: the concept page *Consensus* (``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations
@@ -239,9 +137,9 @@ def hybrid_marginal(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """``N(μ', Σ')`` with the new information since the prior scaled by ``gain`` (≥ 1).
 
-    ``Ω' = Ω + (γ − 1)(Ω − P)`` and ``η' = η + (γ − 1)(η − η_P)`` (module docstring). Returns
-    ``(μ', Σ', Ω')``, or ``None`` when ``Ω'`` is not positive definite (the new information
-    ``Ω − P`` is then too far from positive semi-definite to be scaled).
+    ``Ω' = Ω + (γ − 1)(Ω − P)`` and ``η' = η + (γ − 1)(η − η_P)`` (concept page *Consensus*).
+    Returns ``(μ', Σ', Ω')``, or ``None`` when ``Ω'`` is not positive definite (the new
+    information ``Ω − P`` is then too far from positive semi-definite to be scaled).
     """
     if not gain >= 1:
         raise InternalError(f"the hybrid gain must be at least 1, not {gain}")
@@ -260,9 +158,9 @@ def new_information(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The new information since the prior, scaled: ``s (Ω − P)`` and ``s (η − η_P)``.
 
-    What hybrid consensus adds to a marginal (module docstring): ``s = γ − 1`` for the marginal
-    a robot sends (:func:`hybrid_marginal`), ``s`` = the weight of the messages holding every
-    averaged object for its own average (:func:`consensus_average`).
+    What hybrid consensus adds to a marginal (concept page *Consensus*): ``s = γ − 1`` for the
+    marginal a robot sends (:func:`hybrid_marginal`), ``s`` = the weight of the messages holding
+    every averaged object for its own average (:func:`consensus_average`).
     """
     return scale * (info - prior_info), scale * (eta - prior_eta)
 
@@ -293,13 +191,14 @@ def consensus_average(
         ``(A_ij, marginal)`` for every usable neighbour marginal (a message is checked with
         :func:`receive_marginal` first and raises ``ValueError`` if it cannot be used).
     prior
-        Hybrid consensus (module docstring): our own new information since ``prior`` is added to the
-        average once more, with the total weight of the neighbour marginals that hold every object
-        of ``y``. The rebuild (Prop. 2) still uses our actual conditional. Joint marginals only.
+        Hybrid consensus (concept page *Consensus*): our own new information since ``prior``
+        is added to the average once more, with the total weight of the neighbour marginals
+        that hold every object of ``y``. The rebuild (Prop. 2) still uses our actual
+        conditional. Joint marginals only.
         ``counters["hybrid_fallbacks"]`` is incremented when the result is not positive definite
         and the plain average is used instead.
     increments
-        With ``prior``: consensus on information increments (module docstring,
+        With ``prior``: consensus on information increments (concept page *Consensus*,
         :func:`increment_average`) — the neighbours' priors (carried by their messages) are
         averaged with ours, our own new information counts once and each neighbour's with
         weight ``A_ij γ_j`` (the gain ``γ_j`` applied by the sender, :func:`hybrid_marginal`).
@@ -423,7 +322,7 @@ def increment_average(
     terms: Sequence[IncrementTerm],
     prior: SharedPrior,
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Consensus on information increments over ``y`` (module docstring), or ``None``.
+    """Consensus on information increments over ``y`` (concept page *Consensus*), or ``None``.
 
     ``Ω̄ = P̄ + (Ω − P_y) + Σ_j A_ij Lⱼᵀ (M_j − P_j) Lⱼ``: the average ``P̄`` of the priors,
     our own new information since our prior once, and each neighbour's with weight

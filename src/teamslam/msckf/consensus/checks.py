@@ -1,11 +1,8 @@
 """Consensus, checking messages: every received message is checked here, once.
 
-:func:`check_message` is the one check of what a robot receives in a consensus round: the
-kind, the step (``step − max_age ≤ s ≤ step``), a sender that is a neighbour and a receiver that
-is us; for round-1 map ids, moved flags that match the ids and ids strictly increasing; for a
-round-2 marginal, the kind of marginal this robot exchanges (joint or per object), then ids,
-sizes, finiteness, symmetry and one Cholesky factorisation (:func:`receive_marginal`). A message
-that fails is described by a reason and never reaches the state.
+:func:`check_message` checks a message's kind, step, sender and receiver, and for a marginal
+its ids, sizes, finiteness, symmetry and one Cholesky factorisation (:func:`receive_marginal`).
+A message that fails is described by a reason and never reaches the state.
 """
 
 from __future__ import annotations

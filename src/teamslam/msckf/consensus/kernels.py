@@ -1,27 +1,12 @@
 """Compiled per-message passes of consensus (numba).
 
-A robot of a team of ``n`` sends and receives up to ``n − 1`` joint marginals per step; in
-numpy each check or rounding of one is a dozen whole-matrix passes with their temporaries, so
-at a few dozen objects the cost is the passes, not the arithmetic. Each function here is one
-compiled pass over a message's arrays that gives the same numbers as the numpy expressions it
-replaces (element by element the same floating-point operations, no reassociation):
-
-* :func:`symmetric_block` — the symmetric part of the sender's joint covariance of the objects
-  it sends, gathered in one pass (the matrix it inverts for the message);
-* :func:`checked_symmetric_part` — the receiver's finiteness and symmetry checks of a joint
-  marginal and its symmetric part (:func:`~teamslam.msckf.consensus.checks.receive_marginal`);
-* :func:`single_rounding` — a sender's marginal in information form rounded to single
-  precision with the estimate of what that costs (:func:`rounding_bound`, which is
-  :func:`~teamslam.msckf.consensus.marginals.information_rounding_bound`; its two sums of
-  squares are added in another order than numpy's, so the estimate may differ in its last
-  bits — it decides against a threshold, :data:`~teamslam.msckf.consensus.marginals.
-  FLOAT32_MAX_KL`, that it is never that close to);
-* :func:`merged_record` — what a robot remembers of an exchange with a neighbour (its own
-  per-object marginals as they were), the record of the objects just exchanged merged into the
-  one kept from before (:class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`);
-* :func:`encoded_ids_bytes` and :func:`all_single` — what a message takes on a wire
-  (:meth:`~teamslam.msckf.consensus.messages.CommonMarginalMessage.nbytes`): the length of its ids'
-  varints, counted without writing them, and whether every number is exactly a float32.
+Each function is one compiled pass over a message's arrays — gathering the symmetric block a
+sender inverts, checking a received marginal, rounding to single precision, merging exchange
+records, sizing a message on the wire — and gives the same numbers as the numpy expressions it
+replaces (the same floating-point operations, no reassociation). The one exception,
+:func:`rounding_bound`, adds its sums of squares in another order: its estimate may differ in
+the last bits and only decides against
+:data:`~teamslam.msckf.consensus.marginals.FLOAT32_MAX_KL`.
 """
 
 from __future__ import annotations

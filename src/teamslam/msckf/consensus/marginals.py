@@ -1,11 +1,8 @@
 """Consensus, building messages: our marginal of the objects a neighbour asked about.
 
-Round 2 of the protocol (:mod:`teamslam.msckf.consensus.protocol`): :func:`common_marginal_message`
-takes
-our marginal of the common objects — in information form by default (we invert it anyway for our
-own average, eq. 42; the neighbour then only checks it) — and rounds it to single precision where
-that is safe (:data:`FLOAT32_MAX_KL`, with the divergence estimates below). What a receiver checks
-is :mod:`teamslam.msckf.consensus.checks`; the average, :mod:`teamslam.msckf.consensus.average`.
+:func:`common_marginal_message` takes our marginal of the common objects — in information form
+by default — and rounds it to single precision where that stays within :data:`FLOAT32_MAX_KL`
+nats of the exact one (the bounds below; derivation on the concept page *Consensus*).
 """
 
 from __future__ import annotations

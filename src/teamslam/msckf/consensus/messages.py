@@ -1,20 +1,11 @@
 """The consensus messages: what one robot may tell a neighbour (distributed MSCKF paper, §V-B).
 
-Two rounds per step:
-
-1. :class:`MapIdsMessage` — the ids of the objects in the sender's map;
-2. :class:`CommonMarginalMessage` — the sender's marginal (mean, and information matrix or
-   covariance) of the objects it shares with the receiver, plus the number of neighbours the
-   sender heard in round 1 (its degree this step), from which both ends compute the same
-   Metropolis–Hastings weight; with consensus on information increments also the sender's
-   prior (its marginal of the same objects right after its last exchange, in information form,
-   over the objects it then held), so the receiver can tell the prior from the new information.
-
-Messages are plain data. How they travel is a
-:class:`~teamslam.msckf.consensus.transport.Transport`;
-their byte layout on a network is :mod:`teamslam.runtime.wire`, which writes the ids — always
-strictly increasing in a message — as variable-length deltas (:func:`encode_ids`), about one
-byte per id instead of eight.
+Round 1, :class:`MapIdsMessage`: the sender's map ids; round 2, :class:`CommonMarginalMessage`:
+its marginal of the objects it shares with the receiver and its degree this step (with
+information increments, also its prior). Messages are plain data, moved by a
+:class:`~teamslam.msckf.consensus.transport.Transport` and laid out on a network by
+:mod:`teamslam.runtime.wire`; ids, strictly increasing, travel as variable-length deltas
+(:func:`encode_ids`).
 """
 
 from __future__ import annotations

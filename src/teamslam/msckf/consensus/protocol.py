@@ -1,94 +1,23 @@
-"""The consensus protocol of one robot, in one place (distributed MSCKF paper, §V-B, Alg. 1 step 1).
+"""The consensus protocol of one robot (distributed MSCKF paper, §V-B, Alg. 1 step 1).
 
 :class:`ConsensusProtocol` decides what a robot sends, how it answers and how it averages; the
-two drivers — the in-process team runner (:func:`teamslam.msckf.team.run_team`) and the robot
-process (:func:`teamslam.runtime.agent_process.run_agent`) — only schedule it and move its
-messages through a :class:`~teamslam.msckf.consensus.transport.Transport`. One step is::
+drivers (:func:`teamslam.msckf.team.run_team`, :func:`teamslam.runtime.agent_process.run_agent`)
+only schedule it and move its messages through a
+:class:`~teamslam.msckf.consensus.transport.Transport`. One step is::
 
     transport.send(*protocol.requests(t, neighbours))          # round 1: my map ids
     for reply in protocol.answer(t, <ids messages heard>):     # round 2: our common marginal
         transport.send(reply)
     protocol.average(t, <marginals heard>)                      # eq. 19 + Prop. 2
 
-**The weighting rule** (the only one): the Metropolis–Hastings weight of a link heard this step,
-``A_ij = 1 / (1 + max(d_i, d_j))``, where ``d_i`` is the number of neighbours robot ``i`` heard
-in round 1 and ``d_j`` travels in ``j``'s round-2 message; ``A_ii = 1 − Σ_j A_ij`` over the
-neighbours heard in round 1. With symmetric links this is the doubly-stochastic Metropolis
-matrix of the links that work this step, whoever computes it. A neighbour heard in round 1
-whose marginal did not arrive or was rejected contributes its weight as our own marginal —
-exactly its term in eq. 42 when it shares nothing with us — so the weights always sum to one.
-
-**Consensus on what can change.** Averaging a common object whose marginal has not moved on
-either robot since the two last exchanged it changes nothing measurable, so a pair of robots
-averages only the common objects that moved: each robot remembers, per neighbour, its own
-marginal of every object as it was when they last exchanged it, flags in round 1 the objects
-whose marginal has since moved by more than ``kl_threshold`` (Kullback–Leibler divergence,
-nats), and both robots then exchange and average the common objects flagged by either — the
-same set on both sides. Residual disagreement after an average shows up as movement (each robot
-moved towards the other), so pairs keep averaging until they agree to within the threshold;
-new objects and objects observed since are always averaged. A robot records an exchange only
-once its neighbour's marginal arrived, so a lost message never hides a change. With
-``kl_threshold = 0`` (or in asynchronous mode) every common object is averaged at every step.
-With a bounded consensus set (``consensus_set = active``, lock-step only) an object counts as
-moved at that threshold only while the robot's window can still change it — observed within the
-window or correlated with its poses — and otherwise only beyond
-``consensus_inactive_kl_threshold`` — unless the pair averaged it in the previous exchange:
-an average once started runs until the pair agrees — so the joint a pair averages follows what
-the robots see now, not everything they mapped (:mod:`teamslam.msckf.consensus.selection`); the
-round-1 flags carry the result, so the wire is unchanged.
-
-**Hybrid consensus** (``consensus_hybrid``, lock-step only): the new information each robot
-gathered since its last exchange enters the average at full weight instead of ``A_ij`` — its
-round-2 marginals are scaled with the gain ``1 + d_i``, its own new information is added once more
-with the weight of the marginals that hold every averaged object, and its prior is renewed after
-every step in which it sent or averaged (:mod:`teamslam.msckf.consensus`). In asynchronous mode a
-neighbour's newest marginal may be used at several steps, which would count its new information
-again, so there the plain average is used. **Consensus on information increments**
-(``consensus_increments``, lock-step only): the hybrid marginals carry the sender's prior beside
-them (wire format 6), and the average takes the priors' average, our own new information once
-and each neighbour's at full weight (:func:`~teamslam.msckf.consensus.increment_average`).
-
-**Consensus iterations** (``consensus_iterations = L``, lock-step only): each step runs ``L``
-exchanges (both rounds and the average) before the frame is processed; exchange ``l`` of step
-``t`` is numbered ``t·L + l`` in its messages, links and mailboxes, so every exchange is checked,
-lost and weighted on its own (``L = 1`` numbers them by the step, as before). The second and
-later exchanges average what the first left; with the kept-agreement threshold they carry only
-the objects that still moved. With hybrid consensus or increments the prior is renewed after
-every exchange, so each increment is sent — at the gain ``1 + d_j`` — in the first exchange after
-it was gathered and only inside priors afterwards: the later exchanges of a step are eq. 42 on
-the priors, a convex combination, and the condition stays ``A_ij γ_j ≤ 1`` for any ``L``
-(:mod:`teamslam.msckf.consensus.average`). The counters ``objects_averaged``,
-``hybrid_fallbacks`` and ``links_lost`` count per exchange, ``objects_inactive`` per step.
-
-Only objects in the filter state take part: objects retired to the persistent map
-(``object_retire_after``, :mod:`teamslam.msckf.filter.persistent_map`) are neither announced, sent
-nor
-averaged until they are observed again and re-enter the state.
-
-**Objects without shared ids** (``association = own``). Each robot names its own objects; each
-link keeps a :class:`~teamslam.association.CorrespondenceTable` (own id ↔ neighbour id). Every
-``association_interval`` steps round 1 carries the sender's object summary (ids, means, 3×3
-marginals); a robot that holds both summaries of a link updates the link's table — a full
-association when the table is :meth:`~teamslam.association.CorrespondenceTable.due`, else
-:meth:`~teamslam.association.CorrespondenceTable.extend` — by a rule computed in the canonical
-order of the two robots, so both ends hold the same pairs without a further message. The common
-objects of a link are its matched pairs present in both maps; round-2 messages carry the sender's
-own ids, and the receiver translates them through its table into its own ids (blocks reordered
-to increasing own ids; a pair it does not hold — the two tables may differ for a step after a
-lost summary — is marginalised out) before the one check below and the average. After the check
-every matched pair's consensus innovation is tested (:func:`~teamslam.association.
-pair_innovation_consistent`, ``association_revoke_probability``); a failing pair is left out of
-this step's average and revoked for good. With oracle ids the same test runs only when
-``consensus_innovation_check`` is set (objects that fail are left out of that step's average).
-
-Every received message is checked once, by one function
-(:func:`~teamslam.msckf.consensus.checks.check_message`): kind, step (``step − max_age ≤ s ≤
-step``), a sender that is a neighbour, and for a marginal the ids, sizes, finiteness and one
-Cholesky factorisation (of the information matrix a joint marginal carries, or of a covariance,
-which it then inverts). Joint marginals are sent in information form: the sender keeps the
-inverse of its own marginal of each set it sent and completes the neighbour's marginal of that
-set with it (eq. 42) instead of inverting it again. A rejected message is counted on the agent
-(``rejected_messages``, first reason logged) and never reaches the state.
+Weights are Metropolis–Hastings, ``A_ij = 1 / (1 + max(d_i, d_j))``, and always sum to one; a
+pair averages the common objects that moved by more than ``kl_threshold`` on either side since
+it last exchanged them; every received message is checked once
+(:func:`~teamslam.msckf.consensus.checks.check_message`) and a rejected one never reaches the
+state. The counters ``objects_averaged``, ``hybrid_fallbacks`` and ``links_lost`` count per
+exchange, ``objects_inactive`` per step. Derivations (weights, moved flags, hybrid consensus,
+increments, iterations, association between maps): the concept page *Consensus*
+(``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations

@@ -1,18 +1,11 @@
 """How agents hear each other: the :class:`Transport` seam and its in-memory implementation.
 
-An agent never reaches into another agent: everything it learns about a neighbour arrives as a
-message through its own :class:`Transport` endpoint. The operations are those a robot needs to
-run the consensus protocol (:mod:`teamslam.msckf.consensus.protocol`) in lock-step or
-asynchronously:
-send a message, wait for one message of a kind and step from each of a set of neighbours
-(:meth:`Transport.collect`), take each neighbour's newest message (:meth:`Transport.newest`),
-and wait for the neighbours to come up.
-
-:class:`MemoryNetwork` implements it inside one process — for the in-process team runner (lock-step,
-deterministic) and for tests that run the robot-process driver in threads. An optional
-``links(step)`` function gives the adjacency of the links that work at each step; a message
-over a link that is down is lost, and :meth:`~MemoryTransport.collect` does not wait for it.
-:mod:`teamslam.runtime.zenoh_transport` implements the same protocol over a network.
+An agent learns about a neighbour only from messages through its own :class:`Transport`
+endpoint: send, wait for one message of a kind and step from each of a set of neighbours
+(:meth:`Transport.collect`), take each neighbour's newest (:meth:`Transport.newest`), wait for
+the neighbours to come up. :class:`MemoryNetwork` implements it in one process, optionally over
+lossy links (``links(step)``: a message over a link that is down is lost);
+:mod:`teamslam.runtime.zenoh_transport` implements it over a network.
 """
 
 from __future__ import annotations

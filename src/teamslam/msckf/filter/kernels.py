@@ -1,8 +1,6 @@
 """Compiled inner loop of the MSCKF's Gauss–Newton triangulation (numba).
 
-Triangulating a group of features or objects is eight Gauss–Newton iterations over a few
-dozen ``3 × 3`` normal equations; in numpy each iteration is ~25 small calls, so the cost is
-the calls. :func:`gauss_newton_points` runs the same iterations — stereo residuals and point
+:func:`gauss_newton_points` runs the triangulation's iterations — stereo residuals and point
 Jacobians of :func:`teamslam.msckf.filter.models.observe_jacobians`, normal equations
 ``(JᵀJ + 10⁻¹² I) δ = Jᵀ r`` solved by LU with partial pivoting — in one compiled call.
 """

@@ -1,105 +1,12 @@
-"""Where the MSCKF evaluates its Jacobians: standard, first-estimate or ideal (one policy).
+"""Where the MSCKF evaluates its Jacobians: ``std``, ``fej``, ``ideal`` or ``oc`` (one policy).
 
-The three filters run the same propagation, updates, object initialisation and consensus; they
-differ only in the point at which the Jacobians are evaluated — the 3D counterpart of
-:mod:`teamslam.ekf2d.linearization` (FEJ multi-robot EKF paper, §3).
-
-Derivation
-----------
-Error state (right perturbation, :mod:`teamslam.geometry`): ``T = T̂ · exp(ε^)``, ``p = p̂ + p̃``.
-Odometry and stereo measure only relative quantities, so moving the whole world by a rigid
-``G = (R_G, t_G)`` changes no measurement: the system has 6 unobservable directions. In the
-error state, an infinitesimal ``G = exp(ξ^)``, ``ξ = (δt, δθ)`` moves
-
-* a pose ``T = (R, t)`` by ``ε = Ad(T⁻¹) ξ = (Rᵀ(δt + δθ × t), Rᵀ δθ)``;
-* a point by ``p̃ = δt + δθ × p``.
-
-So the unobservable directions ``N(x)`` depend on the poses and points. With
-``p_body = Rᵀ(p − t)`` and ``∂z/∂ε = D [−I, p_body^]``, ``∂z/∂p = D Rᵀ`` (``D = ∂z/∂p_body``,
-:mod:`teamslam.msckf.filter.models`), one observation's Jacobian annihilates ``N`` exactly when
-pose and
-point in ``N`` are the ones the Jacobian was evaluated at:
-``D Rᵀ[−(δt + δθ × t) − δθ × (p − t) + δt + δθ × p] = 0``.
-
-Propagation ``T_{k+1} = T_k δT`` has the Jacobian ``Φ = Ad(δ⁻¹)``, which maps
-``Ad(T_k⁻¹) ξ`` to ``Ad(T_{k+1}⁻¹) ξ`` exactly when ``δ = T_k⁻¹ T_{k+1}`` for the two points
-at which ``N`` is taken. The local observability matrix ``[H_k; H_{k+1} Φ_k; …]`` keeps the
-6-dimensional nullspace ``N`` of the true system if and only if, for every pose and every point,
-
-1. **every** Jacobian ``H`` that involves it (object updates, geometric-feature rows, object
-   initialisation, at every time step) is evaluated at **one** value of it, and
-2. every propagation Jacobian uses ``δ = T̄_k⁻¹ T̄_{k+1}`` with ``T̄`` those values, so the
-   ``δ`` telescope: ``δ_0 δ_1 ⋯ δ_{k−1} = T̄_0⁻¹ T̄_k``.
-
-The standard filter breaks both: it evaluates ``H`` at the current estimate, which each update
-moves, and ``Φ`` at the measured odometry ``δT = T̂_{k|k}⁻¹ T̂_{k+1|k}``, which does not compose to
-the poses it later linearises ``H`` at. The result (shown by
-:mod:`teamslam.msckf.filter.observability`) is a rank increase: the filter treats global rotation
-directions as observable and becomes overconfident.
-
-The first estimates that satisfy 1 and 2 with the values a filter has:
-
-=========== ====================================== ==========================================
-policy      propagation ``Φ = Ad(δ⁻¹)``             ``H``: window pose, object, feature point
-=========== ====================================== ==========================================
-standard    ``δ = δT`` (measured odometry)          current estimates; feature: triangulated
-first       ``δ = T̄_k⁻¹ T̂_{k+1|k}``, ``T̄_k`` the     each pose's ``T̄`` = its value when it
-estimate    pose's first estimate                   entered the window (``T̂_{k|k−1}``);
-                                                    object: current estimate, compensated to
-                                                    annihilate ``N`` at the object's first
-                                                    estimate (below); feature: triangulated
-                                                    (any one point for all its rows: it is
-                                                    projected out, eq. 24)
-ideal       ``δ`` = true relative pose              ground truth (simulation only)
-=========== ====================================== ==========================================
-
-Residuals are always formed at the current estimate; only the Jacobians move.
-
-**Objects: first-estimate directions, compensated current Jacobians.** Condition 1 asks that
-every Jacobian of an object annihilate ``N`` at **one** value ``p̄`` of the object; it does not
-ask that the Jacobian be evaluated there. Evaluating it at ``p̄`` (textbook FEJ) is one way, and
-a poor one in 3D: an object is first estimated by stereo from a few frames, up to tens of metres
-away, so ``p̄`` can lie metres from the truth; and a robot's first-estimate poses are in the
-frame its estimate had when they entered the window, which later corrections (objects seen
-again, consensus) move, so the relative geometry ``T̄_k⁻¹ p̄`` of a late pose and an early
-object can be far from what the camera measures. Jacobians taken there make updates with the
-wrong gain and covariance (measured, ``teamslam montecarlo --robots 3 --steps 100 --runs 6``:
-first-estimate object Jacobians gave pose ANEES 2.1–2.3 where the standard filter gave 1.1).
-So ``fej`` evaluates an object row ``H`` (the 4 × 9 block of the current pose and the object)
-at the current estimate — where the residual is formed, the best available point — and changes
-it by the least amount that makes it annihilate the directions ``U`` (9 × 6,
-:func:`unobservable_directions`) at the pose's and the object's first estimates, "least" in the
-metric of what the update uses, the predicted innovation ``ΔH x̃``
-with ``x̃ ~ N(0, P)`` (``P`` the 9 × 9 covariance of the pose and the object):
-
-    minimise ``tr(ΔH P ΔHᵀ)`` subject to ``(H + ΔH) U = 0``  ⇒
-    ``H* = H − H U (Uᵀ P⁻¹ U)⁻¹ Uᵀ P⁻¹``
-
-(:func:`annihilate`). Every row ``H*`` annihilates the same ``N`` the first-estimate poses and
-propagation keep, so the nullspace — and the rank of the observability matrix — is that of
-textbook FEJ, whatever ``P``. The residual is formed at the current estimate, so it is
-``r ≈ H x̃ + n = H* x̃ − ΔH x̃ + n``: the compensation ``ΔH = H* − H`` leaves a term the rows
-do not model, of covariance ``ΔH P ΔHᵀ`` — the very quantity the metric minimises. ``fej`` adds
-it to the object's measurement noise, ``R = σ² I + ΔH P ΔHᵀ``
-(:meth:`FirstEstimate.linearization_noise`; the rows are whitened by it per object), so the
-update does not take the compensated rows for exact. The idea — keep the first estimates'
-observability, evaluate at the best estimate, account for the difference — is that of FEJ2
-(Chen, Geneva and Huang, ICRA 2022); the compensation above is this module's own.
-
-A fourth policy, ``oc`` (observability-constrained, after Huang, Mourikis and Roumeliotis'
-OC-EKF), makes the same kind of change with the unweighted (Frobenius) minimum:
-``H* = H − H U (UᵀU)⁻¹ Uᵀ``. That metric mixes metres, radians and the units of ``p`` and
-changes the columns the estimate is sure of as readily as the others; it keeps the nullspace
-but, measured, leaves the filter more overconfident than the covariance metric.
-
-**Consensus and first estimates.** Consensus (Prop. 2) replaces the marginal of the common
-objects and shifts everything else linearly — it evaluates no Jacobian. A robot's own
-Jacobians stay consistent with its nullspace only if the points they use stay fixed, so an
-object **keeps the first estimate it was initialised with** when consensus moves it; resetting
-it to the averaged mean would change the linearisation point of an object whose earlier
-Jacobians are already in the covariance — exactly the standard filter's fault. (The robots of a
-team then linearise a common object at slightly different points; the information that leaks
-between their nullspaces is second order in that difference.)
+The filters share propagation, updates, initialisation and consensus and differ only in where
+a :class:`LinearizationPolicy` evaluates the Jacobians; residuals are always formed at the
+current estimate. ``fej`` and ``oc`` change an object row by the least amount that makes it
+annihilate the unobservable directions at the first estimates (:func:`annihilate`), ``fej`` in
+the covariance metric with the compensation added to the noise. Derivation (unobservable
+directions, the two conditions, why objects keep their first estimate under consensus): the
+concept page *Linearisation* (``docs/concepts/linearization.md``).
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """Stereo observation of world points from a body pose, with Jacobians (distributed MSCKF, §V-D).
 
-A world point ``p_world`` seen from body pose ``T_world_body = (R, t)`` through the camera with
-extrinsic ``T_cam_body`` gives ``p_body = Rᵀ (p_world − t)``, ``p_cam = T_cam_body · p_body``
-and the stereo measurement ``z = project(p_cam) = (u_l, v_l, u_r, v_r)``.
-
-Jacobians follow the right-perturbation convention of :mod:`teamslam.geometry`
-(``T = T̂ · exp(ε^)``, ``ε = (ρ, φ)``): ``∂p_body/∂ρ = −I``, ``∂p_body/∂φ = p_body^``,
-``∂p_body/∂p_world = Rᵀ``. Everything is batched over observations.
+``z = project(T_cam_body · Rᵀ (p_world − t)) = (u_l, v_l, u_r, v_r)`` for a body pose
+``T_world_body = (R, t)``; Jacobians in the right-perturbation convention of
+:mod:`teamslam.geometry`, batched over observations. See the concept page *The filter*
+(``docs/concepts/filter.md``).
 """
 
 from __future__ import annotations

@@ -1,28 +1,11 @@
-"""Observability of the 3D team filter under each linearisation policy.
+"""Observability of the 3D team filter under each linearisation policy (eq. 13).
 
-The 3D counterpart of :mod:`teamslam.ekf2d.observability` (FEJ multi-robot EKF paper, §3,
-eq. 13). State: the current pose of each of ``R`` robots (right perturbation, 6 each) and ``m``
-object landmarks (3 each); odometry propagates each pose (``Φ = Ad(δ⁻¹)``,
-:meth:`~teamslam.msckf.filter.state.MsckfState.augment`) and every robot observes objects by stereo
-(:func:`~teamslam.msckf.filter.models.observe_jacobians`). The local observability matrix over
-frames
-``0 … K``
-
-    M = [ H_0 ; H_1 Φ_0 ; … ; H_K Φ_{K−1} ⋯ Φ_0 ]
-
-has, for the true system, a 6-dimensional nullspace: a rigid motion of the whole world
-(:func:`~teamslam.msckf.filter.linearization.unobservable_directions`). Which Jacobians enter ``M``
-is decided by the filter's :class:`~teamslam.msckf.filter.linearization.LinearizationPolicy` — the
-very
-objects the filter uses — fed with the values a filter has at each frame: the propagated pose
-``T̂_{k|k−1}`` (the first estimate of pose ``k``), the updated pose ``T̂_{k|k}``, the measured
-odometry, and an object estimate that each frame's update moves. :func:`estimates_like_a_filter`
-draws such values around the truth.
-
-With ``ideal`` and ``fej`` the rank of ``M`` is ``dim − 6``; with ``std`` it is larger — the
-filter "observes" directions of the global frame it cannot see, and gains false information
-along them. :func:`falsely_observable` names them: the singular values of ``M`` on the true
-unobservable directions.
+Builds the local observability matrix ``M = [H_0; H_1 Φ_0; …]`` from the filter's own
+:class:`~teamslam.msckf.filter.linearization.LinearizationPolicy`, fed with values drawn like a
+filter's (:func:`estimates_like_a_filter`). With ``ideal`` and ``fej`` its rank is ``dim − 6``,
+with ``std`` larger; :func:`falsely_observable` gives the singular values on the true
+unobservable directions. See the concept page *Linearisation*
+(``docs/concepts/linearization.md``).
 """
 
 from __future__ import annotations

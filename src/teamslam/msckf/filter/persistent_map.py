@@ -1,43 +1,10 @@
 """Objects that left the filter state: a robot's persistent map (bounded cost over a mission).
 
-Without it the MSCKF keeps every object it ever initialised in its state, so the state
-dimension — and the cost of every update, which is quadratic in it — grows with the length of
-the mission. With ``object_retire_after = N > 0``
-(:class:`~teamslam.msckf.settings.values.MsckfConfig`)
-an object not observed for ``N`` frames **retires**: it leaves the filter state for this map.
-
-**Retirement is exact marginalisation.** The object's mean, its 3×3 marginal covariance and its
-first estimate are stored; its rows and columns are dropped from the joint covariance. Dropping
-them marginalises the Gaussian exactly: the remaining state's marginal is unchanged, and so is
-the object's own marginal, which is what the map keeps.
-
-**Re-entry.** When a retired object is observed again it re-enters the state *before* the
-update of that frame, with its stored mean, covariance and first estimate, and **no
-cross-covariance** with the rest of the state. This is the standard choice of map-based
-filters (a stored map entry is used as an independent prior); it is not conservative in
-general: the correlation the object had with the poses when it retired is forgotten, so a robot
-that re-observes an object long after leaving it may become somewhat over-confident about the
-poses in between. The longer ``N`` (in frames) relative to the window, the weaker those
-correlations have become through the odometry noise added since, and the less this matters;
-``N = 0`` never retires anything (the filter of the paper, exactly).
-
-**Consensus and retired objects.** Only objects in the filter state take part in consensus:
-a robot's round-1 map ids are its in-state ids (:class:`~teamslam.msckf.consensus.protocol.\
-ConsensusProtocol` reads ``state.object_ids``). A retired object is therefore neither sent nor
-averaged: it keeps the marginal it retired with until it re-enters, and then takes part again
-(as an object whose marginal moved, so it is averaged at once with every neighbour that has it
-in state). The consequence: a neighbour's information gathered while the object is retired
-here reaches this robot only after re-entry, and information this robot holds about an object
-it retired reaches nobody until then — consensus agreement is over the objects the robots are
-currently working with, which is where it matters for their poses. In asynchronous mode a
-neighbour's marginal may be older than a retirement here: the retired objects are then
-marginalised out of it (:func:`~teamslam.msckf.consensus.receive_marginal`) and the rest is
-averaged as usual.
-
-**Cost.** Ids are found with a dict; rows live in arrays that double their capacity when full
-and reuse freed rows, so storing or re-entering ``k`` objects costs ``O(k)`` whatever the size
-of the map. The map itself grows with the number of distinct objects retired (15 numbers each),
-not with mission length.
+With ``object_retire_after = N > 0`` an object unobserved for ``N`` frames retires — exact
+marginalisation: its mean, 3×3 marginal and first estimate are kept here — and re-enters the
+state with them, without cross-covariance, when observed again. Retired objects take no part in
+consensus. Storing or re-entering ``k`` objects costs ``O(k)``. Why, and what re-entry
+approximates: the concept page *The persistent map* (``docs/concepts/persistent-map.md``).
 """
 
 from __future__ import annotations

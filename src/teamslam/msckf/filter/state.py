@@ -1,30 +1,13 @@
 """One robot's MSCKF state: a sliding window of body poses plus object landmarks (eq. 18).
 
-The error state is ``[ε_1, …, ε_c, p̃_1, …, p̃_m]``: a 6-vector right perturbation
-``(ρ, φ)`` per window pose (``T = T̂ · exp(ε^)``, eq. 20), oldest first, then a 3-vector per
-object landmark. One joint covariance covers it all, and **every covariance edit goes through
-this class**: :meth:`augment` (propagation, eqs. 22–23), :meth:`marginalize_oldest`,
-:meth:`add_object` (initialisation, eq. 30), :meth:`update` (eqs. 26–28) and
-:meth:`replace_marginal` (consensus, Prop. 2 / eq. 21), :meth:`retire_objects` and
-:meth:`reenter_objects` (the persistent map, :mod:`teamslam.msckf.filter.persistent_map`). With
-``debug=True`` each edit checks that the covariance stays symmetric positive definite.
-
-Callers reach the layout through **handles** (OpenVINS' ``Type``): :meth:`MsckfState.pose`
-and :meth:`MsckfState.object` give :class:`PoseHandle` and :class:`ObjectHandle`, which know
-their window positions or map slots and their error-state columns; measurement Jacobians are
-built compact over those columns (:class:`~teamslam.msckf.filter.update.MeasurementRows`, OpenVINS'
-``H_order``) and :meth:`MsckfState.update` takes the column list. ``cov`` is a read-only view;
-:meth:`MsckfState.covariance` gives the block of some columns or handles. A measurement that is
-not finite is refused before any edit (:class:`~teamslam.errors.EstimationError` naming robot
-and frame).
-
-The state also keeps each window pose's and each object's **first estimate** (the pose as it
-entered the window, the object as it was initialised) for first-estimate Jacobians
-(:mod:`teamslam.msckf.filter.linearization`); consensus and updates never change it.
-
-One state can hold the windows of several robots (the centralised filter,
-:mod:`teamslam.msckf.centralised`): poses are kept sorted by robot, then frame, and
-:meth:`window` gives one robot's view of them.
+The error state is a right perturbation ``(ρ, φ)`` per window pose (``T = T̂ · exp(ε^)``,
+oldest first), then a 3-vector per object. **Every covariance edit goes through**
+:class:`MsckfState` (augment, marginalise, add, update, replace the marginal, retire,
+re-enter); a non-finite input is refused before any edit, and with ``debug=True`` each edit
+checks that the covariance stays symmetric positive definite. Callers reach the layout through
+handles (:class:`PoseHandle`, :class:`ObjectHandle`); the state also keeps first estimates, and
+can hold several robots' windows (:class:`RobotWindow`). See the concept page *The filter*
+(``docs/concepts/filter.md``).
 """
 
 from __future__ import annotations

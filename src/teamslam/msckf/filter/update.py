@@ -1,12 +1,10 @@
 """Batched measurement work of the MSCKF: triangulation, null-space projection, gating.
 
-Distributed MSCKF paper, §V-D and §V-E. Geometric features are grouped by track length so each
-group is one stack of arrays: Gauss–Newton triangulation, residuals and Jacobians of every
-stereo observation (4 rows each), the left null space of each feature's point Jacobian by one
-batched QR (eq. 24), and a chi-square gate with the residual's own degrees of freedom. The
-accepted rows of all features are stacked, and QR-compressed when taller than the state. Rows
-are compact: a Jacobian holds only the error-state columns it may touch, with their list
-(:class:`MeasurementRows`).
+Geometric features are grouped by track length; per group: Gauss–Newton triangulation, the
+left null space of each point Jacobian by batched Householder QR (eq. 24) and rows for a χ²
+gate with the residual's own degrees of freedom; stacked rows taller than the columns they
+touch are QR-compressed. Rows are compact over the columns they may touch
+(:class:`MeasurementRows`). See the concept page *The filter* (``docs/concepts/filter.md``).
 """
 
 from __future__ import annotations

@@ -1,13 +1,10 @@
 """From where a robot saw each of its objects: the views of its object summaries.
 
-Distances cannot tell a near-planar group of objects from its mirror image
-(:func:`~teamslam.association.flipped`); the side of the plane the cameras saw the objects from
-can. :class:`ObjectViews` keeps, per object, the sum of the unit directions from the object to
-the camera over the frames it was observed, and their count; :meth:`ObjectViews.of` gives their
-mean — the :attr:`~teamslam.association.summary.ObjectSummary.views` of a summary. The robot
-records them once per frame (:meth:`ObjectViews.record`); the summaries it sends to its
-neighbours (:mod:`teamslam.msckf.consensus.protocol`) and those its own loop closure compares
-(:mod:`teamslam.msckf.objects.loop_closure`) read the same record.
+:class:`ObjectViews` keeps, per object, the sum of the unit directions from the object to the
+camera over the frames it was observed, and their count; :meth:`ObjectViews.of` gives their
+mean, with which association refuses a group matched to its mirror image
+(:func:`~teamslam.association.flipped`). Recorded once per frame (:meth:`ObjectViews.record`).
+See the concept page *Tracking* (``docs/concepts/tracking.md``).
 """
 
 from __future__ import annotations

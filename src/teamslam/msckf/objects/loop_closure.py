@@ -1,63 +1,12 @@
 """Loop closure in a robot's own object map: a revisit re-identified by the shape of a group.
 
-A robot that tracks its own detections (:mod:`teamslam.msckf.objects.tracking`) and drives away and
-back
-often maps a revisited object a second time: after the drive its filter's estimate of the old
-object is off by the drift, and a single object's gate test at its first detection is mostly
-wrong (the filter is overconfident exactly there). The *shape* of a group of objects survives
-drift: the objects the robot has just mapped on the revisit form a small local map whose
-distances — within their uncertainty — match a part of its old map, whatever the drift. So
-:func:`find_loop` applies the robot's own inter-robot association (:func:`~teamslam.association.
-associate`: drift-invariant candidates, pairwise consistency, maximum clique, rigid transform,
-Mahalanobis gate, rival sets) between
-
-* the **recent** objects: the ``recent`` objects of the state the tracker created last, and
-* the **old** objects: those of the state last seen more than a window of frames before the
-  first of the recent ones was created (an object seen together with a recent one, or just
-  before it, is another object, not the same one seen again), and those of the persistent map.
-
-It never guesses: fewer than ``min_inliers`` pairs, or a rival consistent set nearly as large
-(a row of evenly parked cars, a mirror image of the group), gives nothing
-(:class:`~teamslam.association.AssociationSettings`; every threshold is a χ² quantile, a ratio
-or a count).
-
-Both summaries carry the robot's **views** of its objects (:class:`~teamslam.msckf.filter.views.
-ObjectViews`: the mean direction from each object to the cameras that saw it), so a consistent
-set whose transform turns the group over — matches it with the mirror image of another, the
-cameras of one then below the plane — is neither an answer nor a rival
-(:func:`~teamslam.association.flipped`). Without them a row of parked cars fits another row
-of similar spacing turned over by a half-turn about an axis in the ground plane: on KITTI 00,
-6 of the 7 wrong pairs a run merged were one such group (two rows 200 m apart, the transform
-turned by 176°), and the separate RMSE rose from 12.5 to 31.1 m; with the views that group is
-refused.
-
-A robot's own map has not turned far between its old and its recent part: the drift that puts
-positions off by a fraction ``ρ`` of the distance driven turns the map by about ``2ρ`` radians
-(:func:`turn_within_drift`). A transform turned further is no revisit, whatever the distances
-say. The views refuse only a turn that puts the cameras on the other side of the plane: with
-consensus and the own association on KITTI 00 the robots merged rows of cars with rows turned
-by 91° to 180° about the vertical, by 168° about an axis in the ground plane (the side unclear)
-and by 25° — 31 pairs, 3 right — until this test refused them.
-
-:func:`merge_objects` then closes the loop in the filter, for every accepted pair (new object
-``n`` ≙ old object ``o``): one EKF update with the constraint ``x_n − x_o = 0`` — all pairs
-stacked, a noise variance ``ε`` of ``1e-9`` of each pair's own prior variance (relative: no
-unit; the state's Cholesky-factored update keeps the covariance exactly symmetric) — then
-``x_n`` leaves the state. After the update ``x_n`` and ``x_o`` are equal up to ``ε`` and
-perfectly correlated, so dropping ``x_n`` (a marginalisation: its rows and columns leave the
-covariance) loses nothing; the result is, up to ``ε``, Gaussian conditioning on ``x_n = x_o``
-— the batch solution for a linear model. Through the cross-covariances the update moves the
-current pose and every correlated object: the drift accumulated since ``o`` was last seen is
-corrected.
-
-An old object of the **persistent map** holds only its mean and marginal covariance (its
-correlation with the state was dropped at retirement). It re-enters the state first
-(:meth:`~teamslam.msckf.filter.state.MsckfState.reenter_objects`, no cross-covariance — the same
-approximation its re-entry on a re-detection makes) and is then merged in the same update.
-
-The tracker names every later detection of the object ``o`` and relabels ``n``'s earlier
-detections as ``o`` (:meth:`ObjectTracker.hypotheses <teamslam.msckf.objects.tracking.ObjectTracker.
-hypotheses>`), so metrics see one object.
+:func:`find_loop` runs the robot's own association (:func:`~teamslam.association.associate`)
+between its *recent* objects and its *old* ones (unseen for longer than the window, and those
+of the persistent map), with its views so that a mirror image is refused and a turn beyond the
+drift (:func:`turn_within_drift`) too; it never guesses (too few pairs or a rival set gives
+nothing). :func:`merge_objects` closes the loop: one EKF update with ``x_n − x_o = 0`` for every
+accepted pair, then ``x_n`` leaves the state. Derivation: the concept page *Tracking*
+(``docs/concepts/tracking.md``).
 """
 
 from __future__ import annotations
@@ -331,8 +280,8 @@ def merge_objects(state, pairs: np.ndarray, frame: int) -> np.ndarray:
 
     One EKF update with the stacked constraints ``x_n − x_o = 0`` (noise ``ε`` of
     :data:`MERGE_RELATIVE_NOISE` times each pair's prior variance), then every ``x_n`` leaves the
-    state (module docstring). An ``o`` of the persistent map re-enters the state first. ``o``
-    counts as last seen when the later of the two was.
+    state (concept page *Tracking*). An ``o`` of the persistent map re-enters the state first.
+    ``o`` counts as last seen when the later of the two was.
 
     Parameters
     ----------

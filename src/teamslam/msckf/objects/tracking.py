@@ -1,76 +1,13 @@
 """Each robot's own object tracker: detections without ids in, object ids out.
 
-A robot's detector gives, per frame, stereo box centres without ids — some false, some objects
-missed. Before the object update of Algorithm 1 the robot's filter names them itself
-(:meth:`ObjectTracker.assign`):
-
-1. **Predict** every target into the current stereo pair: the objects in the filter state
-   (their joint covariance with the current pose), the objects of the persistent map
-   (:mod:`teamslam.msckf.filter.persistent_map`; their 3×3 marginal and the current pose's
-   covariance)
-   and every track of the tracker itself (a stereo-triangulated point with its covariance, and
-   the odometry noise of the frames since its last detection).
-2. **Gate** each (target, detection) pair with the filter's own innovation covariance
-   ``S = H P Hᵀ + R``: the squared Mahalanobis distance of the detection from the prediction at
-   most the ``track_gate_probability`` quantile of χ²(4); class labels, when the detector gives
-   them, must agree.
-3. **Assign** one-to-one over the gated pairs by global nearest neighbour with explicit miss
-   and birth costs: a pair costs its squared distance ``d²``, a detection left to start a new
-   track and a target left missed together cost the gate ``g`` (the same χ² quantile), so the
-   assignment (:func:`scipy.optimize.linear_sum_assignment`) minimises ``Σ (d² − g)`` over the
-   pairs it keeps and never trades a good pair for two poor ones just to assign more. Three
-   passes: first the targets seen within the last ``N`` frames (the tracks, and the objects
-   followed frame to frame); then each of those left without a detection against the
-   detections left outside every gate, inside the wider ``track_birth_probability`` quantile
-   (the outer gate) and only when the pair is alone there — a detector's heavy-tailed error
-   (a box cut by the image border or an occluder) keeps its object rather than starting a
-   second one; last the detections left against the objects not seen for ``N`` frames (the
-   state's or the persistent map's), each such pair only when unambiguous (no other
-   detection in the object's gate and no other target in the detection's): a drifted robot's
-   wrong revisit would pull its whole map, a second object for the same one only costs a
-   loop closure. A long-unseen object's gate is wide; served first, it would take the
-   detections of the objects followed frame to frame next to it.
-4. A detection assigned to an object of the state or the persistent map gets that object's id.
-   A detection assigned to a track updates the track's point (a Kalman update of the point).
-   An unassigned detection starts a **tentative** track, stereo-triangulated at the current
-   pose. A tentative track is **confirmed** after ``M`` detections within its first ``N``
-   frames (``track_confirm_hits``, ``track_confirm_frames``; default ``M`` =
-   ``object_init_observations``, ``N = M + 2``) and dropped otherwise. A confirmed track's
-   detections — the earlier ones at once — go to the filter under its id, where the object
-   initialisation (eqs. 29–30) takes it into the state; from then on the state predicts it and
-   the tracker forgets it. A confirmed track not taken into the state is dropped after ``N``
-   frames without a detection. An unassigned detection inside the outer gate of an object
-   followed frame to frame that took no detection this frame starts no track (the pair was
-   ambiguous: one object, one id); near an object that took another detection it is another
-   object (a detector boxes an object once per frame) and starts a track; objects not seen
-   for ``N`` frames block no new track.
-5. **Re-identification by a track.** A revisited object's first detection often starts a
-   track (two detections in its gate, or another target in the detection's), and the track,
-   followed frame to frame, then takes its next detections before the long-unseen object can.
-   So each track counts its detections that were alone in the gate of one object not seen for
-   ``N`` frames (that object alone, of those, in the detection's gate, and no object followed
-   frame to frame holding the detection in its outer gate). When the track is confirmed, its
-   detection of that frame is such a one, and more than half of its detections were, all
-   for the same object (a second object spoils it), the track continues that object: the
-   detection gets the object's id (an object of the persistent map re-enters the state), no
-   new object is made and the track is dropped (its earlier detections stay unnamed). The
-   gate is the filter's own: the rule is only as right as the filter's covariance after the
-   drive away and back (:attr:`ObjectTracker.revisits` records every re-identification).
-
-6. **Loop closure** (``track_loop_closure``, :mod:`teamslam.msckf.objects.loop_closure`). Before the
-   prediction, the objects the tracker created last are matched, by the shape of the group,
-   against the robot's objects unseen for longer than the window, with the robot's views of
-   them (``views``: a group turned over is refused, as is one turned further than the robot's
-   drift can turn its map); each accepted pair is merged in the filter
-   (the new object leaves the state, its detections count under the old id:
-   :meth:`ObjectTracker.hypotheses`, :attr:`ObjectTracker.merged`, :attr:`TrackerFrame.merged`).
-
-Only tentative tracks hold detections the filter has not seen: a false detection that no
-other detection confirms never reaches the filter state. Everything per frame is batched over
-targets and detections; the prediction of the targets (Jacobians, ``S``) and the gate (one
-Cholesky factorisation per target, a forward substitution per pair) are compiled loops
-(numba), the same arithmetic as :func:`~teamslam.msckf.filter.models.observe_jacobians` and batched
-products to rounding; the tracks are kept as arrays.
+:meth:`ObjectTracker.assign` predicts every target (state objects, persistent-map objects, the
+tracker's own tracks) into the current stereo pair, gates each detection with the filter's
+innovation covariance at the ``track_gate_probability`` quantile of χ²(4), assigns one-to-one
+by global nearest neighbour with miss and birth costs, and names the detections: an object's id,
+or a tentative track confirmed after ``M`` detections within ``N`` frames. A false detection no
+other confirms never reaches the filter. With ``track_loop_closure`` revisits are merged first
+(:mod:`teamslam.msckf.objects.loop_closure`). The rules and why: the concept page *Tracking*
+(``docs/concepts/tracking.md``).
 """
 
 from __future__ import annotations
@@ -121,7 +58,7 @@ class TrackerFrame:
 
 
 class ObjectTracker:
-    """One robot's tracker of its object detections (see the module docstring).
+    """One robot's tracker of its object detections (concept page *Tracking*).
 
     Parameters
     ----------
