@@ -12,7 +12,7 @@
 * sensor health (:mod:`teamslam.msckf.settings.health`): per sensor the mean NIS / dof and the
   share of
   measurements the χ² gate rejected, and the odometry's smoothed-residual ratio;
-* with association by the robots themselves (``association = own``) or the consensus
+* with association by the robots themselves (``association.mode = own``) or the consensus
   innovation check: per link the summary bytes per step, the correspondences proposed,
   accepted, revoked and held, and where ground truth exists (per-robot ids with
   ``object_identity``, or global ids) the correct and wrong ones, precision and recall against

@@ -6,8 +6,8 @@ every linearisation policy (:mod:`teamslam.msckf.filter.linearization`) and ever
 ``separate``
 filters, ``consensus`` (the distributed MSCKF, on a complete graph unless ``graph`` says
 otherwise, with link loss ``loss``), ``hybrid`` (the same with hybrid consensus,
-``consensus_hybrid``: new information at full weight, :mod:`teamslam.msckf.consensus`),
-``increments`` (consensus on information increments, ``consensus_increments``: each robot's
+``consensus.rule = hybrid``: new information at full weight, :mod:`teamslam.msckf.consensus`),
+``increments`` (consensus on information increments, ``consensus.rule = increments``: each robot's
 new information counted once, :mod:`teamslam.msckf.consensus.average`) and ``centralised``
 (:mod:`teamslam.msckf.centralised`).
 Runs are spread over processes (:func:`~teamslam.parallel.run_parallel`, BLAS pinned
@@ -68,8 +68,8 @@ GRAPHS = ("complete", "ring", "random")
 # the team setting each consensus mode turns on
 _MODE_SETTINGS = {
     "consensus": {},
-    "hybrid": {"consensus_hybrid": True},
-    "increments": {"consensus_increments": True},
+    "hybrid": {"consensus.rule": "hybrid"},
+    "increments": {"consensus.rule": "increments"},
 }
 FILTERS = ("std", "fej", "ideal", "oc")
 
@@ -164,12 +164,12 @@ def one_run(run: int, spec: MonteCarloSpec) -> dict:
     out: dict = {}
     for filt in spec.filters:
         settings = {
-            "window": spec.window,
-            "use_geometric_features": not spec.objects_only,
+            "filter.window": spec.window,
+            "filter.use_geometric_features": not spec.objects_only,
             **dict(spec.settings),
-            "linearization": filt,
+            "filter.linearization": filt,
         }
-        config = config_for(team, **settings)
+        config = config_for(team, settings)
         for mode in spec.modes:
             if mode == "centralised":
                 result = run_centralised(team, config, progress=False)
@@ -178,7 +178,7 @@ def one_run(run: int, spec: MonteCarloSpec) -> dict:
             else:
                 result = run_team(
                     team,
-                    config.with_(**_MODE_SETTINGS[mode]),
+                    config.with_(_MODE_SETTINGS[mode]),
                     graph=graph,
                     consensus=True,
                     loss=spec.loss,

@@ -6,7 +6,7 @@ Every way of running the filter goes through the same per-frame code, :class:`Ro
   :class:`~teamslam.msckf.consensus.protocol.ConsensusProtocol`): round 1 sends its map ids, round 2
   answers the requests heard with the marginals of the common objects, round 3 averages the
   marginals heard (:meth:`RobotDriver.requests`, :meth:`RobotDriver.answer`,
-  :meth:`RobotDriver.average`) — ``consensus_iterations`` times per frame, each exchange with
+  :meth:`RobotDriver.average`) — ``consensus.iterations`` times per frame, each exchange with
   its own messages and, in the in-process team, its own link-loss draw;
 * then it processes the frame (:meth:`RobotDriver.step`) and records the filtered pose of
   frame ``k`` and its covariance (:meth:`RobotDriver.record`).
@@ -233,7 +233,7 @@ class RobotDriver:
 
     @property
     def iterations(self) -> int:
-        """Consensus exchanges per frame (``consensus_iterations``; 1 without consensus)."""
+        """Consensus exchanges per frame (``consensus.iterations``; 1 without consensus)."""
         return 1 if self.protocol is None else self.protocol.iterations
 
     # ------------------------------------------------------------------ consensus rounds
@@ -392,7 +392,7 @@ def run_lockstep(
 
 
 def exchanges_per_frame(drivers: Sequence[RobotDriver]) -> int:
-    """The consensus exchanges per frame of a team (``consensus_iterations``; 1 without
+    """The consensus exchanges per frame of a team (``consensus.iterations``; 1 without
     consensus).
 
     Raises
@@ -404,7 +404,7 @@ def exchanges_per_frame(drivers: Sequence[RobotDriver]) -> int:
     counts = {d.iterations for d in drivers if d.protocol is not None}
     if len(counts) > 1:
         raise InputError(
-            f"every robot of a team needs the same consensus_iterations, not {sorted(counts)}"
+            f"every robot of a team needs the same consensus.iterations, not {sorted(counts)}"
         )
     return counts.pop() if counts else 1
 
@@ -624,7 +624,7 @@ def run_team(
         The team's data.
     config
         Filter settings, one for the team or one per robot (default:
-        :func:`~teamslam.msckf.configure.resolve_config` — the dataset's sensor model, or a
+        :func:`~teamslam.msckf.configure.build_settings` — the dataset's sensor model, or a
         calibration from the data when it has none).
     graph
         Communication graph (default: complete).

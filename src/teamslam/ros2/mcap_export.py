@@ -14,7 +14,7 @@ Topics, per robot ``i`` (the team's robot index, from 0):
 * ``/tf`` — ``tf2_msgs/msg/TFMessage``: ``world → robot_<i>/base_link`` (estimate) and
   ``world → robot_<i>/ground_truth``;
 * ``/association`` — ``MarkerArray``, for a run whose robots associated their objects themselves
-  (``association = own``): per link ``i–j`` one ``LINE_LIST`` (namespace ``link_i_j``) joining
+  (``association.mode = own``): per link ``i–j`` one ``LINE_LIST`` (namespace ``link_i_j``) joining
   each matched pair's two estimates at the last stamp.
 
 With ``--compare`` results (``separate/`` and ``consensus/``) the consensus run has the topics

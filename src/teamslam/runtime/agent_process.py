@@ -7,7 +7,7 @@ through a :class:`~teamslam.runtime.zenoh_transport.ZenohTransport`:
   timeout) for theirs, answers each with the marginal of the objects they share, waits for the
   answers it expects (it knows which neighbours share objects from their ids), then averages.
   A neighbour that stays silent past the timeout is a link lost for that exchange (with
-  ``consensus_iterations`` > 1 it is not awaited again in the frame's later exchanges); after
+  ``consensus.iterations`` > 1 it is not awaited again in the frame's later exchanges); after
   ``lost_after`` silent frames in a row it is reported lost and no longer waited for (it is
   waited for again as soon as it speaks).
 * **async** — it never waits: it answers any ids request it has, and averages with each
@@ -39,7 +39,7 @@ import numpy as np
 from teamslam.datasets import SensorModel, TeamDataset, load_dataset
 from teamslam.errors import EstimationError, InputError, OutputError
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.configure import resolve_config
+from teamslam.msckf.configure import build_settings
 from teamslam.msckf.consensus.transport import Transport
 from teamslam.msckf.filter.linearization import GroundTruth, linearization_policy
 from teamslam.msckf.settings.sources import ConfigError
@@ -116,13 +116,13 @@ def robot_setup(
         sensor_model=_own_sensor_model(dataset, index),
         object_identity=identity,
     )
-    config = resolve_config(own, file_values=team.filter_settings, calibrate=calibrate).config
+    config = build_settings(own, file=team.settings, calibrate=calibrate).config
     # an imported bag may have no ground truth (its metadata says so)
     has_truth = bool(dataset.metadata.get("ground_truth", True))
-    if linearization_policy(config.linearization).needs_truth and not has_truth:
+    if linearization_policy(config.filter.linearization).needs_truth and not has_truth:
         raise ConfigError(
-            f"robot {robot}: linearization={config.linearization} needs ground truth, and "
-            f"{dataset_path} has none"
+            f"robot {robot}: filter.linearization={config.filter.linearization} needs ground "
+            f"truth, and {dataset_path} has none"
         )
     return dataset, index, config
 

@@ -12,8 +12,8 @@ Example::
     message_delay_ms: 0.0            # injected delay before each send
     shared_memory: true              # Zenoh may hand large messages to robots on the same
                                      # machine through shared memory instead of the network
-    filter: {window: 10, object_std: 2.0}   # any filter setting (teamslam config show lists
-                                     # them); objects_only: true = use_geometric_features: false
+    settings:                        # any filter setting, by group (teamslam config show
+      filter: {window: 10, object_std: 2.0}   # lists them), or dotted: consensus.rule: hybrid
     ros2: {domain_id: 0}             # optional: every robot publishes ROS 2 topics over
                                      # rmw_zenoh (teamslam.ros2.rmw_zenoh.ros2_settings)
     robots:
@@ -107,7 +107,7 @@ class TeamFile:
     message_loss: float = 0.0
     message_delay_ms: float = 0.0
     shared_memory: bool = True
-    filter_settings: dict = field(default_factory=dict)
+    settings: dict = field(default_factory=dict)
     path: Path | None = None
     ros2: dict | None = None
     security: SecuritySection | None = None
@@ -175,12 +175,16 @@ def _parse(data, path: Path) -> TeamFile:
         "checkpoint_every",
         "message_loss",
         "message_delay_ms",
-        "filter",
+        "settings",
         "robots",
         "ros2",
         "security",
         "shared_memory",
     }
+    if "filter" in unknown:
+        raise TeamFileError(
+            "'filter' is now 'settings', by group (settings: {filter: {window: 10}})"
+        )
     if unknown:
         raise TeamFileError(f"unknown field(s): {', '.join(sorted(unknown))}")
     team = data.get("team")
@@ -242,18 +246,11 @@ def _parse(data, path: Path) -> TeamFile:
     sync = data.get("sync", "lockstep")
     if sync not in ("lockstep", "async"):
         raise TeamFileError("'sync' must be lockstep or async")
-    filt = data.get("filter", {}) or {}
-    if not isinstance(filt, dict):
-        raise TeamFileError("'filter' must map filter settings to values")
-    filt = dict(filt)
-    if "objects_only" in filt:
-        objects_only = filt.pop("objects_only")
-        if not isinstance(objects_only, bool):
-            raise TeamFileError("filter.objects_only must be true or false")
-        if objects_only:
-            filt["use_geometric_features"] = False
+    settings = data.get("settings", {}) or {}
+    if not isinstance(settings, dict):
+        raise TeamFileError("'settings' must map groups of filter settings to values")
     try:
-        filt = coerce_settings(filt, "filter")
+        settings = coerce_settings(settings, "settings")
     except ConfigError as exc:
         raise TeamFileError(str(exc)) from None
     return TeamFile(
@@ -267,7 +264,7 @@ def _parse(data, path: Path) -> TeamFile:
         message_loss=_number(data, "message_loss", 0.0, float, 0.0, 1.0),
         message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
         shared_memory=data.get("shared_memory", True),
-        filter_settings=filt,
+        settings=settings,
         path=path,
         ros2=_mapping(data, "ros2"),
         security=security,

@@ -7,7 +7,8 @@
 * :mod:`~teamslam.msckf.consensus.marginals` — our marginal of the objects a neighbour asked
   about; :mod:`~teamslam.msckf.consensus.checks` — every received message checked once;
 * :mod:`~teamslam.msckf.consensus.average` — the averaging rules (eq. 19 and Prop. 2, hybrid,
-  information increments); :mod:`~teamslam.msckf.consensus.selection` — which common objects
+  information increments), chosen by the strategy of :mod:`~teamslam.msckf.consensus.rules`
+  (``consensus.rule``); :mod:`~teamslam.msckf.consensus.selection` — which common objects
   are averaged jointly; :mod:`~teamslam.msckf.consensus.kernels` — compiled per-message passes.
 
 The public names of the averaging, checking and message modules are re-exported here and
@@ -47,6 +48,7 @@ __getattr__, __dir__ = attach(
         "marginals",
         "messages",
         "protocol",
+        "rules",
         "selection",
         "transport",
     ),

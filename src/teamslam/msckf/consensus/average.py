@@ -7,7 +7,7 @@
   with Prop. 2 and the window poses corrected with ``exp`` (eq. 21) by
   :meth:`~teamslam.msckf.filter.state.MsckfState.replace_marginal`;
 * :func:`shared_prior`, :func:`prior_information`, :func:`new_information` and
-  :func:`hybrid_marginal` — the optional hybrid weighting (``consensus_hybrid``), below.
+  :func:`hybrid_marginal` — the optional hybrid weighting (``consensus.rule = hybrid``), below.
 
 **Hybrid consensus: new information at full weight.** Eq. 19 averages whole marginals, so
 information that robot ``j`` gathered since the last exchange enters robot ``i``'s estimate with
@@ -38,9 +38,10 @@ test). The new information is a difference of two marginals; when it is not posi
 enough for the result to stay positive definite (after relinearisation, or an object re-entering
 from the persistent map) the plain marginal is used (``hybrid_fallbacks``).
 
-**Consensus on information increments** (``consensus_increments``; :func:`increment_average`).
-The hybrid rule adds our own new information with the weight of the messages that hold *every*
-averaged object; where a message lacks some object of ``y`` — partial maps, or pairs that
+**Consensus on information increments** (``consensus.rule = increments``;
+:func:`increment_average`). The hybrid rule adds our own new information with the weight of
+the messages that hold *every* averaged object; where a message lacks some object of ``y`` —
+partial maps, or pairs that
 exchange different subsets because only some objects moved — our own new information on the
 objects it does hold enters with less than full weight, and with the map of our team (objects
 seen by two to five robots) that is most averages. And a message of one matrix cannot tell the
@@ -91,7 +92,7 @@ on all of ``y`` once; objects initialised since the prior have ``P = 0``, so the
 counts as new — once — and their prior comes from the neighbours that held them. A marginal without
 a prior (a neighbour not on this rule, or one whose objects had to be marginalised in translation)
 counts as a prior only: its new information is then lost, never doubled.
-*Iterations* (``consensus_iterations = L`` exchanges per step): HCMCI averages the increments
+*Iterations* (``consensus.iterations = L`` exchanges per step): HCMCI averages the increments
 ``L`` times and then scales the result by one ``ω``, so robot ``k``'s increment ends in robot
 ``i`` with the weight ``ω (Π^L)_ik``; never counting it twice needs ``ω ≤ 1 / max_ik (Π^L)_ik``,
 which on a sparse graph is close to one (the diagonal of ``Π^L`` stays large) and needs ``Π^L``,

@@ -1,16 +1,16 @@
-"""Consensus, selection: which common objects a robot averages jointly (``consensus_set``).
+"""Consensus, selection: which common objects a robot averages jointly (``consensus.set``).
 
 The paper averages every common object at every step (eq. 19 over ``y``, Prop. 2 rebuild), so
 each step inverts the joint marginal of all of them: the cost is cubic in the map the robots
 share and keeps growing on a route that revisits a fixed area, long after the map stopped
-growing. With ``consensus_set = active`` a robot flags for the joint average only the objects
+growing. With ``consensus.set = active`` a robot flags for the joint average only the objects
 its current window can still change appreciably — the *active* objects:
 
 * observed within the window (``object_last_seen`` at or after the oldest window frame) — by
   default the only test, or also
 * correlated with the window poses: the mutual information between the object and the window
   poses, ``I(o; x) = ½ log det Σ_oo − ½ log det Σ_oo|x`` (nats, unit-free: the same for any
-  camera, unit or noise level), above ``consensus_active_information`` (default ``inf``: not
+  camera, unit or noise level), above ``consensus.active_information`` (default ``inf``: not
   used). ``Σ_oo|x = Σ_oo − Σ_oxΣ_xx⁻¹Σ_xo`` costs one Cholesky factorisation of the pose block
   and one triangular solve with the pose–object cross-covariance, ``O(p² m)`` for ``p`` pose
   coordinates and ``m`` objects — linear in the map.
@@ -27,9 +27,9 @@ a large map cost more than the smaller joint saved (1.22× the paper's consensus
 The other common objects (*inactive*) keep their agreement by the cheaper rule of averaging only
 when they change: the protocol's moved flags (:mod:`teamslam.msckf.consensus.protocol`) flag an
 active
-object when its marginal moved by more than ``consensus_kl_threshold`` since the pair last
+object when its marginal moved by more than ``consensus.kl_threshold`` since the pair last
 exchanged it, and an inactive one only when it moved by more than
-``consensus_inactive_kl_threshold``. Both ends of a link average the objects flagged by either,
+``consensus.inactive_kl_threshold``. Both ends of a link average the objects flagged by either,
 so an object one robot observes now is averaged jointly with every neighbour that shares it —
 the joint a robot averages is what the team sees now, not what it has mapped.
 
@@ -45,10 +45,10 @@ beyond what our own conditional ``p(I | J)`` predicts from the averaged ``J``:
   a neighbour's information on ``I`` arrives only when ``I`` moves by more than the inactive
   threshold (then it is in ``J`` again), or when ``I`` becomes active (observed by either robot
   of the pair). Each such average runs until the pair agrees to within
-  ``consensus_kl_threshold`` (*settling*, below); between two of them the pair's marginals of
+  ``consensus.kl_threshold`` (*settling*, below); between two of them the pair's marginals of
   an inactive object drift apart by at most about the threshold on each side plus what the two
   conditionals add — that drift is bounded by the threshold, not driven to
-  ``consensus_kl_threshold``;
+  ``consensus.kl_threshold``;
 * the window poses are corrected through ``J`` only (``A = Σ_xJ Σ_J⁻¹`` instead of
   ``Σ_xy Σ_y⁻¹``). With the correlation test at ``ε`` nats an inactive object is weakly
   correlated with them: ``I(o; x) = −½ Σ_k log(1 − ρ_k²) ≤ ε`` over its canonical
@@ -69,14 +69,14 @@ marginal with its own marginal at the pair's last exchange, so a residual disagr
 up as movement only while the pair keeps averaging. Averages are often partial: an object one
 robot flags is averaged on that robot's links only, and each neighbour moves only ``A_ij`` of
 the way towards it. The paper's set then keeps averaging (the neighbour moved by more than
-``consensus_kl_threshold``, so it flags the object on all its links); with the inactive
+``consensus.kl_threshold``, so it flags the object on all its links); with the inactive
 threshold alone an inactive object whose first average moved it by less than that threshold
 kept the residual of the partial average for good. Over 300 frames of the ``make run`` team
 the objects averaged 10–200 frames before the end were where the rule below took the pairs'
 disagreement down (mean pair distance 2.9 / 2.0 / 2.1 mm for 10–50 / 50–100 / 100–200 frames
 without it, 1.9 / 1.2 / 1.8 mm with it); over 1,000 frames it took the benchmark's
 disagreement from 2.16× to 2.01× the paper's set. So an object a pair averaged in the
-previous exchange is tested at ``consensus_kl_threshold``, whatever its own threshold
+previous exchange is tested at ``consensus.kl_threshold``, whatever its own threshold
 (:func:`settling_thresholds`): the inactive threshold only decides when drift starts a new
 average, and each average started runs until the pair agrees to within the paper's
 threshold. Its cost is the few exchanges a pair's average takes to settle (it contracts
@@ -163,7 +163,7 @@ def settling_thresholds(
 ) -> np.ndarray:
     """How far each object on record with one neighbour must have moved to be averaged again.
 
-    ``thresholds`` are the objects' own (``consensus_kl_threshold`` when active, the inactive
+    ``thresholds`` are the objects' own (``consensus.kl_threshold`` when active, the inactive
     threshold otherwise); ``exchanged_at`` the number of the exchange in which the pair last
     averaged each. An object the pair averaged in the previous exchange is tested against
     ``kl_threshold`` whatever its own threshold: an average, once started, runs until the pair

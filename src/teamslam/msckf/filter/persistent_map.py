@@ -2,7 +2,7 @@
 
 Without it the MSCKF keeps every object it ever initialised in its state, so the state
 dimension — and the cost of every update, which is quadratic in it — grows with the length of
-the mission. With ``object_retire_after = N > 0``
+the mission. With ``objects.retire_after = N > 0``
 (:class:`~teamslam.msckf.settings.values.MsckfConfig`)
 an object not observed for ``N`` frames **retires**: it leaves the filter state for this map.
 

@@ -12,7 +12,7 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    the odometry noise of the frames since its last detection).
 2. **Gate** each (target, detection) pair with the filter's own innovation covariance
    ``S = H P Hᵀ + R``: the squared Mahalanobis distance of the detection from the prediction at
-   most the ``track_gate_probability`` quantile of χ²(4); class labels, when the detector gives
+   most the ``tracking.gate_probability`` quantile of χ²(4); class labels, when the detector gives
    them, must agree.
 3. **Assign** one-to-one over the gated pairs by global nearest neighbour with explicit miss
    and birth costs: a pair costs its squared distance ``d²``, a detection left to start a new
@@ -21,7 +21,7 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    pairs it keeps and never trades a good pair for two poor ones just to assign more. Three
    passes: first the targets seen within the last ``N`` frames (the tracks, and the objects
    followed frame to frame); then each of those left without a detection against the
-   detections left outside every gate, inside the wider ``track_birth_probability`` quantile
+   detections left outside every gate, inside the wider ``tracking.birth_probability`` quantile
    (the outer gate) and only when the pair is alone there — a detector's heavy-tailed error
    (a box cut by the image border or an occluder) keeps its object rather than starting a
    second one; last the detections left against the objects not seen for ``N`` frames (the
@@ -34,8 +34,8 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    A detection assigned to a track updates the track's point (a Kalman update of the point).
    An unassigned detection starts a **tentative** track, stereo-triangulated at the current
    pose. A tentative track is **confirmed** after ``M`` detections within its first ``N``
-   frames (``track_confirm_hits``, ``track_confirm_frames``; default ``M`` =
-   ``object_init_observations``, ``N = M + 2``) and dropped otherwise. A confirmed track's
+   frames (``tracking.confirm_hits``, ``tracking.confirm_frames``; default ``M`` =
+   ``objects.init_observations``, ``N = M + 2``) and dropped otherwise. A confirmed track's
    detections — the earlier ones at once — go to the filter under its id, where the object
    initialisation (eqs. 29–30) takes it into the state; from then on the state predicts it and
    the tracker forgets it. A confirmed track not taken into the state is dropped after ``N``
@@ -57,9 +57,10 @@ missed. Before the object update of Algorithm 1 the robot's filter names them it
    gate is the filter's own: the rule is only as right as the filter's covariance after the
    drive away and back (:attr:`ObjectTracker.revisits` records every re-identification).
 
-6. **Loop closure** (``track_loop_closure``, :mod:`teamslam.msckf.objects.loop_closure`). Before the
-   prediction, the objects the tracker created last are matched, by the shape of the group,
-   against the robot's objects unseen for longer than the window, with the robot's views of
+6. **Loop closure** (``tracking.loop_closure``, :mod:`teamslam.msckf.objects.loop_closure`).
+   Before the prediction, the objects the tracker created last are matched, by the shape of
+   the group, against the robot's objects unseen for longer than the window, with the robot's views
+   of
    them (``views``: a group turned over is refused, as is one turned further than the robot's
    drift can turn its map); each accepted pair is merged in the filter
    (the new object leaves the state, its detections count under the old id:
@@ -152,17 +153,17 @@ class ObjectTracker:
         self.views = views
         self.T_cam_body = T_cam_body
         self.config = config
-        self.hits_needed = config.track_confirm_hits or config.object_init_observations
-        self.frames_allowed = config.track_confirm_frames or self.hits_needed + 2
-        self.gate = chi2_quantile(config.track_gate_probability, 4)
+        self.hits_needed = config.tracking.confirm_hits or config.objects.init_observations
+        self.frames_allowed = config.tracking.confirm_frames or self.hits_needed + 2
+        self.gate = chi2_quantile(config.tracking.gate_probability, 4)
         # the rig for the compiled prediction: T_cam_body, K, T_left_right stacked (3 × 4 × 4)
         self._camera_block = np.zeros((3, 4, 4))
         self._camera_block[0] = T_cam_body
         self._camera_block[1, :3, :3] = camera.intrinsics
         self._camera_block[2] = camera.T_left_right
-        self.birth_gate = chi2_quantile(config.track_birth_probability, 4)
+        self.birth_gate = chi2_quantile(config.tracking.birth_probability, 4)
         # a target no deeper than this is behind the camera (not predicted)
-        self._min_depth = max(config.object_min_depth, 1e-3 * camera.baseline) * 0.5
+        self._min_depth = max(config.objects.min_depth, 1e-3 * camera.baseline) * 0.5
         self.next_id = track_id_base(robot)
         # tracks, as arrays (one row per track)
         self.ids = np.zeros(0, np.int64)
@@ -204,7 +205,7 @@ class ObjectTracker:
         self._created_frames: list[int] = []
         #: loop closure in the robot's own map (:mod:`teamslam.msckf.objects.loop_closure`), or None
         self.loop: LoopClosure | None = (
-            LoopClosure(gap=config.window) if config.track_loop_closure else None
+            LoopClosure(gap=config.filter.window) if config.tracking.loop_closure else None
         )
         #: every merged object and the object it continues (new id -> old id)
         self.merged: dict[int, int] = {}
@@ -405,7 +406,7 @@ class ObjectTracker:
     def _predict(self, t: int, state, odometry_cov: np.ndarray):
         """Every target's predicted measurement, innovation covariance and point Jacobian.
 
-        Only targets in front of the camera and nearer than twice ``object_max_depth``.
+        Only targets in front of the camera and nearer than twice ``objects.max_depth``.
         Returns kinds (0 state, 1 persistent map, 2 track), ids, frame last seen, predictions
         ``(T, 4)``,
         ``S`` ``(T, 4, 4)``, ``∂z/∂p`` ``(T, 4, 3)``, in front of the camera ``(T,)`` and class
@@ -415,7 +416,7 @@ class ObjectTracker:
         pose = state.current_pose
         parts_ids, parts_points, parts_p, kinds = [], [], [], []
         seen = []
-        reach = 2.0 * cfg.object_max_depth  # farther or behind: no detection can be theirs
+        reach = 2.0 * cfg.objects.max_depth  # farther or behind: no detection can be theirs
         if state.n_objects:
             depth = (state.objects - pose[:3, 3]) @ self._depth_axis(pose) + self.T_cam_body[2, 3]
             slots = np.flatnonzero((depth > 0) & (depth < reach))
@@ -476,7 +477,7 @@ class ObjectTracker:
             np.ascontiguousarray(points, dtype=float),
             np.ascontiguousarray(p, dtype=float),
             self._min_depth,
-            float(cfg.object_std) ** 2,
+            float(cfg.filter.object_std) ** 2,
         )
         labels = np.full(ids.size, -1, np.int64)
         if self._label_ids.size and (kind < 2).any():
@@ -582,14 +583,14 @@ class ObjectTracker:
         points, ok = stereo_point(self.camera, self.T_cam_body, pose, z)
         depth = np.linalg.norm(points - pose[:3, 3], axis=1)
         ok &= np.all(np.isfinite(points), axis=1)
-        ok &= (depth > cfg.object_min_depth) & (depth < cfg.object_max_depth)
+        ok &= (depth > cfg.objects.min_depth) & (depth < cfg.objects.max_depth)
         self.counters["detections_rejected_depth"] += int((~ok).sum())
         if not ok.any():
             return
         points, z, labels, index = points[ok], z[ok], labels[ok], index[ok]
         lone_stale = lone_stale[ok]
         _, _, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, points)
-        info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.object_std**2
+        info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.filter.object_std**2
         covs = np.linalg.solve(info, np.broadcast_to(np.eye(3), info.shape))
         k = points.shape[0]
         ids = np.arange(self.next_id, self.next_id + k, dtype=np.int64)
