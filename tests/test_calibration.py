@@ -150,11 +150,11 @@ def test_bad_settings_exit_2_naming_them(tmp_path, capsys, argv, message):
 def test_wrong_sigma_draws_one_warning_line_naming_the_sensor(tmp_path, capsys):
     save_dataset(scenario_team("normalised-0.005-objects", 1, 60, 4), tmp_path / "d")
     config = tmp_path / "bad.yaml"
-    config.write_text("object_std: 15.0\n")  # a pixel σ on a K = I camera
+    config.write_text("filter:\n  object_std: 15.0\n")  # a pixel σ on a K = I camera
     assert main(["run", str(tmp_path / "d"), "--config", str(config), "--separate"]) == 0
     err = capsys.readouterr().err
     lines = [s for s in err.splitlines() if s.startswith("warning")]
-    assert any("object σ (object_std) probably too large" in s for s in lines), err
+    assert any("object σ (filter.object_std) probably too large" in s for s in lines), err
 
 
 def test_params_file_is_imported_but_checked_against_the_data(tmp_path, capsys):

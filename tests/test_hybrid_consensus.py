@@ -231,3 +231,17 @@ def test_hybrid_settings_are_checked_and_asynchronous_exchanges_stay_plain():
     agent = _agent(0, np.zeros(3 * OBJECTS), np.eye(3 * OBJECTS), True)
     assert ConsensusProtocol(agent, [1]).rule.name == "hybrid"
     assert ConsensusProtocol(agent, [1], max_age=3).rule.name == "average"
+
+
+def test_each_rule_name_gives_its_strategy_and_an_unknown_one_is_named():
+    from teamslam.msckf.consensus.rules import consensus_rule
+
+    rules = {name: consensus_rule(name) for name in ("average", "hybrid", "increments")}
+    assert {name: rule.name for name, rule in rules.items()} == {n: n for n in rules}
+    assert not rules["average"].keeps_prior
+    assert rules["hybrid"].keeps_prior and rules["increments"].keeps_prior
+    prior = object()
+    assert rules["hybrid"].message_prior(prior) is None  # hybrid messages carry no prior
+    assert rules["increments"].message_prior(prior) is prior
+    with pytest.raises(InputError, match="average, hybrid or increments"):
+        consensus_rule("median")

@@ -166,12 +166,12 @@ def test_consensus_errors_name_robot_and_frame():
 
 @pytest.mark.parametrize("error", [NotPositiveDefiniteError, InternalError])
 def test_an_average_that_fails_names_robot_and_frame(monkeypatch, error):
-    import teamslam.msckf.consensus.protocol as protocol_module
+    import teamslam.msckf.consensus.rules as rules_module
 
     def failing(*args, **kwargs):
         raise error("averaged information is not positive definite")
 
-    monkeypatch.setattr(protocol_module, "consensus_average", failing)
+    monkeypatch.setattr(rules_module, "consensus_average", failing)
     agent = SimpleNamespace(
         robot=4,
         state=_state(np.random.default_rng(8), robot=4),

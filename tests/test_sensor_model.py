@@ -399,7 +399,9 @@ def test_a_run_with_sigma_far_too_large_says_the_sensor_is_ignored():
     assert 0.5 < right["nis"]["objects"] < 2.0
     assert health_warnings(right) == []
     assert wrong["nis"]["objects"] < 1e-3
-    assert any("object σ (object_std) probably too large" in s for s in health_warnings(wrong))
+    assert any(
+        "object σ (filter.object_std) probably too large" in s for s in health_warnings(wrong)
+    )
 
 
 # ---------------------------------------------------------------- noise measured against truth

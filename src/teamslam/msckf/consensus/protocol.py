@@ -384,7 +384,7 @@ class ConsensusProtocol:
         for (j, mine, theirs), kl_j in zip(pairs, np.split(kl, split), strict=True):
             if self._thresholds is None:
                 limit = self.kl_threshold
-            else:  # an average once started runs to agreement (consensus_set)
+            else:  # an average once started runs to agreement (consensus.set)
                 limit = settling_thresholds(
                     self._thresholds[mine],
                     self._agreed[j][3][theirs],
