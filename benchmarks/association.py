@@ -24,14 +24,16 @@ the final ones), as a robot would at run time: extended under its transform
 it prints the table's precision and recall and the CPU time of both calls.
 
 * ``ring`` — the cost at run time: 15 simulated robots on a ring with 30% link loss (150 frames,
-  ``window = 10``, ids made per robot), consensus with own association. Prints the association's
+  ``filter.window = 10``, ids made per robot), consensus with own association. Prints the
+  association's
   share of the per-robot-step time (``metrics.json["association"]["team"]``), the number of
   full associations and extensions and the CPU time of each kind (``time.thread_time`` around
   every call), with the run's RMSE, precision and recall.
 * ``scenarios`` — accuracy on teams unlike the default one: each of
   :data:`teamslam.sim.SENSOR_SCENARIOS` (cameras in normalised coordinates or pixels, other
-  noise levels; 3 robots, 200 steps, complete graph, ``window = 10``) run with consensus twice:
-  with the simulator's global ids (``association = oracle``) and with ids made per robot
+  noise levels; 3 robots, 200 steps, complete graph, ``filter.window = 10``) run with consensus
+  twice:
+  with the simulator's global ids (``association.mode = oracle``) and with ids made per robot
   (``own``). Prints both RMSEs, their ratio, and the own association's precision and recall.
 * ``oracle`` — the same comparison, with the separate filters beside it, on the ``--teams``
   named: ``default`` (``teamslam simulate --robots 5 --steps 150 --seed 0``, ``window = 10``),
@@ -223,7 +225,7 @@ def ring() -> None:
             dataset,
             graph="ring",
             loss=0.3,
-            settings={"window": 10},
+            settings={"filter.window": 10},
             association="own",
             report=False,
             progress=False,
@@ -288,7 +290,7 @@ def delay(directory: str, graph: str, loss: float, window: int) -> None:
             dataset,
             graph=graph,
             loss=loss,
-            settings={"window": window},
+            settings={"filter.window": window},
             association="own",
             report=False,
             progress=False,
@@ -347,7 +349,7 @@ def scenarios(window: int, md: Markdown) -> None:
             runs[association] = api.run(
                 data,
                 graph="complete",
-                settings={"window": window},
+                settings={"filter.window": window},
                 association=association,
                 report=False,
                 progress=False,

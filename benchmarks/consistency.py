@@ -5,7 +5,7 @@ Run on demand (BLAS pinned to one thread; KITTI 00 needs ``../shared/data`` besi
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/consistency.py [--teams kitti make-run long pixels] \\
         [--variants std fej oc std+huber] [--modes separate consensus hybrid increments] \\
-        [--seeds 0 1] [--set object_update_iterations=3]
+        [--seeds 0 1] [--set objects.update_iterations=3]
 
 Teams:
 
@@ -21,8 +21,9 @@ Teams:
 The generated teams' noise is calibrated from their own data, so nothing is set by hand. Each
 variant is a linearisation policy (``std``, ``fej``, ``oc``), optionally with a robust object loss
 (``+huber``, ``+cauchy``). Modes: ``separate``; ``consensus`` (the paper's average);
-``hybrid`` (new information at full weight, ``consensus_hybrid``); ``increments`` (consensus on
-information increments, ``consensus_increments``). Prints per team, variant and mode the
+``hybrid`` (new information at full weight, ``consensus.rule = hybrid``); ``increments`` (consensus
+on
+information increments, ``consensus.rule = increments``). Prints per team, variant and mode the
 trajectory RMSE and object error (team averages, metres), each robot's mean and median pose NEES/6
 over its frames (the χ² expectation is 1), the object NEES/3 (team mean) and the object NIS per
 degree of freedom; with several seeds, one row per seed and their mean. Each team is made and
@@ -36,7 +37,6 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +46,7 @@ from _markdown import Markdown, add_option
 from teamslam.datasets import import_reference
 from teamslam.eval.metrics import object_nees, team_metrics
 from teamslam.msckf import run_team
-from teamslam.msckf.configure import resolve_config
+from teamslam.msckf.configure import build_settings
 from teamslam.msckf.settings.sources import parse_assignments
 from teamslam.sim import lissajous_team, long_route_team, scenario_team
 
@@ -57,14 +57,14 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MODE_SETTINGS = {
     "separate": ({}, False),
     "consensus": ({}, True),
-    "hybrid": ({"consensus_hybrid": True}, True),
-    "increments": ({"consensus_increments": True}, True),
+    "hybrid": ({"consensus.rule": "hybrid"}, True),
+    "increments": ({"consensus.rule": "increments"}, True),
 }
 
 
 def _settings(variant: str) -> dict:
     policy, _, loss = variant.partition("+")
-    return {"linearization": policy, **({"object_loss": loss} if loss else {})}
+    return {"filter.linearization": policy, **({"objects.loss": loss} if loss else {})}
 
 
 _TEAMS: dict[tuple[str, int], tuple] = {}
@@ -83,10 +83,10 @@ def _make_team(name: str, seed: int, data: Path):
         if not data.is_dir():
             raise SystemExit(f"no KITTI 00 data at {data} (see the data README)")
         dataset = import_reference(data)
-        return dataset, resolve_config(dataset).robots
+        return dataset, build_settings(dataset).robots
     if name == "make-run":
         dataset = lissajous_team(robots=5, steps=150, seed=seed)
-        flags, frames = {"window": 10}, 60
+        flags, frames = {"filter.window": 10}, 60
     elif name == "long":
         dataset = long_route_team(robots=3, steps=600, seed=seed)
         flags, frames = {}, None
@@ -95,16 +95,14 @@ def _make_team(name: str, seed: int, data: Path):
         flags, frames = {}, None
     else:
         raise SystemExit(f"unknown team {name!r}; teams: {', '.join(TEAMS)}")
-    resolved = resolve_config(
-        dataset, flag_values=flags, calibrate="always", calibration_frames=frames
-    )
+    resolved = build_settings(dataset, flags=flags, calibrate="always", calibration_frames=frames)
     return dataset, resolved.robots
 
 
 def row(dataset, configs, mode: str) -> dict:
     """One run's team metrics with ``configs`` in ``mode``, with its objects' NEES / 3."""
     extra, consensus = MODE_SETTINGS[mode]
-    run_configs = [replace(c, **extra) for c in configs]
+    run_configs = [c.with_(extra) for c in configs]
     result = run_team(dataset, run_configs, consensus=consensus, progress=False)
     return {**team_metrics(dataset, result), "nees_object": object_nees(dataset, result)}
 
@@ -168,7 +166,7 @@ def main() -> None:
                 totals = []
                 for seed in seeds:
                     dataset, base = team(name, seed, args.data)
-                    configs = [replace(c, **settings, **_settings(variant)) for c in base]
+                    configs = [c.with_({**settings, **_settings(variant)}) for c in base]
                     begin = time.perf_counter()
                     m = row(dataset, configs, mode)
                     nis = (m.get("nis") or {}).get("objects")

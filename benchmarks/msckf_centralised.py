@@ -52,7 +52,10 @@ def main() -> None:
     )
     for n in args.robots:
         ds = lissajous_team(robots=n, steps=args.steps, seed=0)
-        cfg = config_for(ds, window=args.window, use_geometric_features=not args.objects_only)
+        cfg = config_for(
+            ds,
+            {"filter.window": args.window, "filter.use_geometric_features": not args.objects_only},
+        )
         central = run_centralised(ds, cfg, progress=False)
         distributed = run_team(ds, cfg, consensus=True, progress=False)
         _, central_team = _per_step_ms(central)

@@ -21,7 +21,7 @@ retirement the cost grows with the map, so the run must stay short), and on the 
 of ``make run``.
 ``revisit`` flies the team of ``make run`` (5 robots on a complete graph revisiting the same
 objects, window 10, geometric features and objects) for ``--frames`` frames, once with the
-paper's consensus set (``consensus_set = all``) and once with the bounded one (``active``, with
+paper's consensus set (``consensus.set = all``) and once with the bounded one (``active``, with
 the ``--set`` overrides), in one process, and prints per stage the median over frames of the
 time per frame (mean over robots) over the first 100 frames, the 100 frames up to the middle of
 the run and the last 100, and the ratios of the last to the first and to the middle (wall
@@ -120,7 +120,7 @@ def cost(robots: int, frames: int, retire: int, seed: int) -> None:
         f"long route: {robots} robots × {frames} frames, {len(dataset.object_positions)} objects "
         f"in the world (simulated in {time.perf_counter() - begin:.0f} s)"
     )
-    config = config_for(dataset, object_retire_after=retire)
+    config = config_for(dataset, {"objects.retire_after": retire})
     probe = Probe((200, frames))
     try:
         result = run_team(dataset, config, progress=False)
@@ -132,7 +132,7 @@ def cost(robots: int, frames: int, retire: int, seed: int) -> None:
     metrics = team_metrics(dataset, probe.with_full_maps(result))
     retired = sum(c.get("objects_retired", 0) for c in result.counters) / robots
     back = sum(c.get("objects_reentered", 0) for c in result.counters) / robots
-    print(f"window {config.window}, object_retire_after {retire}, consensus on")
+    print(f"window {config.filter.window}, objects.retire_after {retire}, consensus on")
     print(f"wall time {result.wall_seconds:.0f} s")
     print(f"median time per robot-frame, frames 100–200:          {1e3 * early:7.1f} ms")
     print(f"median time per robot-frame, frames {frames - 100}–{frames}:      {1e3 * late:7.1f} ms")
@@ -166,11 +166,11 @@ def accuracy(robots: int, frames: int, retire: int, seed: int) -> None:
     print(f"{'':<31} {'':>6} {'[m]':>9} {'state':>8} {'+ map':>8} {'[s]':>6}")
     teams = (
         (f"long route {robots}r × {frames}", long_route_team(robots, frames, seed), {}),
-        ("lissajous 5r × 150, window 10", lissajous_team(5, 150, seed=0), {"window": 10}),
+        ("lissajous 5r × 150, window 10", lissajous_team(5, 150, seed=0), {"filter.window": 10}),
     )
     for name, dataset, extra in teams:
         for value in (0, retire):
-            config = config_for(dataset, object_retire_after=value, **extra)
+            config = config_for(dataset, {"objects.retire_after": value, **extra})
             probe = Probe(())
             try:
                 result = run_team(dataset, config, progress=False)
@@ -281,8 +281,8 @@ def revisit(frames: int, seed: int, overrides: dict) -> None:
         f"{len(dataset.object_positions)} objects; bounded set: {overrides}"
     )
     rows, metrics = {}, {}
-    for name, extra in (("all", {}), ("active", {"consensus_set": "active", **overrides})):
-        config = config_for(dataset, window=10, **extra)
+    for name, extra in (("all", {}), ("active", {"consensus.set": "active", **overrides})):
+        config = config_for(dataset, {"filter.window": 10, **extra})
         probe, cpu, steps = ByteProbe(), ConsensusCpu(), Probe(())
         try:
             result = run_team(dataset, config, progress=False)

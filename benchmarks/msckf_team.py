@@ -22,15 +22,15 @@ p95 time per robot per frame per stage (frame 0 excluded) and the accuracy of th
 ``scaling`` runs teams of growing size on a random geometric graph (each robot talks to the
 robots near it, so its neighbourhood does not grow with the team) and prints the median time
 per robot per frame, overall and for consensus, and its ratio to the smallest team.
-``hybrid`` compares the plain average with hybrid consensus (``consensus_hybrid``) on the
+``hybrid`` compares the plain average with hybrid consensus (``consensus.rule = hybrid``) on the
 complete graph (one realisation) and on a ring with 30% link loss and the ideal filter (means
 over ``--seeds`` noise realisations): accuracy, mean pose NEES/6, bytes and consensus time.
-``iterations`` runs one team with ``consensus_iterations`` 1, 2 and 3, plain and on information
+``iterations`` runs one team with ``consensus.iterations`` 1, 2 and 3, plain and on information
 increments, on a ring and on the complete graph, and prints per robot-step the CPU time of the
 whole run (process time) and of consensus (its share of the stage times), the bytes sent, and
 the accuracy, pose NEES/6 and object disagreement; ratios are to ``L = 1`` of the same row.
 ``bounded`` runs one team twice in one process — the paper's consensus set and the bounded one
-(``consensus_set = active`` with the ``--set`` overrides) — and prints the median time per
+(``consensus.set = active`` with the ``--set`` overrides) — and prints the median time per
 robot-step of each stage, bytes per robot-step and accuracy of both, and the ratio of the
 published code's time to each (``team``: ``--robots`` robots, objects only, ``--steps``;
 ``kitti``: KITTI 00). With ``--published-code DIR`` (a checkout of the paper's code: ``run.py``,
@@ -75,9 +75,9 @@ STAGES = ("consensus", "propagation", "update", "initialisation")
 
 def _settings(window, objects_only=False):
     """The benchmark's flags as settings on top of those resolved from the data."""
-    settings = {"window": window}
+    settings = {"filter.window": window}
     if objects_only:
-        settings["use_geometric_features"] = False
+        settings["filter.use_geometric_features"] = False
     return settings
 
 
@@ -216,7 +216,9 @@ def speed(robots, steps, window, md, objects_only=False):
     )
     for n in robots:
         ds = lissajous_team(robots=n, steps=steps, seed=0)
-        cfg = config_for(ds, window=window, use_geometric_features=not objects_only)
+        cfg = config_for(
+            ds, {"filter.window": window, "filter.use_geometric_features": not objects_only}
+        )
         begin = time.perf_counter()
         result = run_team(ds, cfg, consensus=True, progress=False)
         wall = time.perf_counter() - begin
@@ -277,7 +279,7 @@ def scaling(robots, steps, window, md):
         # ~ln n): the neighbourhood, not the team, sets a robot's work
         degree = max(6.0, 2.0 * np.log(n))
         graph = random_geometric(n, radius=float(np.sqrt(degree / (np.pi * n))), seed=0)
-        cfg = config_for(ds, window=window)
+        cfg = config_for(ds, {"filter.window": window})
         result = run_team(ds, cfg, graph=graph, consensus=True, progress=False)
         times = 1e3 * np.concatenate([f[1:] for f in result.frame_times])
         per_step = float(np.median(times.sum(axis=1)))
@@ -302,15 +304,15 @@ def scaling(robots, steps, window, md):
 
 MESSAGE_VARIANTS = {
     "joint, float64, every object (paper)": {
-        "consensus_kl_threshold": 0.0,
-        "consensus_float32": False,
+        "consensus.kl_threshold": 0.0,
+        "consensus.float32": False,
     },
-    "joint, float64, moved > 1e-3": {"consensus_float32": False},
+    "joint, float64, moved > 1e-3": {"consensus.float32": False},
     "joint, float32, moved > 1e-3 (default)": {},
-    "joint, float32, moved > 0.01": {"consensus_kl_threshold": 1e-2},
-    "joint, float32, moved > 0.05": {"consensus_kl_threshold": 5e-2},
-    "joint, float32, moved > 0.1": {"consensus_kl_threshold": 1e-1},
-    "per object, float32": {"consensus_per_object": True},
+    "joint, float32, moved > 0.01": {"consensus.kl_threshold": 1e-2},
+    "joint, float32, moved > 0.05": {"consensus.kl_threshold": 5e-2},
+    "joint, float32, moved > 0.1": {"consensus.kl_threshold": 1e-1},
+    "per object, float32": {"consensus.per_object": True},
 }
 
 
@@ -344,7 +346,7 @@ def messages(robots, steps, window, md):
         f"{'B/robot-step':>13} {'consensus ms':>13}"
     )
     for name, settings in MESSAGE_VARIANTS.items():
-        cfg = config_for(ds, window=window, **settings)
+        cfg = config_for(ds, {"filter.window": window, **settings})
         result = run_team(ds, cfg, consensus=True, progress=False)
         m = team_metrics(ds, result)
         sent, cons = _bytes_and_consensus_ms(ds, result)
@@ -385,7 +387,12 @@ def hybrid(robots, steps, window, seeds):
             for k in realisations:
                 ds = lissajous_team(robots=n, steps=steps, seed=0, noise_seed=k)
                 cfg = config_for(
-                    ds, window=window, linearization=policy, consensus_hybrid=hybrid_on
+                    ds,
+                    {
+                        "filter.window": window,
+                        "filter.linearization": policy,
+                        "consensus.rule": "hybrid" if hybrid_on else "average",
+                    },
                 )
                 result = run_team(ds, cfg, graph=graph, loss=loss, seed=k or 0, progress=False)
                 m = team_metrics(ds, result)
@@ -409,7 +416,7 @@ def hybrid(robots, steps, window, seeds):
 
 
 def iterations(robots, steps, window):
-    """``consensus_iterations`` 1, 2, 3: CPU and bytes per robot-step, accuracy, consistency."""
+    """``consensus.iterations`` 1, 2, 3: CPU and bytes per robot-step, accuracy, consistency."""
     from teamslam.graph import complete, ring
 
     n = robots[0]
@@ -420,10 +427,12 @@ def iterations(robots, steps, window):
         f"{'B/robot-step':>13} {'ratio':>6} {'RMSE':>7} {'NEES/6':>7} {'disagree':>9}"
     )
     for graph in (ring(n), complete(n)):
-        for mode, settings in (("plain", {}), ("increments", {"consensus_increments": True})):
+        for mode, settings in (("plain", {}), ("increments", {"consensus.rule": "increments"})):
             first = None
             for count in (1, 2, 3):
-                cfg = config_for(ds, window=window, consensus_iterations=count, **settings)
+                cfg = config_for(
+                    ds, {"filter.window": window, "consensus.iterations": count, **settings}
+                )
                 begin = time.process_time()
                 result = run_team(ds, cfg, graph=graph, progress=False)
                 cpu = 1e3 * (time.process_time() - begin) / robot_steps
@@ -467,7 +476,7 @@ SINGLE_THREAD = {
 def _published_params(what, checkout, cfg, ds, window):
     """The published code's parameters for this team: its own file for the kind of data, with
     consensus on, objects only (``use_msckf`` off; the teams here carry no geometric tracks it
-    could use), no result file, a window of ``window`` poses (as ours), and for the simulated
+    could use), no result file, a window of ``filter.window`` poses (as ours), and for the simulated
     team its reprojection gates scaled from normalised coordinates (its simulated teams have
     ``K = I``) to this camera's pixels, with the noise and depth range of the sensor model the
     data was made with."""
@@ -485,11 +494,11 @@ def _published_params(what, checkout, cfg, ds, window):
         # and depth range are the sensor model the data was made with
         fx = float(ds.calibration.camera.intrinsics[0, 0])
         params.update(
-            motion_noise=float(np.mean(np.square(cfg.odometry_std))),
-            obj_obs_noise=float((cfg.object_std / fx) ** 2),
-            obj_init_fnum_thre=int(cfg.object_init_observations),
-            obj_init_dist_min_thre=float(cfg.object_min_depth),
-            obj_init_dist_max_thre=float(cfg.object_max_depth),
+            motion_noise=float(np.mean(np.square(cfg.filter.odometry_std))),
+            obj_obs_noise=float((cfg.filter.object_std / fx) ** 2),
+            obj_init_fnum_thre=int(cfg.objects.init_observations),
+            obj_init_dist_min_thre=float(cfg.objects.min_depth),
+            obj_init_dist_max_thre=float(cfg.objects.max_depth),
             obj_init_reproj_thre=float(params["obj_init_reproj_thre"]) * fx,
             obj_update_reproj_thre=float(params["obj_update_reproj_thre"]) * fx,
         )
@@ -578,9 +587,10 @@ from teamslam.msckf import config_for, run_team
 from teamslam.sim import lissajous_team
 what, robots, steps, window, settings, kitti = json.loads(sys.argv[1])
 warm = lissajous_team(robots={WARM_ROBOTS}, steps={WARM_STEPS}, seed=1)
-run_team(warm, config_for(warm, window=window, **settings), consensus=True, progress=False)
+flags = {{"filter.window": window, **settings}}
+run_team(warm, config_for(warm, flags), consensus=True, progress=False)
 ds = import_reference(Path(kitti)) if what == "kitti" else lissajous_team(robots, steps, seed=0)
-cfg = config_for(ds, window=window, **settings)
+cfg = config_for(ds, flags)
 begin = time.process_time()
 run_team(ds, cfg, consensus=True, progress=False)
 spent = time.process_time() - begin
@@ -625,14 +635,16 @@ def bounded(
         base = {}
     else:
         ds = lissajous_team(robots=robots, steps=steps, seed=0)
-        base = {"use_geometric_features": False}
+        base = {"filter.use_geometric_features": False}
     print(f"{what}: {ds.n_robots} robots, {ds.robots[0].frames} frames; bounded: {overrides}")
     # imports and compiled kernels, not timed
     warm = lissajous_team(robots=WARM_ROBOTS, steps=WARM_STEPS, seed=1)
-    run_team(warm, config_for(warm, window=window, **base), consensus=True, progress=False)
+    run_team(
+        warm, config_for(warm, {"filter.window": window, **base}), consensus=True, progress=False
+    )
     rows, work = {}, {}
-    for name, extra in (("all", {}), ("active", {"consensus_set": "active", **overrides})):
-        cfg = config_for(ds, window=window, **base, **extra)
+    for name, extra in (("all", {}), ("active", {"consensus.set": "active", **overrides})):
+        cfg = config_for(ds, {"filter.window": window, **base, **extra})
         cpu = ConsensusCpu()
         begin = time.process_time()
         try:
@@ -673,7 +685,7 @@ def bounded(
         f"; consensus CPU {rows['active'][4] / rows['all'][4]:.3f}"
     )
     ours = {name: row[5] for name, row in rows.items()}
-    cfg = config_for(ds, window=window, **base)
+    cfg = config_for(ds, {"filter.window": window, **base})
     begin = time.process_time()
     run_team(ds, cfg, consensus=False, progress=False)
     alone = 1e3 * (time.process_time() - begin) / sum(r.frames for r in ds.robots)
@@ -701,7 +713,7 @@ def bounded(
         )
     )
     if published_code is not None:
-        cfg = config_for(ds, window=window, **base)
+        cfg = config_for(ds, {"filter.window": window, **base})
         cpu, startup, robot_steps, tail, params = run_published_code(
             what, ds, cfg, window, published_code, python or sys.executable
         )

@@ -8,7 +8,7 @@ transport's injected delay (``--delay-ms``). The same team runs once on loopback
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/netns_team.py [--robots 5] [--steps 40] \\
         [--rate-mbit 1] [--loss 0.1] [--delay-ms 0] [--timeout-s 10] [--plain] \\
-        [--set consensus_kl_threshold=0.05]
+        [--set consensus.kl_threshold=0.05]
 
 Prints per run: trajectory RMSE (team average), payload and link bytes per robot per step,
 step latency (median and p95 over robots' steps), links lost and wall time, and the ratios.
@@ -58,7 +58,7 @@ def _run(args, dataset, data_dir: Path, work: Path, net: EmulatedNetwork | None)
         shared_memory=False,
         timeout_s=args.timeout_s,
         message_delay_ms=args.delay_ms,
-        filter={"window": args.window, **json_safe(parse_assignments(args.set))},
+        settings={"filter.window": args.window, **json_safe(parse_assignments(args.set))},
     )
     out = work / "out"
     begin = time.perf_counter()

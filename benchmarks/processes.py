@@ -38,7 +38,9 @@ def main() -> None:
         directory = Path(tmp) / "data"
         save_dataset(dataset, directory)
         begin = time.perf_counter()
-        reference = run_team(dataset, config_for(dataset, window=args.window), progress=False)
+        reference = run_team(
+            dataset, config_for(dataset, {"filter.window": args.window}), progress=False
+        )
         in_process = time.perf_counter() - begin
         team = write_team_file(
             Path(tmp) / "team.yaml",
@@ -46,7 +48,7 @@ def main() -> None:
             directory,
             complete(args.robots).adjacency,
             base_port=17600,
-            filter={"window": args.window},
+            settings={"filter.window": args.window},
             timeout_s=30.0,
         )
         begin = time.perf_counter()

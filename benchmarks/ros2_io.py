@@ -45,7 +45,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
     team = lissajous_team(robots=args.robots, steps=args.steps, seed=0)
-    result = run_team(team, config_for(team, window=10), progress=False)
+    result = run_team(team, config_for(team, {"filter.window": 10}), progress=False)
     with tempfile.TemporaryDirectory() as tmp, threadpool_limits(1):
         tmp = Path(tmp)
         save_estimates(tmp / "run" / "estimates.npz", team, result)

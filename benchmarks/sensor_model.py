@@ -29,17 +29,19 @@ from threadpoolctl import threadpool_limits
 from teamslam.datasets import export_reference, import_reference
 from teamslam.eval.metrics import team_metrics
 from teamslam.msckf import MsckfConfig, run_team
-from teamslam.msckf.configure import resolve_config
+from teamslam.msckf.configure import build_settings
 from teamslam.sim import SENSOR_SCENARIOS, scenario_team
 
 #: what ``teamslam run`` used before datasets carried a sensor model, for anything imported
 #: from the published layout (KITTI 00's measured noise)
-BEFORE_PUBLISHED = MsckfConfig(
-    odometry_std=(0.015,) * 3 + (0.0012,) * 3,
-    feature_std=1.0,
-    object_std=15.0,
-    object_min_depth=5.0,
-    object_max_depth=30.0,
+BEFORE_PUBLISHED = MsckfConfig.from_settings(
+    {
+        "filter.odometry_std": (0.015,) * 3 + (0.0012,) * 3,
+        "filter.feature_std": 1.0,
+        "filter.object_std": 15.0,
+        "objects.min_depth": 5.0,
+        "objects.max_depth": 30.0,
+    }
 )
 
 
@@ -54,12 +56,12 @@ def _rmse(dataset, config) -> dict:
 
 def scenario(name: str, robots: int, steps: int, seed: int, window: int) -> dict:
     truth_team = scenario_team(name, robots, steps, seed)
-    truth = resolve_config(truth_team, flag_values={"window": window}, calibrate="never").config
+    truth = build_settings(truth_team, flags={"filter.window": window}, calibrate="never").config
     with tempfile.TemporaryDirectory() as tmp:
         export_reference(truth_team, Path(tmp) / "published")
         imported = import_reference(Path(tmp) / "published")
     begin = time.perf_counter()
-    effective = resolve_config(imported, flag_values={"window": window})
+    effective = build_settings(imported, flags={"filter.window": window})
     seconds = time.perf_counter() - begin
     calibrated = effective.config
     row = {
@@ -69,7 +71,7 @@ def scenario(name: str, robots: int, steps: int, seed: int, window: int) -> dict
         "sigma": {},
     }
     for key in ("odometry_std", "feature_std", "object_std"):
-        true_value, estimate = getattr(truth, key), getattr(calibrated, key)
+        true_value, estimate = getattr(truth.filter, key), getattr(calibrated.filter, key)
         if key == "feature_std" and not any(r.features.ids.size for r in truth_team.robots):
             continue
         ratio = np.asarray(estimate) / np.asarray(true_value)
@@ -80,7 +82,7 @@ def scenario(name: str, robots: int, steps: int, seed: int, window: int) -> dict
         }
     row["true"] = _rmse(truth_team, truth)
     row["calibrated"] = _rmse(truth_team, calibrated)
-    before = BEFORE_PUBLISHED.with_(window=window)
+    before = BEFORE_PUBLISHED.with_({"filter.window": window})
     row["before"] = _rmse(truth_team, before)
     return row
 

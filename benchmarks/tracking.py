@@ -11,7 +11,7 @@ thread, per robot-frame — the measure on a shared machine), and where the IDF1
 object's own id — or within a pass; :func:`~teamslam.eval.tracking.idf1_losses`), and how
 many of the tracker's re-identifications (a detection given to an object not seen for ``N``
 frames) were right (:func:`~teamslam.eval.tracking.revisit_precision`). Each case runs without
-and with loop closure in each robot's own map (``track_loop_closure``,
+and with loop closure in each robot's own map (``tracking.loop_closure``,
 :mod:`teamslam.msckf.objects.loop_closure`; ``--loop-closure off|on|both``), whose CPU time counts
 as
 tracking; printed with it: the merged pairs and how many were right (both objects' own
@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
 
 import numpy as np
 
@@ -61,7 +60,7 @@ def run_separate(dataset, config, revisit_d2: list | None = None) -> tuple[float
     for i, robot in enumerate(dataset.robots):
         agent = MsckfAgent(i, dataset.calibration, robot, config)
         if revisit_d2 is not None:
-            watch_revisits(agent, robot.detections, config.window, revisit_d2)
+            watch_revisits(agent, robot.detections, config.filter.window, revisit_d2)
         agent.cpu = {"step": 0.0, "tracking": 0.0}
         if agent.tracker is not None:
             time_tracker(agent)
@@ -155,7 +154,7 @@ def compare(name: str, dataset, config, watch: bool = False) -> dict:
     closures = [0, 0, 0]  # merged pairs, judged, right
     for robot, hyp, agent in zip(stripped.robots, hypotheses, agents, strict=True):
         det = robot.detections
-        part = idf1_losses(det.offsets, det.truth, hyp, revisit_gap=config.window)
+        part = idf1_losses(det.offsets, det.truth, hyp, revisit_gap=config.filter.window)
         for key, value in part.items():
             losses[key] = losses.get(key, 0) + value
         right, judged = revisit_precision(det.offsets, det.truth, hyp, agent.tracker.revisits)
@@ -233,14 +232,14 @@ def main() -> None:
         settings = parse_assignments(args.set)
     except ConfigError as exc:
         parser.error(str(exc))
-    if "track_loop_closure" in settings:
-        parser.error("loop closure is chosen by --loop-closure, not --set track_loop_closure")
+    if "tracking.loop_closure" in settings:
+        parser.error("loop closure is chosen by --loop-closure, not --set tracking.loop_closure")
     rows = []
     closure = {"on": (True,), "off": (False,), "both": (False, True)}[args.loop_closure]
     if args.kitti:
         dataset = load_dataset(args.kitti)
         for on in closure:
-            config = replace(config_for(dataset, **settings), track_loop_closure=on)
+            config = config_for(dataset, settings).with_({"tracking.loop_closure": on})
             name = f"{dataset.name} closure {'on' if on else 'off'}"
             rows.append(compare(name, dataset, config, args.watch_revisits))
             print_table(rows[-1:])
@@ -259,8 +258,8 @@ def main() -> None:
                     f"sim {args.robots}r {args.steps}s s{seed} c{args.clutter} m{args.miss} "
                     f"{'loop' if on else 'main'}"
                 )
-                config = replace(
-                    config_for(team, calibrate="never", **settings), track_loop_closure=on
+                config = config_for(team, settings, calibrate="never").with_(
+                    {"tracking.loop_closure": on}
                 )
                 rows.append(compare(name, team, config, args.watch_revisits))
                 print_table(rows[-1:])

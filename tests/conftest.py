@@ -98,7 +98,7 @@ def drifting_runs(drifting_team):
     tests of two modules read them (run once per session)."""
     from teamslam.msckf import config_for, run_team
 
-    cfg = config_for(drifting_team, window=10, use_geometric_features=False)
+    cfg = config_for(drifting_team, {"filter.window": 10, "filter.use_geometric_features": False})
     return {
         name: run_team(drifting_team, cfg, consensus=c, progress=False)
         for name, c in (("separate", False), ("consensus", True))

@@ -1,4 +1,4 @@
-"""Consensus over correspondences: robots that name their own objects (``association = own``).
+"""Consensus over correspondences: robots that name their own objects (``association.mode = own``).
 
 Each link keeps a correspondence table computed alike at both ends; round-2 marginals travel in
 the sender's ids and are translated by the receiver; a pair whose consensus innovation fails its
@@ -21,7 +21,7 @@ from teamslam.datasets.identity import strip_object_ids
 from teamslam.errors import InputError
 from teamslam.eval.metrics import team_metrics, trajectory_rmse
 from teamslam.graph import complete, ring
-from teamslam.msckf import config_for, run_team
+from teamslam.msckf import build_settings, config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.consensus.protocol import ConsensusProtocol
@@ -48,7 +48,7 @@ def stripped3(team3):
 @pytest.fixture(scope="module")
 def oracle3(team3):
     """The oracle-id consensus run of ``team3`` (window 6), read by several tests."""
-    return run_team(team3, config_for(team3, window=6), progress=False)
+    return run_team(team3, config_for(team3, {"filter.window": 6}), progress=False)
 
 
 def _rmse(result, dataset) -> float:
@@ -78,18 +78,17 @@ def _drivers(dataset, config, network, graph=None):
     ]
 
 
-def test_default_settings_record_no_association_keys():
-    """A run with oracle ids writes the settings it always wrote (bit-identical metrics)."""
-    assert "association" not in MsckfConfig().to_json()
-    own = MsckfConfig(association="own").to_json()
-    assert own["association"] == "own" and own["association_interval"] == 5
-    with pytest.raises(InputError, match="association must be oracle or own"):
-        MsckfConfig(association="ids")
+def test_association_settings_are_recorded_by_group():
+    assert MsckfConfig().to_json()["association"]["mode"] == "oracle"
+    own = MsckfConfig.from_settings({"association.mode": "own"}).to_json()
+    assert own["association"]["mode"] == "own" and own["association"]["interval"] == 5
+    with pytest.raises(InputError, match=r"association\.mode must be oracle or own"):
+        MsckfConfig.from_settings({"association.mode": "ids"})
 
 
 def test_own_with_a_table_of_equal_ids_is_the_oracle_run_bit_for_bit(team3, oracle3, monkeypatch):
     """Translation, reordering and the moved flags in own ids reproduce the oracle path."""
-    config = config_for(team3, window=6)
+    config = config_for(team3, {"filter.window": 6})
     oracle = oracle3
 
     def equal_ids(self, j, request):
@@ -102,7 +101,11 @@ def test_own_with_a_table_of_equal_ids_is_the_oracle_run_bit_for_bit(team3, orac
 
     monkeypatch.setattr(ConsensusProtocol, "_associate", equal_ids)
     own = config.with_(
-        association="own", association_interval=1, association_revoke_probability=1 - 1e-15
+        {
+            "association.mode": "own",
+            "association.interval": 1,
+            "association.revoke_probability": 1 - 1e-15,
+        }
     )
     result = run_team(team3, own, progress=False)
     for a, b in zip(result.poses, oracle.poses, strict=True):
@@ -113,10 +116,10 @@ def test_own_with_a_table_of_equal_ids_is_the_oracle_run_bit_for_bit(team3, orac
 
 
 def test_own_on_a_stripped_team_matches_right_pairs_at_both_ends(team3, stripped3, oracle3):
-    config = config_for(team3, window=6)
+    config = config_for(team3, {"filter.window": 6})
     oracle = oracle3
     separate = run_team(team3, config, consensus=False, progress=False)
-    result = run_team(stripped3, config.with_(association="own"), progress=False)
+    result = run_team(stripped3, config.with_({"association.mode": "own"}), progress=False)
     metrics = team_metrics(stripped3, result)["association"]
     team = metrics["team"]
     assert team["accepted"] > 0 and team["wrong"] == 0 and team["precision"] == 1.0
@@ -132,13 +135,13 @@ def test_own_on_a_stripped_team_matches_right_pairs_at_both_ends(team3, stripped
 
 
 def test_oracle_is_refused_on_per_robot_ids_which_default_to_own(stripped3):
-    with pytest.raises(InputError, match="association=oracle needs team-wide object ids"):
-        api.resolve_settings(stripped3, {"association": "oracle"}, calibrate="never")
-    effective = api.resolve_settings(stripped3, {}, calibrate="never")
-    assert effective.config.association == "own"
-    assert effective.sources["association"] == "dataset"
+    with pytest.raises(InputError, match=r"association\.mode=oracle needs team-wide object ids"):
+        build_settings(stripped3, flags={"association.mode": "oracle"}, calibrate="never")
+    effective = build_settings(stripped3, calibrate="never")
+    assert effective.config.association.mode == "own"
+    assert effective.sources["association.mode"] == "dataset"
     with pytest.raises(InputError, match="association oracle needs team-wide object ids"):
-        api.run(stripped3, "consensus", settings={"window": 6}, association="oracle")
+        api.run(stripped3, "consensus", settings={"filter.window": 6}, association="oracle")
 
 
 def _cross(table, first: tuple[int, int], second: tuple[int, int]) -> list[tuple[int, int]]:
@@ -154,7 +157,9 @@ def _cross(table, first: tuple[int, int], second: tuple[int, int]) -> list[tuple
 
 
 def test_a_wrong_pair_is_revoked_and_not_readded(stripped3):
-    config = config_for(stripped3, window=6).with_(association="own", association_interval=1)
+    config = config_for(stripped3, {"filter.window": 6}).with_(
+        {"association.mode": "own", "association.interval": 1}
+    )
     drivers = _drivers(stripped3, config, MemoryNetwork(3))
     injected = {}
 
@@ -204,12 +209,12 @@ class _LyingNetwork(MemoryNetwork):
 def test_a_lying_member_is_no_longer_averaged(mode):
     """Robot 2 lies to everyone; the others end as well as a team without it."""
     team = lissajous_team(robots=4, steps=40, seed=4, landmarks=500)
-    config = config_for(team, window=6)
+    config = config_for(team, {"filter.window": 6})
     if mode == "own":
         team = strip_object_ids(team, seed=2)
-        config = config.with_(association="own", association_interval=1)
+        config = config.with_({"association.mode": "own", "association.interval": 1})
     else:
-        config = config.with_(consensus_innovation_check=True)
+        config = config.with_({"consensus.innovation_check": True})
     honest = [0, 1, 3]
     without = team.subset(honest)
     alone = run_team(without, config, progress=False)
@@ -229,9 +234,11 @@ def test_a_lying_member_is_no_longer_averaged(mode):
 
 def test_too_few_objects_give_no_correspondence_and_the_separate_run():
     team = strip_object_ids(lissajous_team(robots=2, steps=30, seed=3, objects=4), seed=0)
-    config = config_for(team, window=6)
+    config = config_for(team, {"filter.window": 6})
     separate = run_team(team, config, consensus=False, progress=False)
-    result = run_team(team, config.with_(association="own", association_interval=1), progress=False)
+    result = run_team(
+        team, config.with_({"association.mode": "own", "association.interval": 1}), progress=False
+    )
     assert all(e["held"] == 0 for a in result.extra["association"] for e in a.values())
     for a, b in zip(result.poses, separate.poses, strict=True):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
@@ -239,7 +246,7 @@ def test_too_few_objects_give_no_correspondence_and_the_separate_run():
 
 def test_summaries_cross_the_wire_and_threads_equal_in_process(stripped3, tmp_path):
     """Robot-process drivers (in threads, over memory) give the in-process own run."""
-    reference_config = config_for(stripped3, window=6, association="own")
+    reference_config = config_for(stripped3, {"filter.window": 6, "association.mode": "own"})
     reference = run_team(stripped3, reference_config, ring(3), progress=False)
     directory = tmp_path / "data"
     save_dataset(stripped3, directory)
@@ -250,7 +257,7 @@ def test_summaries_cross_the_wire_and_threads_equal_in_process(stripped3, tmp_pa
         ring(3).adjacency,
         base_port=27500,
         timeout_s=60.0,
-        filter={"window": 6, "association": "own"},
+        settings={"filter.window": 6, "association.mode": "own"},
     )
     _threads_over_memory(team_path, tmp_path / "out", lambda t: np.ones((3, 3), bool), 3)
     from teamslam.msckf.team import load_result
@@ -324,7 +331,7 @@ def test_a_summary_says_from_where_the_robot_saw_each_object(stripped3):
     # the views the robot records (the measured bearing turned by the camera's estimated
     # orientation) and its summary carries point from each object to the cameras that saw it,
     # as ground truth has them
-    config = config_for(stripped3, window=6).with_(association="own")
+    config = config_for(stripped3, {"filter.window": 6}).with_({"association.mode": "own"})
     drivers = _drivers(stripped3, config, MemoryNetwork(3))
     run_drivers(drivers, "complete", 0.0, None, progress=False)
     truth = dict(zip(stripped3.object_ids.tolist(), stripped3.object_positions, strict=True))

@@ -19,7 +19,7 @@ import pytest
 from teamslam.cli import main
 from teamslam.datasets import export_reference, import_reference, save_dataset
 from teamslam.eval.metrics import team_metrics
-from teamslam.msckf import resolve_config, run_team
+from teamslam.msckf import MsckfConfig, build_settings, run_team
 from teamslam.sim import scenario_team
 
 ROBOTS, STEPS, SEED, WINDOW = 3, 150, 1, 10
@@ -43,8 +43,8 @@ def calibrated(request, tmp_path_factory):
     published = export_reference(truth_team, tmp_path_factory.mktemp("published"))
     team = import_reference(published)
     assert team.sensor_model is None
-    effective = resolve_config(team, flag_values={"window": WINDOW})
-    truth = resolve_config(truth_team, flag_values={"window": WINDOW}, calibrate="never")
+    effective = build_settings(team, flags={"filter.window": WINDOW})
+    truth = build_settings(truth_team, flags={"filter.window": WINDOW}, calibrate="never")
     return request.param, truth_team, team, effective, truth.config
 
 
@@ -54,8 +54,10 @@ def test_calibrated_sigma_is_within_a_factor_1_5_of_the_truth(calibrated):
     for key in ("odometry_std", "object_std", "feature_std"):
         if key == "feature_std" and not any(r.features.ids.size for r in truth_team.robots):
             continue
-        assert effective.sources[key] == "calibration"
-        ratio = np.asarray(getattr(effective.config, key)) / np.asarray(getattr(truth, key))
+        assert effective.sources[f"filter.{key}"] == "calibration"
+        ratio = np.asarray(getattr(effective.config.filter, key)) / np.asarray(
+            getattr(truth.filter, key)
+        )
         assert np.all((ratio > 1 / 1.5) & (ratio < 1.5)), (name, key, ratio)
 
 
@@ -91,8 +93,8 @@ def test_teamslam_run_with_no_noise_given_calibrates_and_says_so(tmp_path, capsy
     out, err = capsys.readouterr()
     assert "sensor model: none in the dataset; calibrated from the data" in out
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
-    assert metrics["config_sources"]["object_std"] == "calibration"
-    assert metrics["config_sources"]["gate_probability"] == "default"
+    assert metrics["config_sources"]["filter.object_std"] == "calibration"
+    assert metrics["config_sources"]["filter.gate_probability"] == "default"
     assert metrics["calibration"]["seconds"] > 0
     assert 0.3 < metrics["nis"]["objects"] < 3.0
     assert metrics["gate_rejection_rate"]["objects"] < 0.3
@@ -109,23 +111,35 @@ def test_calibrate_write_then_config_show(tmp_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["sensor_model"]["origin"] == "calibration"
     assert 2.0 < report["sensor_model"]["feature_std"] < 4.5
-    assert main(["config", "show", str(tmp_path / "d"), "--json", "--set", "window=7"]) == 0
+    assert main(["config", "show", str(tmp_path / "d"), "--json", "--set", "filter.window=7"]) == 0
     shown = json.loads(capsys.readouterr().out)
-    assert shown["config_sources"]["feature_std"] == "dataset"  # stored by --write
-    assert shown["config"]["window"] == 7 and shown["config_sources"]["window"] == "flag"
+    assert shown["config_sources"]["filter.feature_std"] == "dataset"  # stored by --write
+    assert shown["config"]["filter"]["window"] == 7
+    assert shown["config_sources"]["filter.window"] == "flag"
+    rows = {r["key"]: r for r in shown["settings"]}
+    assert rows["filter.window"] == {
+        "key": "filter.window",
+        "value": 7,
+        "unit": "poses",
+        "source": "flag",
+    }
     assert "calibration" not in shown  # nothing left to calibrate
     assert main(["config", "show", str(tmp_path / "d")]) == 0
     text = capsys.readouterr().out
     assert "sensor model: the dataset's (calibration" in text
-    assert "feature_std" in text and "dataset" in text
+    line = next(x for x in text.splitlines() if x.startswith("filter.feature_std "))
+    assert line.split()[-1] == "dataset" and "camera units" in line
+    assert len([x for x in text.splitlines() if "." in x.split(" ")[0]]) == len(MsckfConfig.keys())
 
 
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--set", "objekt_std=1"], "unknown setting 'objekt_std'"),
-        (["--set", "window=ten"], "window = 'ten'"),
-        (["--set", "window"], "expected key=value"),
+        (["--set", "objekt_std=1"], "unknown setting 'objekt_std'; did you mean"),
+        (["--set", "windw=8"], "did you mean filter.window"),
+        (["--set", "window=8"], "window is now filter.window"),
+        (["--set", "filter.window=ten"], "filter.window = 'ten'"),
+        (["--set", "window"], "expected group.name=value"),
     ],
 )
 def test_bad_settings_exit_2_naming_them(tmp_path, capsys, argv, message):
@@ -138,11 +152,11 @@ def test_bad_settings_exit_2_naming_them(tmp_path, capsys, argv, message):
 def test_wrong_sigma_draws_one_warning_line_naming_the_sensor(tmp_path, capsys):
     save_dataset(scenario_team("normalised-0.005-objects", 1, 60, 4), tmp_path / "d")
     config = tmp_path / "bad.yaml"
-    config.write_text("object_std: 15.0\n")  # a pixel σ on a K = I camera
+    config.write_text("filter:\n  object_std: 15.0\n")  # a pixel σ on a K = I camera
     assert main(["run", str(tmp_path / "d"), "--config", str(config), "--separate"]) == 0
     err = capsys.readouterr().err
     lines = [s for s in err.splitlines() if s.startswith("warning")]
-    assert any("object σ (object_std) probably too large" in s for s in lines), err
+    assert any("object σ (filter.object_std) probably too large" in s for s in lines), err
 
 
 def test_params_file_is_imported_but_checked_against_the_data(tmp_path, capsys):

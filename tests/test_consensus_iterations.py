@@ -1,4 +1,4 @@
-"""``consensus_iterations``: ``L`` consensus exchanges per step.
+"""``consensus.iterations``: ``L`` consensus exchanges per step.
 
 On the linear-Gaussian team of :mod:`test_hybrid_consensus` (robots that measure the common
 objects directly, so every marginal is a sum of information pieces):
@@ -16,7 +16,6 @@ objects directly, so every marginal is a sum of information pieces):
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -41,7 +40,7 @@ from test_hybrid_consensus import OBJECTS, _marginal, _rows, _team
 
 def _iterated(agents, iterations: int) -> None:
     for a in agents:
-        a.config = replace(a.config, consensus_iterations=iterations)
+        a.config = a.config.with_({"consensus.iterations": iterations})
 
 
 def _protocols(agents, adjacency):
@@ -82,8 +81,8 @@ def test_an_exchange_is_numbered_by_step_and_iteration():
     with pytest.raises(InternalError, match="exchange 3 of a step with 3"):
         protocol.exchange(7, 3)
     assert ConsensusProtocol(agents[0], [1], max_age=2).iterations == 1  # asynchronous
-    with pytest.raises(InputError, match="consensus_iterations must be an integer"):
-        MsckfConfig(consensus_iterations=0)
+    with pytest.raises(InputError, match=r"consensus\.iterations must be an integer"):
+        MsckfConfig.from_settings({"consensus.iterations": 0})
 
 
 def _metropolis(adjacency: np.ndarray) -> np.ndarray:
@@ -185,10 +184,10 @@ def tiny_team():
 def test_a_team_with_two_exchanges_per_frame_exchanges_twice(tiny_team):
     """Every frame after the first runs two exchanges: twice the map-ids messages (one per
     neighbour and exchange, all links up) and more objects averaged."""
-    config = config_for(tiny_team, window=6)
+    config = config_for(tiny_team, {"filter.window": 6})
     runs = {
         iterations: run_team(
-            tiny_team, config.with_(consensus_iterations=iterations), progress=False
+            tiny_team, config.with_({"consensus.iterations": iterations}), progress=False
         )
         for iterations in (1, 2)
     }
@@ -204,8 +203,8 @@ def test_a_team_with_two_exchanges_per_frame_exchanges_twice(tiny_team):
 
 
 def test_robots_that_disagree_on_the_exchanges_per_frame_are_refused(tiny_team):
-    config = config_for(tiny_team, window=6)
-    configs = [config, config, config.with_(consensus_iterations=2)]
-    with pytest.raises(InputError, match=r"same consensus_iterations, not \[1, 2\]"):
+    config = config_for(tiny_team, {"filter.window": 6})
+    configs = [config, config, config.with_({"consensus.iterations": 2})]
+    with pytest.raises(InputError, match=r"same consensus\.iterations, not \[1, 2\]"):
         run_team(tiny_team, configs, progress=False)
     assert exchanges_per_frame([]) == 1

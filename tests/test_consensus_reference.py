@@ -221,7 +221,9 @@ def test_moved_flags_equal_per_neighbour_kl():
     agent = SimpleNamespace(
         robot=0,
         state=state,
-        config=MsckfConfig(consensus_kl_threshold=1e-3, consensus_hybrid=False),
+        config=MsckfConfig.from_settings(
+            {"consensus.kl_threshold": 1e-3, "consensus.rule": ("hybrid" if False else "average")}
+        ),
     )
     protocol = ConsensusProtocol(agent, [1, 2, 3, 4])
     protocol.requests(1)

@@ -1,4 +1,4 @@
-"""The bounded consensus set (``consensus_set = active``): which objects are averaged jointly.
+"""The bounded consensus set (``consensus.set = active``): which objects are averaged jointly.
 
 Checked: the mutual information with the window poses against its dense formula; the selection
 (observed within the window, or correlated beyond the threshold); that the bounded set is the
@@ -67,19 +67,21 @@ def test_active_objects_are_those_observed_in_the_window_or_correlated_with_its_
 
 
 def test_bounded_set_with_one_threshold_for_all_objects_is_the_paper_average():
-    """With the inactive threshold equal to ``consensus_kl_threshold`` every common object is in
-    the set by the paper's rule: the run is identical to ``consensus_set = all`` (while the
+    """With the inactive threshold equal to ``consensus.kl_threshold`` every common object is in
+    the set by the paper's rule: the run is identical to ``consensus.set = all`` (while the
     selection did leave objects inactive, so the equality is not vacuous)."""
     dataset = lissajous_team(robots=3, steps=40, seed=3)
     runs = {}
     for name in ("all", "active"):
         config = config_for(
             dataset,
-            window=8,
-            use_geometric_features=False,
-            consensus_set=name,
-            consensus_active_information=0.5,
-            consensus_inactive_kl_threshold=1e-3,
+            {
+                "filter.window": 8,
+                "filter.use_geometric_features": False,
+                "consensus.set": name,
+                "consensus.active_information": 0.5,
+                "consensus.inactive_kl_threshold": 1e-3,
+            },
         )
         runs[name] = run_team(dataset, config, progress=False)
     assert sum(c["objects_inactive"] for c in runs["active"].counters) > 0
@@ -119,9 +121,11 @@ def _with_inactive_copies(agents, inactive_threshold):
             )
             state.object_last_seen[-1] = state.frames.min() - 1
         a.config = a.config.with_(
-            consensus_set="active",
-            consensus_active_information=np.inf,
-            consensus_inactive_kl_threshold=inactive_threshold,
+            {
+                "consensus.set": "active",
+                "consensus.active_information": np.inf,
+                "consensus.inactive_kl_threshold": inactive_threshold,
+            }
         )
     return agents
 

@@ -1,4 +1,5 @@
-"""Consensus on information increments (``consensus_increments``): each increment counted once.
+"""Consensus on information increments (``consensus.rule = increments``): each increment counted
+once.
 
 A linear-Gaussian team — robots that measure the common objects directly, ``z_i = H_i x + v_i`` —
 makes every marginal a sum of information pieces, so the properties are exact:
@@ -259,13 +260,13 @@ def test_a_lost_message_never_counts_an_increment_twice(lost_round):
 
 
 def test_increment_settings_are_checked_and_asynchronous_exchanges_stay_plain():
-    with pytest.raises(InputError, match="consensus_increments needs joint marginals"):
-        MsckfConfig(consensus_increments=True, consensus_per_object=True)
+    with pytest.raises(InputError, match=r"consensus\.rule increments needs joint marginals"):
+        MsckfConfig.from_settings({"consensus.rule": "increments", "consensus.per_object": True})
     agents, _, _ = _team(1, np.random.default_rng(0), hybrid=False, increments=True)
     protocol = ConsensusProtocol(agents[0], [1])
-    assert protocol.increments and protocol.hybrid
+    assert protocol.rule.name == "increments"
     asynchronous = ConsensusProtocol(agents[0], [1], max_age=2)
-    assert not asynchronous.increments and not asynchronous.hybrid
+    assert asynchronous.rule.name == "average"
 
 
 def test_montecarlo_runs_the_increments_mode_on_a_chosen_graph_with_link_loss(tmp_path, capsys):

@@ -47,7 +47,7 @@ def _port(offset: int) -> int:
     return 27000 + (os.getpid() % 300) * 16 + offset
 
 
-def _ring_team(tmp_path, directory, port: int, timeout_s: float = 5.0, **settings):
+def _ring_team(tmp_path, directory, port: int, timeout_s: float = 5.0, settings=None):
     """A team file of the 3-robot ring on loopback (``port``: offset), filter window 6."""
     return write_team_file(
         tmp_path / "team.yaml",
@@ -56,7 +56,7 @@ def _ring_team(tmp_path, directory, port: int, timeout_s: float = 5.0, **setting
         ring(3).adjacency,
         base_port=_port(port),
         timeout_s=timeout_s,
-        filter={"window": 6, **settings},
+        settings={"filter.window": 6, **(settings or {})},
     )
 
 
@@ -69,9 +69,11 @@ def test_process_driver_gives_the_in_process_result_with_object_covariances(
     graph = ring(n)
     draws = EdgeLoss(graph, loss, seed=3)
     schedule = [draws.step()[0] for _ in range(dataset.robots[0].frames)]
-    config = config_for(dataset, window=6, linearization=linearization)
+    config = config_for(dataset, {"filter.window": 6, "filter.linearization": linearization})
     reference = run_team(dataset, config, graph=graph, loss=loss, seed=3, progress=False)
-    team_path = _ring_team(tmp_path, directory, 0, timeout_s=60.0, linearization=linearization)
+    team_path = _ring_team(
+        tmp_path, directory, 0, timeout_s=60.0, settings={"filter.linearization": linearization}
+    )
     _threads_over_memory(team_path, tmp_path / "out", lambda t: schedule[t], n)
     parts = [load_result(tmp_path / "out" / f"robot_{r}") for r in range(n)]
     for r, part in enumerate(parts):
@@ -99,11 +101,16 @@ def test_process_driver_gives_the_in_process_result_with_object_covariances(
 def test_robot_processes_keep_object_covariances_and_run_ideal(team3, tmp_path):
     """Real processes over Zenoh on loopback, launched and gathered by the library."""
     dataset, directory = team3
-    team_path = _ring_team(tmp_path, directory, 0, timeout_s=20.0, linearization="ideal")
+    team_path = _ring_team(
+        tmp_path, directory, 0, timeout_s=20.0, settings={"filter.linearization": "ideal"}
+    )
     run = api.launch(team_path, tmp_path / "out", progress=False)
     assert run.exit_status == 0, run.notes
     reference = run_team(
-        dataset, config_for(dataset, window=6, linearization="ideal"), ring(3), progress=False
+        dataset,
+        config_for(dataset, {"filter.window": 6, "filter.linearization": "ideal"}),
+        ring(3),
+        progress=False,
     )
     result = run.results["consensus"]
     # equal to the last bits: arrays decoded from the wire may be reduced in another order
@@ -123,13 +130,13 @@ def test_a_configuration_error_exits_2_in_process_and_with_processes(team3, tmp_
     _, directory = team3
     for extra in ([], ["--processes", "--base-port", str(_port(4))]):
         out = tmp_path / f"run{len(extra)}"
-        argv = ["run", str(directory), "--set", "window=1", "--out", str(out), *extra]
+        argv = ["run", str(directory), "--set", "filter.window=1", "--out", str(out), *extra]
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1 and "window" in err
         assert not (out / "robot_0.log").exists()  # refused before any process started
     # a team file whose filter settings no robot can use: refused before launching ...
-    team_path = _ring_team(tmp_path, directory, 6, window=1)
+    team_path = _ring_team(tmp_path, directory, 6, settings={"filter.window": 1})
     assert main(["team", "launch", str(team_path), "--out", str(tmp_path / "team")]) == 2
     assert "window" in capsys.readouterr().err
     assert not (tmp_path / "team" / "robot_0.log").exists()
@@ -168,10 +175,10 @@ def _strip_times(value):
 def test_the_library_writes_what_the_command_line_writes(team3, tmp_path, capsys):
     _, directory = team3
     cli_out, lib_out = tmp_path / "cli", tmp_path / "lib"
-    argv = ["run", str(directory), "--compare", "--set", "window=6", "--no-report"]
+    argv = ["run", str(directory), "--compare", "--set", "filter.window=6", "--no-report"]
     assert main([*argv, "--out", str(cli_out)]) == 0
     capsys.readouterr()
-    run = api.run(directory, "compare", settings={"window": 6}, progress=False)
+    run = api.run(directory, "compare", settings={"filter.window": 6}, progress=False)
     api.write_run(run, lib_out, report=False)
     assert _files(cli_out) == _files(lib_out)
     assert "consensus/estimates.npz" in _files(lib_out)
@@ -206,7 +213,9 @@ def test_the_library_writes_what_the_command_line_writes(team3, tmp_path, capsys
 
 def test_a_result_that_cannot_be_written_names_the_path(team3, tmp_path):
     dataset, _ = team3
-    result = run_team(dataset.subset([0]), config_for(dataset, window=6), progress=False)
+    result = run_team(
+        dataset.subset([0]), config_for(dataset, {"filter.window": 6}), progress=False
+    )
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
     with pytest.raises(OutputError, match="file"):
@@ -236,7 +245,7 @@ def test_a_filter_failing_mid_run_exits_1_and_keeps_the_frames_done(
     dataset, directory = team3
     _fail_robot_1_at_frame_5(monkeypatch)
     out = tmp_path / "run"
-    code = main(["run", str(directory), "--set", "window=6", "--out", str(out)])
+    code = main(["run", str(directory), "--set", "filter.window=6", "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 1
     assert "robot 1, frame 5" in err and "error:" not in err
@@ -249,7 +258,7 @@ def test_a_filter_failing_mid_run_exits_1_and_keeps_the_frames_done(
         assert len(lines) == 5
     # the library raises with the same frames
     with pytest.raises(PartialRunError, match="robot 1, frame 5") as caught:
-        run_team(dataset, config_for(dataset, window=6), progress=False)
+        run_team(dataset, config_for(dataset, {"filter.window": 6}), progress=False)
     for k in range(3):
         np.testing.assert_array_equal(caught.value.result.poses[k], partial.poses[k])
 
@@ -285,7 +294,7 @@ def test_a_nan_measurement_mid_run_exits_1_naming_robot_and_frame(
 
     monkeypatch.setattr(MsckfAgent, "_feature_rows", poisoned)
     out = tmp_path / "run"
-    code = main(["run", str(directory), "--set", "window=6", "--out", str(out)])
+    code = main(["run", str(directory), "--set", "filter.window=6", "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 1, err
     assert "robot 1" in err and "frame 5" in err
@@ -311,4 +320,4 @@ def test_the_metropolis_weight_is_written_once():
 
 def _one_robot():
     dataset = lissajous_team(robots=1, steps=4, seed=0, landmarks=50)
-    return dataset.calibration, dataset.robots[0], config_for(dataset, window=4)
+    return dataset.calibration, dataset.robots[0], config_for(dataset, {"filter.window": 4})

@@ -26,7 +26,7 @@ def team_run(tmp_path_factory) -> tuple[Path, Path]:
     data, run = root / "team3", root / "team3-run"
     argv = ["simulate", "--robots", "3", "--steps", "20", "--objects", "60", "--seed", "1"]
     assert main([*argv, "--out", str(data)]) == 0
-    assert main(["run", str(data), "--compare", "--set", "window=5", "--out", str(run)]) == 0
+    assert main(["run", str(data), "--compare", "--set", "filter.window=5", "--out", str(run)]) == 0
     return data, run
 
 
@@ -48,7 +48,7 @@ def test_run_writes_report_series_and_prints_the_report_path(team_run, capsys):
     # the last line `teamslam run` prints is where the report is
     other = run.parent / "single-run"
     capsys.readouterr()
-    assert main(["run", str(data), "--set", "window=5", "--out", str(other)]) == 0
+    assert main(["run", str(data), "--set", "filter.window=5", "--out", str(other)]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     assert out[-1] == f"report: {other / 'report.html'}"
     assert read_series(other) is not None
@@ -164,7 +164,7 @@ def test_report_is_self_contained_small_and_side_by_side(team_run, tmp_path, cap
     single = run.parent / "single-run"
     if not single.is_dir():
         data, _ = team_run
-        main(["run", str(data), "--set", "window=5", "--out", str(single)])
+        main(["run", str(data), "--set", "filter.window=5", "--out", str(single)])
     out = tmp_path / "both.html"
     assert main(["report", str(run), str(single), "--out", str(out)]) == 0
     text = out.read_text()

@@ -119,7 +119,15 @@ def test_a_configuration_error_exits_2_in_every_mode(tmp_path, capsys, mode):
     from teamslam.sim import lissajous_team
 
     save_dataset(lissajous_team(robots=2, steps=6, seed=0, landmarks=60), tmp_path / "data")
-    argv = ["run", str(tmp_path / "data"), *mode, "--set", "window=0", "--out", str(tmp_path / "o")]
+    argv = [
+        "run",
+        str(tmp_path / "data"),
+        *mode,
+        "--set",
+        "filter.window=0",
+        "--out",
+        str(tmp_path / "o"),
+    ]
     assert teamslam.cli.main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("teamslam run: error: ") and "window" in err

@@ -1,4 +1,4 @@
-"""Hybrid consensus (``consensus_hybrid``): new information at full weight, never twice.
+"""Hybrid consensus (``consensus.rule = hybrid``): new information at full weight, never twice.
 
 On a linear model — robots that measure the common objects directly, ``z_i = H_i x + v_i`` —
 every marginal is a sum of information pieces, so the properties are exact:
@@ -44,11 +44,12 @@ def _agent(
     full[6:, 6:] = cov[np.ix_(coords, coords)]
     ids = (10 + held).astype(np.int64)
     state = MsckfState.from_arrays(np.eye(4), [0], ids, mean[coords].reshape(-1, 3), full)
-    config = MsckfConfig(
-        consensus_kl_threshold=0.0,
-        consensus_float32=False,
-        consensus_hybrid=hybrid,
-        consensus_increments=increments,
+    config = MsckfConfig.from_settings(
+        {
+            "consensus.kl_threshold": 0.0,
+            "consensus.float32": False,
+            "consensus.rule": "increments" if increments else "hybrid" if hybrid else "average",
+        }
     )
     rejected = []
     return SimpleNamespace(
@@ -226,7 +227,21 @@ def test_prior_information_is_zero_for_objects_initialised_since():
 
 def test_hybrid_settings_are_checked_and_asynchronous_exchanges_stay_plain():
     with pytest.raises(InputError, match="joint marginals"):
-        MsckfConfig(consensus_hybrid=True, consensus_per_object=True)
+        MsckfConfig.from_settings({"consensus.rule": "hybrid", "consensus.per_object": True})
     agent = _agent(0, np.zeros(3 * OBJECTS), np.eye(3 * OBJECTS), True)
-    assert ConsensusProtocol(agent, [1]).hybrid
-    assert not ConsensusProtocol(agent, [1], max_age=3).hybrid
+    assert ConsensusProtocol(agent, [1]).rule.name == "hybrid"
+    assert ConsensusProtocol(agent, [1], max_age=3).rule.name == "average"
+
+
+def test_each_rule_name_gives_its_strategy_and_an_unknown_one_is_named():
+    from teamslam.msckf.consensus.rules import consensus_rule
+
+    rules = {name: consensus_rule(name) for name in ("average", "hybrid", "increments")}
+    assert {name: rule.name for name, rule in rules.items()} == {n: n for n in rules}
+    assert not rules["average"].keeps_prior
+    assert rules["hybrid"].keeps_prior and rules["increments"].keeps_prior
+    prior = object()
+    assert rules["hybrid"].message_prior(prior) is None  # hybrid messages carry no prior
+    assert rules["increments"].message_prior(prior) is prior
+    with pytest.raises(InputError, match="average, hybrid or increments"):
+        consensus_rule("median")

@@ -99,8 +99,8 @@ def test_one_linearization_is_the_ekf_update():
 
 
 def test_iteration_count_is_validated():
-    with pytest.raises(InputError, match="object_update_iterations"):
-        MsckfConfig(object_update_iterations=0)
+    with pytest.raises(InputError, match=r"objects\.update_iterations"):
+        MsckfConfig.from_settings({"objects.update_iterations": 0})
 
 
 @pytest.mark.parametrize("linearization", ["std", "fej"])
@@ -132,7 +132,10 @@ def test_agent_iterated_update_lowers_the_posterior_cost_every_frame(linearizati
 
     monkeypatch.setattr(MsckfState, "iterated_update", checked)
     team = lissajous_team(robots=1, steps=30, seed=1)
-    cfg = config_for(team, window=6, linearization=linearization, object_update_iterations=4)
+    cfg = config_for(
+        team,
+        {"filter.window": 6, "filter.linearization": linearization, "objects.update_iterations": 4},
+    )
     result = run_team(team, cfg, consensus=False, progress=False)
     costs = np.array(costs)
     assert len(costs) > 20 and result.counters[0]["object_linearizations"] > len(costs)

@@ -89,7 +89,7 @@ def exact_team():
 
 @pytest.mark.parametrize("consensus", [False, True])
 def test_noise_free_team_recovers_ground_truth(exact_team, consensus):
-    cfg = config_for(exact_team, window=8, debug=True)
+    cfg = config_for(exact_team, {"filter.window": 8, "filter.debug": True})
     result = run_team(exact_team, cfg, consensus=consensus, progress=False)
     for est, robot in zip(result.poses, exact_team.robots, strict=True):
         np.testing.assert_allclose(est[:, :3, 3], robot.T_world_body[:, :3, 3], atol=1e-6)
@@ -103,7 +103,7 @@ def test_noise_free_team_recovers_ground_truth(exact_team, consensus):
 
 
 def test_agent_without_neighbours_is_exactly_separate(drifting_team, drifting_runs):
-    cfg = config_for(drifting_team, window=10, use_geometric_features=False)
+    cfg = config_for(drifting_team, {"filter.window": 10, "filter.use_geometric_features": False})
     lonely = run_team(drifting_team, cfg, graph=from_edges(3, []), consensus=True, progress=False)
     for a, b in zip(lonely.poses, drifting_runs["separate"].poses, strict=True):
         np.testing.assert_array_equal(a, b)
@@ -245,7 +245,7 @@ def test_bad_neighbour_messages_are_named():
 def test_gate_rejects_about_its_false_alarm_rate():
     """A correct χ² gate (right quantile, right dof) rejects ≈ 5% of good features."""
     team = lissajous_team(robots=1, steps=80, seed=7)
-    result = run_team(team, config_for(team, window=10), progress=False)
+    result = run_team(team, config_for(team, {"filter.window": 10}), progress=False)
     c = result.counters[0]
     rate = c["rejected_features_gate"] / c["features_used"]
     assert 0.02 < rate < 0.10, rate
@@ -254,7 +254,7 @@ def test_gate_rejects_about_its_false_alarm_rate():
 def test_single_robot_nees_band():
     """Documented band: pose NEES / 6 of one robot over a short noisy run stays in [0.3, 3]."""
     team = lissajous_team(robots=1, steps=80, seed=8)
-    result = run_team(team, config_for(team, window=10), progress=False)
+    result = run_team(team, config_for(team, {"filter.window": 10}), progress=False)
     nees = team_metrics(team, result)["nees_pose_avg"][0]
     assert 0.3 < nees < 3.0, nees
 
@@ -265,7 +265,7 @@ def test_bad_odometry_and_measurements_are_rejected_and_counted(exact_team):
     team = copy.deepcopy(exact_team)
     team.robots[0].odometry[5, 0, 3] = np.nan
     team.robots[0].objects.measurements[3, 1] = np.inf
-    cfg = config_for(team, window=8)
+    cfg = config_for(team, {"filter.window": 8})
     result = run_team(team, cfg, consensus=False, progress=False)
     c = result.counters[0]
     assert c["rejected_odometry"] == 1

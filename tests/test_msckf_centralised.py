@@ -46,7 +46,7 @@ def test_team_state_windows_evolve_like_separate_states():
 def test_centralised_is_at_least_as_accurate_as_consensus(drifting_team, drifting_runs):
     """On conftest's drifting team (objects only, noisy odometry: shared objects are what
     corrects the drift), against its separate and consensus runs."""
-    cfg = config_for(drifting_team, window=10, use_geometric_features=False)
+    cfg = config_for(drifting_team, {"filter.window": 10, "filter.use_geometric_features": False})
     metrics = {
         "separate": team_metrics(drifting_team, drifting_runs["separate"]),
         "consensus": team_metrics(drifting_team, drifting_runs["consensus"]),
@@ -66,7 +66,7 @@ def test_run_centralised_from_the_command_line(tmp_path, capsys):
     save_dataset(team, tmp_path / "team")
     for mode in ("--separate", "--centralised"):
         out = tmp_path / mode.strip("-")
-        argv = ["run", str(tmp_path / "team"), mode, "--set", "window=6", "--out", str(out)]
+        argv = ["run", str(tmp_path / "team"), mode, "--set", "filter.window=6", "--out", str(out)]
         assert main(argv) == 0
     text = capsys.readouterr().out
     assert "centralised" in text and "pose NEES / 6 (std)" in text

@@ -148,7 +148,9 @@ def test_consensus_errors_name_robot_and_frame():
     agent = SimpleNamespace(
         robot=3,
         state=state,
-        config=MsckfConfig(consensus_kl_threshold=0.0, consensus_float32=False),
+        config=MsckfConfig.from_settings(
+            {"consensus.kl_threshold": 0.0, "consensus.float32": False}
+        ),
         counters={},
         timings={"consensus": 0.0},
         reject=lambda *a, **k: None,
@@ -164,16 +166,16 @@ def test_consensus_errors_name_robot_and_frame():
 
 @pytest.mark.parametrize("error", [NotPositiveDefiniteError, InternalError])
 def test_an_average_that_fails_names_robot_and_frame(monkeypatch, error):
-    import teamslam.msckf.consensus.protocol as protocol_module
+    import teamslam.msckf.consensus.rules as rules_module
 
     def failing(*args, **kwargs):
         raise error("averaged information is not positive definite")
 
-    monkeypatch.setattr(protocol_module, "consensus_average", failing)
+    monkeypatch.setattr(rules_module, "consensus_average", failing)
     agent = SimpleNamespace(
         robot=4,
         state=_state(np.random.default_rng(8), robot=4),
-        config=MsckfConfig(consensus_kl_threshold=0.0),
+        config=MsckfConfig.from_settings({"consensus.kl_threshold": 0.0}),
         counters={},
         timings={"consensus": 0.0},
         reject=lambda *a, **k: None,
@@ -193,7 +195,7 @@ def test_a_nan_mid_run_stops_the_robot_naming_it_and_leaves_its_estimate_as_befo
     from teamslam.sim import lissajous_team
 
     team = lissajous_team(robots=2, steps=12, seed=3)
-    agent = MsckfAgent(1, team.calibration, team.robots[1], config_for(team, window=6))
+    agent = MsckfAgent(1, team.calibration, team.robots[1], config_for(team, {"filter.window": 6}))
     original = agent_module.compress
     before = {}
 

@@ -22,7 +22,7 @@ def small_team():
 
 
 def _agent(team, linearization):
-    cfg = config_for(team, window=6, linearization=linearization)
+    cfg = config_for(team, {"filter.window": 6, "filter.linearization": linearization})
     robot = team.robots[0]
     return MsckfAgent(0, team.calibration, robot, cfg, truth=GroundTruth(robot.T_world_body, team))
 
@@ -91,7 +91,7 @@ def test_jacobians_are_analytic_derivatives_at_the_policys_point(
     accepted = rows.rows // 4
     assert accepted >= 1
     h = rows.full(state.dim).reshape(accepted, 4, -1)  # compact rows, widened to check them
-    cfg_var = agent.config.object_std**2
+    cfg_var = agent.config.filter.object_std**2
     cam = small_team.calibration.camera
     checked = 0
     for p in points_at:
@@ -203,7 +203,7 @@ def test_first_estimate_equals_standard_on_a_noise_free_run(exact_pair):
     runs = {
         lin: run_team(
             exact_pair,
-            config_for(exact_pair, window=6, linearization=lin),
+            config_for(exact_pair, {"filter.window": 6, "filter.linearization": lin}),
             consensus=False,
             progress=False,
         )

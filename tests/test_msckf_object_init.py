@@ -19,9 +19,11 @@ def team():
     return lissajous_team(robots=1, steps=40, seed=3, landmarks=300, objects=150)
 
 
-def _run(team, monkeypatch, linearization="fej", **settings):
+def _run(team, monkeypatch, linearization="fej", settings=None):
     """Run one robot; record every object entering the state with what it was built from."""
-    cfg = config_for(team, window=6, linearization=linearization, **settings)
+    cfg = config_for(
+        team, {"filter.window": 6, "filter.linearization": linearization, **(settings or {})}
+    )
     robot = team.robots[0]
     agent = MsckfAgent(0, team.calibration, robot, cfg, truth=GroundTruth(robot.T_world_body, team))
     entered = []
@@ -50,10 +52,10 @@ def test_objects_enter_at_the_least_squares_point_once_certain(team, monkeypatch
     """Each object enters at the least-squares point of its observations in the window (the
     poses held fixed; an independent solver agrees — fej's QR step uses its first-estimate
     Jacobians, so there within a quarter of a standard deviation) and only with a
-    position std at most ``object_init_max_relative_std`` of its distance; less certain ones
+    position std at most ``objects.init_max_relative_std`` of its distance; less certain ones
     wait (for more observations), so without the limit less certain objects enter."""
-    agent, entered = _run(team, monkeypatch, linearization, object_init_max_relative_std=0.1)
-    limit = agent.config.object_init_max_relative_std
+    agent, entered = _run(team, monkeypatch, linearization, {"objects.init_max_relative_std": 0.1})
+    limit = agent.config.objects.init_max_relative_std
     assert limit == 0.1
     assert len(entered) >= 5 and agent.counters["object_init_deferred"] > 0
     cam = team.calibration.camera
@@ -81,5 +83,5 @@ def test_objects_enter_at_the_least_squares_point_once_certain(team, monkeypatch
 
 @pytest.mark.parametrize("value", [-0.1, float("nan"), float("inf"), True])
 def test_object_init_max_relative_std_is_validated(value):
-    with pytest.raises(InputError, match="object_init_max_relative_std"):
-        MsckfConfig(object_init_max_relative_std=value)
+    with pytest.raises(InputError, match=r"objects\.init_max_relative_std"):
+        MsckfConfig.from_settings({"objects.init_max_relative_std": value})

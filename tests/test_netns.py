@@ -56,7 +56,7 @@ def test_secured_team_on_three_emulated_hosts_with_capped_lossy_links(tmp_path):
             host=hosts,
             shared_memory=False,  # every byte over the emulated links
             timeout_s=60.0,
-            filter={"window": 8},
+            settings={"filter.window": 8},
         )
         procs = [
             net.popen(
@@ -72,7 +72,7 @@ def test_secured_team_on_three_emulated_hosts_with_capped_lossy_links(tmp_path):
     assert net.leftover() == []
     for p, out in zip(procs, outputs, strict=True):
         assert p.returncode == 0, out
-    reference = run_team(dataset, config_for(dataset, window=8), progress=False)
+    reference = run_team(dataset, config_for(dataset, {"filter.window": 8}), progress=False)
     for r in range(3):
         arrays, summary = load_robot_result(tmp_path / "out", r)
         # the messages crossed the host's link (TLS and TCP add to the payload) …

@@ -30,7 +30,15 @@ def compared_run(tmp_path_factory):
     out = root / "run"
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
-        argv = ["run", str(root / "data"), "--compare", "--set", "window=5", "--out", str(out)]
+        argv = [
+            "run",
+            str(root / "data"),
+            "--compare",
+            "--set",
+            "filter.window=5",
+            "--out",
+            str(out),
+        ]
         assert main([*argv, "--mcap"]) == 0
     return team, out, stdout.getvalue()
 

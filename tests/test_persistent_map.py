@@ -126,7 +126,7 @@ def long_route():
 def test_retirement_bounds_the_state_on_a_long_route(long_route):
     """Every object in the state was seen within the last N frames; none is lost."""
     retire = 8
-    config = config_for(long_route, window=6, object_retire_after=retire)
+    config = config_for(long_route, {"filter.window": 6, "objects.retire_after": retire})
     agent = MsckfAgent(0, long_route.calibration, long_route.robots[0], config)
     seen_by = {}
     in_state = []
@@ -158,7 +158,7 @@ def test_retirement_bounds_the_state_on_a_long_route(long_route):
 def test_retired_objects_re_enter_when_observed_again():
     """The Lissajous arena revisits objects: they come back with the estimate they left with."""
     dataset = lissajous_team(robots=1, steps=120, seed=3)
-    config = config_for(dataset, window=6, object_retire_after=4)
+    config = config_for(dataset, {"filter.window": 6, "objects.retire_after": 4})
     agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
     state = agent.state
     reenter = state.reenter_objects
@@ -184,11 +184,13 @@ def test_retired_objects_re_enter_when_observed_again():
 def _team_run(dataset, retire):
     from teamslam.msckf import run_team
 
-    return run_team(dataset, config_for(dataset, window=6, object_retire_after=retire))
+    return run_team(
+        dataset, config_for(dataset, {"filter.window": 6, "objects.retire_after": retire})
+    )
 
 
 def test_retirement_that_never_triggers_changes_nothing():
-    """``object_retire_after`` longer than the run gives bit-for-bit the run without it."""
+    """``objects.retire_after`` longer than the run gives bit-for-bit the run without it."""
     dataset = lissajous_team(robots=2, steps=25, seed=5)
     off, never = _team_run(dataset, 0), _team_run(dataset, 10_000)
     for a, b in zip(off.poses, never.poses, strict=True):
@@ -199,7 +201,7 @@ def test_retirement_that_never_triggers_changes_nothing():
 
 
 def test_snapshot_carries_the_persistent_map(long_route):
-    config = config_for(long_route, window=6, object_retire_after=5)
+    config = config_for(long_route, {"filter.window": 6, "objects.retire_after": 5})
     sequence = long_route.robots[0]
     original = MsckfAgent(0, long_route.calibration, sequence, config)
     for t in range(60):
@@ -232,8 +234,8 @@ def test_snapshot_carries_the_persistent_map(long_route):
 
 @pytest.mark.parametrize("value", [-1, -100, 2.5, True, "10"])
 def test_bad_retirement_settings_are_refused(value):
-    with pytest.raises(InputError, match="object_retire_after"):
-        MsckfConfig(object_retire_after=value)
+    with pytest.raises(InputError, match=r"objects\.retire_after"):
+        MsckfConfig.from_settings({"objects.retire_after": value})
 
 
 def test_the_long_route_keeps_discovering_objects():

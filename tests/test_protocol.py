@@ -68,7 +68,9 @@ def test_process_driver_equals_in_process_runner_under_link_loss(
     schedule = [draws.step()[0] for _ in range(dataset.robots[0].frames)]
     if loss > 0:
         assert any(not np.array_equal(a, g.adjacency) for a in schedule[1:])
-    config = config_for(dataset, window=8, consensus_hybrid=hybrid)
+    config = config_for(
+        dataset, {"filter.window": 8, "consensus.rule": "hybrid" if hybrid else "average"}
+    )
     reference = run_team(dataset, config, graph=g, loss=loss, seed=5, progress=False)
     team_path = write_team_file(
         tmp_path / "team.yaml",
@@ -76,7 +78,7 @@ def test_process_driver_equals_in_process_runner_under_link_loss(
         directory,
         g.adjacency,
         timeout_s=60.0,
-        filter={"window": 8, "consensus_hybrid": hybrid},
+        settings={"filter.window": 8, "consensus.rule": "hybrid" if hybrid else "average"},
     )
     _threads_over_memory(team_path, tmp_path / "out", lambda t: schedule[t], n)
     for r in range(n):
@@ -97,7 +99,7 @@ def test_process_driver_equals_in_process_runner_under_link_loss(
 
 def _agents(dataset, n):
     """Agents after a few frames, each also holding objects 1000 and 1001 (shared by all)."""
-    config = config_for(dataset, window=8)
+    config = config_for(dataset, {"filter.window": 8})
     agents = [MsckfAgent(i, dataset.calibration, dataset.robots[i], config) for i in range(n)]
     rng = np.random.default_rng(0)
     for t in range(15):
@@ -249,7 +251,12 @@ def test_consensus_on_what_moved_equals_full_averaging_on_a_team():
     runs, metrics = {}, {}
     for threshold in (0.0, 1e-2):
         config = config_for(
-            dataset, window=8, use_geometric_features=False, consensus_kl_threshold=threshold
+            dataset,
+            {
+                "filter.window": 8,
+                "filter.use_geometric_features": False,
+                "consensus.kl_threshold": threshold,
+            },
         )
         runs[threshold] = run_team(dataset, config, progress=False)
         metrics[threshold] = team_metrics(dataset, runs[threshold])

@@ -52,7 +52,7 @@ def test_killed_robot_resumes_and_rejoins_the_running_team(tmp_path):
         timeout_s=0.5,
         checkpoint_every=12,
         message_delay_ms=60.0,  # a slow radio: the team is paced by its messages
-        filter={"window": 8, "objects_only": True},
+        settings={"filter.window": 8, "filter.use_geometric_features": False},
     )
     out = tmp_path / "out"
     procs = {

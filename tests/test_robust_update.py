@@ -12,24 +12,28 @@ from teamslam.sim import lissajous_team
 
 def test_weights_are_huber_and_cauchy():
     d = np.array([0.0, 1.0, 2.0, 4.0, 8.0])
-    huber = MsckfConfig(object_loss="huber", object_loss_scale=2.0).robust_weight(d)
+    huber = MsckfConfig.from_settings(
+        {"objects.loss": "huber", "objects.loss_scale": 2.0}
+    ).objects.robust_weight(d)
     np.testing.assert_allclose(huber, [1, 1, 1, 0.5, 0.25])
-    cauchy = MsckfConfig(object_loss="cauchy", object_loss_scale=2.0).robust_weight(d)
+    cauchy = MsckfConfig.from_settings(
+        {"objects.loss": "cauchy", "objects.loss_scale": 2.0}
+    ).objects.robust_weight(d)
     np.testing.assert_allclose(cauchy, 1 / (1 + (d / 2) ** 2))
-    np.testing.assert_array_equal(MsckfConfig().robust_weight(d), np.ones(5))
+    np.testing.assert_array_equal(MsckfConfig().objects.robust_weight(d), np.ones(5))
 
 
 @pytest.mark.parametrize(
     ("settings", "reason"),
     [
-        ({"object_loss": "tukey"}, "object_loss must be"),
-        ({"object_loss_scale": 0.0}, "object_loss_scale"),
-        ({"object_loss_scale": float("nan")}, "object_loss_scale"),
+        ({"objects.loss": "tukey"}, "objects.loss must be"),
+        ({"objects.loss_scale": 0.0}, "objects.loss_scale"),
+        ({"objects.loss_scale": float("nan")}, "objects.loss_scale"),
     ],
 )
 def test_bad_robust_settings_are_named(settings, reason):
     with pytest.raises(InputError, match=reason):
-        MsckfConfig(**settings)
+        MsckfConfig.from_settings(settings)
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +44,7 @@ def team():
 @pytest.fixture(scope="module")
 def gaussian(team):
     """The objects-only settings and the separate run with Gaussian object updates."""
-    base = config_for(team, window=8, use_geometric_features=False)
+    base = config_for(team, {"filter.window": 8, "filter.use_geometric_features": False})
     return base, run_team(team, base, consensus=False, progress=False)
 
 
@@ -48,7 +52,7 @@ def test_a_loss_that_never_bites_is_the_gaussian_update(team, gaussian):
     base, gaussian = gaussian
     wide = run_team(
         team,
-        base.with_(object_loss="huber", object_loss_scale=1e9),
+        base.with_({"objects.loss": "huber", "objects.loss_scale": 1e9}),
         consensus=False,
         progress=False,
     )
@@ -61,7 +65,7 @@ def test_down_weighted_updates_move_the_estimate_less(team, gaussian):
     base, gaussian = gaussian
     tight = run_team(
         team,
-        base.with_(object_loss="cauchy", object_loss_scale=0.5),
+        base.with_({"objects.loss": "cauchy", "objects.loss_scale": 0.5}),
         consensus=False,
         progress=False,
     )

@@ -86,7 +86,7 @@ def one_robot_team(tmp_path_factory):
         directory / "data",
         np.zeros((1, 1)),
         base_port=_port(2),
-        filter={"window": 6},
+        settings={"filter.window": 6},
     )
     return dataset, load_team_file(team_path), directory
 

@@ -24,7 +24,7 @@ POSE_STAMPED_HASH = "RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0c
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> tuple[Path, object, object]:
     team = lissajous_team(robots=2, steps=12, objects=40, seed=3)
-    result = run_team(team, config_for(team, window=6), consensus=True, progress=False)
+    result = run_team(team, config_for(team, {"filter.window": 6}), consensus=True, progress=False)
     out = tmp_path_factory.mktemp("run")
     save_estimates(out / "estimates.npz", team, result)
     return out, team, result

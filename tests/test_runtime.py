@@ -163,8 +163,8 @@ def _team_file(tmp_path: Path, name: str, directory: Path, base_port: int, **set
     ("settings", "offset"),
     [
         ({}, 0),
-        ({"consensus_increments": True}, 21),
-        ({"consensus_increments": True, "consensus_iterations": 2}, 24),
+        ({"consensus.rule": "increments"}, 21),
+        ({"consensus.rule": "increments", "consensus.iterations": 2}, 24),
     ],
     ids=["plain", "incr", "incr-L2"],
 )
@@ -178,7 +178,7 @@ def test_three_processes_equal_the_in_process_runner(small_team, tmp_path, setti
         directory,
         _port(offset),
         timeout_s=20.0,
-        filter={"window": 8, **settings},
+        settings={"filter.window": 8, **settings},
     )
     procs = [
         subprocess.Popen(
@@ -191,7 +191,9 @@ def test_three_processes_equal_the_in_process_runner(small_team, tmp_path, setti
     for p in procs:
         out, _ = p.communicate(timeout=240)
         assert p.returncode == 0, out.decode()
-    reference = run_team(dataset, config_for(dataset, window=8, **settings), progress=False)
+    reference = run_team(
+        dataset, config_for(dataset, {"filter.window": 8, **settings}), progress=False
+    )
     # equal to the last few bits: arrays decoded from the wire sit at other addresses, and
     # numpy's SIMD reductions may then add in another order (seen: 1e-12 m after 40 frames)
     for r in range(3):
@@ -206,7 +208,12 @@ def test_three_processes_equal_the_in_process_runner(small_team, tmp_path, setti
 def test_killed_agent_lets_the_others_finish(small_team, tmp_path):
     _, directory = small_team
     team_path = _team_file(
-        tmp_path, f"kill-{os.getpid()}", directory, _port(3), timeout_s=0.5, filter={"window": 8}
+        tmp_path,
+        f"kill-{os.getpid()}",
+        directory,
+        _port(3),
+        timeout_s=0.5,
+        settings={"filter.window": 8},
     )
     out = tmp_path / "out"
     procs = [
@@ -316,7 +323,7 @@ def test_async_and_lossy_teams_finish_with_sane_estimates(small_team, tmp_path, 
         f"{mode}-{os.getpid()}",
         directory,
         _port(12 if mode == "async" else 15),
-        filter={"window": 8},
+        settings={"filter.window": 8},
         **settings,
     )
     procs = [
@@ -345,7 +352,12 @@ def test_ctrl_c_stops_every_agent(tmp_path):
     directory = tmp_path / "long"
     save_dataset(lissajous_team(robots=3, steps=1000, seed=1, landmarks=600), directory)
     team_path = _team_file(
-        tmp_path, f"int-{os.getpid()}", directory, _port(18), timeout_s=5.0, filter={"window": 8}
+        tmp_path,
+        f"int-{os.getpid()}",
+        directory,
+        _port(18),
+        timeout_s=5.0,
+        settings={"filter.window": 8},
     )
     out = tmp_path / "out"
     launcher = subprocess.Popen(

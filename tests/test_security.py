@@ -218,7 +218,7 @@ def test_strangers_are_kept_out_of_a_secured_team(small_team, tmp_path):
     name = f"sec-{os.getpid()}"
     base = _port(0)
     team_path, made = _secured_team_file(
-        tmp_path, directory, base, name, timeout_s=20.0, filter={"window": 8}
+        tmp_path, directory, base, name, timeout_s=20.0, settings={"filter.window": 8}
     )
     team = load_team_file(team_path)
     endpoints = [r.listen for r in team.robots]
@@ -296,7 +296,7 @@ def test_strangers_are_kept_out_of_a_secured_team(small_team, tmp_path):
     assert links["no TLS"] == 0 and links["other CA"] == 0
     assert links["non-member"] == 3
     assert overheard == []
-    reference = run_team(dataset, config_for(dataset, window=8), progress=False)
+    reference = run_team(dataset, config_for(dataset, {"filter.window": 8}), progress=False)
     for r in range(3):
         arrays, summary = load_robot_result(tmp_path / "out", r)
         assert summary["counters"]["rejected_wire"] == 0
@@ -311,7 +311,7 @@ def test_a_robot_names_the_neighbour_it_cannot_authenticate(small_team, tmp_path
     _, directory = small_team
     name = f"auth-{os.getpid()}"
     team_path, made = _secured_team_file(
-        tmp_path, directory, _port(8), name, timeout_s=0.5, filter={"window": 8}
+        tmp_path, directory, _port(8), name, timeout_s=0.5, settings={"filter.window": 8}
     )
     other = make_team_certificates("other", {1: ("robot-1", "127.0.0.1")}, tmp_path / "o")
     made.robots[1].key.write_bytes(other.robots[1].key.read_bytes())

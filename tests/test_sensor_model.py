@@ -21,7 +21,7 @@ from teamslam.datasets import (
     save_dataset,
 )
 from teamslam.geometry import se3
-from teamslam.msckf import MsckfConfig, config_for, resolve_config, run_team
+from teamslam.msckf import MsckfConfig, build_settings, config_for, run_team
 from teamslam.msckf.calibration import epipolar_noise, nis_ratio
 from teamslam.msckf.settings.health import (
     InnovationRecord,
@@ -165,14 +165,28 @@ def test_settings_take_the_last_layer_and_record_it(small_team):
         small_team,
         sensor_model=SensorModel(SensorNoise(object_std=7.0, feature_std=0.7), origin="user"),
     )
-    eff = resolve_config(team, {"object_std": 8.0, "window": 12}, {"window": 9}, calibrate="never")
-    assert eff.config.window == 9 and eff.sources["window"] == "flag"
-    assert eff.config.object_std == 8.0 and eff.sources["object_std"] == "file"
-    assert eff.config.feature_std == 0.7 and eff.sources["feature_std"] == "dataset"
-    assert eff.sources["odometry_std"] == "default"
-    assert eff.sources["gate_probability"] == "default"
+    eff = build_settings(
+        team,
+        {"filter": {"object_std": 8.0, "window": 12}},
+        {"filter.window": 9},
+        calibrate="never",
+    )
+    assert eff.config.filter.window == 9 and eff.sources["filter.window"] == "flag"
+    assert eff.config.filter.object_std == 8.0 and eff.sources["filter.object_std"] == "file"
+    assert eff.config.filter.feature_std == 0.7 and eff.sources["filter.feature_std"] == "dataset"
+    assert eff.sources["filter.odometry_std"] == "default"
+    assert eff.sources["filter.gate_probability"] == "default"
     payload = eff.to_json()
-    assert payload["config"]["window"] == 9 and payload["config_sources"]["window"] == "flag"
+    assert payload["config"]["filter"]["window"] == 9
+    assert payload["config_sources"]["filter.window"] == "flag"
+    rows = {r["key"]: r for r in eff.rows()}
+    assert set(rows) == set(MsckfConfig.keys())
+    assert rows["filter.window"] == {
+        "key": "filter.window",
+        "value": 9,
+        "unit": "poses",
+        "source": "flag",
+    }
 
 
 def test_defaults_scale_with_the_camera_and_ignore_where_the_data_came_from(small_team):
@@ -187,34 +201,95 @@ def test_defaults_scale_with_the_camera_and_ignore_where_the_data_came_from(smal
         )
     )
     fx = small_team.calibration.camera.intrinsics[0, 0]
-    assert pixels["object_std"] == pytest.approx(fx * normalised["object_std"])
-    assert pixels["feature_std"] == pytest.approx(fx * normalised["feature_std"])
+    for key in ("filter.object_std", "filter.feature_std"):
+        assert pixels[key] == pytest.approx(fx * normalised[key])
     bare = replace(small_team, sensor_model=None)
     configs = [
-        resolve_config(replace(bare, metadata=meta), calibrate="never").config
+        build_settings(replace(bare, metadata=meta), calibrate="never").config
         for meta in ({}, {"source": "distributed-MSCKF published data"}, {"source": "kitti"})
     ]
     assert configs[0] == configs[1] == configs[2]
 
 
 def test_unknown_settings_and_bad_values_are_named(tmp_path):
-    with pytest.raises(ConfigError, match="unknown setting 'objekt_std'"):
-        parse_assignments(["objekt_std=1"])
-    with pytest.raises(ConfigError, match="window = 'ten'"):
-        parse_assignments(["window=ten"])
-    with pytest.raises(ConfigError, match="odometry_std must be a list of six"):
-        parse_assignments(["odometry_std=0.1"])
-    assert parse_assignments(["odometry_std=[1,1,1,0.1,0.1,0.1]", "debug=true"]) == {
-        "odometry_std": (1.0, 1.0, 1.0, 0.1, 0.1, 0.1),
-        "debug": True,
+    with pytest.raises(
+        ConfigError, match=r"unknown setting 'filter\.objekt_std'.*filter\.object_std"
+    ):
+        parse_assignments(["filter.objekt_std=1"])
+    with pytest.raises(ConfigError, match=r"filter\.window = 'ten'"):
+        parse_assignments(["filter.window=ten"])
+    with pytest.raises(ConfigError, match=r"filter\.odometry_std must be a list of six"):
+        parse_assignments(["filter.odometry_std=0.1"])
+    assert parse_assignments(["filter.odometry_std=[1,1,1,0.1,0.1,0.1]", "filter.debug=true"]) == {
+        "filter.odometry_std": (1.0, 1.0, 1.0, 0.1, 0.1, 0.1),
+        "filter.debug": True,
     }
     path = tmp_path / "filter.yaml"
-    path.write_text("window: 10\ngate_probability: 1.5\n")
-    with pytest.raises(ConfigError, match="gate_probability"):
-        resolve_config(lissajous_team(robots=1, steps=3, landmarks=10), load_config_file(path))
+    path.write_text("filter:\n  window: 10\n  gate_probability: 1.5\n")
+    with pytest.raises(ConfigError, match=r"filter\.gate_probability"):
+        build_settings(lissajous_team(robots=1, steps=3, landmarks=10), path)
     path.write_text("- window\n")
-    with pytest.raises(ConfigError, match="setting: value"):
+    with pytest.raises(ConfigError, match=r"group\.name: value"):
         load_config_file(path)
+
+
+@pytest.mark.parametrize(
+    ("assignment", "message"),
+    [
+        ("windw=8", "unknown setting 'windw'; did you mean filter.window?"),
+        ("consensus.rul=hybrid", "did you mean consensus.rule?"),
+        ("filter=8", "filter is a group of settings"),
+        ("window=8", "window is now filter.window"),
+        ("object_retire_after=3", "object_retire_after is now objects.retire_after"),
+        ("association=own", "association is now association.mode"),
+        ("consensus_hybrid=true", "replaced by consensus.rule .* consensus.rule=hybrid"),
+        ("consensus_increments=true", "consensus.rule=increments"),
+    ],
+)
+def test_unknown_and_old_keys_are_named_with_the_new_one(assignment, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_assignments([assignment])
+
+
+def test_nested_and_dotted_file_keys_give_every_setting(tmp_path, small_team):
+    path = tmp_path / "settings.yaml"
+    path.write_text(
+        "filter: {window: 7}\n"
+        "consensus:\n  rule: increments\n"
+        "association.min_inliers: 4\n"
+        "tracking.loop_closure: true\n"
+    )
+    assert load_config_file(path) == {
+        "filter.window": 7,
+        "consensus.rule": "increments",
+        "association.min_inliers": 4,
+        "tracking.loop_closure": True,
+    }
+    eff = build_settings(small_team, path, ["association.separation=0"], calibrate="never")
+    config = eff.config
+    assert config.filter.window == 7 and config.consensus.rule == "increments"
+    assert config.association.min_inliers == 4 and config.association.matching().min_inliers == 4
+    assert config.association.separation == 0.0 and eff.sources["association.separation"] == "flag"
+    assert eff.sources["association.min_inliers"] == "file"
+    # every setting can be set from a flag: the defaults given back as flags change nothing
+    defaults = MsckfConfig().settings()
+    flags = {k: list(v) if isinstance(v, tuple) else v for k, v in defaults.items()}
+    assert build_settings(small_team, flags=flags, calibrate="never").config == MsckfConfig()
+    with pytest.raises(ConfigError, match=r"association\.min_inliers must be an integer"):
+        build_settings(small_team, flags={"association.min_inliers": 2}, calibrate="never")
+
+
+def test_every_setting_has_a_documented_meaning_and_a_unit_entry():
+    import inspect
+    from dataclasses import fields
+
+    from teamslam.msckf.settings.values import GROUPS
+
+    for group, kind in GROUPS.items():
+        doc = inspect.getdoc(kind)
+        for f in fields(kind):
+            assert f"\n{f.name}\n" in doc, f"{group}.{f.name} has no entry in the docstring"
+            assert isinstance(MsckfConfig.unit(f"{group}.{f.name}"), str)
 
 
 # ---------------------------------------------------------------- statistics behind health
@@ -313,15 +388,20 @@ def test_health_warnings_name_the_sensor_and_the_cause():
 
 def test_a_run_with_sigma_far_too_large_says_the_sensor_is_ignored():
     team = scenario_team("normalised-0.005-objects", robots=1, steps=60, seed=4)
-    truth = config_for(team, window=10)
+    truth = config_for(team, {"filter.window": 10})
     right = run_team(team, truth, consensus=False, progress=False).health["team"]
     wrong = run_team(
-        team, truth.with_(object_std=1000 * truth.object_std), consensus=False, progress=False
+        team,
+        truth.with_({"filter.object_std": 1000 * truth.filter.object_std}),
+        consensus=False,
+        progress=False,
     ).health["team"]
     assert 0.5 < right["nis"]["objects"] < 2.0
     assert health_warnings(right) == []
     assert wrong["nis"]["objects"] < 1e-3
-    assert any("object σ (object_std) probably too large" in s for s in health_warnings(wrong))
+    assert any(
+        "object σ (filter.object_std) probably too large" in s for s in health_warnings(wrong)
+    )
 
 
 # ---------------------------------------------------------------- noise measured against truth
@@ -363,9 +443,9 @@ def test_sensor_model_config_keeps_per_robot_values(small_team):
         origin="user",
     )
     team = replace(small_team, sensor_model=model)
-    eff = resolve_config(team, calibrate="never")
-    assert [c.object_std for c in eff.robots] == [2.0, 6.0]
-    assert eff.to_json()["config_per_robot"] == {"1": {"object_std": 6.0}}
-    flagged = resolve_config(team, flag_values={"object_std": 3.0}, calibrate="never")
-    assert [c.object_std for c in flagged.robots] == [3.0, 3.0]  # a flag wins everywhere
+    eff = build_settings(team, calibrate="never")
+    assert [c.filter.object_std for c in eff.robots] == [2.0, 6.0]
+    assert eff.to_json()["config_per_robot"] == {"1": {"filter.object_std": 6.0}}
+    flagged = build_settings(team, flags={"filter.object_std": 3.0}, calibrate="never")
+    assert [c.filter.object_std for c in flagged.robots] == [3.0, 3.0]  # a flag wins everywhere
     assert isinstance(eff.robots[0], MsckfConfig)

@@ -13,12 +13,12 @@ from teamslam.sim import lissajous_team
 @pytest.fixture(scope="module")
 def solo():
     dataset = lissajous_team(robots=1, steps=30, seed=4)
-    return dataset, config_for(dataset, window=6)
+    return dataset, config_for(dataset, {"filter.window": 6})
 
 
 def _agent(solo, linearization="std"):
     dataset, config = solo
-    config = config.with_(linearization=linearization)
+    config = config.with_({"filter.linearization": linearization})
     return MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
 
 
@@ -44,7 +44,7 @@ def test_restored_agent_continues_exactly_like_the_original(solo, linearization)
 
 def test_a_restored_agent_keeps_the_views_of_its_objects(solo):
     dataset, config = solo
-    config = config.with_(association="own")
+    config = config.with_({"association.mode": "own"})
     original = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
     for t in range(12):
         original.step(t)

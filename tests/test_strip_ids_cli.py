@@ -34,7 +34,7 @@ def test_strip_ids_then_run_with_own_association(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["run", str(stripped), "--window", "6", "--out", str(out), "--no-report"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["config"]["association"] == "own"
+    assert metrics["config"]["association"]["mode"] == "own"
     team = metrics["association"]["team"]
     assert team["wrong"] == 0 and team["precision"] == 1.0
     assert set(metrics["association"]["links"]) == {"0-1", "0-2", "1-2"}

@@ -106,7 +106,7 @@ def test_hybrid_mode_is_consistent_and_less_conservative_than_consensus(tmp_path
     NEES well below 1), hybrid consensus brings it back without leaving the band."""
     argv = ["montecarlo", "--robots", "3", "--steps", "50", "--runs", "3", "--filters", "ideal"]
     argv += ["--modes", "consensus,hybrid", "--objects-only", "--workers", "1", "--json"]
-    argv += ["--set", "window=6", "--out", str(tmp_path)]
+    argv += ["--set", "filter.window=6", "--out", str(tmp_path)]
     assert main(argv) == 0
     ideal = json.loads(capsys.readouterr().out)["results"]["ideal"]
     lo, hi = ideal["hybrid"]["band"]
@@ -123,7 +123,8 @@ def test_hybrid_mode_is_consistent_and_less_conservative_than_consensus(tmp_path
         ["--modes", "everyone"],
         ["--filters", ","],
         ["--set", "no_such_setting=1"],
-        ["--set", "consensus_hybrid=maybe"],
+        ["--set", "consensus.rule=maybe"],
+        ["--set", "consensus_hybrid=true"],
     ],
 )
 def test_bad_arguments_exit_2(tmp_path, bad):

@@ -24,8 +24,8 @@ from teamslam.msckf.settings.values import MsckfConfig
 from teamslam.sim.lissajous import T_CAM_BODY, SimulationConfig, lissajous_team
 
 CAMERA = SimulationConfig().camera()
-CONFIG = MsckfConfig(object_std=2.0)
-W = CONFIG.odometry_cov()
+CONFIG = MsckfConfig.from_settings({"filter.object_std": 2.0})
+W = CONFIG.filter.odometry_cov()
 
 
 def _state(objects: dict[int, np.ndarray] | None = None, std: float = 0.05) -> MsckfState:
@@ -41,8 +41,8 @@ def _z(state: MsckfState, points) -> np.ndarray:
     return observe(CAMERA, T_CAM_BODY, state.current_pose, np.asarray(points, float))
 
 
-def _tracker(**changes) -> ObjectTracker:
-    return ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG.with_(**changes))
+def _tracker(changes=None) -> ObjectTracker:
+    return ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG.with_(changes))
 
 
 # body frame: x forward, y left, z up — points ahead of the robot
@@ -62,7 +62,7 @@ def test_gate_keeps_near_detections_and_refuses_far_ones():
 def test_assignment_is_one_to_one_and_global():
     a2 = A + np.array([0.0, 0.6, 0.0])
     state = _state({1: A, 2: a2}, std=0.5)
-    tracker = _tracker(track_gate_probability=0.999999)
+    tracker = _tracker({"tracking.gate_probability": 0.999999})
     za, zb = _z(state, [A, a2])
     # detection 0 is nearer object 1, but only detection 1 explains object 1 well: a greedy
     # choice for detection 0 would cost more in total than the global assignment
@@ -91,7 +91,7 @@ def test_classes_must_agree():
 
 
 def test_confirmed_after_m_hits_in_n_frames_with_the_earlier_detections():
-    tracker = _tracker(track_confirm_hits=3, track_confirm_frames=4)
+    tracker = _tracker({"tracking.confirm_hits": 3, "tracking.confirm_frames": 4})
     state = _state()
     z = _z(state, [B])
     assert tracker.assign(0, z, None, state, W).ids.tolist() == [-1]
@@ -103,7 +103,7 @@ def test_confirmed_after_m_hits_in_n_frames_with_the_earlier_detections():
     assert frames.tolist() == [0, 2]
     np.testing.assert_allclose(zs, np.stack([z[0], z[0] + 0.5]))
     # too late: 3 hits only after 4 frames
-    late = _tracker(track_confirm_hits=3, track_confirm_frames=4)
+    late = _tracker({"tracking.confirm_hits": 3, "tracking.confirm_frames": 4})
     for t, zt in ((0, z), (1, z), (2, np.zeros((0, 4))), (3, np.zeros((0, 4))), (4, z)):
         frame = late.assign(t, zt, None, state, W)
     assert late.counters["tracks_confirmed"] == 0 and late.counters["tracks_dropped"] == 1
@@ -201,7 +201,7 @@ def test_detection_format_round_trip_and_strip(tmp_path, cluttered):
 
 def test_agent_tracks_clutter_without_confirming_false_objects(cluttered):
     none = strip_object_ids(cluttered, to="none")
-    config = MsckfConfig(object_std=2.0, window=10)
+    config = MsckfConfig.from_settings({"filter.object_std": 2.0, "filter.window": 10})
     agents = []
     for i, robot in enumerate(none.robots):
         agent = MsckfAgent(i, none.calibration, robot, config)
@@ -230,7 +230,7 @@ def test_ids_path_is_untouched_by_detections(cluttered):
         robot.timestamps,
         robot.object_classes,
     )
-    config = MsckfConfig(object_std=2.0, window=10)
+    config = MsckfConfig.from_settings({"filter.object_std": 2.0, "filter.window": 10})
     runs = []
     for seq in (robot, bare):
         agent = MsckfAgent(1, cluttered.calibration, seq, config)
@@ -317,7 +317,7 @@ def test_outer_gate_keeps_a_heavy_tailed_detection_on_its_object():
     assert tracker.gate < d2 < tracker.birth_gate
     assert tracker.assign(1, off[None], None, state, W).ids.tolist() == [4]
     # with the outer gate off it is left alone, and starts no track next to its object
-    off_tracker = _tracker(track_birth_probability=CONFIG.track_gate_probability)
+    off_tracker = _tracker({"tracking.birth_probability": CONFIG.tracking.gate_probability})
     assert off_tracker.assign(1, off[None], None, state, W).ids.tolist() == [-1]
     # two such detections: ambiguous, neither is given the object and neither starts a track
     mirror = za - k * direction

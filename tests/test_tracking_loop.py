@@ -146,7 +146,7 @@ def _truth_majority(truth, raw, oid):
 
 def test_a_simulated_revisit_is_closed_with_the_right_pairs():
     team = lissajous_team(robots=1, steps=300, seed=0, clutter=0.05, miss=0.1)
-    config = config_for(team, calibrate="never").with_(track_loop_closure=True)
+    config = config_for(team, calibrate="never").with_({"tracking.loop_closure": True})
     stripped = strip_object_ids(team, to="none")
     robot = stripped.robots[0]
     agent = MsckfAgent(0, stripped.calibration, robot, config)
@@ -173,7 +173,7 @@ def test_data_with_ids_never_meet_loop_closure():
     team = lissajous_team(robots=2, steps=60, seed=1)
     runs = []
     for on in (False, True):
-        config = config_for(team, calibrate="never").with_(track_loop_closure=on)
+        config = config_for(team, calibrate="never").with_({"tracking.loop_closure": on})
         poses = []
         for i, robot in enumerate(team.robots):
             agent = MsckfAgent(i, team.calibration, robot, config)
@@ -326,5 +326,5 @@ def test_track_loop_closure_must_be_a_boolean():
     from teamslam.errors import InputError
     from teamslam.msckf.settings.values import MsckfConfig
 
-    with pytest.raises(InputError, match="track_loop_closure"):
-        MsckfConfig(track_loop_closure="yes")
+    with pytest.raises(InputError, match=r"tracking\.loop_closure"):
+        MsckfConfig.from_settings({"tracking.loop_closure": "yes"})

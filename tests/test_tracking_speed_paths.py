@@ -159,7 +159,7 @@ def test_a_kitti_slice_is_named_exactly_as_by_the_plain_arithmetic(
     assert main(["data", "import-reference", str(kitti00_dir), str(tmp_path / "k")]) == 0
     kitti = load_dataset(tmp_path / "k")
     none = strip_object_ids(kitti, to="none")
-    config = config_for(kitti, calibrate="never", object_std=12.7)
+    config = config_for(kitti, {"filter.object_std": 12.7}, calibrate="never")
     fast = _named(none, config, frames=400)
     assert sum((h >= 0).sum() for h, _, _ in fast) > 300
     _plain(monkeypatch, none.calibration.camera)

@@ -24,7 +24,7 @@ central_means, central_covs = ts.dvi.run_centralized(problem)
 
 # a simulated stereo team and the distributed MSCKF, separate vs consensus
 team = ts.sim.lissajous_team(robots=3, steps=30, seed=0)
-config = ts.msckf.config_for(team, window=8)  # the sensor model the simulator recorded
+config = ts.msckf.config_for(team, {"filter.window": 8})  # the sensor model the simulator recorded
 results = {}
 for consensus in (False, True):
     results[consensus] = ts.run_team(team, config, graph=ts.graph.complete(3), consensus=consensus)

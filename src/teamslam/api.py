@@ -15,7 +15,7 @@ Example::
 
     import teamslam
 
-    run = teamslam.run("results/team5", mode="compare", settings={"window": 10})
+    run = teamslam.run("results/team5", mode="compare", settings={"filter.window": 10})
     teamslam.write_run(run, "results/team5-run")
     print(run.metrics["trajectory_rmse_avg_m"])
 
@@ -49,7 +49,6 @@ __all__ = [
     "launch",
     "load_run",
     "require_extras",
-    "resolve_settings",
     "run",
     "run_robot",
     "simulate_images",
@@ -128,48 +127,6 @@ def _dataset(dataset):
     return load_dataset(dataset) if isinstance(dataset, str | os.PathLike) else dataset
 
 
-def resolve_settings(
-    dataset,
-    settings: dict | Sequence[str] | None = None,
-    config_file: str | Path | None = None,
-    calibrate: str = "auto",
-    calibration_frames: int | None = None,
-):
-    """The effective settings of a run (:class:`~teamslam.msckf.settings.sources.EffectiveConfig`).
-
-    Parameters
-    ----------
-    settings
-        Filter settings on top of everything else: a ``{name: value}`` dict or
-        ``["name=value", …]`` (as ``--set``).
-    config_file
-        YAML file of settings (below ``settings``).
-    calibrate, calibration_frames
-        See :func:`~teamslam.msckf.configure.resolve_config`.
-
-    Raises
-    ------
-    ConfigError
-        A setting that does not exist or has a wrong value (an
-        :class:`~teamslam.errors.InputError`).
-    """
-    from teamslam.msckf.configure import resolve_config
-    from teamslam.msckf.settings.sources import (
-        coerce_settings,
-        load_config_file,
-        parse_assignments,
-    )
-
-    file_values = load_config_file(config_file) if config_file is not None else {}
-    if settings is None or isinstance(settings, dict):
-        flags = coerce_settings(dict(settings or {}), "settings")
-    else:
-        flags = parse_assignments(list(settings))
-    return resolve_config(
-        _dataset(dataset), file_values, flags, calibrate, calibration_frames=calibration_frames
-    )
-
-
 def run(
     dataset,
     mode: str = "consensus",
@@ -203,8 +160,9 @@ def run(
     seed
         Seed of the link loss and of a random graph.
     settings
-        An :class:`~teamslam.msckf.settings.sources.EffectiveConfig` (:func:`resolve_settings`), or
-        settings for it (``{name: value}`` or ``["name=value", …]``), or ``None`` (the
+        An :class:`~teamslam.msckf.settings.sources.EffectiveConfig`
+        (:func:`~teamslam.msckf.configure.build_settings`), or flags for it
+        (``{"group.name": value}`` or ``["group.name=value", …]``), or ``None`` (the
         dataset's sensor model; a calibration where it lacks noise levels).
     out
         Run directory to write (:func:`write_run`); also where the frames done go when a
@@ -222,7 +180,7 @@ def run(
     association
         Which objects of two robots are the same: ``oracle`` (equal ids; only where the
         dataset's ids are global) or ``own`` (each link finds its correspondences,
-        :mod:`teamslam.association`); ``None``: the ``association`` setting (default ``oracle``
+        :mod:`teamslam.association`); ``None``: the ``association.mode`` setting (default ``oracle``
         with global ids, ``own`` with per-robot ids).
 
     Raises
@@ -234,6 +192,7 @@ def run(
         first.
     """
     from teamslam.graph import make
+    from teamslam.msckf.configure import build_settings
     from teamslam.msckf.settings.sources import EffectiveConfig
 
     if mode not in MODES:
@@ -248,7 +207,9 @@ def run(
     path = dataset if isinstance(dataset, str | os.PathLike) else source
     dataset = _dataset(dataset)
     effective = (
-        settings if isinstance(settings, EffectiveConfig) else resolve_settings(dataset, settings)
+        settings
+        if isinstance(settings, EffectiveConfig)
+        else build_settings(dataset, flags=settings)
     )
     if association is not None:
         effective = with_association(effective, dataset, association)
@@ -293,7 +254,7 @@ def require_extras(processes=False, secure=False, mcap=False, ros2=False) -> Non
 
 
 def with_association(effective, dataset, association: str):
-    """``effective`` with the ``association`` setting (``oracle`` | ``own``) on every robot.
+    """``effective`` with ``association.mode`` (``oracle`` | ``own``) on every robot.
 
     Raises
     ------
@@ -309,11 +270,12 @@ def with_association(effective, dataset, association: str):
             f"association oracle needs team-wide object ids; this dataset's object ids are "
             f"{dataset.object_id_scope!r} (use own)"
         )
-    sources = {**effective.sources, "association": "flag"}
+    sources = {**effective.sources, "association.mode": "flag"}
+    change = {"association.mode": association}
     return replace(
         effective,
-        config=effective.config.with_(association=association),
-        robots=[c.with_(association=association) for c in effective.robots],
+        config=effective.config.with_(change),
+        robots=[c.with_(change) for c in effective.robots],
         sources=sources,
     )
 
@@ -431,7 +393,7 @@ def _run_processes(path, dataset, effective, graph, loss, out, base_port, secure
     settings = {
         "base_port": base_port,
         "message_loss": loss,
-        "filter": effective.config.to_json(),
+        "settings": effective.config.to_json(),
     }
     if not secure:
         team_path = write_team_file(out / "team.yaml", name, path, graph.adjacency, **settings)
@@ -624,11 +586,12 @@ def calibrate(
     """
     from teamslam.datasets import save_dataset
     from teamslam.msckf.calibration import calibrate as run_calibration
+    from teamslam.msckf.configure import build_settings
     from teamslam.msckf.settings.sources import calibration_start
 
     path = dataset if isinstance(dataset, str | os.PathLike) else source
     dataset = _dataset(dataset)
-    effective = resolve_settings(dataset, settings, config_file, calibrate="never")
+    effective = build_settings(dataset, config_file, settings, calibrate="never")
     start = calibration_start(dataset, effective.config)
     result = run_calibration(dataset, start, frames=frames, odometry_per_axis=odometry_per_axis)
     if write:

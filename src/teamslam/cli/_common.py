@@ -83,13 +83,17 @@ def default_data() -> Path:
 def settings_arguments(parser: argparse.ArgumentParser, calibration_flags: bool = True) -> None:
     """``--config`` and ``--set`` (and, unless told otherwise, when to calibrate)."""
     parser.add_argument(
-        "--config", type=Path, default=None, help="YAML file of filter settings (key: value)"
+        "--config",
+        type=Path,
+        default=None,
+        help="YAML file of filter settings (group: {name: value} or group.name: value)",
     )
     parser.add_argument(
         "--set",
         action="append",
-        metavar="KEY=VALUE",
-        help="a filter setting, e.g. --set object_std=0.01 (repeatable; wins over --config)",
+        metavar="GROUP.NAME=VALUE",
+        help="a filter setting, e.g. --set filter.object_std=0.01 (repeatable; wins over "
+        "--config; `teamslam config show DATASET` lists them)",
     )
     if not calibration_flags:
         return
@@ -110,17 +114,17 @@ def settings_arguments(parser: argparse.ArgumentParser, calibration_flags: bool 
 
 def effective_settings(args: argparse.Namespace, dataset, calibrate: str | None = None):
     """The effective settings of a run: dataset, calibration, ``--config``, flags."""
-    from teamslam.api import resolve_settings
+    from teamslam.msckf.configure import build_settings
 
     flags = list(args.set or [])
     if getattr(args, "window", None):
-        flags.append(f"window={args.window}")
+        flags.append(f"filter.window={args.window}")
     if getattr(args, "objects_only", False):
-        flags.append("use_geometric_features=false")
-    return resolve_settings(
+        flags.append("filter.use_geometric_features=false")
+    return build_settings(
         dataset,
-        flags,
         args.config,
+        flags,
         calibrate=calibrate or args.calibrate,
         calibration_frames=getattr(args, "calibration_frames", None),
     )

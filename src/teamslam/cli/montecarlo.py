@@ -83,8 +83,9 @@ def register(subparsers) -> None:
         "--set",
         action="append",
         default=[],
-        metavar="KEY=VALUE",
-        help="a filter setting for every run (repeatable; linearization comes from --filters)",
+        metavar="GROUP.NAME=VALUE",
+        help="a filter setting for every run (repeatable; filter.linearization comes from "
+        "--filters)",
     )
     mc.add_argument("--workers", type=positive_int, default=None, help="processes (all cores)")
     mc.add_argument("--json", action="store_true", help="print the summary as JSON")

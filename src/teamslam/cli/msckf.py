@@ -35,7 +35,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     api.require_extras(processes=args.processes, secure=args.secure, mcap=args.mcap is not None)
     dataset = load_dataset(args.dataset)
     if args.association is not None:
-        args.set = [*(args.set or []), f"association={args.association}"]
+        args.set = [*(args.set or []), f"association.mode={args.association}"]
     effective = effective_settings(args, dataset)
     print(settings_line(dataset, effective))
     mode = next(
@@ -92,7 +92,8 @@ def _cmd_config_show(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     effective = effective_settings(args, dataset)
     if args.json:
-        print(json.dumps(json_safe(effective.to_json()), indent=2))
+        payload = {"settings": effective.rows(), **effective.to_json()}
+        print(json.dumps(json_safe(payload), indent=2))
     else:
         print(settings_line(dataset, effective))
         print(effective.table())
@@ -195,8 +196,9 @@ def register(sub) -> None:
     show = config_sub.add_parser(
         "show",
         help="every effective setting and where it came from",
-        description="Print every filter setting `teamslam run DATASET` would use and its source: "
-        "default (scaled to the camera), dataset (its sensor model), calibration, file or flag.",
+        description="Print every filter setting `teamslam run DATASET` would use, one line "
+        "each: group.name, value, unit and source — default (scaled to the camera), dataset "
+        "(its sensor model), calibration, file or flag.",
     )
     show.add_argument("dataset", type=Path, help="dataset directory (teamslam format)")
     show.add_argument("--json", action="store_true", help="print one JSON object")

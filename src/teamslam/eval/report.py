@@ -519,8 +519,19 @@ def _messages_section(names: list[str], runs: list[TeamRun]) -> str:
     return f"<section id='messages'><h2>Messages</h2>{table}</section>"
 
 
+def _settings(metrics: dict | None) -> dict:
+    """A run's recorded settings by ``group.name`` (its ``config``: one mapping per group)."""
+    config = (metrics or {}).get("config") or {}
+    out = {}
+    for group, values in config.items():
+        if isinstance(values, dict):
+            out.update({f"{group}.{name}": value for name, value in values.items()})
+    return out
+
+
 def _configuration_section(names: list[str], runs: list[TeamRun]) -> str:
-    keys = sorted({k for r in runs for k in ((r.metrics or {}).get("config") or {})})
+    recorded = [_settings(r.metrics) for r in runs]
+    keys = sorted({k for settings in recorded for k in settings})
     if not keys:
         return (
             "<section id='configuration'><h2>Configuration</h2>"
@@ -529,13 +540,12 @@ def _configuration_section(names: list[str], runs: list[TeamRun]) -> str:
     rows = []
     for key in keys:
         cells = []
-        for run in runs:
-            m = run.metrics or {}
-            if key not in (m.get("config") or {}):
+        for run, settings in zip(runs, recorded, strict=True):
+            if key not in settings:
                 cells.append("—")
                 continue
-            source = (m.get("config_sources") or {}).get(key, "?")
-            cells.append(f"{_fmt(m['config'][key])} ({source})")
+            source = ((run.metrics or {}).get("config_sources") or {}).get(key, "?")
+            cells.append(f"{_fmt(settings[key])} ({source})")
         rows.append((key, cells))
     calibration = []
     for name, run in zip(names, runs, strict=True):
@@ -589,7 +599,7 @@ def _summary_section(
 
 
 def _association_section(names: list[str], runs: list[TeamRun]) -> str:
-    """Which objects the robots found they share (runs with ``association = own``); empty when
+    """Which objects the robots found they share (runs with ``association.mode = own``); empty when
     no run associated objects itself."""
     found = [(r.metrics or {}).get("association") for r in runs]
     if not any(found):

@@ -28,7 +28,7 @@ def team_table(runs: dict[str, dict]) -> str:
             f"{f'robot {i} trajectory RMSE [m]':<36}"
             + "".join(_number(runs[n]["trajectory_rmse_m"][i], width, 3) for n in names)
         )
-    linearization = runs[names[0]].get("config", {}).get("linearization", "std")
+    linearization = runs[names[0]].get("config", {}).get("filter", {}).get("linearization", "std")
     for i in range(n_robots):
         lines.append(
             f"{f'robot {i} pose NEES / 6 ({linearization})':<36}"
@@ -100,7 +100,7 @@ def _share(team: dict, key: str, digits: int) -> str:
     return "—" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
-#: rows of the run table when a run associated objects itself (``association = own``)
+#: rows of the run table when a run associated objects itself (``association.mode = own``)
 _ASSOCIATION_ROWS = (
     (
         "correspondences held | revoked",

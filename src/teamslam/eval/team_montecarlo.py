@@ -39,8 +39,8 @@ GRAPHS = ("complete", "ring", "random")
 # the team setting each consensus mode turns on
 _MODE_SETTINGS = {
     "consensus": {},
-    "hybrid": {"consensus_hybrid": True},
-    "increments": {"consensus_increments": True},
+    "hybrid": {"consensus.rule": "hybrid"},
+    "increments": {"consensus.rule": "increments"},
 }
 FILTERS = ("std", "fej", "ideal", "oc")
 
@@ -135,12 +135,12 @@ def one_run(run: int, spec: MonteCarloSpec) -> dict:
     out: dict = {}
     for filt in spec.filters:
         settings = {
-            "window": spec.window,
-            "use_geometric_features": not spec.objects_only,
+            "filter.window": spec.window,
+            "filter.use_geometric_features": not spec.objects_only,
             **dict(spec.settings),
-            "linearization": filt,
+            "filter.linearization": filt,
         }
-        config = config_for(team, **settings)
+        config = config_for(team, settings)
         for mode in spec.modes:
             if mode == "centralised":
                 result = run_centralised(team, config, progress=False)
@@ -149,7 +149,7 @@ def one_run(run: int, spec: MonteCarloSpec) -> dict:
             else:
                 result = run_team(
                     team,
-                    config.with_(**_MODE_SETTINGS[mode]),
+                    config.with_(_MODE_SETTINGS[mode]),
                     graph=graph,
                     consensus=True,
                     loss=spec.loss,

@@ -23,9 +23,9 @@ __all__ = [
     "MsckfState",
     "PersistentMap",
     "TeamResult",
+    "build_settings",
     "calibrate",
     "config_for",
-    "resolve_config",
     "run_team",
 ]
 
@@ -49,8 +49,8 @@ __getattr__, __dir__ = attach(
         "MsckfConfig": "teamslam.msckf.settings.values",
         "PersistentMap": "teamslam.msckf.filter.persistent_map",
         "EffectiveConfig": "teamslam.msckf.settings.sources",
+        "build_settings": "teamslam.msckf.configure",
         "config_for": "teamslam.msckf.configure",
-        "resolve_config": "teamslam.msckf.configure",
         "MsckfState": "teamslam.msckf.filter.state",
         "TeamResult": "teamslam.msckf.team",
         "run_team": "teamslam.msckf.team",
@@ -61,7 +61,7 @@ __getattr__, __dir__ = attach(
 if TYPE_CHECKING:  # what a type checker and an IDE see; nothing is imported at run time
     from teamslam.msckf.agent import MsckfAgent
     from teamslam.msckf.calibration import CalibrationResult, calibrate
-    from teamslam.msckf.configure import config_for, resolve_config
+    from teamslam.msckf.configure import build_settings, config_for
     from teamslam.msckf.filter.persistent_map import PersistentMap
     from teamslam.msckf.filter.state import MsckfState
     from teamslam.msckf.settings.sources import EffectiveConfig

@@ -93,11 +93,11 @@ class MsckfAgent:
         self.T_cam_body = calibration.T_cam_body
         self.sequence = sequence
         self.config = config
-        self.policy = linearization_policy(config.linearization)
+        self.policy = linearization_policy(config.filter.linearization)
         if self.policy.needs_truth and truth is None:
             raise ValueError(
-                f"robot {robot}: the {config.linearization} linearisation needs ground truth "
-                "(simulated data only)"
+                f"robot {robot}: the {config.filter.linearization} linearisation needs ground "
+                "truth (simulated data only)"
             )
         self.truth = truth
         self.state: MsckfState | RobotWindow = (
@@ -106,8 +106,8 @@ class MsckfAgent:
             else MsckfState(
                 sequence.T_world_body[0],
                 0,
-                np.eye(6) * config.initial_pose_std**2,
-                config.debug,
+                np.eye(6) * config.filter.initial_pose_std**2,
+                config.filter.debug,
                 robot=robot,
             )
         )
@@ -129,7 +129,9 @@ class MsckfAgent:
         #: closure in the robot's own map)
         self.views = ObjectViews()
         tracking = sequence.detections is not None and sequence.objects.ids.size == 0
-        self._record_views = config.association == "own" or (tracking and config.track_loop_closure)
+        self._record_views = config.association.mode == "own" or (
+            tracking and config.tracking.loop_closure
+        )
         if tracking:
             self.tracker = ObjectTracker(
                 robot,
@@ -264,18 +266,18 @@ class MsckfAgent:
         begin = time.perf_counter()
         if t > 0:
             self._propagate(t)
-        if self.tracker is not None and self.config.use_objects:
+        if self.tracker is not None and self.config.filter.use_objects:
             self._track(t)
-        if self.config.use_objects and len(self.state.retired):
+        if self.config.filter.use_objects and len(self.state.retired):
             self._reenter_objects(t)
         after_propagation = time.perf_counter()
         rows = MeasurementRows.empty()
-        if self.config.use_geometric_features:
+        if self.config.filter.use_geometric_features:
             rows = rows.extend(self._feature_rows(t))
         object_rows, object_rows_at = MeasurementRows.empty(), None
-        if self.config.use_objects:
+        if self.config.filter.use_objects:
             object_rows, object_rows_at = self._object_rows(t)
-        iterated = self.config.object_update_iterations > 1 and object_rows_at is not None
+        iterated = self.config.objects.update_iterations > 1 and object_rows_at is not None
         if not iterated:
             rows = rows.extend(object_rows)
         if rows.rows:
@@ -285,19 +287,19 @@ class MsckfAgent:
             # features first (their null-space rows are linear in the error state), then the
             # objects by an iterated EKF from the updated estimate
             _, used = self.state.iterated_update(
-                object_rows_at, self.config.object_update_iterations
+                object_rows_at, self.config.objects.update_iterations
             )
             self.counters["object_linearizations"] += used
             self.counters["updates"] += 1
         after_update = time.perf_counter()
-        if self.config.use_objects:
+        if self.config.filter.use_objects:
             self._initialise_objects(t)
-            if self.config.object_retire_after > 0:
+            if self.config.objects.retire_after > 0:
                 self._retire_objects(t)
-        while self.state.n_poses > self.config.window:
+        while self.state.n_poses > self.config.filter.window:
             self._odometry_health(0)
             self.state.marginalize_oldest()
-        if self._record_views and self.config.use_objects:
+        if self._record_views and self.config.filter.use_objects:
             r_world_cam = self.state.current_pose[:3, :3] @ self.T_cam_body[:3, :3].T
             self.views.record(t, r_world_cam, self.camera.intrinsics, self.object_history)
         self._prune_histories()
@@ -311,7 +313,7 @@ class MsckfAgent:
 
     def _propagate(self, t: int) -> None:
         odometry = self.sequence.odometry[t - 1]
-        cov = self.config.odometry_cov()
+        cov = self.config.filter.odometry_cov()
         if not np.all(np.isfinite(odometry)):
             self.reject("odometry", reason="non-finite relative pose")
             self._odometry_rejected.add(t - 1)
@@ -349,7 +351,7 @@ class MsckfAgent:
         moment = odometry_step_residual(
             state.poses[index : index + 2], self.sequence.odometry[first], state.covariance(pair)
         )
-        assumed = np.square(self.config.odometry_std)
+        assumed = np.square(self.config.filter.odometry_std)
         self.health.odometry(moment, assumed)
         if self.health.record and index == 0:
             # every lag of the window (consecutive frames, no rejected step) for calibration
@@ -393,7 +395,7 @@ class MsckfAgent:
         for i, row in zip(ids.tolist(), z, strict=True):
             self.tracks[i].append((t, row))
         ready = [i for i in self.tracks if i not in seen]
-        window_full = self.state.n_poses > self.config.window
+        window_full = self.state.n_poses > self.config.filter.window
         if window_full:
             oldest = self.state.frames[0]
             ready += [i for i in seen if self.tracks[i][0][0] == oldest]
@@ -403,7 +405,7 @@ class MsckfAgent:
             frames = np.array([f for f, _ in obs])
             widx = self.state.window_index(frames)
             keep = widx >= 0
-            if keep.sum() >= self.config.min_track_length:
+            if keep.sum() >= self.config.filter.min_track_length:
                 groups[int(keep.sum())].append(
                     (
                         widx[keep],
@@ -412,7 +414,7 @@ class MsckfAgent:
                     )
                 )
         rows = MeasurementRows.empty()
-        variance = self.config.feature_std**2
+        variance = self.config.filter.feature_std**2
         block = self.state.window_columns  # the rows are compact over the window poses
         window = np.arange(block.start, block.stop)
         for n, members in groups.items():
@@ -445,7 +447,7 @@ class MsckfAgent:
                 variance,
             )
             accepted, _ = self.health.test(
-                "features", r0, s, variance, float(self.config.gate(4 * n - 3))
+                "features", r0, s, variance, float(self.config.filter.gate(4 * n - 3))
             )
             self.counters["rejected_features_gate"] += int((~accepted).sum())
             h0 = h0[accepted].reshape(-1, window.size)
@@ -464,7 +466,7 @@ class MsckfAgent:
         finite = np.all(np.isfinite(z), axis=1)
         if not finite.all():
             self.reject("object_measurements", int((~finite).sum()), "non-finite")
-        frame = self.tracker.assign(t, z, classes, self.state, self.config.odometry_cov())
+        frame = self.tracker.assign(t, z, classes, self.state, self.config.filter.odometry_cov())
         for new, old in frame.merged.tolist():  # loop closure: one object seen again
             self.views.merge(new, old)
         for tid, frames, zs in frame.confirmed:
@@ -490,8 +492,8 @@ class MsckfAgent:
             self.counters["objects_reentered"] += int(back.size)
 
     def _retire_objects(self, t: int) -> None:
-        """Move the objects unobserved for ``object_retire_after`` frames to the persistent map."""
-        stale = t - self.state.object_last_seen >= self.config.object_retire_after
+        """Move the objects unobserved for ``objects.retire_after`` frames to the persistent map."""
+        stale = t - self.state.object_last_seen >= self.config.objects.retire_after
         if stale.any():
             self.state.retire_objects(np.flatnonzero(stale))
             self.counters["objects_retired"] += int(stale.sum())
@@ -521,16 +523,18 @@ class MsckfAgent:
         if slots.size == 0:
             return empty
         r, local_h, local_p, noise_cov = self._object_linearization(slots, zk, ids)
-        variance = self.config.object_std**2
+        variance = self.config.filter.object_std**2
         s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + noise_cov
-        accepted, nis = self.health.test("objects", r, s, variance, float(self.config.gate(4)))
+        accepted, nis = self.health.test(
+            "objects", r, s, variance, float(self.config.filter.gate(4))
+        )
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
         self.counters["object_updates"] += int(accepted.sum())
         if not accepted.any():
             return empty
         noise = np.full(int(accepted.sum()), variance)
-        if self.config.object_loss != "none":  # one M-estimator reweighting step
-            weight = self.config.robust_weight(np.sqrt(nis[accepted]))
+        if self.config.objects.loss != "none":  # one M-estimator reweighting step
+            weight = self.config.objects.robust_weight(np.sqrt(nis[accepted]))
             self.counters["objects_downweighted"] += int((weight < 1).sum())
             noise = noise / weight
         slots, zk, ids = slots[accepted], zk[accepted], ids[accepted]
@@ -575,7 +579,7 @@ class MsckfAgent:
             d_pose, d_point, state.pose_fe[-1], state.object_fe[slots], local_p
         )
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
-        noise_cov = np.broadcast_to(self.config.object_std**2 * np.eye(4), (k, 4, 4))
+        noise_cov = np.broadcast_to(self.config.filter.object_std**2 * np.eye(4), (k, 4, 4))
         if self.policy.compensates:
             # the rows are not the current-estimate Jacobians: their difference, times the
             # state error, is part of the residual (linearisation.py, FEJ2 compensation)
@@ -599,7 +603,7 @@ class MsckfAgent:
         current pose's and the objects' columns."""
         if self.policy.compensates:
             # whiten each object's rows by its 4 × 4 noise: L⁻¹H, L⁻¹r with LLᵀ = noise
-            chol = np.linalg.cholesky(noise_cov / self.config.object_std**2)
+            chol = np.linalg.cholesky(noise_cov / self.config.filter.object_std**2)
             local_h = np.linalg.solve(chol, local_h)
             r = np.linalg.solve(chol, r[..., None])[..., 0]
         state = self.state
@@ -622,7 +626,7 @@ class MsckfAgent:
             frames = np.array([f for f, _ in obs])
             widx = self.state.window_index(frames)
             keep = widx >= 0
-            if keep.sum() >= cfg.object_init_observations:
+            if keep.sum() >= cfg.objects.init_observations:
                 zs = np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k])
                 candidates.append((oid, widx[keep], zs))
         if not candidates:
@@ -630,14 +634,14 @@ class MsckfAgent:
         by_length: dict[int, list] = defaultdict(list)
         for c in candidates:
             by_length[c[1].size].append(c)
-        variance = cfg.object_std**2
+        variance = cfg.filter.object_std**2
         for n, members in by_length.items():
             widx = np.stack([m[1] for m in members])
             zs = np.stack([m[2] for m in members])
             points, ok, rms = self._triangulate_objects(widx, zs)
             depth = np.linalg.norm(points - self.state.current_pose[:3, 3], axis=1)
-            ok &= (depth > cfg.object_min_depth) & (depth < cfg.object_max_depth)
-            ok &= rms < 3.0 * cfg.object_std
+            ok &= (depth > cfg.objects.min_depth) & (depth < cfg.objects.max_depth)
+            ok &= rms < 3.0 * cfg.filter.object_std
             self.counters["rejected_object_init"] += int((~ok).sum())
             moved = False
             for j in np.flatnonzero(ok):
@@ -696,7 +700,7 @@ class MsckfAgent:
         s2 = h_s2 @ cov_cc @ h_s2.T + variance * np.eye(4 * n - 3)
         # not a sensor-health innovation: it is linearised at a fresh triangulation, so its NIS
         # measures the triangulation as much as the noise
-        if z2 @ np.linalg.solve(s2, z2) > self.config.gate(4 * n - 3):
+        if z2 @ np.linalg.solve(s2, z2) > self.config.filter.gate(4 * n - 3):
             self.counters["rejected_object_init"] += 1
             return False
         # the rows enter the state below: non-finite ones stop the run before any edit
@@ -705,7 +709,7 @@ class MsckfAgent:
         position = point + r_p_inv @ z1
         cov_ps = -(r_p_inv @ h_s1) @ state.cross_covariance(cols)  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
         cov_pp = r_p_inv @ (h_s1 @ cov_cc @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
-        limit = self.config.object_init_max_relative_std
+        limit = self.config.objects.init_max_relative_std
         if limit > 0:
             # still uncertain relative to its distance: wait for more observations (the state is
             # untouched, the observations stay in the history)

@@ -231,9 +231,9 @@ def calibrate(
     """
     begin = time.perf_counter()
     use = {
-        "features": config.use_geometric_features
+        "features": config.filter.use_geometric_features
         and any(r.features.ids.size for r in dataset.robots),
-        "objects": config.use_objects and any(r.objects.ids.size for r in dataset.robots),
+        "objects": config.filter.use_objects and any(r.objects.ids.size for r in dataset.robots),
     }
     if frames is None:
         frames = default_frames(dataset.n_robots)
@@ -241,7 +241,7 @@ def calibrate(
         raise InputError("calibration needs at least 2 frames per robot")
     frames = min(max(r.frames for r in dataset.robots), frames)
     start: dict = {}
-    std = {"features": config.feature_std, "objects": config.object_std}
+    std = {"features": config.filter.feature_std, "objects": config.filter.object_std}
     for sensor in SENSORS:
         bound = epipolar_noise(dataset, sensor) if use[sensor] else None
         start[f"{sensor}_epipolar_std"] = bound
@@ -249,22 +249,24 @@ def calibrate(
             std[sensor] = max(std[sensor], 3.0 * bound)
     # start the odometry from above: a filter that trusts its odometry too much explains the
     # data by odometry and EM then crawls; one that trusts it too little lets the data speak
-    log_odometry = np.log(3.0 * np.asarray(config.odometry_std))
+    log_odometry = np.log(3.0 * np.asarray(config.filter.odometry_std))
     searches = {sensor: _Secant(value) for sensor, value in std.items()}
     iterations: list[dict] = []
     converged = False
     for _ in range(max_iterations):
         current = config.with_(
-            feature_std=searches["features"].value,
-            object_std=searches["objects"].value,
-            odometry_std=tuple(np.exp(log_odometry)),
+            filter={
+                "feature_std": searches["features"].value,
+                "object_std": searches["objects"].value,
+                "odometry_std": tuple(np.exp(log_odometry)),
+            }
         )
         health = _pass(dataset, current, frames)
         summary = health.summary()
         entry = {
-            "odometry_std": list(current.odometry_std),
-            "feature_std": current.feature_std if use["features"] else None,
-            "object_std": current.object_std if use["objects"] else None,
+            "odometry_std": list(current.filter.odometry_std),
+            "feature_std": current.filter.feature_std if use["features"] else None,
+            "object_std": current.filter.object_std if use["objects"] else None,
             "nis": summary["nis"],
             "gate_rejection_rate": summary["gate_rejection_rate"],
         }
@@ -356,10 +358,10 @@ def calibration_table(dataset: TeamDataset, result: CalibrationResult) -> str:
 def params_check(dataset: TeamDataset) -> list[tuple[str, float, float]]:
     """A params file's noise levels (the dataset's sensor model) beside a calibration from
     the data: ``(label, given, found)`` per level both give."""
-    from teamslam.msckf.configure import resolve_config
+    from teamslam.msckf.configure import build_settings
     from teamslam.msckf.settings.sources import calibration_start
 
-    start = calibration_start(dataset, resolve_config(dataset, calibrate="never").config)
+    start = calibration_start(dataset, build_settings(dataset, calibrate="never").config)
     found_noise = calibrate(dataset, start).sensor_model.team
     given_noise = dataset.sensor_model.team
 

@@ -38,8 +38,8 @@ def run_centralised(
         The team's data.
     config
         Filter settings, one for the team or one per robot (default:
-        :func:`~teamslam.msckf.configure.resolve_config`). The first robot's ``debug`` and
-        ``initial_pose_std`` apply to the joint state.
+        :func:`~teamslam.msckf.configure.build_settings`). The first robot's ``filter.debug`` and
+        ``filter.initial_pose_std`` apply to the joint state.
     progress
         Show a progress bar (default: when standard error is a terminal).
 
@@ -57,8 +57,8 @@ def run_centralised(
     state = MsckfState.team(
         np.stack([r.T_world_body[0] for r in dataset.robots]),
         0,
-        np.eye(6) * first.initial_pose_std**2,
-        first.debug,
+        np.eye(6) * first.filter.initial_pose_std**2,
+        first.filter.debug,
     )
     agents = [
         MsckfAgent(

@@ -1,7 +1,7 @@
 """The team driver: one robot's frame loop, the lock-step schedule of a team, one result.
 
 Every way of running the filter goes through :class:`RobotDriver`: per frame, consensus
-(``consensus_iterations`` exchanges: requests, answers, average) over a
+(``consensus.iterations`` exchanges: requests, answers, average) over a
 :class:`~teamslam.msckf.consensus.transport.Transport`, then the filter step and the record of
 the filtered pose. Waiting follows :class:`LockStep` or :class:`Asynchronous`; a neighbour
 silent for ``lost_after`` frames is reported lost. :func:`run_lockstep` runs a team in one
@@ -213,7 +213,7 @@ class RobotDriver:
 
     @property
     def iterations(self) -> int:
-        """Consensus exchanges per frame (``consensus_iterations``; 1 without consensus)."""
+        """Consensus exchanges per frame (``consensus.iterations``; 1 without consensus)."""
         return 1 if self.protocol is None else self.protocol.iterations
 
     @contextmanager
@@ -401,7 +401,7 @@ def run_lockstep(
 
 
 def exchanges_per_frame(drivers: Sequence[RobotDriver]) -> int:
-    """The consensus exchanges per frame of a team (``consensus_iterations``; 1 without
+    """The consensus exchanges per frame of a team (``consensus.iterations``; 1 without
     consensus).
 
     Raises
@@ -413,7 +413,7 @@ def exchanges_per_frame(drivers: Sequence[RobotDriver]) -> int:
     counts = {d.iterations for d in drivers if d.protocol is not None}
     if len(counts) > 1:
         raise InputError(
-            f"every robot of a team needs the same consensus_iterations, not {sorted(counts)}"
+            f"every robot of a team needs the same consensus.iterations, not {sorted(counts)}"
         )
     return counts.pop() if counts else 1
 
@@ -661,7 +661,7 @@ def run_team(
         The team's data.
     config
         Filter settings, one for the team or one per robot (default:
-        :func:`~teamslam.msckf.configure.resolve_config` — the dataset's sensor model, or a
+        :func:`~teamslam.msckf.configure.build_settings` — the dataset's sensor model, or a
         calibration from the data when it has none).
     graph
         Communication graph (default: complete).

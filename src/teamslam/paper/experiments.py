@@ -1,7 +1,7 @@
 """The experiments behind the papers' tables and figures, as library calls.
 
 Each runs what ``teamslam run`` (or ``teamslam fej``) would run, with settings resolved from
-the data (:func:`teamslam.api.resolve_settings`), and returns plain numbers:
+the data (:func:`teamslam.msckf.configure.build_settings`), and returns plain numbers:
 :func:`kitti_pair`, :func:`team_pairs`, :func:`loss_sweep`, :func:`fej_experiment`. Each is also an
 :class:`Experiment` (its independent tasks and how its result is built from theirs), so that
 :func:`run_experiments` runs the tasks of many in one process pool, longest first, each task
@@ -162,9 +162,9 @@ def settings_summary(dataset, effective) -> str:
     config = effective.config
     sources = effective.sources
     tracks = sum(r.features.ids.size for r in dataset.robots)
-    features = "on" if config.use_geometric_features else "off"
+    features = "on" if config.filter.use_geometric_features else "off"
     parts = [
-        f"window {config.window} ({sources.get('window', 'default')})",
+        f"window {config.filter.window} ({sources.get('filter.window', 'default')})",
         f"geometric features {features}" if tracks else "no geometric features in the data",
         f"noise levels from the {sources.get('odometry_std', 'default')}",
     ]
@@ -253,13 +253,13 @@ def _reference_frames(directory: Path, frames: int | None) -> tuple[int, int]:
 
 
 def _kitti_prepare(directory: Path, frames: int | None, settings: dict | None):
-    from teamslam import api
     from teamslam.datasets import import_reference
+    from teamslam.msckf.configure import build_settings
 
     dataset = import_reference(directory)
     if frames is not None:
         dataset = dataset.head(frames)
-    return dataset, api.resolve_settings(dataset, settings)
+    return dataset, build_settings(dataset, flags=settings)
 
 
 def _kitti_run(prepared, mode: str) -> dict:
@@ -329,7 +329,8 @@ def kitti_pair(
     frames
         Only the first ``frames`` frames of each robot.
     settings
-        Filter settings on top of those resolved from the data (``{name: value}``, as ``--set``).
+        Filter settings on top of those resolved from the data (``{group.name: value}``, as
+        ``--set``).
     workers, progress
         The two filters run in parallel (:func:`run_experiments`).
     """
@@ -344,11 +345,11 @@ def _simulated(robots: int, steps: int, seed: int):
 
 
 def _pair_job(case: tuple, steps: int, settings: dict | None) -> dict:
-    from teamslam import api
+    from teamslam.msckf.configure import build_settings
 
     robots, seed, mode, loss = case
     dataset = _simulated(robots, steps, seed)
-    effective = api.resolve_settings(dataset, settings)
+    effective = build_settings(dataset, flags=settings)
     out = _team_run(dataset, mode, effective, loss=loss, seed=1)
     out["settings"] = settings_summary(dataset, effective)
     return out

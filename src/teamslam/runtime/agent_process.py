@@ -23,7 +23,7 @@ import numpy as np
 from teamslam.datasets import SensorModel, TeamDataset, load_dataset
 from teamslam.errors import EstimationError, InputError, OutputError
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.configure import resolve_config
+from teamslam.msckf.configure import build_settings
 from teamslam.msckf.consensus.transport import Transport
 from teamslam.msckf.filter.linearization import GroundTruth, linearization_policy
 from teamslam.msckf.settings.sources import ConfigError
@@ -100,13 +100,13 @@ def robot_setup(
         sensor_model=_own_sensor_model(dataset, index),
         object_identity=identity,
     )
-    config = resolve_config(own, file_values=team.filter_settings, calibrate=calibrate).config
+    config = build_settings(own, file=team.settings, calibrate=calibrate).config
     # an imported bag may have no ground truth (its metadata says so)
     has_truth = bool(dataset.metadata.get("ground_truth", True))
-    if linearization_policy(config.linearization).needs_truth and not has_truth:
+    if linearization_policy(config.filter.linearization).needs_truth and not has_truth:
         raise ConfigError(
-            f"robot {robot}: linearization={config.linearization} needs ground truth, and "
-            f"{dataset_path} has none"
+            f"robot {robot}: filter.linearization={config.filter.linearization} needs ground "
+            f"truth, and {dataset_path} has none"
         )
     return dataset, index, config
 

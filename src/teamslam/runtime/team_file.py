@@ -1,10 +1,10 @@
 """The team file (``team.yaml``): who the robots are, what they run on, whom they talk to.
 
 :func:`load_team_file` reads the team's name, dataset, synchronisation (``lockstep`` or ``async``
-with its timeout or maximum age), checkpoints, injected loss and delay, the ``filter`` and
+with its timeout or maximum age), checkpoints, injected loss and delay, the ``settings`` and
 optional ``ros2`` and ``security`` sections, and per robot its id, endpoint, name, neighbours
 and optional dataset. Loading validates everything and names the first problem; the
-``filter`` settings are checked for every robot again before a launch. Consensus weights are
+``settings`` are checked for every robot again before a launch. Consensus weights are
 not fixed by the file: they are the Metropolis–Hastings weights of the links that worked
 (:func:`teamslam.graph.metropolis_weight`). Field by field: the docs' reference page
 *Team file*.
@@ -67,7 +67,7 @@ class TeamFile:
     message_loss: float = 0.0
     message_delay_ms: float = 0.0
     shared_memory: bool = True
-    filter_settings: dict = field(default_factory=dict)
+    settings: dict = field(default_factory=dict)
     path: Path | None = None
     ros2: dict | None = None
     security: SecuritySection | None = None
@@ -163,12 +163,16 @@ def _parse(data, path: Path) -> TeamFile:
         "checkpoint_every",
         "message_loss",
         "message_delay_ms",
-        "filter",
+        "settings",
         "robots",
         "ros2",
         "security",
         "shared_memory",
     }
+    if "filter" in unknown:
+        raise TeamFileError(
+            "'filter' is now 'settings', by group (settings: {filter: {window: 10}})"
+        )
     if unknown:
         raise TeamFileError(f"unknown field(s): {', '.join(sorted(unknown))}")
     team = data.get("team")
@@ -236,18 +240,11 @@ def _parse(data, path: Path) -> TeamFile:
     sync = data.get("sync", "lockstep")
     if sync not in ("lockstep", "async"):
         raise TeamFileError("'sync' must be lockstep or async")
-    filt = data.get("filter", {}) or {}
-    if not isinstance(filt, dict):
-        raise TeamFileError("'filter' must map filter settings to values")
-    filt = dict(filt)
-    if "objects_only" in filt:
-        objects_only = filt.pop("objects_only")
-        if not isinstance(objects_only, bool):
-            raise TeamFileError("filter.objects_only must be true or false")
-        if objects_only:
-            filt["use_geometric_features"] = False
+    settings = data.get("settings", {}) or {}
+    if not isinstance(settings, dict):
+        raise TeamFileError("'settings' must map groups of filter settings to values")
     try:
-        filt = coerce_settings(filt, "filter")
+        settings = coerce_settings(settings, "settings")
     except ConfigError as exc:
         raise TeamFileError(str(exc)) from None
     return TeamFile(
@@ -261,7 +258,7 @@ def _parse(data, path: Path) -> TeamFile:
         message_loss=_number(data, "message_loss", 0.0, float, 0.0, 1.0),
         message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
         shared_memory=data.get("shared_memory", True),
-        filter_settings=filt,
+        settings=settings,
         path=path,
         ros2=_mapping(data, "ros2"),
         security=security,

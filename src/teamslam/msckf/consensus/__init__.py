@@ -4,7 +4,8 @@
 :mod:`~teamslam.msckf.consensus.messages` and :mod:`~teamslam.msckf.consensus.transport` say
 what robots tell each other and how; :mod:`~teamslam.msckf.consensus.marginals` and
 :mod:`~teamslam.msckf.consensus.checks` build and check messages;
-:mod:`~teamslam.msckf.consensus.average` holds the averaging rules,
+:mod:`~teamslam.msckf.consensus.average` holds the averaging rules (chosen by the strategy of
+:mod:`~teamslam.msckf.consensus.rules`, ``consensus.rule``),
 :mod:`~teamslam.msckf.consensus.selection` the bounded consensus set and
 :mod:`~teamslam.msckf.consensus.kernels` compiled passes. The public names of the averaging,
 checking and message modules are re-exported here and loaded on first use.
@@ -43,6 +44,7 @@ __getattr__, __dir__ = attach(
         "marginals",
         "messages",
         "protocol",
+        "rules",
         "selection",
         "transport",
     ),

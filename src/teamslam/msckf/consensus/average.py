@@ -3,8 +3,8 @@
 :func:`consensus_average` forms one weighted geometric average (eq. 19) over ``y``, the objects
 shared with at least one neighbour heard — each neighbour's marginal completed by our own
 conditional (Prop. 2) — and rebuilds the joint. :func:`hybrid_marginal` and
-:func:`increment_average` implement the optional rules ``consensus_hybrid`` and
-``consensus_increments`` (lock-step only), whose gains never count one robot's new information
+:func:`increment_average` implement the optional rules ``consensus.rule = hybrid`` and
+``consensus.rule = increments`` (lock-step only), whose gains never count one robot's new information
 more than once. Derivations: the concept page *Consensus* (``docs/concepts/consensus.md``).
 """
 

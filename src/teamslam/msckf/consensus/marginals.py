@@ -150,7 +150,7 @@ def _rounded_information(
 FLOAT32_MAX_KL = 1e-4
 """Largest Kullback–Leibler divergence (nats) of a marginal rounded to single precision from
 the exact one for which a ``float32`` message is sent — a thousandth of a typical
-``consensus_kl_threshold``, so rounding never changes what consensus sees."""
+``consensus.kl_threshold``, so rounding never changes what consensus sees."""
 
 
 def rounding_divergence_bound(

@@ -151,7 +151,7 @@ class MapIdsMessage:
         One flag per id: whether the sender's marginal of that object has moved since the two
         robots last exchanged it (``None``: all have — average every common object).
     summary
-        With association by the robots themselves (``association = own``): the sender's
+        With association by the robots themselves (``association.mode = own``): the sender's
         object summary (ids, means, marginal covariances, classes) on the steps its link
         exchanges summaries, else ``None``.
     """

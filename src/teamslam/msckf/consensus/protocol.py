@@ -31,7 +31,6 @@ from typing import Protocol
 import numpy as np
 
 from teamslam.association import (
-    AssociationSettings,
     CorrespondenceTable,
     ObjectSummary,
     associate,
@@ -40,13 +39,7 @@ from teamslam.association import (
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError, kl_divergence, spd_inverse
 from teamslam.graph import metropolis_weight
-from teamslam.msckf.consensus.average import (
-    SharedPrior,
-    consensus_average,
-    hybrid_marginal,
-    prior_information,
-    shared_prior,
-)
+from teamslam.msckf.consensus.average import SharedPrior
 from teamslam.msckf.consensus.checks import ReceivedMarginal, check_message
 from teamslam.msckf.consensus.kernels import merged_record
 from teamslam.msckf.consensus.marginals import common_marginal_message, object_marginals
@@ -56,6 +49,7 @@ from teamslam.msckf.consensus.messages import (
     Message,
     summary_wire_bytes,
 )
+from teamslam.msckf.consensus.rules import consensus_rule
 from teamslam.msckf.consensus.selection import active_objects, settling_thresholds
 from teamslam.msckf.filter.state import MsckfState
 from teamslam.msckf.filter.views import ObjectViews
@@ -92,7 +86,7 @@ class ConsensusProtocol:
         Oldest step accepted, as ``step − max_age`` (0: lock-step, only the current step).
     kl_threshold
         Average a common object only when it moved by more than this since the last exchange
-        (default: the agent's ``config.consensus_kl_threshold``; 0 averages everything).
+        (default: the agent's ``config.consensus.kl_threshold``; 0 averages everything).
     """
 
     def __init__(
@@ -108,13 +102,13 @@ class ConsensusProtocol:
         if self.robot in self.neighbours:
             raise InputError(f"robot {self.robot} cannot be its own neighbour")
         self.max_age = int(max_age)
-        threshold = agent.config.consensus_kl_threshold if kl_threshold is None else kl_threshold
+        settings = agent.config.consensus
+        threshold = settings.kl_threshold if kl_threshold is None else kl_threshold
         # asynchronous exchanges mix steps: there every common object is averaged
         self.kl_threshold = float(threshold) if self.max_age == 0 else 0.0
         # a bounded consensus set (lock-step only): inactive objects are flagged only when they
         # moved by more than their own threshold (:mod:`teamslam.msckf.consensus.selection`)
-        config = agent.config
-        self.bounded = config.consensus_set == "active" and self.max_age == 0
+        self.bounded = settings.set == "active" and self.max_age == 0
         self._thresholds: np.ndarray | None = None
         # per neighbour: our own per-object marginals as they were at the last exchange, and
         # the number of that exchange
@@ -125,14 +119,13 @@ class ConsensusProtocol:
         # completes the neighbour's marginal of the same set in the average (eq. 42)
         self._own_information: dict[bytes, np.ndarray] = {}
         self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        # hybrid consensus: our joint marginal of the objects after the last exchange
-        config = agent.config
-        self.increments = bool(config.consensus_increments) and self.max_age == 0
-        self.hybrid = (bool(config.consensus_hybrid) or self.increments) and self.max_age == 0
-        self._prior: SharedPrior | None = shared_prior(agent.state) if self.hybrid else None
+        # the averaging rule (lock-step only; asynchronous robots average) and the prior it
+        # keeps: our joint marginal of the objects after the last exchange
+        self.rule = consensus_rule(settings.rule if self.max_age == 0 else "average")
+        self._prior: SharedPrior | None = self.rule.initial_prior(agent.state)
         self.step = -1
         # L exchanges per step (lock-step only; asynchronous robots exchange once a step)
-        self.iterations = int(config.consensus_iterations) if self.max_age == 0 else 1
+        self.iterations = int(settings.iterations) if self.max_age == 0 else 1
         self.iteration = 0
         self.round = -1
         self.heard: set[int] = set()
@@ -140,17 +133,17 @@ class ConsensusProtocol:
         self.averaged_with: list[int] = []
         self.spent = 0.0
         # association by the robots themselves: one correspondence table per link
-        config = agent.config
-        self.association = config.association
-        self.association_interval = int(config.association_interval)
+        association = agent.config.association
+        self.association = association.mode
+        self.association_interval = int(association.interval)
         self.tables: dict[int, CorrespondenceTable] = {}
         if self.association == "own":
-            settings = AssociationSettings()
+            matching = association.matching()
             self.tables = {
-                j: CorrespondenceTable(self.robot, j, settings) for j in sorted(self.neighbours)
+                j: CorrespondenceTable(self.robot, j, matching) for j in sorted(self.neighbours)
             }
-        check = self.association == "own" or config.consensus_innovation_check
-        self.innovation_probability = config.association_revoke_probability if check else None
+        check = self.association == "own" or settings.innovation_check
+        self.innovation_probability = association.revoke_probability if check else None
         self._summary: ObjectSummary | None = None
         #: per link: summaries sent and their bytes, full associations, extensions, seconds
         #: spent associating, objects left out of an average by the innovation test
@@ -197,7 +190,7 @@ class ConsensusProtocol:
             self.robot,
             self.neighbours,
             self.agent.state,
-            self.agent.config.consensus_per_object,
+            self.agent.config.consensus.per_object,
             taken.keys(),
             heard,
         )
@@ -315,7 +308,7 @@ class ConsensusProtocol:
         for (j, mine, theirs), kl_j in zip(pairs, np.split(kl, split), strict=True):
             if self._thresholds is None:
                 limit = self.kl_threshold
-            else:  # an average once started runs to agreement (consensus_set)
+            else:  # an average once started runs to agreement (consensus.set)
                 limit = settling_thresholds(
                     self._thresholds[mine],
                     self._agreed[j][3][theirs],
@@ -327,14 +320,14 @@ class ConsensusProtocol:
 
     def _object_thresholds(self, covs: np.ndarray) -> np.ndarray:
         """Per object (state slot order): how far its marginal must move (KL, nats) to be
-        averaged again — ``consensus_kl_threshold`` when active (``-inf`` for 0: always),
-        ``consensus_inactive_kl_threshold`` otherwise."""
-        config = self.agent.config
-        active = active_objects(self.agent.state, covs, config.consensus_active_information)
+        averaged again — ``consensus.kl_threshold`` when active (``-inf`` for 0: always),
+        ``consensus.inactive_kl_threshold`` otherwise."""
+        settings = self.agent.config.consensus
+        active = active_objects(self.agent.state, covs, settings.active_information)
         if self.iteration == 0:  # the set of a step, counted once however many exchanges
             self.agent.counters["objects_inactive"] += int(active.size - active.sum())
         active_threshold = self.kl_threshold if self.kl_threshold > 0 else -np.inf
-        inactive = max(float(config.consensus_inactive_kl_threshold), self.kl_threshold)
+        inactive = max(float(settings.inactive_kl_threshold), self.kl_threshold)
         return np.where(active, active_threshold, inactive)
 
     def answer(self, received: Sequence[Message]) -> list[CommonMarginalMessage]:
@@ -386,8 +379,16 @@ class ConsensusProtocol:
                 continue
             self._pending[j] = share
             self.expected.add(j)
-        source = self._hybrid_source() if self.hybrid and self._pending else None
-        config = self.agent.config
+        source = None
+        if self._pending:
+            source = self.rule.sent_marginal(
+                self.agent.state,
+                np.unique(np.concatenate(list(self._pending.values()))),
+                len(self.heard),
+                self._prior,
+                self.agent.counters,
+            )
+        settings = self.agent.config.consensus
         self._own_information = {}
         for j, share in self._pending.items():
             reply = common_marginal_message(
@@ -397,12 +398,12 @@ class ConsensusProtocol:
                 self.round,
                 share,
                 len(self.heard),
-                per_object=config.consensus_per_object,
-                float32=config.consensus_float32,
+                per_object=settings.per_object,
+                float32=settings.float32,
                 source=source,
-                information=not config.consensus_per_object,
+                information=not settings.per_object,
                 keep=self._own_information if source is None else None,
-                prior=self._prior if self.increments else None,
+                prior=self.rule.message_prior(self._prior),
             )
             replies.append(reply)
         self.spent += time.perf_counter() - begin
@@ -545,20 +546,6 @@ class ConsensusProtocol:
             out[str(j)] = entry
         return out
 
-    def _hybrid_source(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """Our joint marginal of every object we send, new information scaled by ``1 + d_i``."""
-        ids = np.unique(np.concatenate(list(self._pending.values())))
-        state = self.agent.state
-        slots = state.object_slots(ids)
-        mean = state.objects[slots].ravel()
-        info = spd_inverse(state.covariance(state.object(slots)), "own marginal covariance")
-        gain = 1.0 + len(self.heard)
-        hybrid = hybrid_marginal(mean, info, *prior_information(self._prior, ids), gain)
-        if hybrid is None:
-            self.agent.counters["hybrid_fallbacks"] += 1
-            return None
-        return ids, hybrid[0], hybrid[1]
-
     def weights(self, degrees: dict[int, int]) -> tuple[float, dict[int, float]]:
         """``(A_ii, {j: A_ij})`` for the neighbours heard, given each one's degree."""
         mine = len(self.heard)
@@ -604,18 +591,18 @@ class ConsensusProtocol:
         self_weight, weights = self.weights(degrees)
         self.averaged_with = sorted(marginals)
         used = [(weights[j], marginals[j]) for j in sorted(marginals)]
-        averaged = consensus_average(
+        averaged = self.rule.average(
             self.agent.state,
             self_weight,
             used,
-            prior=self._prior if self.hybrid else None,
-            counters=self.agent.counters,
-            own_information=self._own_information,
-            increments=self.increments,
+            self._prior,
+            self.agent.counters,
+            self._own_information,
         )
         self._own_information = {}  # the state has moved
-        if self.hybrid and (self.expected or averaged):
-            self._prior = shared_prior(self.agent.state)
+        self._prior = self.rule.next_prior(
+            self.agent.state, self._prior, bool(self.expected or averaged)
+        )
         if self._own is not None:
             for j in marginals:
                 if j in self._pending:

@@ -1,10 +1,10 @@
-"""Consensus, selection: which common objects a robot averages jointly (``consensus_set``).
+"""Consensus, selection: which common objects a robot averages jointly (``consensus.set``).
 
-With ``consensus_set = active`` a robot flags at ``consensus_kl_threshold`` only its *active*
+With ``consensus.set = active`` a robot flags at ``consensus.kl_threshold`` only its *active*
 objects — observed within the window, or with mutual information above
-``consensus_active_information`` nats with the window poses — and the others only when they
-moved by more than ``consensus_inactive_kl_threshold``; an object the pair averaged in the
-previous exchange is tested at ``consensus_kl_threshold`` (an average once started settles).
+``consensus.active_information`` nats with the window poses — and the others only when they
+moved by more than ``consensus.inactive_kl_threshold``; an object the pair averaged in the
+previous exchange is tested at ``consensus.kl_threshold`` (an average once started settles).
 Lock-step exchanges only. Derivation, and what is lost against the full joint average: the
 concept page *The bounded consensus set* (``docs/concepts/consensus-set.md``).
 """
@@ -73,7 +73,7 @@ def settling_thresholds(
 ) -> np.ndarray:
     """How far each object on record with one neighbour must have moved to be averaged again.
 
-    ``thresholds`` are the objects' own (``consensus_kl_threshold`` when active, the inactive
+    ``thresholds`` are the objects' own (``consensus.kl_threshold`` when active, the inactive
     threshold otherwise); ``exchanged_at`` the number of the exchange in which the pair last
     averaged each. An object the pair averaged in the previous exchange is tested against
     ``kl_threshold`` whatever its own threshold: an average, once started, runs until the pair

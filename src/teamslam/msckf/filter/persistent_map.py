@@ -1,6 +1,6 @@
 """Objects that left the filter state: a robot's persistent map (bounded cost over a mission).
 
-With ``object_retire_after = N > 0`` an object unobserved for ``N`` frames retires — exact
+With ``objects.retire_after = N > 0`` an object unobserved for ``N`` frames retires — exact
 marginalisation: its mean, 3×3 marginal and first estimate are kept here — and re-enters the
 state with them, without cross-covariance, when observed again. Retired objects take no part in
 consensus. Storing or re-entering ``k`` objects costs ``O(k)``. Why, and what re-entry

@@ -2,10 +2,10 @@
 
 :meth:`ObjectTracker.assign` predicts every target (state objects, persistent-map objects, the
 tracker's own tracks) into the current stereo pair, gates each detection with the filter's
-innovation covariance at the ``track_gate_probability`` quantile of χ²(4), assigns one-to-one
+innovation covariance at the ``tracking.gate_probability`` quantile of χ²(4), assigns one-to-one
 by global nearest neighbour with miss and birth costs, and names the detections: an object's id,
 or a tentative track confirmed after ``M`` detections within ``N`` frames. A false detection no
-other confirms never reaches the filter. With ``track_loop_closure`` revisits are merged first
+other confirms never reaches the filter. With ``tracking.loop_closure`` revisits are merged first
 (:mod:`teamslam.msckf.objects.loop_closure`). The rules and why: the concept page *Tracking*
 (``docs/concepts/tracking.md``).
 """
@@ -89,17 +89,17 @@ class ObjectTracker:
         self.views = views
         self.T_cam_body = T_cam_body
         self.config = config
-        self.hits_needed = config.track_confirm_hits or config.object_init_observations
-        self.frames_allowed = config.track_confirm_frames or self.hits_needed + 2
-        self.gate = chi2_quantile(config.track_gate_probability, 4)
+        self.hits_needed = config.tracking.confirm_hits or config.objects.init_observations
+        self.frames_allowed = config.tracking.confirm_frames or self.hits_needed + 2
+        self.gate = chi2_quantile(config.tracking.gate_probability, 4)
         # the rig for the compiled prediction: T_cam_body, K, T_left_right stacked (3 × 4 × 4)
         self._camera_block = np.zeros((3, 4, 4))
         self._camera_block[0] = T_cam_body
         self._camera_block[1, :3, :3] = camera.intrinsics
         self._camera_block[2] = camera.T_left_right
-        self.birth_gate = chi2_quantile(config.track_birth_probability, 4)
+        self.birth_gate = chi2_quantile(config.tracking.birth_probability, 4)
         # a target no deeper than this is behind the camera (not predicted)
-        self._min_depth = max(config.object_min_depth, 1e-3 * camera.baseline) * 0.5
+        self._min_depth = max(config.objects.min_depth, 1e-3 * camera.baseline) * 0.5
         self.next_id = track_id_base(robot)
         # tracks, as arrays (one row per track)
         self.ids = np.zeros(0, np.int64)
@@ -141,7 +141,7 @@ class ObjectTracker:
         self._created_frames: list[int] = []
         #: loop closure in the robot's own map (:mod:`teamslam.msckf.objects.loop_closure`), or None
         self.loop: LoopClosure | None = (
-            LoopClosure(gap=config.window) if config.track_loop_closure else None
+            LoopClosure(gap=config.filter.window) if config.tracking.loop_closure else None
         )
         #: every merged object and the object it continues (new id -> old id)
         self.merged: dict[int, int] = {}
@@ -342,7 +342,7 @@ class ObjectTracker:
     def _predict(self, t: int, state, odometry_cov: np.ndarray):
         """Every target's predicted measurement, innovation covariance and point Jacobian.
 
-        Only targets in front of the camera and nearer than twice ``object_max_depth``.
+        Only targets in front of the camera and nearer than twice ``objects.max_depth``.
         Returns kinds (0 state, 1 persistent map, 2 track), ids, frame last seen, predictions
         ``(T, 4)``,
         ``S`` ``(T, 4, 4)``, ``∂z/∂p`` ``(T, 4, 3)``, in front of the camera ``(T,)`` and class
@@ -352,7 +352,7 @@ class ObjectTracker:
         pose = state.current_pose
         parts_ids, parts_points, parts_p, kinds = [], [], [], []
         seen = []
-        reach = 2.0 * cfg.object_max_depth  # farther or behind: no detection can be theirs
+        reach = 2.0 * cfg.objects.max_depth  # farther or behind: no detection can be theirs
         if state.n_objects:
             depth = (state.objects - pose[:3, 3]) @ self._depth_axis(pose) + self.T_cam_body[2, 3]
             slots = np.flatnonzero((depth > 0) & (depth < reach))
@@ -413,7 +413,7 @@ class ObjectTracker:
             np.ascontiguousarray(points, dtype=float),
             np.ascontiguousarray(p, dtype=float),
             self._min_depth,
-            float(cfg.object_std) ** 2,
+            float(cfg.filter.object_std) ** 2,
         )
         labels = np.full(ids.size, -1, np.int64)
         if self._label_ids.size and (kind < 2).any():
@@ -519,14 +519,14 @@ class ObjectTracker:
         points, ok = stereo_point(self.camera, self.T_cam_body, pose, z)
         depth = np.linalg.norm(points - pose[:3, 3], axis=1)
         ok &= np.all(np.isfinite(points), axis=1)
-        ok &= (depth > cfg.object_min_depth) & (depth < cfg.object_max_depth)
+        ok &= (depth > cfg.objects.min_depth) & (depth < cfg.objects.max_depth)
         self.counters["detections_rejected_depth"] += int((~ok).sum())
         if not ok.any():
             return
         points, z, labels, index = points[ok], z[ok], labels[ok], index[ok]
         lone_stale = lone_stale[ok]
         _, _, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, points)
-        info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.object_std**2
+        info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.filter.object_std**2
         covs = np.linalg.solve(info, np.broadcast_to(np.eye(3), info.shape))
         k = points.shape[0]
         ids = np.arange(self.next_id, self.next_id + k, dtype=np.int64)

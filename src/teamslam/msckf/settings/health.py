@@ -275,7 +275,7 @@ HEALTHY_NIS = (0.2, 5.0)
 #: A gate rejecting more than this share of a sensor's measurements draws a warning.
 HEALTHY_REJECTION = 0.3
 _NAMES = {"features": "geometric-feature", "objects": "object"}
-_SETTING = {"features": "feature_std", "objects": "object_std"}
+_SETTING = {"features": "filter.feature_std", "objects": "filter.object_std"}
 
 
 def health_warnings(summary: dict) -> list[str]:
@@ -310,11 +310,11 @@ def health_warnings(summary: dict) -> list[str]:
         if value is not None and value < low:
             lines.append(
                 f"odometry {part}: smoothed residuals are {value:.3g}× the assumed variance; "
-                "odometry σ (odometry_std) probably too large"
+                "odometry σ (filter.odometry_std) probably too large"
             )
         elif value is not None and value > high:
             lines.append(
                 f"odometry {part}: smoothed residuals are {value:.3g}× the assumed variance; "
-                "odometry σ (odometry_std) probably too small"
+                "odometry σ (filter.odometry_std) probably too small"
             )
     return lines

@@ -1,348 +1,157 @@
-"""Settings of one robot's distributed MSCKF.
+"""Settings of one robot's distributed MSCKF, in groups.
 
-Where a run's settings come from — camera-scaled defaults, the dataset's sensor model,
-calibration, a config file, flags — is decided in :mod:`teamslam.msckf.settings.sources`; this
-module
-only holds and validates them.
+:class:`MsckfConfig` holds one frozen dataclass per group — ``filter``, ``objects``,
+``tracking``, ``consensus``, ``association`` — and each group validates its own fields. A setting
+is named ``group.name`` (``filter.window``); every field documents its meaning in its class's
+``Attributes`` section and its unit in the field's metadata (``unit``; empty: unit-free). Where a
+run's settings come from (defaults, dataset, calibration, file, flags) is decided in
+:mod:`teamslam.msckf.settings.sources`; this module only holds and validates them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+import inspect
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from typing import Any
 
 import numpy as np
 
+from teamslam.association import AssociationSettings
 from teamslam.errors import InputError
 from teamslam.gaussian import chi2_quantile
 
-__all__ = ["MsckfConfig"]
+__all__ = [
+    "CONSENSUS_RULES",
+    "LINEARIZATIONS",
+    "ConsensusSettings",
+    "FilterSettings",
+    "MsckfConfig",
+    "ObjectSettings",
+    "TeamAssociationSettings",
+    "TrackingSettings",
+]
+
+#: The consensus rules (:mod:`teamslam.msckf.consensus.rules`).
+CONSENSUS_RULES = ("average", "hybrid", "increments")
+#: The linearisation policies (:mod:`teamslam.msckf.filter.linearization`).
+LINEARIZATIONS = ("std", "fej", "ideal", "oc")
+
+
+def _unit(unit: str) -> dict[str, str]:
+    """A field's metadata: its unit (empty: unit-free)."""
+    return {"unit": unit}
 
 
 def _is_count(value, least: int) -> bool:
     """Whether ``value`` is an integer (not a bool) of at least ``least``."""
-    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+    return isinstance(value, int | np.integer) and not isinstance(value, bool) and value >= least
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+
+
+def _positive(value) -> bool:
+    return _is_number(value) and bool(np.isfinite(value) and value > 0)
+
+
+def _probability(value) -> bool:
+    return _is_number(value) and 0.0 < value < 1.0
+
+
+def _flag(value) -> bool:
+    return isinstance(value, bool | np.bool_)
+
+
+def _check_flags(group, prefix: str, names: tuple[str, ...]) -> None:
+    for name in names:
+        if not _flag(getattr(group, name)):
+            raise InputError(f"{prefix}.{name} must be true or false, got {getattr(group, name)!r}")
 
 
 @dataclass(frozen=True)
-class MsckfConfig:
-    """Noise levels, window size, thresholds.
+class FilterSettings:
+    """The MSCKF itself: window, noise levels, gate, linearisation.
 
     Attributes
     ----------
     window
-        Window size ``c`` (number of body poses kept).
+        Window size ``c``: the number of body poses kept.
     odometry_std
         Six per-axis std of the odometry noise per step, translation ``(x, y, z)`` in metres then
         rotation ``(x, y, z)`` in radians (body frame, right perturbation):
         ``W = diag(odometry_std)²``.
-    feature_std, object_std
-        Std of each stereo coordinate of geometric features and of object box centres, in the
-        units of the camera intrinsics (pixels; normalised coordinates when ``K = I``).
+    feature_std
+        Std of each stereo coordinate of a geometric feature, in the units of the camera
+        intrinsics (pixels; normalised coordinates when ``K = I``).
+    object_std
+        Std of each stereo coordinate of an object's box centre, in the units of the camera
+        intrinsics.
     min_track_length
         Fewest observations of a geometric feature used in an MSCKF update.
-    object_init_observations
-        Observations of an object (inside the window) needed to initialise it.
-    object_min_depth, object_max_depth
-        Accepted distance of a new object from the current pose (metres).
     gate_probability
         Chi-square gate: a feature or object whose normalised innovation exceeds this quantile
         of χ²(dof) — dof = its residual length — is rejected.
-    object_loss, object_loss_scale
-        Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
-        ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
-        standard deviations of its predicted innovation) is updated with its measurement
-        variance divided by the weight ``w(d)`` — Huber ``min(1, c/d)``, Cauchy
-        ``1/(1 + (d/c)²)`` with ``c = object_loss_scale`` — one reweighting step of the
-        M-estimator, unit-free like the gate.
-    use_geometric_features, use_objects
-        Which measurements to use.
+    use_geometric_features
+        Use the geometric features.
+    use_objects
+        Use the objects.
     initial_pose_std
-        Std of the first pose (tiny: robots start from a known pose in the common frame).
-    consensus_kl_threshold
-        Consensus averages a common object with a neighbour only when its marginal has moved,
-        on either robot, since the two last exchanged it: by more than this Kullback–Leibler
-        divergence (nats; unit-free, so the same for any camera or scale). 0 averages every
-        common object at every step, as the paper does.
-    consensus_set
-        Which common objects consensus averages jointly: ``all`` (the paper: every common
-        object that moved, so the joint inverted each step grows with the shared map) or
-        ``active`` (a bounded set: the objects the window can still change — observed within
-        the window, or with mutual information above ``consensus_active_information`` with the
-        window poses — and the others only when they moved by more than
-        ``consensus_inactive_kl_threshold``); lock-step exchanges only;
-        :mod:`teamslam.msckf.consensus.selection` derives what it loses.
-    consensus_active_information
-        With ``consensus_set = active``: an object not observed within the window is active
-        while its mutual information with the window poses exceeds this (nats, unit-free;
-        default ``inf``: only the objects observed within the window are active — on a route
-        that revisits one area every mapped object stays correlated with the poses).
-    consensus_inactive_kl_threshold
-        With ``consensus_set = active``: an inactive object is averaged with a neighbour when
-        its marginal moved by more than this Kullback–Leibler divergence (nats) since the pair
-        last exchanged it (active objects, and objects the pair averaged in the previous
-        exchange — an average once started runs to agreement — use
-        ``consensus_kl_threshold``).
-    consensus_per_object
-        Send each common object's own 3×3 marginal instead of the joint marginal of all of
-        them (the cross-object covariances are dropped from the message, not from the filter):
-        the message grows linearly instead of quadratically with the objects shared.
-    consensus_float32
-        Send means and covariances in single precision (half the bytes) where rounding is
-        harmless: a message goes in float32 only when the rounded marginal is within
-        :data:`~teamslam.msckf.consensus.FLOAT32_MAX_KL` (1e-4 nats) of the exact one, else in
-        float64 (:func:`~teamslam.msckf.consensus.common_marginal_message`).
-    consensus_hybrid
-        Hybrid consensus: the new information each robot gathered since its last exchange
-        enters the neighbours' averages at full weight instead of the Metropolis weight (after
-        HCMCI, Battistelli et al. 2015), with gains that never count one robot's new
-        information twice; the plain average (``False``, the paper's) is conservative by about
-        the number of robots averaging. Joint marginals, lock-step exchanges only;
-        :mod:`teamslam.msckf.consensus`.
-    consensus_increments
-        Consensus on information increments: hybrid consensus (its messages, gains and
-        priors) in which the robot's own new information enters its average exactly once on
-        every object — each neighbour's marginal is completed against our prior rather than
-        our current marginal — so partial maps and partial exchanges no longer dilute it (the
-        hybrid rule counts it less than once wherever a message lacks some averaged object).
-        Never counts an increment twice on any graph, with link loss and partial maps; joint
-        marginals, lock-step exchanges only; :mod:`teamslam.msckf.consensus.average`.
-    consensus_iterations
-        Consensus exchanges per step (``L``, default 1): both rounds and the average are run
-        ``L`` times before each frame, every exchange with its own messages and link losses, so
-        estimates on a sparse graph come closer to the network average at ``L`` times the
-        messages. With hybrid consensus or increments each robot's new information is sent at
-        its gain in the first exchange only (the later ones average the fused estimates, a
-        convex combination), so no increment is counted twice for any ``L``. Lock-step only
-        (asynchronous robots exchange once per step); every robot of a team must use the same
-        ``L``; :mod:`teamslam.msckf.consensus.protocol`.
+        Std of the first pose, every axis (tiny: robots start from a known pose in the common
+        frame).
     linearization
-        Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates)
+        Where Jacobians are evaluated: ``std`` (current estimate), ``fej`` (first estimates),
         ``ideal`` (ground truth, simulation only) or ``oc`` (observability-constrained);
         :mod:`teamslam.msckf.filter.linearization`.
-    object_retire_after
-        Frames an object may go unobserved before it leaves the filter state for the robot's
-        persistent map (its mean and 3×3 marginal kept; it re-enters with them when observed
-        again): this bounds the state, and so the cost per frame, over a long mission. 0 never
-        retires an object (the state keeps every object it initialised). Policy, exactness and
-        what it means for consensus: :mod:`teamslam.msckf.filter.persistent_map`.
     debug
         Check the covariance after every edit.
-    object_init_max_relative_std
-        An object enters the state only once its initial position is certain relative to its
-        distance: the largest standard deviation of its initial covariance (eq. 30, the largest
-        axis) at most this fraction of its distance from the current pose. A less certain
-        object waits for more observations inside the window (unit-free). Far objects seen by
-        stereo from a few frames are strongly nonlinear in depth; their linearised initial
-        covariance is then overconfident, and every filter (``std`` and ``fej`` alike) inherits
-        that. 0 (the default) initialises as soon as ``object_init_observations`` are in the
-        window. On the simulated stereo team 0.1 brings the object ANEES of every filter into
-        the χ² band; on real detections with a calibrated noise it can keep objects from
-        entering at all (fewer common objects for consensus), so it is not the default.
-    object_update_iterations
-        Linearisations of the object rows per frame: 1 is the EKF update of the paper (objects
-        and geometric features in one stacked update, every Jacobian at the prior); ``k > 1``
-        updates with the features first, then with the objects by an iterated EKF (Gauss–Newton
-        on the prior and the object measurements, :meth:`MsckfState.iterated_update`): the
-        object rows are linearised again at the updated estimate up to ``k − 1`` times, until
-        no predicted measurement moves by more than a hundredth of its noise std. Every row
-        keeps the linearisation policy's pose Jacobians (first estimates for ``fej``). Measured
-        (README, "Consistency of the 3D team filter"): with ``fej`` it brings the centralised
-        filter's object ANEES into the χ² band (5.4 → 1.1, 20 runs) and the KITTI 00 object NIS
-        to 1.0; with ``std`` and ``oc``, which lack ``fej``'s linearisation noise, it makes both
-        filters markedly more overconfident; on small simulated teams it moved ``fej``'s RMSE
-        either way by up to 58%; a KITTI 00 run takes about 3× as long. Off by default.
-    track_gate_probability
-        Object tracking (a robot with detections without ids,
-        :mod:`teamslam.msckf.objects.tracking`):
-        a detection may be assigned to a predicted object or track only when its squared
-        Mahalanobis distance under the filter's innovation covariance is at most this quantile
-        of χ²(4).
-    track_birth_probability
-        The outer gate, a wider quantile of χ²(4) than ``track_gate_probability``: an object
-        of the state seen within the last ``N`` frames (``track_confirm_frames``), or a track,
-        that took no detection this frame takes one left outside every gate but inside its
-        outer gate when the pair is alone there (a detector's heavy-tailed error keeps its
-        object); such a detection, when not alone, starts no track (one object, one id). A
-        detection near an object that took another one starts a track (a detector boxes an
-        object once per frame); objects unseen for longer block nothing. Set it to
-        ``track_gate_probability`` to turn the outer gate off.
-    track_confirm_hits, track_confirm_frames
-        A tentative track is confirmed after ``M = track_confirm_hits`` detections within its
-        first ``N = track_confirm_frames`` frames, and dropped otherwise; a confirmed track not
-        yet in the state is dropped after ``N`` frames without a detection. 0 takes the
-        defaults ``M = object_init_observations`` and ``N = M + 2``.
-    track_loop_closure
-        Loop closure in each tracking robot's own map (:mod:`teamslam.msckf.objects.loop_closure`):
-        the
-        objects it created last are matched by the shape of the group against its objects
-        unseen for longer than the window (the own association's rules), and each accepted
-        pair is merged in the filter (an EKF update with ``x_new − x_old = 0``, then the new
-        object leaves the state).
-    association
-        Which objects of two neighbours are the same: ``oracle`` (equal ids — the dataset's ids
-        are team-wide) or ``own`` (each robot names its own objects; each link finds its
-        correspondences from exchanged object summaries, :mod:`teamslam.association`, and
-        consensus averages the matched pairs).
-    association_interval
-        With ``own``: steps between two exchanges of object summaries on a link (each exchange
-        runs a full association when the link's table is due, else grows it).
-    association_revoke_probability
-        With ``own``: probability of the ``χ²₃`` test of each matched pair's consensus
-        innovation; a pair that fails is left out of the average and revoked for good. The
-        default 0.99999 (a threshold of 25.9) suits filters that are somewhat overconfident
-        (KITTI 00: 0.999 revoked 107 pairs, 0.99999 89, with higher precision and recall); a
-        neighbour 20 m off with a tiny covariance gives values of 10⁸ and more.
-    consensus_innovation_check
-        With ``oracle``: the same ``χ²₃`` test of each common object's consensus innovation,
-        leaving out of the step's average the objects that fail (a neighbour that sends
-        marginals far off with a tiny covariance). Off by default: with it, an honest run is
-        no longer bit-identical to one without the check whenever a test fails.
     """
 
-    window: int = 20
-    odometry_std: tuple[float, ...] = (0.02, 0.02, 0.02, 0.004, 0.004, 0.004)
-    feature_std: float = 1.0
-    object_std: float = 2.0
-    min_track_length: int = 3
-    object_init_observations: int = 3
-    object_min_depth: float = 1.0
-    object_max_depth: float = 40.0
-    gate_probability: float = 0.95
-    object_loss: str = "none"
-    object_loss_scale: float = 2.0
-    use_geometric_features: bool = True
-    use_objects: bool = True
-    initial_pose_std: float = 1e-4
-    consensus_kl_threshold: float = 1e-3
-    consensus_set: str = "all"
-    consensus_active_information: float = float("inf")
-    consensus_inactive_kl_threshold: float = 0.3
-    consensus_per_object: bool = False
-    consensus_float32: bool = True
-    consensus_hybrid: bool = False
-    consensus_increments: bool = False
-    consensus_iterations: int = 1
-    linearization: str = "std"
-    object_retire_after: int = 0
-    debug: bool = False
-    object_init_max_relative_std: float = 0.0
-    object_update_iterations: int = 1
-    track_gate_probability: float = 0.99
-    track_birth_probability: float = 0.999999
-    track_confirm_hits: int = 0
-    track_confirm_frames: int = 0
-    track_loop_closure: bool = False
-    association: str = "oracle"
-    association_interval: int = 5
-    association_revoke_probability: float = 0.99999
-    consensus_innovation_check: bool = False
+    window: int = field(default=20, metadata=_unit("poses"))
+    odometry_std: tuple[float, ...] = field(
+        default=(0.02, 0.02, 0.02, 0.004, 0.004, 0.004), metadata=_unit("m, m, m, rad, rad, rad")
+    )
+    feature_std: float = field(default=1.0, metadata=_unit("camera units"))
+    object_std: float = field(default=2.0, metadata=_unit("camera units"))
+    min_track_length: int = field(default=3, metadata=_unit("observations"))
+    gate_probability: float = field(default=0.95, metadata=_unit(""))
+    use_geometric_features: bool = field(default=True, metadata=_unit(""))
+    use_objects: bool = field(default=True, metadata=_unit(""))
+    initial_pose_std: float = field(default=1e-4, metadata=_unit("m, rad"))
+    linearization: str = field(default="std", metadata=_unit(""))
+    debug: bool = field(default=False, metadata=_unit(""))
 
     def __post_init__(self) -> None:
         if not _is_count(self.window, 2):
-            raise InputError("window must be an integer of at least 2 poses")
+            raise InputError("filter.window must be an integer of at least 2 poses")
         odometry = self.odometry_std
-        if isinstance(odometry, int | float):
-            raise InputError("odometry_std must be six numbers (x, y, z in m; rx, ry, rz in rad)")
-        odometry = tuple(float(v) for v in odometry)
-        if len(odometry) != 6 or not all(np.isfinite(v) and v > 0 for v in odometry):
-            raise InputError("odometry_std must be six positive numbers")
-        object.__setattr__(self, "odometry_std", odometry)
-        for name in ("feature_std", "object_std", "initial_pose_std", "object_min_depth"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not (np.isfinite(value) and value > 0):
-                raise InputError(f"{name} must be a positive number")
-        if not self.object_max_depth > self.object_min_depth:
-            raise InputError("object_max_depth must exceed object_min_depth")
-        threshold = self.consensus_kl_threshold
-        if isinstance(threshold, bool) or not (np.isfinite(threshold) and threshold >= 0):
-            raise InputError("consensus_kl_threshold must be a number ≥ 0 (nats)")
-        if self.consensus_set not in ("all", "active"):
-            raise InputError(f"consensus_set must be all or active, not {self.consensus_set!r}")
-        for name in ("consensus_active_information", "consensus_inactive_kl_threshold"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not value >= 0:  # inf: never by this test
-                raise InputError(f"{name} must be a number ≥ 0 (nats; inf allowed)")
-        for name in ("consensus_hybrid", "consensus_increments"):
-            if getattr(self, name) and self.consensus_per_object:
-                raise InputError(
-                    f"{name} needs joint marginals: it cannot be used with consensus_per_object"
-                )
-        if not _is_count(self.consensus_iterations, 1):
-            raise InputError("consensus_iterations must be an integer of at least 1 (exchanges)")
-        if self.object_loss not in ("none", "huber", "cauchy"):
-            raise InputError(f"object_loss must be none, huber or cauchy, not {self.object_loss!r}")
-        scale = self.object_loss_scale
-        if isinstance(scale, bool) or not (np.isfinite(scale) and scale > 0):
-            raise InputError("object_loss_scale must be a positive number (standard deviations)")
-        if not 0 < self.gate_probability < 1:
-            raise InputError("gate_probability must lie in (0, 1)")
-        if self.linearization not in ("std", "fej", "ideal", "oc"):
+        if isinstance(odometry, str) or not hasattr(odometry, "__len__"):
             raise InputError(
-                f"linearization must be std, fej, ideal or oc, not {self.linearization!r}"
+                "filter.odometry_std must be six numbers (x, y, z in m; rx, ry, rz in rad)"
             )
-        if not _is_count(self.object_retire_after, 0):
+        if len(odometry) != 6 or not all(_positive(v) for v in odometry):
+            raise InputError("filter.odometry_std must be six positive numbers")
+        object.__setattr__(self, "odometry_std", tuple(float(v) for v in odometry))
+        for name in ("feature_std", "object_std", "initial_pose_std"):
+            if not _positive(getattr(self, name)):
+                raise InputError(f"filter.{name} must be a positive number")
+        if not _is_count(self.min_track_length, 2):
             raise InputError(
-                "object_retire_after must be an integer number of frames ≥ 0 (0: never retire)"
+                "filter.min_track_length must be an integer of at least 2 observations"
             )
-        for name in ("min_track_length", "object_init_observations"):
-            if not _is_count(getattr(self, name), 2):
-                raise InputError(f"{name} must be an integer of at least 2 observations")
-        if not _is_count(self.object_update_iterations, 1):
+        if not _probability(self.gate_probability):
+            raise InputError("filter.gate_probability must lie in (0, 1)")
+        if self.linearization not in LINEARIZATIONS:
             raise InputError(
-                "object_update_iterations must be an integer of at least 1 (1: the EKF update)"
+                f"filter.linearization must be std, fej, ideal or oc, not {self.linearization!r}"
             )
-        if self.association not in ("oracle", "own"):
-            raise InputError(f"association must be oracle or own, not {self.association!r}")
-        if not _is_count(self.association_interval, 1):
-            raise InputError("association_interval must be an integer number of steps ≥ 1")
-        revoke = self.association_revoke_probability
-        if isinstance(revoke, bool) or not 0.0 < revoke < 1.0:
-            raise InputError("association_revoke_probability must lie in (0, 1)")
-        relative = self.object_init_max_relative_std
-        if isinstance(relative, bool) or not (np.isfinite(relative) and relative >= 0):
-            raise InputError(
-                "object_init_max_relative_std must be a number ≥ 0 (a fraction of the distance; "
-                "0: no wait)"
-            )
-
-        self._validate_tracking()
-
-    def _validate_tracking(self) -> None:
-        if not isinstance(self.track_loop_closure, bool | np.bool_):
-            raise InputError(
-                f"track_loop_closure must be true or false, got {self.track_loop_closure!r}"
-            )
-        for name in ("track_gate_probability", "track_birth_probability"):
-            if not 0 < getattr(self, name) < 1:
-                raise InputError(f"{name} must lie in (0, 1)")
-        for name in ("track_confirm_hits", "track_confirm_frames"):
-            if not _is_count(getattr(self, name), 0):
-                raise InputError(f"{name} must be an integer ≥ 0 (0: the default)")
-        hits = self.track_confirm_hits or self.object_init_observations
-        frames = self.track_confirm_frames or hits + 2
-        if frames < hits:
-            raise InputError(
-                f"track_confirm_frames ({frames}) must be at least track_confirm_hits ({hits})"
-            )
-
-    @classmethod
-    def field_names(cls) -> tuple[str, ...]:
-        """Every setting's name."""
-        return tuple(f.name for f in fields(cls))
+        _check_flags(self, "filter", ("use_geometric_features", "use_objects", "debug"))
 
     def odometry_cov(self) -> np.ndarray:
         """``W`` (6×6)."""
         return np.diag(np.square(self.odometry_std))
-
-    def robust_weight(self, mahalanobis: np.ndarray) -> np.ndarray:
-        """The object update's weight ``w(d)`` for Mahalanobis distances ``d`` (1: Gaussian)."""
-        d = np.asarray(mahalanobis, dtype=float)
-        c = self.object_loss_scale
-        if self.object_loss == "huber":
-            return np.minimum(1.0, c / np.maximum(d, 1e-300))
-        if self.object_loss == "cauchy":
-            return 1.0 / (1.0 + (d / c) ** 2)
-        return np.ones_like(d)
 
     def gate(self, dof: int | np.ndarray) -> float | np.ndarray:
         """Chi-square threshold for residuals of ``dof`` entries (each quantile computed once)."""
@@ -353,29 +162,427 @@ class MsckfConfig:
         table = np.array([chi2_quantile(self.gate_probability, int(d)) for d in values])
         return table[index].reshape(dof.shape)
 
-    def with_(self, **changes) -> MsckfConfig:
-        """A copy with some fields changed."""
-        return replace(self, **changes)
+
+@dataclass(frozen=True)
+class ObjectSettings:
+    """Objects in the filter: when one enters the state, how it is updated, when it retires.
+
+    Attributes
+    ----------
+    init_observations
+        Observations of an object (inside the window) needed to initialise it.
+    min_depth
+        Nearest accepted distance of a new object from the current pose.
+    max_depth
+        Farthest accepted distance of a new object from the current pose.
+    init_max_relative_std
+        An object enters the state only once its initial position is certain relative to its
+        distance: the largest standard deviation of its initial covariance (eq. 30, the largest
+        axis) at most this fraction of its distance from the current pose; a less certain
+        object waits for more observations inside the window. Far objects seen by stereo from a
+        few frames are strongly nonlinear in depth, and their linearised initial covariance is
+        then overconfident. 0 initialises as soon as ``init_observations`` are in the window.
+    loss
+        Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
+        ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
+        standard deviations of its predicted innovation) is updated with its measurement
+        variance divided by the weight ``w(d)`` — Huber ``min(1, c/d)``, Cauchy
+        ``1/(1 + (d/c)²)`` with ``c = loss_scale`` — one reweighting step of the M-estimator.
+    loss_scale
+        The scale ``c`` of the robust loss, in standard deviations of the predicted innovation.
+    update_iterations
+        Linearisations of the object rows per frame: 1 is the EKF update of the paper (objects
+        and geometric features in one stacked update, every Jacobian at the prior); ``k > 1``
+        updates with the features first, then with the objects by an iterated EKF (Gauss–Newton
+        on the prior and the object measurements, :meth:`MsckfState.iterated_update`): the
+        object rows are linearised again at the updated estimate up to ``k − 1`` times, until
+        no predicted measurement moves by more than a hundredth of its noise std. Every row
+        keeps the linearisation policy's pose Jacobians (first estimates for ``fej``).
+    retire_after
+        Frames an object may go unobserved before it leaves the filter state for the robot's
+        persistent map (its mean and 3×3 marginal kept; it re-enters with them when observed
+        again): this bounds the state, and so the cost per frame, over a long mission. 0 never
+        retires an object. Policy, exactness and what it means for consensus:
+        :mod:`teamslam.msckf.filter.persistent_map`.
+    """
+
+    init_observations: int = field(default=3, metadata=_unit("observations"))
+    min_depth: float = field(default=1.0, metadata=_unit("m"))
+    max_depth: float = field(default=40.0, metadata=_unit("m"))
+    init_max_relative_std: float = field(default=0.0, metadata=_unit("fraction of distance"))
+    loss: str = field(default="none", metadata=_unit(""))
+    loss_scale: float = field(default=2.0, metadata=_unit("std"))
+    update_iterations: int = field(default=1, metadata=_unit("linearisations"))
+    retire_after: int = field(default=0, metadata=_unit("frames"))
+
+    def __post_init__(self) -> None:
+        if not _is_count(self.init_observations, 2):
+            raise InputError("objects.init_observations must be an integer of at least 2")
+        if not _positive(self.min_depth):
+            raise InputError("objects.min_depth must be a positive number")
+        if not (_is_number(self.max_depth) and self.max_depth > self.min_depth):
+            raise InputError("objects.max_depth must exceed objects.min_depth")
+        relative = self.init_max_relative_std
+        if not (_is_number(relative) and np.isfinite(relative) and relative >= 0):
+            raise InputError(
+                "objects.init_max_relative_std must be a number ≥ 0 (a fraction of the "
+                "distance; 0: no wait)"
+            )
+        if self.loss not in ("none", "huber", "cauchy"):
+            raise InputError(f"objects.loss must be none, huber or cauchy, not {self.loss!r}")
+        if not _positive(self.loss_scale):
+            raise InputError("objects.loss_scale must be a positive number (standard deviations)")
+        if not _is_count(self.update_iterations, 1):
+            raise InputError(
+                "objects.update_iterations must be an integer of at least 1 (1: the EKF update)"
+            )
+        if not _is_count(self.retire_after, 0):
+            raise InputError(
+                "objects.retire_after must be an integer number of frames ≥ 0 (0: never retire)"
+            )
+
+    def robust_weight(self, mahalanobis: np.ndarray) -> np.ndarray:
+        """The object update's weight ``w(d)`` for Mahalanobis distances ``d`` (1: Gaussian)."""
+        d = np.asarray(mahalanobis, dtype=float)
+        c = self.loss_scale
+        if self.loss == "huber":
+            return np.minimum(1.0, c / np.maximum(d, 1e-300))
+        if self.loss == "cauchy":
+            return 1.0 / (1.0 + (d / c) ** 2)
+        return np.ones_like(d)
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    """Object tracking, for a robot whose detections carry no ids
+    (:mod:`teamslam.msckf.objects.tracking`).
+
+    Attributes
+    ----------
+    gate_probability
+        A detection may be assigned to a predicted object or track only when its squared
+        Mahalanobis distance under the filter's innovation covariance is at most this quantile
+        of χ²(4).
+    birth_probability
+        The outer gate, a wider quantile of χ²(4) than ``gate_probability``: an object of the
+        state seen within the last ``N`` frames (``confirm_frames``), or a track, that took no
+        detection this frame takes one left outside every gate but inside its outer gate when
+        the pair is alone there (a detector's heavy-tailed error keeps its object); such a
+        detection, when not alone, starts no track (one object, one id). A detection near an
+        object that took another one starts a track (a detector boxes an object once per
+        frame); objects unseen for longer block nothing. Equal to ``gate_probability``: no outer
+        gate.
+    confirm_hits
+        A tentative track is confirmed after ``M = confirm_hits`` detections within its first
+        ``N = confirm_frames`` frames, and dropped otherwise. 0 takes the default
+        ``M = objects.init_observations``.
+    confirm_frames
+        ``N`` of ``confirm_hits``; a confirmed track not yet in the state is also dropped after
+        ``N`` frames without a detection. 0 takes the default ``N = M + 2``.
+    loop_closure
+        Loop closure in each tracking robot's own map
+        (:mod:`teamslam.msckf.objects.loop_closure`): the objects it created last are matched
+        by the shape of the group against its objects unseen for longer than the window (the
+        own association's rules), and each accepted pair is merged in the filter (an EKF update
+        with ``x_new − x_old = 0``, then the new object leaves the state).
+    """
+
+    gate_probability: float = field(default=0.99, metadata=_unit(""))
+    birth_probability: float = field(default=0.999999, metadata=_unit(""))
+    confirm_hits: int = field(default=0, metadata=_unit("detections"))
+    confirm_frames: int = field(default=0, metadata=_unit("frames"))
+    loop_closure: bool = field(default=False, metadata=_unit(""))
+
+    def __post_init__(self) -> None:
+        _check_flags(self, "tracking", ("loop_closure",))
+        for name in ("gate_probability", "birth_probability"):
+            if not _probability(getattr(self, name)):
+                raise InputError(f"tracking.{name} must lie in (0, 1)")
+        for name in ("confirm_hits", "confirm_frames"):
+            if not _is_count(getattr(self, name), 0):
+                raise InputError(f"tracking.{name} must be an integer ≥ 0 (0: the default)")
+
+
+@dataclass(frozen=True)
+class ConsensusSettings:
+    """Consensus on the common objects with the neighbours (:mod:`teamslam.msckf.consensus`).
+
+    Attributes
+    ----------
+    rule
+        How the neighbours' marginals are averaged (:mod:`teamslam.msckf.consensus.rules`):
+        ``average`` — the paper's Metropolis-weighted geometric average (eq. 19, Prop. 2),
+        conservative by about the number of robots averaging; ``hybrid`` — the new
+        information each robot gathered since its last exchange enters the neighbours' averages
+        at full weight (after HCMCI, Battistelli et al. 2015), with gains that never count one
+        robot's new information twice; ``increments`` — hybrid consensus in which the robot's
+        own new information enters its average exactly once on every object (each neighbour's
+        marginal is completed against our prior rather than our current marginal), so partial
+        maps and partial exchanges no longer dilute it. ``hybrid`` and ``increments`` need joint
+        marginals and lock-step exchanges (asynchronous robots average).
+    kl_threshold
+        Consensus averages a common object with a neighbour only when its marginal has moved,
+        on either robot, since the two last exchanged it, by more than this Kullback–Leibler
+        divergence (unit-free, so the same for any camera or scale). 0 averages every common
+        object at every step, as the paper does.
+    set
+        Which common objects consensus averages jointly: ``all`` (the paper: every common
+        object that moved) or ``active`` (a bounded set: the objects the window can still
+        change — observed within the window, or with mutual information above
+        ``active_information`` with the window poses — and the others only when they moved by
+        more than ``inactive_kl_threshold``); lock-step exchanges only;
+        :mod:`teamslam.msckf.consensus.selection`.
+    active_information
+        With ``set = active``: an object not observed within the window is active while its
+        mutual information with the window poses exceeds this (``inf``: only the objects
+        observed within the window are active).
+    inactive_kl_threshold
+        With ``set = active``: an inactive object is averaged with a neighbour when its marginal
+        moved by more than this Kullback–Leibler divergence since the pair last exchanged it
+        (active objects, and objects the pair averaged in the previous exchange, use
+        ``kl_threshold``).
+    per_object
+        Send each common object's own 3×3 marginal instead of the joint marginal of all of
+        them (the cross-object covariances are dropped from the message, not from the filter):
+        the message grows linearly instead of quadratically with the objects shared.
+    float32
+        Send means and covariances in single precision where rounding is harmless: a message
+        goes in float32 only when the rounded marginal is within
+        :data:`~teamslam.msckf.consensus.FLOAT32_MAX_KL` of the exact one, else in float64.
+    iterations
+        Consensus exchanges per step ``L``: both rounds and the average are run ``L`` times
+        before each frame, every exchange with its own messages and link losses. With the
+        ``hybrid`` and ``increments`` rules each robot's new information is sent at its gain in
+        the first exchange only, so no increment is counted twice for any ``L``. Lock-step only;
+        every robot of a team must use the same ``L``.
+    innovation_check
+        With oracle association: the ``χ²₃`` test of each common object's consensus innovation
+        (at ``association.revoke_probability``), leaving out of the step's average the objects
+        that fail (a neighbour that sends marginals far off with a tiny covariance). With it,
+        an honest run is no longer bit-identical to one without the check whenever a test
+        fails. Own association always tests.
+    """
+
+    rule: str = field(default="average", metadata=_unit(""))
+    kl_threshold: float = field(default=1e-3, metadata=_unit("nats"))
+    set: str = field(default="all", metadata=_unit(""))
+    active_information: float = field(default=float("inf"), metadata=_unit("nats"))
+    inactive_kl_threshold: float = field(default=0.3, metadata=_unit("nats"))
+    per_object: bool = field(default=False, metadata=_unit(""))
+    float32: bool = field(default=True, metadata=_unit(""))
+    iterations: int = field(default=1, metadata=_unit("exchanges per step"))
+    innovation_check: bool = field(default=False, metadata=_unit(""))
+
+    def __post_init__(self) -> None:
+        if self.rule not in CONSENSUS_RULES:
+            raise InputError(
+                f"consensus.rule must be average, hybrid or increments, not {self.rule!r}"
+            )
+        threshold = self.kl_threshold
+        if not (_is_number(threshold) and np.isfinite(threshold) and threshold >= 0):
+            raise InputError("consensus.kl_threshold must be a number ≥ 0 (nats)")
+        if self.set not in ("all", "active"):
+            raise InputError(f"consensus.set must be all or active, not {self.set!r}")
+        for name in ("active_information", "inactive_kl_threshold"):
+            value = getattr(self, name)
+            if not (_is_number(value) and value >= 0):  # inf: never by this test
+                raise InputError(f"consensus.{name} must be a number ≥ 0 (nats; inf allowed)")
+        _check_flags(self, "consensus", ("per_object", "float32", "innovation_check"))
+        if self.rule != "average" and self.per_object:
+            raise InputError(
+                f"consensus.rule {self.rule} needs joint marginals: it cannot be used with "
+                "consensus.per_object"
+            )
+        if not _is_count(self.iterations, 1):
+            raise InputError("consensus.iterations must be an integer of at least 1 (exchanges)")
+
+
+def _attributes(doc: str | None) -> str:
+    """The entries of a numpy docstring's ``Attributes`` section, as written."""
+    match = re.search(r"Attributes\n\s*-+\n(.*)", doc or "", flags=re.S)
+    return match.group(1).rstrip() if match else ""
+
+
+@dataclass(frozen=True)
+class TeamAssociationSettings(AssociationSettings):
+    """Which objects of two neighbours are the same: the mode and, with ``own``, when the links
+    associate and the matcher's thresholds (:class:`~teamslam.association.AssociationSettings`).
+
+    Attributes
+    ----------
+    mode
+        ``oracle`` (equal ids — the dataset's ids are team-wide) or ``own`` (each robot names
+        its own objects; each link finds its correspondences from exchanged object summaries,
+        :mod:`teamslam.association`, and consensus averages the matched pairs).
+    interval
+        With ``own``: steps between two exchanges of object summaries on a link (each exchange
+        runs a full association when the link's table is due, else grows it).
+    revoke_probability
+        With ``own`` (and with ``consensus.innovation_check``): probability of the ``χ²₃`` test
+        of each matched pair's consensus innovation; a pair that fails is left out of the
+        average and revoked for good. Close to 1, the test tolerates a somewhat overconfident
+        filter and still catches a neighbour far off with a tiny covariance.
+    """
+
+    mode: str = field(default="oracle", metadata=_unit(""))
+    interval: int = field(default=5, metadata=_unit("steps"))
+    revoke_probability: float = field(default=0.99999, metadata=_unit(""))
+
+    def __post_init__(self) -> None:
+        try:
+            super().__post_init__()
+        except InputError as exc:  # name the key as it is set
+            raise InputError(str(exc).replace("association setting ", "association.", 1)) from None
+        if self.mode not in ("oracle", "own"):
+            raise InputError(f"association.mode must be oracle or own, not {self.mode!r}")
+        if not _is_count(self.interval, 1):
+            raise InputError("association.interval must be an integer number of steps ≥ 1")
+        if not _probability(self.revoke_probability):
+            raise InputError("association.revoke_probability must lie in (0, 1)")
+
+    def matching(self) -> AssociationSettings:
+        """The matcher's thresholds alone (what :func:`~teamslam.association.associate`
+        takes)."""
+        return AssociationSettings(
+            **{f.name: getattr(self, f.name) for f in fields(AssociationSettings)}
+        )
+
+
+# the matcher's fields are documented where they are defined: their entries follow ours
+TeamAssociationSettings.__doc__ = (
+    f"{TeamAssociationSettings.__doc__.rstrip()}\n{_attributes(AssociationSettings.__doc__)}\n    "
+)
+
+
+def _fields(kind: type) -> tuple:
+    """A group's fields, its own before those it inherits (the association mode before the
+    matcher's thresholds)."""
+    own = inspect.get_annotations(kind)
+    every = fields(kind)
+    return tuple(f for f in every if f.name in own) + tuple(f for f in every if f.name not in own)
+
+
+#: The groups of :class:`MsckfConfig`, in order: name → class.
+GROUPS: dict[str, type] = {
+    "filter": FilterSettings,
+    "objects": ObjectSettings,
+    "tracking": TrackingSettings,
+    "consensus": ConsensusSettings,
+    "association": TeamAssociationSettings,
+}
+
+
+@dataclass(frozen=True)
+class MsckfConfig:
+    """Every setting of one robot's filter, in groups; a setting is named ``group.name``.
+
+    Attributes
+    ----------
+    filter
+        The MSCKF: window, noise levels, gate, linearisation (:class:`FilterSettings`).
+    objects
+        Objects in the filter: initialisation, robust update, retirement
+        (:class:`ObjectSettings`).
+    tracking
+        Object tracking for detections without ids (:class:`TrackingSettings`).
+    consensus
+        Consensus with the neighbours: the rule and what is exchanged
+        (:class:`ConsensusSettings`).
+    association
+        Which objects of two neighbours are the same (:class:`TeamAssociationSettings`).
+    """
+
+    filter: FilterSettings = field(default_factory=FilterSettings)
+    objects: ObjectSettings = field(default_factory=ObjectSettings)
+    tracking: TrackingSettings = field(default_factory=TrackingSettings)
+    consensus: ConsensusSettings = field(default_factory=ConsensusSettings)
+    association: TeamAssociationSettings = field(default_factory=TeamAssociationSettings)
+
+    def __post_init__(self) -> None:
+        for name, kind in GROUPS.items():
+            if not isinstance(getattr(self, name), kind):
+                raise InputError(f"{name} must be a {kind.__name__}")
+        hits = self.tracking.confirm_hits or self.objects.init_observations
+        frames = self.tracking.confirm_frames or hits + 2
+        if frames < hits:
+            raise InputError(
+                f"tracking.confirm_frames ({frames}) must be at least tracking.confirm_hits "
+                f"({hits})"
+            )
+
+    # ------------------------------------------------------------------ names
+    @classmethod
+    def keys(cls) -> tuple[str, ...]:
+        """Every setting's name, ``group.name``."""
+        return tuple(f"{g}.{f.name}" for g, kind in GROUPS.items() for f in _fields(kind))
+
+    @classmethod
+    def field_of(cls, key: str):
+        """The dataclass field of setting ``key`` (``None``: no such setting)."""
+        group, _, name = key.partition(".")
+        kind = GROUPS.get(group)
+        if kind is None:
+            return None
+        return next((f for f in _fields(kind) if f.name == name), None)
+
+    @classmethod
+    def unit(cls, key: str) -> str:
+        """The unit of setting ``key`` (empty: unit-free)."""
+        found = cls.field_of(key)
+        return "" if found is None else found.metadata.get("unit", "")
+
+    # ------------------------------------------------------------------ values
+    def settings(self) -> dict[str, Any]:
+        """Every setting as ``{"group.name": value}``, in order."""
+        return {
+            f"{g}.{f.name}": getattr(getattr(self, g), f.name)
+            for g, kind in GROUPS.items()
+            for f in _fields(kind)
+        }
+
+    @classmethod
+    def from_settings(cls, values: Mapping[str, Any]) -> MsckfConfig:
+        """The defaults with ``{"group.name": value}`` on top (names checked by the caller:
+        :func:`~teamslam.msckf.settings.sources.coerce_settings`)."""
+        return cls().with_(values)
+
+    def with_(self, changes: Mapping[str, Any] | None = None, /, **groups: Any) -> MsckfConfig:
+        """A copy with some settings changed: ``{"group.name": value}`` and/or, per group, a
+        mapping of its fields or a whole group (``filter={"window": 8}``).
+
+        Raises
+        ------
+        InputError
+            A name that is no setting, or a value the setting cannot take.
+        """
+        grouped: dict[str, dict[str, Any]] = {}
+        for key, value in (changes or {}).items():
+            group, _, name = key.partition(".")
+            if self.field_of(key) is None:
+                raise InputError(f"unknown setting {key!r}")
+            grouped.setdefault(group, {})[name] = value
+        new = {}
+        for group, value in groups.items():
+            if group not in GROUPS:
+                raise InputError(f"unknown group of settings {group!r}")
+            if is_dataclass(value):
+                new[group] = value
+            else:
+                grouped.setdefault(group, {}).update(value)
+        for group, names in grouped.items():
+            base = new.get(group, getattr(self, group))
+            try:
+                new[group] = replace(base, **names)
+            except TypeError as exc:
+                raise InputError(f"{group}: {exc}") from None
+        return replace(self, **new) if new else self
 
     def to_json(self) -> dict:
-        """Every setting as plain JSON (the association settings only when not all default:
-        a run with oracle ids records what it always did)."""
-        out = {
-            f.name: list(getattr(self, f.name))
-            if isinstance(getattr(self, f.name), tuple)
-            else getattr(self, f.name)
-            for f in fields(self)
+        """Every setting as plain JSON, one mapping per group."""
+        return {
+            g: {
+                f.name: list(v) if isinstance(v := getattr(getattr(self, g), f.name), tuple) else v
+                for f in _fields(kind)
+            }
+            for g, kind in GROUPS.items()
         }
-        defaults = {f.name: f.default for f in fields(self) if f.name in _ASSOCIATION_FIELDS}
-        if all(out[name] == value for name, value in defaults.items()):
-            for name in _ASSOCIATION_FIELDS:
-                del out[name]
-        return out
-
-
-_ASSOCIATION_FIELDS = (
-    "association",
-    "association_interval",
-    "association_revoke_probability",
-    "consensus_innovation_check",
-)
