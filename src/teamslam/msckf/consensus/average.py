@@ -4,7 +4,8 @@
 shared with at least one neighbour heard — each neighbour's marginal completed by our own
 conditional (Prop. 2) — and rebuilds the joint. :func:`hybrid_marginal` and
 :func:`increment_average` implement the optional rules ``consensus.rule = hybrid`` and
-``consensus.rule = increments`` (lock-step only), whose gains never count one robot's new information
+``consensus.rule = increments`` (lock-step only), whose gains never count one robot's new
+information
 more than once. Derivations: the concept page *Consensus* (``docs/concepts/consensus.md``).
 """
 
