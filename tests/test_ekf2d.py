@@ -448,5 +448,6 @@ def test_generated_environment_1_starts_like_the_published_one():
         first = env.features[:2]
         assert np.linalg.norm(first[0] - first[1]) == pytest.approx(3.8)
         along = (start2 - start1) / np.linalg.norm(start2 - start1)
-        assert abs(np.cross(along, first[1] - first[0])) < 1e-9  # on the line between
+        offset = first[1] - first[0]
+        assert abs(along[0] * offset[1] - along[1] * offset[0]) < 1e-9  # on the line between
     assert E.environment(1, 100).features[:60].tolist() == E.environment(1, 60).features.tolist()

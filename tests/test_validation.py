@@ -322,7 +322,7 @@ def test_pose_nees_outside_its_band_is_warned(team, tmp_path, capsys):
         str(path),
         "--separate",
         "--set",
-        "odometry_std=[0.0002,0.0002,0.0002,0.00004,0.00004,0.00004]",
+        "filter.odometry_std=[0.0002,0.0002,0.0002,0.00004,0.00004,0.00004]",
     ]
     assert main(args) == 0
     err = capsys.readouterr().err
