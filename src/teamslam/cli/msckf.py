@@ -32,6 +32,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("--secure needs --processes (robots as processes on loopback)")
     if args.processes and (args.out is None or args.compare or args.separate or args.centralised):
         raise UsageError("--processes needs --out and runs consensus only")
+    if args.overwrite and args.out is None:
+        raise UsageError("--overwrite needs --out (the run directory it replaces)")
+    if args.out is not None:  # before any data is read
+        from teamslam.eval.outputs import check_run_directory
+
+        check_run_directory(args.out, args.overwrite)
     dataset = load_dataset(args.dataset)
     if args.association is not None:
         args.set = [*(args.set or []), f"association={args.association}"]
@@ -54,6 +60,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         base_port=args.base_port,
         secure=args.secure,
         source=args.dataset,
+        overwrite=args.overwrite,
     )
     if not args.processes:
         print(f"{dataset.name}: {dataset.n_robots} robots, graph {run.graph}, loss {args.loss}")
@@ -132,6 +139,11 @@ def register(sub) -> None:
     settings_arguments(run)
     run.add_argument("--seed", type=non_negative_int, default=0, help="seed of the link loss")
     run.add_argument("--out", type=Path, default=None, help="directory for results")
+    run.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an earlier run in --out (entirely); without it one is refused",
+    )
     run.add_argument("--no-report", action="store_true", help="no report.html in --out")
     run.add_argument(
         "--mcap",
