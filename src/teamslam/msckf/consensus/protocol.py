@@ -78,8 +78,12 @@ to increasing own ids; a pair it does not hold — the two tables may differ for
 lost summary — is marginalised out) before the one check below and the average. After the check
 every matched pair's consensus innovation is tested (:func:`~teamslam.association.
 pair_innovation_consistent`, ``association_revoke_probability``); a failing pair is left out of
-this step's average and revoked for good. With oracle ids the same test runs only when
-``consensus_innovation_check`` is set (objects that fail are left out of that step's average).
+this step's average and revoked for good. With oracle ids the same test runs when
+``consensus_innovation_check`` is set (the default): it judges the sender, not each object — a
+marginal in which most objects fail (the median innovation beyond the test's quantile) is a
+member lying or lost and is left out of the step's average whole; objects failing in a marginal
+whose majority passes are the filters' own inconsistency and are averaged as without the check
+(leaving them out makes the two estimates drift further apart, and fail again).
 
 Every received message is checked once, by one function
 (:func:`~teamslam.msckf.consensus.checks.check_message`): kind, step (``step − max_age ≤ s ≤
@@ -560,8 +564,11 @@ class ConsensusProtocol:
         )
 
     def _innovation_check(self, marginal: ReceivedMarginal) -> ReceivedMarginal | None:
-        """The marginal without the objects whose consensus innovation fails the ``χ²₃`` test
-        (revoked from the link's table with own association); ``None`` when none is left."""
+        """The marginal checked by the ``χ²₃`` test of each object's consensus innovation.
+
+        With own association: without the objects that fail (revoked from the link's table);
+        with oracle ids: whole, unless most of its objects fail (then ``None``: the sender is
+        not averaged this step). ``None`` also when no object is left."""
         ids = marginal.ids
         k = ids.size
         try:
@@ -586,9 +593,15 @@ class ConsensusProtocol:
             return marginal
         j = marginal.sender
         failed = ids[~ok]
-        self.link_stats[j]["excluded"] += int(failed.size)
         self.agent.counters["consensus_innovation_failures"] += int(failed.size)
         table = self.tables.get(j)
+        if table is None:  # oracle ids: judge the sender by the majority of its objects
+            if 2 * int(failed.size) <= k:
+                return marginal
+            self.link_stats[j]["excluded"] += k
+            self.agent.counters["consensus_marginals_left_out"] += 1
+            return None
+        self.link_stats[j]["excluded"] += int(failed.size)
         if table is not None:
             for own_id, their_id in zip(failed, table.theirs(failed), strict=True):
                 table.revoke(int(own_id), int(their_id), self.step)

@@ -193,10 +193,11 @@ class MsckfConfig:
         (KITTI 00: 0.999 revoked 107 pairs, 0.99999 89, with higher precision and recall); a
         neighbour 20 m off with a tiny covariance gives values of 10⁸ and more.
     consensus_innovation_check
-        With ``oracle``: the same ``χ²₃`` test of each common object's consensus innovation,
-        leaving out of the step's average the objects that fail (a neighbour that sends
-        marginals far off with a tiny covariance). Off by default: with it, an honest run is
-        no longer bit-identical to one without the check whenever a test fails.
+        With ``oracle``: the same ``χ²₃`` test of each common object's consensus innovation; a
+        neighbour's marginal in which most objects fail (a member that sends marginals far off
+        with a tiny covariance) is left out of the step's average. On by default (security that
+        must be switched on is not security); an honest run differs from one without it only
+        when most objects of one message fail (KITTI 00: 4 of 5886 messages).
     """
 
     window: int = 20
@@ -235,7 +236,7 @@ class MsckfConfig:
     association: str = "oracle"
     association_interval: int = 5
     association_revoke_probability: float = 0.99999
-    consensus_innovation_check: bool = False
+    consensus_innovation_check: bool = True
 
     def __post_init__(self) -> None:
         if not _is_count(self.window, 2):
