@@ -614,8 +614,9 @@ class ConsensusProtocol:
 
     def association_summary(self) -> dict:
         """Per link (neighbour id as a string): the table's pairs and counts and the exchange
-        statistics (empty with oracle ids and no innovation check)."""
-        if self.innovation_probability is None and not self.tables:
+        statistics (empty with oracle ids: the innovation check's marginals left out are the
+        agent's ``consensus_marginals_left_out`` counter)."""
+        if not self.tables:
             return {}
         out = {}
         for j, stats in self.link_stats.items():
