@@ -615,7 +615,7 @@ def _launch_into(stage, team_path: Path, settings, progress, keep_out: Path | No
         return result
     dataset = _dataset(team.dataset)
     result.source = Path(team.dataset)
-    gathered = gather(team, out, finished)
+    gathered = gather(team, work, finished)
     if len(finished) < team.n:
         result.notes.append(
             f"robots {', '.join(str(r) for r in finished)} finished; metrics cover them only"
