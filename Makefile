@@ -25,7 +25,7 @@ run: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam simulate --robots 5 --steps 150 --seed 0 --out results/team5
 	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam calibrate results/team5 --frames 60
 	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam config show results/team5 --set filter.window=10
-	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam run results/team5 --compare --set filter.window=10 --out results/team5-run --mcap
+	OPENBLAS_NUM_THREADS=1 $(BIN)/teamslam run results/team5 --compare --set filter.window=10 --out results/team5-run --overwrite --mcap
 
 # the Python of the docs: the build hooks and the examples the pages include
 DOCS_PY := $(wildcard docs/*/*.py)

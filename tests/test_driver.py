@@ -19,7 +19,7 @@ import pytest
 from teamslam import api
 from teamslam.cli import main
 from teamslam.datasets import save_dataset
-from teamslam.errors import EstimationError, OutputError
+from teamslam.errors import EstimationError, InputError, OutputError
 from teamslam.eval.outputs import json_safe
 from teamslam.graph import EdgeLoss, from_edges, metropolis_weight, metropolis_weights, ring
 from teamslam.msckf import config_for, run_team
@@ -221,7 +221,8 @@ def test_a_result_that_cannot_be_written_names_the_path(team3, tmp_path):
     with pytest.raises(OutputError, match="file"):
         save_result(result, blocker / "out")
     run = api.Run(dataset.subset([0]), {"consensus": result}, {"consensus": {"robots": 1}})
-    with pytest.raises(OutputError, match=str(blocker)):
+    # a run directory is refused before anything is written, naming what is in the way
+    with pytest.raises(InputError, match=f"{blocker} exists and is not a directory"):
         api.write_run(run, blocker / "run", report=False)
 
 

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from teamslam.cli import main
 from teamslam.eval.estimates import load_estimates, save_estimates
+from teamslam.eval.outputs import RUN_FILE, write_json
 from teamslam.msckf import config_for, run_team
 from teamslam.ros2 import messages as m
 from teamslam.ros2.mcap_export import export_mcap
@@ -27,6 +28,7 @@ def run_dir(tmp_path_factory) -> tuple[Path, object, object]:
     result = run_team(team, config_for(team, {"filter.window": 6}), consensus=True, progress=False)
     out = tmp_path_factory.mktemp("run")
     save_estimates(out / "estimates.npz", team, result)
+    write_json(out / RUN_FILE, {"modes": ["consensus"], "complete": True})  # written last
     return out, team, result
 
 
@@ -137,6 +139,9 @@ def test_mcap_readable_by_rosbags(run_dir, tmp_path):
 
 
 def test_export_mcap_cli_errors(tmp_path, capsys):
+    assert main(["export", "mcap", str(tmp_path), "--out", str(tmp_path / "x.mcap")]) == 2
+    assert "not a run directory (no run.json" in capsys.readouterr().err
+    write_json(tmp_path / RUN_FILE, {"modes": ["consensus"], "complete": True})
     assert main(["export", "mcap", str(tmp_path), "--out", str(tmp_path / "x.mcap")]) == 2
     assert "estimates.npz" in capsys.readouterr().err
     (tmp_path / "estimates.npz").write_bytes(b"not a zip")

@@ -370,20 +370,30 @@ def test_ctrl_c_stops_every_agent(tmp_path):
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     deadline = time.monotonic() + 120
+
+    def staged(r: int) -> list[Path]:  # the run is written into a staging folder beside out
+        return list(tmp_path.glob(f".out.*/robot_{r}/progress.json"))
+
+    def progress(r: int) -> int:
+        return max((frames_done(p.parent.parent, r) for p in staged(r)), default=0)
+
     # interrupted while the robots are filtering (frame 5 written), not while they start
-    while time.monotonic() < deadline and launcher.poll() is None and frames_done(out, 0) < 6:
+    while time.monotonic() < deadline and launcher.poll() is None and progress(0) < 6:
         time.sleep(0.05)
     assert launcher.poll() is None, "the team ended before it could be interrupted"
-    launcher.send_signal(signal.SIGINT)
-    _, err = launcher.communicate(timeout=60)
-    assert launcher.returncode == 130
-    assert "interrupted" in err and "Traceback" not in err
     pids = []
     for r in range(3):
-        try:
-            pids.append(json.loads((out / f"robot_{r}" / "progress.json").read_text())["pid"])
-        except (OSError, ValueError):
-            continue
+        for found in staged(r):
+            try:
+                pids.append(json.loads(found.read_text())["pid"])
+            except (OSError, ValueError):
+                continue
+    launcher.send_signal(signal.SIGINT)
+    _, err = launcher.communicate(timeout=60)
+    assert launcher.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    # an interrupted run leaves nothing that looks like a run
+    assert not out.exists() and list(tmp_path.glob(".out.*")) == []
     time.sleep(0.5)
     for pid in pids:
         with pytest.raises(ProcessLookupError):

@@ -19,9 +19,16 @@ Example::
     teamslam.write_run(run, "results/team5-run")
     print(run.metrics["trajectory_rmse_avg_m"])
 
+A run directory is written whole or not at all (:func:`teamslam.eval.outputs.stage_run_directory`):
+it is checked before any data is read (a file, a non-empty directory that is no run, an earlier
+run without ``overwrite``, a parent that cannot be written are refused), written into a staging
+folder beside it with ``run.json`` last, and moved into place at the end; an interrupted write
+leaves what was there before.
+
 When a filter fails mid-run (:class:`~teamslam.errors.EstimationError`, naming robot and frame),
 what was computed is not lost: with an output directory the frames done are written first
-(result files marked ``complete: false``, TUM trajectories), then the error is raised.
+(result files and ``run.json`` marked ``complete: false``, TUM trajectories), then the error is
+raised.
 """
 
 from __future__ import annotations
@@ -62,7 +69,6 @@ MODES = {
     "compare": ("separate", "consensus"),
     "centralised": ("centralised",),
 }
-RUN_FILE = "run.json"
 
 
 @dataclass
@@ -143,6 +149,7 @@ def run(
     progress: bool | None = None,
     source: str | Path | None = None,
     association: str | None = None,
+    overwrite: bool = False,
 ) -> Run:
     """Run the filter over a team dataset: what ``teamslam run`` computes.
 
@@ -182,11 +189,14 @@ def run(
         dataset's ids are global) or ``own`` (each link finds its correspondences,
         :mod:`teamslam.association`); ``None``: the ``association.mode`` setting (default ``oracle``
         with global ids, ``own`` with per-robot ids).
+    overwrite
+        Replace an earlier run at ``out`` (entirely); without it an earlier run is refused.
 
     Raises
     ------
     InputError
-        A wrong argument or setting (exit status 2), found before anything runs.
+        A wrong argument or setting, or an ``out`` that cannot take the run (exit status 2),
+        found before anything runs (``out`` before any data is read).
     EstimationError
         A filter failed (naming robot and frame); with ``out`` what was computed is written
         first.
@@ -205,33 +215,47 @@ def run(
         raise InputError("processes need a run directory (out) and run consensus only")
     require_extras(processes=processes, secure=secure, mcap=bool(mcap))
     path = dataset if isinstance(dataset, str | os.PathLike) else source
-    dataset = _dataset(dataset)
-    effective = (
-        settings
-        if isinstance(settings, EffectiveConfig)
-        else build_settings(dataset, flags=settings)
-    )
-    if association is not None:
-        effective = with_association(effective, dataset, association)
-    comm = make(graph, dataset.n_robots, seed=seed)
-    if processes:
-        if path is None:
-            raise InputError("processes need the dataset's directory, not a dataset object")
-        result = _run_processes(path, dataset, effective, comm, loss, Path(out), base_port, secure)
-        result.source = Path(path)
+    if processes and path is None:
+        raise InputError("processes need the dataset's directory, not a dataset object")
+    stage = None
+    if out is not None:  # before any data is read
+        from teamslam.eval.outputs import stage_run_directory
+
+        stage = stage_run_directory(out, overwrite)
+    try:
+        dataset = _dataset(dataset)
+        effective = (
+            settings
+            if isinstance(settings, EffectiveConfig)
+            else build_settings(dataset, flags=settings)
+        )
+        if association is not None:
+            effective = with_association(effective, dataset, association)
+        comm = make(graph, dataset.n_robots, seed=seed)
+        if processes:
+            result = _run_processes(
+                path, dataset, effective, comm, loss, stage, base_port, secure, progress
+            )
+            result.source = Path(path)
+            return result
+        source = None if path is None else Path(path)
+        result = Run(dataset, graph=comm.name, loss=loss, source=source)
+        for name in MODES[mode]:
+            try:
+                result.results[name] = _run_one(
+                    name, dataset, effective, comm, loss, seed, progress
+                )
+            except EstimationError as exc:
+                if stage is not None:
+                    _write_partial(stage, result, exc, MODES[mode])
+                raise
+            result.by_mode[name] = _metrics(dataset, result.results[name], effective)
+        if stage is not None:
+            _write_run_into(stage, result, report=report, mcap=mcap)
         return result
-    result = Run(dataset, graph=comm.name, loss=loss, source=None if path is None else Path(path))
-    for name in MODES[mode]:
-        try:
-            result.results[name] = _run_one(name, dataset, effective, comm, loss, seed, progress)
-        except EstimationError as exc:
-            if out is not None:
-                _write_partial(Path(out), dataset, result.results, exc, MODES[mode])
-            raise
-        result.by_mode[name] = _metrics(dataset, result.results[name], effective)
-    if out is not None:
-        write_run(result, out, report=report, mcap=mcap)
-    return result
+    finally:
+        if stage is not None:
+            stage.discard()  # nothing left behind unless moved into place
 
 
 def require_extras(processes=False, secure=False, mcap=False, ros2=False) -> None:
@@ -298,53 +322,114 @@ def _metrics(dataset, result, effective) -> dict:
     return {**team_metrics(dataset, result), **effective.to_json()}
 
 
-def _write_partial(out: Path, dataset, done: dict, exc: EstimationError, names) -> None:
+def _write_partial(stage, run: Run, exc: EstimationError, names) -> None:
+    """The frames done of runs that stopped early, moved into place with ``run.json``
+    (``complete: false``)."""
     from teamslam.eval.outputs import write_partial_outputs
     from teamslam.msckf.team import PartialRunError
 
-    results = dict(done)
+    results = dict(run.results)
     if isinstance(exc, PartialRunError):
-        results[next(n for n in names if n not in done)] = exc.result
-    write_partial_outputs(out, dataset, results, list(names))
+        results[next(n for n in names if n not in run.results)] = exc.result
+    write_partial_outputs(stage.path, run.dataset, results, list(names))
+    _write_run_file(stage.path, run, list(results), complete=False)
+    stage.commit()
+
+
+def _write_run_file(directory: Path, run: Run, modes: list[str], complete: bool) -> None:
+    """``run.json``, the last file of a run directory: what ran, and whether it finished."""
+    from teamslam.eval.outputs import RUN_FILE, write_json
+
+    write_json(
+        directory / RUN_FILE,
+        {
+            "dataset": None if run.dataset is None else run.dataset.name,
+            "dataset_path": None if run.source is None else str(run.source),
+            "modes": modes,
+            "graph": run.graph,
+            "loss": run.loss,
+            "complete": complete,
+        },
+    )
 
 
 def write_run(
-    run: Run, directory: str | Path, report: bool = True, mcap: str | Path | bool | None = None
+    run: Run,
+    directory: str | Path,
+    report: bool = True,
+    mcap: str | Path | bool | None = None,
+    overwrite: bool = False,
 ) -> dict:
     """Write a run directory: ``metrics.json``, per filter TUM trajectories, ``estimates.npz``
-    and result files, the figures, ``run.json``, then MCAP and ``report.html`` if asked.
+    and result files, the figures, MCAP and ``report.html`` if asked, and last ``run.json``;
+    whole or not at all (staged beside ``directory``, moved into place at the end).
 
     Returns ``{"directory", "mcap", "report"}`` (also kept as ``run.written``).
 
+    Parameters
+    ----------
+    overwrite
+        Replace an earlier run at ``directory`` (entirely); without it one is refused.
+
     Raises
     ------
+    InputError
+        ``directory`` is a file, a non-empty directory that is no run, an earlier run without
+        ``overwrite``, or cannot be written (named), found before anything is written.
     OutputError
         Something cannot be written (named).
     """
-    from teamslam.eval.outputs import write_json, write_team_outputs
+    from teamslam.eval.outputs import stage_run_directory
 
-    out = Path(directory)
-    write_team_outputs(out, run.dataset, run.results, run.metrics)
-    write_json(
-        out / RUN_FILE,
-        {
-            "dataset": run.dataset.name,
-            "dataset_path": None if run.source is None else str(run.source),
-            "modes": list(run.results),
-            "graph": run.graph,
-            "loss": run.loss,
-        },
-    )
+    stage = stage_run_directory(directory, overwrite)
+    try:
+        return _write_run_into(stage, run, report, mcap)
+    finally:
+        stage.discard()
+
+
+def _write_run_into(stage, run: Run, report: bool, mcap) -> dict:
+    """Write ``run`` into the staging folder ``stage`` (``run.json`` last), move it into place."""
+    from teamslam.eval.outputs import write_team_outputs
+
+    work, out = stage.path, stage.target
+    write_team_outputs(work, run.dataset, run.results, run.metrics)
     written: dict[str, Any] = {"directory": out, "mcap": None, "report": None}
     if mcap:
-        target = out / "run.mcap" if mcap is True or mcap == "" else Path(mcap)
-        written["mcap"] = export(out, target)
+        target = work / "run.mcap" if mcap is True or mcap == "" else Path(mcap)
+        inside = _inside(target, out)
+        if inside is not None:  # a file of the run directory: staged with it
+            target = work / inside
+        with _writing(target):
+            from teamslam.ros2.mcap_export import export_mcap
+
+            summary = export_mcap(work, target, writing=True)
+        if inside is not None or target.is_relative_to(work):
+            summary["path"] = str(out / target.relative_to(work))
+        written["mcap"] = summary
     if report:
         from teamslam.eval.report import write_run_report
 
-        written["report"] = write_run_report(out, run.dataset, run.results)
+        path = write_run_report(work, run.dataset, run.results, final=out)
+        written["report"] = out / path.relative_to(work)
+    _write_run_file(work, run, list(run.results), complete=True)
+    stage.commit()
     run.written = written
     return written
+
+
+def _inside(path: Path, directory: Path) -> Path | None:
+    """``path`` relative to ``directory`` when it lies in it, else ``None``."""
+    try:
+        return path.resolve().relative_to(directory.resolve())
+    except ValueError:
+        return None
+
+
+def _writing(path: Path):
+    from teamslam.eval.outputs import writing
+
+    return writing(path)
 
 
 def load_run(directory: str | Path, dataset=None) -> Run:
@@ -353,16 +438,29 @@ def load_run(directory: str | Path, dataset=None) -> Run:
     Raises
     ------
     InputError
-        Not a run directory, or a file in it cannot be read (named).
+        Not a run directory (no ``run.json``: never a run, or its write did not finish), a run
+        that stopped early (no metrics), or a file in it cannot be read (named).
     """
+    from teamslam.eval.runs import require_run_file
     from teamslam.msckf.team import load_result
 
     out = Path(directory)
+    meta_path = require_run_file(out)
     try:
-        meta = json.loads((out / RUN_FILE).read_text())
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{meta_path}: cannot read ({exc})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("modes"), list):
+        raise InputError(f"{meta_path}: not a run description (no list of modes)")
+    if meta.get("complete") is False:
+        raise InputError(
+            f"{out}: the run stopped early ({meta_path.name}: complete false); it holds the "
+            "frames done (TUM trajectories, result files), no metrics"
+        )
+    try:
         metrics = json.loads((out / "metrics.json").read_text())
     except (OSError, ValueError) as exc:
-        raise InputError(f"{out}: not a run directory written by teamslam ({exc})") from None
+        raise InputError(f"{out / 'metrics.json'}: cannot read ({exc})") from None
     names = meta["modes"]
     results = {n: load_result(out if len(names) == 1 else out / n) for n in names}
     if len(names) == 1:
@@ -385,10 +483,13 @@ def load_run(directory: str | Path, dataset=None) -> Run:
 
 
 # ---------------------------------------------------------------------- processes
-def _run_processes(path, dataset, effective, graph, loss, out, base_port, secure) -> Run:
-    """Write a loopback team file, launch it, gather."""
+def _run_processes(
+    path, dataset, effective, graph, loss, stage, base_port, secure, progress=None
+) -> Run:
+    """Write a loopback team file into the staging folder ``stage``, launch it, gather."""
     from teamslam.runtime.team_file import write_team_file
 
+    out = stage.path
     name = f"run-{os.getpid()}"
     settings = {
         "base_port": base_port,
@@ -397,7 +498,7 @@ def _run_processes(path, dataset, effective, graph, loss, out, base_port, secure
     }
     if not secure:
         team_path = write_team_file(out / "team.yaml", name, path, graph.adjacency, **settings)
-        return launch(team_path, out, effective)
+        return _launch_into(stage, team_path, effective, progress)
     from teamslam.runtime.security import SecuritySection, make_team_certificates
 
     keys = out / "certs"
@@ -408,9 +509,11 @@ def _run_processes(path, dataset, effective, graph, loss, out, base_port, secure
         team_path = write_team_file(
             out / "team.yaml", name, path, graph.adjacency, security=security, **settings
         )
-        result = launch(team_path, out, effective)
+        result = _launch_into(stage, team_path, effective, progress, keys)
         result.notes.insert(
-            0, f"secured team: mutual TLS, access control; throw-away certificates in {keys}"
+            0,
+            "secured team: mutual TLS, access control; throw-away certificates "
+            f"(in {stage.target / keys.name} while it ran)",
         )
         return result
     finally:
@@ -431,38 +534,71 @@ def validate_team(team) -> None:
         robot_setup(team, r.id, calibrate="never")
 
 
-def launch(team_path: str | Path, out: str | Path, settings=None, progress=None) -> Run:
+def launch(
+    team_path: str | Path,
+    out: str | Path,
+    settings=None,
+    progress=None,
+    overwrite: bool = False,
+) -> Run:
     """Run every robot of a team file as its own process; gather their results.
 
-    The settings are checked for every robot before anything starts. Metrics cover the robots
-    that finished (on the team's dataset); ``exit_codes`` says how each process ended and
-    :attr:`Run.exit_status` sums it up.
+    ``out`` is checked first and written whole or not at all (as :func:`write_run`: robots
+    write into a staging folder beside it, moved into place when they have ended, with
+    ``run.json`` last). The settings are checked for every robot before anything starts.
+    Metrics cover the robots that finished (on the team's dataset); ``exit_codes`` says how
+    each process ended and :attr:`Run.exit_status` sums it up.
 
     Parameters
     ----------
     settings
         The :class:`~teamslam.msckf.settings.sources.EffectiveConfig` to report with the metrics.
+    overwrite
+        Replace an earlier run at ``out`` (entirely); without it one is refused.
+
+    Raises
+    ------
+    InputError
+        ``out`` cannot take the run (see :func:`write_run`), a wrong team file or setting.
     """
+    from teamslam.eval.outputs import stage_run_directory
+
+    stage = stage_run_directory(out, overwrite)
+    try:
+        return _launch_into(stage, Path(team_path), settings, progress)
+    finally:
+        stage.discard()
+
+
+def _launch_into(stage, team_path: Path, settings, progress, keep_out: Path | None = None) -> Run:
+    """Launch the team file's robots into the staging folder ``stage``, gather, write the run
+    (``run.json`` last; ``complete`` when every robot finished) and move it into place;
+    ``keep_out``: a folder of ``stage`` not to move (secrets)."""
     from teamslam.eval.outputs import write_team_outputs
     from teamslam.runtime.launch import exit_summary, gather, launch_team
     from teamslam.runtime.team_file import load_team_file
 
-    team_path, out = Path(team_path), Path(out)
+    work, out = stage.path, stage.target
     team = load_team_file(team_path)
     require_extras(processes=True, secure=team.security is not None, ros2=team.ros2 is not None)
     validate_team(team)
-    codes = launch_team(team, team_path, out, progress=progress)
+    codes = launch_team(team, team_path, work, progress=progress)
+    if keep_out is not None:
+        shutil.rmtree(keep_out, ignore_errors=True)
     finished = [r for r, c in sorted(codes.items()) if c == 0]
     result = Run(None, graph=f"team file {team.team}", loss=team.message_loss, exit_codes=codes)
+    result.written = {"directory": out}
     if len(finished) < team.n:
         result.warnings.append(f"{exit_summary(codes)} (see {out}/robot_N.log)")
-    if not finished:
-        return result
-    if team.dataset is None or any(r.dataset for r in team.robots):
-        result.notes.append(f"robots ran on their own datasets; per-robot results are in {out}")
+    if not finished or team.dataset is None or any(r.dataset for r in team.robots):
+        if finished:
+            result.notes.append(f"robots ran on their own datasets; per-robot results are in {out}")
+        _write_run_file(work, result, [], complete=len(finished) == team.n)
+        stage.commit()
         return result
     dataset = _dataset(team.dataset)
-    gathered = gather(team, out, finished)
+    result.source = Path(team.dataset)
+    gathered = gather(team, work, finished)
     if len(finished) < team.n:
         result.notes.append(
             f"robots {', '.join(str(r) for r in finished)} finished; metrics cover them only"
@@ -477,10 +613,13 @@ def launch(team_path: str | Path, out: str | Path, settings=None, progress=None)
     result.dataset = dataset
     result.results = {"consensus": gathered}
     result.by_mode = {"consensus": metrics}
-    write_team_outputs(out, dataset, result.results, result.metrics)
+    write_team_outputs(work, dataset, result.results, result.metrics)
     from teamslam.eval.report import write_run_report
 
-    result.written = {"directory": out, "report": write_run_report(out, dataset, result.results)}
+    report = write_run_report(work, dataset, result.results, final=out)
+    result.written = {"directory": out, "report": out / report.relative_to(work)}
+    _write_run_file(work, result, ["consensus"], complete=len(finished) == team.n)
+    stage.commit()
     return result
 
 

@@ -33,6 +33,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.processes and (args.out is None or args.compare or args.separate or args.centralised):
         raise UsageError("--processes needs --out and runs consensus only")
     api.require_extras(processes=args.processes, secure=args.secure, mcap=args.mcap is not None)
+    if args.overwrite and args.out is None:
+        raise UsageError("--overwrite needs --out (the run directory it replaces)")
+    if args.out is not None:  # before any data is read
+        from teamslam.eval.outputs import check_run_directory
+
+        check_run_directory(args.out, args.overwrite)
     dataset = load_dataset(args.dataset)
     if args.association is not None:
         args.set = [*(args.set or []), f"association.mode={args.association}"]
@@ -55,6 +61,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         base_port=args.base_port,
         secure=args.secure,
         source=args.dataset,
+        overwrite=args.overwrite,
     )
     if not args.processes:
         print(f"{dataset.name}: {dataset.n_robots} robots, graph {run.graph}, loss {args.loss}")
@@ -134,6 +141,11 @@ def register(sub) -> None:
     settings_arguments(run)
     run.add_argument("--seed", type=non_negative_int, default=0, help="seed of the link loss")
     run.add_argument("--out", type=Path, default=None, help="directory for results")
+    run.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an earlier run in --out (entirely); without it one is refused",
+    )
     run.add_argument("--no-report", action="store_true", help="no report.html in --out")
     run.add_argument(
         "--mcap",

@@ -17,7 +17,7 @@ __all__ = ["register"]
 def _cmd_team_launch(args: argparse.Namespace) -> int:
     from teamslam import api
 
-    run = api.launch(args.team_file, args.out)
+    run = api.launch(args.team_file, args.out, overwrite=args.overwrite)
     print_run(run, args.out)
     return run.exit_status
 
@@ -103,6 +103,11 @@ def register(sub) -> None:
     launch = team_sub.add_parser("launch", help="start one process per robot and gather results")
     launch.add_argument("team_file", type=Path, help="team file (team.yaml)")
     launch.add_argument("--out", type=Path, required=True, help="output directory")
+    launch.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an earlier run in --out (entirely); without it one is refused",
+    )
     launch.set_defaults(handler=_cmd_team_launch)
 
     certs = team_sub.add_parser(

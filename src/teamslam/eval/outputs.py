@@ -4,7 +4,14 @@ A run directory holds ``metrics.json`` and, per run (the directory itself, or ``
 ``consensus/`` for a comparison): ``robot_k.tum`` and ``robot_k_groundtruth.tum`` per robot,
 ``estimates.npz`` (:mod:`teamslam.eval.estimates`) and the run's
 :class:`~teamslam.msckf.team.TeamResult` (``result.npz``, ``result.json``,
-:func:`~teamslam.msckf.team.save_result`); then the top-view and error figures.
+:func:`~teamslam.msckf.team.save_result`); then the top-view and error figures, and last
+``run.json`` (:data:`RUN_FILE`: what ran, and ``complete``).
+
+A run directory is written whole or not at all (:func:`stage_run_directory`,
+:class:`~teamslam.staging.StagedDirectory`): into a staging folder beside it, moved into place
+at the end. A target that is a file, or a non-empty directory without ``run.json``, is refused;
+an earlier run is replaced (entirely) only when asked. Readers refuse a directory without
+``run.json`` (:func:`teamslam.eval.runs.require_run_file`).
 """
 
 from __future__ import annotations
@@ -15,11 +22,15 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from teamslam.errors import OutputError
+from teamslam.errors import InputError, OutputError
+from teamslam.staging import StagedDirectory
 
 __all__ = [
+    "RUN_FILE",
+    "check_run_directory",
     "json_safe",
     "run_prefix",
+    "stage_run_directory",
     "write_json",
     "write_partial_outputs",
     "write_team_outputs",
@@ -63,6 +74,69 @@ def write_json(path: Path, payload: dict) -> None:
         tmp = path.with_suffix(path.suffix + ".tmp")
         tmp.write_text(json.dumps(json_safe(payload), indent=2, sort_keys=True) + "\n")
         tmp.replace(path)
+
+
+#: The file a run directory is written with last: a directory without it is no run.
+RUN_FILE = "run.json"
+
+
+def _refusal(out: Path, overwrite: bool) -> str | None:
+    """Why ``out`` cannot take a run directory (``None``: it can)."""
+    if (out.exists() or out.is_symlink()) and not out.is_dir():
+        return f"{out} exists and is not a directory; the run needs a directory there"
+    if not out.is_dir():
+        blocked = next((p for p in out.parents if p.exists() or p.is_symlink()), None)
+        if blocked is not None and not blocked.is_dir():
+            return f"{blocked} exists and is not a directory; cannot make {out} in it"
+        return None
+    try:
+        empty = next(out.iterdir(), None) is None
+    except OSError as exc:
+        return f"{out}: cannot read ({exc.strerror or exc})"
+    if empty:
+        return None
+    if not (out / RUN_FILE).is_file():
+        return (
+            f"{out} is not empty and holds no {RUN_FILE} (not a teamslam run); refusing to "
+            "replace it — choose another directory"
+        )
+    if not overwrite:
+        return f"{out} holds an earlier run; refusing to replace it without --overwrite"
+    return None
+
+
+def stage_run_directory(out: str | Path, overwrite: bool = False) -> StagedDirectory:
+    """The staging folder of the run directory ``out``, created now (before any data is read).
+
+    Raises
+    ------
+    InputError
+        ``out`` is a file, a non-empty directory that is no run, an earlier run without
+        ``overwrite``, or its parent cannot be written (each named).
+    """
+    out = Path(out)
+    reason = _refusal(out, overwrite)
+    if reason is not None:
+        raise InputError(reason)
+    try:
+        return StagedDirectory(out)
+    except OSError as exc:
+        where = exc.filename or out.parent
+        raise InputError(
+            f"{out}: cannot write a run directory there ({where}: {exc.strerror or exc})"
+        ) from None
+
+
+def check_run_directory(out: str | Path, overwrite: bool = False) -> None:
+    """Check that ``out`` can take a run directory (:func:`stage_run_directory`, nothing left
+    behind).
+
+    Raises
+    ------
+    InputError
+        As :func:`stage_run_directory`.
+    """
+    stage_run_directory(out, overwrite).discard()
 
 
 def run_prefix(out: Path, name: str, names: list[str]) -> Path:

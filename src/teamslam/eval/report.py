@@ -302,7 +302,7 @@ def _team_section(names: list[str], runs: list[TeamRun]) -> str:
         ("link loss rate", _metric_cells(runs, lambda m: m["loss"])),
         ("objects in map per robot", _metric_cells(runs, lambda m: m["objects_in_map"])),
         ("wall time [s]", _metric_cells(runs, lambda m: m["wall_seconds"])),
-        ("directory", [str(r.directory) if r.directory else "—" for r in runs]),
+        ("directory", [str(r.shown_directory or r.directory or "—") for r in runs]),
     ]
     parts = ["<section id='team'><h2>Team</h2><div class='row'>", _table(names, rows, "team-table")]
     from teamslam.eval.figures import figure_png, graph_figure
@@ -707,6 +707,10 @@ def write_report(
     ``options`` are those of :func:`~teamslam.eval.trajectory.evaluate_team`.
     """
     runs = [run for spec in specs for run in load_runs(spec)]
+    return _write_report(runs, out, references, **options)
+
+
+def _write_report(runs: list[TeamRun], out: str | Path, references=None, **options) -> Path:
     evaluations = evaluate_runs(runs, references, **options)
     text = build_report(runs, evaluations)
     out = Path(out)
@@ -717,18 +721,24 @@ def write_report(
     return out
 
 
-def write_run_report(out: str | Path, dataset, results: dict) -> Path:
+def write_run_report(
+    out: str | Path, dataset, results: dict, final: str | Path | None = None
+) -> Path:
     """What ``teamslam run --out DIR`` adds to its directory: ``series.npz`` per run, and
     ``report.html``.
 
     Parameters
     ----------
     out
-        The run directory (``metrics.json`` and the TUM trajectories already written).
+        The run directory being written (``metrics.json`` and the TUM trajectories already
+        written, ``run.json`` not yet).
     dataset
         The team dataset the runs estimated.
     results
         ``{"separate": TeamResult, "consensus": TeamResult}`` or one of them.
+    final
+        Where ``out`` goes once written (its writer stages it, :mod:`teamslam.staging`): the
+        name and directory the report shows (default: ``out``).
     """
     from teamslam.eval.metrics import pose_nees
 
@@ -740,4 +750,8 @@ def write_run_report(out: str | Path, dataset, results: dict) -> Path:
             for i, robot in enumerate(dataset.robots)
         ]
         write_series(prefix, nees, result.frame_times)
-    return write_report([out], out / "report.html")
+    runs = load_runs(out, None if final is None else Path(final).resolve().name, writing=True)
+    if final is not None:
+        for run in runs:
+            run.shown_directory = Path(final) / run.directory.relative_to(out)
+    return _write_report(runs, out / "report.html")

@@ -5,7 +5,8 @@ A run directory written by ``teamslam run --out DIR`` holds ``metrics.json`` and
 ``--compare`` those files are in ``separate/`` and ``consensus/`` and ``metrics.json`` is the
 consensus run's with the separate run's under ``"separate"``. Each directory with the
 trajectories may also hold ``series.npz`` (:func:`write_series`): per robot the pose NEES and
-the time of each stage at every frame.
+the time of each stage at every frame. ``run.json`` is written last: a directory without it (an
+interrupted write, or not a run) is refused, naming what is missing (:func:`require_run_file`).
 
 Trajectory files are TUM (8 numbers a line) or KITTI (12 numbers a line), told apart by their
 first data line.
@@ -20,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from teamslam.errors import InputError
+from teamslam.eval.outputs import RUN_FILE
 from teamslam.eval.trajectory import Trajectory
 
 __all__ = [
@@ -29,6 +31,7 @@ __all__ = [
     "load_runs",
     "read_series",
     "read_trajectory",
+    "require_run_file",
     "write_series",
 ]
 
@@ -55,6 +58,8 @@ class TeamRun:
         Per-frame ``nees`` and ``frame_times`` per robot (``None`` if not recorded).
     directory
         Where the trajectories were read.
+    shown_directory
+        Where they will be, when read from a run directory still being written (staged).
     """
 
     name: str
@@ -63,6 +68,28 @@ class TeamRun:
     metrics: dict | None = None
     series: dict | None = None
     directory: Path | None = None
+    shown_directory: Path | None = None
+
+
+def require_run_file(directory: str | Path) -> Path:
+    """``directory/run.json``, which a run directory is written with last (for ``separate/``
+    or ``consensus/`` of a comparison: the comparison's).
+
+    Raises
+    ------
+    InputError
+        There is no such file: the directory is no run, or its write did not finish (named).
+    """
+    directory = Path(directory)
+    path = directory / RUN_FILE
+    if not path.is_file() and directory.name in VARIANTS:
+        path = directory.parent / RUN_FILE
+    if not path.is_file():
+        raise InputError(
+            f"{directory}: not a run directory (no {RUN_FILE}, which `teamslam run --out` "
+            "writes last; a run whose write was interrupted has none)"
+        )
+    return path
 
 
 def _first_data_line(path: Path) -> str:
@@ -164,17 +191,33 @@ def _load_variant(directory: Path, name: str, metrics: dict | None) -> TeamRun:
     return TeamRun(name, estimates, references, metrics, read_series(directory), directory)
 
 
-def load_runs(spec: str | Path) -> list[TeamRun]:
+def load_runs(spec: str | Path, label: str | None = None, writing: bool = False) -> list[TeamRun]:
     """The team runs one command-line argument names.
 
     * a run directory of ``teamslam run`` → one run, or two (``separate``, ``consensus``)
       if it was written with ``--compare``;
     * a trajectory file → a one-robot team;
     * trajectory files joined by commas (``a.tum,b.tum``) → one team, a robot per file.
+
+    Parameters
+    ----------
+    label
+        The name of a run directory's columns (default: the directory's name).
+    writing
+        ``spec`` is a run directory being written (its ``run.json`` comes last): read it
+        without one.
+
+    Raises
+    ------
+    InputError
+        A directory without ``run.json`` (:func:`require_run_file`), a file that cannot be
+        read (named).
     """
     text = str(spec)
     path = Path(text)
     if path.is_dir():
+        if not writing:
+            require_run_file(path)
         metrics = None
         if (path / "metrics.json").is_file():
             try:
@@ -183,7 +226,7 @@ def load_runs(spec: str | Path) -> list[TeamRun]:
                 raise InputError(f"{path / 'metrics.json'}: cannot read ({exc})") from None
             if not isinstance(metrics, dict):
                 raise InputError(f"{path / 'metrics.json'}: not a JSON object")
-        label = path.resolve().name
+        label = label or path.resolve().name
         variants = [v for v in VARIANTS if _robot_files(path / v)]
         if variants:
             runs = []

@@ -17,6 +17,7 @@ import numpy as np
 
 from teamslam.errors import InputError
 from teamslam.eval.estimates import FILENAME, RobotEstimates, load_estimates
+from teamslam.eval.runs import require_run_file
 from teamslam.ros2 import messages as m
 
 __all__ = ["export_mcap", "find_runs", "write_mcap"]
@@ -27,9 +28,12 @@ MARKERS = "visualization_msgs/msg/MarkerArray"
 TF = "tf2_msgs/msg/TFMessage"
 
 
-def find_runs(result_dir: str | Path) -> dict[str, Path]:
-    """``{topic prefix: estimates file}`` of the runs in a result directory."""
+def find_runs(result_dir: str | Path, writing: bool = False) -> dict[str, Path]:
+    """``{topic prefix: estimates file}`` of the runs in a result directory (one with
+    ``run.json``, or one being written: ``writing``)."""
     result_dir = Path(result_dir)
+    if not writing:
+        require_run_file(result_dir)
     if (result_dir / FILENAME).exists():
         return {"": result_dir / FILENAME}
     found = {
@@ -190,9 +194,12 @@ def _associations(paths: dict[str, Path]) -> dict[str, list[dict]]:
     return out
 
 
-def export_mcap(result_dir: str | Path, out: str | Path, path_messages: int = 100) -> dict:
+def export_mcap(
+    result_dir: str | Path, out: str | Path, path_messages: int = 100, writing: bool = False
+) -> dict:
     """Export the run(s) in ``result_dir`` (``estimates.npz``) to the MCAP file ``out`` (with
-    the association lines of a run whose robots associated their objects themselves)."""
-    paths = find_runs(result_dir)
+    the association lines of a run whose robots associated their objects themselves);
+    ``writing``: ``result_dir`` is a run directory being written (no ``run.json`` yet)."""
+    paths = find_runs(result_dir, writing)
     runs = {prefix: load_estimates(path)[1] for prefix, path in paths.items()}
     return write_mcap(runs, out, path_messages=path_messages, associations=_associations(paths))

@@ -14,7 +14,9 @@ Weights are Metropolis–Hastings, ``A_ij = 1 / (1 + max(d_i, d_j))``, and alway
 pair averages the common objects that moved by more than ``kl_threshold`` on either side since
 it last exchanged them; every received message is checked once
 (:func:`~teamslam.msckf.consensus.checks.check_message`) and a rejected one never reaches the
-state. The counters ``objects_averaged``, ``hybrid_fallbacks`` and ``links_lost`` count per
+state; with global ids the consensus innovation check (``consensus.innovation_check``, on by
+default) leaves out whole a neighbour's marginal in which most objects fail their χ²₃ test.
+The counters ``objects_averaged``, ``hybrid_fallbacks`` and ``links_lost`` count per
 exchange, ``objects_inactive`` per step. Derivations (weights, moved flags, hybrid consensus,
 increments, iterations, association between maps): the concept page *Consensus*
 (``docs/concepts/consensus.md``).
@@ -490,8 +492,11 @@ class ConsensusProtocol:
         )
 
     def _innovation_check(self, marginal: ReceivedMarginal) -> ReceivedMarginal | None:
-        """The marginal without the objects whose consensus innovation fails the ``χ²₃`` test
-        (revoked from the link's table with own association); ``None`` when none is left."""
+        """The marginal checked by the ``χ²₃`` test of each object's consensus innovation.
+
+        With own association: without the objects that fail (revoked from the link's table);
+        with oracle ids: whole, unless most of its objects fail (then ``None``: the sender is
+        not averaged this step). ``None`` also when no object is left."""
         ids = marginal.ids
         k = ids.size
         try:
@@ -516,9 +521,15 @@ class ConsensusProtocol:
             return marginal
         j = marginal.sender
         failed = ids[~ok]
-        self.link_stats[j]["excluded"] += int(failed.size)
         self.agent.counters["consensus_innovation_failures"] += int(failed.size)
         table = self.tables.get(j)
+        if table is None:  # oracle ids: judge the sender by the majority of its objects
+            if 2 * int(failed.size) <= k:
+                return marginal
+            self.link_stats[j]["excluded"] += k
+            self.agent.counters["consensus_marginals_left_out"] += 1
+            return None
+        self.link_stats[j]["excluded"] += int(failed.size)
         if table is not None:
             for own_id, their_id in zip(failed, table.theirs(failed), strict=True):
                 table.revoke(int(own_id), int(their_id), self.step)
@@ -531,8 +542,9 @@ class ConsensusProtocol:
 
     def association_summary(self) -> dict:
         """Per link (neighbour id as a string): the table's pairs and counts and the exchange
-        statistics (empty with oracle ids and no innovation check)."""
-        if self.innovation_probability is None and not self.tables:
+        statistics (empty with oracle ids: the innovation check's marginals left out are the
+        agent's ``consensus_marginals_left_out`` counter)."""
+        if not self.tables:
             return {}
         out = {}
         for j, stats in self.link_stats.items():

@@ -5,7 +5,9 @@ endpoint: send, wait for one message of a kind and step from each of a set of ne
 (:meth:`Transport.collect`), take each neighbour's newest (:meth:`Transport.newest`), wait for
 the neighbours to come up. :class:`MemoryNetwork` implements it in one process, optionally over
 lossy links (``links(step)``: a message over a link that is down is lost);
-:mod:`teamslam.runtime.zenoh_transport` implements it over a network.
+:class:`LyingNetwork` is one whose member ``liar`` sends, in its own name, every marginal
+shifted far off with a tiny covariance (the attack the consensus innovation check is there
+for); :mod:`teamslam.runtime.zenoh_transport` implements it over a network.
 """
 
 from __future__ import annotations
@@ -18,9 +20,9 @@ from typing import Protocol
 import numpy as np
 
 from teamslam.errors import InputError
-from teamslam.msckf.consensus.messages import Message
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, Message
 
-__all__ = ["Mailbox", "MemoryNetwork", "MemoryTransport", "Transport"]
+__all__ = ["LyingNetwork", "Mailbox", "MemoryNetwork", "MemoryTransport", "Transport"]
 
 
 class Transport(Protocol):
@@ -173,6 +175,48 @@ class MemoryNetwork:
             return False
         self.mailboxes[message.receiver].put(message)
         return True
+
+
+class LyingNetwork(MemoryNetwork):
+    """A :class:`MemoryNetwork` whose robot ``liar`` lies in every marginal it sends: each
+    object's mean moved by ``offset`` (metres, world frame), information ``information`` times
+    the identity (a covariance that claims millimetres).
+
+    Parameters
+    ----------
+    n
+        Number of robots.
+    liar
+        The lying robot (``None``: every robot is honest, the network is a
+        :class:`MemoryNetwork`).
+    offset, information
+        The lie: the shift of every object and the claimed information (per coordinate).
+    """
+
+    def __init__(
+        self,
+        n: int,
+        liar: int | None,
+        offset: tuple[float, float, float] = (20.0, 0.0, 0.0),
+        information: float = 1e6,
+    ) -> None:
+        super().__init__(n)
+        self.liar = liar
+        self.offset = np.asarray(offset, dtype=float)
+        self.information = float(information)
+
+    def _deliver(self, message: Message) -> bool:
+        if message.sender == self.liar and isinstance(message, CommonMarginalMessage):
+            from dataclasses import replace
+
+            d = message.mean.size
+            message = replace(
+                message,
+                mean=message.mean + np.tile(self.offset, d // 3),
+                cov=None,
+                info=self.information * np.eye(d),
+            )
+        return super()._deliver(message)
 
 
 class MemoryTransport:

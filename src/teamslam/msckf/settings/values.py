@@ -357,10 +357,10 @@ class ConsensusSettings:
         every robot of a team must use the same ``L``.
     innovation_check
         With oracle association: the ``χ²₃`` test of each common object's consensus innovation
-        (at ``association.revoke_probability``), leaving out of the step's average the objects
-        that fail (a neighbour that sends marginals far off with a tiny covariance). With it,
-        an honest run is no longer bit-identical to one without the check whenever a test
-        fails. Own association always tests.
+        (at ``association.revoke_probability``); a neighbour's marginal in which most objects
+        fail (a member that sends marginals far off with a tiny covariance) is left out of the
+        step's average whole. On by default: a check that protects the estimate must not need
+        switching on. Own association always tests.
     """
 
     rule: str = field(default="average", metadata=_unit(""))
@@ -371,7 +371,7 @@ class ConsensusSettings:
     per_object: bool = field(default=False, metadata=_unit(""))
     float32: bool = field(default=True, metadata=_unit(""))
     iterations: int = field(default=1, metadata=_unit("exchanges per step"))
-    innovation_check: bool = field(default=False, metadata=_unit(""))
+    innovation_check: bool = field(default=True, metadata=_unit(""))
 
     def __post_init__(self) -> None:
         if self.rule not in CONSENSUS_RULES:
