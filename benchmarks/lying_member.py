@@ -8,7 +8,7 @@ Run on demand (BLAS pinned to one thread)::
 A simulated team with global object ids; robot ``liar`` has valid credentials and sends, in its
 own name, every marginal 20 m off with a 1 mm standard deviation
 (:class:`~teamslam.msckf.consensus.transport.LyingNetwork`). Prints, with the check off and on
-(``consensus_innovation_check``), the honest robots' mean trajectory RMSE in the clean team (the
+(``consensus.innovation_check``), the honest robots' mean trajectory RMSE in the clean team (the
 liar honest), in the attacked team, and in the team without the liar — the best any check can
 give, since the liar sends nothing true — and the marginals left out.
 """
@@ -67,7 +67,9 @@ def main() -> None:
     without = team.subset(honest)
     print(f"{args.robots} robots x {args.steps} steps (seed {args.seed}), liar robot {args.liar}")
     for check in (False, True):
-        config = config_for(team, window=args.window, consensus_innovation_check=check)
+        config = config_for(
+            team, {"filter.window": args.window, "consensus.innovation_check": check}
+        )
         begin = time.perf_counter()
         clean = _team_run(team, config, None)
         seconds = time.perf_counter() - begin

@@ -220,7 +220,7 @@ def test_a_lying_member_is_no_longer_averaged(mode):
         assert lied.extra["association"][0]["2"]["held"] == 0
     else:  # its marginals are left out whole, and the attack would work without the check
         assert lied.counters[0]["consensus_marginals_left_out"] > 0
-        unchecked = config.with_(consensus_innovation_check=False)
+        unchecked = config.with_({"consensus.innovation_check": False})
         fooled = run_drivers(
             _drivers(team, unchecked, LyingNetwork(4, 2)), "c", 0.0, progress=False
         )
@@ -231,7 +231,9 @@ def test_the_default_check_leaves_an_honest_run_as_it_was(team3, oracle3):
     """With honest robots no marginal has most of its objects failing: the default run (check
     on) is the run without the check, bit for bit."""
     unchecked = run_team(
-        team3, config_for(team3, window=6, consensus_innovation_check=False), progress=False
+        team3,
+        config_for(team3, {"filter.window": 6, "consensus.innovation_check": False}),
+        progress=False,
     )
     assert all(c.get("consensus_marginals_left_out", 0) == 0 for c in oracle3.counters)
     for a, b in zip(oracle3.poses, unchecked.poses, strict=True):

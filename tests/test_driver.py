@@ -269,7 +269,7 @@ def test_a_robot_process_failing_mid_run_keeps_its_frames(team3, tmp_path, monke
     _fail_robot_1_at_frame_5(monkeypatch)
     team_path = tmp_path / "solo.yaml"
     team_path.write_text(
-        f"team: solo\ndataset: {directory}\nfilter: {{window: 6}}\nrobots:\n"
+        f"team: solo\ndataset: {directory}\nsettings: {{filter: {{window: 6}}}}\nrobots:\n"
         "  - {id: 0}\n  - {id: 1}\n"
     )
     team = load_team_file(team_path)

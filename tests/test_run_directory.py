@@ -56,14 +56,14 @@ def test_an_earlier_run_is_refused_then_replaced_whole_with_overwrite(
     assert _run(capsys, dataset_dir, "--compare", "--out", out)[0] == 0
     before = _files(out)
     # without --overwrite: exit 2, one line naming the directory, nothing changed
-    code, _, err = _run(capsys, dataset_dir, "--separate", "--set", "window=3", "--out", out)
+    code, _, err = _run(capsys, dataset_dir, "--separate", "--set", "filter.window=3", "--out", out)
     assert code == 2
     assert f"{out} holds an earlier run" in err and "--overwrite" in err
     assert len(err.strip().splitlines()) == 1
     assert _files(out) == before
     # with it: no file of the old run survives
     code, _, _ = _run(
-        capsys, dataset_dir, "--separate", "--set", "window=3", "--out", out, "--overwrite"
+        capsys, dataset_dir, "--separate", "--set", "filter.window=3", "--out", out, "--overwrite"
     )
     assert code == 0
     after = _files(out)

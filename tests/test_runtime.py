@@ -250,7 +250,7 @@ def test_resume_from_checkpoint_reproduces_the_run(small_team, tmp_path, monkeyp
     team_path = tmp_path / "solo.yaml"
     team_path.write_text(
         f"team: solo\ndataset: {directory}\ncheckpoint_every: 10\n"
-        "filter: {window: 8}\nrobots:\n  - id: 0\n    listen: "
+        "settings: {filter: {window: 8}}\nrobots:\n  - id: 0\n    listen: "
         f"tcp/127.0.0.1:{_port(6)}\n"
     )
     team = load_team_file(team_path)
