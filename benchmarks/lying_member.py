@@ -24,27 +24,15 @@ from threadpoolctl import threadpool_limits
 from teamslam.eval.metrics import trajectory_rmse
 from teamslam.graph import complete
 from teamslam.msckf import config_for, run_team
-from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus.transport import LyingNetwork
-from teamslam.msckf.filter.linearization import GroundTruth
-from teamslam.msckf.team import LockStep, RobotDriver, run_drivers
+from teamslam.msckf.team import lockstep_drivers, run_drivers
 from teamslam.sim import lissajous_team
 
 
 def _team_run(dataset, config, liar):
     network = LyingNetwork(dataset.n_robots, liar)
     graph = complete(dataset.n_robots)
-    drivers = [
-        RobotDriver(
-            MsckfAgent(
-                i, dataset.calibration, r, config, truth=GroundTruth(r.T_world_body, dataset)
-            ),
-            network.endpoint(i),
-            graph.neighbours(i),
-            LockStep(timeout=0.0),
-        )
-        for i, r in enumerate(dataset.robots)
-    ]
+    drivers = lockstep_drivers(dataset, [config] * dataset.n_robots, network, graph)
     return run_drivers(drivers, graph.name, 0.0, progress=False)
 
 

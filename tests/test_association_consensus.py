@@ -22,13 +22,11 @@ from teamslam.errors import InputError
 from teamslam.eval.metrics import team_metrics, trajectory_rmse
 from teamslam.graph import complete, ring
 from teamslam.msckf import build_settings, config_for, run_team
-from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus.messages import MapIdsMessage
 from teamslam.msckf.consensus.protocol import ConsensusProtocol
 from teamslam.msckf.consensus.transport import LyingNetwork, MemoryNetwork
-from teamslam.msckf.filter.linearization import GroundTruth
 from teamslam.msckf.settings.values import MsckfConfig
-from teamslam.msckf.team import LockStep, RobotDriver, run_drivers
+from teamslam.msckf.team import lockstep_drivers, run_drivers
 from teamslam.runtime.team_file import write_team_file
 from teamslam.runtime.wire import WireError, decode, encode, team_id
 from teamslam.sim import lissajous_team
@@ -64,18 +62,7 @@ def _rmse(result, dataset) -> float:
 
 def _drivers(dataset, config, network, graph=None):
     n = dataset.n_robots
-    graph = graph or complete(n)
-    return [
-        RobotDriver(
-            MsckfAgent(
-                i, dataset.calibration, r, config, truth=GroundTruth(r.T_world_body, dataset)
-            ),
-            network.endpoint(i),
-            graph.neighbours(i),
-            LockStep(timeout=0.0),
-        )
-        for i, r in enumerate(dataset.robots)
-    ]
+    return lockstep_drivers(dataset, [config] * n, network, graph or complete(n))
 
 
 def test_association_settings_are_recorded_by_group():

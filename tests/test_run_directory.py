@@ -70,7 +70,7 @@ def test_an_earlier_run_is_refused_then_replaced_whole_with_overwrite(
     assert not (out / "separate").exists() and not (out / "consensus").exists()
     assert {"robot_0.tum", "estimates.npz", "run.json", "metrics.json"} <= set(after)
     assert json.loads((out / "run.json").read_text())["modes"] == ["separate"]
-    assert json.loads((out / "metrics.json").read_text())["config"]["window"] == 3
+    assert json.loads((out / "metrics.json").read_text())["config"]["filter"]["window"] == 3
     assert main(["eval", str(out), "--json"]) == 0
     runs = json.loads(capsys.readouterr().out)["runs"]
     assert list(runs) == ["R"]  # one column: the new run's

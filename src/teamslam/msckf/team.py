@@ -644,6 +644,30 @@ def compilations() -> tuple[int, int]:
     return compiled, loaded
 
 
+def lockstep_drivers(
+    dataset: TeamDataset,
+    configs: Sequence[MsckfConfig],
+    network,
+    graph: CommunicationGraph,
+    consensus: bool = True,
+) -> list[RobotDriver]:
+    """One lock-step driver per robot of ``dataset`` (ground truth for the ``ideal``
+    linearisation), each on its endpoint of ``network`` (a
+    :class:`~teamslam.msckf.consensus.transport.MemoryNetwork` or one like it), hearing its
+    neighbours in ``graph``: what :func:`run_team` runs, for callers that bring their own
+    network."""
+    return [
+        RobotDriver(
+            MsckfAgent(i, dataset.calibration, r, c, truth=GroundTruth(r.T_world_body, dataset)),
+            network.endpoint(i),
+            graph.neighbours(i),
+            LockStep(timeout=0.0),
+            consensus=consensus,
+        )
+        for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))
+    ]
+
+
 def run_team(
     dataset: TeamDataset,
     config: MsckfConfig | Sequence[MsckfConfig] | None = None,
@@ -690,16 +714,7 @@ def run_team(
     edge_loss = EdgeLoss(graph, loss, seed)
     links: dict[int, np.ndarray] = {}
     network = MemoryNetwork(n, links=links.__getitem__)
-    drivers = [
-        RobotDriver(
-            MsckfAgent(i, dataset.calibration, r, c, truth=GroundTruth(r.T_world_body, dataset)),
-            network.endpoint(i),
-            graph.neighbours(i),
-            LockStep(timeout=0.0),
-            consensus=consensus,
-        )
-        for i, (r, c) in enumerate(zip(dataset.robots, configs, strict=True))
-    ]
+    drivers = lockstep_drivers(dataset, configs, network, graph, consensus)
 
     exchanges = exchanges_per_frame(drivers)
 
