@@ -313,6 +313,13 @@ def test_pose_nees_outside_its_band_is_warned(team, tmp_path, capsys):
     assert "overconfident" in line and "95% χ² band" in line
     line = pose_nees_warning({"nees_pose_avg": [0.1, 0.2], "frames_per_robot": frames})
     assert "underconfident" in line
+    # a robot's poses are correlated in time: 750 poses of 5 robots are not 750 samples, so a
+    # team averaging 0.76 (the make-run team's consensus) is not called underconfident ...
+    five = {"frames_per_robot": [151] * 5}
+    assert pose_nees_warning({"nees_pose_avg": [0.67, 0.78, 0.83, 0.79, 0.74], **five}) is None
+    # ... while KITTI 00's 10.8-18.4 per robot is overconfident
+    kitti = {"nees_pose_avg": [10.8, 12.0, 18.4], "frames_per_robot": [2001, 2001, 2041]}
+    assert "overconfident" in pose_nees_warning(kitti)
     # a run whose odometry σ is a hundredth of the truth: its covariance far too small
     path = tmp_path / "ds"
     save_dataset(team, path)

@@ -94,23 +94,27 @@ def object_disagreement(ids: list[np.ndarray], positions: list[np.ndarray]) -> n
 
 
 def pose_nees_warning(metrics: dict, probability: float = 0.95) -> str | None:
-    """One line when a run's pose NEES / 6, averaged over every robot's poses, leaves its
-    two-sided χ² band (:func:`teamslam.gaussian.chi2_band`), else ``None``.
+    """One line when a run's pose NEES / 6, averaged over its robots, leaves its two-sided χ²
+    band (:func:`teamslam.gaussian.chi2_band`), else ``None``.
 
-    The average over ``K`` poses of a consistent filter is ``χ²(6K) / 6K`` (the time-average
-    NEES test of Bar-Shalom, Li & Kirubarajan 2001, §5.4.2, which takes the poses as
-    independent samples). Only meaningful when the dataset's poses are ground truth.
+    One robot's per-frame NEES values are strongly correlated in time, so a band that takes
+    its ``K`` poses as independent samples (``χ²(6K) / 6K``) is far too narrow and warns on
+    consistent filters. The time average of identically distributed samples varies no more
+    than one sample, so each robot's average counts as one ``χ²(6) / 6`` sample and the band
+    is that of ``χ²(6R) / 6R`` over ``R`` robots: conservative (a warning means the filter is
+    inconsistent, not that the band was narrow). Only meaningful when the dataset's poses are
+    ground truth.
     """
     from teamslam.gaussian import chi2_band
 
     nees = np.asarray(metrics["nees_pose_avg"], dtype=float)
-    samples = np.asarray(metrics["frames_per_robot"], dtype=float) - 1.0  # frame 0 is given
-    keep = np.isfinite(nees) & (samples > 0)
+    frames = np.asarray(metrics["frames_per_robot"], dtype=float)
+    keep = np.isfinite(nees) & (frames > 1)  # frame 0 is given
     if not keep.any():
         return None
-    total = int(samples[keep].sum())
-    value = float(np.sum(nees[keep] * samples[keep]) / total)
-    low, high = chi2_band(6, total, probability)
+    robots = int(keep.sum())
+    value = float(np.mean(nees[keep]))
+    low, high = chi2_band(6, robots, probability)
     if low <= value <= high:
         return None
     verdict = (
@@ -120,7 +124,7 @@ def pose_nees_warning(metrics: dict, probability: float = 0.95) -> str | None:
     )
     return (
         f"pose NEES/6 {value:.3g} outside its {100 * probability:.0f}% χ² band "
-        f"[{low:.3g}, {high:.3g}] over {total} poses: the filter is {verdict}"
+        f"[{low:.3g}, {high:.3g}] of {robots} robots' averages: the filter is {verdict}"
     )
 
 
