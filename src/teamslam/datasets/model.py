@@ -210,6 +210,14 @@ class FrameDetections:
     truth
         ``(M,)`` int64 team object id of each detection, ``-1`` for a false one, or ``None``
         when unknown. Never read by a filter.
+    sizes
+        ``(M, 2)`` float64 box width and height in the left image (units of ``K``), or
+        ``None``.
+    appearance
+        ``(M, D)`` float32 appearance descriptor of each detection (finite; a descriptor the
+        front-end computed from the image inside the box, or the user's embedding), or
+        ``None``. Compared only with descriptors of the same dataset
+        (:mod:`teamslam.msckf.objects.appearance`).
     """
 
     offsets: np.ndarray
@@ -217,6 +225,8 @@ class FrameDetections:
     classes: np.ndarray | None = None
     scores: np.ndarray | None = None
     truth: np.ndarray | None = None
+    sizes: np.ndarray | None = None
+    appearance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "offsets", np.asarray(self.offsets, dtype=np.int64))
@@ -226,6 +236,11 @@ class FrameDetections:
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, np.asarray(value).astype(dtype).reshape(-1))
+        for name, dtype in (("sizes", np.float64), ("appearance", np.float32)):
+            value = getattr(self, name)
+            if value is not None:
+                value = np.asarray(value).astype(dtype)
+                object.__setattr__(self, name, value.reshape(len(value), -1))
         self.validate("detections")
 
     def validate(self, where: str) -> None:
@@ -256,6 +271,21 @@ class FrameDetections:
                 raise DatasetError(f"{where}.scores must lie in [0, 1]")
         if self.truth is not None and np.any(self.truth < -1):
             raise DatasetError(f"{where}.truth: object ids must be ≥ 0, or -1 for false ones")
+        if self.sizes is not None:
+            if self.sizes.shape != (len(z), 2):
+                raise DatasetError(
+                    f"{where}.sizes: shape {self.sizes.shape}, expected ({len(z)}, 2)"
+                )
+            if not np.all(np.isfinite(self.sizes) & (self.sizes > 0)):
+                raise DatasetError(f"{where}.sizes: box sizes must be finite and > 0")
+        if self.appearance is not None:
+            a = self.appearance
+            if a.ndim != 2 or a.shape[0] != len(z) or a.shape[1] < 1:
+                raise DatasetError(
+                    f"{where}.appearance: shape {a.shape}, expected ({len(z)}, D) with D ≥ 1"
+                )
+            if not np.all(np.isfinite(a)):
+                raise DatasetError(f"{where}.appearance: descriptors must be finite")
 
     @property
     def frames(self) -> int:
@@ -266,6 +296,12 @@ class FrameDetections:
         """``(measurements, classes)`` of frame ``k`` (views; classes ``None`` when absent)."""
         a, b = self.offsets[k], self.offsets[k + 1]
         return self.measurements[a:b], None if self.classes is None else self.classes[a:b]
+
+    def appearance_of(self, k: int) -> np.ndarray | None:
+        """``(D_k, D)`` appearance descriptors of frame ``k`` (a view), or ``None``."""
+        if self.appearance is None:
+            return None
+        return self.appearance[self.offsets[k] : self.offsets[k + 1]]
 
     def head(self, frames: int) -> FrameDetections:
         """The first ``frames`` frames."""
@@ -280,6 +316,8 @@ class FrameDetections:
             cut(self.classes),
             cut(self.scores),
             cut(self.truth),
+            cut(self.sizes),
+            cut(self.appearance),
         )
 
     @classmethod

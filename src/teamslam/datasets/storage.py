@@ -35,16 +35,28 @@ from teamslam.geometry.camera import StereoCamera
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "load_dataset", "save_dataset"]
 
 FORMAT_NAME = "teamslam-team-dataset"
-FORMAT_VERSION = 4
-READABLE_VERSIONS = (1, 2, 3, 4)
+FORMAT_VERSION = 5
+READABLE_VERSIONS = (1, 2, 3, 4, 5)
 #: The version written when no robot carries detections (what that version holds is the same).
 _VERSION_WITHOUT_DETECTIONS = 3
-_DETECTION_FIELDS = ("classes", "scores", "truth")
+#: The version written when detections carry neither box sizes nor appearance.
+_VERSION_WITHOUT_APPEARANCE = 4
+_DETECTION_FIELDS = ("classes", "scores", "truth", "sizes", "appearance")
 MANIFEST = "manifest.json"
 
 
 def _robot_file(i: int) -> str:
     return f"robot_{i:03d}.npz"
+
+
+def _format_version(dataset: TeamDataset) -> int:
+    """The oldest format version that holds ``dataset`` (older readers keep reading it)."""
+    detections = [r.detections for r in dataset.robots if r.detections is not None]
+    if not detections:
+        return _VERSION_WITHOUT_DETECTIONS
+    if any(d.sizes is not None or d.appearance is not None for d in detections):
+        return FORMAT_VERSION
+    return _VERSION_WITHOUT_APPEARANCE
 
 
 def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
@@ -67,9 +79,7 @@ def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
         cal = dataset.calibration
         manifest = {
             "format": FORMAT_NAME,
-            "version": FORMAT_VERSION
-            if any(r.detections is not None for r in dataset.robots)
-            else _VERSION_WITHOUT_DETECTIONS,
+            "version": _format_version(dataset),
             "name": dataset.name,
             "calibration": {
                 "K": cal.camera.intrinsics.tolist(),
@@ -192,6 +202,11 @@ def _detections(arrays: dict, version: int) -> FrameDetections | None:
         return None
     if version < 4:
         raise DatasetError(f"{present[0]}: detections need format version 4, file is {version}")
+    newer = [k for k in ("detection_sizes", "detection_appearance") if k in arrays]
+    if newer and version < 5:
+        raise DatasetError(
+            f"{newer[0]}: box sizes and appearance need format version 5, file is {version}"
+        )
     for name in ("detection_offsets", "detection_measurements"):
         if name not in arrays:
             raise DatasetError(f"field {name!r} is missing (the file holds {present[0]!r})")
