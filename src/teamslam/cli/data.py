@@ -22,8 +22,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                 "--objects sets the Lissajous arena's map; the long route scatters objects "
                 "along its length (about 1.2 per metre)"
             )
-        if args.clutter or args.miss or args.classes:
-            raise InputError("--clutter, --miss and --classes apply to the Lissajous route")
+        if args.clutter or args.miss or args.classes or args.appearance:
+            raise InputError(
+                "--clutter, --miss, --classes and --appearance apply to the Lissajous route"
+            )
         dataset = long_route_team(
             robots=args.robots, steps=args.steps, seed=args.seed, noise_free=args.noise_free
         )
@@ -37,6 +39,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             clutter=args.clutter,
             miss=args.miss,
             classes=args.classes,
+            appearance=args.appearance,
+            appearance_noise=args.appearance_noise,
         )
     if args.object_ids != "global":
         from teamslam.datasets.identity import strip_object_ids
@@ -318,6 +322,21 @@ def register(sub) -> None:
         type=non_negative_int,
         default=0,
         help="Lissajous route: number of object classes (0: none)",
+    )
+    sim.add_argument(
+        "--appearance",
+        type=non_negative_int,
+        default=0,
+        metavar="DIM",
+        help="Lissajous route: each detection carries an appearance descriptor of DIM "
+        "dimensions, a noisy copy of its object's (0: none)",
+    )
+    sim.add_argument(
+        "--appearance-noise",
+        type=float,
+        default=0.3,
+        metavar="S",
+        help="noise of each detection's descriptor, relative to the descriptor's unit norm",
     )
     sim.add_argument("--out", type=Path, required=True, help="dataset directory to write")
     sim.set_defaults(handler=_cmd_simulate)

@@ -292,6 +292,8 @@ def load_dataset(directory: str | Path) -> TeamDataset:
         "detection_classes": "i",
         "detection_scores": "f",
         "detection_truth": "i",
+        "detection_sizes": "f",
+        "detection_appearance": "f",
     }
     detection_fields = tuple(k for k in robot_fields if k.startswith("detection_"))
     robots = []

@@ -466,7 +466,14 @@ class MsckfAgent:
         finite = np.all(np.isfinite(z), axis=1)
         if not finite.all():
             self.reject("object_measurements", int((~finite).sum()), "non-finite")
-        frame = self.tracker.assign(t, z, classes, self.state, self.config.filter.odometry_cov())
+        frame = self.tracker.assign(
+            t,
+            z,
+            classes,
+            self.state,
+            self.config.filter.odometry_cov(),
+            self.sequence.detections.appearance_of(t),
+        )
         for new, old in frame.merged.tolist():  # loop closure: one object seen again
             self.views.merge(new, old)
         for tid, frames, zs in frame.confirmed:

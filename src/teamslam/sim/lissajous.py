@@ -80,6 +80,12 @@ class SimulationConfig:
         -1), while its object observations with ids hold the true, detected objects only (an
         oracle's ids on the same detections). Drawn from generators of their own: the rest of
         the team is the same as without them.
+    appearance, appearance_noise
+        Simulated appearance (0: none): each object has a unit descriptor of ``appearance``
+        dimensions drawn team-wide, and each detection of it carries a noisy copy, the
+        descriptor plus isotropic noise of norm about ``appearance_noise`` (relative to the
+        descriptor's unit norm), normalised; each false detection a random unit descriptor.
+        Setting it records detections (as ``clutter``, ``miss`` and ``classes`` do).
     """
 
     robots: int = 5
@@ -107,8 +113,18 @@ class SimulationConfig:
     clutter: float = 0.0
     miss: float = 0.0
     classes: int = 0
+    appearance: int = 0
+    appearance_noise: float = 0.3
 
     def __post_init__(self) -> None:
+        if (
+            isinstance(self.appearance, bool)
+            or not isinstance(self.appearance, int)
+            or self.appearance < 0
+        ):
+            raise InputError("appearance must be an integer ≥ 0 (descriptor dimension; 0: none)")
+        if not (np.isfinite(self.appearance_noise) and self.appearance_noise >= 0):
+            raise InputError("appearance_noise must be a finite number ≥ 0")
         if not (np.isfinite(self.clutter) and self.clutter >= 0):
             raise InputError("clutter must be a finite number ≥ 0 (false per true detection)")
         if not 0.0 <= self.miss < 1.0:
@@ -391,7 +407,7 @@ def simulate_team(
         feat_frames, pairs, next_track = _tracks(feat_frames, next_track)
         track_pairs.extend(pairs)
         detections, classes = None, None
-        if config.clutter > 0 or config.miss > 0 or config.classes > 0:
+        if config.clutter > 0 or config.miss > 0 or config.classes > 0 or config.appearance > 0:
             obj_frames, detections, classes = _detector(
                 config, obj_frames, len(object_positions), i
             )
@@ -476,8 +492,30 @@ def _detector(
         labels,
         None,
         truth_all,
+        appearance=_appearance(config, truth_all, objects, robot),
     )
     return kept, detections, classes
+
+
+def _appearance(
+    config: SimulationConfig, truth: np.ndarray, objects: int, robot: int
+) -> np.ndarray | None:
+    """Each detection's descriptor: its object's (team-wide) plus noise, normalised; a false
+    detection's random. From generators of their own (nothing else drawn changes)."""
+    dim = config.appearance
+    if dim == 0:
+        return None
+    unit = np.random.default_rng([config.seed, 26]).standard_normal((objects, dim))
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    rng = np.random.default_rng([config.seed, 26, robot])
+    noise = rng.standard_normal((truth.size, dim)) * (config.appearance_noise / np.sqrt(dim))
+    base = rng.standard_normal((truth.size, dim))
+    base /= np.linalg.norm(base, axis=1, keepdims=True)
+    true = truth >= 0
+    base[true] = unit[truth[true]]
+    out = base + noise
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
+    return out.astype(np.float32)
 
 
 def _jsonable(d: dict) -> dict:

@@ -23,6 +23,12 @@ from teamslam.gaussian import chi2_quantile
 from teamslam.geometry.camera import StereoCamera, in_image
 from teamslam.msckf.filter.models import observe_jacobians, points_in_camera
 from teamslam.msckf.filter.update import stereo_point
+from teamslam.msckf.objects.appearance import (
+    AppearanceMemory,
+    AppearanceModel,
+    cosine_distances,
+    unit_rows,
+)
 from teamslam.msckf.objects.loop_closure import LoopClosure
 from teamslam.msckf.settings.values import MsckfConfig
 
@@ -145,6 +151,14 @@ class ObjectTracker:
         )
         #: every merged object and the object it continues (new id -> old id)
         self.merged: dict[int, int] = {}
+        #: the likelihood ratio of appearance learned so far and every object's and track's
+        #: appearance summary (created with the first descriptors, when the data has them)
+        self.appearance: AppearanceModel | None = None
+        self.memory: AppearanceMemory | None = None
+        # a pair whose appearance ratio is below this is refused (the gate's odds)
+        p = config.tracking.gate_probability
+        self._veto = float(np.log((1.0 - p) / p))
+        self._descriptors: np.ndarray | None = None  # this frame's, unit rows
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -154,6 +168,7 @@ class ObjectTracker:
         classes: np.ndarray | None,
         state,
         odometry_cov: np.ndarray,
+        appearance: np.ndarray | None = None,
     ) -> TrackerFrame:
         """Name the detections ``z`` (``(D, 4)``; non-finite rows get no id) of frame ``t``.
 
@@ -168,7 +183,16 @@ class ObjectTracker:
             window).
         odometry_cov
             ``W``, the odometry noise per frame (6×6).
+        appearance
+            ``(D, K)`` appearance descriptors of the detections, or ``None``; used with
+            ``tracking.appearance`` (:mod:`~teamslam.msckf.objects.appearance`).
         """
+        self._descriptors = None
+        if appearance is not None and self.config.tracking.appearance:
+            if self.appearance is None:
+                self.appearance = AppearanceModel(self.config.tracking.gate_probability)
+                self.memory = AppearanceMemory(np.shape(appearance)[1])
+            self._descriptors = unit_rows(appearance)
         if self._first_logged is None:
             self._first_logged = t
         self._forget_mapped(state)  # before a loop closure takes a mapped object out
@@ -191,6 +215,7 @@ class ObjectTracker:
         assigned_target = np.full(d, -1, np.int64)
         near_target = np.zeros(d, bool)
         lone_stale = np.full(d, -1, np.int64)  # the long-unseen object a detection is alone for
+        looks = None  # (T, D) appearance distances and log-ratios, where both have descriptors
         if n_targets and d:
             d2 = _squared_distances(s, pred, np.ascontiguousarray(z, dtype=float))  # (T, D)
             if classes is None:  # no labels: every pair of a target in front agrees
@@ -201,13 +226,19 @@ class ObjectTracker:
                     | (labels[None, :] < 0)
                     | (target_labels[:, None] == labels[None, :])
                 )
+            cost = d2 - self.gate
+            if self._descriptors is not None:
+                looks = self._looks(target_ids, self._descriptors[index])
+                agree = agree & (looks[1] >= self._veto)
+                cost = cost - 2.0 * looks[1]
             allowed = (d2 <= self.gate) & agree
             inside_birth = d2 <= self.birth_gate
             # pass 1: the targets seen within the last N frames (tracks, and objects followed
             # frame to frame) by global nearest neighbour, a pair kept only when it costs less
-            # than leaving the detection to a new track and the target missed
+            # than leaving the detection to a new track and the target missed (appearance
+            # adds −2 log of its likelihood ratio to the cost)
             fresh = (kinds == 2) | ((kinds == 0) & (t - seen <= self.frames_allowed))
-            _nearest_neighbour(allowed & fresh[:, None], d2 - self.gate, assigned_target)
+            _nearest_neighbour(allowed & fresh[:, None], cost, assigned_target)
             # pass 1b: a fresh target left without a detection and a detection left outside
             # every gate, inside each other's outer gate (a heavy-tailed detector error) and
             # alone there: the detection is that object's
@@ -224,6 +255,8 @@ class ObjectTracker:
             # revisit would pull the whole map; a second object for the same one is safe)
             # (none of it when no object not seen for N frames has a detection in its gate)
             stale_pairs = allowed & ~fresh[:, None] & self._can_be_detected(pred)[:, None]
+            if looks is not None and self.appearance.informative:
+                stale_pairs &= looks[1] > 0.0  # appearance must say "the same" too
             if stale_pairs.any():
                 left = assigned_target < 0
                 lone = _alone(stale_pairs, allowed) & left[None, :]
@@ -252,6 +285,8 @@ class ObjectTracker:
             near_target = np.any(inside_birth & blocking[:, None], axis=0)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
+        if self._descriptors is not None and hit.any():
+            self._learn(looks, assigned_target, kinds, target_ids, index)
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
         out[mapped] = target_ids[assigned_target[mapped]]
         frame = TrackerFrame(out, merged=merged)
@@ -313,8 +348,36 @@ class ObjectTracker:
         )
         for n, o in pairs.tolist():
             self.merged[n] = o
+            if self.memory is not None:
+                self.memory.merge(n, o)
         self.counters["loop_closures"] = len(self.loop.closures)
         return pairs
+
+    def _looks(self, target_ids: np.ndarray, descriptors: np.ndarray):
+        """``(distance, log ratio)``, each ``(T, D)``, between the targets' appearance summaries
+        and the detections' descriptors (ratio 0 for a target without a summary)."""
+        summaries, known = self.memory.summaries(target_ids)
+        dist = cosine_distances(summaries, descriptors)
+        ratio = np.where(known[:, None], self.appearance.log_ratio(dist), 0.0)
+        return np.where(known[:, None], dist, np.nan), ratio
+
+    def _learn(self, looks, assigned_target, kinds, target_ids, index) -> None:
+        """Samples for the appearance ratio, then the summaries: a detection against the
+        confirmed target that took it (*same*) and against the other confirmed targets that took
+        one this frame (*different*: one detection per object and frame)."""
+        hit = np.flatnonzero(assigned_target >= 0)
+        targets = assigned_target[hit]
+        if looks is not None:
+            confirmed = kinds < 2
+            confirmed[kinds == 2] = self.confirmed  # tracks come last, in row order
+            sure = confirmed[targets] & np.isfinite(looks[0][targets, hit])
+            same = looks[0][targets[sure], hit[sure]]
+            block = looks[0][np.ix_(targets[sure], hit[sure])]
+            off = ~np.eye(block.shape[0], dtype=bool) & np.isfinite(block)
+            if same.size:
+                self.appearance.add(same, block[off])
+        for j, target in zip(index[hit].tolist(), targets.tolist(), strict=True):
+            self.memory.add(int(target_ids[target]), self._descriptors[j])
 
     def _labels_of(self, ids: np.ndarray) -> np.ndarray:
         """Class label of each id (``-1``: none)."""
@@ -464,6 +527,8 @@ class ObjectTracker:
             if oid in taken:
                 continue
             taken.add(oid)
+            if self.memory is not None:
+                self.memory.merge(int(self.ids[row]), oid)
             frame.ids[det] = oid
             self.revisits.append((t, int(index[det]), oid))
             self.counters["revisits_taken"] += 1
@@ -543,6 +608,8 @@ class ObjectTracker:
         self.revisit_hits = np.concatenate([self.revisit_hits, (lone_stale >= 0).astype(np.int64)])
         for tid, row, j in zip(ids.tolist(), z, index.tolist(), strict=True):
             self.history[tid] = [(t, row.copy(), j)]
+            if self._descriptors is not None:
+                self.memory.add(tid, self._descriptors[j])
         self.counters["tracks_started"] += k
         if self.hits_needed <= 1:  # confirmed by its first detection
             self.confirmed[-k:] = True
@@ -559,6 +626,9 @@ class ObjectTracker:
             self.counters["tracks_dropped"] += int(drop.sum())
             for i in self.ids[drop].tolist():
                 self.history.pop(i, None)
+            if self.memory is not None:  # a tentative track's id never reached the filter
+                for i in self.ids[expired].tolist():
+                    self.memory.forget(i)
             self._keep(~drop)
 
     def _keep(self, mask: np.ndarray) -> None:

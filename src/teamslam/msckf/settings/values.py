@@ -285,6 +285,13 @@ class TrackingSettings:
         by the shape of the group against its objects unseen for longer than the window (the
         own association's rules), and each accepted pair is merged in the filter (an EKF update
         with ``x_new − x_old = 0``, then the new object leaves the state).
+    appearance
+        Use the detections' appearance descriptors where the data has them
+        (:mod:`teamslam.msckf.objects.appearance`): the assignment cost adds ``−2 log`` of the
+        likelihood ratio learned in the run, a pair whose ratio falls below
+        ``(1 − gate_probability) / gate_probability`` is refused, and once appearance separates
+        objects beyond chance a long-unseen object is re-identified only where it agrees.
+        Without descriptors in the data nothing changes.
     """
 
     gate_probability: float = field(default=0.99, metadata=_unit(""))
@@ -292,9 +299,10 @@ class TrackingSettings:
     confirm_hits: int = field(default=0, metadata=_unit("detections"))
     confirm_frames: int = field(default=0, metadata=_unit("frames"))
     loop_closure: bool = field(default=False, metadata=_unit(""))
+    appearance: bool = field(default=True, metadata=_unit(""))
 
     def __post_init__(self) -> None:
-        _check_flags(self, "tracking", ("loop_closure",))
+        _check_flags(self, "tracking", ("loop_closure", "appearance"))
         for name in ("gate_probability", "birth_probability"):
             if not _probability(getattr(self, name)):
                 raise InputError(f"tracking.{name} must lie in (0, 1)")
