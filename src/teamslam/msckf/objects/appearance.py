@@ -2,14 +2,15 @@
 
 Descriptors (any dimension, any scale: a front-end's histogram or a user's embedding) are
 compared by their cosine distance ``d = 1 − cos θ ∈ [0, 2]``. :class:`AppearanceModel` keeps
-two histograms of ``d`` (binned by the chord ``√(2d)``, finer where descriptors agree): *same* — a detection against the summary of the confirmed object
-that took it; *different* — a detection against the summaries of the other objects assigned
-in the same frame (one detection per object and frame). With a uniform Dirichlet prior on
-both, ``log_ratio(d) = log p_same(d) − log p_different(d)`` is exactly 0 before any sample,
-and tends to 0 wherever the two agree (appearance that says nothing). :attr:`informative`
-says whether the samples separate the two beyond chance (a one-sided rank test at
-``1 − probability``). :class:`AppearanceMemory` keeps each object's summary: the mean of its
-detections' unit descriptors. The rules and why: the concept page *Tracking*.
+two histograms of ``d`` (binned by the chord ``√(2d)``, finer where descriptors agree):
+*same* — a detection against the summary of the confirmed object that took it; *different* —
+two detections of one frame, and a detection against the summaries of the other objects
+assigned in its frame (a detector boxes an object once a frame). With a uniform Dirichlet
+prior on both, ``log_ratio(d) = log p_same(d) − log p_different(d)`` is exactly 0 before any
+sample and tends to 0 wherever the two agree (appearance that says nothing).
+:attr:`informative` says whether the samples separate the two beyond chance (a one-sided rank
+test at ``1 − probability``). :class:`AppearanceMemory` keeps each object's summary: the mean
+of its detections' unit descriptors. The rules and why: the concept page *Tracking*.
 """
 
 from __future__ import annotations

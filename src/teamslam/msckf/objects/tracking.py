@@ -228,6 +228,9 @@ class ObjectTracker:
                 )
             cost = d2 - self.gate
             if self._descriptors is not None:
+                # detections of one frame are different objects (one box per object and frame)
+                pairs = cosine_distances(self._descriptors[index], self._descriptors[index])
+                self.appearance.add(np.zeros(0), pairs[np.triu_indices(d, 1)])
                 looks = self._looks(target_ids, self._descriptors[index])
                 agree = agree & (looks[1] >= self._veto)
                 cost = cost - 2.0 * looks[1]
