@@ -303,7 +303,10 @@ def _read_yolo(folder: Path, names: list[str], image_size: tuple[int, int]) -> D
             if len(tokens) > 5:
                 score = _number(tokens[5], "score", where)
                 _check_score(score, where)
-            d = max(len(tokens) - 6, 0)
+            embedding = [
+                _number(t, f"embedding value {j}", where) for j, t in enumerate(tokens[6:], 1)
+            ]
+            d = len(embedding)
             if first_d is None:
                 first_d = (d, where)
             elif d != first_d[0]:
@@ -311,9 +314,6 @@ def _read_yolo(folder: Path, names: list[str], image_size: tuple[int, int]) -> D
                     f"{where}: {d} embedding values, but {first_d[1]} has {first_d[0]} "
                     "(every line of a folder has the same number)"
                 )
-            embedding = [
-                _number(t, f"embedding value {j}", where) for j, t in enumerate(tokens[6:], 1)
-            ]
             x_min = cx * width - w * width / 2 - 0.5
             x_max = cx * width + w * width / 2 - 0.5
             y_min = cy * height - h * height / 2 - 0.5
