@@ -573,3 +573,32 @@ def test_bag_errors(tmp_path, bag_io):
     assert "labels must be integers" in _error(
         lambda: bag_io.read_detection_topic(bag, "/det", STAMPS, (W, H), classes={"1": -1})
     )
+
+
+def test_bag_without_definitions_reads_with_the_registered_types(tmp_path, bag_io):
+    """Humble records sqlite3 bags without message definitions: the typestore's vision_msgs
+    types decode them."""
+    import sqlite3
+
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import MessageDefinitionFormat
+    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2.enums import StoragePlugin
+
+    from teamslam.ros2 import messages as m
+
+    s = STAMPS[2]
+    bag = tmp_path / "humble"
+    with Writer(bag, version=8, storage_plugin=StoragePlugin.SQLITE3) as writer:
+        conn = writer.add_connection("/det", m.DETECTIONS_TYPE, typestore=m.typestore())
+        msg = m.typestore().types[m.DETECTIONS_TYPE](
+            header=m.header(s, "camera"), detections=[_detection2d(s, [("person", 0.8)])]
+        )
+        writer.write(conn, s, m.serialize(msg))
+    with sqlite3.connect(next(bag.glob("*.db3"))) as db:
+        db.execute("DELETE FROM message_definitions")
+    with AnyReader([bag], default_typestore=m.typestore()) as reader:
+        assert reader.connections[0].msgdef.format == MessageDefinitionFormat.NONE
+    read = bag_io.read_detection_topic(bag, "/det", [s], (W, H))
+    assert read.class_table == {"person": 0} and read.images[0].scores.tolist() == [0.8]
+    np.testing.assert_array_equal(read.images[0].boxes, [[89.5, 74.5, 109.5, 84.5]])
