@@ -264,6 +264,7 @@ def test_yolo_empty_folder_reads_no_boxes(tmp_path):
     read = read_detections(folder, NAMES, (W, H))
     assert read.images_without_file == len(NAMES) and read.boxes_read == 0
     assert all(len(d) == 0 and d.boxes.shape == (0, 4) for d in read.images)
+    assert read_detections(folder, [], (W, H)).images == ()
 
 
 # ----------------------------------------------------------------------------- COCO

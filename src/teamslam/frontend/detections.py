@@ -151,7 +151,7 @@ def _assemble(
     order = order[keep[order]]
     splits = np.searchsorted(image[order], np.arange(1, n_images))
     images = []
-    for idx in np.split(order, splits):
+    for idx in np.split(order, splits) if n_images else []:
         images.append(
             ImageDetections(
                 boxes[idx],
