@@ -3,8 +3,10 @@
 Types come from ``rosbags``' typestore of ROS 2 Jazzy (the message definitions, CDR
 serialisation, and the RIHS01 type hashes of REP 2011 that rmw_zenoh puts in its key
 expressions and rosbag2 in its metadata) plus teamslam's own
-``teamslam_msgs/msg/StereoObservations``. Stamps are integer nanoseconds; poses are 4×4
-``T_parent_child`` matrices; quaternions are ``(x, y, z, w)`` as in ROS.
+``teamslam_msgs/msg/StereoObservations`` and the detector messages of ``vision_msgs`` 4
+(``Detection2DArray`` and what it holds), which rosbags does not ship. Stamps are integer
+nanoseconds; poses are 4×4 ``T_parent_child`` matrices; quaternions are ``(x, y, z, w)`` as in
+ROS.
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ from scipy.spatial.transform import Rotation
 from teamslam._optional import require
 
 __all__ = [
+    "DETECTIONS_TYPE",
     "OBSERVATIONS_TYPE",
+    "VISION_MSGS",
     "dds_type_name",
     "object_markers",
     "observations_msgdef",
@@ -42,6 +46,29 @@ KIND_OBJECT = 1
 OBSERVATION_COLUMNS = ("u_left", "v_left", "u_right", "v_right")
 
 
+# vision_msgs 4.x (Humble, Jazzy): the detector messages rosbags does not ship. Field lists only;
+# the RIHS01 hash depends on fields alone, so these hash as the installed package does.
+VISION_MSGS = {
+    "vision_msgs/msg/Point2D": "float64 x\nfloat64 y\n",
+    "vision_msgs/msg/Pose2D": "vision_msgs/Point2D position\nfloat64 theta\n",
+    "vision_msgs/msg/BoundingBox2D": (
+        "vision_msgs/Pose2D center\nfloat64 size_x\nfloat64 size_y\n"
+    ),
+    "vision_msgs/msg/ObjectHypothesis": "string class_id\nfloat64 score\n",
+    "vision_msgs/msg/ObjectHypothesisWithPose": (
+        "vision_msgs/ObjectHypothesis hypothesis\ngeometry_msgs/PoseWithCovariance pose\n"
+    ),
+    "vision_msgs/msg/Detection2D": (
+        "std_msgs/Header header\nvision_msgs/ObjectHypothesisWithPose[] results\n"
+        "vision_msgs/BoundingBox2D bbox\nstring id\n"
+    ),
+    "vision_msgs/msg/Detection2DArray": (
+        "std_msgs/Header header\nvision_msgs/Detection2D[] detections\n"
+    ),
+}
+DETECTIONS_TYPE = "vision_msgs/msg/Detection2DArray"
+
+
 def observations_msgdef() -> str:
     """The text of ``StereoObservations.msg`` shipped with the package."""
     return (
@@ -59,11 +86,16 @@ def rosbags(module: str, what: str = "ROS 2 interchange (bags, MCAP, topics)"):
 
 @cache
 def typestore():
-    """The Jazzy typestore with ``teamslam_msgs/msg/StereoObservations`` registered."""
+    """The Jazzy typestore with ``teamslam_msgs/msg/StereoObservations`` and the detector
+    messages of ``vision_msgs`` 4 (:data:`VISION_MSGS`) registered."""
     typesys = rosbags("typesys")
 
     store = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
     store.register(typesys.get_types_from_msg(observations_msgdef(), OBSERVATIONS_TYPE))
+    vision: dict = {}
+    for name, text in VISION_MSGS.items():
+        vision.update(typesys.get_types_from_msg(text, name))
+    store.register(vision)
     return store
 
 
