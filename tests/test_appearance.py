@@ -146,6 +146,20 @@ def _two_lookalike_objects(appearance: bool, seed: int = 0) -> TeamDataset:
     )
 
 
+def test_useless_appearance_changes_nothing(described):
+    """Every descriptor equal, or pure noise: never informative, so position decides alone."""
+    seq = described.robots[0]
+    det = seq.detections
+    rng = np.random.default_rng(0)
+    plain, _ = _track(described, **{"tracking.appearance": False})
+    for looks in (np.ones_like(det.appearance), rng.standard_normal(det.appearance.shape)):
+        team = replace(described, robots=[replace(seq, detections=replace(det, appearance=looks))])
+        agent, _ = _track(team)
+        assert not agent.tracker.appearance.informative
+        np.testing.assert_array_equal(agent.tracker.hypotheses(), plain.tracker.hypotheses())
+        np.testing.assert_array_equal(agent.state.cov, plain.state.cov)
+
+
 def test_tracker_chooses_by_appearance_between_lookalike_positions():
     settings = {"filter.object_std": 3.0, "filter.odometry_std": [0.001] * 6}
     with_looks = [_track(_two_lookalike_objects(True, s), **settings)[1] for s in range(3)]

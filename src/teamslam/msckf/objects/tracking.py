@@ -232,8 +232,9 @@ class ObjectTracker:
                 pairs = cosine_distances(self._descriptors[index], self._descriptors[index])
                 self.appearance.add(np.zeros(0), pairs[np.triu_indices(d, 1)])
                 looks = self._looks(target_ids, self._descriptors[index])
-                agree = agree & (looks[1] >= self._veto)
-                cost = cost - 2.0 * looks[1]
+                if self.appearance.informative:  # else position alone, as without descriptors
+                    agree = agree & (looks[1] >= self._veto)
+                    cost = cost - 2.0 * looks[1]
             allowed = (d2 <= self.gate) & agree
             inside_birth = d2 <= self.birth_gate
             # pass 1: the targets seen within the last N frames (tracks, and objects followed

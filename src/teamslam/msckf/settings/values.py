@@ -287,11 +287,11 @@ class TrackingSettings:
         with ``x_new − x_old = 0``, then the new object leaves the state).
     appearance
         Use the detections' appearance descriptors where the data has them
-        (:mod:`teamslam.msckf.objects.appearance`): the assignment cost adds ``−2 log`` of the
-        likelihood ratio learned in the run, a pair whose ratio falls below
-        ``(1 − gate_probability) / gate_probability`` is refused, and once appearance separates
-        objects beyond chance a long-unseen object is re-identified only where it agrees.
-        Without descriptors in the data nothing changes.
+        (:mod:`teamslam.msckf.objects.appearance`): once appearance separates objects beyond
+        chance (at ``gate_probability``), the assignment cost adds ``−2 log`` of the likelihood
+        ratio learned in the run, a pair whose ratio falls below
+        ``(1 − gate_probability) / gate_probability`` is refused, and a long-unseen object is
+        re-identified only where appearance agrees. Without descriptors nothing changes.
     """
 
     gate_probability: float = field(default=0.99, metadata=_unit(""))
