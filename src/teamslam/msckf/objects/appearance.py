@@ -32,8 +32,13 @@ def unit_rows(a: np.ndarray) -> np.ndarray:
 
 
 def cosine_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``(A, B)`` cosine distances ``1 − cos θ`` between the rows of ``a`` and of ``b``."""
-    return np.clip(1.0 - unit_rows(a) @ unit_rows(b).T, 0.0, 2.0)
+    """``(A, B)`` cosine distances ``1 − cos θ`` between the rows of ``a`` and of ``b``; NaN
+    where either row is zero (a descriptor without content compares with nothing)."""
+    ua, ub = unit_rows(a), unit_rows(b)
+    d = np.clip(1.0 - ua @ ub.T, 0.0, 2.0)
+    empty = ~ua.any(axis=1)[:, None] | ~ub.any(axis=1)[None, :]
+    d[empty] = np.nan
+    return d
 
 
 class AppearanceModel:
@@ -59,7 +64,9 @@ class AppearanceModel:
 
     def add(self, same: np.ndarray, different: np.ndarray) -> None:
         """Count samples of the distance between the same object's and different objects'
-        descriptors; the ratio and the test are recomputed."""
+        descriptors (NaN ones left out); the ratio and the test are recomputed."""
+        same, different = np.ravel(same), np.ravel(different)
+        same, different = same[np.isfinite(same)], different[np.isfinite(different)]
         self.same += np.bincount(self._bins(np.ravel(same)), minlength=BINS)
         self.different += np.bincount(self._bins(np.ravel(different)), minlength=BINS)
         p_same = (self.same + 1.0) / (self.same.sum() + BINS)
@@ -68,8 +75,10 @@ class AppearanceModel:
         self._informative = self.separation() > norm.ppf(self.probability)
 
     def log_ratio(self, d: np.ndarray) -> np.ndarray:
-        """``log p(d | same) − log p(d | different)`` at cosine distances ``d``."""
-        return self._table[self._bins(d)]
+        """``log p(d | same) − log p(d | different)`` at cosine distances ``d`` (0 at NaN)."""
+        d = np.asarray(d, dtype=np.float64)
+        known = np.isfinite(d)
+        return np.where(known, self._table[self._bins(np.where(known, d, 0.0))], 0.0)
 
     def auc(self) -> float:
         """Probability that a *same* sample lies nearer than a *different* one (ties half):
@@ -119,6 +128,8 @@ class AppearanceMemory:
     def add(self, object_id: int, descriptors: np.ndarray) -> None:
         """Fold detections' descriptors (``(k, D)`` or ``(D,)``) into ``object_id``'s summary."""
         total = unit_rows(np.atleast_2d(descriptors)).sum(axis=0)
+        if not total.any():  # a descriptor without content (a flat patch) says nothing
+            return
         key = int(object_id)
         self._sums[key] = self._sums.get(key, 0.0) + total
 

@@ -260,7 +260,8 @@ class ObjectTracker:
             # (none of it when no object not seen for N frames has a detection in its gate)
             stale_pairs = allowed & ~fresh[:, None] & self._can_be_detected(pred)[:, None]
             if looks is not None and self.appearance.informative:
-                stale_pairs &= looks[1] > 0.0  # appearance must say "the same" too
+                # appearance must say "the same" too, where both have a descriptor
+                stale_pairs &= (looks[1] > 0.0) | np.isnan(looks[0])
             if stale_pairs.any():
                 left = assigned_target < 0
                 lone = _alone(stale_pairs, allowed) & left[None, :]
@@ -360,10 +361,9 @@ class ObjectTracker:
     def _looks(self, target_ids: np.ndarray, descriptors: np.ndarray):
         """``(distance, log ratio)``, each ``(T, D)``, between the targets' appearance summaries
         and the detections' descriptors (ratio 0 for a target without a summary)."""
-        summaries, known = self.memory.summaries(target_ids)
-        dist = cosine_distances(summaries, descriptors)
-        ratio = np.where(known[:, None], self.appearance.log_ratio(dist), 0.0)
-        return np.where(known[:, None], dist, np.nan), ratio
+        summaries, _ = self.memory.summaries(target_ids)
+        dist = cosine_distances(summaries, descriptors)  # NaN where either has none
+        return dist, self.appearance.log_ratio(dist)
 
     def _learn(self, looks, assigned_target, kinds, target_ids, index) -> None:
         """Samples for the appearance ratio, then the summaries: a detection against the
