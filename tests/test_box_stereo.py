@@ -13,7 +13,13 @@ from teamslam.frontend import FrontendConfig, StereoRig  # noqa: E402
 from teamslam.frontend.appearance import DESCRIPTORS, describe, dimension  # noqa: E402
 from teamslam.frontend.boxes import BoxStereo  # noqa: E402
 from teamslam.frontend.detections import ImageDetections  # noqa: E402
-from teamslam.sim.render import T_CAM_BODY, RenderConfig, render_stereo, render_team  # noqa: E402
+from teamslam.sim.render import (  # noqa: E402
+    T_CAM_BODY,
+    RenderConfig,
+    apply_effects,
+    render_stereo,
+    render_team,
+)
 
 FRAMES = (0, 12, 24)
 
@@ -67,6 +73,47 @@ def test_box_centres_match_the_true_right_projection_within_a_pixel(rendered):
     errors = np.concatenate(errors)
     assert errors.max() < 1.0
     assert np.median(errors[:, 0]) < 0.2
+
+
+def test_boxes_of_a_raw_rotated_pair_are_measured_in_the_rectified_camera(rendered):
+    team, _, _ = rendered
+    config = team.config
+    K = config.camera().intrinsics
+    rot = cv2.Rodrigues(np.array([0.0, np.radians(3.0), np.radians(1.5)]))[0]
+    T_left_right = np.eye(4)
+    T_left_right[:3, :3], T_left_right[0, 3] = rot, 0.2
+    rig = StereoRig(config.image_size, K, K, np.zeros(5), np.zeros(5), T_left_right, T_CAM_BODY)
+    assert not rig.already_rectified
+    room, k = team.room, 12
+    T_world_left = team.T_world_cam(0, k)
+    rng = np.random.default_rng(8)
+    raw_l = apply_effects(room.render(T_world_left, K, config.image_size), K, config, False, rng)
+    T_world_right = T_world_left @ T_left_right
+    raw_r = apply_effects(room.render(T_world_right, K, config.image_size), K, config, True, rng)
+    ids, _, side = team.visible_markers(0, k)
+    corners = room.marker_corners[np.searchsorted(room.marker_ids, ids[side >= 20])]
+    T_left_world = np.linalg.inv(T_world_left)
+    p = corners.reshape(-1, 3) @ T_left_world[:3, :3].T + T_left_world[:3, 3]
+    uv = (p[:, :2] / p[:, 2:] * K[0, 0] + K[:2, 2]).reshape(-1, 4, 2)
+    boxes = np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
+    left, right = rig.rectify(raw_l, raw_r)
+    m = BoxStereo(rig).measure(left, right, _detections(boxes))
+    assert (m.source == "patch").all(), m.reasons
+    np.testing.assert_allclose(
+        m.z[:, :2], rig.rectify_points((boxes[:, :2] + boxes[:, 2:]) / 2), atol=1e-9
+    )
+    # truth: the rectified left centre's ray in the raw left camera, cast into the room,
+    # projected into the rectified stereo camera
+    cam = rig.camera
+    rays = np.column_stack([m.z[:, :2], np.ones(len(m))]) @ np.linalg.inv(cam.intrinsics).T
+    rays_raw = rays @ rig.R_rect_left
+    world = room.cast(T_world_left, K, rays_raw[:, :2] / rays_raw[:, 2:] * K[0, 0] + K[:2, 2])
+    p_raw = world @ T_left_world[:3, :3].T + T_left_world[:3, 3]
+    truth = cam.project(p_raw @ rig.R_rect_left.T)
+    np.testing.assert_allclose(truth[:, :2], m.z[:, :2], atol=1e-6)
+    assert np.abs(m.z[:, 2:] - truth[:, 2:]).max() < 1.0
+    with pytest.raises(InputError, match="left image"):
+        BoxStereo(rig).measure(left[:100], right, _detections(boxes))
 
 
 def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
