@@ -112,7 +112,7 @@ def test_boxes_of_a_raw_rotated_pair_are_measured_in_the_rectified_camera(render
     truth = cam.project(p_raw @ rig.R_rect_left.T)
     np.testing.assert_allclose(truth[:, :2], m.z[:, :2], atol=1e-6)
     assert np.abs(m.z[:, 2:] - truth[:, 2:]).max() < 1.0
-    with pytest.raises(InputError, match="left image"):
+    with pytest.raises(InputError, match="box stereo: left image"):
         BoxStereo(rig).measure(left[:100], right, _detections(boxes))
 
 

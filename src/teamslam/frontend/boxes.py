@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teamslam.errors import InputError
 from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.camera import StereoRig
 from teamslam.frontend.config import FrontendConfig
@@ -150,13 +149,7 @@ class BoxStereo:
         right_detections
             The right image's boxes (raw right-image pixels), when the detector ran on it.
         """
-        w, h = self.rig.image_size
-        for name, img in (("left", left), ("right", right)):
-            if img.ndim != 2 or img.shape != (h, w) or img.dtype != np.uint8:
-                raise InputError(
-                    f"box stereo: {name} image is {img.shape} {img.dtype}, "
-                    f"expected {h}×{w} 8-bit grey"
-                )
+        self.rig.check_images(left, right, "box stereo")
         n = len(detections)
         boxes = self.rectify_boxes(detections.boxes)
         z = np.full((n, 4), np.nan)

@@ -137,6 +137,17 @@ class StereoRig:
         rot[:3, :3] = self.R_rect_left
         return rot @ self.T_cam_body
 
+    def check_images(self, left: np.ndarray, right: np.ndarray, where: str = "") -> None:
+        """:class:`InputError` unless both images are 8-bit grey of the rig's size (the
+        message starts with ``where``, or the side's name)."""
+        w, h = self.image_size
+        for name, img in (("left", left), ("right", right)):
+            if img.ndim != 2 or img.shape != (h, w) or img.dtype != np.uint8:
+                raise InputError(
+                    f"{where or name}: {name} image is {img.shape} {img.dtype}, "
+                    f"expected {h}×{w} 8-bit grey"
+                )
+
     def rectify_points(self, uv: np.ndarray, side: str = "left") -> np.ndarray:
         """Raw-image pixels ``(N, 2)`` of one camera (``side``: ``"left"`` or ``"right"``) →
         the same points' pixels in that camera's rectified image (OpenCV's ``undistortPoints``
