@@ -9,12 +9,15 @@ box size ``(w, h)`` in rectified pixels. The right centre is, in this order:
   one to one by class, row overlap (``box_row_overlap``) and a disparity inside the depth
   range, by the largest row overlap;
 - otherwise the box's patch searched along the rectified row over the depth range's
-  disparities by zero-mean normalised cross-correlation, the patch block-averaged to at most
-  ``box_patch_samples`` samples, the peak refined at full resolution (parabola), and the match
-  kept only when it passes ``box_ncc_min``, the uniqueness check (``box_uniqueness``, the
-  feature matcher's second-peak test) and the left–right check (the right patch searched back
-  in the left image must land within ``left_right_share`` of the diagonal, or one sample of the
-  averaged patch, of where it came from).
+  disparities by zero-mean normalised cross-correlation, at the level of an image pyramid
+  (each level the 2 × 2 means of the one below) where the patch has at most
+  ``box_patch_samples`` samples, and the match kept only when it passes ``box_ncc_min``, the
+  uniqueness check (``box_uniqueness``, the feature matcher's second-peak test) and the
+  left–right check (the right patch searched back in the left image must land within
+  ``left_right_share`` of the diagonal, or one sample of the averaged patch, of where it came
+  from); the peak is then refined coarse to fine (samples four times smaller at each level of
+  an image pyramid, a parabola at each) down to full resolution, or for a large box to a patch
+  of 16 times the coarse samples, so that a box's cost does not grow with its size.
 
 A box whose right centre is found neither way stays a monocular measurement (right coordinates
 NaN); :attr:`BoxMeasurements.reasons` says why and :meth:`BoxMeasurements.counts` counts them.
@@ -22,6 +25,7 @@ NaN); :attr:`BoxMeasurements.reasons` says why and :meth:`BoxMeasurements.counts
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +45,9 @@ MONOCULAR_REASONS = ("off image", "flat", "weak", "not unique", "left-right")
 
 # a patch whose grey levels vary less than this (standard deviation) has nothing to correlate
 _FLAT_STD = 0.5
+# the finest refinement level correlates a patch of at most this many times the coarse samples
+# (full resolution for boxes up to 80 × 80 pixels at the default 400 samples)
+_REFINE_SAMPLES = 16
 
 
 @dataclass(frozen=True)
@@ -163,10 +170,9 @@ class BoxStereo:
             source[li] = "right box"
         if n:
             cv2 = require_cv2()
-            left_f = left.astype(np.float32)
-            right_f = right.astype(np.float32)
+            pyramids = _Pyramid(cv2, left), _Pyramid(cv2, right)
             for k in np.flatnonzero(source == "monocular"):
-                d, reason = self._search(cv2, left_f, right_f, boxes[k])
+                d, reason = self._search(cv2, *pyramids, boxes[k])
                 if reason:
                     reasons[k] = reason
                     continue
@@ -204,71 +210,116 @@ class BoxStereo:
         keep = ok[li, ri]
         return li[keep], ri[keep]
 
-    def _search(
-        self, cv2, left_f: np.ndarray, right_f: np.ndarray, box: np.ndarray
-    ) -> tuple[float, str]:
+    def _search(self, cv2, left: _Pyramid, right: _Pyramid, box: np.ndarray) -> tuple[float, str]:
         """Disparity of one rectified box's patch along its row, or NaN and why not."""
-        w = left_f.shape[1]
-        width = max(3, int(box[2] - box[0]))
-        height = max(3, int(box[3] - box[1]))
-        factor = max(1, int(np.ceil(np.sqrt(width * height / self.config.box_patch_samples))))
-        # whole samples of ``factor`` pixels: a coarse position is a shift of ``factor`` pixels
-        width, height = max(3, width // factor) * factor, max(3, height // factor) * factor
-        cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+        w = left.image_width
+        size = (max(3, int(box[2] - box[0])), max(3, int(box[3] - box[1])))
+        area = size[0] * size[1]
+        samples = self.config.box_patch_samples
+        # the coarse level: at most box_patch_samples samples; the finest: full resolution, or
+        # at most _REFINE_SAMPLES times as many samples
+        level = _level(area / samples)
+        finest = _level(area / (_REFINE_SAMPLES * samples))
+        centre = ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
         d_lo = max(0, int(np.floor(self.disparity_range[0])))
         # the right patch must stay inside the right image
-        d_hi = min(int(np.ceil(self.disparity_range[1])), int(np.floor(cx - width / 2)))
-        span = (d_hi - d_lo) // factor * factor
-        if span < 2 * factor:
+        d_hi = min(int(np.ceil(self.disparity_range[1])), int(np.floor(centre[0] - size[0] / 2)))
+        coarse = _row_search(cv2, left, right, centre, size, level, (d_lo, d_hi), 1)
+        if coarse is None:
             return np.nan, "off image"
-        d_hi = d_lo + span
-        patch = cv2.getRectSubPix(left_f, (width, height), (float(cx), float(cy)))
-        small = _average(cv2, patch, factor)
-        if small.std() < _FLAT_STD:
+        d, best, second, texture = coarse
+        if texture < _FLAT_STD:
             return np.nan, "flat"
-        strip = cv2.getRectSubPix(
-            right_f, (width + span, height), (float(cx - (d_lo + d_hi) / 2), float(cy))
-        )
-        scores = cv2.matchTemplate(_average(cv2, strip, factor), small, cv2.TM_CCOEFF_NORMED)
-        i, off, second = _best(scores.ravel())
-        best = float(scores.ravel()[i])
         if best < self.config.box_ncc_min:
             return np.nan, "weak"
         if second >= self.config.box_uniqueness * best:
             return np.nan, "not unique"
-        d = d_hi - (i + off) * factor
-        if factor > 1:  # refine at full resolution around the coarse peak
-            d0 = round(d)
-            lo, hi = max(d_lo, d0 - factor), min(d_hi, d0 + factor)
-            fine = cv2.getRectSubPix(
-                right_f, (width + hi - lo, height), (float(cx - (lo + hi) / 2), float(cy))
-            )
-            j, off_f, _ = _best(cv2.matchTemplate(fine, patch, cv2.TM_CCOEFF_NORMED).ravel())
-            d = hi - (j + off_f)
-        # left–right check: the right patch searched for in the left image
-        u_r = cx - d
-        back_hi = min(d_hi, int(np.floor(w - 1 - u_r - width / 2)))
-        back_span = (back_hi - d_lo) // factor * factor
-        if back_span < 2 * factor:
+        # left–right check: the right patch searched for in the left image (coarse level)
+        u_r = centre[0] - d
+        back_hi = min(d_hi, int(np.floor(w - 1 - u_r - size[0] / 2)))
+        back = _row_search(cv2, right, left, (u_r, centre[1]), size, level, (d_lo, back_hi), -1)
+        if back is None or abs(back[0] - d) > max(self.pixels.left_right, 2**level):
             return np.nan, "left-right"
-        back_hi = d_lo + back_span
-        patch_r = _average(
-            cv2, cv2.getRectSubPix(right_f, (width, height), (float(u_r), float(cy))), factor
-        )
-        strip_l = cv2.getRectSubPix(
-            left_f, (width + back_span, height), (float(u_r + (d_lo + back_hi) / 2), float(cy))
-        )
-        back = cv2.matchTemplate(_average(cv2, strip_l, factor), patch_r, cv2.TM_CCOEFF_NORMED)
-        j, off_b, _ = _best(back.ravel())
-        if abs(d_lo + (j + off_b) * factor - d) > max(self.pixels.left_right, factor):
-            return np.nan, "left-right"
+        # coarse to fine: each level searches ± one sample of the last in samples four times
+        # smaller (two pyramid levels down)
+        while level > finest:
+            step = max(finest, level - 2)
+            reach = 2**level
+            span = (max(d_lo, int(np.floor(d - reach))), min(d_hi, int(np.ceil(d + reach))))
+            fine = _row_search(cv2, left, right, centre, size, step, span, 1)
+            if fine is None:
+                break
+            d, level = fine[0], step
         return float(d), ""
 
 
-def _average(cv2, image: np.ndarray, factor: int) -> np.ndarray:
-    """``image`` averaged over blocks of ``factor × factor`` pixels (its sides are multiples
-    of ``factor``)."""
-    if factor == 1:
-        return image
-    h, w = image.shape
-    return cv2.resize(image, (w // factor, h // factor), interpolation=cv2.INTER_AREA)
+def _level(ratio: float) -> int:
+    """The pyramid level whose ``2^level``-pixel samples cut an area by at least ``ratio``."""
+    return max(0, math.ceil(0.5 * math.log2(max(ratio, 1.0))))
+
+
+class _Pyramid:
+    """An image as float32 and its halvings (each sample the mean of 2 × 2 of the level
+    below), built on demand; a level-``k`` sample ``i`` covers pixels ``[i·2^k, (i+1)·2^k)``."""
+
+    def __init__(self, cv2, image: np.ndarray) -> None:
+        self._cv2 = cv2
+        self.levels = [image.astype(np.float32)]
+        self.image_width = image.shape[1]
+
+    def level(self, k: int) -> tuple[np.ndarray, int]:
+        """Level ``k`` (or the smallest one of at least 8 × 8 samples) and its index."""
+        while len(self.levels) <= k:
+            a = self.levels[-1]
+            h, w = a.shape[0] // 2, a.shape[1] // 2
+            if min(h, w) < 8:
+                break
+            a = a[: 2 * h, : 2 * w]
+            self.levels.append(self._cv2.resize(a, (w, h), interpolation=self._cv2.INTER_AREA))
+        k = min(k, len(self.levels) - 1)
+        return self.levels[k], k
+
+
+def _row_search(
+    cv2,
+    source: _Pyramid,
+    target: _Pyramid,
+    centre: tuple[float, float],
+    size: tuple[int, int],
+    level: int,
+    disparities: tuple[int, int],
+    direction: int,
+) -> tuple[float, float, float, float] | None:
+    """Normalised cross-correlation of the ``size`` patch of ``source`` at ``centre`` along
+    the same row of ``target``, at pyramid ``level``, over the disparities ``[d_lo, d_hi]``
+    (pixels of the full image; the target patch at ``u − direction · d``).
+
+    Returns
+    -------
+    (d, best, second, texture) or None
+        The peak's disparity in pixels (parabola between samples), its correlation, the best
+        correlation two samples or more from it (:func:`teamslam.frontend.stereo._best`) and
+        the standard deviation of the patch; ``None`` when the range holds fewer than three
+        samples.
+    """
+    image, level = source.level(level)
+    other, _ = target.level(level)
+    scale = 2**level
+    d_lo, d_hi = disparities
+    n = int((d_hi - d_lo) // scale)
+    if n < 2:
+        return None
+    d_hi = d_lo + n * scale
+    width, height = max(3, round(size[0] / scale)), max(3, round(size[1] / scale))
+    # pixel x of the full image is (x − (scale − 1) / 2) / scale at this level
+    u = (centre[0] - (scale - 1) / 2) / scale
+    v = (centre[1] - (scale - 1) / 2) / scale
+    patch = cv2.getRectSubPix(image, (width, height), (u, v))
+    middle = (u - direction * (d_lo + d_hi) / (2 * scale), v)
+    strip = cv2.getRectSubPix(other, (width + n, height), middle)
+    scores = cv2.matchTemplate(strip, patch, cv2.TM_CCOEFF_NORMED).ravel()
+    i, offset, second = _best(scores)
+    # sample i: the target patch's centre at ``middle − n / 2 + i`` (this level's pixels)
+    shift = (i + offset) * scale
+    d = d_hi - shift if direction > 0 else d_lo + shift
+    return float(d), float(scores[i]), second, float(patch.std())

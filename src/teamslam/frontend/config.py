@@ -96,9 +96,11 @@ class FrontendConfig:
         translation-only match is biased by the same amount frame after frame along a track
         (set 0 when time matters more).
     box_patch_samples
-        A detector's box is searched for in the right image by its patch averaged over square
-        blocks to at most this many samples (the coarse search; the peak is then refined at
-        full resolution): the cost of a box does not grow with its size.
+        A detector's box is searched for in the right image by its patch at the level of an
+        image pyramid (2 × 2 means per level) where it has at most this many samples; the peak
+        is then refined down the pyramid to full resolution (or, for a box of more than 16
+        times as many pixels, to a patch of 16 times as many samples): the cost of a box does
+        not grow with its size.
     box_ncc_min
         Least normalised cross-correlation of a box's patch with its right-image match.
     box_uniqueness
