@@ -298,7 +298,7 @@ def _row_search(
     -------
     (d, best, second, texture) or None
         The peak's disparity in pixels (parabola between samples), its correlation, the best
-        correlation two samples or more from it (:func:`teamslam.frontend.stereo._best`) and
+        correlation three samples or more from it (:func:`teamslam.frontend.stereo._best`) and
         the standard deviation of the patch; ``None`` when the range holds fewer than three
         samples.
     """

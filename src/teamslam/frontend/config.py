@@ -104,8 +104,9 @@ class FrontendConfig:
     box_ncc_min
         Least normalised cross-correlation of a box's patch with its right-image match.
     box_uniqueness
-        A box's match is ambiguous (the box stays monocular) when the best correlation two
-        samples or more away from the peak reaches this share of the peak's.
+        A box's match is ambiguous (the box stays monocular) when the best correlation three
+        samples or more away from the peak (samples of the coarse search) reaches this share of
+        the peak's.
     box_row_overlap
         Least overlap of the row spans of a left and a right box (intersection over union) for
         the detector's right-image box to be paired with the left one.
