@@ -92,6 +92,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/tracking-sim.md",
         f"{GENERATED}/tracking-sim.md",
     ),
+    "appearance-roc": (
+        "python benchmarks/appearance_roc.py --robots 3 --steps 120 --every 6 --seed 1 "
+        f"--markdown {GENERATED}/appearance-roc.md",
+        f"{GENERATED}/appearance-roc.md",
+    ),
+    "box-stereo": (
+        f"python benchmarks/box_stereo.py --frames 40 --markdown {GENERATED}/box-stereo.md",
+        f"{GENERATED}/box-stereo.md",
+    ),
     "consistency-kitti": (
         "python benchmarks/consistency.py --teams kitti --variants std fej oc "
         f"--modes separate consensus --markdown {GENERATED}/consistency-kitti.md",

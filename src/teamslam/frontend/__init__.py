@@ -3,11 +3,14 @@
 :mod:`~teamslam.frontend.config` (settings), :mod:`~teamslam.frontend.camera` (camera files,
 rectification), :mod:`~teamslam.frontend.tracking` (feature tracks),
 :mod:`~teamslam.frontend.stereo` (stereo matching), :mod:`~teamslam.frontend.markers`
-(fiducial objects), :mod:`~teamslam.frontend.odometry` (stereo visual odometry) and
+(fiducial objects), :mod:`~teamslam.frontend.boxes` (a detector's boxes in stereo),
+:mod:`~teamslam.frontend.appearance` (their appearance descriptors),
+:mod:`~teamslam.frontend.odometry` (stereo visual odometry) and
 :mod:`~teamslam.frontend.pipeline` (all of it per frame). OpenCV is the optional ``images``
 extra, imported only when a function needs it.
 """
 
+from teamslam.frontend.boxes import BoxMeasurements, BoxStereo
 from teamslam.frontend.camera import StereoRig, load_camera, rig_from_camera_info
 from teamslam.frontend.config import FrontendConfig
 from teamslam.frontend.markers import MarkerDetector, Markers, diagonal_centre
@@ -17,6 +20,8 @@ from teamslam.frontend.stereo import StereoMatches, match_stereo
 from teamslam.frontend.tracking import FeatureTracker
 
 __all__ = [
+    "BoxMeasurements",
+    "BoxStereo",
     "FeatureTracker",
     "FrameMeasurements",
     "FrontendConfig",

@@ -74,6 +74,7 @@ class StereoRig:
         if self.already_rectified:
             self._rectified = (StereoCamera(self.K_left, self.T_left_right), np.eye(3))
             self._R_right = np.eye(3)
+            self._projections = None
             return
         cv2 = require_cv2()
         T_right_left = np.linalg.inv(self.T_left_right)
@@ -96,6 +97,7 @@ class StereoRig:
             )
         K = p1[:3, :3].copy()
         self._R_right = r2
+        self._projections = (p1, p2)
         self._rectified = (
             StereoCamera.from_baseline(K[0, 0], K[1, 1], K[0, 2], K[1, 2], baseline),
             r1,
@@ -134,6 +136,38 @@ class StereoRig:
         rot = np.eye(4)
         rot[:3, :3] = self.R_rect_left
         return rot @ self.T_cam_body
+
+    def check_images(self, left: np.ndarray, right: np.ndarray, where: str = "") -> None:
+        """:class:`InputError` unless both images are 8-bit grey of the rig's size (the
+        message starts with ``where``, or the side's name)."""
+        w, h = self.image_size
+        for name, img in (("left", left), ("right", right)):
+            if img.ndim != 2 or img.shape != (h, w) or img.dtype != np.uint8:
+                raise InputError(
+                    f"{where or name}: {name} image is {img.shape} {img.dtype}, "
+                    f"expected {h}×{w} 8-bit grey"
+                )
+
+    def rectify_points(self, uv: np.ndarray, side: str = "left") -> np.ndarray:
+        """Raw-image pixels ``(N, 2)`` of one camera (``side``: ``"left"`` or ``"right"``) →
+        the same points' pixels in that camera's rectified image (OpenCV's ``undistortPoints``
+        with the rectifying rotation and projection); a copy for an already rectified pair."""
+        if side not in ("left", "right"):
+            raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+        self._rectify_setup()
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        if self._projections is None or len(uv) == 0:
+            return uv.copy()
+        cv2 = require_cv2()
+        left = side == "left"
+        out = cv2.undistortPoints(
+            uv.reshape(-1, 1, 2),
+            self.K_left if left else self.K_right,
+            self.distortion_left if left else self.distortion_right,
+            R=self.R_rect_left if left else self.R_rect_right,
+            P=self._projections[0 if left else 1],
+        )
+        return out.reshape(-1, 2).astype(np.float64)
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rectified images (the inputs themselves when the pair is already rectified)."""

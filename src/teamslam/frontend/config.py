@@ -95,6 +95,21 @@ class FrontendConfig:
         On slanted surfaces the two cameras see a patch foreshortened differently, and a
         translation-only match is biased by the same amount frame after frame along a track
         (set 0 when time matters more).
+    box_patch_samples
+        A detector's box is searched for in the right image by its patch at the level of an
+        image pyramid (2 × 2 means per level) where it has at most this many samples; the peak
+        is then refined down the pyramid to full resolution (or, for a box of more than 16
+        times as many pixels, to a patch of 16 times as many samples): the cost of a box does
+        not grow with its size.
+    box_ncc_min
+        Least normalised cross-correlation of a box's patch with its right-image match.
+    box_uniqueness
+        A box's match is ambiguous (the box stays monocular) when the best correlation three
+        samples or more away from the peak (samples of the coarse search) reaches this share of
+        the peak's.
+    box_row_overlap
+        Least overlap of the row spans of a left and a right box (intersection over union) for
+        the detector's right-image box to be paired with the left one.
     marker_dictionary
         ArUco / AprilTag family of the fiducial markers (``None``: no markers).
     marker_row_share
@@ -140,6 +155,10 @@ class FrontendConfig:
     refine_share: float = 0.0013
     stereo_from_guess: bool = True
     stereo_affine_iterations: int = 2
+    box_patch_samples: int = 400
+    box_ncc_min: float = 0.7
+    box_uniqueness: float = 0.95
+    box_row_overlap: float = 0.5
     marker_dictionary: str | None = "4x4_250"
     marker_row_share: float = 0.003
     marker_min_perimeter_share: float = 0.08
@@ -172,6 +191,10 @@ class FrontendConfig:
             raise InputError("affine_iterations ≥ 1 and template_ncc_min < 1 needed")
         if self.corner_quality >= 1 or self.ncc_min >= 1 or self.uniqueness > 1:
             raise InputError("corner_quality and ncc_min must be < 1, uniqueness ≤ 1")
+        if self.box_ncc_min >= 1 or self.box_uniqueness > 1 or self.box_row_overlap > 1:
+            raise InputError("box_ncc_min < 1, box_uniqueness ≤ 1 and box_row_overlap ≤ 1 needed")
+        if self.box_patch_samples < 9:
+            raise InputError("box_patch_samples ≥ 9 needed (a patch of 3 × 3 samples)")
         if self.marker_dictionary is not None and self.marker_dictionary not in _DICTIONARIES:
             raise InputError(
                 f"marker_dictionary {self.marker_dictionary!r} unknown; use one of "

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from teamslam.errors import InputError
 from teamslam.frontend.camera import StereoRig
 from teamslam.frontend.config import FrontendConfig
 from teamslam.frontend.markers import MarkerDetector
@@ -76,13 +75,7 @@ class StereoFrontend:
 
     def process(self, left: np.ndarray, right: np.ndarray, where: str = "") -> FrameMeasurements:
         """Measure one stereo frame of 8-bit grey images (raw; rectified here)."""
-        w, h = self.rig.image_size
-        for name, img in (("left", left), ("right", right)):
-            if img.ndim != 2 or img.shape != (h, w) or img.dtype != np.uint8:
-                raise InputError(
-                    f"{where or name}: {name} image is {img.shape} {img.dtype}, "
-                    f"expected {h}×{w} 8-bit grey"
-                )
+        self.rig.check_images(left, right, where)
         left, right = self.rig.rectify(left, right)
         ids, uv = self.tracker.track(left)
         guess = np.full(len(ids), np.nan)
