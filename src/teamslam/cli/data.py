@@ -175,7 +175,11 @@ def _cmd_data_from_images(args: argparse.Namespace) -> int:
     if args.rendered is not None:
         if args.folders or args.camera or args.timestamps or args.odometry or args.ground_truth:
             raise InputError("--rendered DIR takes every input from DIR: give no folders or files")
-        inputs = rendered_team_inputs(args.rendered)
+        if args.detections or args.right_detections or args.detection_truth:
+            raise InputError(
+                "--rendered DIR takes the detector's boxes from DIR (--markers-only: none)"
+            )
+        inputs = rendered_team_inputs(args.rendered, boxes=not args.markers_only)
         if args.robot:
             inputs["robot_names"] = args.robot
         if args.markers is not None:
@@ -201,21 +205,40 @@ def _cmd_data_from_images(args: argparse.Namespace) -> int:
             "ground_truth": args.ground_truth or None,
             "robot_names": args.robot or None,
             "markers": args.markers,
+            "detections": args.detections or None,
+            "right_detections": args.right_detections or None,
+            "detection_truth": args.detection_truth or None,
+            "coco_images": args.coco_images or None,
+            "objects": args.objects,
         }
     config = _frontend(args)
-    dataset = dataset_from_images(**inputs, config=config, progress=not args.quiet)
+    dataset = dataset_from_images(
+        **inputs, descriptor=args.descriptor, config=config, progress=not args.quiet
+    )
     _describe_images(dataset)
     save_and_describe(dataset, args.out)
     return 0
 
 
 def _describe_images(dataset) -> None:
+    from teamslam.frontend.boxes import MONOCULAR_REASONS
+
     for record in dataset.metadata["images"]["robots"]:
         print(
             f"{record['name']}: {record['stereo_observations_per_frame']:.0f} stereo "
             f"observations per frame, {100 * record['stereo_rejected_share']:.1f} % rejected by "
             f"the outlier gate; odometry: {record['odometry']}; truth: {record['ground_truth']}"
         )
+        boxes = record.get("detections")
+        if boxes:
+            print(
+                f"  boxes: {boxes['boxes_read']} read, {boxes['boxes_clipped']} clipped, "
+                f"{boxes['boxes_dropped']} dropped (outside the image); in stereo "
+                f"{boxes['right box']} by right boxes, {boxes['patch']} by their patch; "
+                f"{boxes['monocular']} monocular ("
+                + ", ".join(f"{k} {boxes[k]}" for k in MONOCULAR_REASONS if boxes.get(k))
+                + f"); appearance: {boxes['appearance']}"
+            )
 
 
 def _cmd_import_bag_any(args: argparse.Namespace) -> int:
@@ -532,6 +555,60 @@ dataset's metadata; without ground truth the poses stored as truth are dead-reck
         "--no-odometry",
         action="store_true",
         help="ignore the odometry files: stereo visual odometry instead",
+    )
+    fi.add_argument(
+        "--detections",
+        action="append",
+        type=Path,
+        default=[],
+        metavar="DIR_OR_FILE",
+        help="per robot a detector's boxes for its left images: a folder of YOLO .txt files "
+        "or a COCO results .json; the objects are then these boxes, without ids (each robot "
+        "tracks them); repeat per robot",
+    )
+    fi.add_argument(
+        "--right-detections",
+        action="append",
+        type=Path,
+        default=[],
+        metavar="DIR_OR_FILE",
+        help="per robot the detector's boxes for its right images, when it ran on them",
+    )
+    fi.add_argument(
+        "--detection-truth",
+        action="append",
+        type=Path,
+        default=[],
+        metavar="DIR",
+        help="per robot, for evaluation only: <stem>.txt files with the true object id of "
+        "each left box (-1: false)",
+    )
+    fi.add_argument(
+        "--coco-images",
+        action="append",
+        type=Path,
+        default=[],
+        metavar="FILE",
+        help="per robot a COCO JSON with the images list (integer image_id -> file name)",
+    )
+    fi.add_argument(
+        "--objects",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="true object map for the boxes (id class x y z per line), for evaluation",
+    )
+    fi.add_argument(
+        "--descriptor",
+        default=None,
+        metavar="KIND",
+        help="appearance descriptor of boxes without an embedding: "
+        "thumbnail, hog, intensity, hue-saturation or thumbnail+hue-saturation (the default)",
+    )
+    fi.add_argument(
+        "--markers-only",
+        action="store_true",
+        help="with --rendered: markers as objects, even where the render has detector boxes",
     )
     _frontend_arguments(fi)
     fi.add_argument("--out", type=Path, required=True, help="dataset directory to write")

@@ -6,11 +6,15 @@ odometry trajectory and a ground-truth trajectory (TUM files, interpolated at th
 stamps). The team shares one camera file (:func:`teamslam.frontend.load_camera`).
 
 Per frame the front-end (:class:`teamslam.frontend.StereoFrontend`) gives the stereo pixel
-coordinates of feature tracks (ids unique over the team) and of fiducial markers (the marker
-id is the object id, shared by every robot). Without odometry, the robot's motion is stereo
-visual odometry (PnP + RANSAC), recorded as such in ``metadata``; without ground truth the
-poses stored as truth are the dead-reckoned odometry, also recorded in ``metadata`` (scores
-against them mean nothing).
+coordinates of feature tracks (ids unique over the team) and the objects: fiducial markers (the
+marker id is the object id, shared by every robot), or, given a detector's boxes per robot
+(:func:`teamslam.frontend.detections.read_detections`), detections without ids — each box
+measured in stereo, with its class, score, size and an appearance descriptor (the detector's
+embedding where it gives one, else :func:`teamslam.frontend.appearance.describe` of the image
+inside the box) — which each robot's filter then tracks itself. Without odometry, the robot's
+motion is stereo visual odometry (PnP + RANSAC), recorded as such in ``metadata``; without
+ground truth the poses stored as truth are the dead-reckoned odometry, also recorded in
+``metadata`` (scores against them mean nothing).
 """
 
 from __future__ import annotations
@@ -22,12 +26,19 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from teamslam.datasets.model import Calibration, FrameObservations, RobotSequence, TeamDataset
+from teamslam.datasets.model import (
+    Calibration,
+    FrameDetections,
+    FrameObservations,
+    RobotSequence,
+    TeamDataset,
+)
 from teamslam.datasets.trajectory import read_tum
 from teamslam.errors import InputError
 from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.camera import StereoRig, load_camera
 from teamslam.frontend.config import FrontendConfig
+from teamslam.frontend.detections import DetectionsRead, ImageDetections, read_detections
 from teamslam.frontend.odometry import stereo_motion
 from teamslam.frontend.pipeline import StereoFrontend
 from teamslam.geometry import se3
@@ -36,8 +47,10 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "dataset_from_images",
     "image_pairs",
+    "read_detection_truth",
     "read_image",
     "read_markers",
+    "read_objects",
     "read_timestamps",
     "rendered_team_inputs",
 ]
@@ -67,12 +80,21 @@ def image_pairs(left_dir: str | Path, right_dir: str | Path) -> list[tuple[Path,
     return [(p, right_dir / p.name) for p in left]
 
 
-def read_image(path: Path, image_size: tuple[int, int]) -> np.ndarray:
-    """An 8-bit grey image of ``(width, height)``; :class:`InputError` naming the file else."""
+def read_image(path: Path, image_size: tuple[int, int], colour: bool = False) -> np.ndarray:
+    """An 8-bit grey image of ``(width, height)`` — with ``colour``, the image as it is stored
+    (BGR when it has colour, grey otherwise); :class:`InputError` naming the file else."""
     cv2 = require_cv2()
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InputError(f"{path}: cannot read the image (missing, empty or not an image)")
+    if colour and img.ndim == 3 and img.dtype == np.uint8:
+        img = img[:, :, :3] if img.shape[2] == 4 else img
+        w, h = image_size
+        if img.shape[:2] != (h, w):
+            raise InputError(
+                f"{path}: image is {img.shape[1]}×{img.shape[0]}, the camera file says {w}×{h}"
+            )
+        return np.ascontiguousarray(img)
     if img.ndim == 3:
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         img = cv2.cvtColor(img, code)
@@ -125,6 +147,54 @@ def read_markers(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     if rows.size == 0:
         return np.zeros(0, np.int64), np.zeros((0, 3))
     return rows[:, 0].astype(np.int64), rows[:, 1:4]
+
+
+def read_objects(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An object map ``id class x y z`` per line: ``(ids (K,), classes (K,), positions (K, 3))``."""
+    path = Path(path)
+    try:
+        rows = np.loadtxt(path, ndmin=2, comments="#")
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read objects ({exc})") from None
+    if rows.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    if rows.shape[1] != 5:
+        raise InputError(f"{path}: object lines need 5 numbers (id class x y z)")
+    if not np.all(np.isfinite(rows)):
+        raise InputError(f"{path}: object lines must be finite numbers")
+    return rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int64), rows[:, 2:5]
+
+
+def read_detection_truth(
+    folder: str | Path, image_names: Sequence[str | Path], read: DetectionsRead
+) -> list[np.ndarray]:
+    """The true object of every box, for evaluation only: per image ``<stem>.txt`` in
+    ``folder`` with one integer per box, in the order of the detection file (``-1``: a false
+    box); an image without a file has no boxes. The counts must equal the boxes ``read`` kept.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder of detection truth files")
+    out = []
+    for name, boxes in zip(image_names, read.images, strict=True):
+        path = folder / (Path(str(name)).stem + ".txt")
+        ids = np.zeros(0, np.int64)
+        if path.exists():
+            try:
+                values = np.loadtxt(path, ndmin=1, comments="#")
+            except (OSError, ValueError) as exc:
+                raise InputError(f"{path}: cannot read detection truth ({exc})") from None
+            if values.size and (values.ndim != 1 or np.any(values != np.round(values))):
+                raise InputError(f"{path}: one integer object id per line (-1: a false box)")
+            ids = values.astype(np.int64).reshape(-1)
+        if ids.size != len(boxes):
+            raise InputError(
+                f"{path}: {ids.size} truth lines for {len(boxes)} boxes kept of the detections"
+            )
+        if np.any(ids < -1):
+            raise InputError(f"{path}: object ids must be ≥ 0, or -1 for a false box")
+        out.append(ids)
+    return out
 
 
 def _poses_at(path: Path, stamps: np.ndarray | None, frames: int, what: str) -> np.ndarray:
@@ -185,6 +255,12 @@ def dataset_from_images(
     robot_names: Sequence[str] | None = None,
     *,
     markers: str | Path | None = None,
+    detections: Sequence[str | Path | None] | None = None,
+    right_detections: Sequence[str | Path | None] | None = None,
+    detection_truth: Sequence[str | Path | None] | None = None,
+    coco_images: Sequence[str | Path | None] | None = None,
+    objects: str | Path | None = None,
+    descriptor: str | None = None,
     config: FrontendConfig | None = None,
     name: str = "images",
     progress: bool = True,
@@ -204,6 +280,25 @@ def dataset_from_images(
         Per robot a name (recorded in ``metadata``); default ``robot_0``, ``robot_1``, ….
     markers
         Optional marker map (``id x y z`` per line), the objects' true positions.
+    detections
+        Per robot a detector's output for its left images (a YOLO folder or a COCO JSON,
+        :func:`~teamslam.frontend.detections.read_detections`): the objects are then its boxes,
+        without ids (markers are not read as objects), and each robot tracks them itself.
+    right_detections
+        Per robot the detector's output for the right images, when it ran on them (paired
+        with the left boxes; the others are searched along the row).
+    detection_truth
+        Per robot, for evaluation only, a folder of ``<stem>.txt`` files giving the true
+        object of each left box (:func:`read_detection_truth`).
+    coco_images
+        Per robot the COCO ``images`` list mapping integer image ids to files, when its COCO
+        file has none.
+    objects
+        Optional object map (``id class x y z`` per line), the true objects of the boxes.
+    descriptor
+        The appearance descriptor of boxes without an embedding
+        (:data:`~teamslam.frontend.appearance.DESCRIPTORS`; default
+        :data:`~teamslam.frontend.appearance.DEFAULT_DESCRIPTOR`).
     config
         Front-end settings.
     name
@@ -230,9 +325,36 @@ def dataset_from_images(
     names = list(robot_names) if robot_names is not None else [f"robot_{i}" for i in range(n)]
     if len(names) != n or len(set(names)) != n:
         raise InputError(f"need {n} distinct robot names, got {names}")
+    det_sources = _per_robot(detections, n, "detection sources")
+    right_sources = _per_robot(right_detections, n, "right-image detection sources")
+    truth_dirs = _per_robot(detection_truth, n, "detection truth folders")
+    coco_files = _per_robot(coco_images, n, "COCO images files")
+    boxes_given = any(d is not None for d in det_sources)
+    if boxes_given and not all(d is not None for d in det_sources):
+        raise InputError("detections for some robots and not others: give one per robot")
+    if not boxes_given:
+        extra = [
+            flag
+            for flag, v in (
+                ("right detections", right_detections),
+                ("detection truth", detection_truth),
+                ("COCO images files", coco_images),
+            )
+            if v is not None and any(x is not None for x in _per_robot(v, n, flag))
+        ]
+        if extra:
+            raise InputError(f"{extra[0]} given without detections")
     config = config or FrontendConfig()
     rig = load_camera(camera)
     pairs = [image_pairs(a, b) for a, b in zip(left_dirs, right_dirs, strict=True)]
+    boxes = [None] * n
+    if boxes_given:
+        boxes = [
+            _robot_boxes(
+                pairs[i], rig, det_sources[i], right_sources[i], truth_dirs[i], coco_files[i]
+            )
+            for i in range(n)
+        ]
     stamps = []
     for i, f in enumerate(stamps_files):
         if f is None:
@@ -254,12 +376,17 @@ def dataset_from_images(
             truth = None
             if gt_files[i] is not None:
                 truth = _poses_at(Path(gt_files[i]), stamps[i], frames, "ground-truth")
+            colour = boxes[i] is not None
             images = (
-                (read_image(lp, rig.image_size), read_image(rp, rig.image_size), str(lp))
+                (
+                    read_image(lp, rig.image_size, colour=colour),
+                    read_image(rp, rig.image_size),
+                    str(lp),
+                )
                 for lp, rp in pairs[i]
             )
             robot, record, next_id = _robot_sequence(
-                images, rig, config, next_id, odo, truth, stamps[i], bar
+                images, rig, config, next_id, odo, truth, stamps[i], bar, boxes[i], descriptor
             )
             record.update(
                 {
@@ -276,7 +403,22 @@ def dataset_from_images(
             info.append(record)
     finally:  # closed before any error is printed
         bar.close()
-    return _team(robots, info, rig, config, markers, name, {"camera": str(camera)})
+    source = {"camera": str(camera)}
+    if boxes_given:
+        source["detections"] = [str(d) for d in det_sources]
+        source["objects"] = None if objects is None else str(objects)
+    return _team(robots, info, rig, config, markers, name, source, objects, boxes_given)
+
+
+def _robot_boxes(pairs, rig: StereoRig, source, right_source, truth_dir, coco_file) -> dict:
+    """One robot's detector output, read and checked before any image is processed."""
+    names = [lp.name for lp, _ in pairs]
+    left = read_detections(source, names, rig.image_size, images_file=coco_file)
+    right = None
+    if right_source is not None:
+        right = read_detections(right_source, names, rig.image_size, images_file=coco_file)
+    truth = None if truth_dir is None else read_detection_truth(truth_dir, names, left)
+    return {"left": left, "right": right, "truth": truth, "source": str(source)}
 
 
 def _robot_sequence(
@@ -288,17 +430,34 @@ def _robot_sequence(
     truth: np.ndarray | None,
     stamps: np.ndarray | None,
     bar,
+    boxes: dict | None = None,
+    descriptor: str | None = None,
 ) -> tuple[RobotSequence, dict, int]:
     """Run the front-end over ``(left, right, where)`` frames; build the robot's sequence."""
     px = config.pixels(rig.image_size)
     frontend = StereoFrontend(rig, config, first_id=first_id)
     feats, objs, motions = [], [], []
+    frame_boxes = []
     prev = None
     searched = rejected = 0
     for k, (left, right, where) in enumerate(images):
-        m = frontend.process(left, right, where=where)
+        colour = left if left.ndim == 3 else None
+        if colour is not None:
+            left = require_cv2().cvtColor(colour, require_cv2().COLOR_BGR2GRAY)
+        if boxes is not None:
+            if k >= len(boxes["left"].images):
+                raise InputError(f"{where}: more images than the detections were read for")
+            right_boxes = None if boxes["right"] is None else boxes["right"].images[k]
+            m = frontend.process(left, right, where, boxes["left"].images[k], right_boxes)
+            frame_boxes.append(
+                _described(
+                    m.boxes, boxes["left"].images[k], left if colour is None else colour, descriptor
+                )
+            )
+        else:
+            m = frontend.process(left, right, where=where)
         feats.append((m.feature_ids, m.features))
-        objs.append((m.object_ids, m.objects))
+        objs.append((m.object_ids, m.objects) if boxes is None else _no_objects())
         searched += m.searched
         rejected += m.rejected
         if odometry_poses is None and k > 0:
@@ -347,18 +506,76 @@ def _robot_sequence(
     features = FrameObservations.from_frames(feats)
     record["stereo_observations_per_frame"] = float(features.counts().mean())
     record["stereo_rejected_share"] = rejected / max(searched, 1)
+    detections = None
+    if boxes is not None:
+        detections, counts = _frame_detections(frame_boxes, boxes["truth"])
+        read = boxes["left"]
+        record["detections"] = {
+            "source": boxes["source"],
+            "boxes_read": read.boxes_read,
+            "boxes_clipped": read.boxes_clipped,
+            "boxes_dropped": read.boxes_dropped,
+            "images_without_file": read.images_without_file,
+            "appearance": "embedding" if read.dimension else "descriptor",
+            **counts,
+        }
     robot = RobotSequence(
         T_world_body=truth,
         odometry=odometry_rel,
         features=features,
         objects=FrameObservations.from_frames(objs),
         timestamps=stamps,
+        detections=detections,
     )
     return robot, record, frontend.next_id
 
 
-def _team(robots, info, rig, config, markers, name, source: dict) -> TeamDataset:
-    if markers is not None:
+def _no_objects() -> tuple[np.ndarray, np.ndarray]:
+    return np.zeros(0, np.int64), np.zeros((0, 4))
+
+
+def _described(measured, given: ImageDetections, image: np.ndarray, descriptor) -> tuple:
+    """A frame's measured boxes with their appearance: the detector's embeddings, or
+    descriptors of the image inside each box."""
+    from teamslam.frontend.appearance import DEFAULT_DESCRIPTOR, describe
+
+    if given.embeddings is not None:
+        looks = np.asarray(given.embeddings, np.float32)
+    else:
+        looks = describe(image, given.boxes, descriptor or DEFAULT_DESCRIPTOR)
+    return measured, looks
+
+
+def _frame_detections(frames: list, truth: list | None) -> tuple[FrameDetections, dict]:
+    """Every frame's measured boxes as detections without ids; counts by stereo source."""
+    counts: dict[str, int] = {}
+    for measured, _ in frames:
+        for key, value in measured.counts().items():
+            counts[key] = counts.get(key, 0) + value
+    sizes = [m.sizes for m, _ in frames]
+    offsets = np.concatenate([[0], np.cumsum([len(s) for s in sizes])]).astype(np.int64)
+    dim = max((looks.shape[1] for _, looks in frames if looks.ndim == 2), default=1)
+    detections = FrameDetections(
+        offsets,
+        np.concatenate([m.z for m, _ in frames]).reshape(-1, 4),
+        np.concatenate([m.classes for m, _ in frames]).astype(np.int64),
+        np.concatenate([m.scores for m, _ in frames]),
+        None if truth is None else np.concatenate(truth).astype(np.int64),
+        np.concatenate(sizes).reshape(-1, 2),
+        np.concatenate([looks.reshape(-1, dim) for _, looks in frames]).astype(np.float32),
+    )
+    return detections, counts
+
+
+def _team(
+    robots, info, rig, config, markers, name, source: dict, objects=None, boxes=False
+) -> TeamDataset:
+    if boxes:
+        if objects is not None:
+            object_ids, _, object_positions = read_objects(objects)
+        else:
+            object_ids, object_positions = np.zeros(0, np.int64), np.zeros((0, 3))
+    elif markers is not None:
         object_ids, object_positions = read_markers(markers)
     else:
         object_ids, object_positions = np.zeros(0, np.int64), np.zeros((0, 3))
@@ -368,6 +585,7 @@ def _team(robots, info, rig, config, markers, name, source: dict) -> TeamDataset
         robots=robots,
         object_ids=object_ids,
         object_positions=object_positions,
+        object_id_scope="none" if boxes else "global",
         metadata={
             "source": "teamslam.datasets.images",
             "images": {
@@ -380,16 +598,18 @@ def _team(robots, info, rig, config, markers, name, source: dict) -> TeamDataset
     )
 
 
-def rendered_team_inputs(directory: str | Path) -> dict:
+def rendered_team_inputs(directory: str | Path, boxes: bool = True) -> dict:
     """The :func:`dataset_from_images` arguments for a folder written by
-    :func:`teamslam.sim.render.render_team` (every robot's folders, files and the markers)."""
+    :func:`teamslam.sim.render.render_team` (every robot's folders, files and the markers;
+    with ``boxes``, the simulated detector's boxes, their truth and the object map where the
+    render wrote them)."""
     directory = Path(directory)
     robots = sorted(
         (p for p in directory.glob("robot_*") if p.is_dir()), key=lambda p: int(p.name[6:])
     )
     if not robots:
         raise InputError(f"{directory}: no robot_k folders of a rendered team")
-    return {
+    inputs = {
         "left_dirs": [r / "left" for r in robots],
         "right_dirs": [r / "right" for r in robots],
         "camera": robots[0] / "camera.yaml",
@@ -399,3 +619,12 @@ def rendered_team_inputs(directory: str | Path) -> dict:
         "robot_names": [r.name for r in robots],
         "markers": directory / "markers.txt",
     }
+    if boxes and all((r / "detections").is_dir() for r in robots):
+        inputs["detections"] = [r / "detections" for r in robots]
+        if all((r / "detections_right").is_dir() for r in robots):
+            inputs["right_detections"] = [r / "detections_right" for r in robots]
+        if all((r / "detections_truth").is_dir() for r in robots):
+            inputs["detection_truth"] = [r / "detections_truth" for r in robots]
+        if (directory / "objects.txt").is_file():
+            inputs["objects"] = directory / "objects.txt"
+    return inputs

@@ -1,4 +1,5 @@
-"""One robot's stereo front-end: rectify, track, match, detect markers, per frame."""
+"""One robot's stereo front-end: rectify, track, match, detect markers, measure a detector's
+boxes in stereo, per frame."""
 
 from __future__ import annotations
 
@@ -6,8 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teamslam.frontend.boxes import BoxMeasurements, BoxStereo
 from teamslam.frontend.camera import StereoRig
 from teamslam.frontend.config import FrontendConfig
+from teamslam.frontend.detections import ImageDetections
 from teamslam.frontend.markers import MarkerDetector
 from teamslam.frontend.stereo import match_stereo
 from teamslam.frontend.tracking import FeatureTracker
@@ -29,6 +32,9 @@ class FrameMeasurements:
         All left-image tracks (with or without a stereo match), for visual odometry.
     searched, rejected
         Stereo searches made and rejected by the outlier gate in this frame.
+    boxes
+        The detector's boxes measured in stereo (:class:`~teamslam.frontend.boxes.BoxStereo`),
+        or ``None`` when no boxes were given.
     """
 
     feature_ids: np.ndarray
@@ -39,6 +45,7 @@ class FrameMeasurements:
     track_uv: np.ndarray
     searched: int
     rejected: int
+    boxes: BoxMeasurements | None = None
 
 
 class StereoFrontend:
@@ -65,6 +72,7 @@ class StereoFrontend:
         self.disparity_range = self.config.disparity_range(self.camera.fx_baseline)
         self.tracker = FeatureTracker(rig.image_size, self.config, first_id)
         self.markers = MarkerDetector(self.config)
+        self.boxes = BoxStereo(rig, self.config)
         self._last_ids = np.zeros(0, np.int64)
         self._last_disparity = np.zeros(0)
 
@@ -73,8 +81,17 @@ class StereoFrontend:
         """The next unused feature-track id."""
         return self.tracker.next_id
 
-    def process(self, left: np.ndarray, right: np.ndarray, where: str = "") -> FrameMeasurements:
-        """Measure one stereo frame of 8-bit grey images (raw; rectified here)."""
+    def process(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        where: str = "",
+        detections: ImageDetections | None = None,
+        right_detections: ImageDetections | None = None,
+    ) -> FrameMeasurements:
+        """Measure one stereo frame of 8-bit grey images (raw; rectified here), and a
+        detector's boxes in it when given (raw left-image pixels; the right image's boxes
+        too when the detector ran on it)."""
         self.rig.check_images(left, right, where)
         left, right = self.rig.rectify(left, right)
         ids, uv = self.tracker.track(left)
@@ -87,6 +104,9 @@ class StereoFrontend:
         obj_ids, obj_z = self.markers.detect_stereo(
             left, right, self.disparity_range, self.pixels.marker_row
         )
+        boxes = None
+        if detections is not None:
+            boxes = self.boxes.measure(left, right, detections, right_detections)
         return FrameMeasurements(
             feature_ids=ids[m.accepted],
             features=z,
@@ -96,4 +116,5 @@ class StereoFrontend:
             track_uv=uv,
             searched=int(m.searched.sum()),
             rejected=int((m.searched & ~m.accepted).sum()),
+            boxes=boxes,
         )
