@@ -16,7 +16,7 @@ robot the left and right images, ``camera.yaml``, ``timestamps.txt``, ``groundtr
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -350,7 +350,7 @@ class TexturedRoom:
         self.config = config
         rng = np.random.default_rng(np.random.SeedSequence([config.seed, 29]))
         X, Y, Z = config.extent
-        self.size = np.array(config.room)
+        self.size = np.array(config.extent)
         # origin, a axis, b axis, per surface
         self._frames = np.array(
             [
@@ -619,7 +619,12 @@ def _place_shapes(config: RenderConfig, first_id: int) -> Shapes:
         lookalike_of=source,
     )
     X, Y, _ = config.extent
-    paths_xy = np.concatenate([p[:, :2, 3] for p in robot_paths(config)])
+    # clear of the robots' whole loops, not only of the part driven: a longer or shorter
+    # drive keeps the same world
+    whole = replace(
+        config, steps=max(config.steps, int(2 * np.pi * max(X, Y) / config.step_length))
+    )
+    paths_xy = np.concatenate([p[:, :2, 3] for p in robot_paths(whole)])
     edge = 0.1  # closest gap to a wall
     slots = (rng.permutation(count) + 0.5) / count * X  # street: spaced along its length
 
