@@ -71,6 +71,7 @@ def _on_surface(shapes: Shapes, j: int, p: np.ndarray, tol: float = 1e-9) -> np.
 def test_cast_points_behind_object_pixels_lie_on_the_object(street):
     shapes = street.room.shapes
     kinds_seen = set()
+    walls_seen = False
     room_size = np.array(street.config.extent)
     for r, k, _, (image, ids, _) in _frames(street, every=12):
         assert image.shape == (120, 160, 3)
@@ -82,12 +83,17 @@ def test_cast_points_behind_object_pixels_lie_on_the_object(street):
             assert _on_surface(shapes, j, p[on]).all(), (r, k, j)
             kinds_seen.add(int(shapes.kinds[j]))
         np.testing.assert_allclose(street.project(r, k, p)[:, :2], uv, atol=1e-8)
-        # pixels that show no object show the room's planes
+        # pixels that show no object show the street's planes or a cross wall off its doorway
         rows, cols = np.nonzero(ids < 0)
         q = street.points_behind(r, k, np.column_stack([cols, rows]).astype(float))
         on_plane = np.isclose(q, 0.0, atol=1e-9) | np.isclose(q, room_size, atol=1e-9)
-        assert on_plane.any(axis=1).all()
+        cross = np.isclose(q[:, :1], street.config.partitions[None, :], atol=1e-9).any(axis=1)
+        door_w, door_h = street.config.doorway
+        in_door = (np.abs(q[:, 1] - room_size[1] / 2) < door_w / 2) & (q[:, 2] < door_h)
+        assert (on_plane.any(axis=1) | (cross & ~in_door)).all()
+        walls_seen |= cross.any()
     assert kinds_seen == {BOX, CYLINDER, CONE}
+    assert walls_seen
 
 
 def _two_objects(kind_near: int) -> Shapes:
@@ -180,8 +186,14 @@ def test_street_paths_loop_clear_of_objects_and_walls(street):
         np.testing.assert_allclose(step, config.step_length, rtol=0.05)
         gap = np.linalg.norm(xy[:, None, :] - shapes.centres[None, :, :2], axis=2)
         assert np.all(gap - shapes.footprint_radius() >= config.object_clearance - 1e-9)
-    # objects stand inside the street and do not overlap
+        # robots pass the cross walls through their doorways
+        for x in config.partitions:
+            crossing = np.flatnonzero(np.diff(np.sign(xy[:, 0] - x)) != 0)
+            y = xy[crossing, 1]
+            assert np.all(np.abs(y - width / 2) < config.doorway[0] / 2 - 0.5)
+    # objects stand inside the street, clear of the cross walls, and do not overlap
     r = shapes.footprint_radius()
+    assert np.all(np.abs(shapes.centres[:, :1] - config.partitions[None, :]) > r[:, None])
     assert np.all(shapes.centres[:, 0] - r > 0) and np.all(shapes.centres[:, 0] + r < length)
     assert np.all(shapes.centres[:, 1] - r > 0) and np.all(shapes.centres[:, 1] + r < width)
     d = np.linalg.norm(shapes.centres[:, None, :2] - shapes.centres[None, :, :2], axis=2)
@@ -204,25 +216,23 @@ def test_the_room_layout_keeps_its_paths():
 def test_in_the_street_robots_reach_what_others_saw_long_before():
     config = RenderConfig(**STREET | {"steps": 200})
     team = render_team(config)
-    centres = team.room.shapes.centres
-    w, h = config.image_size
+    K = config.camera().intrinsics
+    n = len(team.room.shapes)
     unseen = config.steps + 1
-    first = np.full((config.robots, len(centres)), unseen)
+    first = np.full((config.robots, n), unseen)
     for r in range(config.robots):
-        for k in range(config.steps + 1):
-            T_cam_world = se3.inverse(team.T_world_cam(r, k))
-            p = centres @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-            z = team.project(r, k, centres)
-            seen = (p[:, 2] > 0.5) & (p[:, 2] < 8.0) & (z[:, 0] >= 0) & (z[:, 0] < w)
-            seen &= (z[:, 1] >= 0) & (z[:, 1] < h)
+        for k in range(0, config.steps + 1, 4):
+            _, ids, _ = team.room.render_ids(team.T_world_cam(r, k), K, config.image_size)
+            seen = np.bincount(ids[ids >= 0], minlength=n) >= 6
             first[r, seen] = np.minimum(first[r, seen], k)
     # an object a robot first sees at least 100 frames after another robot did
     both = (first[:, None, :] < unseen) & (first[None, :, :] < unseen)
     assert np.any(both & (first[:, None, :] - first[None, :, :] >= 100))
-    # and every robot sees objects no other robot saw before it
+    # every robot sees objects no other robot saw before it, and none sees every object
     for r in range(config.robots):
         others = np.delete(first, r, axis=0).min(axis=0)
         assert np.any(first[r] < others)
+        assert np.any(first[r] == unseen)
 
 
 def _visible_extent(ids, j):

@@ -104,6 +104,11 @@ class RenderConfig:
         what the robot ahead of it mapped earlier.
     street
         Length (x) and width (y) of the street, metres.
+    street_rooms
+        Rooms the street is split into, in sequence, by cross walls (at equal spacing) with a
+        doorway each that both lanes pass through; the walls hide the rooms from each other.
+    doorway
+        Width and height of the doorways, metres (centred on the street's axis).
     markers_per_wall
         0 renders no markers.
     objects
@@ -143,6 +148,8 @@ class RenderConfig:
     jpeg_quality: int | None = 75
     layout: str = "room"
     street: tuple[float, float] = (20.0, 6.0)
+    street_rooms: int = 3
+    doorway: tuple[float, float] = (3.0, 2.2)
     objects: str = "none"
     object_count: int | None = None
     lookalikes: float = 0.25
@@ -161,6 +168,20 @@ class RenderConfig:
                 raise InputError(
                     "street must be at least 3 m wide and 1 m longer than its turns "
                     "(2 wall_margin + a quarter of its width)"
+                )
+        if self.layout == "street":
+            length, width = self.street
+            lane = 0.12 * width
+            if self.street_rooms < 1 or length / self.street_rooms < self.wall_margin + lane + 0.5:
+                raise InputError(
+                    "street_rooms must be ≥ 1, and each room longer than the turns at the "
+                    "street's ends (wall_margin + 0.12 width + 0.5 m)"
+                )
+            door_w, door_h = self.doorway
+            if not 2 * lane + 0.5 <= door_w <= width or not self.camera_height < door_h:
+                raise InputError(
+                    "doorway must be wider than both lanes (0.24 width + 0.5 m), at most the "
+                    "street's width, and higher than the camera"
                 )
         if self.markers_per_wall < 0:
             raise InputError("markers_per_wall must be ≥ 0")
@@ -189,6 +210,13 @@ class RenderConfig:
         if self.layout == "street":
             return (float(self.street[0]), float(self.street[1]), self.room[2])
         return self.room
+
+    @property
+    def partitions(self) -> np.ndarray:
+        """``(P,)`` x of the street's cross walls (none in the room)."""
+        if self.layout != "street":
+            return np.zeros(0)
+        return self.street[0] * np.arange(1, self.street_rooms) / self.street_rooms
 
     @property
     def shape_count(self) -> int:
@@ -424,6 +452,14 @@ class TexturedRoom:
             self._marker_at[wall, m % self._per_wall] = m
         self._wall_length = np.array([X, X, Y, Y, X, X], np.float32)
         self._marker_ab32 = self._marker_ab.astype(np.float32)
+        # the street's cross walls: surfaces 6, 7, …, textured with the walls' bricks
+        self.partitions = config.partitions
+        self._door = (Y / 2, config.doorway[0] / 2, config.doorway[1])
+        cross = [[[x, 0, Z], [0, 1, 0], [0, 0, -1]] for x in self.partitions]
+        self._frames = np.concatenate([self._frames, np.reshape(cross, (-1, 3, 3))])
+        self._surface_tex = np.concatenate(
+            [np.arange(6), 2 + np.arange(len(self.partitions)) % 4]
+        ).astype(np.int64)
         self._frames32 = self._frames.astype(np.float32)
         self._normals = np.cross(self._frames[:, 1], self._frames[:, 2]).astype(np.float32)
         self._ray_cache = None
@@ -445,6 +481,20 @@ class TexturedRoom:
         surface = np.choose(axis, [2, 4, 0]) + positive
         return t, surface
 
+    def _cross_walls(self, origin, d, t, surface):
+        """``t`` and ``surface`` where a ray meets a cross wall (outside its doorway) first."""
+        centre, half_width, height = self._door
+        for i, x in enumerate(self.partitions):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ti = (x - origin[0]) / d[:, 0]
+                y = origin[1] + ti * d[:, 1]
+                z = origin[2] + ti * d[:, 2]
+            door = (np.abs(y - centre) < half_width) & (z < height)
+            closer = (ti > 0) & (ti < t) & ~door
+            t = np.where(closer, ti, t)
+            surface = np.where(closer, 6 + i, surface)
+        return t, surface
+
     def _rays(self, T_world_cam: np.ndarray, K: np.ndarray, uv: np.ndarray) -> np.ndarray:
         pix = np.column_stack([uv, np.ones(len(uv))])
         d_cam = np.linalg.solve(K, pix.T).T  # z = 1: t is the depth
@@ -455,7 +505,8 @@ class TexturedRoom:
         uv = np.asarray(uv, dtype=float).reshape(-1, 2)
         origin = T_world_cam[:3, 3]
         d = self._rays(T_world_cam, K, uv)
-        t, _ = self._intersect(origin, d)
+        t, surface = self._intersect(origin, d)
+        t, _ = self._cross_walls(origin, d, t, surface)
         for j in range(len(self.shapes)):
             t = np.minimum(t, intersect(self.shapes, j, origin, d)[0])
         return origin + t[:, None] * d
@@ -491,6 +542,8 @@ class TexturedRoom:
         origin = T_world_cam[:3, 3]
         d = d_cam @ T_world_cam[:3, :3].T
         t, surface = self._intersect(origin, d)
+        if len(self.partitions):
+            t, surface = self._cross_walls(origin, d, t, surface)
         p = (origin + t[:, None] * d).astype(np.float32)
         frames = self._frames32[surface]
         rel = p - frames[:, 0]
@@ -500,11 +553,11 @@ class TexturedRoom:
         cos_inc = np.abs(np.einsum("ij,ij->i", d.astype(np.float32), self._normals[surface]))
         cos_inc /= d_norm
         footprint = dist / np.float32(K[0, 0]) / np.sqrt(np.maximum(cos_inc, np.float32(0.05)))
-        tex = surface.copy()
+        tex = surface.copy() if not len(self.partitions) else self._surface_tex[surface]
         if self._per_wall > 0:
             # markers: evenly spaced along each wall, so the candidate marker is found
             # arithmetically
-            wall = np.flatnonzero(surface >= 2)
+            wall = np.flatnonzero((surface >= 2) & (surface < 6))
             sw = surface[wall]
             slot = np.clip(
                 (a[wall] / self._wall_length[sw] * self._per_wall).astype(np.int64),
@@ -635,7 +688,10 @@ def _place_shapes(config: RenderConfig, first_id: int) -> Shapes:
             x = rng.uniform(r + edge, X - r - edge)
         return x, rng.uniform(r + edge, Y - r - edge)
 
-    xy = place(rng, shapes.footprint_radius(), candidate, paths_xy, config.object_clearance)
+    def clear(p: np.ndarray, r: float) -> bool:
+        return bool(np.all(np.abs(p[0] - config.partitions) > r + edge))
+
+    xy = place(rng, shapes.footprint_radius(), candidate, paths_xy, config.object_clearance, clear)
     shapes.centres = np.column_stack([xy, sizes[:, 2] / 2])
     keep = np.flatnonzero(np.isfinite(xy[:, 0]))
     new_index = np.full(count + 1, -1, np.int64)  # the last entry maps -1 to -1

@@ -283,15 +283,18 @@ def place(
     candidate,
     paths_xy: np.ndarray,
     clearance: float,
+    clear=None,
 ) -> np.ndarray:
     """Floor positions ``(K, 2)`` for objects of footprint radii ``footprints``: object ``j``
     at a proposal ``candidate(rng, j, radius) -> (x, y)`` kept when at least ``clearance``
-    beyond its footprint from every path point and not overlapping an object placed before
-    (NaN when no proposal out of 400 fits)."""
+    beyond its footprint from every path point, not overlapping an object placed before, and
+    ``clear(p, radius)`` (when given; NaN when no proposal out of 400 fits)."""
     out = np.full((len(footprints), 2), np.nan)
     for j, r in enumerate(footprints):
         for _ in range(400):
             p = np.asarray(candidate(rng, j, r))
+            if clear is not None and not clear(p, r):
+                continue
             if np.min(np.linalg.norm(paths_xy - p, axis=1)) < r + clearance:
                 continue
             placed = np.isfinite(out[:j, 0])

@@ -1,0 +1,139 @@
+"""Rendering with objects, and what the simulated detector's boxes look like.
+
+Run on demand: ``OPENBLAS_NUM_THREADS=1 python benchmarks/render_objects.py [--markdown FILE]``.
+
+``speed``: seconds per stereo frame (left and right albedo, image effects, JPEG) of the room
+without objects, the room and the street with objects, and the street with the id buffers and
+the detector on both images; process CPU time (what one core spends, whatever the machine's
+load) and wall time, medians over frames spread along robot 0's path, at the default image size.
+``boxes``: the default detector on a default team in the street (every ``--every``-th frame of
+every robot): boxes per image, the share of false boxes, and how the objects a detector could
+see turned into boxes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+from _markdown import Markdown, add_option
+from teamslam.sim.detector import DetectorConfig, detect
+from teamslam.sim.render import RenderConfig, render_stereo, render_team
+from teamslam.sim.shapes import SHAPE_CLASSES
+
+SCENES = {
+    "room, no objects": {},
+    "room, objects": {"objects": "shapes"},
+    "street, objects": {"layout": "street", "objects": "shapes"},
+}
+
+
+def _speed(frames: int, md: Markdown) -> None:
+    md.table(
+        "Seconds per stereo frame (640×480, one core)",
+        ["scene", "CPU median (s)", "wall median (s)", "objects"],
+        note=f"{frames} frames of robot 0 spread along its path; left and right images with "
+        "every image effect.",
+    )
+    print(f"{'scene':<34} {'CPU s':>8} {'wall s':>8} {'objects':>8}")
+    detector = DetectorConfig()
+    for name, fields in [*SCENES.items(), ("street, objects, ids + detector", None)]:
+        with_detector = fields is None
+        team = render_team(
+            RenderConfig(**(SCENES["street, objects"] if fields is None else fields))
+        )
+        rng = np.random.default_rng(0)
+        cpu, wall = [], []
+        for k in np.linspace(0, team.config.steps, frames).astype(int):
+            T = team.T_world_cam(0, k)
+            c0, w0 = time.process_time(), time.perf_counter()
+            out = render_stereo(team.room, T, rng, ids=with_detector)
+            if with_detector:
+                for side in (0, 1):
+                    detect(detector, out[2 + side], out[4 + side], team.room.shapes.classes, 5, rng)
+            cpu.append(time.process_time() - c0)
+            wall.append(time.perf_counter() - w0)
+        row = (name, f"{statistics.median(cpu):.3f}", f"{statistics.median(wall):.3f}")
+        print(f"{row[0]:<34} {row[1]:>8} {row[2]:>8} {len(team.room.shapes):>8}")
+        md.row(*row, str(len(team.room.shapes)))
+    md.end()
+
+
+def _boxes(robots: int, steps: int, every: int, md: Markdown) -> None:
+    config = RenderConfig(robots=robots, steps=steps, layout="street", objects="shapes")
+    detector = DetectorConfig()
+    team = render_team(config)
+    shapes = team.room.shapes
+    K, size = config.camera().intrinsics, config.image_size
+    camera = config.camera()
+    boxes, true, eligible, confused, in_view = [], [], [], [], []
+    seen = np.zeros((robots, len(shapes)), bool)
+    for r in range(robots):
+        rng = np.random.default_rng([r, 33])
+        for k in range(0, steps + 1, every):
+            T = team.T_world_cam(r, k)
+            for T_cam in (T, T @ camera.T_left_right):
+                _, ids, silhouette = team.room.render_ids(T_cam, K, size)
+                out = detect(detector, ids, silhouette, shapes.classes, len(SHAPE_CLASSES), rng)
+                real = out.truth >= 0
+                boxes.append(len(out.truth))
+                true.append(int(real.sum()))
+                eligible.append(len(out.eligible))
+                in_view.append(len(np.unique(ids[ids >= 0])))
+                confused.append(
+                    int(np.sum(out.detections.classes[real] != shapes.classes[out.truth[real]]))
+                )
+                seen[r, out.truth[real]] = True
+    boxes, true, eligible = np.array(boxes), np.array(true), np.array(eligible)
+    images = len(boxes)
+    false_share = (boxes - true).sum() / max(boxes.sum(), 1)
+    rows = [
+        ("images (left and right)", f"{images}"),
+        ("objects in the street", f"{len(shapes)}"),
+        ("objects showing at least one pixel, per image (mean)", f"{np.mean(in_view):.2f}"),
+        ("objects visible enough to detect, per image (mean)", f"{eligible.mean():.2f}"),
+        ("boxes per image: mean", f"{boxes.mean():.2f}"),
+        ("boxes per image: median / max", f"{np.median(boxes):.0f} / {boxes.max()}"),
+        ("true boxes per image (mean)", f"{true.mean():.2f}"),
+        ("images without a box", f"{np.mean(boxes == 0):.1%}"),
+        ("share of false boxes", f"{false_share:.1%}"),
+        ("missed (of the detectable)", f"{1 - true.sum() / max(eligible.sum(), 1):.1%}"),
+        ("true boxes with a wrong class", f"{sum(confused) / max(true.sum(), 1):.1%}"),
+        ("objects detected by one robot only", f"{np.mean(seen.sum(axis=0) == 1):.1%}"),
+        ("objects detected by every robot", f"{np.mean(seen.all(axis=0)):.1%}"),
+    ]
+    md.table(
+        f"The default detector in the street ({robots} robots, {steps} steps, every {every}th "
+        "frame)",
+        ["quantity", "value"],
+        note=f"Detector settings: {detector}.",
+    )
+    for name, value in rows:
+        print(f"{name:<56} {value:>12}")
+        md.row(name, value)
+    md.end()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", nargs="+", choices=("speed", "boxes"), default=["speed", "boxes"])
+    parser.add_argument("--frames", type=int, default=10, help="speed: frames per scene")
+    parser.add_argument("--robots", type=int, default=3, help="boxes: robots")
+    parser.add_argument("--steps", type=int, default=200, help="boxes: steps per robot")
+    parser.add_argument("--every", type=int, default=2, help="boxes: every n-th frame")
+    add_option(parser)
+    args = parser.parse_args()
+    md = Markdown(args.markdown)
+    what = args.only
+    if "speed" in what:
+        _speed(args.frames, md)
+    if "boxes" in what:
+        _boxes(args.robots, args.steps, args.every, md)
+    md.write()
+
+
+if __name__ == "__main__":
+    main()
