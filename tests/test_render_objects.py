@@ -425,3 +425,36 @@ def test_bad_object_and_detector_settings():
         DetectorConfig(clutter=-1.0)
     with pytest.raises(InputError, match="needs objects"):
         render_team(RenderConfig(**SMALL, steps=1, robots=1), detector=DetectorConfig())
+
+
+def test_simulate_images_with_shapes_from_the_command_line(tmp_path, capsys):
+    from teamslam.cli import main
+
+    out = tmp_path / "s"
+    argv = ["simulate", "--images", "--objects", "shapes", "--layout", "street", "--no-markers"]
+    argv += ["--robots", "1", "--steps", "2", "--image-width", "160", "--no-bag", "--quiet"]
+    argv += ["--detector-clutter", "3", "--detector-miss", "0", "--out", str(out)]
+    assert main(argv) == 0
+    render = (out / "render.json").read_text()
+    assert '"layout": "street"' in render and '"markers_per_wall": 0' in render
+    assert (out / "markers.txt").read_text().strip() == "# id x y z"
+    assert len(np.loadtxt(out / "objects.txt", ndmin=2)) > 10
+    truth = [np.loadtxt(p, ndmin=1) for p in (out / "robot_0" / "detections_truth").iterdir()]
+    assert sum(np.sum(t == -1) for t in truth) > 0  # clutter 3 per image: false boxes
+    capsys.readouterr()
+    for bad, message in (
+        (["--objects", "7"], "--images takes --objects shapes"),
+        (["--detector-miss", "0.2"], "--detector-* options need --objects shapes"),
+        (["--objects", "shapes", "--detector-confusion", "1.5"], "expected a number in [0, 1]"),
+        (["--objects", "shapes", "--layout", "maze"], "invalid choice"),
+        (["--no-markers"], "--no-markers leaves nothing to see"),
+    ):
+        try:
+            code = main(["simulate", "--images", *bad, "--out", str(tmp_path / "x")])
+        except SystemExit as exit:  # the argument parser's own errors
+            code = exit.code
+        assert code == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1, err
+    assert main(["simulate", "--objects", "shapes", "--out", str(tmp_path / "y")]) == 2
+    assert "needs --images" in capsys.readouterr().err
