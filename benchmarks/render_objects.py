@@ -71,6 +71,7 @@ def _boxes(robots: int, steps: int, every: int, md: Markdown) -> None:
     camera = config.camera()
     boxes, true, eligible, confused, in_view = [], [], [], [], []
     seen = np.zeros((robots, len(shapes)), bool)
+    offsets = {True: [], False: []}  # whole and inside the image: the box centre's offset
     for r in range(robots):
         rng = np.random.default_rng([r, 33])
         for k in range(0, steps + 1, every):
@@ -78,6 +79,7 @@ def _boxes(robots: int, steps: int, every: int, md: Markdown) -> None:
             for T_cam in (T, T @ camera.T_left_right):
                 _, ids, silhouette = team.room.render_ids(T_cam, K, size)
                 out = detect(detector, ids, silhouette, shapes.classes, len(SHAPE_CLASSES), rng)
+                _centre_offsets(ids, silhouette, out.eligible, shapes.centres, T_cam, K, offsets)
                 real = out.truth >= 0
                 boxes.append(len(out.truth))
                 true.append(int(real.sum()))
@@ -105,6 +107,18 @@ def _boxes(robots: int, steps: int, every: int, md: Markdown) -> None:
         ("objects detected by one robot only", f"{np.mean(seen.sum(axis=0) == 1):.1%}"),
         ("objects detected by every robot", f"{np.mean(seen.all(axis=0)):.1%}"),
     ]
+    for whole in (True, False):
+        off = np.abs(np.reshape(offsets[whole], (-1, 2)))
+        which = "whole objects" if whole else "occluded or cut by the border"
+        for axis, name in ((0, "u"), (1, "v")):
+            q50, q90 = np.quantile(off[:, axis], [0.5, 0.9])
+            rows.append(
+                (
+                    f"box centre − image of the reference point, {name} / box size, {which} "
+                    f"({len(off)}): median / 90 %",
+                    f"{q50:.1%} / {q90:.1%}",
+                )
+            )
     md.table(
         f"The default detector in the street ({robots} robots, {steps} steps, every {every}th "
         "frame)",
@@ -115,6 +129,27 @@ def _boxes(robots: int, steps: int, every: int, md: Markdown) -> None:
         print(f"{name:<56} {value:>12}")
         md.row(name, value)
     md.end()
+
+
+def _centre_offsets(ids, silhouette, eligible, centres, T_world_cam, K, offsets) -> None:
+    """Per detectable object, the offset of its noise-free box's centre from the image of its
+    reference point, as shares of the box's width and height; filed under whole objects (all of
+    the silhouette visible, the box inside the image) or the others."""
+    from scipy import ndimage
+
+    h, w = ids.shape
+    extents = ndimage.find_objects(ids + 1, max_label=len(silhouette))
+    counts = np.bincount(ids[ids >= 0], minlength=len(silhouette))
+    R, o = T_world_cam[:3, :3], T_world_cam[:3, 3]
+    for j in eligible:
+        rows, cols = extents[j]
+        box = np.array([cols.start, rows.start, cols.stop, rows.stop], float) - 0.5
+        p = (centres[j] - o) @ R
+        uv = (K @ p)[:2] / p[2]
+        size = box[2:] - box[:2]
+        inside = box[0] > 0 and box[1] > 0 and box[2] < w - 1 and box[3] < h - 1
+        whole = bool(inside and counts[j] == silhouette[j])
+        offsets[whole].append((0.5 * (box[:2] + box[2:]) - uv) / size)
 
 
 def main() -> None:

@@ -92,6 +92,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/tracking-sim.md",
         f"{GENERATED}/tracking-sim.md",
     ),
+    "render-objects": (
+        f"python benchmarks/render_objects.py --markdown {GENERATED}/render-objects.md",
+        f"{GENERATED}/render-objects.md",
+    ),
     "consistency-kitti": (
         "python benchmarks/consistency.py --teams kitti --variants std fej oc "
         f"--modes separate consensus --markdown {GENERATED}/consistency-kitti.md",
