@@ -458,3 +458,29 @@ def test_simulate_images_with_shapes_from_the_command_line(tmp_path, capsys):
         assert message in err and len(err.strip().splitlines()) == 1, err
     assert main(["simulate", "--objects", "shapes", "--out", str(tmp_path / "y")]) == 2
     assert "needs --images" in capsys.readouterr().err
+
+
+def test_markers_hidden_by_an_object_are_not_visible():
+    from teamslam.sim.render import T_CAM_BODY, RenderedTeam
+
+    config = RenderConfig(**SMALL, steps=1, robots=1)
+    plain = TexturedRoom(config)
+    centre = plain.marker_centres[0]  # on the wall x = 0, facing +x
+    T_world_cam = _looking(centre + np.array([2.5, 0.0, 0.0]), (-1.0, 0.0, 0.0))
+    paths = [np.stack([T_world_cam @ T_CAM_BODY] * 2)]
+    cabinet = Shapes(
+        ids=np.array([100]),
+        classes=np.array([1]),
+        kinds=np.array([BOX]),
+        centres=np.array([[centre[0] + 1.2, centre[1], 1.25]]),
+        sizes=np.array([[0.3, 0.4, 2.5]]),
+        yaws=np.zeros(1),
+        colours=np.array([[0.5, 0.5, 0.9]]),
+        textures=np.zeros(1, np.int64),
+        lookalike_of=np.array([-1]),
+    )
+    for shapes, visible in ((None, True), (cabinet, False)):
+        room = TexturedRoom(config, shapes=shapes)
+        team = RenderedTeam(None, room, paths, [np.eye(4)[None]], np.zeros(2))
+        ids, _, _ = team.visible_markers(0, 0)
+        assert (0 in ids) == visible

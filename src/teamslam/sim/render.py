@@ -76,8 +76,8 @@ class RenderConfig:
     texel
         Size of one texel of the surface textures at full resolution, metres.
     markers_per_wall, marker_size, marker_heights
-        Markers on each wall, their side (black border included, metres), and the heights
-        of their centres (cycled).
+        Markers on each wall (0: none), their side (black border included, metres), and the
+        heights of their centres (cycled).
     dictionary
         ArUco dictionary: ``4x4_250``, ``5x5_250``, ``6x6_250`` or ``apriltag_36h11``.
     image_size, focal, baseline
@@ -109,8 +109,6 @@ class RenderConfig:
         doorway each that both lanes pass through; the walls hide the rooms from each other.
     doorway
         Width and height of the doorways, metres (centred on the street's axis).
-    markers_per_wall
-        0 renders no markers.
     objects
         ``none`` or ``shapes``: textured objects of the classes of
         :data:`teamslam.sim.shapes.SHAPE_CLASSES` (images then in colour).
@@ -919,8 +917,10 @@ class RenderedTeam:
         return self.room.cast(self.T_world_cam(robot, frame), K, uv_left)
 
     def visible_markers(self, robot: int, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Markers wholly inside both images, in front of the camera: ``(ids, z (M, 4) true
-        stereo centres, side (M,) shortest projected side in pixels over both images)``."""
+        """Markers wholly inside both images, in front of the camera and, in a world with
+        objects or cross walls, not hidden by them (the centre and the corners, 10 % inwards,
+        seen in both images): ``(ids, z (M, 4) true stereo centres, side (M,) shortest
+        projected side in pixels over both images)``."""
         room, camera = self.room, self.config.camera()
         w, h = self.config.image_size
         corners = self.project(robot, frame, room.marker_corners.reshape(-1, 3)).reshape(-1, 4, 4)
@@ -935,9 +935,26 @@ class RenderedTeam:
             sides.append(np.linalg.norm(c - np.roll(c, 1, axis=1), axis=2).min(axis=1))
         side = np.minimum(*sides)
         keep = front & inside
+        if len(room.shapes) or len(room.partitions):
+            keep[keep] = self._unhidden(robot, frame, np.flatnonzero(keep))
         z = self.project(robot, frame, room.marker_centres)
         del camera
         return room.marker_ids[keep], z[keep], side[keep]
+
+    def _unhidden(self, robot: int, frame: int, markers: np.ndarray) -> np.ndarray:
+        """Whether each marker's centre and corners (10 % inwards) are seen in both images."""
+        room = self.room
+        centres = room.marker_centres[markers]
+        points = centres[:, None] + 0.9 * (room.marker_corners[markers] - centres[:, None])
+        points = np.concatenate([centres[:, None], points], axis=1).reshape(-1, 3)
+        z = self.project(robot, frame, points)
+        K = self.config.camera().intrinsics
+        T_left = self.T_world_cam(robot, frame)
+        T_right = T_left @ self.config.camera().T_left_right
+        seen = np.ones(len(points), bool)
+        for T, uv in ((T_left, z[:, :2]), (T_right, z[:, 2:])):
+            seen &= np.linalg.norm(room.cast(T, K, uv) - points, axis=1) < 1e-6
+        return seen.reshape(len(markers), 5).all(axis=1)
 
 
 def render_stereo(
