@@ -71,6 +71,8 @@ def _boxes(robots: int, steps: int, every: int, md: Markdown) -> None:
     camera = config.camera()
     boxes, true, eligible, confused, in_view = [], [], [], [], []
     seen = np.zeros((robots, len(shapes)), bool)
+    unseen = steps + 1
+    first = np.full((robots, len(shapes)), unseen)  # the frame a robot first detects an object
     offsets = {True: [], False: []}  # whole and inside the image: the box centre's offset
     for r in range(robots):
         rng = np.random.default_rng([r, 33])
@@ -89,6 +91,7 @@ def _boxes(robots: int, steps: int, every: int, md: Markdown) -> None:
                     int(np.sum(out.detections.classes[real] != shapes.classes[out.truth[real]]))
                 )
                 seen[r, out.truth[real]] = True
+                first[r, out.truth[real]] = np.minimum(first[r, out.truth[real]], k)
     boxes, true, eligible = np.array(boxes), np.array(true), np.array(eligible)
     images = len(boxes)
     false_share = (boxes - true).sum() / max(boxes.sum(), 1)
@@ -106,6 +109,20 @@ def _boxes(robots: int, steps: int, every: int, md: Markdown) -> None:
         ("true boxes with a wrong class", f"{sum(confused) / max(true.sum(), 1):.1%}"),
         ("objects detected by one robot only", f"{np.mean(seen.sum(axis=0) == 1):.1%}"),
         ("objects detected by every robot", f"{np.mean(seen.all(axis=0)):.1%}"),
+    ]
+    lead = []  # per robot and object it detects: how long before another robot detected it
+    for r in range(robots):
+        others = np.delete(first, r, axis=0).min(axis=0)
+        mine = first[r] < unseen
+        lead.append(np.where(others[mine] < unseen, first[r][mine] - others[mine], -1))
+    lead = np.concatenate(lead) / config.rate
+    earlier = lead > 0
+    rows += [
+        ("a robot's objects another robot detected before it", f"{earlier.mean():.1%}"),
+        (
+            "  how long before (s): median / max",
+            f"{np.median(lead[earlier]):.1f} / {lead[earlier].max():.1f}" if earlier.any() else "-",
+        ),
     ]
     for whole in (True, False):
         off = np.abs(np.reshape(offsets[whole], (-1, 2)))
