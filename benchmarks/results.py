@@ -101,6 +101,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"python benchmarks/box_stereo.py --frames 40 --markdown {GENERATED}/box-stereo.md",
         f"{GENERATED}/box-stereo.md",
     ),
+    "render-objects": (
+        f"python benchmarks/render_objects.py --markdown {GENERATED}/render-objects.md",
+        f"{GENERATED}/render-objects.md",
+    ),
     "consistency-kitti": (
         "python benchmarks/consistency.py --teams kitti --variants std fej oc "
         f"--modes separate consensus --markdown {GENERATED}/consistency-kitti.md",

@@ -45,6 +45,7 @@ from teamslam._optional import require
 from teamslam.errors import EstimationError, InputError
 
 if TYPE_CHECKING:
+    from teamslam.sim.detector import DetectorConfig
     from teamslam.sim.render import RenderedTeam
 
 __all__ = [
@@ -930,6 +931,7 @@ def simulate_images(
     seed: int = 0,
     bag: bool = True,
     progress: bool = True,
+    detector: DetectorConfig | None = None,
     **overrides,
 ) -> RenderedTeam:
     """Render a team as image folders (:func:`teamslam.sim.render.render_team`) and, with
@@ -947,6 +949,9 @@ def simulate_images(
         Also write the bag.
     progress
         Show progress bars.
+    detector
+        With objects (``objects="shapes"``), the simulated detector whose boxes are written
+        per robot (:func:`~teamslam.sim.render.render_team`).
     **overrides
         Any other :class:`~teamslam.sim.render.RenderConfig` field.
     """
@@ -958,7 +963,7 @@ def simulate_images(
     if bag:
         require("rosbags", "ros2", "the ROS 2 bag of rendered images")
     config = RenderConfig(robots=robots, steps=steps, seed=seed, **overrides)
-    team = render_team(config, out, progress=progress)
+    team = render_team(config, out, progress=progress, detector=detector)
     if bag:
         inputs = rendered_team_inputs(out)
         images_to_bag(

@@ -7,7 +7,14 @@ import json
 import sys
 from pathlib import Path
 
-from teamslam.cli._common import Parser, non_negative_int, positive_int, save_and_describe
+from teamslam.cli._common import (
+    Parser,
+    non_negative_float,
+    non_negative_int,
+    positive_int,
+    rate,
+    save_and_describe,
+)
 
 __all__ = ["register"]
 
@@ -16,6 +23,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from teamslam.errors import InputError
     from teamslam.sim import lissajous_team, long_route_team
 
+    if args.objects == "shapes":
+        raise InputError("--objects shapes renders objects: it needs --images")
     if args.route == "long":
         if args.objects is not None:
             raise InputError(
@@ -128,16 +137,36 @@ def _frontend(args: argparse.Namespace):
     return config
 
 
+_DETECTOR_FLAGS = {
+    "detector_miss": "miss",
+    "detector_clutter": "clutter",
+    "detector_confusion": "confusion",
+    "detector_noise": "box_noise",
+}
+
+
 def _cmd_simulate_images(args: argparse.Namespace) -> int:
     from teamslam.api import simulate_images
     from teamslam.errors import InputError
+    from teamslam.sim.detector import DetectorConfig
     from teamslam.sim.render import render_size
 
-    if args.route != "lissajous" or args.objects is not None or args.noise_free:
-        raise InputError(
-            "--images renders a textured room with markers: --route, --objects and "
-            "--noise-free do not apply"
-        )
+    if args.route != "lissajous" or args.noise_free:
+        raise InputError("--images renders a textured world: --route and --noise-free do not apply")
+    if args.objects not in (None, "shapes"):
+        raise InputError(f"--images takes --objects shapes (or none), not {args.objects}")
+    detector_set = {v: getattr(args, k) for k, v in _DETECTOR_FLAGS.items()}
+    detector_set = {k: v for k, v in detector_set.items() if v is not None}
+    shapes = args.objects == "shapes"
+    if detector_set and not shapes:
+        raise InputError("--detector-* options need --objects shapes")
+    if args.no_markers and not shapes:
+        raise InputError("--no-markers leaves nothing to see: add --objects shapes")
+    overrides = render_size(args.image_width)
+    if shapes:
+        overrides["objects"] = "shapes"
+    if args.no_markers:
+        overrides["markers_per_wall"] = 0
     team = simulate_images(
         args.out,
         robots=args.robots,
@@ -145,15 +174,23 @@ def _cmd_simulate_images(args: argparse.Namespace) -> int:
         seed=args.seed,
         bag=not args.no_bag,
         progress=not args.quiet,
-        **render_size(args.image_width),
+        detector=DetectorConfig(**detector_set) if shapes else None,
+        layout=args.layout,
+        **overrides,
     )
     frames = team.config.steps + 1
     print(
         f"rendered {team.config.robots} robots × {frames} stereo frames "
-        f"({team.config.image_size[0]}×{team.config.image_size[1]}) to {args.out}"
+        f"({team.config.image_size[0]}×{team.config.image_size[1]}, {args.layout}) to {args.out}"
     )
     print(f"  per robot: {args.out}/robot_k/{{left,right}}/, camera.yaml, timestamps.txt, ")
     print("  odometry.tum, groundtruth.tum; markers.txt (the marker map)")
+    if shapes:
+        print(
+            f"  {len(team.room.shapes)} objects (objects.txt: id class x y z; classes.txt); "
+            "per robot the simulated detector's boxes: detections/, detections_right/ "
+            "(YOLO text) and their truth: detections_truth/, detections_right_truth/"
+        )
     if not args.no_bag:
         print(f"  ROS 2 bag: {args.out}/images.mcap")
     print(f"next: teamslam data from-images --rendered {args.out} --out DATASET")
@@ -295,6 +332,17 @@ def _frontend_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
+def _objects_arg(text: str):
+    if text == "shapes":
+        return text
+    try:
+        return non_negative_int(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(
+            f"expected an integer ≥ 0 or shapes, got {text!r}"
+        ) from None
+
+
 def register(sub) -> None:
     """Add this group's commands to the ``teamslam`` subparsers."""
     sim = sub.add_parser(
@@ -316,9 +364,10 @@ def register(sub) -> None:
     sim.add_argument("--steps", type=positive_int, default=300, help="motion steps per robot")
     sim.add_argument(
         "--objects",
-        type=non_negative_int,
+        type=_objects_arg,
         default=None,
-        help="objects in the Lissajous arena's map (default 210)",
+        help="objects in the Lissajous arena's map (default 210); with --images: shapes "
+        "(textured objects of five classes and a simulated detector's boxes)",
     )
     sim.add_argument("--seed", type=non_negative_int, default=0, help="random seed")
     sim.add_argument("--noise-free", action="store_true", help="exact measurements and odometry")
@@ -481,6 +530,28 @@ def register(sub) -> None:
         help="with --images: image width in pixels (default 640; 4:3, same field of view)",
     )
     sim.add_argument("--no-bag", action="store_true", help="with --images: no images.mcap")
+    sim.add_argument(
+        "--layout",
+        choices=("room", "street"),
+        default="room",
+        help="with --images: a room the robots circle in (default), or a street they drive "
+        "round one after another",
+    )
+    sim.add_argument(
+        "--no-markers", action="store_true", help="with --images: no ArUco markers on the walls"
+    )
+    for flag, what, kind in (
+        ("miss", "probability of missing a visible object", rate),
+        ("clutter", "mean false boxes per image", non_negative_float),
+        ("confusion", "probability of a wrong class", rate),
+        ("noise", "std of a box edge as a share of the box's size", non_negative_float),
+    ):
+        sim.add_argument(
+            f"--detector-{flag}",
+            type=kind,
+            default=None,
+            help=f"with --objects shapes: the simulated detector's {what}",
+        )
     sim.add_argument("--quiet", action="store_true", help="with --images: no progress bars")
     sim.set_defaults(handler=_cmd_simulate_any)
 
