@@ -484,3 +484,24 @@ def test_markers_hidden_by_an_object_are_not_visible():
         team = RenderedTeam(None, room, paths, [np.eye(4)[None]], np.zeros(2))
         ids, _, _ = team.visible_markers(0, 0)
         assert (0 in ids) == visible
+
+
+def test_classes_vary_within_and_lookalikes_copy_an_original():
+    config = RenderConfig(**STREET | {"object_count": 40, "lookalikes": 0.5})
+    shapes = TexturedRoom(config).shapes
+    assert set(shapes.classes) == set(range(len(SHAPE_CLASSES)))
+    copies = np.flatnonzero(shapes.lookalike_of >= 0)
+    assert copies.size >= 5
+    for j in copies:
+        o = shapes.lookalike_of[j]
+        assert shapes.lookalike_of[o] == -1 and shapes.classes[o] == shapes.classes[j]
+        assert shapes.textures[o] == shapes.textures[j]
+        np.testing.assert_array_equal(shapes.sizes[o], shapes.sizes[j])
+        assert np.abs(shapes.colours[o] - shapes.colours[j]).max() <= 0.03
+    for c, cls in enumerate(SHAPE_CLASSES):
+        originals = np.flatnonzero((shapes.classes == c) & (shapes.lookalike_of < 0))
+        assert np.all(shapes.kinds[originals] == cls.kind)
+        if originals.size > 1:  # instances of a class differ in texture, colour and size
+            assert np.unique(shapes.textures[originals]).size == originals.size
+            assert np.ptp(shapes.colours[originals], axis=0).max() > 0.03
+            assert np.ptp(shapes.sizes[originals, 2]) > 0
