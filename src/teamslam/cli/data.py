@@ -92,6 +92,14 @@ def _cmd_strip_ids(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_oracle_ids(args: argparse.Namespace) -> int:
+    from teamslam.datasets import load_dataset
+    from teamslam.datasets.identity import oracle_object_ids
+
+    save_and_describe(oracle_object_ids(load_dataset(args.dataset)), args.out)
+    return 0
+
+
 def _check_params(dataset, path: Path) -> None:
     """Compare a params file's noise levels with a calibration from the data; warn on a gap."""
     from teamslam.msckf.calibration import params_check, params_warning
@@ -467,6 +475,17 @@ def register(sub) -> None:
     )
     strip.add_argument("--seed", type=non_negative_int, default=0, help="seed of the new ids")
     strip.set_defaults(handler=_cmd_strip_ids)
+    oracle = data_sub.add_parser(
+        "oracle-ids",
+        help="give every detection its true object's id (the oracle to score tracking against)",
+        description="Write a copy of a dataset of detections without ids in which every "
+        "detection with a true object carries that object's team id (false boxes left out): "
+        "the same run with an oracle's ids, beside which own tracking and association are "
+        "scored.",
+    )
+    oracle.add_argument("dataset", type=Path, help="dataset directory (detections with truth)")
+    oracle.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    oracle.set_defaults(handler=_cmd_oracle_ids)
     bag = data_sub.add_parser(
         "import-bag",
         help="a team dataset from a rosbag2 bag or MCAP file",

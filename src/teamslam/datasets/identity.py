@@ -21,7 +21,7 @@ import numpy as np
 
 from teamslam.datasets.model import DatasetError, FrameDetections, FrameObservations, TeamDataset
 
-__all__ = ["strip_object_ids"]
+__all__ = ["oracle_object_ids", "strip_object_ids"]
 
 #: Fresh ids are drawn from ``[1, ID_RANGE_FACTOR · objects)`` (at least ``[1, 10⁶)``).
 ID_RANGE_FACTOR = 1000
@@ -100,6 +100,55 @@ def strip_object_ids(dataset: TeamDataset, to: str = "per-robot", seed: int = 0)
         object_id_scope="per-robot",
         object_identity=identity_rows,
     )
+
+
+def oracle_object_ids(dataset: TeamDataset) -> TeamDataset:
+    """The same team given the true object of every detection: the oracle beside which own
+    tracking and association are scored.
+
+    Every robot's detections with a true object (``truth ≥ 0``) and a stereo measurement
+    become its object observations under the team object id (the first of two boxes of one
+    object in a frame); false boxes are left out; each object's class is the one its boxes
+    give most often. The detections stay (with ids the filter does not read them).
+
+    Raises
+    ------
+    DatasetError
+        When the ids are not ``none`` or a robot's detections carry no truth.
+    """
+    if dataset.object_id_scope != "none":
+        raise DatasetError("oracle ids need a dataset of detections without ids ('none')")
+    robots = []
+    for i, robot in enumerate(dataset.robots):
+        det = robot.detections
+        if det is None or det.truth is None:
+            raise DatasetError(f"robot {i}: detections without truth; no oracle ids to give")
+        frames, rows_ids, classes = [], [], []
+        for k in range(det.frames):
+            a, b = det.offsets[k], det.offsets[k + 1]
+            truth, z = det.truth[a:b], det.measurements[a:b]
+            keep = (truth >= 0) & np.all(np.isfinite(z), axis=1)
+            ids, first = np.unique(truth[keep], return_index=True)
+            frames.append((ids, z[keep][first]))
+            if det.classes is not None:
+                rows_ids.append(ids)
+                classes.append(det.classes[a:b][keep][first])
+        object_classes = None
+        if det.classes is not None and rows_ids:
+            ids, labels = np.concatenate(rows_ids), np.concatenate(classes)
+            pairs, counts = np.unique(np.column_stack([ids, labels]), axis=0, return_counts=True)
+            order = np.lexsort((-counts, pairs[:, 0]))  # by id, most frequent class first
+            pairs = pairs[order]
+            first = np.concatenate([[True], pairs[1:, 0] != pairs[:-1, 0]])
+            object_classes = pairs[first].astype(np.int64).reshape(-1, 2)
+        robots.append(
+            replace(
+                robot,
+                objects=FrameObservations.from_frames(frames),
+                object_classes=object_classes,
+            )
+        )
+    return replace(dataset, robots=robots, object_id_scope="global")
 
 
 def _strip_to_none(dataset: TeamDataset) -> TeamDataset:
