@@ -5,7 +5,13 @@ The stages in order — candidates (:mod:`~teamslam.association.candidates`), pa
 (:mod:`~teamslam.association.clique`), their transforms (:mod:`~teamslam.association.transform`)
 and gates (:mod:`~teamslam.association.gate`), the mirror test (:mod:`~teamslam.association.
 mirror`) and the seeds (:mod:`~teamslam.association.seeds`) — give an answer of at least
-``min_inliers`` pairs, or none (``too-few``, ``ambiguous``): never a guess. The result is a
+``min_inliers`` pairs, or none (``too-few``, ``ambiguous``): never a guess. When both summaries
+carry appearance and the link's learned appearance model is informative
+(:mod:`~teamslam.association.appearance`), candidates are also drawn by appearance and class, pairs
+that look different at the gate's odds are vetoed, and an answer may hold as few as three pairs
+if their appearance is beyond what chance look-alikes give at ``consistency_probability``; without
+appearance, or with appearance that separates nothing, the rules are exactly those above. The
+result is a
 deterministic function of the two summaries in a canonical order (the smaller robot id first,
 objects by id, ties by index), so both ends of a link hold the same correspondences.
 """
@@ -16,7 +22,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from teamslam.association.candidates import neighbourhood_sets, select_candidates
+from teamslam.association.appearance import chance_tail, cosine_distances, link_model
+from teamslam.association.candidates import (
+    appearance_candidates,
+    neighbourhood_sets,
+    select_candidates,
+)
 from teamslam.association.clique import maximum_clique
 from teamslam.association.consistency import consistency_graph, consistent_members
 from teamslam.association.distances import pair_distances
@@ -112,6 +123,7 @@ def associate(
     first: ObjectSummary,
     second: ObjectSummary,
     settings: AssociationSettings | None = None,
+    held: np.ndarray | None = None,
 ) -> AssociationResult:
     """Correspondences between two robots' objects, from their summaries alone.
 
@@ -127,6 +139,9 @@ def associate(
         The neighbour's summary.
     settings
         Thresholds (default :class:`AssociationSettings`).
+    held
+        ``(h, 2)`` pairs ``(first's id, second's id)`` the link already holds: samples of the
+        *same* appearance (read only when both summaries carry appearance).
 
     Returns
     -------
@@ -141,9 +156,12 @@ def associate(
         raise InputError(
             f"associate needs the summaries of two robots, both are robot {first.robot}'s"
         )
+    if held is not None:
+        held = np.asarray(held, dtype=np.int64).reshape(-1, 2)
     if _canonical_key(second) < _canonical_key(first):
-        return _associate(second.sorted(), first.sorted(), settings).swapped()
-    return _associate(first.sorted(), second.sorted(), settings)
+        swapped = None if held is None else held[:, ::-1]
+        return _associate(second.sorted(), first.sorted(), settings, swapped).swapped()
+    return _associate(first.sorted(), second.sorted(), settings, held)
 
 
 def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> AssociationResult:
@@ -151,6 +169,74 @@ def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> Ass
 
 
 def _associate(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    settings: AssociationSettings,
+    held: np.ndarray | None = None,
+) -> AssociationResult:
+    model = None
+    if a.appearance is not None and b.appearance is not None:
+        model = link_model(a, b, held, settings.consistency_probability)
+    if model is None or not model.informative:
+        return _by_position(a, b, settings)
+    return _with_appearance(a, b, settings, model)
+
+
+def _with_appearance(
+    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+) -> AssociationResult:
+    """The association with an informative appearance model: the same stages with candidates
+    by appearance too, down to three pairs, and an answer of fewer than ``min_inliers`` pairs
+    held to the chance look-alike bound (:func:`~teamslam.association.appearance.chance_tail`)."""
+    relaxed = replace(settings, min_inliers=3)
+    if len(a) < 3 or len(b) < 3:
+        return _no_answer(a, b, "too-few")
+    known_a = np.any(a.appearance != 0, axis=1)
+    known_b = np.any(b.appearance != 0, axis=1)
+    llr = model.log_ratio(cosine_distances(a.appearance, b.appearance))
+    llr[~known_a, :] = 0.0
+    llr[:, ~known_b] = 0.0
+    # a pair that looks different at the gate's odds is no candidate and no answer
+    veto = np.log1p(-settings.gate_probability) - np.log(settings.gate_probability)
+    allowed = llr >= veto
+    if a.classes is not None and b.classes is not None:
+        allowed &= a.classes[:, None] == b.classes[None, :]
+    geo_a = pair_distances(a.means, a.covs)
+    geo_b = pair_distances(b.means, b.covs)
+    score, mismatch, members = neighbourhood_sets(a, b, geo_a, geo_b, relaxed)
+    ia, ib = select_candidates(score, mismatch, relaxed)
+    keep = np.zeros((len(a), len(b)), dtype=bool)
+    keep[ia, ib] = True
+    keep |= appearance_candidates(llr, allowed, relaxed)
+    ia, ib = np.nonzero(keep & allowed)
+    result = _from_candidates(a, b, ia, ib, members, geo_a, geo_b, relaxed)
+    if not result.matched:
+        return result
+    rows = np.searchsorted(a.ids, result.pairs[:, 0])
+    cols = np.searchsorted(b.ids, result.pairs[:, 1])
+    ok = allowed[rows, cols]
+    if np.count_nonzero(ok) < 3:
+        return _no_answer(a, b, "too-few", **_counts(result))
+    rows, cols = rows[ok], cols[ok]
+    if rows.size < settings.min_inliers:
+        evidence = float(llr[rows, cols].sum())
+        tail = chance_tail(model, evidence, rows.size, max(len(a), len(b)))
+        if tail > 1.0 - settings.consistency_probability:
+            return _no_answer(a, b, "too-few", **_counts(result))
+    return replace(result, pairs=result.pairs[ok])
+
+
+def _counts(result: AssociationResult) -> dict:
+    return {
+        "candidates": result.candidates,
+        "clique": result.clique,
+        "rival": result.rival,
+        "exact": result.exact,
+        "flipped": result.flipped,
+    }
+
+
+def _by_position(
     a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings
 ) -> AssociationResult:
     need = settings.min_inliers
@@ -160,6 +246,22 @@ def _associate(
     geo_b = pair_distances(b.means, b.covs)
     score, mismatch, members = neighbourhood_sets(a, b, geo_a, geo_b, settings)
     ia, ib = select_candidates(score, mismatch, settings)
+    return _from_candidates(a, b, ia, ib, members, geo_a, geo_b, settings)
+
+
+def _from_candidates(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    ia: np.ndarray,
+    ib: np.ndarray,
+    members: np.ndarray,
+    geo_a: tuple[np.ndarray, np.ndarray],
+    geo_b: tuple[np.ndarray, np.ndarray],
+    settings: AssociationSettings,
+) -> AssociationResult:
+    """The stages after the candidates: consistent sets, their transforms and gates, the
+    answer."""
+    need = settings.min_inliers
     graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
     # the largest consistent sets, one after another: each next one among the candidates that
     # the transforms of the earlier ones reject; each judged by the pairs its transform gathers
