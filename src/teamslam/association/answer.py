@@ -208,7 +208,10 @@ def _with_appearance(
     keep = np.zeros((len(a), len(b)), dtype=bool)
     keep[ia, ib] = True
     keep |= appearance_candidates(llr, allowed, relaxed)
-    ia, ib = np.nonzero(keep & allowed)
+    # a candidate looks more like the same object than not (or one of the two has no
+    # descriptor); the gate under a set's transform still gathers any pair not vetoed
+    unknown = ~known_a[:, None] | ~known_b[None, :]
+    ia, ib = np.nonzero(keep & allowed & ((llr > 0) | unknown))
     result = _from_candidates(a, b, ia, ib, members, geo_a, geo_b, relaxed)
     if not result.matched:
         return result
