@@ -22,7 +22,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from teamslam.association.appearance import chance_tail, cosine_distances, link_model
+from teamslam.association.appearance import (
+    beyond_chance,
+    chance_tail,
+    cosine_distances,
+    link_model,
+)
 from teamslam.association.candidates import (
     appearance_candidates,
     neighbourhood_sets,
@@ -212,7 +217,17 @@ def _with_appearance(
     # descriptor); the gate under a set's transform still gathers any pair not vetoed
     unknown = ~known_a[:, None] | ~known_b[None, :]
     ia, ib = np.nonzero(keep & allowed & ((llr > 0) | unknown))
-    result = _from_candidates(a, b, ia, ib, members, geo_a, geo_b, relaxed)
+    # the assignment and the distinctness test weigh a pair by −2 log of its full likelihood
+    # ratio: the Mahalanobis distance and −2 ℓ (shifted to ≥ 0: a constant changes neither
+    # the assignment nor a difference of costs)
+    looks = -2.0 * llr
+    looks -= looks.min(initial=0.0)
+    # a pair alike beyond chance on its own is no neighbour of its object taken for it: the
+    # separation test does not apply to it
+    told = beyond_chance(model, llr, max(len(a), len(b)), settings.consistency_probability) & (
+        known_a[:, None] & known_b[None, :]
+    )
+    result = _from_candidates(a, b, ia, ib, members, geo_a, geo_b, relaxed, looks, told)
     if not result.matched:
         return result
     rows = np.searchsorted(a.ids, result.pairs[:, 0])
@@ -261,9 +276,12 @@ def _from_candidates(
     geo_a: tuple[np.ndarray, np.ndarray],
     geo_b: tuple[np.ndarray, np.ndarray],
     settings: AssociationSettings,
+    looks: np.ndarray | None = None,
+    told: np.ndarray | None = None,
 ) -> AssociationResult:
     """The stages after the candidates: consistent sets, their transforms and gates, the
-    answer."""
+    answer (``looks``: the appearance term of every pair's assignment cost, or ``None``;
+    ``told``: the pairs exempt from the separation test, or ``None``)."""
     need = settings.min_inliers
     graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
     # the largest consistent sets, one after another: each next one among the candidates that
@@ -281,7 +299,7 @@ def _from_candidates(
         if clique.size < need:
             break
         ca, cb = ia[index[clique]], ib[index[clique]]
-        rows, cols, t, passed = support(a, b, ca, cb, settings)
+        rows, cols, t, passed = support(a, b, ca, cb, settings, looks)
         pool[index[clique]] = False
         pool &= ~passed[ia, ib]
         if rows.size >= need and flipped(a, b, rows, cols, t, settings):
@@ -290,7 +308,7 @@ def _from_candidates(
         found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
     if not any(f[0].size >= need for f in found):
         # no consistent set gathered an answer: the candidates' own neighbourhoods as seeds
-        local, flips = seed_sets(a, b, ia, ib, members, geo_a, geo_b, found, settings)
+        local, flips = seed_sets(a, b, ia, ib, members, geo_a, geo_b, found, settings, looks)
         found += local
         refused += flips
     counts = {
@@ -322,6 +340,8 @@ def _from_candidates(
     # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
     # left must still be an answer
     ok = separated(a, b, t, a.means[rows], b.means[cols], rows, cols, settings)
+    if told is not None:
+        ok |= told[rows, cols]
     if np.count_nonzero(ok) < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
     rows, cols = rows[ok], cols[ok]

@@ -25,6 +25,7 @@ from scipy.stats import norm
 __all__ = [
     "BINS",
     "AppearanceModel",
+    "beyond_chance",
     "chance_tail",
     "cosine_distances",
     "link_model",
@@ -210,3 +211,12 @@ def chance_tail(model: AppearanceModel, observed: float, k: int, m: int) -> floa
     if first <= 0:
         return 1.0
     return float(min(1.0, total[first:].sum()))
+
+
+def beyond_chance(model: AppearanceModel, log_ratio: np.ndarray, m: int, probability: float):
+    """Which single pairs look alike beyond what the best chance look-alike of ``m`` objects
+    gives at ``probability`` (:func:`chance_tail` of one pair), elementwise."""
+    log_ratio = np.asarray(log_ratio, dtype=float)
+    values, inverse = np.unique(log_ratio, return_inverse=True)
+    ok = np.array([chance_tail(model, float(v), 1, m) <= 1.0 - probability for v in values])
+    return ok[inverse].reshape(log_ratio.shape) if values.size else np.zeros(log_ratio.shape, bool)
