@@ -259,3 +259,29 @@ def test_a_team_with_useless_appearance_runs_as_without_it():
         assert p.tobytes() == q.tobytes()
     for p, q in zip(runs[0].objects, runs[1].objects, strict=True):
         assert p.tobytes() == q.tobytes()
+
+
+def test_a_team_with_appearance_holds_right_pairs_mirrored_at_both_ends():
+    """With simulated appearance every link's two ends hold the same pairs, all right ones;
+    the summaries carry the descriptors (more bytes than without, less than twice)."""
+    from teamslam.eval.metrics import team_metrics
+
+    team = strip_object_ids(
+        lissajous_team(robots=4, steps=60, seed=4, landmarks=500, appearance=16), seed=2
+    )
+    none = replace(
+        team,
+        robots=[
+            replace(r, object_appearance=None, object_appearance_ids=None) for r in team.robots
+        ],
+    )
+    settings = {"filter.window": 6, "association.mode": "own"}
+    metrics = {}
+    for name, data in (("looks", team), ("none", none)):
+        result = run_team(data, config_for(data, settings), ring(4), progress=False)
+        metrics[name] = team_metrics(data, result)["association"]
+    looks = metrics["looks"]
+    assert looks["team"]["wrong"] == 0 and looks["team"]["accepted"] > 0
+    assert all(link["ends_agree"] for link in looks["links"].values())
+    sent = {k: m["team"]["summary_bytes_per_robot_step"] for k, m in metrics.items()}
+    assert sent["none"] < sent["looks"] < 2 * sent["none"]
