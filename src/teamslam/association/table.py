@@ -338,7 +338,8 @@ class CorrespondenceTable:
         Yes when none was merged yet; when either map has grown by the factor ``growth`` since
         the last one; and, while the table holds fewer pairs than an answer needs
         (:attr:`~teamslam.association.AssociationSettings.min_inliers`), when either map holds
-        that many objects more than at the last one. In between, :meth:`extend` grows the
+        that many objects more than at the last one (three while the link's appearance model
+        is informative: an answer may then hold three pairs). In between, :meth:`extend` grows the
         table for the cost of one gate.
 
         The growth factor spaces the full associations of a link that has an answer (maps of
