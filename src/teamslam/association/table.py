@@ -480,6 +480,8 @@ def _extend(
         rows, cols = assign(cost, passed)
         # alone in each other's gate: no second object of either map (held or not) fits
         single = alone(gated, rows, cols)
+        if looks is not None:  # alike beyond chance: not a neighbour taken for the object
+            single |= told[rows, cols]
         rows, cols = rows[single], cols[single]
     # distinct against every object, the held pairs counting as assigned
     all_rows = np.concatenate([ia, rows])
