@@ -11,9 +11,8 @@ carry appearance and the link's learned appearance model is informative
 that look different at the gate's odds are vetoed, and an answer may hold as few as three pairs
 if their appearance is beyond what chance look-alikes give at ``consistency_probability``; without
 appearance, or with appearance that separates nothing, the rules are exactly those above. The
-result is a
-deterministic function of the two summaries in a canonical order (the smaller robot id first,
-objects by id, ties by index), so both ends of a link hold the same correspondences.
+result is a deterministic function of the two summaries in a canonical order (the smaller robot
+id first, objects by id, ties by index), so both ends of a link hold the same correspondences.
 """
 
 from __future__ import annotations
