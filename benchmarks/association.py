@@ -40,7 +40,10 @@ it prints the table's precision and recall and the CPU time of both calls.
   ``ring`` (15 robots on a ring with 30% link loss, 150 steps, ``window = 10``) and ``kitti00``
   (KITTI 00, objects only, the settings ``teamslam run`` resolves; each dataset calibrated
   once). Prints the RMSEs, own / oracle, precision, recall, held / revoked pairs and the
-  summary bytes per robot per frame.
+  summary bytes per robot per frame. ``--appearance DIM`` simulates the teams with appearance
+  (``teamslam simulate --appearance DIM``: each robot's own noisy descriptor of each object it
+  saw, which its summaries carry); ``--useless-appearance`` then makes every descriptor equal
+  (appearance that tells nothing apart). KITTI 00 has no appearance: it runs as without.
 
 ``--markdown FILE`` (``oracle``, ``scenarios``) writes the table as Markdown headed by the
 commit, date, command and machine (``benchmarks/_markdown.py``).
@@ -51,6 +54,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +73,7 @@ from teamslam.datasets import import_reference, load_dataset
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.geometry import so3
 from teamslam.msckf import run_team
-from teamslam.msckf.configure import team_configs
+from teamslam.msckf.configure import build_settings, team_configs
 from teamslam.msckf.consensus.protocol import ConsensusProtocol
 from teamslam.sim import SENSOR_SCENARIOS, lissajous_team, scenario_team
 
@@ -381,8 +385,9 @@ ORACLE_TEAMS = {
 }
 
 
-def _oracle_team(name: str, window: int):
-    """``(team with global ids, the same with ids per robot, graph, loss, settings)``."""
+def _oracle_team(name: str, window: int, appearance: int = 0, useless: bool = False):
+    """``(team with global ids, the same with ids per robot, graph, loss, settings)``; with
+    ``appearance`` descriptors of that dimension (all equal when ``useless``)."""
     if name == "kitti00":
         src = DATA / "distributed-msckf" / "kitti00"
         if not src.is_dir():
@@ -391,19 +396,36 @@ def _oracle_team(name: str, window: int):
         stripped = import_reference(src, object_ids="per-robot", seed=0)
         return team, stripped, "complete", 0.0, {}
     robots, graph, loss = (5, "complete", 0.0) if name == "default" else (15, "ring", 0.3)
-    team = lissajous_team(robots=robots, steps=150, seed=0)
-    return team, strip_object_ids(team, seed=0), graph, loss, {"window": window}
+    extra = {"appearance": appearance} if appearance else {}
+    team = lissajous_team(robots=robots, steps=150, seed=0, **extra)
+    stripped = strip_object_ids(team, seed=0)
+    if appearance and useless:
+        stripped = replace(
+            stripped,
+            robots=[
+                replace(r, object_appearance=np.ones_like(r.object_appearance))
+                for r in stripped.robots
+            ],
+        )
+    return team, stripped, graph, loss, {"filter.window": window}
 
 
-def oracle(teams: list[str], window: int, md: Markdown) -> None:
+def oracle(
+    teams: list[str], window: int, md: Markdown, appearance: int = 0, useless: bool = False
+) -> None:
     """Consensus with the data's global ids, with own association, and separate filters."""
     print(
         f"{'team':9} {'oracle m':>9} {'own m':>9} {'ratio':>6} {'separate m':>10} "
         f"{'precision':>9} {'recall':>7} {'held':>5} {'revoked':>7} {'kB/robot-frame':>14} share"
     )
+    looks = (
+        ""
+        if not appearance
+        else f", appearance of {appearance} dimensions" + (" all equal" if useless else "")
+    )
     md.table(
         "Consensus with the data's object ids (oracle), with own association (ids made per "
-        "robot), and the separate filters",
+        f"robot{looks}), and the separate filters",
         [
             "team",
             "oracle ids RMSE [m]",
@@ -422,12 +444,12 @@ def oracle(teams: list[str], window: int, md: Markdown) -> None:
         "time.",
     )
     for name in teams:
-        team, stripped, graph, loss, settings = _oracle_team(name, window)
-        resolved = api.resolve_settings(team, settings)  # calibrated once per dataset
+        team, stripped, graph, loss, settings = _oracle_team(name, window, appearance, useless)
+        resolved = build_settings(team, flags=settings)  # calibrated once per dataset
         runs = {}
         for label, data, mode, association, config in (
             ("oracle", team, "consensus", "oracle", resolved),
-            ("own", stripped, "consensus", "own", api.resolve_settings(stripped, settings)),
+            ("own", stripped, "consensus", "own", build_settings(stripped, flags=settings)),
             ("separate", team, "separate", None, resolved),
         ):
             runs[label] = api.run(
@@ -481,6 +503,18 @@ def main() -> None:
         choices=list(ORACLE_TEAMS),
         help="oracle: the teams",
     )
+    parser.add_argument(
+        "--appearance",
+        type=int,
+        default=0,
+        metavar="DIM",
+        help="oracle: simulate the teams with appearance descriptors of DIM dimensions",
+    )
+    parser.add_argument(
+        "--useless-appearance",
+        action="store_true",
+        help="oracle, with --appearance: every descriptor equal",
+    )
     parser.add_argument("--dataset", help="delay: a dataset directory with per-robot ids")
     parser.add_argument("--graph", default="complete", help="delay: communication graph")
     parser.add_argument("--loss", type=float, default=0.0, help="delay: link loss rate")
@@ -489,6 +523,10 @@ def main() -> None:
     parser.add_argument("--sim-frames", type=int, nargs="*", default=[50, 100])
     add_option(parser)
     args = parser.parse_args()
+    if args.appearance < 0:
+        parser.error("--appearance: a dimension ≥ 0")
+    if args.useless_appearance and not args.appearance:
+        parser.error("--useless-appearance needs --appearance DIM")
     if args.markdown is not None and not {"oracle", "scenarios"} & set(args.what):
         parser.error("--markdown: only oracle and scenarios write Markdown")
     md = Markdown(args.markdown)
@@ -505,7 +543,7 @@ def main() -> None:
             parser.error("delay needs --dataset")
         delay(args.dataset, args.graph, args.loss, args.window)
     if "oracle" in args.what:
-        oracle(args.teams, args.window, md)
+        oracle(args.teams, args.window, md, args.appearance, args.useless_appearance)
     if "scenarios" in args.what:
         scenarios(args.window, md)
     md.write()

@@ -82,6 +82,16 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/association-ring.md",
         f"{GENERATED}/association-ring.md",
     ),
+    "association-appearance": (
+        "python benchmarks/association.py oracle --teams ring default --appearance 32 "
+        f"--markdown {GENERATED}/association-appearance.md",
+        f"{GENERATED}/association-appearance.md",
+    ),
+    "association-appearance-useless": (
+        "python benchmarks/association.py oracle --teams ring default --appearance 32 "
+        f"--useless-appearance --markdown {GENERATED}/association-appearance-useless.md",
+        f"{GENERATED}/association-appearance-useless.md",
+    ),
     "association-kitti": (
         "python benchmarks/association.py oracle --teams kitti00 "
         f"--markdown {GENERATED}/association-kitti.md",

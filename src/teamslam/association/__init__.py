@@ -1,10 +1,12 @@
 """Which objects two robots share, when each robot names its own objects.
 
-Neighbours exchange :class:`ObjectSummary` s (id, mean, marginal covariance, optional class of
-each object); :func:`associate` finds the correspondences between two summaries with no shared
-id — drift-invariant candidates, pairwise consistency of distances, the maximum consistent set
-(PCM, Mangelson et al. ICRA 2018), the relative transform it implies and a Mahalanobis gate
-under it — and gives none rather than guess. A :class:`CorrespondenceTable` per link keeps the
+Neighbours exchange :class:`ObjectSummary` s (id, mean, marginal covariance, optional class and
+appearance descriptor of each object); :func:`associate` finds the correspondences between two
+summaries with no shared id — drift-invariant candidates, pairwise consistency of distances, the
+maximum consistent set (PCM, Mangelson et al. ICRA 2018), the relative transform it implies and
+a Mahalanobis gate under it — and gives none rather than guess; appearance, when its learned
+model separates objects (:mod:`~teamslam.association.appearance`), adds candidates and vetoes
+and lets three pairs beyond chance answer. A :class:`CorrespondenceTable` per link keeps the
 pairs across steps, grows them, revokes a pair whose consensus innovation fails its ``χ²`` test
 (:func:`pair_innovation_consistent`). :func:`score_correspondences` measures precision and recall
 against ground truth.

@@ -5,9 +5,14 @@ The stages in order — candidates (:mod:`~teamslam.association.candidates`), pa
 (:mod:`~teamslam.association.clique`), their transforms (:mod:`~teamslam.association.transform`)
 and gates (:mod:`~teamslam.association.gate`), the mirror test (:mod:`~teamslam.association.
 mirror`) and the seeds (:mod:`~teamslam.association.seeds`) — give an answer of at least
-``min_inliers`` pairs, or none (``too-few``, ``ambiguous``): never a guess. The result is a
-deterministic function of the two summaries in a canonical order (the smaller robot id first,
-objects by id, ties by index), so both ends of a link hold the same correspondences.
+``min_inliers`` pairs, or none (``too-few``, ``ambiguous``): never a guess. When both summaries
+carry appearance and the link's learned appearance model is informative
+(:mod:`~teamslam.association.appearance`), candidates are also drawn by appearance and class, pairs
+that look different at the gate's odds are vetoed, and an answer may hold as few as three pairs
+if their appearance is beyond what chance look-alikes give at ``consistency_probability``; without
+appearance, or with appearance that separates nothing, the rules are exactly those above. The
+result is a deterministic function of the two summaries in a canonical order (the smaller robot
+id first, objects by id, ties by index), so both ends of a link hold the same correspondences.
 """
 
 from __future__ import annotations
@@ -16,7 +21,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from teamslam.association.candidates import neighbourhood_sets, select_candidates
+from teamslam.association.appearance import (
+    beyond_chance,
+    chance_tail,
+    cosine_distances,
+    link_model,
+)
+from teamslam.association.candidates import (
+    appearance_candidates,
+    neighbourhood_sets,
+    select_candidates,
+)
 from teamslam.association.clique import maximum_clique
 from teamslam.association.consistency import consistency_graph, consistent_members
 from teamslam.association.distances import pair_distances
@@ -112,6 +127,7 @@ def associate(
     first: ObjectSummary,
     second: ObjectSummary,
     settings: AssociationSettings | None = None,
+    held: np.ndarray | None = None,
 ) -> AssociationResult:
     """Correspondences between two robots' objects, from their summaries alone.
 
@@ -127,6 +143,9 @@ def associate(
         The neighbour's summary.
     settings
         Thresholds (default :class:`AssociationSettings`).
+    held
+        ``(h, 2)`` pairs ``(first's id, second's id)`` the link already holds: samples of the
+        *same* appearance (read only when both summaries carry appearance).
 
     Returns
     -------
@@ -141,9 +160,12 @@ def associate(
         raise InputError(
             f"associate needs the summaries of two robots, both are robot {first.robot}'s"
         )
+    if held is not None:
+        held = np.asarray(held, dtype=np.int64).reshape(-1, 2)
     if _canonical_key(second) < _canonical_key(first):
-        return _associate(second.sorted(), first.sorted(), settings).swapped()
-    return _associate(first.sorted(), second.sorted(), settings)
+        swapped = None if held is None else held[:, ::-1]
+        return _associate(second.sorted(), first.sorted(), settings, swapped).swapped()
+    return _associate(first.sorted(), second.sorted(), settings, held)
 
 
 def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> AssociationResult:
@@ -151,6 +173,87 @@ def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> Ass
 
 
 def _associate(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    settings: AssociationSettings,
+    held: np.ndarray | None = None,
+) -> AssociationResult:
+    model = None
+    if a.appearance is not None and b.appearance is not None:
+        model = link_model(a, b, held, settings.consistency_probability)
+    if model is None or not model.informative:
+        return _by_position(a, b, settings)
+    return _with_appearance(a, b, settings, model)
+
+
+def _with_appearance(
+    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+) -> AssociationResult:
+    """The association with an informative appearance model: the same stages with candidates
+    by appearance too, down to three pairs, and an answer of fewer than ``min_inliers`` pairs
+    held to the chance look-alike bound (:func:`~teamslam.association.appearance.chance_tail`)."""
+    relaxed = replace(settings, min_inliers=3)
+    if len(a) < 3 or len(b) < 3:
+        return _no_answer(a, b, "too-few")
+    known_a = np.any(a.appearance != 0, axis=1)
+    known_b = np.any(b.appearance != 0, axis=1)
+    llr = model.log_ratio(cosine_distances(a.appearance, b.appearance))
+    llr[~known_a, :] = 0.0
+    llr[:, ~known_b] = 0.0
+    # a pair that looks different at the gate's odds is no candidate and no answer
+    veto = np.log1p(-settings.gate_probability) - np.log(settings.gate_probability)
+    allowed = llr >= veto
+    if a.classes is not None and b.classes is not None:
+        allowed &= a.classes[:, None] == b.classes[None, :]
+    geo_a = pair_distances(a.means, a.covs)
+    geo_b = pair_distances(b.means, b.covs)
+    score, mismatch, members = neighbourhood_sets(a, b, geo_a, geo_b, relaxed)
+    ia, ib = select_candidates(score, mismatch, relaxed)
+    keep = np.zeros((len(a), len(b)), dtype=bool)
+    keep[ia, ib] = True
+    keep |= appearance_candidates(llr, allowed, relaxed)
+    # a candidate looks more like the same object than not (or one of the two has no
+    # descriptor); the gate under a set's transform still gathers any pair not vetoed
+    unknown = ~known_a[:, None] | ~known_b[None, :]
+    ia, ib = np.nonzero(keep & allowed & ((llr > 0) | unknown))
+    # the assignment and the distinctness test weigh a pair by −2 log of its full likelihood
+    # ratio: the Mahalanobis distance and −2 ℓ (shifted to ≥ 0: a constant changes neither
+    # the assignment nor a difference of costs)
+    looks = -2.0 * llr
+    looks -= looks.min(initial=0.0)
+    # a pair alike beyond chance on its own is no neighbour of its object taken for it: the
+    # separation test does not apply to it
+    told = beyond_chance(model, llr, max(len(a), len(b)), settings.consistency_probability) & (
+        known_a[:, None] & known_b[None, :]
+    )
+    result = _from_candidates(a, b, ia, ib, members, geo_a, geo_b, relaxed, looks, told)
+    if not result.matched:
+        return result
+    rows = np.searchsorted(a.ids, result.pairs[:, 0])
+    cols = np.searchsorted(b.ids, result.pairs[:, 1])
+    ok = allowed[rows, cols]
+    if np.count_nonzero(ok) < 3:
+        return _no_answer(a, b, "too-few", **_counts(result))
+    rows, cols = rows[ok], cols[ok]
+    if rows.size < settings.min_inliers:
+        evidence = float(llr[rows, cols].sum())
+        tail = chance_tail(model, evidence, rows.size, max(len(a), len(b)))
+        if tail > 1.0 - settings.consistency_probability:
+            return _no_answer(a, b, "too-few", **_counts(result))
+    return replace(result, pairs=result.pairs[ok])
+
+
+def _counts(result: AssociationResult) -> dict:
+    return {
+        "candidates": result.candidates,
+        "clique": result.clique,
+        "rival": result.rival,
+        "exact": result.exact,
+        "flipped": result.flipped,
+    }
+
+
+def _by_position(
     a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings
 ) -> AssociationResult:
     need = settings.min_inliers
@@ -160,6 +263,25 @@ def _associate(
     geo_b = pair_distances(b.means, b.covs)
     score, mismatch, members = neighbourhood_sets(a, b, geo_a, geo_b, settings)
     ia, ib = select_candidates(score, mismatch, settings)
+    return _from_candidates(a, b, ia, ib, members, geo_a, geo_b, settings)
+
+
+def _from_candidates(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    ia: np.ndarray,
+    ib: np.ndarray,
+    members: np.ndarray,
+    geo_a: tuple[np.ndarray, np.ndarray],
+    geo_b: tuple[np.ndarray, np.ndarray],
+    settings: AssociationSettings,
+    looks: np.ndarray | None = None,
+    told: np.ndarray | None = None,
+) -> AssociationResult:
+    """The stages after the candidates: consistent sets, their transforms and gates, the
+    answer (``looks``: the appearance term of every pair's assignment cost, or ``None``;
+    ``told``: the pairs exempt from the separation test, or ``None``)."""
+    need = settings.min_inliers
     graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
     # the largest consistent sets, one after another: each next one among the candidates that
     # the transforms of the earlier ones reject; each judged by the pairs its transform gathers
@@ -176,7 +298,7 @@ def _associate(
         if clique.size < need:
             break
         ca, cb = ia[index[clique]], ib[index[clique]]
-        rows, cols, t, passed = support(a, b, ca, cb, settings)
+        rows, cols, t, passed = support(a, b, ca, cb, settings, looks)
         pool[index[clique]] = False
         pool &= ~passed[ia, ib]
         if rows.size >= need and flipped(a, b, rows, cols, t, settings):
@@ -185,7 +307,7 @@ def _associate(
         found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
     if not any(f[0].size >= need for f in found):
         # no consistent set gathered an answer: the candidates' own neighbourhoods as seeds
-        local, flips = seed_sets(a, b, ia, ib, members, geo_a, geo_b, found, settings)
+        local, flips = seed_sets(a, b, ia, ib, members, geo_a, geo_b, found, settings, looks)
         found += local
         refused += flips
     counts = {
@@ -217,6 +339,8 @@ def _associate(
     # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
     # left must still be an answer
     ok = separated(a, b, t, a.means[rows], b.means[cols], rows, cols, settings)
+    if told is not None:
+        ok |= told[rows, cols]
     if np.count_nonzero(ok) < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
     rows, cols = rows[ok], cols[ok]

@@ -3,8 +3,10 @@
 Two objects are a candidate pair when enough of their ``k`` nearest neighbours can be the same
 objects, as a rigid whole (:func:`~teamslam.association.kernels.shared_neighbourhood`); classes
 must agree when both maps have them, and each object keeps its best few candidates
-(:attr:`~teamslam.association.AssociationSettings.candidates_per_object`). The derivation and the
-reasons are on the association concept page.
+(:attr:`~teamslam.association.AssociationSettings.candidates_per_object`). With an informative
+appearance model each object also keeps its best few by appearance
+(:func:`appearance_candidates`). The derivation and the reasons are on the association concept
+page.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from teamslam.association.kernels import shared_neighbourhood
 from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
 
-__all__ = ["neighbourhood_sets", "select_candidates"]
+__all__ = ["appearance_candidates", "neighbourhood_sets", "select_candidates"]
 
 
 def _neighbourhoods(
@@ -79,3 +81,22 @@ def select_candidates(
     keep[cols, np.arange(key.shape[1])[None, :]] = True
     ia, ib = np.nonzero(keep & eligible)
     return ia, ib
+
+
+def appearance_candidates(
+    log_ratio: np.ndarray, allowed: np.ndarray, settings: AssociationSettings
+) -> np.ndarray:
+    """``(n_a, n_b)`` which pairs are candidates by appearance: each object's best few
+    (:attr:`~teamslam.association.AssociationSettings.candidates_per_object`) of the other map
+    by log likelihood ratio, among the ``allowed`` pairs (classes agree) more likely the same
+    object than not (a positive ratio)."""
+    key = np.where(allowed & (log_ratio > 0), log_ratio, -np.inf)
+    keep = np.zeros(key.shape, dtype=bool)
+    if key.size == 0:
+        return keep
+    top = settings.candidates_per_object
+    rows = np.argsort(-key, axis=1, kind="stable")[:, :top]
+    keep[np.arange(key.shape[0])[:, None], rows] = True
+    cols = np.argsort(-key, axis=0, kind="stable")[:top, :]
+    keep[cols, np.arange(key.shape[1])[None, :]] = True
+    return keep & np.isfinite(key)

@@ -150,8 +150,13 @@ def support(
     ca: np.ndarray,
     cb: np.ndarray,
     settings: AssociationSettings,
+    looks: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The pairs a consistent set gathers: its transform, the gate, one to one, and again.
+
+    ``looks`` (``(n_a, n_b)``, or ``None``) is added to the Mahalanobis distances where pairs
+    are assigned one to one and told apart: ``−2`` times their appearance log likelihood ratio
+    (the gate itself stays the positions').
 
     Returns
     -------
@@ -168,6 +173,8 @@ def support(
     t = fit_transform(a.means[ca], b.means[cb], a.covs[ca], b.covs[cb])
     cost, passed = gate_pairs(a, b, t, a.means[ca], b.means[cb], settings)
     first_gate = passed
+    if looks is not None:
+        cost = cost + looks
     rows, cols = assign(cost, passed)
     need = settings.min_inliers
     if rows.size >= need:
@@ -183,6 +190,8 @@ def support(
         # every pair gated again, the drift allowance growing with the distance from the core
         t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
         cost, passed = gate_pairs(a, b, t, a.means[rows], b.means[cols], settings)
+        if looks is not None:
+            cost = cost + looks
         rows, cols = assign(cost, passed)
         rows, cols = distinct(cost, rows, cols, settings.distinctness)
         if rows.size >= need:

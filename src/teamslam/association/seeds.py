@@ -33,6 +33,7 @@ def seed_sets(
     geo_b: tuple[np.ndarray, np.ndarray],
     found: list,
     settings: AssociationSettings,
+    looks: np.ndarray | None = None,
 ) -> tuple[list, int]:
     """Consistent sets seeded by the candidates' neighbourhoods, for a link whose largest
     consistent sets gathered no answer.
@@ -44,6 +45,9 @@ def seed_sets(
     order), and while one could gather ``min_inliers`` objects, those whose seed pair no earlier
     set's first gate passed go through :func:`~teamslam.association.gate.support`, up to
     ``rivals + 1`` of them (mirror images included).
+
+    ``looks`` is the appearance term of the pairs' assignment cost (:func:`~teamslam.
+    association.gate.support`), or ``None``.
 
     Returns
     -------
@@ -89,7 +93,7 @@ def seed_sets(
             continue
         seed = weight[h] > 0
         ca, cb = rows[h][seed], cols[h][seed]
-        got_rows, got_cols, t_h, passed = support(a, b, ca, cb, settings)
+        got_rows, got_cols, t_h, passed = support(a, b, ca, cb, settings, looks)
         explained |= passed
         if got_rows.size >= need and flipped(a, b, got_rows, got_cols, t_h, settings):
             refused += 1

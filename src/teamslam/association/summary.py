@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teamslam.association.appearance import BINS
 from teamslam.errors import InputError
 from teamslam.gaussian import symmetrize
 
@@ -16,6 +17,11 @@ __all__ = ["ObjectSummary"]
 #: has classes.
 BYTES_PER_OBJECT = 8 + 3 * 8 + 6 * 8 + 3 * 4
 BYTES_PER_CLASS = 8
+#: Bytes per descriptor component (float16) when the map has appearance, and of the summary's
+#: dimension (2) and *same*-distance histogram (:data:`~teamslam.association.appearance.BINS`
+#: × 4) once per summary.
+BYTES_PER_APPEARANCE = 2
+BYTES_APPEARANCE_HEADER = 2 + BINS * 4
 
 
 @dataclass(frozen=True)
@@ -43,6 +49,14 @@ class ObjectSummary:
         side of a near-planar group of objects the robot saw them from, which their positions
         alone cannot (see :func:`~teamslam.association.flipped`). Stored rounded to float32,
         as the wire carries it, so that both ends of a link compute with the same numbers.
+    appearance
+        ``(n, D)`` each object's appearance descriptor (any scale: compared by cosine
+        distance; a zero row: not known), or ``None`` (the robot has none). Stored rounded to
+        float16, as the wire carries it.
+    same_counts
+        ``(BINS,)`` int64 histogram of cosine distances between descriptors of one object
+        that the robot has seen (its held pairs with its neighbours, its tracker's samples;
+        :mod:`~teamslam.association.appearance`), or ``None``; only with ``appearance``.
     """
 
     robot: int
@@ -51,6 +65,8 @@ class ObjectSummary:
     covs: np.ndarray
     classes: np.ndarray | None = None
     views: np.ndarray | None = None
+    appearance: np.ndarray | None = None
+    same_counts: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         where = f"object summary of robot {self.robot}"
@@ -94,11 +110,48 @@ class ObjectSummary:
             if n and np.max(np.abs(views)) > np.finfo(np.float32).max:
                 raise InputError(f"{where}: views exceed the float32 range of the wire")
             views = views.astype(np.float32).astype(float)
+        appearance, same_counts = self._appearance(where, n)
+        object.__setattr__(self, "appearance", appearance)
+        object.__setattr__(self, "same_counts", same_counts)
         object.__setattr__(self, "ids", ids)
         object.__setattr__(self, "means", means)
         object.__setattr__(self, "covs", covs)
         object.__setattr__(self, "classes", classes)
         object.__setattr__(self, "views", views)
+
+    def _appearance(self, where: str, n: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        appearance, counts = self.appearance, self.same_counts
+        if appearance is None:
+            if counts is not None:
+                raise InputError(f"{where}: same_counts without appearance")
+            return None, None
+        try:
+            appearance = np.asarray(appearance, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{where}: appearance is not a numeric array ({exc})") from None
+        if appearance.ndim != 2 or appearance.shape[0] != n or appearance.shape[1] < 1:
+            raise InputError(
+                f"{where}: appearance must be ({n}, D) for {n} ids, got {appearance.shape}"
+            )
+        if not np.all(np.isfinite(appearance)):
+            raise InputError(f"{where}: appearance is not finite")
+        # the wire's float16, of unit rows (any scale: only directions are compared)
+        norms = np.linalg.norm(appearance, axis=1, keepdims=True)
+        unit = np.divide(appearance, norms, out=np.zeros_like(appearance), where=norms > 0)
+        appearance = unit.astype(np.float16).astype(float)
+        if counts is None:
+            counts = np.zeros(BINS, np.int64)
+        try:
+            counts = np.asarray(counts)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{where}: same_counts is not an array ({exc})") from None
+        if counts.shape != (BINS,) or counts.dtype.kind not in "iuf":
+            raise InputError(f"{where}: same_counts must be ({BINS},) counts, got {counts.shape}")
+        if not (np.all(counts >= 0) and np.all(counts == np.floor(counts))):
+            raise InputError(f"{where}: same_counts must be whole numbers ≥ 0")
+        if counts.max(initial=0) > np.iinfo(np.uint32).max:
+            raise InputError(f"{where}: same_counts exceed the wire's uint32")
+        return appearance, counts.astype(np.int64)
 
     def __len__(self) -> int:
         return int(self.ids.size)
@@ -107,7 +160,10 @@ class ObjectSummary:
     def nbytes(self) -> int:
         """Size of the summary on the wire (see :data:`BYTES_PER_OBJECT`)."""
         per = BYTES_PER_OBJECT + (BYTES_PER_CLASS if self.classes is not None else 0)
-        return len(self) * per
+        if self.appearance is None:
+            return len(self) * per
+        per += BYTES_PER_APPEARANCE * self.appearance.shape[1]
+        return len(self) * per + BYTES_APPEARANCE_HEADER
 
     def sorted(self) -> ObjectSummary:
         """The same summary with its objects in increasing id order."""
@@ -124,6 +180,8 @@ class ObjectSummary:
             self.covs[index],
             None if self.classes is None else self.classes[index],
             None if self.views is None else self.views[index],
+            None if self.appearance is None else self.appearance[index],
+            self.same_counts,
         )
 
     def select(self, ids: np.ndarray) -> ObjectSummary:
@@ -141,4 +199,6 @@ class ObjectSummary:
             r @ self.covs @ r.T,
             self.classes,
             None if self.views is None else self.views @ r.T,
+            self.appearance,
+            self.same_counts,
         )

@@ -19,9 +19,12 @@ other (own ↔ neighbour ids swapped).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from teamslam.association.answer import AssociationResult
+from teamslam.association.appearance import beyond_chance, cosine_distances, link_model
 from teamslam.association.consistency import consistent_members
 from teamslam.association.distances import anchor_distance
 from teamslam.association.gate import alone, assign, distinct, gate_pairs, separated
@@ -140,6 +143,9 @@ class CorrespondenceTable:
         self.revoked = 0
         self.T_own_their: np.ndarray | None = None
         self._sizes: tuple[int, int] | None = None  # map sizes at the last full association
+        #: whether the last summaries' appearance model was informative (the minimum of an
+        #: answer is then three pairs: :func:`~teamslam.association.associate`)
+        self._looks = False
 
     def __len__(self) -> int:
         return len(self._theirs)
@@ -208,6 +214,7 @@ class CorrespondenceTable:
             if self._theirs.get(int(a)) != int(b)  # not already held
         ]
         self._sizes = (len(own), len(their))
+        self._looks = self._model(own, their) is not None
         self.proposed += len(new)
         new = [
             p
@@ -282,10 +289,16 @@ class CorrespondenceTable:
                 f"{self.own}→{self.neighbour}"
             )
         held = self.pairs()
+        settings, model = self.settings, self._model(own, their)
+        self._looks = model is not None
+        if model is not None:
+            settings = replace(settings, min_inliers=3)
         if self._canonical_first():
-            found = _extend(own.sorted(), their.sorted(), held, self.settings)
+            found = _extend(own.sorted(), their.sorted(), held, settings, model)
         else:
-            found = _extend(their.sorted(), own.sorted(), held[:, ::-1], self.settings)[:, ::-1]
+            found = _extend(their.sorted(), own.sorted(), held[:, ::-1], settings, model)[:, ::-1]
+        if model is not None and len(found):
+            found = found[_looks_alike(own, their, found, model, settings)]
         self.proposed += len(found)
         new = [
             (int(a), int(b))
@@ -303,13 +316,30 @@ class CorrespondenceTable:
     def _canonical_first(self) -> bool:
         return self.own <= self.neighbour
 
+    def _model(self, own: ObjectSummary, their: ObjectSummary):
+        """The link's appearance model when informative (as the association builds it, in the
+        canonical order), else ``None``."""
+        if own.appearance is None or their.appearance is None:
+            return None
+        held = self.pairs()
+        if self._canonical_first():
+            model = link_model(
+                own.sorted(), their.sorted(), held, self.settings.consistency_probability
+            )
+        else:
+            model = link_model(
+                their.sorted(), own.sorted(), held[:, ::-1], self.settings.consistency_probability
+            )
+        return model if model is not None and model.informative else None
+
     def due(self, own_objects: int, their_objects: int, growth: float = 1.25) -> bool:
         """Whether a full association is worth running now.
 
         Yes when none was merged yet; when either map has grown by the factor ``growth`` since
         the last one; and, while the table holds fewer pairs than an answer needs
         (:attr:`~teamslam.association.AssociationSettings.min_inliers`), when either map holds
-        that many objects more than at the last one. In between, :meth:`extend` grows the
+        that many objects more than at the last one (three while the link's appearance model
+        is informative: an answer may then hold three pairs). In between, :meth:`extend` grows the
         table for the cost of one gate.
 
         The growth factor spaces the full associations of a link that has an answer (maps of
@@ -341,8 +371,10 @@ class CorrespondenceTable:
         own0, their0 = self._sizes
         if own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1):
             return True
-        need = self.settings.min_inliers
-        return len(self) < need and (own_objects >= own0 + need or their_objects >= their0 + need)
+        need = 3 if self._looks else self.settings.min_inliers
+        return len(self) < self.settings.min_inliers and (
+            own_objects >= own0 + need or their_objects >= their0 + need
+        )
 
     def revoke(self, own_id: int, their_id: int, step: int | None = None) -> bool:
         """Drop a held pair (its consensus innovation failed); it is not re-added.
@@ -371,10 +403,48 @@ class CorrespondenceTable:
         }
 
 
-def _extend(
-    a: ObjectSummary, b: ObjectSummary, held: np.ndarray, settings: AssociationSettings
+def _looks_alike(
+    own: ObjectSummary,
+    their: ObjectSummary,
+    pairs: np.ndarray,
+    model,
+    settings: AssociationSettings,
 ) -> np.ndarray:
-    """New pairs of unmatched objects of ``a`` and ``b`` under the held pairs' transform."""
+    """Which pairs do not look different at the gate's odds (the association's veto)."""
+    ia = np.searchsorted(own.ids, pairs[:, 0], sorter=np.argsort(own.ids, kind="stable"))
+    ib = np.searchsorted(their.ids, pairs[:, 1], sorter=np.argsort(their.ids, kind="stable"))
+    ia = np.argsort(own.ids, kind="stable")[ia]
+    ib = np.argsort(their.ids, kind="stable")[ib]
+    la, lb = own.appearance[ia], their.appearance[ib]
+    d = np.clip(np.diagonal(cosine_distances(la, lb)), 0.0, 2.0)
+    llr = model.log_ratio(d)
+    unknown = ~np.any(la != 0, axis=1) | ~np.any(lb != 0, axis=1)
+    veto = np.log1p(-settings.gate_probability) - np.log(settings.gate_probability)
+    return unknown | (llr >= veto)
+
+
+def _extend(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    held: np.ndarray,
+    settings: AssociationSettings,
+    model=None,
+) -> np.ndarray:
+    """New pairs of unmatched objects of ``a`` and ``b`` under the held pairs' transform (with
+    an appearance ``model``, pairs assigned and told apart by Mahalanobis distance plus
+    ``−2`` times their log likelihood ratio, as in the association)."""
+    looks = None
+    if model is not None:
+        known_a = np.any(a.appearance != 0, axis=1)
+        known_b = np.any(b.appearance != 0, axis=1)
+        llr = model.log_ratio(cosine_distances(a.appearance, b.appearance))
+        llr[~known_a, :] = 0.0
+        llr[:, ~known_b] = 0.0
+        looks = -2.0 * llr
+        looks -= looks.min(initial=0.0)
+        told = beyond_chance(model, llr, max(len(a), len(b)), settings.consistency_probability) & (
+            known_a[:, None] & known_b[None, :]
+        )
     ia = np.searchsorted(a.ids, held[:, 0]) if held.size else np.zeros(0, np.int64)
     ib = np.searchsorted(b.ids, held[:, 1]) if held.size else np.zeros(0, np.int64)
     ia = np.minimum(ia, max(len(a) - 1, 0))
@@ -389,6 +459,8 @@ def _extend(
         return np.zeros((0, 2), np.int64)
     t = fit_transform(a.means[ia], b.means[ib], a.covs[ia], b.covs[ib])
     cost, passed = gate_pairs(a, b, t, a.means[ia], b.means[ib], settings)
+    if looks is not None:
+        cost = cost + looks
     free_a = np.ones(len(a), bool)
     free_a[ia] = False
     free_b = np.ones(len(b), bool)
@@ -401,11 +473,15 @@ def _extend(
         ra, rb = np.concatenate([ia, rows]), np.concatenate([ib, cols])
         t = fit_transform(a.means[ra], b.means[rb], a.covs[ra], b.covs[rb])
         cost, passed = gate_pairs(a, b, t, a.means[ra], b.means[rb], settings)
+        if looks is not None:
+            cost = cost + looks
         gated = passed.copy()
         passed &= free_a[:, None] & free_b[None, :]
         rows, cols = assign(cost, passed)
         # alone in each other's gate: no second object of either map (held or not) fits
         single = alone(gated, rows, cols)
+        if looks is not None:  # alike beyond chance: not a neighbour taken for the object
+            single |= told[rows, cols]
         rows, cols = rows[single], cols[single]
     # distinct against every object, the held pairs counting as assigned
     all_rows = np.concatenate([ia, rows])
@@ -413,9 +489,12 @@ def _extend(
     keep_rows, keep_cols = distinct(cost, all_rows, all_cols, settings.distinctness)
     added = free_a[keep_rows]
     # the drift allowance from the held pairs: a new pair does not vouch for itself
-    added[added] = separated(
+    spaced = separated(
         a, b, t, a.means[ia], b.means[ib], keep_rows[added], keep_cols[added], settings
     )
+    if looks is not None:
+        spaced |= told[keep_rows[added], keep_cols[added]]
+    added[added] = spaced
     rows, cols = keep_rows[added], keep_cols[added]
     ok = consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
     pairs = np.column_stack([a.ids[rows[ok]], b.ids[cols[ok]]])

@@ -46,9 +46,9 @@ def strip_object_ids(dataset: TeamDataset, to: str = "per-robot", seed: int = 0)
     Returns
     -------
     TeamDataset
-        Observations and class labels under the new ids (no id shared by two robots), the
-        ground-truth map keyed by the new ids, ``object_id_scope = "per-robot"`` and the identity
-        ``(robot, new id, old id)`` in ``object_identity``.
+        Observations, class labels and per-object appearance under the new ids (no id shared
+        by two robots), the ground-truth map keyed by the new ids, ``object_id_scope =
+        "per-robot"`` and the identity ``(robot, new id, old id)`` in ``object_identity``.
 
     Raises
     ------
@@ -84,7 +84,19 @@ def strip_object_ids(dataset: TeamDataset, to: str = "per-robot", seed: int = 0)
         if classes is not None:
             classes = classes[np.isin(classes[:, 0], old)]
             classes = np.column_stack([renumber(classes[:, 0]), classes[:, 1]])
-        robots.append(replace(robot, objects=objects, object_classes=classes))
+        looks_ids, looks = robot.object_appearance_ids, robot.object_appearance
+        if looks is not None:
+            seen = np.isin(looks_ids, old)
+            looks_ids, looks = renumber(looks_ids[seen]), looks[seen]
+        robots.append(
+            replace(
+                robot,
+                objects=objects,
+                object_classes=classes,
+                object_appearance_ids=looks_ids,
+                object_appearance=looks,
+            )
+        )
         identity.append(np.column_stack([np.full(old.size, i), new, old]))
     identity_rows = np.concatenate(identity).astype(np.int64).reshape(-1, 3)
     truth = dataset.object_position(identity_rows[:, 2])
@@ -177,6 +189,8 @@ def _strip_to_none(dataset: TeamDataset) -> TeamDataset:
                 objects=FrameObservations.empty(robot.frames),
                 object_classes=None,
                 detections=detections,
+                object_appearance_ids=None,
+                object_appearance=None,
             )
         )
     object_ids, positions = dataset.object_ids, dataset.object_positions

@@ -374,6 +374,12 @@ class RobotSequence:
         ``objects`` hold no observation and that has detections tracks them itself
         (:mod:`teamslam.msckf.objects.tracking`); with ids the detections are not read by the
         filter.
+    object_appearance_ids, object_appearance
+        ``(C,)`` int64 object ids and ``(C, D)`` float32 the robot's appearance descriptor of
+        each (finite, any scale), or both ``None``. One descriptor per object, like
+        ``object_classes``: what a robot with ids sends its neighbours to tell its objects apart
+        (the association between robots compares one summary per object; a robot that tracks
+        its detections keeps such summaries itself). Filter-visible.
     """
 
     T_world_body: np.ndarray
@@ -383,9 +389,23 @@ class RobotSequence:
     timestamps: np.ndarray | None = None
     object_classes: np.ndarray | None = None
     detections: FrameDetections | None = None
+    object_appearance_ids: np.ndarray | None = None
+    object_appearance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "T_world_body", np.asarray(self.T_world_body, dtype=float))
+        if (self.object_appearance_ids is None) != (self.object_appearance is None):
+            raise DatasetError("object_appearance_ids and object_appearance come together")
+        if self.object_appearance is not None:
+            ids = np.asarray(self.object_appearance_ids)
+            if ids.dtype.kind not in "iu":
+                raise DatasetError("object_appearance_ids must be integers")
+            object.__setattr__(self, "object_appearance_ids", ids.astype(np.int64).reshape(-1))
+            try:
+                looks = np.asarray(self.object_appearance, dtype=np.float32)
+            except (TypeError, ValueError):
+                raise DatasetError("object_appearance must be a numeric array") from None
+            object.__setattr__(self, "object_appearance", looks)
         object.__setattr__(self, "odometry", np.asarray(self.odometry, dtype=float))
         if self.timestamps is not None:
             object.__setattr__(self, "timestamps", np.asarray(self.timestamps, dtype=float))
@@ -412,7 +432,24 @@ class RobotSequence:
             timestamps=None if self.timestamps is None else self.timestamps[:frames],
             object_classes=self.object_classes,
             detections=None if self.detections is None else self.detections.head(frames),
+            object_appearance_ids=self.object_appearance_ids,
+            object_appearance=self.object_appearance,
         )
+
+    def appearance_of_objects(self, ids: np.ndarray) -> np.ndarray | None:
+        """``(n, D)`` float64 the descriptors of objects ``ids`` (zero rows where the robot has
+        none), or ``None`` without :attr:`object_appearance`."""
+        if self.object_appearance is None:
+            return None
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        out = np.zeros((ids.size, self.object_appearance.shape[1]))
+        keys = self.object_appearance_ids
+        if keys.size and ids.size:
+            order = np.argsort(keys, kind="stable")
+            pos = np.minimum(np.searchsorted(keys[order], ids), keys.size - 1)
+            hit = keys[order[pos]] == ids
+            out[hit] = self.object_appearance[order[pos[hit]]]
+        return out
 
     def validate(self, where: str) -> None:
         """Raise :class:`DatasetError` naming ``where`` and the field on any inconsistency."""
@@ -484,6 +521,17 @@ class RobotSequence:
                 raise DatasetError(f"{where}.object_classes names an object twice")
             if np.any(classes[:, 1] < 0):
                 raise DatasetError(f"{where}.object_classes: class labels must be ≥ 0")
+        if self.object_appearance is not None:
+            ids, looks = self.object_appearance_ids, self.object_appearance
+            if looks.ndim != 2 or looks.shape[0] != ids.size or looks.shape[1] < 1:
+                raise DatasetError(
+                    f"{where}.object_appearance: shape {looks.shape}, expected ({ids.size}, D) "
+                    "with D ≥ 1 for its object ids"
+                )
+            if np.unique(ids).size != ids.size:
+                raise DatasetError(f"{where}.object_appearance_ids names an object twice")
+            if not np.all(np.isfinite(looks)):
+                raise DatasetError(f"{where}.object_appearance: descriptors must be finite")
 
 
 @dataclass

@@ -51,6 +51,8 @@ def _robot_file(i: int) -> str:
 
 def _format_version(dataset: TeamDataset) -> int:
     """The oldest format version that holds ``dataset`` (older readers keep reading it)."""
+    if any(r.object_appearance is not None for r in dataset.robots):
+        return FORMAT_VERSION
     detections = [r.detections for r in dataset.robots if r.detections is not None]
     if not detections:
         return _VERSION_WITHOUT_DETECTIONS
@@ -109,6 +111,9 @@ def save_dataset(dataset: TeamDataset, directory: str | Path) -> Path:
                 arrays["timestamps"] = robot.timestamps
             if robot.object_classes is not None:
                 arrays["object_classes"] = robot.object_classes
+            if robot.object_appearance is not None:
+                arrays["object_appearance_ids"] = robot.object_appearance_ids
+                arrays["object_appearance"] = robot.object_appearance
             if robot.detections is not None:
                 arrays["detection_offsets"] = robot.detections.offsets
                 arrays["detection_measurements"] = robot.detections.measurements
@@ -287,6 +292,8 @@ def load_dataset(directory: str | Path) -> TeamDataset:
         "object_measurements": "f",
         "timestamps": "f",
         "object_classes": "i",
+        "object_appearance_ids": "i",
+        "object_appearance": "f",
         "detection_offsets": "i",
         "detection_measurements": "f",
         "detection_classes": "i",
@@ -307,8 +314,26 @@ def load_dataset(directory: str | Path) -> TeamDataset:
             )
         path = directory / name
         arrays = _load_npz(
-            path, robot_fields, optional=("timestamps", "object_classes", *detection_fields)
+            path,
+            robot_fields,
+            optional=(
+                "timestamps",
+                "object_classes",
+                "object_appearance_ids",
+                "object_appearance",
+                *detection_fields,
+            ),
         )
+        looks = [k for k in ("object_appearance_ids", "object_appearance") if k in arrays]
+        if looks and version < 5:
+            raise DatasetError(
+                f"{path}: field {looks[0]!r} needs format version 5, file is {version}"
+            )
+        if len(looks) == 1:
+            raise DatasetError(
+                f"{path}: field {looks[0]!r} without its partner (object_appearance_ids and "
+                "object_appearance come together)"
+            )
         classes = arrays.get("object_classes")
         if classes is not None and (classes.ndim != 2 or classes.shape[1] != 2):
             raise DatasetError(
@@ -324,6 +349,8 @@ def load_dataset(directory: str | Path) -> TeamDataset:
                 timestamps=arrays.get("timestamps"),
                 object_classes=classes,
                 detections=_detections(arrays, version),
+                object_appearance_ids=arrays.get("object_appearance_ids"),
+                object_appearance=arrays.get("object_appearance"),
             )
             robot.validate(f"robot {i}")
         except DatasetError as exc:

@@ -3,7 +3,8 @@
 A fixed little-endian header (magic ``b"TSLM"``, :data:`FORMAT_VERSION`, kind, degree, team
 id, sender, receiver, step, sizes) followed by the payload: ids as LEB128 varint deltas, then
 moved flags, or a mean and the upper triangle of a covariance or information matrix in float64
-or float32, object summaries, or a prior, by kind. Older versions are refused by name.
+or float32, object summaries (with class labels, with appearance descriptors in float16 and a
+histogram of same-object distances), or a prior, by kind. Older versions are refused by name.
 No pickle, no code: :func:`decode` checks every field and raises :class:`WireError` naming the
 first problem, and a transport drops and counts such a message. Byte by byte: the docs'
 reference page *Wire format*.
@@ -16,6 +17,7 @@ import struct
 
 import numpy as np
 
+from teamslam.association.appearance import BINS
 from teamslam.association.summary import ObjectSummary
 from teamslam.errors import InputError
 from teamslam.msckf.consensus.messages import (
@@ -32,7 +34,19 @@ MAGIC = b"TSLM"
 FORMAT_VERSION = 7
 KIND_IDS = 1
 KIND_IDS_SUMMARY = 8  # 9: with class labels
-_IDS_KINDS = (KIND_IDS, KIND_IDS_SUMMARY, KIND_IDS_SUMMARY + 1)
+KIND_IDS_APPEARANCE = 12  # a summary with appearance; 13: with class labels too
+_IDS_KINDS = (
+    KIND_IDS,
+    KIND_IDS_SUMMARY,
+    KIND_IDS_SUMMARY + 1,
+    KIND_IDS_APPEARANCE,
+    KIND_IDS_APPEARANCE + 1,
+)
+#: bytes per object of a summary by kind (without its appearance)
+_PER_SUMMARY = {KIND_IDS: 0, 8: 84, 9: 92, 12: 84, 13: 92}
+#: an appearance block: its dimension (uint16), then n × D float16, then BINS uint32 counts
+_APPEARANCE_HEAD = struct.Struct("<H")
+MAX_APPEARANCE = 4096
 KIND_MARGINAL = 2  # joint float64; 3 joint float32; 4 per object float64; 5 per object float32
 # (per object, float32, information form) → kind
 _MARGINAL_KINDS = {
@@ -164,13 +178,43 @@ def _encode_summary(summary: ObjectSummary, ids: np.ndarray) -> tuple[int, bytes
     upper = np.ascontiguousarray(summary.covs[:, _TRIU3[0], _TRIU3[1]], dtype="<f8")
     views = np.zeros((ids.size, 3)) if summary.views is None else summary.views
     out = means.tobytes() + upper.tobytes() + np.ascontiguousarray(views, "<f4").tobytes()
-    if summary.classes is None:
-        return KIND_IDS_SUMMARY, out
-    return KIND_IDS_SUMMARY + 1, out + np.ascontiguousarray(summary.classes, "<i8").tobytes()
+    kind = KIND_IDS_SUMMARY
+    if summary.classes is not None:
+        kind += 1
+        out += np.ascontiguousarray(summary.classes, "<i8").tobytes()
+    if summary.appearance is None:
+        return kind, out
+    dim = summary.appearance.shape[1]
+    if dim > MAX_APPEARANCE:
+        raise WireError(f"appearance of {dim} dimensions (at most {MAX_APPEARANCE})")
+    looks = np.ascontiguousarray(summary.appearance, "<f2").tobytes()
+    counts = np.ascontiguousarray(summary.same_counts, "<u4").tobytes()
+    kind += KIND_IDS_APPEARANCE - KIND_IDS_SUMMARY
+    return kind, out + _APPEARANCE_HEAD.pack(dim) + looks + counts
+
+
+def _appearance_size(data: bytes, offset: int, n: int) -> int:
+    """Bytes of the appearance block at ``offset`` (its dimension read from it)."""
+    if len(data) < offset + _APPEARANCE_HEAD.size:
+        raise WireError(f"truncated appearance ({len(data)} bytes, its header at {offset})")
+    (dim,) = _APPEARANCE_HEAD.unpack_from(data, offset)
+    if not 1 <= dim <= MAX_APPEARANCE:
+        raise WireError(f"appearance of {dim} dimensions (1 to {MAX_APPEARANCE})")
+    return _APPEARANCE_HEAD.size + 2 * dim * n + 4 * BINS
+
+
+def _decode_appearance(data: bytes, offset: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    (dim,) = _APPEARANCE_HEAD.unpack_from(data, offset)
+    offset += _APPEARANCE_HEAD.size
+    looks = np.frombuffer(data, dtype="<f2", count=dim * n, offset=offset).astype(float)
+    counts = np.frombuffer(data, dtype="<u4", count=BINS, offset=offset + 2 * dim * n)
+    if not np.all(np.isfinite(looks)):
+        raise WireError("non-finite appearance in an object summary")
+    return looks.reshape(n, dim), counts.astype(np.int64)
 
 
 def _decode_summary(
-    data: bytes, offset: int, sender: int, ids: np.ndarray, classes: bool
+    data: bytes, offset: int, sender: int, ids: np.ndarray, classes: bool, appearance: bool
 ) -> ObjectSummary:
     n = ids.size
     means = np.frombuffer(data, dtype="<f8", count=3 * n, offset=offset).astype(float)
@@ -183,11 +227,16 @@ def _decode_summary(
         raise WireError("non-finite object summary")
     if not np.all(np.isfinite(views)):
         raise WireError("non-finite camera positions in an object summary")
+    looks = counts = None
+    if appearance:
+        looks, counts = _decode_appearance(data, offset + (92 if classes else 84) * n, n)
     covs = np.zeros((n, 3, 3))
     covs[:, _TRIU3[0], _TRIU3[1]] = upper.reshape(n, 6)
     covs = covs + np.triu(covs, 1).swapaxes(-1, -2)
     try:
-        return ObjectSummary(sender, ids, means.reshape(n, 3), covs, labels, views.reshape(n, 3))
+        return ObjectSummary(
+            sender, ids, means.reshape(n, 3), covs, labels, views.reshape(n, 3), looks, counts
+        )
     except InputError as error:
         raise WireError(f"bad object summary: {error}") from error
 
@@ -228,8 +277,9 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
             raise WireError(f"map-ids message with {d} bytes of flags for {n_ids} ids")
         if degree != 0:
             raise WireError("map-ids message with a degree")
-        per_summary = {KIND_IDS: 0, KIND_IDS_SUMMARY: 84, KIND_IDS_SUMMARY + 1: 92}[kind]
-        expected = HEADER.size + c + d + per_summary * n_ids
+        expected = HEADER.size + c + d + _PER_SUMMARY[kind] * n_ids
+        if kind >= KIND_IDS_APPEARANCE:
+            expected += _appearance_size(data, expected, n_ids)
     elif kind in _MARGINAL_KINDS.values() or kind in (KIND_PRIOR, KIND_PRIOR + 1):
         if d != 3 * n_ids or n_ids == 0:
             raise WireError(f"marginal of {n_ids} objects with mean length {d}")
@@ -256,7 +306,12 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
         summary = None
         if kind != KIND_IDS:
             summary = _decode_summary(
-                data, HEADER.size + c + d, int(sender), ids, kind == KIND_IDS_SUMMARY + 1
+                data,
+                HEADER.size + c + d,
+                int(sender),
+                ids,
+                kind in (KIND_IDS_SUMMARY + 1, KIND_IDS_APPEARANCE + 1),
+                kind >= KIND_IDS_APPEARANCE,
             )
         return MapIdsMessage(int(sender), int(receiver), int(step), ids, moved, summary)
     offset = HEADER.size + c

@@ -85,7 +85,10 @@ class SimulationConfig:
         dimensions drawn team-wide, and each detection of it carries a noisy copy, the
         descriptor plus isotropic noise of norm about ``appearance_noise`` (relative to the
         descriptor's unit norm), normalised; each false detection a random unit descriptor.
-        Setting it records detections (as ``clutter``, ``miss`` and ``classes`` do).
+        Setting it records detections (as ``clutter``, ``miss`` and ``classes`` do), and each
+        robot's own descriptor of every object it detected
+        (:attr:`~teamslam.datasets.model.RobotSequence.object_appearance`: the object's plus
+        noise of the same size, the robot's own, normalised).
     """
 
     robots: int = 5
@@ -406,11 +409,14 @@ def simulate_team(
         )
         feat_frames, pairs, next_track = _tracks(feat_frames, next_track)
         track_pairs.extend(pairs)
-        detections, classes = None, None
+        detections, classes, looks_ids, looks = None, None, None, None
         if config.clutter > 0 or config.miss > 0 or config.classes > 0 or config.appearance > 0:
             obj_frames, detections, classes = _detector(
                 config, obj_frames, len(object_positions), i
             )
+        if config.appearance > 0:
+            looks_ids = np.unique(np.concatenate([idx for idx, _ in obj_frames])).astype(np.int64)
+            looks = _object_appearance(config, looks_ids, len(object_positions), i)
         sequences.append(
             RobotSequence(
                 T_world_body=path,
@@ -420,6 +426,8 @@ def simulate_team(
                 timestamps=np.arange(steps + 1, dtype=float),
                 object_classes=classes,
                 detections=detections,
+                object_appearance_ids=looks_ids,
+                object_appearance=looks,
             )
         )
     return TeamDataset(
@@ -505,8 +513,7 @@ def _appearance(
     dim = config.appearance
     if dim == 0:
         return None
-    unit = np.random.default_rng([config.seed, 26]).standard_normal((objects, dim))
-    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    unit = _object_descriptors(config, objects)
     rng = np.random.default_rng([config.seed, 26, robot])
     noise = rng.standard_normal((truth.size, dim)) * (config.appearance_noise / np.sqrt(dim))
     base = rng.standard_normal((truth.size, dim))
@@ -514,6 +521,26 @@ def _appearance(
     true = truth >= 0
     base[true] = unit[truth[true]]
     out = base + noise
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
+    return out.astype(np.float32)
+
+
+def _object_descriptors(config: SimulationConfig, objects: int) -> np.ndarray:
+    """Each object's team-wide unit descriptor."""
+    unit = np.random.default_rng([config.seed, 26]).standard_normal((objects, config.appearance))
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    return unit
+
+
+def _object_appearance(
+    config: SimulationConfig, ids: np.ndarray, objects: int, robot: int
+) -> np.ndarray:
+    """Robot ``robot``'s descriptor of each object ``ids``: the object's plus the robot's own
+    noise (as a detection's), normalised; from a generator of its own."""
+    dim = config.appearance
+    rng = np.random.default_rng([config.seed, 27, robot])
+    noise = rng.standard_normal((ids.size, dim)) * (config.appearance_noise / np.sqrt(dim))
+    out = _object_descriptors(config, objects)[ids] + noise
     out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
     return out.astype(np.float32)
 

@@ -132,8 +132,9 @@ def decode_ids(data: bytes | np.ndarray, count: int) -> np.ndarray:
 def summary_wire_bytes(summary: ObjectSummary | None) -> int:
     """Bytes an object summary adds to a round-1 message on a wire: per object its mean (3 ×
     8), the upper triangle of its covariance (6 × 8), where the sender's cameras were (3 × 4)
-    and its class (8) when the map has classes — the ids travel once, as the message's map
-    ids."""
+    and its class (8) when the map has classes, its appearance descriptor (2 per dimension)
+    with the dimension and the histogram of same-object distances once when the map has
+    appearance — the ids travel once, as the message's map ids."""
     if summary is None:
         return 0
     return summary.nbytes - 8 * len(summary)

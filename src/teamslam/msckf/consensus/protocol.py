@@ -38,6 +38,7 @@ from teamslam.association import (
     associate,
     pair_innovation_consistent,
 )
+from teamslam.association.appearance import BINS, cosine_distances, distance_counts
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError, kl_divergence, spd_inverse
 from teamslam.graph import metropolis_weight
@@ -147,6 +148,10 @@ class ConsensusProtocol:
         check = self.association == "own" or settings.innovation_check
         self.innovation_probability = association.revoke_probability if check else None
         self._summary: ObjectSummary | None = None
+        #: per link: the histogram of appearance distances of the pairs it holds (the *same*
+        #: samples this robot's summaries carry to its other neighbours)
+        self._same: dict[int, np.ndarray] = {}
+        self._sent: dict[int, ObjectSummary | None] = {}  # this step's summary, per neighbour
         #: per link: summaries sent and their bytes, full associations, extensions, seconds
         #: spent associating, objects left out of an average by the innovation test
         self.link_stats: dict[int, dict[str, float]] = {
@@ -253,21 +258,76 @@ class ConsensusProtocol:
             self._thresholds = self._object_thresholds(covs)[order]
         self._summary = (
             ObjectSummary(
-                self.robot, ids, means[order], covs[order], views=self.agent.views.of(ids)
+                self.robot,
+                ids,
+                means[order],
+                covs[order],
+                views=self.agent.views.of(ids),
+                appearance=self._appearance(ids),
             )
             if exchange
             else None
         )
         targets = sorted(self.neighbours if to is None else set(to) & self.neighbours)
         out = []
+        self._sent = {}
         for j in targets:
             moved = self._moved_for(j)
-            out.append(MapIdsMessage(self.robot, j, self.round, ids, moved, self._summary))
-            if self._summary is not None:
+            summary = self._sent[j] = self._summary_for(j)
+            out.append(MapIdsMessage(self.robot, j, self.round, ids, moved, summary))
+            if summary is not None:
                 self.link_stats[j]["summaries_sent"] += 1
-                self.link_stats[j]["summary_bytes"] += summary_wire_bytes(self._summary)
+                self.link_stats[j]["summary_bytes"] += summary_wire_bytes(summary)
         self.spent = time.perf_counter() - begin
         return out
+
+    def _appearance(self, ids: np.ndarray) -> np.ndarray | None:
+        """``(n, D)`` the appearance descriptors of our objects ``ids`` (zero rows: none), or
+        ``None``: the tracker's summaries where the robot tracks its detections, else the
+        dataset's per-object descriptors."""
+        tracker = self.agent.tracker
+        if tracker is not None:
+            if tracker.memory is None:
+                return None
+            return tracker.memory.summaries(ids)[0]
+        return self.agent.sequence.appearance_of_objects(ids)
+
+    def _summary_for(self, j: int) -> ObjectSummary | None:
+        """Our summary of this step as sent to ``j``: with appearance, the *same* samples of
+        our other links and of our tracker (``j``'s own link adds its held pairs itself)."""
+        summary = self._summary
+        if summary is None or summary.appearance is None:
+            return summary
+        counts = np.zeros(BINS, np.int64)
+        for k, same in self._same.items():
+            if k != j:
+                counts += same
+        tracker = self.agent.tracker
+        if tracker is not None and tracker.appearance is not None:
+            counts += tracker.appearance.same.astype(np.int64)
+        return replace(summary, same_counts=counts)
+
+    def _held_counts(self, j: int, own: ObjectSummary, theirs: ObjectSummary) -> None:
+        """Record the appearance distances of the pairs link ``j`` holds."""
+        if own.appearance is None or theirs.appearance is None:
+            return
+        if own.appearance.shape[1] != theirs.appearance.shape[1]:
+            return
+        pairs = self.tables[j].pairs()
+        index_own = {int(i): k for k, i in enumerate(own.ids)}
+        index_their = {int(i): k for k, i in enumerate(theirs.ids)}
+        both = [
+            (index_own[int(a)], index_their[int(b)])
+            for a, b in pairs
+            if int(a) in index_own and int(b) in index_their
+        ]
+        if not both:
+            self._same[j] = np.zeros(BINS, np.int64)
+            return
+        ia, ib = (np.array(v) for v in zip(*both, strict=True))
+        ok = np.any(own.appearance[ia] != 0, axis=1) & np.any(theirs.appearance[ib] != 0, axis=1)
+        d = cosine_distances(own.appearance[ia[ok]], theirs.appearance[ib[ok]])
+        self._same[j] = distance_counts(np.diagonal(d))
 
     def _moved_for(self, j: int) -> np.ndarray | None:
         """Which of our objects moved since we last exchanged them with ``j`` (``None``: all).
@@ -423,18 +483,20 @@ class ConsensusProtocol:
                 "messages", reason=f"object summary of robot {j} disagrees with its ids"
             )
             return False
-        own = self._summary
+        own = self._sent[j] if j in self._sent else self._summary_for(j)
         if own is None:  # we did not exchange summaries this step (a neighbour out of phase)
             return True
         begin = time.perf_counter()
         table = self.tables[j]
         stats = self.link_stats[j]
         if table.due(len(own), len(theirs)):
-            table.merge(associate(own, theirs, table.settings), own, theirs, self.step)
+            held = table.pairs() if own.appearance is not None else None
+            table.merge(associate(own, theirs, table.settings, held), own, theirs, self.step)
             stats["full_associations"] += 1
         else:
             table.extend(own, theirs, self.step)
             stats["extensions"] += 1
+        self._held_counts(j, own, theirs)
         stats["association_seconds"] += time.perf_counter() - begin
         return True
 

@@ -1,0 +1,287 @@
+"""The association between robots with appearance: fewer pairs, never chance look-alikes.
+
+Two maps that share three objects answer from those three when the objects look alike and the
+descriptors separate objects; a wrong but consistent triangle of look-alikes between two
+unrelated places is refused. Without appearance, or with descriptors that are all equal, the
+association and the estimates are those of the position-only rules, bit for bit. Summaries with
+appearance survive the wire (a truncated one is refused) and per-object descriptors survive
+storage and the renumbering of ids.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from teamslam.association import AssociationSettings, ObjectSummary, associate
+from teamslam.association.appearance import (
+    AppearanceModel,
+    chance_tail,
+    distance_counts,
+    unit_rows,
+)
+from teamslam.datasets import load_dataset, save_dataset
+from teamslam.datasets.identity import strip_object_ids
+from teamslam.datasets.storage import FORMAT_VERSION
+from teamslam.geometry import so3
+from teamslam.graph import ring
+from teamslam.msckf import config_for, run_team
+from teamslam.msckf.consensus.messages import MapIdsMessage
+from teamslam.runtime.wire import WireError, decode, encode, team_id
+from teamslam.sim import lissajous_team
+
+DIM = 16
+NOISE = 0.1
+
+
+def _transform(yaw: float, shift: np.ndarray) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = so3.exp(np.array([0.0, 0.0, yaw]))
+    t[:3, 3] = shift
+    return t
+
+
+def _same_counts(rng: np.random.Generator, looks: np.ndarray, n: int = 60) -> np.ndarray:
+    """Samples of the distance between two noisy copies of one descriptor (held pairs)."""
+    k = rng.integers(0, len(looks), n)
+    a = looks[k] + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
+    b = looks[k] + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
+    return distance_counts(1.0 - np.einsum("pd,pd->p", unit_rows(a), unit_rows(b)))
+
+
+def _maps(seed: int, types: int | None, shared_geometry: bool, shared_objects: bool):
+    """Two maps of 30 objects each, small covariances, in the second robot's frame turned and
+    shifted. The second map holds a triangle congruent to three objects of the first. With
+    ``shared_objects`` they are the same objects (descriptors noisy copies of the first's);
+    otherwise the two maps are unrelated places and the triangle's descriptors match the
+    first's by chance: each object's descriptor is one of ``types`` look-alike types."""
+    rng = np.random.default_rng(seed)
+    n = 30
+    # objects spread far apart, so that only the triangle (20 m across) is a consistent set
+    a_means = rng.uniform(0.0, 400.0, (n, 3)) * [1, 1, 0.01]
+    a_means[:3] = rng.uniform(0.0, 20.0, (3, 3)) * [1, 1, 0.1]
+    if types is None:
+        looks_a = unit_rows(rng.standard_normal((n, DIM)))
+        looks_b = unit_rows(rng.standard_normal((n, DIM)))
+    else:
+        kinds = unit_rows(rng.standard_normal((types, DIM)))
+        looks_a = kinds[rng.integers(0, types, n)]
+        looks_b = kinds[rng.integers(0, types, n)]
+    b_local = rng.uniform(0.0, 400.0, (n, 3)) * [1, 1, 0.01] + [1000.0, 0.0, 0.0]
+    triangle = [0, 1, 2]
+    if shared_geometry:
+        b_local[:3] = a_means[triangle]
+        looks_b[:3] = looks_a[triangle]
+    looks_b = looks_b + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
+    looks_a = looks_a + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
+    t = _transform(0.7, np.array([5.0, -3.0, 0.0]))
+    b_means = b_local @ t[:3, :3].T + t[:3, 3]
+    covs = np.tile(0.01**2 * np.eye(3), (n, 1, 1))
+    ids_a = np.arange(100, 100 + n)
+    ids_b = np.arange(500, 500 + n)
+    same = _same_counts(rng, np.concatenate([looks_a, looks_b]))
+    a = ObjectSummary(0, ids_a, a_means, covs, appearance=looks_a, same_counts=same)
+    b = ObjectSummary(1, ids_b, b_means, covs, appearance=looks_b, same_counts=same)
+    truth = np.column_stack([ids_a[:3], ids_b[:3]]) if shared_objects else np.zeros((0, 2))
+    return a, b, truth
+
+
+def _without(summary: ObjectSummary) -> ObjectSummary:
+    return replace(summary, appearance=None, same_counts=None)
+
+
+def test_three_shared_objects_answer_with_appearance_and_not_without():
+    a, b, truth = _maps(seed=1, types=None, shared_geometry=True, shared_objects=True)
+    settings = AssociationSettings()
+    assert settings.min_inliers > 3
+    alone = associate(_without(a), _without(b), settings)
+    assert not alone.matched  # three pairs: too few by position alone
+    result = associate(a, b, settings)
+    assert result.matched, result.status
+    np.testing.assert_array_equal(result.pairs, truth)
+    # seen from the other end: the same pairs
+    back = associate(b, a, settings)
+    np.testing.assert_array_equal(back.pairs, truth[:, ::-1])
+
+
+def test_a_consistent_triangle_of_chance_lookalikes_is_refused(monkeypatch):
+    """Two unrelated places whose objects come in three look-alike types: the second holds a
+    triangle congruent to one of the first, of matching types. The descriptors match, but
+    within each map look-alikes are common: the three pairs are not beyond chance."""
+    a, b, _ = _maps(seed=2, types=3, shared_geometry=True, shared_objects=False)
+    result = associate(a, b)
+    assert not result.matched
+    assert result.pairs.size == 0
+    # it is the chance bound that refuses it: without it the triangle would be the answer
+    monkeypatch.setattr("teamslam.association.answer.chance_tail", lambda *args: 0.0)
+    wrong = associate(a, b)
+    assert wrong.matched and len(wrong.pairs) == 3
+    monkeypatch.undo()
+    # the same triangle with objects that only the same object resembles is an answer
+    a, b, truth = _maps(seed=2, types=None, shared_geometry=True, shared_objects=True)
+    np.testing.assert_array_equal(associate(a, b).pairs, truth)
+
+
+def test_unrelated_places_with_equal_looking_objects_give_no_answer():
+    a, b, _ = _maps(seed=3, types=None, shared_geometry=False, shared_objects=False)
+    equal = np.ones_like(a.appearance)
+    result = associate(replace(a, appearance=equal), replace(b, appearance=equal))
+    assert not result.matched
+
+
+def test_useless_or_absent_appearance_gives_the_position_only_answer():
+    a, b, _ = _maps(seed=4, types=None, shared_geometry=True, shared_objects=True)
+    # a larger shared set, so that position alone answers
+    rng = np.random.default_rng(4)
+    means_b = b.means.copy()
+    t = _transform(0.7, np.array([5.0, -3.0, 0.0]))
+    means_b[3:9] = a.means[3:9] @ t[:3, :3].T + t[:3, 3] + 0.001 * rng.standard_normal((6, 3))
+    b = replace(b, means=means_b)
+    reference = associate(_without(a), _without(b))
+    assert reference.matched and len(reference.pairs) >= 6
+    equal = replace(a, appearance=np.ones_like(a.appearance))
+    for first, second in ((equal, replace(b, appearance=np.ones_like(b.appearance))),):
+        result = associate(first, second, held=reference.pairs)
+        for name in ("status", "candidates", "clique", "rival", "exact", "flipped"):
+            assert getattr(result, name) == getattr(reference, name)
+        np.testing.assert_array_equal(result.pairs, reference.pairs)
+        np.testing.assert_array_equal(result.T_first_second, reference.T_first_second)
+
+
+def test_the_chance_bound_falls_with_evidence_and_grows_with_the_map():
+    rng = np.random.default_rng(5)
+    model = AppearanceModel(0.99)
+    same = 1.0 - np.cos(0.2 * rng.random(200))
+    different = 1.0 - np.cos(np.pi / 2 + 0.3 * rng.standard_normal(2000))
+    model.add(same, different)
+    assert model.informative
+    strong = float(model.log_ratio(np.array([0.001]))[0])
+    assert strong > 0
+    tails = [chance_tail(model, s * strong, 3, 30) for s in (0.5, 1.0, 2.0, 3.0)]
+    assert all(x >= y for x, y in itertools.pairwise(tails))
+    assert chance_tail(model, -1e9, 3, 30) == 1.0
+    # more objects to choose a look-alike from: a chance set gets further
+    assert chance_tail(model, 3 * strong, 3, 300) >= chance_tail(model, 3 * strong, 3, 30)
+
+
+def test_a_summary_with_appearance_crosses_the_wire():
+    ids = np.array([3, 9, 40])
+    rng = np.random.default_rng(6)
+    summary = ObjectSummary(
+        2,
+        ids,
+        np.arange(9.0).reshape(3, 3),
+        np.stack([np.eye(3)] * 3),
+        classes=np.array([1, 2, 1]),
+        appearance=rng.standard_normal((3, 8)),
+        same_counts=np.arange(40),
+    )
+    team = team_id("appearance")
+    message = MapIdsMessage(2, 0, 7, ids, None, summary)
+    data = encode(message, team)
+    assert len(data) == message.nbytes()
+    back = decode(data, team, 3).summary
+    np.testing.assert_array_equal(back.appearance, summary.appearance)  # float16 both ends
+    np.testing.assert_array_equal(back.same_counts, summary.same_counts)
+    np.testing.assert_array_equal(back.classes, summary.classes)
+    plain = replace(message, summary=replace(summary, classes=None))
+    np.testing.assert_array_equal(
+        decode(encode(plain, team), team, 3).summary.appearance, summary.appearance
+    )
+    for cut in (1, 2 * 8, len(data) - 100):
+        with pytest.raises(WireError, match=r"truncated|length") as error:
+            decode(data[:-cut], team, 3)
+        assert "\n" not in str(error.value)
+    # a dimension that disagrees with the length
+    at = len(data) - 4 * 40 - 2 * 8 * 3 - 2
+    bad = bytearray(data)
+    bad[at : at + 2] = (9).to_bytes(2, "little")
+    with pytest.raises(WireError, match="length"):
+        decode(bytes(bad), team, 3)
+    bad[at : at + 2] = (0).to_bytes(2, "little")
+    with pytest.raises(WireError, match="dimensions"):
+        decode(bytes(bad), team, 3)
+
+
+def test_per_object_appearance_is_stored_and_renumbered(tmp_path):
+    team = lissajous_team(robots=2, steps=20, seed=3, landmarks=300, appearance=8)
+    for robot in team.robots:
+        seen = np.unique(robot.objects.ids)
+        np.testing.assert_array_equal(robot.object_appearance_ids, seen)
+        assert robot.object_appearance.shape == (seen.size, 8)
+    stripped = strip_object_ids(team, seed=1)
+    identity = stripped.object_identity  # (robot, new id, old id)
+    for i, (before, after) in enumerate(zip(team.robots, stripped.robots, strict=True)):
+        rows = identity[identity[:, 0] == i]
+        new = after.appearance_of_objects(rows[:, 1])
+        old = before.appearance_of_objects(rows[:, 2])
+        np.testing.assert_array_equal(new, old)
+    # two robots' descriptors of one object are nearer than of two objects
+    a, b = team.robots
+    common = np.intersect1d(a.object_appearance_ids, b.object_appearance_ids)
+    assert common.size >= 3
+    da, db = unit_rows(a.appearance_of_objects(common)), unit_rows(b.appearance_of_objects(common))
+    cos = da @ db.T
+    assert np.all(np.diag(cos) > np.max(cos - 2 * np.eye(common.size), axis=1))
+    save_dataset(stripped, tmp_path / "d")
+    back = load_dataset(tmp_path / "d")
+    assert json.loads((tmp_path / "d" / "manifest.json").read_text())["version"] == FORMAT_VERSION
+    for r0, r1 in zip(stripped.robots, back.robots, strict=True):
+        np.testing.assert_array_equal(r0.object_appearance_ids, r1.object_appearance_ids)
+        np.testing.assert_array_equal(r0.object_appearance, r1.object_appearance)
+        assert r1.object_appearance.dtype == np.float32
+
+
+def test_a_team_with_useless_appearance_runs_as_without_it():
+    """Descriptors that are all equal separate nothing: estimates and tables as position-only."""
+    team = strip_object_ids(
+        lissajous_team(robots=3, steps=40, seed=4, landmarks=500, appearance=8), seed=2
+    )
+    equal = replace(
+        team,
+        robots=[
+            replace(r, object_appearance=np.ones_like(r.object_appearance)) for r in team.robots
+        ],
+    )
+    none = replace(
+        team,
+        robots=[
+            replace(r, object_appearance=None, object_appearance_ids=None) for r in team.robots
+        ],
+    )
+    settings = {"filter.window": 6, "association.mode": "own"}
+    runs = [run_team(d, config_for(d, settings), ring(3), progress=False) for d in (none, equal)]
+    for p, q in zip(runs[0].poses, runs[1].poses, strict=True):
+        assert p.tobytes() == q.tobytes()
+    for p, q in zip(runs[0].objects, runs[1].objects, strict=True):
+        assert p.tobytes() == q.tobytes()
+
+
+def test_a_team_with_appearance_holds_right_pairs_mirrored_at_both_ends():
+    """With simulated appearance every link's two ends hold the same pairs, all right ones;
+    the summaries carry the descriptors (more bytes than without, less than twice)."""
+    from teamslam.eval.metrics import team_metrics
+
+    team = strip_object_ids(
+        lissajous_team(robots=4, steps=60, seed=4, landmarks=500, appearance=16), seed=2
+    )
+    none = replace(
+        team,
+        robots=[
+            replace(r, object_appearance=None, object_appearance_ids=None) for r in team.robots
+        ],
+    )
+    settings = {"filter.window": 6, "association.mode": "own"}
+    metrics = {}
+    for name, data in (("looks", team), ("none", none)):
+        result = run_team(data, config_for(data, settings), ring(4), progress=False)
+        metrics[name] = team_metrics(data, result)["association"]
+    looks = metrics["looks"]
+    assert looks["team"]["wrong"] == 0 and looks["team"]["accepted"] > 0
+    assert all(link["ends_agree"] for link in looks["links"].values())
+    sent = {k: m["team"]["summary_bytes_per_robot_step"] for k, m in metrics.items()}
+    assert sent["none"] < sent["looks"] < 2 * sent["none"]
