@@ -111,6 +111,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"python benchmarks/box_stereo.py --frames 40 --markdown {GENERATED}/box-stereo.md",
         f"{GENERATED}/box-stereo.md",
     ),
+    "detector-team": (
+        "python benchmarks/detector_team.py --robots 3 --steps 120 "
+        f"--markdown {GENERATED}/detector-team.md",
+        f"{GENERATED}/detector-team.md",
+    ),
     "render-objects": (
         f"python benchmarks/render_objects.py --markdown {GENERATED}/render-objects.md",
         f"{GENERATED}/render-objects.md",

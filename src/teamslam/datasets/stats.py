@@ -127,6 +127,7 @@ def dataset_info(dataset: TeamDataset) -> dict:
         "objects_seen_once": [list(pair) for pair in seen_once(dataset)],
         "object_observations_per_frame": _per_frame([r.objects for r in dataset.robots]),
         "feature_observations_per_frame": _per_frame([r.features for r in dataset.robots]),
+        "detections_per_frame": _detections_per_frame(dataset),
         "geometric_tracks": int(track_lengths.size),
         "geometric_track_length_mean": float(track_lengths.mean()) if track_lengths.size else 0.0,
         "fx": float(dataset.calibration.camera.intrinsics[0, 0]),
@@ -148,6 +149,7 @@ def format_info(info: dict) -> str:
             f"({info['objects_shared']} by ≥ 2 robots), {info['objects_in_map']} in the map",
             *_seen_once_line(info.get("objects_seen_once") or []),
             f"object obs/frame   mean {o['mean']:.2f}, max {o['max']} ({o['total']} in all)",
+            *_detections_line(info.get("detections_per_frame")),
             f"feature obs/frame  mean {f['mean']:.2f}, max {f['max']} ({f['total']} in all)",
             f"geometric tracks   {info['geometric_tracks']}, mean length "
             f"{info['geometric_track_length_mean']:.2f} frames",
@@ -155,6 +157,38 @@ def format_info(info: dict) -> str:
             *_noise_lines(info),
         ]
     )
+
+
+def _detections_per_frame(dataset: TeamDataset) -> dict | None:
+    """Detections without ids per frame, how many in stereo, and what they carry."""
+    detections = [r.detections for r in dataset.robots if r.detections is not None]
+    if not detections:
+        return None
+    counts = np.concatenate([np.diff(d.offsets) for d in detections])
+    z = np.concatenate([d.measurements for d in detections])
+    first = detections[0]
+    return {
+        "mean": float(counts.mean()) if counts.size else 0.0,
+        "max": int(counts.max()) if counts.size else 0,
+        "total": int(counts.sum()),
+        "stereo": int(np.all(np.isfinite(z), axis=1).sum()),
+        "classes": first.classes is not None,
+        "appearance": None if first.appearance is None else int(first.appearance.shape[1]),
+        "truth": first.truth is not None,
+    }
+
+
+def _detections_line(d: dict | None) -> list[str]:
+    if not d:
+        return []
+    carried = [name for name in ("classes", "truth") if d[name]]
+    if d["appearance"]:
+        carried.append(f"appearance ({d['appearance']} numbers)")
+    return [
+        f"detections/frame   mean {d['mean']:.2f}, max {d['max']} ({d['total']} in all, "
+        f"{d['stereo']} in stereo); without ids"
+        + (f", with {', '.join(carried)}" if carried else "")
+    ]
 
 
 def _seen_once_line(once: list) -> list[str]:
