@@ -465,7 +465,12 @@ class MsckfAgent:
         z, classes = self.sequence.detections.frame(t)
         finite = np.all(np.isfinite(z), axis=1)
         if not finite.all():
-            self.reject("object_measurements", int((~finite).sum()), "non-finite")
+            # a box seen in the left image only (no stereo match) is expected, and counted; the
+            # object update needs both images
+            monocular = ~finite & np.all(np.isfinite(z[:, :2]), axis=1)
+            self.counters["detections_monocular"] += int(monocular.sum())
+            if (~finite & ~monocular).any():
+                self.reject("object_measurements", int((~finite & ~monocular).sum()), "non-finite")
         frame = self.tracker.assign(
             t,
             z,
