@@ -139,3 +139,47 @@ def test_bad_detection_inputs_name_what_is_wrong(tmp_path, street):
             detection_truth=[truth, inputs["detection_truth"][1]],
             progress=False,
         )
+
+
+def test_boxes_through_a_ros2_bag(tmp_path, street):
+    """The same images and boxes as a bag (Image and Detection2DArray topics) give the same
+    detections as the folders: `data import-bag --images … --detections TOPIC`."""
+    pytest.importorskip("rosbags")
+    from teamslam.ros2.image_bags import images_to_bag
+
+    inputs = rendered_team_inputs(street)
+    bag = tmp_path / "boxes.mcap"
+    images_to_bag(
+        inputs["left_dirs"],
+        inputs["right_dirs"],
+        inputs["camera"],
+        inputs["timestamps"],
+        bag,
+        odometry=inputs["odometry"],
+        robot_names=inputs["robot_names"],
+        detections=inputs["detections"],
+    )
+    cmd = [sys.executable, "-m", "teamslam", "data", "import-bag", str(bag)]
+    cmd += ["--images", "/{name}/left/image_raw,/{name}/right/image_raw"]
+    cmd += ["--camera", str(inputs["camera"]), "--detections", "/{name}/detections"]
+    for name in inputs["robot_names"]:
+        cmd += ["--robot", f"{name}:/{name}/odom"]
+    cmd += ["--quiet", "--out", str(tmp_path / "ds")]
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    ds = load_dataset(tmp_path / "ds")
+    assert ds.object_id_scope == "none"
+    # the folders without their right-image boxes (the bag has none): the same measurements
+    folders = dataset_from_images(
+        **{k: v for k, v in inputs.items() if k != "right_detections"}, progress=False
+    )
+    for a, b in zip(folders.robots, ds.robots, strict=True):
+        np.testing.assert_array_equal(a.detections.offsets, b.detections.offsets)
+        np.testing.assert_allclose(a.detections.measurements, b.detections.measurements, atol=1e-6)
+        np.testing.assert_array_equal(a.detections.classes, b.detections.classes)
+        np.testing.assert_allclose(a.detections.scores, b.detections.scores, atol=1e-6)
+    # a topic of boxes without image topics is refused in one line
+    cmd = [sys.executable, "-m", "teamslam", "data", "import-bag", str(bag), "--detections", "/x"]
+    cmd += ["--robot", "robot_0", "--out", str(tmp_path / "ds2")]
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    assert done.returncode == 2 and "needs --images" in done.stderr

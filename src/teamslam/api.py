@@ -937,7 +937,8 @@ def simulate_images(
     """Render a team as image folders (:func:`teamslam.sim.render.render_team`) and, with
     ``bag``, also as a ROS 2 bag ``out/images.mcap``
     (:func:`teamslam.ros2.image_bags.images_to_bag`, topics ``/robot_k/{left,right}/image_raw``,
-    ``…/camera_info``, ``/robot_k/odom``, ``/robot_k/ground_truth``).
+    ``…/camera_info``, ``/robot_k/odom``, ``/robot_k/ground_truth``, and with a detector
+    ``/robot_k/detections``, its left-image boxes as ``vision_msgs/msg/Detection2DArray``).
 
     Parameters
     ----------
@@ -976,5 +977,6 @@ def simulate_images(
             ground_truth=inputs["ground_truth"],
             robot_names=inputs["robot_names"],
             progress=progress,
+            detections=inputs.get("detections"),
         )
     return team

@@ -290,6 +290,8 @@ def _cmd_import_bag_any(args: argparse.Namespace) -> int:
     from teamslam.errors import InputError
 
     if args.images is None:
+        if args.detections is not None:
+            raise InputError("--detections takes a topic of boxes in images: it needs --images")
         missing = [
             f
             for f, v in (("--observations", args.observations), ("--camera", args.camera))
@@ -306,7 +308,10 @@ def _cmd_import_bag_any(args: argparse.Namespace) -> int:
         raise InputError("--observations and --images exclude each other")
     if args.camera is None and args.camera_info is None:
         raise InputError("--images needs --camera FILE or --camera-info LEFT_TOPIC,RIGHT_TOPIC")
-    robots = [image_topics(spec, args.images, args.camera_info) for spec in args.robot]
+    robots = [
+        image_topics(spec, args.images, args.camera_info, detections=args.detections)
+        for spec in args.robot
+    ]
     config = _frontend(args)
     dataset = dataset_from_bag(
         args.bag,
@@ -725,6 +730,14 @@ dataset's metadata; without ground truth the poses stored as truth are dead-reck
         metavar="LEFT_TOPIC,RIGHT_TOPIC",
         help="with --images: sensor_msgs/CameraInfo topics ({name} replaced; the first "
         "robot's give the rig) in place of --camera",
+    )
+    bag.add_argument(
+        "--detections",
+        default=None,
+        metavar="TOPIC",
+        help="with --images: a vision_msgs/msg/Detection2DArray topic of boxes in the left "
+        "images ({name} replaced), matched by stamp; the objects are then these boxes, "
+        "without ids (each robot tracks them)",
     )
     _frontend_arguments(bag)
     bag.set_defaults(handler=_cmd_import_bag_any)

@@ -30,7 +30,7 @@ from teamslam.frontend.detections import (
 from teamslam.ros2 import messages as m
 from teamslam.ros2.bags import _check_type, _read_topics
 
-__all__ = ["class_table", "read_detection_topic", "write_detection_topic"]
+__all__ = ["class_table", "detection_records", "read_detection_topic", "write_detection_topic"]
 
 
 def class_table(names: Sequence[str]) -> dict[str, int]:
@@ -151,6 +151,22 @@ def write_detection_topic(
     :func:`read_detection_topic`). ``vision_msgs`` has no field for embeddings: they are not
     written. Returns the messages per topic.
     """
+    records = detection_records(
+        topic, stamps_ns, detections, class_names=class_names, frame_id=frame_id
+    )
+    return m.write_mcap_records(records, Path(out))
+
+
+def detection_records(
+    topic: str,
+    stamps_ns: Sequence[int] | np.ndarray,
+    detections: Sequence[ImageDetections],
+    *,
+    class_names: Sequence[str] | None = None,
+    frame_id: str = "camera",
+) -> list[tuple[int, str, str, bytes]]:
+    """The ``(stamp, topic, msgtype, cdr bytes)`` records of :func:`write_detection_topic`, to
+    write beside other topics in one bag."""
     if len(stamps_ns) != len(detections):
         raise InputError(f"{len(stamps_ns)} stamps for {len(detections)} images of detections")
     t = m.typestore().types
@@ -190,4 +206,4 @@ def write_detection_topic(
             )
         msg = Array(header=hdr, detections=dets)
         records.append((int(stamp), topic, m.DETECTIONS_TYPE, m.serialize(msg)))
-    return m.write_mcap_records(records, Path(out))
+    return records

@@ -29,6 +29,8 @@ from teamslam.errors import InputError
 from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.camera import StereoRig, load_camera
 from teamslam.frontend.config import FrontendConfig
+from teamslam.frontend.detections import read_detections
+from teamslam.ros2.detection_bags import detection_records, read_detection_topic
 
 __all__ = ["ImageTopics", "dataset_from_bag", "image_topics", "images_to_bag"]
 
@@ -56,6 +58,9 @@ class ImageTopics:
     odometry, ground_truth
         ``nav_msgs/Odometry`` and ``geometry_msgs/PoseStamped`` topics (optional),
         interpolated at the image stamps.
+    detections
+        A ``vision_msgs/msg/Detection2DArray`` topic of boxes in the left images (optional;
+        matched to the images by header stamp): the objects are then these boxes, without ids.
     """
 
     name: str
@@ -64,6 +69,7 @@ class ImageTopics:
     camera_info: tuple[str, str] | None = None
     odometry: str | None = None
     ground_truth: str | None = None
+    detections: str | None = None
 
     @classmethod
     def default(cls, name: str) -> ImageTopics:
@@ -119,10 +125,13 @@ def images_to_bag(
     ground_truth: Sequence[str | Path | None] | None = None,
     robot_names: Sequence[str] | None = None,
     progress: bool = False,
+    detections: Sequence[str | Path | None] | None = None,
 ) -> dict:
     """Write image folders as a ROS 2 bag (MCAP): per robot the topics of
     :meth:`ImageTopics.default` — ``mono8`` Images, CameraInfo (ROS rectification
-    semantics), Odometry and PoseStamped at the image stamps.
+    semantics), Odometry and PoseStamped at the image stamps; with ``detections`` (per robot
+    a YOLO folder or COCO JSON of its left images) also ``/NAME/detections``, the boxes as
+    ``vision_msgs/msg/Detection2DArray``.
 
     Returns
     -------
@@ -140,6 +149,7 @@ def images_to_bag(
     names = list(robot_names) if robot_names is not None else [f"robot_{i}" for i in range(n)]
     odo_files = _per_robot(odometry, n, "odometry files")
     gt_files = _per_robot(ground_truth, n, "ground-truth files")
+    det_sources = _per_robot(detections, n, "detection sources")
     records = []
     bar = tqdm(desc="bag", disable=not progress)
     try:
@@ -196,6 +206,11 @@ def images_to_bag(
                     pose = m.pose_stamped(gt[k], s, "world")
                     records.append((s, topics.ground_truth, POSE, m.serialize(pose, POSE)))
                 bar.update()
+            if det_sources[i] is not None:
+                read = read_detections(det_sources[i], [lp.name for lp, _ in pairs], rig.image_size)
+                records += detection_records(
+                    f"/{names[i]}/detections", ns, read.images, frame_id=f"{names[i]}/left_camera"
+                )
     finally:  # closed before any error is printed
         bar.close()
     out = Path(out)
@@ -350,6 +365,9 @@ def dataset_from_bag(
     )
     try:
         out, info, next_id = [], [], 0
+        boxes_given = any(r.detections for r in robots)
+        if boxes_given and not all(r.detections for r in robots):
+            raise InputError("detection topics for some robots and not others: give each robot one")
         for r in robots:
             left_stamps = np.array([s for s, _ in data[r.left]], np.int64)
             right_by_stamp = dict(data[r.right])
@@ -378,8 +396,20 @@ def dataset_from_bag(
                 )
                 for s, msg in data[r.left]
             )
+            boxes = None
+            if r.detections:
+                read = read_detection_topic(bag, r.detections, left_stamps, rig.image_size)
+                boxes = {"left": read, "right": None, "truth": None, "source": r.detections}
             robot, record, next_id = _robot_sequence(
-                images, rig, config, next_id, poses["odometry"], poses["ground truth"], seconds, bar
+                images,
+                rig,
+                config,
+                next_id,
+                poses["odometry"],
+                poses["ground truth"],
+                seconds,
+                bar,
+                boxes,
             )
             record.update({"name": r.name, "left": r.left, "right": r.right})
             if r.odometry:
@@ -391,7 +421,7 @@ def dataset_from_bag(
     finally:  # closed before any error is printed
         bar.close()
     source = {"bag": str(bag), "camera": str(camera) if camera else "camera_info topics"}
-    return _team(out, info, rig, config, markers, name, source)
+    return _team(out, info, rig, config, markers, name, source, boxes=boxes_given)
 
 
 def _check_size(img: np.ndarray, rig: StereoRig, topic: str, stamp: int) -> np.ndarray:
@@ -405,7 +435,11 @@ def _check_size(img: np.ndarray, rig: StereoRig, topic: str, stamp: int) -> np.n
 
 
 def image_topics(
-    robot: str, images: str, camera_info: str | None = None, odometry: str | None = None
+    robot: str,
+    images: str,
+    camera_info: str | None = None,
+    odometry: str | None = None,
+    detections: str | None = None,
 ) -> ImageTopics:
     """One robot's :class:`ImageTopics` from command-line templates.
 
@@ -420,6 +454,8 @@ def image_topics(
         ``None``.
     odometry
         An odometry topic template used when ``robot`` names none.
+    detections
+        A ``Detection2DArray`` topic template (``{name}`` replaced), or ``None``.
     """
     parts = robot.split(":")
     if not 1 <= len(parts) <= 3 or not all(parts):
@@ -438,5 +474,11 @@ def image_topics(
     if odo is not None:
         odo = odo.replace("{name}", name)
     return ImageTopics(
-        name, left, right, info, odo, parts[2].replace("{name}", name) if len(parts) > 2 else None
+        name,
+        left,
+        right,
+        info,
+        odo,
+        parts[2].replace("{name}", name) if len(parts) > 2 else None,
+        None if detections is None else detections.replace("{name}", name),
     )
