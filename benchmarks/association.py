@@ -329,14 +329,16 @@ def delay(directory: str, graph: str, loss: float, window: int) -> None:
     )
 
 
-def scenarios(window: int, md: Markdown) -> None:
-    """Consensus RMSE with oracle ids against own association on each sensor scenario."""
+def scenarios(window: int, md: Markdown, appearance: int = 0) -> None:
+    """Consensus RMSE with oracle ids against own association on each sensor scenario (with
+    simulated appearance of ``appearance`` dimensions when given)."""
     print(
         f"{'scenario':32} {'oracle m':>9} {'own m':>9} {'ratio':>6} {'precision':>9} {'recall':>7}"
     )
     md.table(
         f"Sensor scenarios (3 robots, 200 steps, complete graph, window {window}): consensus "
-        "with the simulator's ids and with own association",
+        "with the simulator's ids and with own association"
+        + (f", appearance of {appearance} dimensions" if appearance else ""),
         [
             "scenario",
             "oracle ids RMSE [m]",
@@ -347,7 +349,7 @@ def scenarios(window: int, md: Markdown) -> None:
         ],
     )
     for name in SENSOR_SCENARIOS:
-        team = scenario_team(name)
+        team = scenario_team(name, appearance=appearance)
         runs = {}
         for association, data in (("oracle", team), ("own", strip_object_ids(team, seed=0))):
             runs[association] = api.run(
@@ -508,7 +510,7 @@ def main() -> None:
         type=int,
         default=0,
         metavar="DIM",
-        help="oracle: simulate the teams with appearance descriptors of DIM dimensions",
+        help="oracle, scenarios: simulate the teams with appearance descriptors of DIM dimensions",
     )
     parser.add_argument(
         "--useless-appearance",
@@ -545,7 +547,7 @@ def main() -> None:
     if "oracle" in args.what:
         oracle(args.teams, args.window, md, args.appearance, args.useless_appearance)
     if "scenarios" in args.what:
-        scenarios(args.window, md)
+        scenarios(args.window, md, args.appearance)
     md.write()
 
 

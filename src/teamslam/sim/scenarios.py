@@ -61,15 +61,22 @@ SENSOR_SCENARIOS: dict[str, dict] = {
 
 
 def scenario_team(
-    name: str, robots: int = 3, steps: int = 200, seed: int = 0, sensor_model: bool = True
+    name: str,
+    robots: int = 3,
+    steps: int = 200,
+    seed: int = 0,
+    sensor_model: bool = True,
+    appearance: int = 0,
 ) -> TeamDataset:
-    """The team of scenario ``name``; without its sensor model when ``sensor_model`` is false."""
+    """The team of scenario ``name``; without its sensor model when ``sensor_model`` is false;
+    with simulated appearance of ``appearance`` dimensions when given (the rest unchanged)."""
     try:
         fields = SENSOR_SCENARIOS[name]
     except KeyError:
         raise InputError(
             f"unknown scenario {name!r}; scenarios: {', '.join(SENSOR_SCENARIOS)}"
         ) from None
-    team = lissajous_team(robots=robots, steps=steps, seed=seed, **fields)
+    extra = {"appearance": appearance} if appearance else {}
+    team = lissajous_team(robots=robots, steps=steps, seed=seed, **fields, **extra)
     team.name = f"{name}-{robots}r-{steps}s-seed{seed}"
     return team if sensor_model else replace(team, sensor_model=None)
