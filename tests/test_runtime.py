@@ -62,7 +62,7 @@ def test_wire_round_trip_is_exact():
         (lambda b: b + b"\x00" * 8, "length"),
         (lambda b: b"XXXX" + b[4:], "bad magic"),
         (lambda b: b[:4] + bytes([9]) + b[5:], "unknown format version"),
-        (lambda b: b[:5] + bytes([12]) + b[6:], "unknown message kind"),
+        (lambda b: b[:5] + bytes([255]) + b[6:], "unknown message kind"),
     ],
 )
 def test_wire_rejections_are_named(mutate, reason):
