@@ -111,6 +111,16 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"python benchmarks/box_stereo.py --frames 40 --markdown {GENERATED}/box-stereo.md",
         f"{GENERATED}/box-stereo.md",
     ),
+    "association-scenarios": (
+        "python benchmarks/association.py scenarios "
+        f"--markdown {GENERATED}/association-scenarios.md",
+        f"{GENERATED}/association-scenarios.md",
+    ),
+    "association-scenarios-appearance": (
+        "python benchmarks/association.py scenarios --appearance 32 "
+        f"--markdown {GENERATED}/association-scenarios-appearance.md",
+        f"{GENERATED}/association-scenarios-appearance.md",
+    ),
     "detector-team": (
         "python benchmarks/detector_team.py --robots 3 --steps 120 "
         f"--markdown {GENERATED}/detector-team.md",
