@@ -274,3 +274,33 @@ def test_simulate_a_long_route_from_the_command_line(tmp_path, capsys):
     np.testing.assert_array_equal(load_dataset(out).object_positions, expected.object_positions)
     assert main([*argv[:-1], str(tmp_path / "x"), "--objects", "5"]) != 0
     assert "--objects" in capsys.readouterr().err
+
+
+def test_max_active_bounds_the_state_by_size():
+    """``objects.max_active``: the state never holds more objects than the bound plus those
+    observed in the frame; the least recently observed leave first, re-enter when seen again,
+    and no object is lost."""
+    dataset = lissajous_team(robots=1, steps=120, seed=3)
+    bound = 12
+    config = config_for(dataset, {"filter.window": 6, "objects.max_active": bound})
+    agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
+    last_seen: dict[int, int] = {}
+    for t in range(dataset.robots[0].frames):
+        before = set(agent.state.retired.arrays()["ids"].tolist())
+        agent.step(t)
+        state = agent.state
+        now = state.object_last_seen == t
+        assert state.n_objects <= max(bound, int(now.sum()))
+        retired = set(state.retired.arrays()["ids"].tolist()) - before
+        kept = state.object_last_seen[~now]
+        if retired and kept.size:
+            # the objects retired this frame were seen no later than any unobserved one kept
+            assert max(last_seen[i] for i in retired) <= kept.min()
+        last_seen.update(
+            zip(state.object_ids.tolist(), state.object_last_seen.tolist(), strict=True)
+        )
+    counters = agent.counters
+    assert counters["objects_retired"] > 0 and counters["objects_reentered"] > 0
+    assert counters["objects_initialised"] == agent.state.n_objects + len(agent.state.retired)
+    with pytest.raises(InputError, match="max_active"):
+        config_for(dataset, {"objects.max_active": -1})

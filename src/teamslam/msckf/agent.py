@@ -294,7 +294,7 @@ class MsckfAgent:
         after_update = time.perf_counter()
         if self.config.filter.use_objects:
             self._initialise_objects(t)
-            if self.config.objects.retire_after > 0:
+            if self.config.objects.retire_after > 0 or self.config.objects.max_active > 0:
                 self._retire_objects(t)
         while self.state.n_poses > self.config.filter.window:
             self._odometry_health(0)
@@ -504,8 +504,19 @@ class MsckfAgent:
             self.counters["objects_reentered"] += int(back.size)
 
     def _retire_objects(self, t: int) -> None:
-        """Move the objects unobserved for ``objects.retire_after`` frames to the persistent map."""
-        stale = t - self.state.object_last_seen >= self.config.objects.retire_after
+        """Move to the persistent map the objects unobserved for ``objects.retire_after``
+        frames, then, beyond ``objects.max_active``, the least recently observed ones not
+        observed at ``t``."""
+        cfg = self.config.objects
+        last_seen = self.state.object_last_seen
+        stale = np.zeros(last_seen.size, bool)
+        if cfg.retire_after > 0:
+            stale = t - last_seen >= cfg.retire_after
+        excess = last_seen.size - int(stale.sum()) - cfg.max_active
+        if cfg.max_active > 0 and excess > 0:
+            candidates = np.flatnonzero(~stale & (last_seen < t))
+            oldest = candidates[np.argsort(last_seen[candidates], kind="stable")][:excess]
+            stale[oldest] = True
         if stale.any():
             self.state.retire_objects(np.flatnonzero(stale))
             self.counters["objects_retired"] += int(stale.sum())

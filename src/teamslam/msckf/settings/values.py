@@ -204,6 +204,11 @@ class ObjectSettings:
         again): this bounds the state, and so the cost per frame, over a long mission. 0 never
         retires an object. Policy, exactness and what it means for consensus:
         :mod:`teamslam.msckf.filter.persistent_map`.
+    max_active
+        The most objects the filter state may hold: beyond it the least recently observed
+        objects not observed this frame retire into the persistent map as with
+        ``retire_after`` (and re-enter when observed again), which bounds the cost per frame
+        by size rather than by time. 0: no bound.
     """
 
     init_observations: int = field(default=3, metadata=_unit("observations"))
@@ -214,6 +219,7 @@ class ObjectSettings:
     loss_scale: float = field(default=2.0, metadata=_unit("std"))
     update_iterations: int = field(default=1, metadata=_unit("linearisations"))
     retire_after: int = field(default=0, metadata=_unit("frames"))
+    max_active: int = field(default=0, metadata=_unit("objects"))
 
     def __post_init__(self) -> None:
         if not _is_count(self.init_observations, 2):
@@ -239,6 +245,10 @@ class ObjectSettings:
         if not _is_count(self.retire_after, 0):
             raise InputError(
                 "objects.retire_after must be an integer number of frames ≥ 0 (0: never retire)"
+            )
+        if not _is_count(self.max_active, 0):
+            raise InputError(
+                "objects.max_active must be an integer number of objects ≥ 0 (0: no bound)"
             )
 
     def robust_weight(self, mahalanobis: np.ndarray) -> np.ndarray:
