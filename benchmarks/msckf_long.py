@@ -5,6 +5,7 @@ Run on demand (BLAS pinned to one thread)::
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py cost [--frames 5000] [--retire 40]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py accuracy [--frames 300] [--retire 40]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py revisit [--frames 1000] [--set k=v ...]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py budget [--frames 300] [--budgets 40 80]
 
 ``cost`` runs a team (3 robots, consensus over a complete graph) along the long route
 (:func:`teamslam.sim.long_route_team`, a world of about 1.2 objects per metre) with objects
@@ -30,6 +31,11 @@ machine disturbs less), the
 consensus bytes per robot-step, the objects averaged per robot-step and the state dimension
 (mean over robots) over the same frames, and the accuracy of each run and its ratio to the
 paper's set.
+``budget`` flies the same team once without a bound on the objects in each robot's state and
+once per ``--budgets`` value of ``objects.max_active``, and prints per run the median time per
+frame of consensus and of the whole step (mean over robots) over frames 100–200 and over the last
+100 and their ratio, and the trajectory RMSE and object error with their ratio to the unbounded
+run. ``--markdown FILE`` writes that table headed by the commit, date, command and machine.
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from _markdown import Markdown, add_option
 from teamslam.eval.metrics import team_metrics
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
@@ -356,6 +363,59 @@ def revisit(frames: int, seed: int, overrides: dict) -> None:
     print("ratio   " + " ".join(f"{metrics['active'][k] / metrics['all'][k]:10.3f}" for k in keys))
 
 
+def budget(frames: int, seed: int, budgets: list[int], md: Markdown) -> None:
+    """Cost growth and accuracy of the make-run team under each ``objects.max_active``."""
+    dataset = lissajous_team(5, frames, seed=seed)
+    windows = [(100, 201), (frames - 99, frames + 1)]
+    header = [
+        "objects.max_active",
+        "consensus ms, frames 100–200",
+        "consensus ms, last 100",
+        "growth",
+        "step ms, frames 100–200",
+        "step ms, last 100",
+        "growth",
+        "trajectory RMSE [m]",
+        "× unbounded",
+        "object error [m]",
+        "× unbounded",
+    ]
+    md.table(
+        f"A budget on the objects in each robot's state: the make-run team (5 robots, complete "
+        f"graph, window 10) flown for {frames} frames, consensus",
+        header,
+        "Times: median over the frames of the window of the wall time per frame, mean over "
+        "robots; growth: last 100 frames over frames 100–200.",
+    )
+    print(" | ".join(header))
+    reference = None
+    for bound in [0, *budgets]:
+        config = config_for(dataset, {"filter.window": 10, "objects.max_active": bound})
+        result = run_team(dataset, config, progress=False)
+        times = 1e3 * np.stack(result.frame_times).mean(axis=0)  # (frames + 1, 4)
+        consensus = over(times[:, 0], windows)
+        step = over(times.sum(axis=1), windows)
+        metrics = team_metrics(dataset, result)
+        rmse, objects = metrics["trajectory_rmse_avg_m"], metrics["object_error_avg_m"]
+        reference = reference or (rmse, objects)
+        row = [
+            "none" if bound == 0 else str(bound),
+            f"{consensus[0]:.2f}",
+            f"{consensus[1]:.2f}",
+            f"{consensus[1] / consensus[0]:.2f}",
+            f"{step[0]:.2f}",
+            f"{step[1]:.2f}",
+            f"{step[1] / step[0]:.2f}",
+            f"{rmse:.4f}",
+            f"{rmse / reference[0]:.2f}",
+            f"{objects:.4f}",
+            f"{objects / reference[1]:.2f}",
+        ]
+        md.row(*row)
+        print(" | ".join(row), flush=True)
+    md.end()
+
+
 def _overrides(pairs: list[str]) -> dict:
     from teamslam.msckf.settings.sources import parse_assignments
 
@@ -364,14 +424,22 @@ def _overrides(pairs: list[str]) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("what", choices=("cost", "accuracy", "revisit"))
+    parser.add_argument("what", choices=("cost", "accuracy", "revisit", "budget"))
+    parser.add_argument(
+        "--budgets", type=int, nargs="*", default=[40, 80, 160], help="budget: objects.max_active"
+    )
+    add_option(parser)
     parser.add_argument("--set", nargs="*", default=[], help="bounded-set settings (revisit)")
     parser.add_argument("--robots", type=int, default=3)
     parser.add_argument("--frames", type=int, default=None, help="5000 (cost), 300 (accuracy)")
     parser.add_argument("--retire", type=int, default=40, help="object_retire_after (frames)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    if args.what == "revisit":
+    if args.what == "budget":
+        md = Markdown(args.markdown)
+        budget(args.frames or 300, args.seed, args.budgets, md)
+        md.write()
+    elif args.what == "revisit":
         revisit(args.frames or 1000, args.seed, _overrides(args.set))
     elif args.what == "cost":
         cost(args.robots, args.frames or 5000, args.retire, args.seed)

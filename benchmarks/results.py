@@ -121,6 +121,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/association-scenarios-appearance.md",
         f"{GENERATED}/association-scenarios-appearance.md",
     ),
+    "active-budget": (
+        "python benchmarks/msckf_long.py budget --frames 600 --budgets 40 80 160 "
+        f"--markdown {GENERATED}/active-budget.md",
+        f"{GENERATED}/active-budget.md",
+    ),
     "detector-team": (
         "python benchmarks/detector_team.py --robots 3 --steps 120 "
         f"--markdown {GENERATED}/detector-team.md",
