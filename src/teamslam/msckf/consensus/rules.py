@@ -115,6 +115,9 @@ class HybridRule(ConsensusRule):
             return None
         return ids, hybrid[0], hybrid[1]
 
+    #: whether the averages are of information increments (:class:`IncrementsRule`)
+    increments = False
+
     def average(self, state, self_weight, used, prior, counters, own_information):
         return consensus_average(
             state,
@@ -123,6 +126,7 @@ class HybridRule(ConsensusRule):
             prior=prior,
             counters=counters,
             own_information=own_information,
+            increments=self.increments,
         )
 
     def next_prior(self, state, prior, exchanged):
@@ -133,20 +137,10 @@ class IncrementsRule(HybridRule):
     """Consensus on information increments: hybrid messages carrying the sender's prior."""
 
     name = "increments"
+    increments = True
 
     def message_prior(self, prior):
         return prior
-
-    def average(self, state, self_weight, used, prior, counters, own_information):
-        return consensus_average(
-            state,
-            self_weight,
-            used,
-            prior=prior,
-            counters=counters,
-            own_information=own_information,
-            increments=True,
-        )
 
 
 _RULES: dict[str, type[ConsensusRule]] = {
