@@ -443,7 +443,8 @@ def _robot_sequence(
     for k, (left, right, where) in enumerate(images):
         colour = left if left.ndim == 3 else None
         if colour is not None:
-            left = require_cv2().cvtColor(colour, require_cv2().COLOR_BGR2GRAY)
+            cv2 = require_cv2()
+            left = cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY)
         if boxes is not None:
             if k >= len(boxes["left"].images):
                 raise InputError(f"{where}: more images than the detections were read for")
@@ -554,7 +555,6 @@ def _frame_detections(frames: list, truth: list | None) -> tuple[FrameDetections
             counts[key] = counts.get(key, 0) + value
     sizes = [m.sizes for m, _ in frames]
     offsets = np.concatenate([[0], np.cumsum([len(s) for s in sizes])]).astype(np.int64)
-    dim = max((looks.shape[1] for _, looks in frames if looks.ndim == 2), default=1)
     detections = FrameDetections(
         offsets,
         np.concatenate([m.z for m, _ in frames]).reshape(-1, 4),
@@ -562,7 +562,7 @@ def _frame_detections(frames: list, truth: list | None) -> tuple[FrameDetections
         np.concatenate([m.scores for m, _ in frames]),
         None if truth is None else np.concatenate(truth).astype(np.int64),
         np.concatenate(sizes).reshape(-1, 2),
-        np.concatenate([looks.reshape(-1, dim) for _, looks in frames]).astype(np.float32),
+        np.concatenate([looks for _, looks in frames]).astype(np.float32),
     )
     return detections, counts
 

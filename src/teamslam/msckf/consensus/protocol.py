@@ -289,7 +289,7 @@ class ConsensusProtocol:
         if tracker is not None:
             if tracker.memory is None:
                 return None
-            return tracker.memory.summaries(ids)[0]
+            return tracker.memory.summaries(ids)
         return self.agent.sequence.appearance_of_objects(ids)
 
     def _summary_for(self, j: int) -> ObjectSummary | None:

@@ -35,18 +35,15 @@ class AppearanceMemory:
         self.dimension = int(dimension)
         self._sums: dict[int, np.ndarray] = {}
 
-    def __contains__(self, object_id: int) -> bool:
-        return int(object_id) in self._sums
-
-    def summaries(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(K, D)`` summaries of ``ids`` and which of them have one (zeros where not)."""
+    def summaries(self, ids: np.ndarray) -> np.ndarray:
+        """``(K, D)`` summaries of ``ids`` (a zero row where an id has none: it compares with
+        nothing, :func:`cosine_distances`)."""
         out = np.zeros((len(ids), self.dimension))
-        known = np.zeros(len(ids), bool)
         for i, object_id in enumerate(np.asarray(ids).tolist()):
             s = self._sums.get(object_id)
             if s is not None:
-                out[i], known[i] = s, True
-        return out, known
+                out[i] = s
+        return out
 
     def add(self, object_id: int, descriptors: np.ndarray) -> None:
         """Fold detections' descriptors (``(k, D)`` or ``(D,)``) into ``object_id``'s summary."""
@@ -61,12 +58,6 @@ class AppearanceMemory:
         s = self._sums.pop(int(new), None)
         if s is not None:
             self._sums[int(old)] = self._sums.get(int(old), 0.0) + s
-
-    def rename(self, old: int, new: int) -> None:
-        """A summary kept under ``old`` belongs to ``new`` (``old`` forgotten)."""
-        s = self._sums.pop(int(old), None)
-        if s is not None:
-            self._sums[int(new)] = s
 
     def forget(self, object_id: int) -> None:
         """Drop ``object_id``'s summary."""

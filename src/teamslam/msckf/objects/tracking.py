@@ -361,8 +361,8 @@ class ObjectTracker:
     def _looks(self, target_ids: np.ndarray, descriptors: np.ndarray):
         """``(distance, log ratio)``, each ``(T, D)``, between the targets' appearance summaries
         and the detections' descriptors (ratio 0 for a target without a summary)."""
-        summaries, _ = self.memory.summaries(target_ids)
-        dist = cosine_distances(summaries, descriptors)  # NaN where either has none
+        # NaN where either has none
+        dist = cosine_distances(self.memory.summaries(target_ids), descriptors)
         return dist, self.appearance.log_ratio(dist)
 
     def _learn(self, looks, assigned_target, kinds, target_ids, index) -> None:
