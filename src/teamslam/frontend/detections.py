@@ -257,6 +257,21 @@ def _class_label(token: str, where: str) -> int:
     return label
 
 
+def _same_dimension(
+    first: tuple[int, str] | None, d: int, where: str, every: str
+) -> tuple[int, str]:
+    """The embedding length of the first line or entry (and where it was); an
+    :class:`InputError` when ``d``, at ``where``, differs from it."""
+    if first is None:
+        return d, where
+    if d != first[0]:
+        raise InputError(
+            f"{where}: {d} embedding values, but {first[1]} has {first[0]} "
+            f"(every {every} has the same number)"
+        )
+    return first
+
+
 def _check_score(score: float, where: str) -> None:
     if not 0.0 <= score <= 1.0:
         raise InputError(f"{where}: score {score:g} is outside [0, 1]")
@@ -306,14 +321,7 @@ def _read_yolo(folder: Path, names: list[str], image_size: tuple[int, int]) -> D
             embedding = [
                 _number(t, f"embedding value {j}", where) for j, t in enumerate(tokens[6:], 1)
             ]
-            d = len(embedding)
-            if first_d is None:
-                first_d = (d, where)
-            elif d != first_d[0]:
-                raise InputError(
-                    f"{where}: {d} embedding values, but {first_d[1]} has {first_d[0]} "
-                    "(every line of a folder has the same number)"
-                )
+            first_d = _same_dimension(first_d, len(embedding), where, "line of a folder")
             x_min = cx * width - w * width / 2 - 0.5
             x_max = cx * width + w * width / 2 - 0.5
             y_min = cy * height - h * height / 2 - 0.5
@@ -487,13 +495,7 @@ def _read_coco(
         ):
             raise InputError(f"{where}: embedding is not a list of finite numbers")
         d = 0 if embedding is None else len(embedding)
-        if first_d is None:
-            first_d = (d, where)
-        elif d != first_d[0]:
-            raise InputError(
-                f"{where}: {d} embedding values, but {first_d[1]} has {first_d[0]} "
-                "(every entry has the same number)"
-            )
+        first_d = _same_dimension(first_d, d, where, "entry")
         box = (x - 0.5, y - 0.5, x + w - 0.5, y + h - 0.5)
         rows.append(_Box(resolved[image_id], box, label, float(score), embedding))
     dimension = first_d[0] if first_d is not None and first_d[0] > 0 else None
