@@ -310,29 +310,75 @@ def test_bag_play_waits_for_subscribers_then_gives_up(rendered_bag):
             )
 
 
-def test_bag_play_stops_when_asked(rendered_bag):
-    """A loop stopped from another thread (what Ctrl-C does) returns what it published."""
+def test_bag_play_loops_until_stopped(rendered_bag):
+    """A loop plays the bag again (stamps going back at each pass, sequence numbers going on)
+    until stopped from another thread — here by the subscriber, after two passes and one more
+    message."""
     from teamslam.ros2.bag_play import play_bag
 
+    topic = "/robot_0/odom"
+    per_pass = len(_recorded(rendered_bag)[topic])
     stop = threading.Event()
-    seen = []
+    got = Collector()
 
-    def started(result):
-        seen.append(result)
-        threading.Timer(0.3, stop.set).start()
+    def on_item(item):
+        got(item)
+        if len(got.items) == 2 * per_pass + 1:
+            stop.set()
 
     port = free_port()
-    result = play_bag(
-        rendered_bag,
-        rate=1.0,
-        loop=True,
-        connect=[f"tcp/127.0.0.1:{port}"],
-        listen=["tcp/127.0.0.1:0"],
-        stop=stop,
-        on_start=started,
+    sub = Ros2Subscriber({topic: ODOM}, on_item, config=listening_config(port))
+    try:
+        result = play_bag(
+            rendered_bag,
+            rate=0,
+            loop=True,
+            topics=[topic],
+            connect=[f"tcp/127.0.0.1:{port}"],
+            listen=["tcp/127.0.0.1:0"],
+            wait_subscribers=1,
+            wait_timeout=20,
+            stop=stop,
+        )
+        assert wait_until(lambda: sub.counts[topic] == result.counts[topic])
+    finally:
+        sub.close()
+    assert result.stopped and result.passes >= 2
+    assert result.counts[topic] > 2 * per_pass
+    seqs = [x.sequence_number for x in got.items]
+    assert seqs == list(range(1, len(seqs) + 1))
+    stamps = [x.stamp_ns for x in got.items]
+    assert stamps[per_pass : 2 * per_pass] == stamps[:per_pass]
+
+
+def test_ctrl_c_stops_bag_play_cleanly(rendered_bag):
+    """SIGINT to ``teamslam bag play --loop``: the counts, then exit status 130, no traceback."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from teamslam.ros2.bag_play import bag_topics
+
+    port = free_port()
+    argv = [sys.executable, "-m", "teamslam", "bag", "play", str(rendered_bag), "--loop"]
+    argv += ["--connect", f"tcp/127.0.0.1:{port}", "--listen", "tcp/127.0.0.1:0"]
+    proc = subprocess.Popen(
+        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy()
     )
-    assert result.stopped and seen == [result]
-    assert set(result.counts) == set(result.keys)
+    try:
+        first = proc.stdout.readline()
+        topics = len(bag_topics(rendered_bag))
+        assert first.startswith(f"playing {topics} topic(s)"), first + proc.stderr.read()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert "stopped after" in out and "/robot_0/odom:" in out
 
 
 def test_bag_play_command_errors(tmp_path, capsys):

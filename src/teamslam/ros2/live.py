@@ -166,12 +166,19 @@ class Ros2Subscriber:
         self._closed = False
         self._own_session = session is None
         self.session = open_session(config=config) if session is None else session
+        self._tokens: list = []
+        self._subscribers: list = []
+        try:
+            self._declare(node_id, first_entity_id)
+        except BaseException:
+            self.close()
+            raise
+
+    def _declare(self, node_id: int, first_entity_id: int) -> None:
         zid = str(self.session.info.zid())
         liveliness = self.session.liveliness()
-        self._tokens = [
-            liveliness.declare_token(liveliness_key(domain_id, zid, node_id, node)),
-        ]
-        self._subscribers = []
+        domain_id, node = self.domain_id, self.node
+        self._tokens.append(liveliness.declare_token(liveliness_key(domain_id, zid, node_id, node)))
         for k, (topic, msgtype) in enumerate(self.topics.items()):
             prefix = f"{domain_id}/{topic.strip('/')}/{m.dds_type_name(msgtype)}/"
             self._subscribers.append(
