@@ -65,6 +65,8 @@ class Collector:
         self.lock = threading.Lock()
 
     def __call__(self, item: Received) -> None:
+        if item.stamp_ns == 13:  # a robot failing on one message
+            raise ValueError("cannot use\nstamp 13")
         with self.lock:
             self.items.append(item)
 
@@ -103,23 +105,27 @@ def test_subscriber_decodes_refuses_and_announces():
             pub.put(wrong_hash, m.serialize(good), attachment=attachment(seq, 44, gid))
         pub.put(key, m.serialize(good))  # no attachment
         pub.put(key, m.serialize(good), attachment=attachment(6, 45, gid))
-        assert wait_until(lambda: sub.errors["/r/pose"] == 4 and sub.counts["/r/pose"] == 2)
+        pub.put(key, m.serialize(m.pose_stamped(np.eye(4), 13)), attachment=attachment(7, 46, gid))
+        assert wait_until(lambda: sub.errors["/r/pose"] == 5 and sub.counts["/r/pose"] == 3)
         assert wait_until(lambda: sum("/MS/" in t for t in tokens) == 2)
     finally:
         pub.close()
         sub.close()
-    assert sub.counts == {"/r/pose": 2, "/r/odom": 0}
-    assert sub.errors == {"/r/pose": 4, "/r/odom": 0}
+    assert sub.counts == {"/r/pose": 3, "/r/odom": 0}
+    assert sub.errors == {"/r/pose": 5, "/r/odom": 0}
     first, last = got.items
     assert (first.topic, first.msgtype, first.stamp_ns) == ("/r/pose", POSE, 1_000_000_123)
     assert (first.sequence_number, first.source_ns, first.gid) == (1, 42, gid)
     assert last.sequence_number == 6
     assert first.message.__msgtype__ == POSE
     assert first.message.header.frame_id == "world"
-    assert len(got.errors) == 3 and all("\n" not in e for e in got.errors)
+    assert len(got.errors) == 4 and all("\n" not in e for e in got.errors)
     assert "sample 2 of publisher" in got.errors[0] and "not a geometry_msgs" in got.errors[0]
     assert "type hash RIHS01_abab" in got.errors[1]
     assert "without rmw_zenoh's attachment" in got.errors[2]
+    assert got.errors[3] == (
+        "/r/pose: the callback failed on stamp 13 ns: ValueError: cannot use stamp 13"
+    )
     announced = [parse_liveliness_key(t) for t in tokens if "/MS/" in t]
     assert {(a["topic"], a["type_hash"]) for a in announced} == {
         (t, m.type_hash(mt)) for t, mt in topics.items()
