@@ -139,7 +139,8 @@ def test_the_bag_path_equals_the_folder_path(rendered, tmp_path):
         ground_truth=inputs["ground_truth"],
         robot_names=inputs["robot_names"],
     )
-    assert summary["messages"] == 2 * (6 * 4 + 2)
+    # per robot and pair: left, right, two camera infos, odometry, ground truth
+    assert summary["messages"] == 2 * 6 * 6
     from_folders = dataset_from_images(**inputs, progress=False)
     from_bag = dataset_from_bag(
         tmp_path / "team.mcap",
