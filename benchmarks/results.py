@@ -127,7 +127,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"{GENERATED}/active-budget.md",
     ),
     "detector-team": (
-        "python benchmarks/detector_team.py --robots 3 --steps 120 "
+        "python benchmarks/detector_team.py --robots 3 --steps 420 "
         f"--markdown {GENERATED}/detector-team.md",
         f"{GENERATED}/detector-team.md",
     ),

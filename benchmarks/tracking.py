@@ -98,10 +98,10 @@ def watch_revisits(agent, detections, gap: int, out: list) -> None:
     assign = tracker.assign
     last: dict[int, tuple[int, int]] = {}  # true object -> (id, frame) of its last named one
 
-    def watched(t, z, classes, state, odometry_cov):
+    def watched(t, z, classes, state, odometry_cov, appearance=None):
         tracker._forget_mapped(state)
         _, ids, _, pred, s, _, _, _ = tracker._predict(t, state, odometry_cov)
-        frame = assign(t, z, classes, state, odometry_cov)
+        frame = assign(t, z, classes, state, odometry_cov, appearance)
         truth = detections.truth[detections.offsets[t] : detections.offsets[t + 1]]
         for j, obj in enumerate(truth.tolist()):
             if obj < 0 or not np.all(np.isfinite(z[j])):

@@ -9,10 +9,12 @@ import pytest
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.datasets.model import DatasetError, FrameDetections
 from teamslam.datasets.storage import load_dataset, save_dataset
+from teamslam.errors import InputError
 from teamslam.eval.tracking import (
     hypotheses_of,
     idf1_losses,
     mot_metrics,
+    object_truth,
     revisit_precision,
     tracking_metrics,
 )
@@ -408,3 +410,55 @@ def test_a_long_unseen_object_that_cannot_be_detected_takes_no_detection():
     sized = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG, image_size=(640, 480))
     assert sized.assign(10, z, None, state, W).ids.tolist() == [-1]
     assert sized.revisits == [] and sized.n_tracks == 1
+
+
+def test_object_truth_is_the_majority_of_each_named_objects_detections():
+    truth = np.array([3, 3, 5, -1, -1, 5, 7, 7, 2, 9])
+    hyp = np.array([10, 10, 10, 11, 11, 11, 12, 12, 12, -1])
+    ids, team = object_truth(truth, hyp)
+    np.testing.assert_array_equal(ids, [10, 11, 12])
+    # 10: mostly 3; 11: mostly false detections; 12: two of 7 against one of 2
+    np.testing.assert_array_equal(team, [3, -1, 7])
+    ids, team = object_truth(np.array([4, 1]), np.array([6, 6]))  # a tie: the smaller true id
+    assert team.tolist() == [1]
+    assert object_truth(np.array([1]), np.array([-1]))[0].size == 0
+    with pytest.raises(InputError, match="2 detections but 3 hypotheses"):
+        object_truth(np.array([1, 2]), np.array([1, 2, 3]))
+
+
+def test_association_of_tracked_objects_is_scored_by_their_detections_truth():
+    """Robots that name their own detections: the inter-robot pairs are scored by the true
+    object of each named object (no id truth exists), as an independent scoring gives."""
+    from teamslam.association import score_correspondences
+    from teamslam.eval.metrics import team_metrics
+    from teamslam.msckf.configure import config_for
+    from teamslam.msckf.team import run_team
+
+    team = strip_object_ids(
+        lissajous_team(robots=3, steps=50, seed=4, landmarks=500, miss=0.05), to="none"
+    )
+    assert team.object_identity.size == 0
+    result = run_team(team, config_for(team, {"filter.window": 6}), progress=False)
+    metrics = team_metrics(team, result)
+    links = metrics["association"]["links"]
+    scored = [link for link in links.values() if link.get("precision") is not None]
+    assert scored, links
+    assert metrics["association"]["team"]["correct"] > 0
+    truths = [
+        object_truth(r.detections.truth, np.asarray(h))
+        for r, h in zip(team.robots, result.extra["tracking_hypotheses"], strict=True)
+    ]
+    for key, link in links.items():
+        i, j = map(int, key.split("-"))
+        pairs = np.asarray(result.extra["association"][i][str(j)]["pairs"]).reshape(-1, 2)
+        pairs = pairs[
+            np.isin(pairs[:, 0], result.object_ids[i]) & np.isin(pairs[:, 1], result.object_ids[j])
+        ]
+        own = score_correspondences(
+            pairs, result.object_ids[i], result.object_ids[j], truths[i], truths[j]
+        )
+        assert (link["correct"], link["wrong"], link["shared"]) == (
+            own.correct,
+            own.wrong,
+            own.shared,
+        )

@@ -225,10 +225,39 @@ def _association(dataset: TeamDataset, result: TeamResult) -> dict:
         per_robot = [s.get("association", {}) for s in summaries]
     if not any(per_robot):
         return {}
-    return {"association": association_metrics(dataset, result, per_robot)}
+    return {
+        "association": association_metrics(
+            dataset, result, per_robot, tracked=_tracked_truth(dataset, result)
+        )
+    }
 
 
-def association_metrics(dataset: TeamDataset, result: TeamResult, per_robot: list[dict]) -> dict:
+def _tracked_truth(dataset: TeamDataset, result: TeamResult) -> list | None:
+    """Per robot which true object each object its tracker named is
+    (:func:`teamslam.eval.tracking.object_truth`), when the robots named their own detections
+    and the dataset holds each detection's truth but no identity of object ids; else ``None``."""
+    from teamslam.eval.tracking import object_truth
+
+    if dataset.object_id_scope == "global" or dataset.object_identity.size:
+        return None
+    hypotheses = result.extra.get("tracking_hypotheses")
+    if hypotheses is None:
+        hypotheses = [s.get("tracking_hypotheses", []) for s in result.extra.get("per_robot", [])]
+    robots = list(result.robots or range(len(hypotheses)))
+    if len(hypotheses) != len(robots) or not any(len(h) for h in hypotheses):
+        return None
+    out = []
+    for r, hyp in zip(robots, hypotheses, strict=True):
+        detections = dataset.robots[r].detections
+        if detections is None or detections.truth is None or len(hyp) != detections.truth.size:
+            return None
+        out.append(object_truth(detections.truth, hyp))
+    return out
+
+
+def association_metrics(
+    dataset: TeamDataset, result: TeamResult, per_robot: list[dict], tracked: list | None = None
+) -> dict:
     """Per link and for the team: what the association exchanged, found and got right.
 
     Parameters
@@ -242,6 +271,10 @@ def association_metrics(dataset: TeamDataset, result: TeamResult, per_robot: lis
         :meth:`~teamslam.msckf.consensus.protocol.ConsensusProtocol.
         association_summary`: per neighbour the table's counts and pairs and the exchange
         statistics.
+    tracked
+        Per robot (in ``result.robots`` order) ``(ids, team ids)``: the truth of the objects
+        robots named themselves (:func:`~teamslam.eval.tracking.object_truth`), used where
+        the dataset holds none.
 
     Returns
     -------
@@ -258,7 +291,7 @@ def association_metrics(dataset: TeamDataset, result: TeamResult, per_robot: lis
     robots = list(result.robots or range(len(per_robot)))
     index = {r: k for k, r in enumerate(robots)}
     scope = dataset.object_id_scope
-    has_truth = scope == "global" or dataset.object_identity.size > 0
+    has_truth = scope == "global" or dataset.object_identity.size > 0 or tracked is not None
     links: dict[str, dict] = {}
     totals = {k: 0 for k in ("proposed", "accepted", "revoked", "held", "excluded")}
     correct = wrong = shared = 0
@@ -292,11 +325,12 @@ def association_metrics(dataset: TeamDataset, result: TeamResult, per_robot: lis
             if has_truth and "pairs" in entry:
                 own_ids, their_ids = result.object_ids[k], result.object_ids[index[j]]
                 inside = np.isin(pairs[:, 0], own_ids) & np.isin(pairs[:, 1], their_ids)
-                truth = (
-                    (None, None)
-                    if scope == "global"
-                    else (dataset.true_objects(i), dataset.true_objects(j))
-                )
+                if tracked is not None:
+                    truth = (tracked[k], tracked[index[j]])
+                elif scope == "global":
+                    truth = (None, None)
+                else:
+                    truth = (dataset.true_objects(i), dataset.true_objects(j))
                 score = score_correspondences(pairs[inside], own_ids, their_ids, *truth)
                 link.update(score.to_json())
                 # nothing to measure is no measurement: no pair, nothing shared

@@ -13,10 +13,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from teamslam.errors import InputError
+
 __all__ = [
     "hypotheses_of",
     "idf1_losses",
     "mot_metrics",
+    "object_truth",
     "revisit_precision",
     "tracking_metrics",
 ]
@@ -197,6 +200,39 @@ def revisit_precision(
         judged += 1
         right += int(truth[k] == values[np.argmax(counts)])
     return right, judged
+
+
+def object_truth(truth: np.ndarray, hypothesis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which true object each object a robot's tracker named is: the one most of its
+    detections are (``-1`` when most are false detections).
+
+    Parameters
+    ----------
+    truth, hypothesis
+        Per detection its true object (``-1``: false) and the id the tracker gave it (``-1``:
+        none), as :func:`mot_metrics`.
+
+    Returns
+    -------
+    ids, team_ids
+        The tracker's ids and their true objects, the form of
+        :meth:`~teamslam.datasets.model.TeamDataset.true_objects`.
+    """
+    truth = np.asarray(truth, dtype=np.int64)
+    hyp = np.asarray(hypothesis, dtype=np.int64)
+    if truth.shape != hyp.shape:
+        raise InputError(f"{truth.size} detections but {hyp.size} hypotheses")
+    named = hyp >= 0
+    pairs, counts = np.unique(
+        np.column_stack([hyp[named], truth[named]]), axis=0, return_counts=True
+    )
+    if not pairs.size:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    # per id the row with the most detections (ties: the smaller true id, for determinism)
+    order = np.lexsort((pairs[:, 1], -counts, pairs[:, 0]))
+    first = np.r_[True, np.diff(pairs[order, 0]) != 0]
+    best = pairs[order[first]]
+    return best[:, 0].copy(), best[:, 1].copy()
 
 
 def tracking_metrics(dataset, hypotheses: list[np.ndarray]) -> dict | None:

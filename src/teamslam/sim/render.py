@@ -47,6 +47,7 @@ __all__ = [
     "render_stereo",
     "render_team",
     "robot_paths",
+    "street_loop_length",
     "write_camera_file",
 ]
 
@@ -824,10 +825,16 @@ def street_loop(config: RenderConfig, s: np.ndarray) -> tuple[np.ndarray, np.nda
     return pos, heading
 
 
-def _street_paths(config: RenderConfig) -> list[np.ndarray]:
+def street_loop_length(config: RenderConfig) -> float:
+    """Length of the street's loop (:func:`street_loop`), metres."""
     length, width = config.street
     lane = 0.12 * width
-    loop = 2 * (length - 2 * config.wall_margin - 2 * lane) + 2 * np.pi * lane
+    return float(2 * (length - 2 * config.wall_margin - 2 * lane) + 2 * np.pi * lane)
+
+
+def _street_paths(config: RenderConfig) -> list[np.ndarray]:
+    lane = 0.12 * config.street[1]
+    loop = street_loop_length(config)
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 30]))
     paths = []
     for k in range(config.robots):
