@@ -39,10 +39,12 @@ def _kerb_objects(
     block_size: float,
     street_width: float,
     spacing: float,
-    jitter: tuple[float, float],
+    jitter: tuple[float, float, float],
+    height: float,
     rng: np.random.Generator,
 ) -> np.ndarray:
-    """Objects every ``spacing`` metres along both kerbs of every street segment, jittered."""
+    """Objects every ``spacing`` metres along both kerbs of every street segment at ``height``,
+    jittered (std along, across, up)."""
     half = street_width / 2.0
     free = block_size - street_width  # kerb length between two crossings
     count = int(np.floor(free / spacing)) + 1 if free >= 0 else 0
@@ -62,10 +64,9 @@ def _kerb_objects(
     along_axis[:n_h, 0] = 1.0
     along_axis[n_h:, 1] = 1.0
     across_axis = along_axis[:, ::-1]
-    noise = rng.standard_normal((len(xy), 2)) * np.asarray(jitter)
-    xy = xy + noise[:, :1] * along_axis + noise[:, 1:] * across_axis
-    height = rng.uniform(0.4, 1.6, len(xy))
-    return np.column_stack([xy, height])
+    noise = rng.standard_normal((len(xy), 3)) * np.asarray(jitter)
+    xy = xy + noise[:, :1] * along_axis + noise[:, 1:2] * across_axis
+    return np.column_stack([xy, height + noise[:, 2]])
 
 
 def _facade_landmarks(
@@ -182,7 +183,8 @@ def grid_city_team(
     street_width: float = 12.0,
     pavement: float = 3.0,
     object_spacing: float = 8.0,
-    object_jitter: tuple[float, float] = (0.3, 0.15),
+    object_height: float = 0.9,
+    object_jitter: tuple[float, float, float] = (0.3, 0.15, 0.15),
     landmarks_per_metre: float = 1.5,
     facade_height: float = 12.0,
     lane: float = 2.0,
@@ -204,9 +206,9 @@ def grid_city_team(
         Distance between neighbouring parallel streets' centrelines (metres).
     street_width, pavement
         Kerb to kerb width of a street, and the pavement between kerb and facade (metres).
-    object_spacing, object_jitter
-        Distance between neighbouring objects along a kerb, and the std ``(along, across)``
-        of each object's offset from its slot (metres); heights uniform in 0.4–1.6 m.
+    object_spacing, object_height, object_jitter
+        Distance between neighbouring objects along a kerb, the height of their centres, and
+        the std ``(along, across, up)`` of each object's offset from its slot (metres).
     landmarks_per_metre, facade_height
         Geometric landmarks per metre of facade, uniform in height up to ``facade_height``.
     lane, camera_height
@@ -240,14 +242,15 @@ def grid_city_team(
             raise InputError(f"{name} must be a positive number, got {value}")
     for name, value in (
         ("pavement", pavement),
+        ("object_height", object_height),
         ("landmarks_per_metre", landmarks_per_metre),
         ("camera_height", camera_height),
         ("lane", lane),
     ):
         if not (np.isfinite(value) and value >= 0):
             raise InputError(f"{name} must be a finite number ≥ 0, got {value}")
-    if len(object_jitter) != 2 or not all(np.isfinite(j) and j >= 0 for j in object_jitter):
-        raise InputError(f"object_jitter must be two numbers ≥ 0, got {object_jitter!r}")
+    if len(object_jitter) != 3 or not all(np.isfinite(j) and j >= 0 for j in object_jitter):
+        raise InputError(f"object_jitter must be three numbers ≥ 0, got {object_jitter!r}")
     if street_width >= block_size:
         raise InputError("street_width must be smaller than block_size")
     if lane >= street_width / 2.0:
@@ -270,7 +273,7 @@ def grid_city_team(
         paths.append(poses)
 
     object_positions = _kerb_objects(
-        (nx, ny), block_size, street_width, object_spacing, object_jitter, map_rng
+        (nx, ny), block_size, street_width, object_spacing, object_jitter, object_height, map_rng
     )
     landmark_positions = _facade_landmarks(
         (nx, ny), block_size, street_width, pavement, landmarks_per_metre, facade_height, map_rng
@@ -285,6 +288,7 @@ def grid_city_team(
         street_width=street_width,
         pavement=pavement,
         object_spacing=object_spacing,
+        object_height=object_height,
         object_jitter=list(object_jitter),
         landmarks_per_metre=landmarks_per_metre,
         facade_height=facade_height,
