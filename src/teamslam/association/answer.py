@@ -35,7 +35,7 @@ from teamslam.association.candidates import (
 from teamslam.association.clique import maximum_clique
 from teamslam.association.consistency import consistency_graph, consistent_members
 from teamslam.association.distances import pair_distances
-from teamslam.association.gate import separated, support
+from teamslam.association.gate import frame_allowed, separated, support
 from teamslam.association.mirror import flipped
 from teamslam.association.seeds import seed_sets
 from teamslam.association.settings import AssociationSettings
@@ -205,6 +205,9 @@ def _with_appearance(
     allowed = llr >= veto
     if a.classes is not None and b.classes is not None:
         allowed &= a.classes[:, None] == b.classes[None, :]
+    frame = frame_allowed(a, b, settings)
+    if frame is not None:
+        allowed &= frame
     geo_a = pair_distances(a.means, a.covs)
     geo_b = pair_distances(b.means, b.covs)
     score, mismatch, members = neighbourhood_sets(a, b, geo_a, geo_b, relaxed)

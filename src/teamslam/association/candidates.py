@@ -2,7 +2,8 @@
 
 Two objects are a candidate pair when enough of their ``k`` nearest neighbours can be the same
 objects, as a rigid whole (:func:`~teamslam.association.kernels.shared_neighbourhood`); classes
-must agree when both maps have them, and each object keeps its best few candidates
+must agree when both maps have them, and the maps' shared frame allow the pair when they share
+one (:func:`~teamslam.association.gate.frame_allowed`); each object keeps its best few candidates
 (:attr:`~teamslam.association.AssociationSettings.candidates_per_object`). With an informative
 appearance model each object also keeps its best few by appearance
 (:func:`appearance_candidates`). The derivation and the reasons are on the association concept
@@ -14,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from teamslam.association.distances import nearest_neighbours
+from teamslam.association.gate import frame_allowed
 from teamslam.association.kernels import shared_neighbourhood
 from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
@@ -52,6 +54,9 @@ def neighbourhood_sets(
     allowed = np.ones((len(first), len(second)), dtype=bool)
     if first.classes is not None and second.classes is not None:
         allowed = first.classes[:, None] == second.classes[None, :]
+    frame = frame_allowed(first, second, settings)
+    if frame is not None:
+        allowed &= frame
     members = np.full((len(first), len(second), settings.neighbours), -1, dtype=np.int16)
     score, mismatch = shared_neighbourhood(
         *_neighbourhoods(geo_a, settings.neighbours),

@@ -1,5 +1,8 @@
 """Stages 5 and 6 of the association: every pair gated under a transform, one to one, told apart.
 
+:func:`frame_allowed` is the test of a pair under the identity when both maps share one world
+frame (nothing without it); no pair it refuses is a candidate or gated.
+
 :func:`gate_pairs` is the ``χ²₃`` Mahalanobis gate under a transform with a drift allowance
 growing with the distance from the anchors; :func:`assign` makes the gated pairs one to one;
 :func:`distinct` and :func:`alone` drop pairs with a competitor; :func:`separated` drops pairs
@@ -17,7 +20,29 @@ from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
 from teamslam.association.transform import consensus_core, fit_transform, rigid_core
 
-__all__ = ["alone", "assign", "distinct", "gate_pairs", "separated", "support"]
+__all__ = ["alone", "assign", "distinct", "frame_allowed", "gate_pairs", "separated", "support"]
+
+
+def frame_allowed(
+    first: ObjectSummary, second: ObjectSummary, settings: AssociationSettings
+) -> np.ndarray | None:
+    """``(n_first, n_second)`` which pairs the maps' shared world frame allows: the ``χ²₃``
+    test at :attr:`~teamslam.association.AssociationSettings.frame_probability` of
+    ``μₐ − μ_b`` with ``Σₐ + Σ_b`` (``None`` when the maps are not taken to share a frame)."""
+    chi2 = settings.frame_threshold
+    if chi2 is None:
+        return None
+    delta = first.means[:, None, :] - second.means[None, :, :]
+    sq = np.einsum("abi,abi->ab", delta, delta)
+    top_a = np.linalg.eigvalsh(first.covs)[:, -1]
+    top_b = np.linalg.eigvalsh(second.covs)[:, -1]
+    out = np.zeros(sq.shape, dtype=bool)
+    ia, ib = np.nonzero(sq <= chi2 * (top_a[:, None] + top_b[None, :]))  # a bound first
+    if ia.size:
+        s = first.covs[ia] + second.covs[ib]
+        d = delta[ia, ib]
+        out[ia, ib] = np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0]) <= chi2
+    return out
 
 
 def gate_pairs(
@@ -63,6 +88,9 @@ def gate_pairs(
         out[ia, ib] = np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0])
     if first.classes is not None and second.classes is not None:
         out[first.classes[:, None] != second.classes[None, :]] = np.inf
+    frame = frame_allowed(first, second, settings)
+    if frame is not None:
+        out[~frame] = np.inf
     return out, out <= chi2
 
 
