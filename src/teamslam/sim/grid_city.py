@@ -144,7 +144,9 @@ def _drive(
         normal = turn * np.array([-d_in[1], d_in[0]])
         centre = start + radius * normal
         a0 = np.arctan2(*(start - centre)[::-1])
-        angles = a0 + turn * np.linspace(0.0, np.pi / 2, 24)
+        # as fine as the resampling below, so the lane's offset of the arc is an arc too
+        n = int(np.ceil(radius * np.pi / 2 / spacing)) + 1
+        angles = a0 + turn * np.linspace(0.0, np.pi / 2, n)
         points.extend(centre + radius * np.column_stack([np.cos(angles), np.sin(angles)]))
     points.append(nodes[-1])
     poly = np.array(points)
