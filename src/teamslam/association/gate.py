@@ -24,18 +24,23 @@ __all__ = ["alone", "assign", "distinct", "frame_allowed", "gate_pairs", "separa
 
 
 def frame_allowed(
-    first: ObjectSummary, second: ObjectSummary, settings: AssociationSettings
+    first: ObjectSummary,
+    second: ObjectSummary,
+    settings: AssociationSettings,
+    top: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray | None:
     """``(n_first, n_second)`` which pairs the maps' shared world frame allows: the ``χ²₃``
     test at :attr:`~teamslam.association.AssociationSettings.frame_probability` of
-    ``μₐ − μ_b`` with ``Σₐ + Σ_b`` (``None`` when the maps are not taken to share a frame)."""
+    ``μₐ − μ_b`` with ``Σₐ + Σ_b`` (``None`` when the maps are not taken to share a frame).
+    ``top``: each map's largest covariance eigenvalues when the caller has them."""
     chi2 = settings.frame_threshold
     if chi2 is None:
         return None
     delta = first.means[:, None, :] - second.means[None, :, :]
     sq = np.einsum("abi,abi->ab", delta, delta)
-    top_a = np.linalg.eigvalsh(first.covs)[:, -1]
-    top_b = np.linalg.eigvalsh(second.covs)[:, -1]
+    if top is None:
+        top = (np.linalg.eigvalsh(first.covs)[:, -1], np.linalg.eigvalsh(second.covs)[:, -1])
+    top_a, top_b = top
     out = np.zeros(sq.shape, dtype=bool)
     ia, ib = np.nonzero(sq <= chi2 * (top_a[:, None] + top_b[None, :]))  # a bound first
     if ia.size:
@@ -88,7 +93,8 @@ def gate_pairs(
         out[ia, ib] = np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0])
     if first.classes is not None and second.classes is not None:
         out[first.classes[:, None] != second.classes[None, :]] = np.inf
-    frame = frame_allowed(first, second, settings)
+    # a rotation leaves the eigenvalues of Σ_b as they were
+    frame = frame_allowed(first, second, settings, (top_a, top_b))
     if frame is not None:
         out[~frame] = np.inf
     return out, out <= chi2
