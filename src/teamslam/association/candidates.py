@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 
 from teamslam.association.distances import nearest_neighbours
-from teamslam.association.gate import frame_allowed
 from teamslam.association.kernels import shared_neighbourhood
 from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
@@ -54,9 +53,6 @@ def neighbourhood_sets(
     allowed = np.ones((len(first), len(second)), dtype=bool)
     if first.classes is not None and second.classes is not None:
         allowed = first.classes[:, None] == second.classes[None, :]
-    frame = frame_allowed(first, second, settings)
-    if frame is not None:
-        allowed &= frame
     members = np.full((len(first), len(second), settings.neighbours), -1, dtype=np.int16)
     score, mismatch = shared_neighbourhood(
         *_neighbourhoods(geo_a, settings.neighbours),

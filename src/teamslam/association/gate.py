@@ -1,7 +1,8 @@
 """Stages 5 and 6 of the association: every pair gated under a transform, one to one, told apart.
 
-:func:`frame_allowed` is the test of a pair under the identity when both maps share one world
-frame (nothing without it); no pair it refuses is a candidate or gated.
+:func:`frame_allowed` and :func:`in_frame` are the test of a pair under the identity when both
+maps share one world frame (nothing without it): no pair it refuses is a candidate, and a pair
+assigned under a transform that it refuses is dropped.
 
 :func:`gate_pairs` is the ``χ²₃`` Mahalanobis gate under a transform with a drift allowance
 growing with the distance from the anchors; :func:`assign` makes the gated pairs one to one;
@@ -20,7 +21,17 @@ from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
 from teamslam.association.transform import consensus_core, fit_transform, rigid_core
 
-__all__ = ["alone", "assign", "distinct", "frame_allowed", "gate_pairs", "separated", "support"]
+__all__ = [
+    "alone",
+    "assign",
+    "distinct",
+    "frame_allowed",
+    "gate_pairs",
+    "in_frame",
+    "separated",
+    "support",
+    "told_apart_by_frame",
+]
 
 
 def frame_allowed(
@@ -48,6 +59,43 @@ def frame_allowed(
         d = delta[ia, ib]
         out[ia, ib] = np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0]) <= chi2
     return out
+
+
+def told_apart_by_frame(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Which pairs ``(rows[k], cols[k])`` the shared frame alone identifies: each of the two
+    objects the only one of the other map the frame allows for its partner (``False`` for
+    every pair when the maps are not taken to share a frame)."""
+    frame = frame_allowed(first, second, settings)
+    if frame is None or rows.size == 0:
+        return np.zeros(rows.size, dtype=bool)
+    return frame[rows, cols] & (frame[rows].sum(axis=1) == 1) & (frame[:, cols].sum(axis=0) == 1)
+
+
+def in_frame(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Which pairs ``(rows[k], cols[k])`` the maps' shared frame allows (the test of
+    :func:`frame_allowed`; all of them when the maps are not taken to share a frame).
+
+    Applied to pairs already assigned one to one under a transform: a pair the frame refuses is
+    dropped, and its objects are not given to another partner instead (the refused partner
+    still competes for them in the assignment and the distinctness test)."""
+    chi2 = settings.frame_threshold
+    if chi2 is None or rows.size == 0:
+        return np.ones(rows.size, dtype=bool)
+    d = first.means[rows] - second.means[cols]
+    s = first.covs[rows] + second.covs[cols]
+    return np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0]) <= chi2
 
 
 def gate_pairs(
@@ -93,10 +141,6 @@ def gate_pairs(
         out[ia, ib] = np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0])
     if first.classes is not None and second.classes is not None:
         out[first.classes[:, None] != second.classes[None, :]] = np.inf
-    # a rotation leaves the eigenvalues of Σ_b as they were
-    frame = frame_allowed(first, second, settings, (top_a, top_b))
-    if frame is not None:
-        out[~frame] = np.inf
     return out, out <= chi2
 
 
