@@ -92,6 +92,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--useless-appearance --markdown {GENERATED}/association-appearance-useless.md",
         f"{GENERATED}/association-appearance-useless.md",
     ),
+    "association-grid": (
+        "python benchmarks/association.py oracle --teams grid "
+        f"--markdown {GENERATED}/association-grid.md",
+        f"{GENERATED}/association-grid.md",
+    ),
     "association-kitti": (
         "python benchmarks/association.py oracle --teams kitti00 "
         f"--markdown {GENERATED}/association-kitti.md",

@@ -919,3 +919,31 @@ def test_an_answer_holds_min_inliers_pairs_told_apart_from_their_neighbours():
         result = associate(a, b)
         assert result.matched and len(result.pairs) >= need, (seed, result.status)
         assert np.all(result.pairs[:, 1] - result.pairs[:, 0] == 400)
+
+
+def test_the_shared_frame_tells_a_regular_grid_apart():
+    # the grid of the test above in one world frame: by shape a shift by a cell is as good an
+    # answer, under the frame only the right one is allowed
+    x, y = np.meshgrid(np.arange(8) * 5.0, np.arange(8) * 5.0)
+    grid = np.column_stack([x.ravel(), y.ravel(), np.zeros(64)])
+    rng = np.random.default_rng(2)
+    a = _summary(0, np.arange(64), grid, rng, sigma=0.05)
+    b = _summary(1, np.arange(40) + 100, grid[:40], rng, sigma=0.05)
+    assert not associate(a, b).matched
+    framed = AssociationSettings(frame_probability=0.99999)
+    result = associate(a, b, framed)
+    assert result.matched
+    np.testing.assert_array_equal(result.pairs[:, 1], result.pairs[:, 0] + 100)
+    assert len(result.pairs) >= 30
+    # the same from the other end
+    np.testing.assert_array_equal(associate(b, a, framed).pairs, result.pairs[:, ::-1])
+    # maps whose frames disagree by far more than their covariances: nothing is allowed
+    moved = b.transformed(_pose(0.0, (2.5, 2.5, 0.0)))
+    assert not associate(a, moved, framed).matched
+
+
+def test_frame_probability_is_a_probability():
+    for bad in (0.0, 1.0, 1.5, float("nan")):
+        with pytest.raises(InputError, match="frame_probability"):
+            AssociationSettings(frame_probability=bad)
+    assert AssociationSettings().frame_threshold is None

@@ -348,3 +348,15 @@ def test_a_summary_says_from_where_the_robot_saw_each_object(stripped3):
             expected = np.mean(toward, axis=0)
             cosine = view @ expected / np.linalg.norm(view) / np.linalg.norm(expected)
             assert cosine > 0.99, (robot, oid, cosine)
+
+
+def test_the_team_matcher_tests_pairs_in_the_shared_frame_unless_set_off():
+    from teamslam.msckf.settings.sources import parse_assignments
+    from teamslam.msckf.settings.values import MsckfConfig
+
+    team = MsckfConfig.from_settings({}).association
+    assert team.matching().frame_probability == team.revoke_probability
+    off = MsckfConfig.from_settings(parse_assignments(["association.frame_probability=null"]))
+    assert off.association.matching().frame_probability is None
+    with pytest.raises(InputError, match="frame_probability"):
+        MsckfConfig.from_settings({"association.frame_probability": 1.5})

@@ -35,12 +35,12 @@ from teamslam.association.candidates import (
 from teamslam.association.clique import maximum_clique
 from teamslam.association.consistency import consistency_graph, consistent_members
 from teamslam.association.distances import pair_distances
-from teamslam.association.gate import separated, support
+from teamslam.association.gate import in_frame, separated, support, told_apart_by_frame
 from teamslam.association.mirror import flipped
 from teamslam.association.seeds import seed_sets
 from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
-from teamslam.association.transform import pair_nis
+from teamslam.association.transform import fit_transform, pair_nis
 from teamslam.errors import InputError
 from teamslam.geometry import se3
 
@@ -216,6 +216,7 @@ def _with_appearance(
     # descriptor); the gate under a set's transform still gathers any pair not vetoed
     unknown = ~known_a[:, None] | ~known_b[None, :]
     ia, ib = np.nonzero(keep & allowed & ((llr > 0) | unknown))
+    ia, ib = _in_frame(a, b, ia, ib, settings)
     # the assignment and the distinctness test weigh a pair by −2 log of its full likelihood
     # ratio: the Mahalanobis distance and −2 ℓ (shifted to ≥ 0: a constant changes neither
     # the assignment nor a difference of costs)
@@ -262,8 +263,21 @@ def _by_position(
     geo_a = pair_distances(a.means, a.covs)
     geo_b = pair_distances(b.means, b.covs)
     score, mismatch, members = neighbourhood_sets(a, b, geo_a, geo_b, settings)
-    ia, ib = select_candidates(score, mismatch, settings)
+    ia, ib = _in_frame(a, b, *select_candidates(score, mismatch, settings), settings)
     return _from_candidates(a, b, ia, ib, members, geo_a, geo_b, settings)
+
+
+def _in_frame(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    ia: np.ndarray,
+    ib: np.ndarray,
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The candidates the maps' shared frame allows, once every object has chosen its best
+    (a refused candidate leaves its place empty: it does not let a worse one in)."""
+    keep = in_frame(a, b, ia, ib, settings)
+    return ia[keep], ib[keep]
 
 
 def _from_candidates(
@@ -305,7 +319,7 @@ def _from_candidates(
             refused += 1  # the mirror image of a near-planar group: neither answer nor rival
             continue
         found.append((rows, cols, t, np.column_stack([a.ids[ca], b.ids[cb]]), (ca, cb)))
-    if not any(f[0].size >= need for f in found):
+    if not any(np.count_nonzero(in_frame(a, b, f[0], f[1], settings)) >= need for f in found):
         # no consistent set gathered an answer: the candidates' own neighbourhoods as seeds
         local, flips = seed_sets(a, b, ia, ib, members, geo_a, geo_b, found, settings, looks)
         found += local
@@ -317,17 +331,31 @@ def _from_candidates(
     }
     if not found:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
+    # what each set gathers that the maps' shared frame allows (all of it without one)
+    framed = []
+    for rows, cols, *_ in found:
+        keep = in_frame(a, b, rows, cols, settings)
+        framed.append((rows[keep], cols[keep]))
     # the answer: the set gathering the most pairs (the first found among equals)
-    best = max(range(len(found)), key=lambda k: (found[k][0].size, -k))
-    rows, cols, t, clique_pairs, (ca, cb) = found[best]
+    best = max(range(len(found)), key=lambda k: (framed[k][0].size, -k))
+    rows, cols = framed[best]
+    _, _, t, clique_pairs, (ca, cb) = found[best]
+    if rows.size >= 3 and rows.size < found[best][0].size:
+        t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
     counts["clique"] = int(clique_pairs.shape[0])
     held = set(zip(rows.tolist(), cols.tolist(), strict=True))
-    # a rival: another set whose pairs contradict the answer's (pairs it does not hold)
+    # a rival: another set whose pairs contradict the answer's (pairs it does not hold). It
+    # shows that sets of its size arise by chance in these maps, wherever it lies; only when
+    # the frame alone identifies the answer's pairs (each the one partner the frame allows) is a
+    # rival the frame refuses no alternative: then only its pairs the frame allows count
+    by_frame = np.count_nonzero(told_apart_by_frame(a, b, rows, cols, settings)) >= need
     counts["rival"] = max(
         (
             sum(
                 (r, c) not in held
-                for r, c in zip(other[0].tolist(), other[1].tolist(), strict=True)
+                for r, c in zip(
+                    *(p.tolist() for p in (framed[k] if by_frame else other[:2])), strict=True
+                )
             )
             for k, other in enumerate(found)
             if k != best

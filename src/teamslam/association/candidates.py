@@ -2,7 +2,8 @@
 
 Two objects are a candidate pair when enough of their ``k`` nearest neighbours can be the same
 objects, as a rigid whole (:func:`~teamslam.association.kernels.shared_neighbourhood`); classes
-must agree when both maps have them, and each object keeps its best few candidates
+must agree when both maps have them, and the maps' shared frame allow the pair when they share
+one (:func:`~teamslam.association.gate.frame_allowed`); each object keeps its best few candidates
 (:attr:`~teamslam.association.AssociationSettings.candidates_per_object`). With an informative
 appearance model each object also keeps its best few by appearance
 (:func:`appearance_candidates`). The derivation and the reasons are on the association concept

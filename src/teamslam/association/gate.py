@@ -1,5 +1,9 @@
 """Stages 5 and 6 of the association: every pair gated under a transform, one to one, told apart.
 
+:func:`frame_allowed` and :func:`in_frame` are the test of a pair under the identity when both
+maps share one world frame (nothing without it): no pair it refuses is a candidate, and a pair
+assigned under a transform that it refuses is dropped.
+
 :func:`gate_pairs` is the ``χ²₃`` Mahalanobis gate under a transform with a drift allowance
 growing with the distance from the anchors; :func:`assign` makes the gated pairs one to one;
 :func:`distinct` and :func:`alone` drop pairs with a competitor; :func:`separated` drops pairs
@@ -17,7 +21,81 @@ from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
 from teamslam.association.transform import consensus_core, fit_transform, rigid_core
 
-__all__ = ["alone", "assign", "distinct", "gate_pairs", "separated", "support"]
+__all__ = [
+    "alone",
+    "assign",
+    "distinct",
+    "frame_allowed",
+    "gate_pairs",
+    "in_frame",
+    "separated",
+    "support",
+    "told_apart_by_frame",
+]
+
+
+def frame_allowed(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    settings: AssociationSettings,
+    top: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray | None:
+    """``(n_first, n_second)`` which pairs the maps' shared world frame allows: the ``χ²₃``
+    test at :attr:`~teamslam.association.AssociationSettings.frame_probability` of
+    ``μₐ − μ_b`` with ``Σₐ + Σ_b`` (``None`` when the maps are not taken to share a frame).
+    ``top``: each map's largest covariance eigenvalues when the caller has them."""
+    chi2 = settings.frame_threshold
+    if chi2 is None:
+        return None
+    delta = first.means[:, None, :] - second.means[None, :, :]
+    sq = np.einsum("abi,abi->ab", delta, delta)
+    if top is None:
+        top = (np.linalg.eigvalsh(first.covs)[:, -1], np.linalg.eigvalsh(second.covs)[:, -1])
+    top_a, top_b = top
+    out = np.zeros(sq.shape, dtype=bool)
+    ia, ib = np.nonzero(sq <= chi2 * (top_a[:, None] + top_b[None, :]))  # a bound first
+    if ia.size:
+        s = first.covs[ia] + second.covs[ib]
+        d = delta[ia, ib]
+        out[ia, ib] = np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0]) <= chi2
+    return out
+
+
+def told_apart_by_frame(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Which pairs ``(rows[k], cols[k])`` the shared frame alone identifies: each of the two
+    objects the only one of the other map the frame allows for its partner (``False`` for
+    every pair when the maps are not taken to share a frame)."""
+    frame = frame_allowed(first, second, settings)
+    if frame is None or rows.size == 0:
+        return np.zeros(rows.size, dtype=bool)
+    return frame[rows, cols] & (frame[rows].sum(axis=1) == 1) & (frame[:, cols].sum(axis=0) == 1)
+
+
+def in_frame(
+    first: ObjectSummary,
+    second: ObjectSummary,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Which pairs ``(rows[k], cols[k])`` the maps' shared frame allows (the test of
+    :func:`frame_allowed`; all of them when the maps are not taken to share a frame).
+
+    Applied to pairs already assigned one to one under a transform: a pair the frame refuses is
+    dropped, and its objects are not given to another partner instead (the refused partner
+    still competes for them in the assignment and the distinctness test)."""
+    chi2 = settings.frame_threshold
+    if chi2 is None or rows.size == 0:
+        return np.ones(rows.size, dtype=bool)
+    d = first.means[rows] - second.means[cols]
+    s = first.covs[rows] + second.covs[cols]
+    return np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0]) <= chi2
 
 
 def gate_pairs(

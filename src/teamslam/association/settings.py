@@ -58,6 +58,16 @@ class AssociationSettings:
         map. A pair whose gate could hold a neighbour of the true partner — a car of the same
         row, when the true partner is not (yet) in the other map, so no rival is there to be
         seen — is a guess. 0 turns the test off.
+    frame_probability
+        ``None`` (default): the two maps may be in unrelated frames, any rigid transform between
+        them is as likely as any other. A probability: both maps are estimates in one world
+        frame (the robots started at known poses), so a pair whose two estimates fail the
+        ``χ²₃`` test of their difference under the identity, with their own marginal
+        covariances (the test consensus revokes a pair by), is no candidate and is never
+        gathered. Of two consistent sets related by a shift the layout repeats (a row of
+        objects one spacing further), only the one the maps' own frames allow remains. A
+        team's own association (``association.frame_probability``) sets it by default, at
+        the probability of its revocation test: its robots start at known poses in one frame.
     """
 
     consistency_probability: float = 0.99
@@ -72,6 +82,7 @@ class AssociationSettings:
     distinctness: float = 2.0
     rivals: int = 3
     separation: float = 0.5
+    frame_probability: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("consistency_probability", "gate_probability"):
@@ -101,6 +112,11 @@ class AssociationSettings:
             )
         if not (np.isfinite(self.separation) and self.separation >= 0.0):
             raise InputError(f"association setting separation must be ≥ 0, got {self.separation}")
+        if self.frame_probability is not None and not 0.0 < self.frame_probability < 1.0:
+            raise InputError(
+                "association setting frame_probability must be in (0, 1) or None, got "
+                f"{self.frame_probability}"
+            )
         if self.descriptor_matches > self.neighbours:
             raise InputError("association setting descriptor_matches exceeds neighbours")
 
@@ -113,3 +129,10 @@ class AssociationSettings:
     def gate_threshold(self) -> float:
         """``χ²₃`` quantile of :attr:`gate_probability`."""
         return chi2_quantile(self.gate_probability, 3)
+
+    @property
+    def frame_threshold(self) -> float | None:
+        """``χ²₃`` quantile of :attr:`frame_probability` (``None`` without it)."""
+        if self.frame_probability is None:
+            return None
+        return chi2_quantile(self.frame_probability, 3)

@@ -27,7 +27,7 @@ from teamslam.association.answer import AssociationResult
 from teamslam.association.appearance import beyond_chance, cosine_distances, link_model
 from teamslam.association.consistency import consistent_members
 from teamslam.association.distances import anchor_distance
-from teamslam.association.gate import alone, assign, distinct, gate_pairs, separated
+from teamslam.association.gate import alone, assign, distinct, gate_pairs, in_frame, separated
 from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
 from teamslam.association.transform import fit_transform
@@ -497,6 +497,7 @@ def _extend(
     added[added] = spaced
     rows, cols = keep_rows[added], keep_cols[added]
     ok = consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
+    ok &= in_frame(a, b, rows, cols, settings)
     pairs = np.column_stack([a.ids[rows[ok]], b.ids[cols[ok]]])
     return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
 

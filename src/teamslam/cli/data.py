@@ -21,10 +21,19 @@ __all__ = ["register"]
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from teamslam.errors import InputError
-    from teamslam.sim import lissajous_team, long_route_team
+    from teamslam.sim import grid_city_team, lissajous_team, long_route_team
 
     if args.objects == "shapes":
         raise InputError("--objects shapes renders objects: it needs --images")
+    detector = {
+        "clutter": args.clutter,
+        "miss": args.miss,
+        "classes": args.classes,
+        "appearance": args.appearance,
+        "appearance_noise": args.appearance_noise,
+    }
+    if args.route != "grid" and (args.blocks is not None or args.object_spacing is not None):
+        raise InputError("--blocks and --object-spacing apply to --route grid")
     if args.route == "long":
         if args.objects is not None:
             raise InputError(
@@ -33,10 +42,29 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             )
         if args.clutter or args.miss or args.classes or args.appearance:
             raise InputError(
-                "--clutter, --miss, --classes and --appearance apply to the Lissajous route"
+                "--clutter, --miss, --classes and --appearance apply to the Lissajous and grid "
+                "routes"
             )
         dataset = long_route_team(
             robots=args.robots, steps=args.steps, seed=args.seed, noise_free=args.noise_free
+        )
+    elif args.route == "grid":
+        grid = {
+            "blocks": None if args.blocks is None else tuple(args.blocks),
+            "object_spacing": args.object_spacing,
+        }
+        if args.objects is not None:
+            raise InputError(
+                "--objects sets the Lissajous arena's map; the grid city lines its streets "
+                "with objects every --object-spacing metres"
+            )
+        dataset = grid_city_team(
+            robots=args.robots,
+            steps=args.steps,
+            seed=args.seed,
+            noise_free=args.noise_free,
+            **{k: v for k, v in grid.items() if v is not None},
+            **detector,
         )
     else:
         dataset = lissajous_team(
@@ -45,11 +73,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             objects=210 if args.objects is None else args.objects,
             seed=args.seed,
             noise_free=args.noise_free,
-            clutter=args.clutter,
-            miss=args.miss,
-            classes=args.classes,
-            appearance=args.appearance,
-            appearance_noise=args.appearance_noise,
+            **detector,
         )
     if args.object_ids != "global":
         from teamslam.datasets.identity import strip_object_ids
@@ -206,6 +230,9 @@ def _cmd_simulate_images(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate_any(args: argparse.Namespace) -> int:
+    grid = args.route == "grid"
+    args.robots = (4 if grid else 5) if args.robots is None else args.robots
+    args.steps = (400 if grid else 300) if args.steps is None else args.steps
     if getattr(args, "images", False):
         return _cmd_simulate_images(args)
     return _cmd_simulate(args)
@@ -360,21 +387,47 @@ def register(sub) -> None:
     """Add this group's commands to the ``teamslam`` subparsers."""
     sim = sub.add_parser(
         "simulate",
-        help="simulate a stereo robot team (Lissajous arena or long route) and write a dataset",
+        help="simulate a stereo robot team (Lissajous arena, long route or grid city) and write "
+        "a dataset",
         description="Simulate a team of stereo robots — flying 3D Lissajous curves through one "
-        "arena, or driving side by side along a long non-repeating route that keeps "
-        "discovering new objects (--route long) — with objects, geometric feature tracks and "
+        "arena, driving side by side along a long non-repeating route that keeps "
+        "discovering new objects (--route long), or driving the streets of a grid city lined "
+        "with regularly spaced objects (--route grid) — with objects, geometric feature tracks and "
         "noisy odometry, and write it in teamslam's dataset format.",
     )
     sim.add_argument(
         "--route",
-        choices=("lissajous", "long"),
+        choices=("lissajous", "long", "grid"),
         default="lissajous",
         help="lissajous: curves through one arena (default); long: a long winding route "
-        "through a world of about 1.2 objects per metre",
+        "through a world of about 1.2 objects per metre; grid: cars driving random routes "
+        "through a grid of straight streets, objects every few metres along both kerbs "
+        "(700 px camera, 1241×376)",
     )
-    sim.add_argument("--robots", type=positive_int, default=5, help="number of robots")
-    sim.add_argument("--steps", type=positive_int, default=300, help="motion steps per robot")
+    sim.add_argument(
+        "--robots", type=positive_int, default=None, help="number of robots (default 5; grid: 4)"
+    )
+    sim.add_argument(
+        "--steps",
+        type=positive_int,
+        default=None,
+        help="motion steps per robot (default 300; grid: 400)",
+    )
+    sim.add_argument(
+        "--blocks",
+        type=positive_int,
+        nargs=2,
+        default=None,
+        metavar=("NX", "NY"),
+        help="grid route: blocks of the city (default 3 3)",
+    )
+    sim.add_argument(
+        "--object-spacing",
+        type=non_negative_float,
+        default=None,
+        metavar="M",
+        help="grid route: metres between neighbouring objects along a kerb (default 8)",
+    )
     sim.add_argument(
         "--objects",
         type=_objects_arg,
@@ -396,24 +449,27 @@ def register(sub) -> None:
         "--clutter",
         type=float,
         default=0.0,
-        help="Lissajous route: false detections per frame, as a share of the true ones "
+        help="Lissajous and grid routes: false detections per frame, as a share of the true ones "
         "(uniform in the image, random disparity in the depth range)",
     )
     sim.add_argument(
-        "--miss", type=float, default=0.0, help="Lissajous route: probability of a missed object"
+        "--miss",
+        type=float,
+        default=0.0,
+        help="Lissajous and grid routes: probability of a missed object",
     )
     sim.add_argument(
         "--classes",
         type=non_negative_int,
         default=0,
-        help="Lissajous route: number of object classes (0: none)",
+        help="Lissajous and grid routes: number of object classes (0: none)",
     )
     sim.add_argument(
         "--appearance",
         type=non_negative_int,
         default=0,
         metavar="DIM",
-        help="Lissajous route: each detection carries an appearance descriptor of DIM "
+        help="Lissajous and grid routes: each detection carries an appearance descriptor of DIM "
         "dimensions, a noisy copy of its object's (0: none)",
     )
     sim.add_argument(

@@ -176,7 +176,10 @@ def coerce_settings(values: Mapping[str, Any], where: str) -> dict[str, Any]:
         elif kind == "int":
             if isinstance(value, bool) or not isinstance(value, int):
                 raise bad
-        elif kind == "float":
+        elif kind in ("float", "float | None"):
+            if value is None and kind != "float":
+                out[key] = value  # null: the setting's test is off
+                continue
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise bad
             value = float(value)

@@ -445,6 +445,9 @@ class TeamAssociationSettings(AssociationSettings):
     mode: str = field(default="oracle", metadata=_unit(""))
     interval: int = field(default=5, metadata=_unit("steps"))
     revoke_probability: float = field(default=0.99999, metadata=_unit(""))
+    # a team's maps are estimates in the one world frame every robot starts in (at its known
+    # first pose): the matcher tests a pair under the identity as consensus does
+    frame_probability: float | None = field(default=0.99999, metadata=_unit(""))
 
     def __post_init__(self) -> None:
         try:
