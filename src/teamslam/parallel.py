@@ -31,6 +31,7 @@ from teamslam.errors import InputError
 __all__ = [
     "CONNECT_SECONDS",
     "RETRIES",
+    "WORKER_SECONDS",
     "cluster_client",
     "default_workers",
     "init_worker",
@@ -42,8 +43,10 @@ __all__ = [
 
 T = TypeVar("T")
 
-#: Seconds to wait for a Dask scheduler to answer, and then for its first worker.
+#: Seconds to wait for a Dask scheduler to answer.
 CONNECT_SECONDS = 10.0
+#: Seconds to wait then for its first worker (a worker starting may take a while to import).
+WORKER_SECONDS = 120.0
 #: Times a run that raised on a worker is tried again elsewhere (a worker that dies is another
 #: matter: the scheduler reruns its tasks by itself, up to ``distributed.scheduler.
 #: allowed-failures`` times).
@@ -90,7 +93,8 @@ def cluster_client(address: str) -> Iterator[Any]:
         The ``cluster`` extra is not installed.
     InputError
         ``address`` is no address, no scheduler answers there within :data:`CONNECT_SECONDS`,
-        it has no worker within as long, or a worker runs another version of teamslam.
+        it has no worker within :data:`WORKER_SECONDS`, or a worker runs another version of
+        teamslam.
     """
     distributed = require("distributed", "cluster", "--scheduler")
     comm = require("distributed.comm", "cluster", "--scheduler")
@@ -107,10 +111,10 @@ def cluster_client(address: str) -> Iterator[Any]:
         raise InputError(f"no Dask scheduler answers at {address}: {first}") from None
     try:
         try:
-            client.wait_for_workers(1, timeout=CONNECT_SECONDS)
+            client.wait_for_workers(1, timeout=WORKER_SECONDS)
         except (OSError, TimeoutError) as exc:
             raise InputError(
-                f"the Dask scheduler at {address} has no worker after {CONNECT_SECONDS:g} s"
+                f"the Dask scheduler at {address} has no worker after {WORKER_SECONDS:g} s"
             ) from exc
         ours = _version()
         others = {v for v in client.run(_version).values() if v != ours}
