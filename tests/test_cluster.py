@@ -156,9 +156,8 @@ def test_a_paper_piece_on_a_cluster_is_the_local_one(cluster, shared_data, tmp_p
         ("cluster", {"scheduler": cluster.scheduler_address}),
     ):
         out = tmp_path / name
-        _, reproducer = reproduce_all(
-            out, PaperSettings.quick(**sizes, **where), shared_data, keys=keys
-        )
+        settings = PaperSettings.quick(**sizes, **where)
+        _, reproducer = reproduce_all(out, settings, shared_data, keys=keys, keep_tasks=True)
         paper = json.loads((out / "paper.json").read_text())
         cells[name] = [c for c in paper["cells"] if c["unit"] != "ms" and "time" not in c["row"]]
         assert reproducer.store.saved == 1 + 2 + 1 + 2 + 2  # tasks, each kept once

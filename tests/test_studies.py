@@ -151,9 +151,9 @@ def test_a_run_store_refuses_runs_without_their_study_and_unreadable_runs(tmp_pa
 
 
 def test_a_paper_run_resumes_with_only_the_missing_tasks(shared_data, tmp_path, monkeypatch):
-    """Table 4 of the DVI paper (its separate and consensus tasks) and the FEJ Monte Carlo
-    (two tasks of runs): one task's file lost, the resumed run computes that one only and the
-    same cells."""
+    """DVI Fig. 4 (its separate and consensus tasks) and the FEJ Monte Carlo (two tasks of
+    runs): one task's file lost, the resumed run computes that one only and the same cells; a
+    run that keeps no tasks (local, not resuming) writes none."""
     from teamslam.eval import schedule
     from teamslam.paper import PaperSettings, reproduce_all
 
@@ -161,7 +161,7 @@ def test_a_paper_run_resumes_with_only_the_missing_tasks(shared_data, tmp_path, 
         team_sizes=(2,), steps=6, fej_runs=7, fej_features=(20,), workers=1, progress=False
     )
     keys = ["fej-table-1", "dvi-figure-4"]
-    reproduce_all(tmp_path, settings, shared_data, keys=keys)
+    reproduce_all(tmp_path, settings, shared_data, keys=keys, keep_tasks=True)
     before = json.loads((tmp_path / "paper.json").read_text())["cells"]
     tasks = sorted((tmp_path / "tasks").glob("run_*.pkl"))
     assert len(tasks) == 2 + 1 + 3  # FEJ: runs 0–4 and 5–6; separate; consensus at 3 rates
@@ -176,6 +176,8 @@ def test_a_paper_run_resumes_with_only_the_missing_tasks(shared_data, tmp_path, 
     assert after == before
     with pytest.raises(InputError, match="holds runs of another study"):
         reproduce_all(tmp_path, replace(settings, steps=7), shared_data, keys=keys, resume=True)
+    _, reproducer = reproduce_all(tmp_path / "plain", settings, shared_data, keys=["fej-table-1"])
+    assert reproducer.store is None and not (tmp_path / "plain" / "tasks").exists()
 
 
 def _closed_port() -> int:

@@ -111,7 +111,8 @@ def _cmd_one(args: argparse.Namespace) -> int:
     settings = _settings(args)
     if args.resume and args.out is None:
         raise InputError("--resume continues the tasks kept in an output directory: give --out")
-    store = None if args.out is None else task_store(args.out, settings, args.data, args.resume)
+    keep = args.out is not None and (args.resume or args.scheduler is not None)
+    store = task_store(args.out, settings, args.data, args.resume) if keep else None
     header = _header()  # the code and machine as the run starts
     if not args.json:
         print(settings.describe(), flush=True)
@@ -193,8 +194,9 @@ def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--resume",
         action="store_true",
-        help="keep the tasks OUT/tasks holds from an interrupted run of the same settings and "
-        "run only the missing ones",
+        help="keep each task's result in OUT/tasks as it finishes (always so with --scheduler), "
+        "and read back those an interrupted run of the same settings kept there: only the "
+        "missing ones run",
     )
     parser.add_argument(
         "--data", type=Path, default=default_data(), help="data directory (default: $TEAMSLAM_DATA)"

@@ -655,20 +655,25 @@ def reproduce_all(
     on_done: Callable[[Reproduction], None] | None = None,
     header: str | None = None,
     resume: bool = False,
+    keep_tasks: bool | None = None,
 ) -> tuple[list[Reproduction], Reproducer]:
     """Every table and figure (or those of ``keys``), each written into ``out`` (Markdown,
     JSON, PNG), then ``out/report.html`` and ``out/paper.json`` (every cell).
 
-    Each task's result is kept in ``out/tasks`` as it finishes (:func:`task_store`); with
-    ``resume`` those kept there are read back, not run again. ``on_done`` is called with each
-    reproduction as soon as it is built; ``header``, if given, is the first line of every
-    Markdown file (:meth:`Reproduction.write`).
+    With ``keep_tasks`` (default: when resuming or on a Dask cluster) each task's result is
+    kept in ``out/tasks`` as it finishes (:func:`task_store`); with ``resume`` those kept there
+    are read back, not run again. ``on_done`` is called with each reproduction as soon as it is
+    built; ``header``, if given, is the first line of every Markdown file
+    (:meth:`Reproduction.write`).
     """
     from teamslam.eval.outputs import write_json
     from teamslam.paper.report import write_paper_report
 
     settings = settings or ex.PaperSettings()
-    reproducer = Reproducer(settings, data, task_store(out, settings, data, resume))
+    if keep_tasks is None:
+        keep_tasks = resume or settings.scheduler is not None
+    store = task_store(out, settings, data, resume) if keep_tasks or resume else None
+    reproducer = Reproducer(settings, data, store)
     reproducer.run(keys)
     done = []
     for key in keys or list(ITEMS):
