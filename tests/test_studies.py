@@ -180,6 +180,12 @@ def test_a_paper_run_resumes_with_only_the_missing_tasks(shared_data, tmp_path, 
     assert reproducer.store is None and not (tmp_path / "plain" / "tasks").exists()
 
 
+def test_paper_resume_needs_an_output_directory(capsys):
+    assert main(["paper", "fej", "--table", "1", "--runs", "2", "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--resume continues the tasks kept in an output" in err
+
+
 def _closed_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -203,7 +203,7 @@ def run_parallel(
     bar = tqdm(total=len(seeds), desc=description, disable=not show, leave=False)
     results: list[T] = []
     try:
-        if scheduler is not None:
+        if scheduler is not None and seeds:
             return _on_cluster(scheduler, job, seeds, bar, description, on_result)
         if workers == 1 or len(seeds) <= 1:
             with threadpool_limits(1):

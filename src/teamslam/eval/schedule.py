@@ -224,7 +224,9 @@ def run_tasks(
             if t.key in results:
                 continue
             (ready if t.needs is None or t.needs in results else waiting[t.needs]).append(t.key)
-        if scheduler is not None:
+        if scheduler is not None and not ready:
+            pass  # every task was read back from the store
+        elif scheduler is not None:
             with cluster_client(scheduler) as client:
                 schedule.workers = sum(client.nthreads().values())
                 prefix = study_key(description)
