@@ -96,8 +96,8 @@ def cluster_client(address: str) -> Iterator[Any]:
         it has no worker within :data:`WORKER_SECONDS`, or a worker runs another version of
         teamslam.
     """
-    distributed = require("distributed", "cluster", "--scheduler")
-    comm = require("distributed.comm", "cluster", "--scheduler")
+    distributed = require("distributed", "cluster", "running on a Dask cluster")
+    comm = require("distributed.comm", "cluster", "running on a Dask cluster")
     try:
         scheme, location = comm.parse_address(address)
         if scheme in ("tcp", "tls", "ws", "wss"):
@@ -117,7 +117,10 @@ def cluster_client(address: str) -> Iterator[Any]:
                 f"the Dask scheduler at {address} has no worker after {WORKER_SECONDS:g} s"
             ) from exc
         ours = _version()
-        others = {v for v in client.run(_version).values() if v != ours}
+        try:
+            others = {v for v in client.run(_version).values() if v != ours}
+        except ImportError as exc:
+            raise InputError(f"workers of {address} cannot import teamslam ({exc})") from None
         if others:
             raise InputError(
                 f"workers of {address} run teamslam {', '.join(sorted(others))}, this is "
@@ -144,7 +147,7 @@ def _on_cluster(
     description: str,
     on_result: Callable[[int, T], None] | None,
 ) -> list[T]:
-    as_completed = require("distributed", "cluster", "--scheduler").as_completed
+    as_completed = require("distributed", "cluster", "running on a Dask cluster").as_completed
     prefix = study_key(description)
     with cluster_client(address) as client:
         futures = {

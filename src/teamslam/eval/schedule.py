@@ -251,7 +251,8 @@ def run_tasks(
                         ready.extend(waiting[task.key])
                         waiting[task.key] = []
                     keys = {future: key for key, future in submitted.items()}
-                    as_completed = require("distributed", "cluster", "a Dask cluster").as_completed
+                    what = "running on a Dask cluster"
+                    as_completed = require("distributed", "cluster", what).as_completed
                     for future in as_completed(list(keys), loop=client.loop):
                         finish(by_key[keys[future]], future.result())
                 finally:
