@@ -3,7 +3,7 @@ bit-identity.
 
 Run from the repository root (the ``cluster`` extra installed)::
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/cluster.py [--robots 3] [--steps 60] [--runs 20] \
+    OPENBLAS_NUM_THREADS=1 python benchmarks/cluster.py [--robots 3] [--steps 40] [--runs 20] \
         [--workers 2] [--repeats 2] [--markdown FILE]
 
 Each repeat runs ``teamslam montecarlo`` (a fresh process, as a user would) three ways, one
@@ -106,7 +106,7 @@ def _study(cell: list[str], where: list[str], out: Path) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", type=int, default=3)
-    parser.add_argument("--steps", type=int, default=60)
+    parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--filters", default="std,fej")
     parser.add_argument("--modes", default="separate,consensus")
@@ -155,7 +155,7 @@ def main() -> None:
                         print(f"{way}: {seconds:.1f} s", flush=True)
         finally:
             for p in reversed(processes):
-                p.send_signal(signal.SIGINT)
+                p.send_signal(signal.SIGTERM)
             for p in reversed(processes):
                 try:
                     p.wait(60)

@@ -141,7 +141,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"{GENERATED}/consistency-kitti.md",
     ),
     "cluster-overhead": (
-        "python benchmarks/cluster.py --robots 3 --steps 60 --runs 20 --workers 2 --repeats 2 "
+        "python benchmarks/cluster.py --robots 3 --steps 40 --runs 20 --workers 2 --repeats 2 "
         f"--markdown {GENERATED}/cluster-overhead.md",
         f"{GENERATED}/cluster-overhead.md",
     ),

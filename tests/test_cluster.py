@@ -205,7 +205,7 @@ def test_a_scheduler_and_workers_started_by_hand_give_the_local_study(local_stud
         _same_study(local_study, out)
     finally:
         for p in reversed(processes):
-            p.send_signal(signal.SIGINT)
+            p.send_signal(signal.SIGTERM)
         for p in reversed(processes):
             try:
                 p.wait(60)
