@@ -145,6 +145,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--modes separate consensus --markdown {GENERATED}/consistency-kitti.md",
         f"{GENERATED}/consistency-kitti.md",
     ),
+    "cluster-overhead": (
+        "python benchmarks/cluster.py --robots 3 --steps 40 --runs 20 --workers 2 --repeats 2 "
+        f"--markdown {GENERATED}/cluster-overhead.md",
+        f"{GENERATED}/cluster-overhead.md",
+    ),
     "consistency-make-run": (
         "python benchmarks/consistency.py --teams make-run --variants std fej oc "
         f"--modes separate consensus --markdown {GENERATED}/consistency-make-run.md",

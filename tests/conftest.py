@@ -110,6 +110,7 @@ def drifting_runs(drifting_team):
 #: worker, one after another, as in a serial run (two at once could pick the same port).
 NETWORK_MODULES = frozenset(
     {
+        "test_cluster",
         "test_driver",
         "test_netns",
         "test_rejoin",

@@ -147,6 +147,24 @@ def _commands(w):
             "images",
             None,
         ),
+        "montecarlo --scheduler": (
+            ("distributed",),
+            [
+                *("montecarlo", "--robots", "1", "--steps", "2", "--runs", "1"),
+                *("--scheduler", "tcp://127.0.0.1:8786", "--out", f"{tmp}/mc"),
+            ],
+            "cluster",
+            "running on a Dask cluster",
+        ),
+        "paper --scheduler": (
+            ("distributed",),
+            [
+                *("paper", "all", "--only", "dvi-table-4", "--quick", "--robots", "2"),
+                *("--scheduler", "tcp://127.0.0.1:8786", "--out", f"{tmp}/pa"),
+            ],
+            "cluster",
+            "running on a Dask cluster",
+        ),
     }
 
 
@@ -163,6 +181,8 @@ COMMANDS = [
     "agent --ros2",
     "simulate --images",
     "data from-images",
+    "montecarlo --scheduler",
+    "paper --scheduler",
 ]
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from teamslam.cli._common import non_negative_int, positive_int
@@ -32,7 +33,15 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
         graph=args.graph,
         loss=args.loss,
     )
-    summary, figures = write_montecarlo(spec, args.out, args.workers)
+    summary, figures, store = write_montecarlo(
+        spec, args.out, args.workers, scheduler=args.scheduler, resume=args.resume
+    )
+    if args.resume:
+        print(
+            f"resumed: {store.loaded} of {spec.runs} runs read back from {store.directory}, "
+            f"{store.saved} run",
+            file=sys.stderr,
+        )
     if args.json:
         print(json.dumps(summary))
     else:
@@ -88,6 +97,19 @@ def register(subparsers) -> None:
         "--filters)",
     )
     mc.add_argument("--workers", type=positive_int, default=None, help="processes (all cores)")
+    mc.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run each noise realisation as a task of the Dask scheduler at ADDRESS "
+        "(tcp://host:8786; the 'cluster' extra) instead of --workers processes",
+    )
+    mc.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep the runs OUT/runs holds from an interrupted study of the same settings and "
+        "run only the missing ones",
+    )
     mc.add_argument("--json", action="store_true", help="print the summary as JSON")
     mc.add_argument("--out", type=Path, required=True, help="directory for JSON and figures")
     mc.set_defaults(handler=_cmd_montecarlo)

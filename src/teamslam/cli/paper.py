@@ -23,6 +23,7 @@ def _settings(args: argparse.Namespace):
             ("steps", args.steps),
             ("frames", args.frames),
             ("workers", args.workers),
+            ("scheduler", args.scheduler),
             ("team_sizes", tuple(args.robots) if args.robots else None),
             ("fej_features", tuple(args.features) if args.features else None),
         )
@@ -30,7 +31,7 @@ def _settings(args: argparse.Namespace):
     }
     if args.quick:
         return PaperSettings.quick(**changes)
-    label = {"label": "custom"} if changes.keys() - {"workers"} else {}
+    label = {"label": "custom"} if changes.keys() - {"workers", "scheduler"} else {}
     return PaperSettings(**changes, **label)
 
 
@@ -47,6 +48,15 @@ def _finish(results, args: argparse.Namespace, written: list[str]) -> int:
     elif written:
         print("wrote " + ", ".join(written))
     return 0
+
+
+def _resumed(reproducer, args: argparse.Namespace) -> None:
+    store = reproducer.store
+    if args.resume and store is not None:
+        print(
+            f"resumed: {store.loaded} task(s) read back from {store.directory}, {store.saved} run",
+            file=sys.stderr,
+        )
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
@@ -88,7 +98,9 @@ def _header() -> str:
 
 
 def _cmd_one(args: argparse.Namespace) -> int:
+    from teamslam.errors import InputError
     from teamslam.paper import Reproducer, item_key
+    from teamslam.paper.reproduce import task_store
 
     if getattr(args, "victoria_park", False):
         key = item_key(args.paper, "victoria-park", "")
@@ -97,10 +109,16 @@ def _cmd_one(args: argparse.Namespace) -> int:
     else:
         key = item_key(args.paper, "figure", args.figure)
     settings = _settings(args)
+    if args.resume and args.out is None:
+        raise InputError("--resume continues the tasks kept in an output directory: give --out")
+    keep = args.out is not None and (args.resume or args.scheduler is not None)
+    store = task_store(args.out, settings, args.data, args.resume) if keep else None
     header = _header()  # the code and machine as the run starts
     if not args.json:
         print(settings.describe(), flush=True)
-    result = Reproducer(settings, args.data).build(key)
+    reproducer = Reproducer(settings, args.data, store)
+    result = reproducer.build(key)
+    _resumed(reproducer, args)
     _show(result, args.json)
     written = [] if args.out is None else [str(p) for p in result.write(args.out, header)]
     return _finish([result], args, written)
@@ -125,7 +143,9 @@ def _cmd_all(args: argparse.Namespace) -> int:
         keys=args.only,
         on_done=lambda r: _show(r, args.json),
         header=_header(),
+        resume=args.resume,
     )
+    _resumed(reproducer, args)
     if not args.json:
         print(reproducer.time_text(), file=sys.stderr)
     return _finish(results, args, [f"{args.out}/ (*.md, *.json, *.png, paper.json, report.html)"])
@@ -163,6 +183,20 @@ def _common(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--workers", type=positive_int, default=None, help="processes (default: all cores)"
+    )
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run every task on the Dask scheduler at ADDRESS (tcp://host:8786; the 'cluster' "
+        "extra) instead of --workers processes",
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep each task's result in OUT/tasks as it finishes (always so with --scheduler), "
+        "and read back those an interrupted run of the same settings kept there: only the "
+        "missing ones run",
     )
     parser.add_argument(
         "--data", type=Path, default=default_data(), help="data directory (default: $TEAMSLAM_DATA)"

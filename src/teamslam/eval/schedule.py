@@ -8,14 +8,18 @@ and never more than ``workers`` at a time, so a long chain does not start last a
 ends with the short tasks. Every worker has BLAS pinned to one thread, as in
 :func:`~teamslam.parallel.run_parallel`.
 
-Results do not depend on the order or the number of workers (each task is deterministic on its
-inputs); only the times do. :class:`Schedule` keeps each task's CPU and wall seconds and the
-worker that ran it.
+On a Dask cluster (``scheduler``) every task is submitted at once, its chain length as its
+priority and the task it needs as its dependency; the scheduler runs a task again when its
+worker is lost. With a :class:`~teamslam.eval.studies.RunStore` each task's result is kept as it
+finishes, and the tasks stored already are read back instead of run (``--resume``).
+
+Results do not depend on the order, the number of workers or where they run (each task is
+deterministic on its inputs); only the times do. :class:`Schedule` keeps each task's CPU and
+wall seconds and the worker that ran it.
 """
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from collections.abc import Callable, Hashable, Iterable
@@ -26,8 +30,18 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from teamslam._optional import require
 from teamslam.errors import InputError
-from teamslam.parallel import default_workers, init_worker
+from teamslam.eval.studies import RunStore
+from teamslam.parallel import (
+    RETRIES,
+    cluster_client,
+    default_workers,
+    init_worker,
+    pinned,
+    study_key,
+    worker_name,
+)
 
 __all__ = ["Schedule", "Task", "run_tasks"]
 
@@ -93,10 +107,14 @@ class Schedule:
         return max(self.worker_cpu(), default=0.0)
 
 
-def _timed(call: Callable[..., Any], *args: Any) -> tuple[Any, float, float, int]:
+def _timed(call: Callable[..., Any], *args: Any) -> tuple[Any, float, float, str]:
     cpu, wall = time.process_time(), time.perf_counter()
     result = call(*args)
-    return result, time.process_time() - cpu, time.perf_counter() - wall, os.getpid()
+    return result, time.process_time() - cpu, time.perf_counter() - wall, worker_name()
+
+
+def _result(outcome: tuple[Any, float, float, str]) -> Any:
+    return outcome[0]
 
 
 def _priorities(tasks: dict[Hashable, Task]) -> dict[Hashable, float]:
@@ -120,11 +138,19 @@ def _priorities(tasks: dict[Hashable, Task]) -> dict[Hashable, float]:
     return level
 
 
+def _after(call: Callable[..., Any], outcome: tuple) -> tuple[Any, float, float, str]:
+    """:func:`_timed` of ``call`` on the result of the task it needs (on a cluster, whose
+    tasks hand each other their whole outcome)."""
+    return _timed(call, outcome[0])
+
+
 def run_tasks(
     tasks: Iterable[Task],
     workers: int | None = None,
     progress: bool | None = None,
     description: str = "tasks",
+    scheduler: str | None = None,
+    store: RunStore | None = None,
 ) -> tuple[dict[Hashable, Any], Schedule]:
     """Run every task, longest chain first, at most ``workers`` at a time.
 
@@ -133,9 +159,16 @@ def run_tasks(
     tasks
         The tasks; a task's ``needs`` must name another of them.
     workers
-        Processes to use (default: all cores); ``1`` runs every task in this process.
+        Processes to use (default: all cores); ``1`` runs every task in this process. Ignored
+        with ``scheduler``.
     progress
-        Show a progress bar; default: when standard error is a terminal.
+        Show a progress bar of the finished tasks; default: when standard error is a terminal.
+    scheduler
+        The address of a Dask scheduler: every task is submitted there at once, with its chain
+        length as priority and the task it needs as a dependency (the ``cluster`` extra).
+    store
+        Keeps each task's result (and times) as it finishes; the tasks it holds already
+        (``resume``) are read back, not run.
 
     Returns
     -------
@@ -152,10 +185,14 @@ def run_tasks(
             raise InputError(f"task {t.key!r} needs {t.needs!r}, which is not a task")
     level = _priorities(by_key)
     position = {k: n for n, k in enumerate(by_key)}
+    workers = default_workers() if workers is None else max(1, int(workers))
+    show = sys.stderr.isatty() if progress is None else progress
+    bar = tqdm(total=len(by_key), desc=description, disable=not show, leave=False)
+    results: dict[Hashable, Any] = {}
+    schedule = Schedule(workers=workers)
+    pids: dict[str, int] = {}
     waiting: dict[Hashable, list[Hashable]] = {k: [] for k in by_key}
     ready: list[Hashable] = []
-    for t in by_key.values():
-        (ready if t.needs is None else waiting[t.needs]).append(t.key)
 
     def next_task() -> Task:
         best = max(ready, key=lambda k: (level[k], -position[k]))
@@ -163,15 +200,10 @@ def run_tasks(
         schedule.order.append(best)
         return by_key[best]
 
-    workers = default_workers() if workers is None else max(1, int(workers))
-    show = sys.stderr.isatty() if progress is None else progress
-    bar = tqdm(total=len(by_key), desc=description, disable=not show, leave=False)
-    results: dict[Hashable, Any] = {}
-    schedule = Schedule(workers=workers)
-    pids: dict[int, int] = {}
-
-    def finish(task: Task, outcome: tuple[Any, float, float, int]) -> None:
+    def finish(task: Task, outcome: tuple[Any, float, float, str], keep: bool = True) -> None:
         result, cpu, wall, pid = outcome
+        if keep and store is not None:
+            store.save(task.key, outcome)
         results[task.key] = result
         schedule.cpu[task.key] = cpu
         schedule.wall[task.key] = wall
@@ -184,7 +216,48 @@ def run_tasks(
 
     begin = time.perf_counter()
     try:
-        if workers == 1:
+        stored = [k for k in by_key if store is not None and k in store]
+        for key in stored:
+            schedule.order.append(key)
+            finish(by_key[key], store.load(key), keep=False)
+        for t in by_key.values():
+            if t.key in results:
+                continue
+            (ready if t.needs is None or t.needs in results else waiting[t.needs]).append(t.key)
+        if scheduler is not None and not ready:
+            pass  # every task was read back from the store
+        elif scheduler is not None:
+            with cluster_client(scheduler) as client:
+                schedule.workers = sum(client.nthreads().values())
+                prefix = study_key(description)
+                submitted: dict[Hashable, Any] = {}
+                try:
+                    while ready:
+                        task = next_task()
+                        if task.needs is None:
+                            call: tuple = (_timed, task.call)
+                        elif task.needs in submitted:
+                            call = (_after, task.call, submitted[task.needs])
+                        else:  # its need was read back from the store
+                            call = (_timed, task.call, client.scatter([results[task.needs]])[0])
+                        submitted[task.key] = client.submit(
+                            pinned,
+                            *call,
+                            key=f"{prefix}-{position[task.key]}",
+                            priority=level[task.key],
+                            retries=RETRIES,
+                        )
+                        # the tasks waiting on it go in now: the scheduler holds them back
+                        ready.extend(waiting[task.key])
+                        waiting[task.key] = []
+                    keys = {future: key for key, future in submitted.items()}
+                    what = "running on a Dask cluster"
+                    as_completed = require("distributed", "cluster", what).as_completed
+                    for future in as_completed(list(keys), loop=client.loop):
+                        finish(by_key[keys[future]], future.result())
+                finally:
+                    client.cancel(list(submitted.values()))
+        elif workers == 1:
             with threadpool_limits(1):
                 while ready:
                     task = next_task()

@@ -7,6 +7,11 @@ two-sided 95 % χ² band, object ANEES with its band, position and heading RMSE,
 and the runs above the band, and the per-frame curves. Every filter and mode sees the same
 realisations, so ``paired_rmse`` compares them run by run: the mean per-run RMSE difference with
 its 95 % Student-t interval, relative difference, and how many runs each won.
+
+Run ``k`` draws its noise from ``(seed, k)`` whatever process or cluster worker runs it, so a
+study is the same, bit for bit, on one process, ``N`` processes or a Dask cluster
+(``scheduler``); each run is kept in ``out/runs`` as it finishes, and ``resume`` runs only the
+ones missing there (:mod:`teamslam.eval.studies`).
 """
 
 from __future__ import annotations
@@ -19,16 +24,20 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from teamslam._optional import require
+from teamslam.eval.studies import RunStore
 from teamslam.gaussian import chi2_band
 from teamslam.geometry import se3
 from teamslam.parallel import run_parallel
 
 __all__ = [
     "MODES",
+    "RUNS_DIR",
     "MonteCarloSpec",
     "paired_difference",
     "plot",
     "run_montecarlo",
+    "study",
     "summarise",
     "table",
     "write_montecarlo",
@@ -43,6 +52,8 @@ _MODE_SETTINGS = {
     "increments": {"consensus.rule": "increments"},
 }
 FILTERS = ("std", "fej", "ideal", "oc")
+#: The folder of ``out`` each run is kept in as it finishes (one ``.npz`` per run).
+RUNS_DIR = "runs"
 
 
 @dataclass(frozen=True)
@@ -256,24 +267,63 @@ def paired_difference(
     }
 
 
+def study(spec: MonteCarloSpec) -> dict:
+    """What every run of ``spec`` depends on (its :class:`~teamslam.eval.studies.RunStore`
+    identity): the spec but the number of runs, and teamslam's version."""
+    from teamslam._version import __version__
+
+    return {**{k: v for k, v in asdict(spec).items() if k != "runs"}, "teamslam": __version__}
+
+
 def run_montecarlo(
-    spec: MonteCarloSpec, workers: int | None = None, progress: bool | None = None
+    spec: MonteCarloSpec,
+    workers: int | None = None,
+    progress: bool | None = None,
+    scheduler: str | None = None,
+    store: RunStore | None = None,
 ) -> dict:
-    """Run the study in parallel and summarise it."""
+    """Run the study in parallel and summarise it.
+
+    Parameters
+    ----------
+    workers, progress
+        Processes and progress bar (:func:`~teamslam.parallel.run_parallel`).
+    scheduler
+        The address of a Dask scheduler: each run is a task there (the ``cluster`` extra).
+    store
+        Keeps each run as it finishes; the runs it holds already (``resume``) are read back,
+        not run.
+    """
     job = functools.partial(one_run, spec=spec)
-    runs = run_parallel(job, list(range(spec.runs)), workers, progress, "Monte Carlo runs")
-    return summarise(spec, runs)
+    runs: dict[int, dict] = {}
+    if store is not None:
+        runs = {k: store.load(k) for k in range(spec.runs) if k in store}
+    missing = [k for k in range(spec.runs) if k not in runs]
+    save = None if store is None else store.save
+    results = run_parallel(job, missing, workers, progress, "Monte Carlo runs", scheduler, save)
+    runs.update(zip(missing, results, strict=True))
+    return summarise(spec, [runs[k] for k in range(spec.runs)])
 
 
 def write_montecarlo(
-    spec: MonteCarloSpec, out: Path, workers: int | None = None, progress: bool | None = None
-) -> tuple[dict, list[Path]]:
-    """Run the study (:func:`run_montecarlo`, with its ``wall_seconds``) and write
-    ``montecarlo.json`` and the figures (:func:`plot`) into ``out``; the summary and the
-    figures' paths.
+    spec: MonteCarloSpec,
+    out: Path,
+    workers: int | None = None,
+    progress: bool | None = None,
+    scheduler: str | None = None,
+    resume: bool = False,
+) -> tuple[dict, list[Path], RunStore]:
+    """Run the study (:func:`run_montecarlo`, with its ``wall_seconds``), each run kept in
+    ``out/runs`` as it finishes (:class:`~teamslam.eval.studies.RunStore`; with ``resume`` the
+    runs kept there are not run again), and write ``montecarlo.json`` and the figures
+    (:func:`plot`) into ``out``; the summary, the figures' paths and the store (how many runs
+    it read back and wrote).
 
     Raises
     ------
+    InputError
+        ``resume`` and ``out/runs`` holds runs of another study; no Dask scheduler at
+        ``scheduler``, or the ``cluster`` extra is missing.
     OutputError
         Something cannot be written (named).
     """
@@ -281,14 +331,17 @@ def write_montecarlo(
 
     from teamslam.eval.outputs import writing
 
+    if scheduler is not None:  # before anything is written
+        require("distributed", "cluster", "running on a Dask cluster")
     begin = time.perf_counter()
-    summary = run_montecarlo(spec, workers, progress)
+    store = RunStore(Path(out) / RUNS_DIR, study(spec), resume)
+    summary = run_montecarlo(spec, workers, progress, scheduler, store)
     summary["wall_seconds"] = time.perf_counter() - begin
     out = Path(out)
     with writing(out):
         out.mkdir(parents=True, exist_ok=True)
         (out / "montecarlo.json").write_text(json.dumps(summary, indent=2))
-        return summary, plot(summary, out)
+        return summary, plot(summary, out), store
 
 
 def table(summary: dict) -> str:

@@ -77,6 +77,8 @@ class PaperSettings:
         Only the first ``frames`` frames of each robot of the real data (``None``: all).
     workers
         Processes for the parallel runs (``None``: all cores).
+    scheduler
+        The address of a Dask scheduler to run every task on instead (the ``cluster`` extra).
     progress
         Progress bars (``None``: when standard error is a terminal).
     label
@@ -93,6 +95,7 @@ class PaperSettings:
     workers: int | None = None
     progress: bool | None = None
     label: str = "full"
+    scheduler: str | None = None
 
     def __post_init__(self) -> None:
         if not self.team_sizes or min(self.team_sizes) < 2:
@@ -200,9 +203,12 @@ def run_experiments(
     workers: int | None = None,
     progress: bool | None = None,
     description: str = "experiments",
+    scheduler: str | None = None,
+    store=None,
 ):
-    """The tasks of all ``experiments`` in one process pool, longest chain first, each task
-    once (:func:`teamslam.eval.schedule.run_tasks`).
+    """The tasks of all ``experiments`` in one process pool (or on the Dask cluster of
+    ``scheduler``), longest chain first, each task once, each kept in ``store`` as it
+    finishes and read back from it when it holds it (:func:`teamslam.eval.schedule.run_tasks`).
 
     Returns
     -------
@@ -215,7 +221,7 @@ def run_experiments(
     for experiment in experiments.values():
         for task in experiment.tasks:
             tasks.setdefault(task.key, task)
-    done, schedule = run_tasks(tasks.values(), workers, progress, description)
+    done, schedule = run_tasks(tasks.values(), workers, progress, description, scheduler, store)
     return {name: e.collect(done) for name, e in experiments.items()}, schedule
 
 

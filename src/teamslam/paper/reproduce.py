@@ -12,7 +12,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,7 +21,19 @@ from teamslam.paper import experiments as ex
 from teamslam.paper.compare import Cell, Reproduction
 from teamslam.paper.values import paper_values
 
-__all__ = ["ITEMS", "NEEDS", "Item", "Reproducer", "item_key", "reproduce_all"]
+if TYPE_CHECKING:
+    from teamslam.eval.studies import RunStore
+
+__all__ = [
+    "ITEMS",
+    "NEEDS",
+    "TASKS_DIR",
+    "Item",
+    "Reproducer",
+    "item_key",
+    "reproduce_all",
+    "task_store",
+]
 
 
 @dataclass(frozen=True)
@@ -217,6 +229,9 @@ class Reproducer:
     data
         The data directory (``distributed-msckf/kitti00``, ``fej-environments``,
         ``victoria-park``); what is absent is reported in the setting lines, not computed.
+    store
+        Keeps each task's result as it finishes, and gives back those it holds
+        (:func:`task_store`).
 
     Attributes
     ----------
@@ -228,9 +243,15 @@ class Reproducer:
         time each worker was given.
     """
 
-    def __init__(self, settings: ex.PaperSettings | None = None, data: str | Path | None = None):
+    def __init__(
+        self,
+        settings: ex.PaperSettings | None = None,
+        data: str | Path | None = None,
+        store: RunStore | None = None,
+    ):
         self.settings = settings or ex.PaperSettings()
         self.data = None if data is None else Path(data)
+        self.store = store
         self.seconds: dict[str, float] = {}
         self.schedules: list = []
         self._cache: dict[str, Any] = {}
@@ -277,7 +298,9 @@ class Reproducer:
         if not todo:
             return
         s = self.settings
-        results, schedule = ex.run_experiments(todo, s.workers, s.progress, "paper experiments")
+        results, schedule = ex.run_experiments(
+            todo, s.workers, s.progress, "paper experiments", s.scheduler, self.store
+        )
         self.schedules.append(schedule)
         charged: set = set()
         for name, experiment in todo.items():
@@ -593,6 +616,37 @@ class Reproducer:
         return out
 
 
+#: The folder of an output directory each task's result is kept in as it finishes.
+TASKS_DIR = "tasks"
+
+
+def task_store(
+    out: str | Path, settings: ex.PaperSettings, data: str | Path | None, resume: bool = False
+) -> RunStore:
+    """The :class:`~teamslam.eval.studies.RunStore` of ``out/tasks``: one pickle per finished
+    task, of a study named by the sizes of ``settings`` (not the workers or the scheduler),
+    the data directory and teamslam's version.
+
+    Raises
+    ------
+    InputError
+        ``resume`` and the folder holds tasks of other settings (named), or ``settings`` asks
+        for a scheduler without the ``cluster`` extra (checked before anything is written).
+    """
+    from dataclasses import asdict
+
+    from teamslam._optional import require
+    from teamslam._version import __version__
+    from teamslam.eval.studies import RunStore, load_pickle, save_pickle
+
+    if settings.scheduler is not None:
+        require("distributed", "cluster", "running on a Dask cluster")
+    ignored = ("workers", "progress", "label", "scheduler")
+    study = {k: v for k, v in asdict(settings).items() if k not in ignored}
+    study |= {"data": None if data is None else str(data), "teamslam": __version__}
+    return RunStore(Path(out) / TASKS_DIR, study, resume, ".pkl", save_pickle, load_pickle)
+
+
 def reproduce_all(
     out: str | Path,
     settings: ex.PaperSettings | None = None,
@@ -600,17 +654,26 @@ def reproduce_all(
     keys: list[str] | None = None,
     on_done: Callable[[Reproduction], None] | None = None,
     header: str | None = None,
+    resume: bool = False,
+    keep_tasks: bool | None = None,
 ) -> tuple[list[Reproduction], Reproducer]:
     """Every table and figure (or those of ``keys``), each written into ``out`` (Markdown,
     JSON, PNG), then ``out/report.html`` and ``out/paper.json`` (every cell).
 
-    ``on_done`` is called with each reproduction as soon as it is built; ``header``, if given,
-    is the first line of every Markdown file (:meth:`Reproduction.write`).
+    With ``keep_tasks`` (default: when resuming or on a Dask cluster) each task's result is
+    kept in ``out/tasks`` as it finishes (:func:`task_store`); with ``resume`` those kept there
+    are read back, not run again. ``on_done`` is called with each reproduction as soon as it is
+    built; ``header``, if given, is the first line of every Markdown file
+    (:meth:`Reproduction.write`).
     """
     from teamslam.eval.outputs import write_json
     from teamslam.paper.report import write_paper_report
 
-    reproducer = Reproducer(settings, data)
+    settings = settings or ex.PaperSettings()
+    if keep_tasks is None:
+        keep_tasks = resume or settings.scheduler is not None
+    store = task_store(out, settings, data, resume) if keep_tasks or resume else None
+    reproducer = Reproducer(settings, data, store)
     reproducer.run(keys)
     done = []
     for key in keys or list(ITEMS):
