@@ -109,7 +109,15 @@ def drifting_runs(drifting_team):
 #: robot processes over Zenoh or make network namespaces: with pytest-xdist they run on one
 #: worker, one after another, as in a serial run (two at once could pick the same port).
 NETWORK_MODULES = frozenset(
-    {"test_driver", "test_netns", "test_rejoin", "test_ros2_live", "test_runtime", "test_security"}
+    {
+        "test_driver",
+        "test_netns",
+        "test_rejoin",
+        "test_ros2_input",
+        "test_ros2_live",
+        "test_runtime",
+        "test_security",
+    }
 )
 
 #: Modules that read a session fixture above with another module: scheduled with that one.

@@ -25,7 +25,9 @@ __all__ = [
     "attachment",
     "liveliness_key",
     "mangle",
+    "open_session",
     "parse_attachment",
+    "parse_liveliness_key",
     "publisher_gid",
     "ros2_settings",
     "topic_key",
@@ -47,9 +49,11 @@ def mangle(name: str) -> str:
     return name.replace("/", "%") if name else "%"
 
 
-def topic_key(domain_id: int, topic: str, msgtype: str) -> str:
-    """``<domain_id>/<fully qualified name>/<DDS type name>/<RIHS01 type hash>``."""
-    return f"{domain_id}/{topic.strip('/')}/{m.dds_type_name(msgtype)}/{m.type_hash(msgtype)}"
+def topic_key(domain_id: int, topic: str, msgtype: str, type_hash: str | None = None) -> str:
+    """``<domain_id>/<fully qualified name>/<DDS type name>/<RIHS01 type hash>`` (the hash our
+    typestore gives ``msgtype`` unless ``type_hash`` is given)."""
+    type_hash = type_hash or m.type_hash(msgtype)
+    return f"{domain_id}/{topic.strip('/')}/{m.dds_type_name(msgtype)}/{type_hash}"
 
 
 def liveliness_key(
@@ -63,16 +67,55 @@ def liveliness_key(
     qos: str = DEFAULT_QOS,
     namespace: str = "",
     enclave: str = "",
+    kind: str = "MP",
+    type_hash: str | None = None,
 ) -> str:
-    """The key of a node's (``NN``) or a publisher's (``MP``) liveliness token."""
+    """The key of a node's (``NN``), a publisher's (``MP``) or a subscription's (``MS``)
+    liveliness token (``type_hash``: our typestore's for ``msgtype`` unless given)."""
     head = f"@ros2_lv/{domain_id}/{zid}/{node_id}"
     tail = f"{mangle(enclave)}/{mangle(namespace)}/{mangle(node)}"
     if topic is None:
         return f"{head}/{node_id}/NN/{tail}"
+    if kind not in ("MP", "MS"):
+        raise ValueError(f"an entity token is MP (publisher) or MS (subscription), not {kind!r}")
     return (
-        f"{head}/{entity_id}/MP/{tail}/{mangle(topic)}/{m.dds_type_name(msgtype)}/"
-        f"{m.type_hash(msgtype)}/{qos}"
+        f"{head}/{entity_id}/{kind}/{tail}/{mangle(topic)}/{m.dds_type_name(msgtype)}/"
+        f"{type_hash or m.type_hash(msgtype)}/{qos}"
     )
+
+
+def parse_liveliness_key(key: str) -> dict | None:
+    """The fields of an entity token's key (``MP`` or ``MS``): ``domain_id``, ``zid``,
+    ``node_id``, ``entity_id``, ``kind``, ``node``, ``topic`` (unmangled), ``dds_type``,
+    ``type_hash``, ``qos``; ``None`` for any other key (a node's token, or not rmw_zenoh's)."""
+    parts = str(key).split("/")
+    if len(parts) != 13 or parts[0] != "@ros2_lv" or parts[5] not in ("MP", "MS"):
+        return None
+    return {
+        "domain_id": parts[1],
+        "zid": parts[2],
+        "node_id": parts[3],
+        "entity_id": parts[4],
+        "kind": parts[5],
+        "node": parts[8].replace("%", "/"),
+        "topic": parts[9].replace("%", "/"),
+        "dds_type": parts[10],
+        "type_hash": parts[11],
+        "qos": parts[12],
+    }
+
+
+def open_session(connect: list[str] | None = None, listen: list[str] | None = None, config=None):
+    """A Zenoh session with rmw_zenoh's defaults (peer mode, router ``tcp/localhost:7447``,
+    multicast scouting off), or with ``config`` (a ``zenoh.Config``) when given."""
+    zenoh = require("zenoh", "network", WHAT)
+    if config is None:
+        config = zenoh.Config()
+        config.insert_json5("mode", json.dumps("peer"))
+        config.insert_json5("connect/endpoints", json.dumps(connect or ["tcp/localhost:7447"]))
+        config.insert_json5("listen/endpoints", json.dumps(listen or ["tcp/localhost:0"]))
+        config.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(config)
 
 
 def publisher_gid(token_key: str) -> bytes:
@@ -211,12 +254,7 @@ class Ros2Publisher:
         self.samples_sent = 0
         self.bytes_sent = 0
         self._lock = threading.Lock()
-        config = zenoh.Config()
-        config.insert_json5("mode", json.dumps("peer"))
-        config.insert_json5("connect/endpoints", json.dumps(connect or ["tcp/localhost:7447"]))
-        config.insert_json5("listen/endpoints", json.dumps(listen or ["tcp/localhost:0"]))
-        config.insert_json5("scouting/multicast/enabled", "false")
-        self.session = zenoh.open(config)
+        self.session = open_session(connect, listen)
         self.zid = str(self.session.info.zid())
         node_id = 0
         self._tokens = [
