@@ -232,7 +232,13 @@ class _Counts:
 
     messages: dict[str, int] = field(default_factory=dict)
     dropped: dict[str, int] = field(
-        default_factory=lambda: {"sync": 0, "queue": 0, "frontend": 0, "no_odometry": 0}
+        default_factory=lambda: {
+            "sync": 0,
+            "queue": 0,
+            "frontend": 0,
+            "no_odometry": 0,
+            "camera_gap": 0,
+        }
     )
     refused_stamps: dict[str, int] = field(default_factory=dict)
     malformed: dict[str, int] = field(default_factory=dict)
@@ -390,7 +396,9 @@ class LiveRobot:
             exact = pose_matrix(msg.pose.pose)  # as import_bag reads it
             interpolated = _pose(msg)  # as dataset_from_bag reads it
         except (AttributeError, ValueError) as exc:
-            raise InputError(f"{received.topic} at stamp {stamp} ns: not an odometry ({exc})")
+            raise InputError(
+                f"{received.topic} at stamp {stamp} ns: not an odometry ({exc})"
+            ) from None
         if not (np.all(np.isfinite(exact)) and np.all(np.isfinite(interpolated))):
             raise InputError(f"{received.topic} at stamp {stamp} ns: non-finite pose")
         self._odom_stamps.append(stamp)
@@ -417,7 +425,7 @@ class LiveRobot:
 
             self._sync = ApproximateTimeSync(
                 [self.inputs.left, self.inputs.right],
-                int(round(self.inputs.sync_tolerance_s * 1e9)),
+                round(self.inputs.sync_tolerance_s * 1e9),
                 queue_size=4 * self.inputs.queue,
             )
         for pair in self._sync.add(received):
@@ -431,17 +439,24 @@ class LiveRobot:
 
     def _camera(self, stamp: int, kind: str, payload, arrived_ns: int) -> None:
         stamp = int(stamp)
+        last_camera = self._last_camera_stamp
+        if self._camera_gap and (last_camera is None or stamp > last_camera):
+            self._camera_gap = False
+            self.say(f"robot {self.robot}: camera input again at stamp {stamp} ns")
         newest = max([self._last_frame_stamp] + [p[0] for p in self._pending])
         if stamp <= newest:
+            if last_camera is not None and stamp > last_camera:
+                # the odometry made frames while the camera was silent: this input comes
+                # after one of them (counted, not a stamp that went back); the camera is back
+                self.counts.dropped["camera_gap"] += 1
+                self._last_camera_stamp = stamp
+                return
             topic = self.inputs.observations or self.inputs.left
             self._refuse_stamp(topic, stamp, newest)
             return
-        if self._last_camera_stamp is not None:
-            self._camera_periods.append(stamp - self._last_camera_stamp)
+        if last_camera is not None:
+            self._camera_periods.append(stamp - last_camera)
         self._last_camera_stamp = stamp
-        if self._camera_gap:
-            self._camera_gap = False
-            self.say(f"robot {self.robot}: camera input again at stamp {stamp} ns")
         self._pending.append((stamp, kind, payload, arrived_ns))
 
     def _pose_at(self, stamp: int) -> np.ndarray | None:
@@ -677,6 +692,7 @@ class LiveRobot:
         """Continue from the last checkpoint in the output directory, if any; the frames it
         holds (0 without one). Frames that arrived while the robot was down are not replayed:
         the next frame's odometry increment spans them."""
+        self._mkdir()
         path = self.out / "checkpoint.npz"
         if not path.exists():
             return 0
@@ -716,11 +732,11 @@ class LiveRobot:
         idle_timeout_s: float | None = None,
         inputs_alive: Callable[[], bool] | None = None,
         stop: threading.Event | None = None,
-        resume: bool = False,
     ) -> dict:
         """Process frames until ``frames`` are done, the input ends (:meth:`finish`, or no
         message for ``idle_timeout_s`` once ``inputs_alive()`` says the publishers are gone),
-        ``stop`` is set or Ctrl-C; write the result; its summary.
+        ``stop`` is set or Ctrl-C; write the result; its summary. A restarted robot calls
+        :meth:`resume` first, before any message is fed.
 
         Raises
         ------
@@ -729,11 +745,8 @@ class LiveRobot:
         EstimationError
             The filter failed; the result of the frames done is written first.
         """
-        try:
-            self.out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise OutputError(f"cannot write {self.out}: {exc.strerror or exc}") from exc
-        done = self.resume() if resume else 0
+        self._mkdir()
+        done = self._frames_done()
         _atomic_json(self.out / "progress.json", {"frame": done - 1, "pid": os.getpid()})
         if self.transport is not None:
             self.transport.wait_for_peers(
@@ -767,6 +780,12 @@ class LiveRobot:
                 f"{'' if self.counts.messages else 'no message'})"
             )
         return self._write(complete=True)
+
+    def _mkdir(self) -> None:
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"cannot write {self.out}: {exc.strerror or exc}") from exc
 
     def _frames_done(self) -> int:
         return 0 if self.sequence is None else self.sequence.frames

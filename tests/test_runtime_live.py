@@ -1,0 +1,220 @@
+"""One robot on live inputs (:mod:`teamslam.runtime.live`), fed the messages of a bag without
+Zenoh: the estimates equal the offline import's, and faults are named, counted and survived."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags", reason="the ros2 extra (rosbags) is not installed")
+
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.configure import build_settings
+from teamslam.msckf.team import RobotDriver
+from teamslam.ros2 import messages as m
+from teamslam.ros2.bags import RobotTopics, export_bag, import_bag
+from teamslam.ros2.live import Received
+from teamslam.runtime.agent_process import load_robot_result
+from teamslam.runtime.live import LiveInputs, LiveRobot
+from teamslam.runtime.team_file import RobotEntry, TeamFile
+from teamslam.sim import lissajous_team
+
+ODOM, OBS = "/robot_0/odom", "/robot_0/stereo_observations"
+
+
+def bag_messages(bag: Path, topics: set[str]) -> list[Received]:
+    """The bag's messages on ``topics`` in recorded order, as a subscriber hands them over."""
+    highlevel = m.rosbags("highlevel")
+    out = []
+    with highlevel.AnyReader([bag], default_typestore=m.typestore()) as reader:
+        conns = [c for c in reader.connections if c.topic in topics]
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            stamp = m.stamp_ns(msg.header.stamp)
+            out.append(Received(conn.topic, conn.msgtype, stamp, msg, time.monotonic_ns()))
+    return out
+
+
+def one_robot_team(**fields) -> TeamFile:
+    return TeamFile(
+        team="live", dataset=None, robots=[RobotEntry(0, "tcp/127.0.0.1:0", [])], **fields
+    )
+
+
+def offline_poses(sequence, calibration, config) -> np.ndarray:
+    driver = RobotDriver(MsckfAgent(0, calibration, sequence, config), None, [], consensus=False)
+    for t in range(sequence.frames):
+        driver.frame(t)
+    return driver.poses[: driver.done]
+
+
+class Recorder:
+    """A publisher that keeps what it was given."""
+
+    def __init__(self) -> None:
+        self.frames: list[int] = []
+        self.poses: list[np.ndarray] = []
+
+    def publish(self, t, poses, state) -> None:
+        self.frames.append(t)
+        self.poses.append(poses[t].copy())
+
+
+@pytest.fixture(scope="module")
+def observations_bag(tmp_path_factory):
+    """A 2-robot team exported as a bag of odometry and observations, and robot 0 imported."""
+    tmp = tmp_path_factory.mktemp("observations")
+    team = lissajous_team(robots=2, steps=40, objects=60, seed=3)
+    bag, camera = tmp / "team.mcap", tmp / "camera.json"
+    export_bag(team, bag, camera=camera)
+    dataset = import_bag(bag, [RobotTopics("robot_0", ODOM)], OBS, camera)
+    config = build_settings(dataset, calibrate="never").config
+    return bag, dataset, config
+
+
+def live_robot(tmp_path, dataset, config, say=None, **inputs) -> LiveRobot:
+    inputs = {"odometry": ODOM, "observations": OBS, "queue": 10_000, **inputs}
+    return LiveRobot(
+        one_robot_team(checkpoint_every=5),
+        0,
+        LiveInputs(**inputs),
+        config,
+        tmp_path,
+        calibration=dataset.calibration,
+        publisher=Recorder(),
+        say=say,
+    )
+
+
+def test_observations_played_live_give_the_offline_estimates(observations_bag, tmp_path):
+    bag, dataset, config = observations_bag
+    robot = live_robot(tmp_path, dataset, config)
+    for item in bag_messages(bag, {ODOM, OBS}):
+        robot.feed(item)
+    robot.finish()
+    summary = robot.run()
+    arrays, _ = load_robot_result(tmp_path, 0)
+    expected = offline_poses(dataset.robots[0], dataset.calibration, config)
+    assert arrays["poses"].shape == expected.shape == (41, 4, 4)
+    assert np.array_equal(arrays["poses"], expected)
+    assert np.array_equal(np.stack(robot.publisher.poses), expected)
+    live = summary["live"]
+    assert live["frames"] == 41 and not any(live["dropped"].values())
+    assert len(robot.latency_ns) == 41 and live["latency_ms"]["p50"] > 0
+
+
+def test_a_full_queue_drops_the_oldest_frames_and_the_pose_stays_continuous(
+    observations_bag, tmp_path
+):
+    bag, dataset, config = observations_bag
+    robot = live_robot(tmp_path, dataset, config, queue=3)
+    items = bag_messages(bag, {ODOM, OBS})
+    for item in items:
+        robot.feed(item)
+    robot.finish()
+    summary = robot.run()
+    # the first frame and the newest two waited; the others were dropped, oldest first
+    assert summary["live"]["dropped"]["queue"] == 41 - 3
+    stamps = [i.stamp_ns for i in items if i.topic == OBS]
+    assert robot.sequence.stamps_ns[:3].tolist() == stamps[-3:]
+    # the increment spans the dropped frames: odometry alone from the first kept frame
+    odometry = {i.stamp_ns: m.pose_matrix(i.message.pose.pose) for i in items if i.topic == ODOM}
+    first, last = odometry[stamps[-3]], odometry[stamps[-1]]
+    arrays, _ = load_robot_result(tmp_path, 0)
+    span = np.linalg.inv(arrays["poses"][0]) @ arrays["poses"][-1]
+    np.testing.assert_allclose(span[:3, 3], (np.linalg.inv(first) @ last)[:3, 3], atol=0.05)
+
+
+def test_a_camera_that_stops_is_said_once_and_the_robot_continues_on_odometry(
+    observations_bag, tmp_path
+):
+    bag, dataset, config = observations_bag
+    said: list[str] = []
+    robot = live_robot(tmp_path, dataset, config, say=said.append, camera_timeout_s=1.5)
+    items = bag_messages(bag, {ODOM, OBS})
+    stamps = sorted({i.stamp_ns for i in items if i.topic == OBS})
+    gap = (stamps[10], stamps[25])  # no observation in between (a second apart)
+    for item in items:
+        if item.topic == OBS and gap[0] < item.stamp_ns < gap[1]:
+            continue
+        robot.feed(item)
+    robot.finish()
+    summary = robot.run()
+    stops = [s for s in said if "continuing on odometry" in s]
+    returns = [s for s in said if "camera input again" in s]
+    assert len(stops) == 1 and len(returns) == 1, said
+    live = summary["live"]
+    # odometry frames from the first odometry stamp past the timeout (12 s) to the camera's
+    # return (25 s: its odometry came first, its observations then count as a gap's overlap)
+    assert live["camera_gaps"] == 1
+    assert live["odometry_frames"] == 14
+    assert live["dropped"]["camera_gap"] == 1
+    assert live["frames"] == 41 - 14 - 1 + live["odometry_frames"]
+    # a pose published at every frame, continuous through the gap
+    poses = np.stack(robot.publisher.poses)
+    assert len(poses) == live["frames"]
+    steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+    assert steps.max() < 3 * np.median(steps)
+
+
+def test_a_stamp_jumping_back_is_named_and_its_frame_refused(observations_bag, tmp_path):
+    bag, dataset, config = observations_bag
+    said: list[str] = []
+    robot = live_robot(tmp_path, dataset, config, say=said.append)
+    items = bag_messages(bag, {ODOM, OBS})
+    observations = [i for i in items if i.topic == OBS]
+    for item in items:
+        robot.feed(item)
+        if item is observations[20]:
+            robot.feed(dataclasses.replace(observations[5], received_ns=time.monotonic_ns()))
+    robot.finish()
+    summary = robot.run()
+    assert summary["live"]["refused_stamps"] == {OBS: 1}
+    assert [s for s in said if "jumped back" in s and OBS in s]
+    arrays, _ = load_robot_result(tmp_path, 0)
+    expected = offline_poses(dataset.robots[0], dataset.calibration, config)
+    assert np.array_equal(arrays["poses"], expected)
+
+
+def test_a_malformed_observation_message_is_counted_and_named(observations_bag, tmp_path):
+    bag, dataset, config = observations_bag
+    said: list[str] = []
+    robot = live_robot(tmp_path, dataset, config, say=said.append)
+    items = bag_messages(bag, {ODOM, OBS})
+    observations = [i for i in items if i.topic == OBS]
+    bad = observations[7]
+    broken = dataclasses.replace(bad.message, kinds=np.zeros(3, np.uint8))
+    for item in items:
+        robot.feed(dataclasses.replace(item, message=broken) if item is bad else item)
+    robot.finish()
+    summary = robot.run()
+    assert summary["live"]["dropped"]["frontend"] == 1
+    assert summary["live"]["frames"] == 40
+    assert [s for s in said if "different lengths" in s and str(bad.stamp_ns) in s]
+
+
+def test_a_restarted_robot_resumes_from_its_checkpoint(observations_bag, tmp_path):
+    bag, dataset, config = observations_bag
+    items = bag_messages(bag, {ODOM, OBS})
+    first = live_robot(tmp_path, dataset, config)
+    for item in items:
+        first.feed(item)
+    first.finish()
+    first.run(frames=12)  # stopped after frame 11; its checkpoint holds frames 0..9
+    stamps = [i.stamp_ns for i in items if i.topic == OBS]
+    again = live_robot(tmp_path, dataset, config)
+    assert again.resume() == 10
+    # the restarted robot hears the topics from frame 10 on (and the odometry of frame 9)
+    for item in items:
+        if item.stamp_ns >= stamps[9]:
+            again.feed(item)
+    again.finish()
+    summary = again.run()
+    assert summary["frames"] == 41
+    arrays, _ = load_robot_result(tmp_path, 0)
+    expected = offline_poses(dataset.robots[0], dataset.calibration, config)
+    assert np.array_equal(arrays["poses"], expected)
