@@ -218,3 +218,73 @@ def test_a_restarted_robot_resumes_from_its_checkpoint(observations_bag, tmp_pat
     arrays, _ = load_robot_result(tmp_path, 0)
     expected = offline_poses(dataset.robots[0], dataset.calibration, config)
     assert np.array_equal(arrays["poses"], expected)
+
+
+LEFT, RIGHT = "/robot_0/left/image_raw", "/robot_0/right/image_raw"
+INFO = ("/robot_0/left/camera_info", "/robot_0/right/camera_info")
+
+
+@pytest.fixture(scope="module")
+def image_bag(tmp_path_factory):
+    """A rendered robot's stereo images as a bag, and the offline import of it."""
+    pytest.importorskip("cv2", reason="the images extra (OpenCV) is not installed")
+    from teamslam.datasets.images import rendered_team_inputs
+    from teamslam.ros2.image_bags import ImageTopics, dataset_from_bag, images_to_bag
+    from teamslam.sim.render import RenderConfig, render_team
+
+    tmp = tmp_path_factory.mktemp("images")
+    config = {"image_size": (320, 240), "focal": 210.0, "marker_size": 0.9, "steps": 12}
+    render_team(RenderConfig(**config, robots=2), tmp / "rendered")
+    inputs = rendered_team_inputs(tmp / "rendered", boxes=False)
+    bag = tmp / "images.mcap"
+    images_to_bag(
+        inputs["left_dirs"][:1],
+        inputs["right_dirs"][:1],
+        inputs["camera"],
+        inputs["timestamps"][:1],
+        bag,
+        odometry=inputs["odometry"][:1],
+        robot_names=["robot_0"],
+    )
+    topics = dataclasses.replace(ImageTopics.default("robot_0"), ground_truth=None)
+    dataset = dataset_from_bag(bag, [topics], progress=False)
+    settings = build_settings(dataset, calibrate="never").config
+    return bag, dataset, settings
+
+
+def image_robot(tmp_path, config, say=None) -> LiveRobot:
+    inputs = LiveInputs(ODOM, left=LEFT, right=RIGHT, camera_info=INFO, queue=10_000)
+    team = one_robot_team(checkpoint_every=0)
+    return LiveRobot(team, 0, inputs, config, tmp_path, publisher=Recorder(), say=say)
+
+
+def test_images_played_live_give_the_offline_estimates(image_bag, tmp_path):
+    bag, dataset, config = image_bag
+    robot = image_robot(tmp_path, config)
+    for item in bag_messages(bag, {ODOM, LEFT, RIGHT, *INFO}):
+        robot.feed(item)
+    robot.finish()
+    summary = robot.run()
+    assert summary["live"]["frames"] == 13
+    arrays, _ = load_robot_result(tmp_path, 0)
+    expected = offline_poses(dataset.robots[0], dataset.calibration, config)
+    assert np.array_equal(arrays["poses"], expected)
+
+
+def test_a_wrongly_encoded_image_is_counted_and_named(image_bag, tmp_path):
+    bag, _, config = image_bag
+    said: list[str] = []
+    robot = image_robot(tmp_path, config, say=said.append)
+    items = bag_messages(bag, {ODOM, LEFT, RIGHT, *INFO})
+    bad = [i for i in items if i.topic == RIGHT][4]
+    for item in items:
+        if item is bad:
+            item = dataclasses.replace(
+                item, message=dataclasses.replace(item.message, encoding="yuv422")
+            )
+        robot.feed(item)
+    robot.finish()
+    summary = robot.run()
+    assert summary["live"]["dropped"]["frontend"] == 1
+    assert summary["live"]["frames"] == 12
+    assert [s for s in said if "yuv422" in s and RIGHT in s]

@@ -474,13 +474,14 @@ class LiveRobot:
             if stamps[j] == stamp:
                 return self._odom_exact[j]  # import_bag: the message of the frame's stamp
             keys = self._odom_exact
+            a = j
         else:
-            # Slerp over every message picks the pair after an exact stamp, the last pair at
-            # the last one: wait for the next message, or the end of the input
-            if stamp == stamps[-1] and not self._ended:
+            # the pair Slerp over every message picks: the one ending at or after the stamp
+            # (the first pair at the first stamp, which then needs a second message)
+            a = max(bisect.bisect_left(stamps, stamp) - 1, 0)
+            if len(stamps) < 2 and not self._ended:
                 return None
             keys = self._odom_poses
-        a = max(min(j, len(stamps) - 2), 0)
         window = slice(a, a + 2)
         t = np.array(stamps[window], np.float64) / 1e9
         q = np.array([stamp], np.int64) / 1e9
