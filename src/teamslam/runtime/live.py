@@ -39,7 +39,15 @@ from teamslam.msckf.team import Asynchronous, LockStep, RobotDriver
 from teamslam.runtime.agent_process import _atomic_json, _save, _save_checkpoint
 from teamslam.runtime.team_file import TeamFile
 
-__all__ = ["STAGES", "LiveInputs", "LiveRobot", "LiveSequence"]
+__all__ = [
+    "STAGES",
+    "LiveInputs",
+    "LiveRobot",
+    "LiveSequence",
+    "live_inputs",
+    "live_settings",
+    "run_live",
+]
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -258,7 +266,8 @@ class LiveRobot:
     inputs
         Its topics (:class:`LiveInputs`).
     config
-        Filter settings.
+        Filter settings, or a function of the :class:`~teamslam.datasets.Calibration` giving
+        them (called at the first frame: a rig from ``camera_info`` is known then).
     out
         Output directory (``robot_<id>/`` is written inside it).
     calibration
@@ -284,7 +293,7 @@ class LiveRobot:
         team: TeamFile,
         robot: int,
         inputs: LiveInputs,
-        config: MsckfConfig,
+        config: MsckfConfig | Callable[[Calibration], MsckfConfig],
         out: str | Path,
         calibration: Calibration | None = None,
         rig=None,
@@ -592,6 +601,8 @@ class LiveRobot:
         self._make_driver()
 
     def _make_driver(self) -> None:
+        if callable(self.config):  # settings that scale with the rig, known now
+            self.config = self.config(self.calibration)
         agent = MsckfAgent(self.robot, self.calibration, self.sequence, self.config)
         wait = (
             LockStep(self.team.timeout_s)
@@ -856,3 +867,261 @@ class _NoTransport:
 
     def statistics(self) -> dict:
         return {}
+
+
+# ---------------------------------------------------------------------- the agent command
+#: what the team file's ``ros2.inputs`` section may hold (topic names take ``{id}``, the
+#: robot's id, and ``{name}``, its name in the team file)
+INPUT_KEYS = (
+    "odometry",
+    "observations",
+    "left",
+    "right",
+    "camera_info",
+    "compressed",
+    "camera",
+    "sync_tolerance_s",
+    "queue",
+    "camera_timeout_s",
+)
+
+
+def live_inputs(
+    team: TeamFile, robot: int, flags: dict | None = None
+) -> tuple[LiveInputs, Path | None]:
+    """Robot ``robot``'s :class:`LiveInputs` from the team file's ``ros2.inputs`` section with
+    ``flags`` (the same keys; ``None`` values ignored) on top, and its camera file if one is
+    named.
+
+    Raises
+    ------
+    InputError
+        An unknown key, a missing odometry topic, a topic that is no ROS 2 name (one line).
+    """
+    from teamslam.ros2.live import check_topic_name
+
+    section = dict((team.ros2 or {}).get("inputs") or {})
+    unknown = set(section) - set(INPUT_KEYS)
+    if unknown:
+        raise InputError(f"ros2.inputs: unknown key(s) {', '.join(sorted(unknown))}")
+    section.update({k: v for k, v in (flags or {}).items() if v is not None})
+    entry = team.robots[robot]
+
+    def topic(key: str) -> str | None:
+        value = section.get(key)
+        if value is None:
+            return None
+        if not isinstance(value, str):
+            raise InputError(f"ros2.inputs.{key} must be a topic name, got {value!r}")
+        return check_topic_name(value.replace("{id}", str(robot)).replace("{name}", entry.name))
+
+    if topic("odometry") is None:
+        raise InputError("live inputs: give the odometry topic (--odometry or ros2.inputs)")
+    info = section.get("camera_info")
+    if isinstance(info, str):
+        info = info.split(",")
+    if info is not None:
+        if not isinstance(info, list | tuple) or len(info) != 2:
+            raise InputError("camera_info expects two topics, LEFT,RIGHT")
+    camera_info = None
+    if info is not None:
+        camera_info = tuple(
+            check_topic_name(
+                str(t).strip().replace("{id}", str(robot)).replace("{name}", entry.name)
+            )
+            for t in info
+        )
+    images = topic("left") is not None or topic("right") is not None
+    camera = section.get("camera")
+    base = team.path.parent if team.path is not None else Path(".")
+    camera_path = (
+        None if camera is None else (Path(camera) if Path(camera).is_absolute() else base / camera)
+    )
+    if images and camera_info is None and camera_path is None:
+        raise InputError("live images need the camera_info topics or a camera file (--camera)")
+    if not images and camera_path is None and _dataset_of(team, robot) is None:
+        raise InputError(
+            "live observations need a camera file (--camera) or a dataset in the team file"
+        )
+    try:
+        inputs = LiveInputs(
+            topic("odometry"),
+            observations=topic("observations"),
+            left=topic("left"),
+            right=topic("right"),
+            camera_info=camera_info,
+            image_type=COMPRESSED if section.get("compressed") else IMAGE,
+            sync_tolerance_s=float(section.get("sync_tolerance_s", 0.005)),
+            queue=int(section.get("queue", 8)),
+            camera_timeout_s=float(section.get("camera_timeout_s", 1.0)),
+        )
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"ros2.inputs: {exc}") from None
+    return inputs, camera_path
+
+
+def _dataset_of(team: TeamFile, robot: int):
+    entry = team.robots[robot]
+    return entry.dataset or team.dataset
+
+
+def live_settings(team: TeamFile, robot: int):
+    """The filter settings of a live robot and the calibration they came with.
+
+    With a dataset in the team file (a recording of this robot): the settings
+    :func:`~teamslam.runtime.agent_process.robot_setup` gives it — the same as the offline
+    ``agent`` — and its calibration. Without: a function of the rig giving the team file's
+    settings over the camera-scaled defaults (nothing to calibrate from; give the noise levels
+    in ``settings``), and no calibration.
+    """
+    from teamslam.runtime.agent_process import robot_setup
+
+    if _dataset_of(team, robot) is not None:
+        dataset, _, config = robot_setup(team, robot)
+        if _needs_truth(config):
+            raise InputError(
+                f"filter.linearization={config.filter.linearization} needs ground truth: "
+                "not on a live robot"
+            )
+        return config, dataset.calibration
+
+    def settings(calibration: Calibration) -> MsckfConfig:
+        from teamslam.datasets import FrameObservations, RobotSequence, TeamDataset
+        from teamslam.msckf.configure import build_settings
+
+        nothing = TeamDataset(
+            name="live",
+            calibration=calibration,
+            robots=[
+                RobotSequence(
+                    np.eye(4)[None],
+                    np.zeros((0, 4, 4)),
+                    FrameObservations.empty(1),
+                    FrameObservations.empty(1),
+                )
+            ],
+            object_ids=np.zeros(0, np.int64),
+            object_positions=np.zeros((0, 3)),
+        )
+        return build_settings(nothing, file=team.settings, calibrate="never").config
+
+    return settings, None
+
+
+def _needs_truth(config: MsckfConfig) -> bool:
+    from teamslam.msckf.filter.linearization import linearization_policy
+
+    return linearization_policy(config.filter.linearization).needs_truth
+
+
+def publishers_alive(session, domain_id: int, topics) -> bool:
+    """Whether any publisher's liveliness token (rmw_zenoh's ``MP``) names one of ``topics``."""
+    from teamslam.ros2.rmw_zenoh import parse_liveliness_key
+
+    wanted = {t.strip("/") for t in topics}
+    for reply in session.liveliness().get(f"@ros2_lv/{domain_id}/**", timeout=1.0):
+        sample = getattr(reply, "ok", None)
+        fields = None if sample is None else parse_liveliness_key(str(sample.key_expr))
+        if fields and fields["kind"] == "MP" and fields["topic"].strip("/") in wanted:
+            return True
+    return False
+
+
+def run_live(
+    team: TeamFile,
+    robot: int,
+    out: str | Path,
+    flags: dict | None = None,
+    *,
+    resume: bool = False,
+    frames: int | None = None,
+    idle_timeout_s: float = 5.0,
+    budget_ms: float | None = None,
+    ros2_options: dict | None = None,
+    publish: bool = True,
+    transport: Transport | None = None,
+) -> dict:
+    """``teamslam agent --live``: robot ``robot`` of ``team`` on its live topics until
+    ``frames`` are done, the input ends (no message for ``idle_timeout_s`` and no publisher
+    of its topics left) or Ctrl-C; its summary (the result is written as ``agent`` writes it).
+
+    Raises
+    ------
+    InputError
+        A configuration error (before anything runs), or no frame made from the inputs.
+    EstimationError
+        The filter failed; the frames done are written first.
+    """
+    from teamslam.frontend.camera import load_camera
+    from teamslam.ros2.bags import read_camera
+    from teamslam.ros2.live import Ros2Subscriber
+    from teamslam.ros2.rmw_zenoh import Ros2Publisher, open_session, ros2_settings
+    from teamslam.runtime.zenoh_transport import ZenohTransport
+
+    inputs, camera = live_inputs(team, robot, flags)
+    section = {k: v for k, v in (team.ros2 or {}).items() if k != "inputs"}
+    settings = ros2_settings(section, **(ros2_options or {}))
+    config, calibration = live_settings(team, robot)
+    rig = None
+    if camera is not None:
+        if not camera.is_file():
+            raise InputError(f"{camera}: no such camera file")
+        if inputs.images:
+            rig = load_camera(camera)
+        else:
+            calibration = read_camera(camera)
+    neighbours = team.robots[robot].neighbours
+    if transport is None and neighbours:
+        transport = ZenohTransport(team, robot)
+    publisher = None
+    session = None
+    try:
+        if publish:
+            publisher = Ros2Publisher(
+                robot,
+                np.zeros(64, np.int64),
+                domain_id=settings["domain_id"],
+                connect=settings["connect"],
+                listen=settings["listen"],
+                path_every=settings["path_every"],
+                objects_every=settings["objects_every"],
+            )
+        live = LiveRobot(
+            team,
+            robot,
+            inputs,
+            config,
+            out,
+            calibration=calibration,
+            rig=rig,
+            transport=transport,
+            publisher=publisher,
+            budget_ms=budget_ms,
+        )
+        if resume:
+            done = live.resume()
+            if done:
+                live.say(f"robot {robot}: resumed after frame {done - 1}")
+        session = open_session(settings["connect"], settings["listen"])
+        topics = inputs.topics()
+        subscriber = Ros2Subscriber(
+            topics,
+            live.feed,
+            node=f"teamslam_robot_{robot}_inputs",
+            domain_id=settings["domain_id"],
+            session=session,
+            on_error=live.say,
+        )
+        try:
+            return live.run(
+                frames=frames,
+                idle_timeout_s=idle_timeout_s,
+                inputs_alive=lambda: publishers_alive(session, settings["domain_id"], topics),
+            )
+        finally:
+            subscriber.close()
+    finally:
+        if publisher is not None:
+            publisher.close()
+        if session is not None:
+            session.close()
