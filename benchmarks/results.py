@@ -145,6 +145,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--modes separate consensus --markdown {GENERATED}/consistency-make-run.md",
         f"{GENERATED}/consistency-make-run.md",
     ),
+    "live-input": (
+        "python benchmarks/live_input.py --robots 3 --steps 100 --width 640 --rates 0 1 4 "
+        f"--markdown {GENERATED}/live-input.md",
+        f"{GENERATED}/live-input.md",
+    ),
 }
 
 #: one BLAS / OpenMP / numba thread: times comparable across machines with other work

@@ -131,4 +131,4 @@ def test_simulate_images_writes_folders_and_a_bag(tmp_path):
     with AnyReader([tmp_path / "sim" / "images.mcap"]) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert counts["/robot_0/left/image_raw"] == 3
-    assert counts["/robot_0/right/camera_info"] == 1
+    assert counts["/robot_0/right/camera_info"] == 3  # with every pair, as a camera driver

@@ -128,10 +128,10 @@ def images_to_bag(
     detections: Sequence[str | Path | None] | None = None,
 ) -> dict:
     """Write image folders as a ROS 2 bag (MCAP): per robot the topics of
-    :meth:`ImageTopics.default` — ``mono8`` Images, CameraInfo (ROS rectification
-    semantics), Odometry and PoseStamped at the image stamps; with ``detections`` (per robot
-    a YOLO folder or COCO JSON of its left images) also ``/NAME/detections``, the boxes as
-    ``vision_msgs/msg/Detection2DArray``.
+    :meth:`ImageTopics.default` — ``mono8`` Images, CameraInfo (ROS rectification semantics)
+    with every pair, Odometry and PoseStamped at the image stamps; with ``detections`` (per
+    robot a YOLO folder or COCO JSON of its left images) also ``/NAME/detections``, the boxes
+    as ``vision_msgs/msg/Detection2DArray``.
 
     Returns
     -------
@@ -181,10 +181,11 @@ def images_to_bag(
                         data=img.ravel(),
                     )
                     records.append((s, topic, IMAGE, m.serialize(msg, IMAGE)))
-                if k == 0:
-                    for right, topic in zip((False, True), topics.camera_info, strict=True):
-                        info = _camera_info_msg(store, s, f"{names[i]}/left_camera", rig, right)
-                        records.append((s, topic, CAMERA_INFO, m.serialize(info, CAMERA_INFO)))
+                # with every pair, as camera drivers publish it: a live robot that starts
+                # after the bag gets its rig from the next pair
+                for right, topic in zip((False, True), topics.camera_info, strict=True):
+                    info = _camera_info_msg(store, s, f"{names[i]}/left_camera", rig, right)
+                    records.append((s, topic, CAMERA_INFO, m.serialize(info, CAMERA_INFO)))
                 if odo is not None:
                     pose = m.pose_stamped(odo[k], s, f"{names[i]}/odom")
                     msg = t[ODOMETRY](

@@ -99,8 +99,9 @@ class Ros2Subscriber:
     topics
         Topic name → message type (``pkg/msg/Name``); each type must be one the typestore knows.
     callback
-        Called with each :class:`Received`, from Zenoh's threads but one call at a time. An
-        exception it raises is counted in :attr:`errors` and named through ``on_error``.
+        Called with each :class:`Received`, from Zenoh's threads but one call at a time (it
+        must not call :meth:`close`; hand long work to a queue). An exception it raises is
+        counted in :attr:`errors` and named through ``on_error``.
     node
         The node name in the liveliness tokens.
     domain_id
