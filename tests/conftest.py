@@ -111,6 +111,7 @@ def drifting_runs(drifting_team):
 NETWORK_MODULES = frozenset(
     {
         "test_driver",
+        "test_live_robots",
         "test_netns",
         "test_rejoin",
         "test_ros2_input",
