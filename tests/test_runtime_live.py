@@ -24,6 +24,7 @@ from teamslam.runtime.team_file import RobotEntry, TeamFile
 from teamslam.sim import lissajous_team
 
 ODOM, OBS = "/robot_0/odom", "/robot_0/stereo_observations"
+TRUTH = "/robot_0/ground_truth"
 
 
 def bag_messages(bag: Path, topics: set[str]) -> list[Received]:
@@ -90,10 +91,17 @@ def live_robot(tmp_path, dataset, config, say=None, **inputs) -> LiveRobot:
     )
 
 
-def test_observations_played_live_give_the_offline_estimates(observations_bag, tmp_path):
+@pytest.mark.parametrize("start", ["odometry", "ground truth"])
+def test_observations_played_live_give_the_offline_estimates(observations_bag, tmp_path, start):
     bag, dataset, config = observations_bag
-    robot = live_robot(tmp_path, dataset, config)
-    for item in bag_messages(bag, {ODOM, OBS}):
+    topics = {ODOM, OBS}
+    if start == "ground truth":  # the robot starts at the truth's pose, as the import does
+        dataset = import_bag(
+            bag, [RobotTopics("robot_0", ODOM, TRUTH)], OBS, bag.parent / "camera.json"
+        )
+        topics.add(TRUTH)
+    robot = live_robot(tmp_path, dataset, config, ground_truth=TRUTH if TRUTH in topics else None)
+    for item in bag_messages(bag, topics):
         robot.feed(item)
     robot.finish()
     summary = robot.run()
@@ -244,16 +252,18 @@ def image_bag(tmp_path_factory):
         inputs["timestamps"][:1],
         bag,
         odometry=inputs["odometry"][:1],
+        ground_truth=inputs["ground_truth"][:1],
         robot_names=["robot_0"],
     )
-    topics = dataclasses.replace(ImageTopics.default("robot_0"), ground_truth=None)
-    dataset = dataset_from_bag(bag, [topics], progress=False)
+    dataset = dataset_from_bag(bag, [ImageTopics.default("robot_0")], progress=False)
     settings = build_settings(dataset, calibrate="never").config
     return bag, dataset, settings
 
 
 def image_robot(tmp_path, config, say=None) -> LiveRobot:
-    inputs = LiveInputs(ODOM, left=LEFT, right=RIGHT, camera_info=INFO, queue=10_000)
+    inputs = LiveInputs(
+        ODOM, left=LEFT, right=RIGHT, camera_info=INFO, queue=10_000, ground_truth=TRUTH
+    )
     team = one_robot_team(checkpoint_every=0)
     return LiveRobot(team, 0, inputs, config, tmp_path, publisher=Recorder(), say=say)
 
@@ -261,11 +271,12 @@ def image_robot(tmp_path, config, say=None) -> LiveRobot:
 def test_images_played_live_give_the_offline_estimates(image_bag, tmp_path):
     bag, dataset, config = image_bag
     robot = image_robot(tmp_path, config)
-    for item in bag_messages(bag, {ODOM, LEFT, RIGHT, *INFO}):
+    for item in bag_messages(bag, {ODOM, LEFT, RIGHT, TRUTH, *INFO}):
         robot.feed(item)
     robot.finish()
     summary = robot.run()
     assert summary["live"]["frames"] == 13
+    assert not np.array_equal(robot.sequence.T_world_body[0], np.eye(4))  # the truth's start
     arrays, _ = load_robot_result(tmp_path, 0)
     expected = offline_poses(dataset.robots[0], dataset.calibration, config)
     assert np.array_equal(arrays["poses"], expected)
@@ -275,7 +286,7 @@ def test_a_wrongly_encoded_image_is_counted_and_named(image_bag, tmp_path):
     bag, _, config = image_bag
     said: list[str] = []
     robot = image_robot(tmp_path, config, say=said.append)
-    items = bag_messages(bag, {ODOM, LEFT, RIGHT, *INFO})
+    items = bag_messages(bag, {ODOM, LEFT, RIGHT, TRUTH, *INFO})
     bad = [i for i in items if i.topic == RIGHT][4]
     for item in items:
         if item is bad:

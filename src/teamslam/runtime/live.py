@@ -54,6 +54,7 @@ COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 ODOMETRY = "nav_msgs/msg/Odometry"
 OBSERVATIONS = "teamslam_msgs/msg/StereoObservations"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 #: the stages of a frame, as the real-time budget and the timings name them
 STAGES = ("frontend", "consensus", "filter", "publish")
 
@@ -74,6 +75,9 @@ class LiveInputs:
     camera_info
         ``(left, right)`` ``sensor_msgs/msg/CameraInfo`` topics giving the rig (first message of
         each), unless a calibration is given.
+    ground_truth
+        ``geometry_msgs/msg/PoseStamped`` (or ``Odometry``) topic giving where the robot starts:
+        its pose at the first frame (optional; read for the start only).
     sync_tolerance_s
         Largest stamp difference of a left and a right image paired into one frame.
     queue
@@ -89,6 +93,7 @@ class LiveInputs:
     right: str | None = None
     camera_info: tuple[str, str] | None = None
     image_type: str = IMAGE
+    ground_truth: str | None = None
     sync_tolerance_s: float = 0.005
     queue: int = 8
     camera_timeout_s: float = 1.0
@@ -122,6 +127,8 @@ class LiveInputs:
                 out[topic] = CAMERA_INFO
         else:
             out[self.observations] = OBSERVATIONS
+        if self.ground_truth is not None:
+            out[self.ground_truth] = POSE_STAMPED
         return out
 
 
@@ -223,6 +230,80 @@ class LiveSequence:
         return sequence
 
 
+class _PoseTrack:
+    """A pose topic's messages by stamp, and its pose at a stamp as the offline imports compute
+    it: for images (:func:`~teamslam.ros2.image_bags.dataset_from_bag`) interpolated on the pair
+    Slerp over every message picks; for observations
+    (:func:`~teamslam.ros2.bags.import_bag`) the message of the stamp (odometry: else
+    interpolated; a start pose: else the nearest)."""
+
+    def __init__(self, topic: str, images: bool, nearest: bool = False) -> None:
+        self.topic = topic
+        self.images = images
+        self.nearest = nearest
+        self.stamps: list[int] = []
+        self.exact: list[np.ndarray] = []  # as import_bag reads a pose
+        self.poses: list[np.ndarray] = []  # as dataset_from_bag reads it
+
+    def add(self, stamp: int, msg) -> bool:
+        """Keep a message; ``False`` (nothing kept) when its stamp is not after the last."""
+        from teamslam.ros2.image_bags import _pose
+        from teamslam.ros2.messages import pose_matrix
+
+        if self.stamps and stamp <= self.stamps[-1]:
+            return False
+        try:
+            pose = msg.pose.pose if hasattr(msg, "child_frame_id") else msg.pose
+            exact = pose_matrix(pose)
+            interpolated = _pose(msg)
+        except (AttributeError, ValueError) as exc:
+            raise InputError(f"{self.topic} at stamp {stamp} ns: not a pose ({exc})") from None
+        if not (np.all(np.isfinite(exact)) and np.all(np.isfinite(interpolated))):
+            raise InputError(f"{self.topic} at stamp {stamp} ns: non-finite pose")
+        self.stamps.append(stamp)
+        self.exact.append(exact)
+        self.poses.append(interpolated)
+        return True
+
+    def message_at(self, stamp: int) -> np.ndarray:
+        """The pose of the message stamped ``stamp`` (one there is)."""
+        j = bisect.bisect_left(self.stamps, stamp)
+        return (self.poses if self.images else self.exact)[j]
+
+    def at(self, stamp: int, ended: bool) -> np.ndarray | None:
+        """The pose at ``stamp``; ``None`` until the messages cover it."""
+        from teamslam.ros2.image_bags import _interpolate
+
+        stamps = self.stamps
+        if not stamps or stamp > stamps[-1] or stamp < stamps[0]:
+            return None
+        j = bisect.bisect_right(stamps, stamp) - 1
+        if not self.images:
+            if stamps[j] == stamp:
+                return self.exact[j]  # import_bag: the message of the frame's stamp
+            if self.nearest:
+                after = stamps[j + 1] - stamp
+                return self.exact[j + 1 if after < stamp - stamps[j] else j]
+            keys, a = self.exact, j
+        else:
+            # the pair Slerp over every message picks: the one ending at or after the stamp
+            # (the first pair at the first stamp, which then needs a second message)
+            a = max(bisect.bisect_left(stamps, stamp) - 1, 0)
+            if len(stamps) < 2 and not ended:
+                return None
+            keys = self.poses
+        window = slice(a, a + 2)
+        t = np.array(stamps[window], np.float64) / 1e9
+        q = np.array([stamp], np.int64) / 1e9
+        return _interpolate(t, np.stack(keys[window]), q, self.topic)[0]
+
+    def forget_before(self, stamp: int) -> None:
+        """Drop the messages no pose at ``stamp`` or later needs (kept in blocks)."""
+        keep = max(bisect.bisect_left(self.stamps, stamp) - 1, 0)
+        if keep > 64:
+            del self.stamps[:keep], self.poses[:keep], self.exact[:keep]
+
+
 @dataclass
 class _Frame:
     """A frame made from the inputs, waiting for the filter."""
@@ -322,9 +403,13 @@ class LiveRobot:
         self._ended = False
         self._last_message_ns = time.monotonic_ns()
         # odometry: every message, by stamp
-        self._odom_stamps: list[int] = []
-        self._odom_poses: list[np.ndarray] = []
-        self._odom_exact: list[np.ndarray] = []
+        self._odom = _PoseTrack(inputs.odometry, inputs.images)
+        self._truth = (
+            None
+            if inputs.ground_truth is None
+            else _PoseTrack(inputs.ground_truth, inputs.images, nearest=True)
+        )
+        self._start_pose: np.ndarray | None = None
         self._pending: list[tuple[int, str, object, int]] = []  # camera frames awaiting odometry
         self._last_frame_stamp = -1
         self._last_camera_stamp: int | None = None
@@ -359,6 +444,11 @@ class LiveRobot:
                     self._camera(received.stamp_ns, "observations", received, received.received_ns)
                 elif self.inputs.images and topic in (self.inputs.left, self.inputs.right):
                     self._image(received)
+                elif topic == self.inputs.ground_truth:
+                    if self._start_pose is None and not self._truth.add(
+                        int(received.stamp_ns), received.message
+                    ):
+                        self._refuse_stamp(topic, received.stamp_ns, self._truth.stamps[-1])
                 elif self.inputs.camera_info and topic in self.inputs.camera_info:
                     self._info.setdefault(topic, received.message)
                 self._release()
@@ -394,25 +484,10 @@ class LiveRobot:
         )
 
     def _odometry(self, received) -> None:
-        from teamslam.ros2.image_bags import _pose
-        from teamslam.ros2.messages import pose_matrix
-
         stamp, msg = int(received.stamp_ns), received.message
-        if self._odom_stamps and stamp <= self._odom_stamps[-1]:
-            self._refuse_stamp(received.topic, stamp, self._odom_stamps[-1])
+        if not self._odom.add(stamp, msg):
+            self._refuse_stamp(received.topic, stamp, self._odom.stamps[-1])
             return
-        try:
-            exact = pose_matrix(msg.pose.pose)  # as import_bag reads it
-            interpolated = _pose(msg)  # as dataset_from_bag reads it
-        except (AttributeError, ValueError) as exc:
-            raise InputError(
-                f"{received.topic} at stamp {stamp} ns: not an odometry ({exc})"
-            ) from None
-        if not (np.all(np.isfinite(exact)) and np.all(np.isfinite(interpolated))):
-            raise InputError(f"{received.topic} at stamp {stamp} ns: non-finite pose")
-        self._odom_stamps.append(stamp)
-        self._odom_exact.append(exact)
-        self._odom_poses.append(interpolated)
         # no camera input for a while: the odometry makes the frames
         last = self._last_camera_stamp
         if last is not None and stamp - last > self.inputs.camera_timeout_s * 1e9:
@@ -468,34 +543,6 @@ class LiveRobot:
         self._last_camera_stamp = stamp
         self._pending.append((stamp, kind, payload, arrived_ns))
 
-    def _pose_at(self, stamp: int) -> np.ndarray | None:
-        """The odometry's pose at ``stamp`` as the offline import computes it; ``None`` until
-        the odometry covers the stamp."""
-        from teamslam.ros2.image_bags import _interpolate
-
-        stamps = self._odom_stamps
-        if not stamps or stamp > stamps[-1]:
-            return None
-        j = bisect.bisect_right(stamps, stamp) - 1
-        if j < 0:
-            return None
-        if not self.inputs.images:
-            if stamps[j] == stamp:
-                return self._odom_exact[j]  # import_bag: the message of the frame's stamp
-            keys = self._odom_exact
-            a = j
-        else:
-            # the pair Slerp over every message picks: the one ending at or after the stamp
-            # (the first pair at the first stamp, which then needs a second message)
-            a = max(bisect.bisect_left(stamps, stamp) - 1, 0)
-            if len(stamps) < 2 and not self._ended:
-                return None
-            keys = self._odom_poses
-        window = slice(a, a + 2)
-        t = np.array(stamps[window], np.float64) / 1e9
-        q = np.array([stamp], np.int64) / 1e9
-        return _interpolate(t, np.stack(keys[window]), q, self.inputs.odometry)[0]
-
     def _release(self, end: bool = False) -> None:
         """Move the pending frames the odometry covers to the queue, in stamp order."""
         if end:
@@ -503,16 +550,24 @@ class LiveRobot:
         while self._pending:
             stamp, kind, payload, arrived = self._pending[0]
             if kind == "odometry":
-                j = bisect.bisect_left(self._odom_stamps, stamp)
-                pose = (self._odom_exact if not self.inputs.images else self._odom_poses)[j]
+                pose = self._odom.message_at(stamp)
             else:
-                pose = self._pose_at(stamp)
+                pose = self._odom.at(stamp, self._ended)
                 if pose is None:
-                    if self._odom_stamps and stamp < self._odom_stamps[0]:
-                        self._pending.pop(0)  # before the first odometry: never covered
+                    if (self._odom.stamps and stamp < self._odom.stamps[0]) or self._ended:
+                        self._pending.pop(0)  # outside the odometry: never covered
                         self.counts.dropped["no_odometry"] += 1
                         continue
                     break
+            if self._truth is not None and self._start_pose is None:
+                start = self._truth.at(stamp, self._ended)
+                if start is None:
+                    if self._ended or (self._truth.stamps and stamp < self._truth.stamps[0]):
+                        self._pending.pop(0)  # no start pose for it: the next frame starts
+                        self.counts.dropped["no_odometry"] += 1
+                        continue
+                    break
+                self._start_pose = start
             self._pending.pop(0)
             if kind == "odometry":
                 self.counts.odometry_frames += 1
@@ -521,10 +576,8 @@ class LiveRobot:
                 self._queue.popleft()  # the oldest unprocessed frame
                 self.counts.dropped["queue"] += 1
             self._queue.append(_Frame(stamp, pose, kind, payload, arrived))
-        # odometry older than every frame still to come is not needed again
-        keep = max(bisect.bisect_left(self._odom_stamps, self._last_frame_stamp) - 1, 0)
-        if keep > 64:
-            del self._odom_stamps[:keep], self._odom_poses[:keep], self._odom_exact[:keep]
+        # poses older than every frame still to come are not needed again
+        self._odom.forget_before(self._last_frame_stamp)
 
     # ------------------------------------------------------------------ the worker
     def _observations(self, frame: _Frame, where: str):
@@ -591,12 +644,16 @@ class LiveRobot:
 
     def _start(self, frame: _Frame) -> None:
         """The filter, at the first frame: it starts where the offline imports start it (the
-        odometry's pose for observations, the identity for images)."""
+        ground-truth topic's pose at the frame when one is given; else the odometry's pose for
+        observations, the identity for images)."""
         if self.inputs.images:
             self._ensure_rig()
         if self.calibration is None:
             raise InputError(f"robot {self.robot}: observations need a camera calibration")
-        start = np.eye(4) if self.inputs.images else frame.T_odom
+        if self._start_pose is not None:
+            start = self._start_pose
+        else:
+            start = np.eye(4) if self.inputs.images else frame.T_odom
         self.sequence = LiveSequence(start)
         self._make_driver()
 
@@ -883,6 +940,7 @@ INPUT_KEYS = (
     "sync_tolerance_s",
     "queue",
     "camera_timeout_s",
+    "ground_truth",
 )
 
 
@@ -951,6 +1009,7 @@ def live_inputs(
             right=topic("right"),
             camera_info=camera_info,
             image_type=COMPRESSED if section.get("compressed") else IMAGE,
+            ground_truth=topic("ground_truth"),
             sync_tolerance_s=float(section.get("sync_tolerance_s", 0.005)),
             queue=int(section.get("queue", 8)),
             camera_timeout_s=float(section.get("camera_timeout_s", 1.0)),
