@@ -398,6 +398,7 @@ class LiveRobot:
         self.say = say or (lambda text: print(text, file=sys.stderr, flush=True))
         self.neighbours = team.robots[robot].neighbours if transport is not None else []
         self.counts = _Counts()
+        self._connected = False
         self._cond = threading.Condition()
         self._queue: deque[_Frame] = deque()
         self._ended = False
@@ -817,10 +818,7 @@ class LiveRobot:
         self._mkdir()
         done = self._frames_done()
         _atomic_json(self.out / "progress.json", {"frame": done - 1, "pid": os.getpid()})
-        if self.transport is not None:
-            self.transport.wait_for_peers(
-                len(self.neighbours), self.team.timeout_s if done == 0 else 1.0
-            )
+        self.connect()
         try:
             while frames is None or self._frames_done() < frames:
                 frame = self._next(idle_timeout_s, inputs_alive, stop)
@@ -849,6 +847,16 @@ class LiveRobot:
                 f"{'' if self.counts.messages else 'no message'})"
             )
         return self._write(complete=True)
+
+    def connect(self) -> None:
+        """Wait for the neighbours' links (a first run: every neighbour, up to the team file's
+        timeout; a resumed robot: 1 s); call it before subscribing, so that no frame queues
+        meanwhile (:meth:`run` calls it when not done)."""
+        if self.transport is not None and not self._connected:
+            self.transport.wait_for_peers(
+                len(self.neighbours), self.team.timeout_s if self._frames_done() == 0 else 1.0
+            )
+        self._connected = True
 
     def _mkdir(self) -> None:
         try:
@@ -880,7 +888,8 @@ class LiveRobot:
             return self._queue.popleft()
 
     def statistics(self) -> dict:
-        """The live figures: latency percentiles (ms), drops per stage, refusals, stage times."""
+        """The live figures: latency percentiles (ms), drops per stage, refusals, stage times,
+        and the stamp of every frame processed (``stamps_ns``, in the order of the poses)."""
         latency = np.asarray(self.latency_ns, float) / 1e6
         percentiles = {
             name: (float(np.percentile(latency, q)) if latency.size else None)
@@ -903,6 +912,11 @@ class LiveRobot:
                 "budget_overruns": dict(self.overruns),
                 "queue": self.inputs.queue,
                 "sync_tolerance_s": self.inputs.sync_tolerance_s,
+                "stamps_ns": (
+                    []
+                    if self.sequence is None
+                    else self.sequence.stamps_ns[: self.sequence.frames].tolist()
+                ),
             }
 
     def _write(self, complete: bool) -> dict:
@@ -1161,6 +1175,7 @@ def run_live(
             done = live.resume()
             if done:
                 live.say(f"robot {robot}: resumed after frame {done - 1}")
+        live.connect()
         session = open_session(settings["connect"], settings["listen"])
         topics = inputs.topics()
         subscriber = Ros2Subscriber(
