@@ -299,3 +299,47 @@ def test_a_wrongly_encoded_image_is_counted_and_named(image_bag, tmp_path):
     assert summary["live"]["dropped"]["frontend"] == 1
     assert summary["live"]["frames"] == 12
     assert [s for s in said if "yuv422" in s and RIGHT in s]
+
+
+def test_a_stage_over_the_realtime_budget_is_said_once_by_name(observations_bag, tmp_path):
+    bag, dataset, config = observations_bag
+    said: list[str] = []
+    robot = live_robot(tmp_path, dataset, config, say=said.append)
+    robot.budget_ms = 1e-6  # every stage overruns it
+    for item in bag_messages(bag, {ODOM, OBS}):
+        robot.feed(item)
+    robot.finish()
+    summary = robot.run()
+    for stage in ("frontend", "filter", "publish"):
+        lines = [s for s in said if s.startswith(f"robot 0: {stage} took")]
+        assert len(lines) == 1 and "real-time budget" in lines[0], said
+        assert summary["live"]["budget_overruns"][stage] == 41
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--odometry", "/robot_0/odom"], "--odometry needs --live"),
+        (["--live"], "give the odometry topic"),
+        (["--live", "--odometry", "/robot_0/odom"], "need a camera file"),
+        (["--live", "--odometry", "robot 0"], "not an absolute ROS 2 topic name"),
+        (["--live", "--odometry", "/o", "--left", "/l", "--right", "/r"], "camera_info"),
+        (["--live", "--detections", "/d"], "not supported"),
+    ],
+)
+def test_bad_live_arguments_give_one_line_and_exit_2(tmp_path, args, message):
+    import subprocess
+    import sys
+
+    from teamslam.runtime.team_file import write_team_file
+
+    team = write_team_file(tmp_path / "team.yaml", "t", tmp_path, np.zeros((1, 1), bool))
+    text = team.read_text().replace(f"dataset: {tmp_path.resolve()}\n", "")
+    team.write_text(text)
+    argv = [sys.executable, "-m", "teamslam", "agent", "--team", str(team), "--robot", "0"]
+    done = subprocess.run(
+        [*argv, "--out", str(tmp_path / "out"), *args], capture_output=True, text=True
+    )
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], done.stderr
