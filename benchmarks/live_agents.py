@@ -9,18 +9,20 @@ Run on demand::
         [--steps 150] [--runs lockstep:1 async:10] [--markdown FILE]
 
 ``images``: a rendered team (``teamslam simulate --images``, 10 Hz stereo, odometry and ground
-truth); offline, :func:`~teamslam.ros2.image_bags.dataset_from_bag` of its ``images.mcap``; live,
-each robot runs the image front-end on its left/right topics. ``observations``: the ``make run``
-team (``teamslam simulate --robots 5 --steps 150 --seed 0``, 1 s between frames) exported as a
-bag of odometry and ``StereoObservations`` (:func:`~teamslam.ros2.bags.export_bag`); offline,
-:func:`~teamslam.ros2.bags.import_bag`. Both start each robot at its ground-truth topic's first
-pose and use ``filter.window=10``. The offline reference is ``teamslam team launch`` (lock-step
-robot processes) on the imported dataset; each live run plays the bag at a rate, with the team
-file's ``sync`` set to the run's mode. Per run: frames processed of those in the bag, frames
-dropped per stage, the latency from a frame's camera input arriving to its pose being published
-(robots pooled: the median of the robots' medians, the largest 99th percentile and maximum),
-the position RMSE against ground truth over every processed frame next to the offline run's, and
-the largest difference of a pose from the offline run's (when every frame was processed).
+truth); offline, :func:`~teamslam.ros2.image_bags.dataset_from_bag` of its ``images.mcap``;
+live, each robot runs the image front-end on its left/right topics. ``observations``: the ``make
+run`` team (``teamslam simulate --robots 5 --steps 150 --seed 0``, 1 s between frames) exported
+as a bag of odometry and ``StereoObservations`` (:func:`~teamslam.ros2.bags.export_bag`);
+offline, :func:`~teamslam.ros2.bags.import_bag`. Both start each robot at its ground-truth
+topic's first pose and use ``filter.window=10``; the noise levels are calibrated once beforehand
+(``teamslam calibrate --frames 60 --write``, as ``make run`` does). The offline reference is
+``teamslam team launch`` (lock-step robot processes) on the imported dataset; each live run
+plays the bag at a rate, with the team file's ``sync`` set to the run's mode. Per run: frames
+processed of those in the bag, frames dropped per stage, the latency from a frame's camera input
+arriving to its pose being published (robots pooled: the median of the robots' medians, the
+largest 99th percentile and maximum), the position RMSE against ground truth over every
+processed frame next to the offline run's, and the largest difference of a pose from the offline
+run's (when every frame was processed).
 """
 
 from __future__ import annotations
@@ -197,7 +199,7 @@ def live_run(
     try:
         play = _teamslam("bag", "play", str(bag), "--rate", f"{rate:g}", "--domain-id", "41")
         play += ["--listen", f"tcp/127.0.0.1:{player}", "--wait-subscribers", str(robots)]
-        play += ["--wait-timeout", "120"]
+        play += ["--wait-timeout", "900"]
         subprocess.run(play, check=True, stdout=subprocess.DEVNULL)
         for p in procs:
             _, err = p.communicate(timeout=600)
@@ -238,6 +240,12 @@ def main() -> None:
             bag, dataset_dir, inputs, what = images_team(tmp, robots, steps, args.width)
         else:
             bag, dataset_dir, inputs, what = observations_team(tmp, robots, steps)
+        # the noise levels calibrated once, as make run does (no robot calibrates at its start)
+        subprocess.run(
+            _teamslam("calibrate", str(dataset_dir), "--frames", "60", "--write"),
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
         dataset = load_dataset(dataset_dir)
         offline_file = team_file(tmp, "offline", dataset_dir, robots, "lockstep", inputs, None)
         subprocess.run(
