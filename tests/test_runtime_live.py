@@ -343,3 +343,22 @@ def test_bad_live_arguments_give_one_line_and_exit_2(tmp_path, args, message):
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], done.stderr
+
+
+def test_an_increment_over_dropped_frames_carries_their_steps_noise(observations_bag, tmp_path):
+    bag, dataset, config = observations_bag
+    robot = live_robot(tmp_path, dataset, config, queue=3)
+    items = bag_messages(bag, {ODOM, OBS})
+    first = min(i.stamp_ns for i in items)
+    for item in items:
+        if item.stamp_ns == first:
+            robot.feed(item)
+    robot.run(frames=1)  # frame 0 done; then the robot falls behind by 37 frames
+    for item in items:
+        if item.stamp_ns > first:
+            robot.feed(item)
+    robot.finish()
+    summary = robot.run()
+    assert summary["live"]["dropped"]["queue"] == 37
+    # frames 0, 38, 39, 40: the first increment spans 38 frames, and has 38 steps' noise
+    assert robot.sequence.odometry_spans.tolist() == [38.0, 1.0, 1.0]

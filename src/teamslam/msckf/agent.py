@@ -324,6 +324,11 @@ class MsckfAgent:
     def _propagate(self, t: int) -> None:
         odometry = self.sequence.odometry[t - 1]
         cov = self.config.filter.odometry_cov()
+        # a sequence made while it is recorded may skip frames: an increment spanning k of
+        # them has k steps' noise (a recorded sequence has no spans: every increment one step)
+        spans = getattr(self.sequence, "odometry_spans", None)
+        if spans is not None and spans[t - 1] != 1:
+            cov = cov * spans[t - 1]
         if not np.all(np.isfinite(odometry)):
             self.reject("odometry", reason="non-finite relative pose")
             self._odometry_rejected.add(t - 1)

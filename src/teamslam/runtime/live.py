@@ -164,6 +164,7 @@ class LiveSequence:
     def __init__(self, T_world_start: np.ndarray) -> None:
         self.T_world_body = np.asarray(T_world_start, float).reshape(1, 4, 4)
         self._odometry = np.zeros((64, 4, 4))
+        self._spans = np.ones(64)
         self.stamps_ns = np.zeros(64, np.int64)
         self.features = _Frames()
         self.objects = _Frames()
@@ -179,15 +180,22 @@ class LiveSequence:
         """``(frames - 1, 4, 4)`` odometry increments (a view)."""
         return self._odometry[: max(self._frames - 1, 0)]
 
+    @property
+    def odometry_spans(self) -> np.ndarray:
+        """``(frames - 1,)`` frames each increment spans (1; more after frames were dropped):
+        the filter gives it that many steps' noise."""
+        return self._spans[: max(self._frames - 1, 0)]
+
     def append(
         self,
         stamp_ns: int,
         increment: np.ndarray | None,
         features: tuple[np.ndarray, np.ndarray],
         objects: tuple[np.ndarray, np.ndarray],
+        span: int = 1,
     ) -> int:
-        """Append a frame (``increment`` from the previous one; ``None`` for the first); its
-        index."""
+        """Append a frame (``increment`` from the previous one, spanning ``span`` frames made;
+        ``None`` for the first); its index."""
         t = self._frames
         if (t == 0) != (increment is None):
             raise ValueError("the first frame has no odometry increment, every other one has")
@@ -196,7 +204,11 @@ class LiveSequence:
         if t > 0:
             if t - 1 >= self._odometry.shape[0]:
                 self._odometry = grown(self._odometry, t)
+                self._spans = np.concatenate(
+                    [self._spans, np.ones(self._odometry.shape[0] - self._spans.size)]
+                )
             self._odometry[t - 1] = increment
+            self._spans[t - 1] = span
         self.stamps_ns[t] = stamp_ns
         self.features.add(t, *features)
         self.objects.add(t, *objects)
@@ -212,6 +224,7 @@ class LiveSequence:
         return {
             "live_start": self.T_world_body[0],
             "live_odometry": self.odometry.copy(),
+            "live_spans": self.odometry_spans.copy(),
             "live_stamps": self.stamps_ns[: self._frames].copy(),
         }
 
@@ -225,6 +238,9 @@ class LiveSequence:
         if odometry.shape[0] != max(stamps.size - 1, 0):
             raise InputError(f"checkpoint: {odometry.shape[0]} increments for {stamps.size} frames")
         sequence._odometry = grown(odometry, max(64, stamps.size))
+        spans = np.asarray(snapshot["live_spans"], float).reshape(-1)
+        sequence._spans = np.ones(sequence._odometry.shape[0])
+        sequence._spans[: spans.size] = spans
         sequence.stamps_ns = grown(stamps, max(64, stamps.size))
         sequence._frames = int(stamps.size)
         return sequence
@@ -313,6 +329,7 @@ class _Frame:
     kind: str  # "observations", "images" or "odometry"
     payload: object
     arrived_ns: int  # monotonic arrival of the input that completed it
+    number: int  # frames made before it
 
 
 @dataclass
@@ -411,6 +428,7 @@ class LiveRobot:
             else _PoseTrack(inputs.ground_truth, inputs.images, nearest=True)
         )
         self._start_pose: np.ndarray | None = None
+        self._made = 0  # frames made
         self._pending: list[tuple[int, str, object, int]] = []  # camera frames awaiting odometry
         self._last_frame_stamp = -1
         self._last_camera_stamp: int | None = None
@@ -425,6 +443,7 @@ class LiveRobot:
         self.frontend = None
         self._first_feature_id = 0
         self._last_T_odom: np.ndarray | None = None
+        self._last_number: int | None = None  # the last frame processed, as made
         self.latency_ns: list[int] = []
         self.step_seconds: list[float] = []
         self.stage_seconds = {s: 0.0 for s in STAGES}
@@ -576,7 +595,8 @@ class LiveRobot:
             if len(self._queue) >= self.inputs.queue:
                 self._queue.popleft()  # the oldest unprocessed frame
                 self.counts.dropped["queue"] += 1
-            self._queue.append(_Frame(stamp, pose, kind, payload, arrived))
+            self._queue.append(_Frame(stamp, pose, kind, payload, arrived, self._made))
+            self._made += 1
         # poses older than every frame still to come are not needed again
         self._odom.forget_before(self._last_frame_stamp)
 
@@ -706,8 +726,17 @@ class LiveRobot:
         if self.sequence is None:
             self._start(frame)
         increment = None if t == 0 else self._increment(frame.T_odom)
-        self.sequence.append(frame.stamp_ns, increment, features, objects)
+        if self._last_number is not None:
+            span = frame.number - self._last_number
+        elif t > 0:  # resumed: the frames that went by while the robot was down, by stamps
+            stamps = self.sequence.stamps_ns[:t]
+            period = np.median(np.diff(stamps)) if t > 1 else frame.stamp_ns - stamps[-1]
+            span = max(1, round((frame.stamp_ns - stamps[-1]) / period))
+        else:
+            span = 1
+        self.sequence.append(frame.stamp_ns, increment, features, objects, span)
         self._last_T_odom = frame.T_odom
+        self._last_number = frame.number
         driver = self.driver
         step_begin = time.perf_counter()
         if driver.exchanges(t):
