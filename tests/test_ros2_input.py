@@ -65,6 +65,8 @@ class Collector:
         self.lock = threading.Lock()
 
     def __call__(self, item: Received) -> None:
+        if item.stamp_ns == 13:  # a robot failing on one message
+            raise ValueError("cannot use\nstamp 13")
         with self.lock:
             self.items.append(item)
 
@@ -103,23 +105,27 @@ def test_subscriber_decodes_refuses_and_announces():
             pub.put(wrong_hash, m.serialize(good), attachment=attachment(seq, 44, gid))
         pub.put(key, m.serialize(good))  # no attachment
         pub.put(key, m.serialize(good), attachment=attachment(6, 45, gid))
-        assert wait_until(lambda: sub.errors["/r/pose"] == 4 and sub.counts["/r/pose"] == 2)
+        pub.put(key, m.serialize(m.pose_stamped(np.eye(4), 13)), attachment=attachment(7, 46, gid))
+        assert wait_until(lambda: sub.errors["/r/pose"] == 5 and sub.counts["/r/pose"] == 3)
         assert wait_until(lambda: sum("/MS/" in t for t in tokens) == 2)
     finally:
         pub.close()
         sub.close()
-    assert sub.counts == {"/r/pose": 2, "/r/odom": 0}
-    assert sub.errors == {"/r/pose": 4, "/r/odom": 0}
+    assert sub.counts == {"/r/pose": 3, "/r/odom": 0}
+    assert sub.errors == {"/r/pose": 5, "/r/odom": 0}
     first, last = got.items
     assert (first.topic, first.msgtype, first.stamp_ns) == ("/r/pose", POSE, 1_000_000_123)
     assert (first.sequence_number, first.source_ns, first.gid) == (1, 42, gid)
     assert last.sequence_number == 6
     assert first.message.__msgtype__ == POSE
     assert first.message.header.frame_id == "world"
-    assert len(got.errors) == 3 and all("\n" not in e for e in got.errors)
+    assert len(got.errors) == 4 and all("\n" not in e for e in got.errors)
     assert "sample 2 of publisher" in got.errors[0] and "not a geometry_msgs" in got.errors[0]
     assert "type hash RIHS01_abab" in got.errors[1]
     assert "without rmw_zenoh's attachment" in got.errors[2]
+    assert got.errors[3] == (
+        "/r/pose: the callback failed on stamp 13 ns: ValueError: cannot use stamp 13"
+    )
     announced = [parse_liveliness_key(t) for t in tokens if "/MS/" in t]
     assert {(a["topic"], a["type_hash"]) for a in announced} == {
         (t, m.type_hash(mt)) for t, mt in topics.items()
@@ -310,29 +316,75 @@ def test_bag_play_waits_for_subscribers_then_gives_up(rendered_bag):
             )
 
 
-def test_bag_play_stops_when_asked(rendered_bag):
-    """A loop stopped from another thread (what Ctrl-C does) returns what it published."""
+def test_bag_play_loops_until_stopped(rendered_bag):
+    """A loop plays the bag again (stamps going back at each pass, sequence numbers going on)
+    until stopped from another thread — here by the subscriber, after two passes and one more
+    message."""
     from teamslam.ros2.bag_play import play_bag
 
+    topic = "/robot_0/odom"
+    per_pass = len(_recorded(rendered_bag)[topic])
     stop = threading.Event()
-    seen = []
+    got = Collector()
 
-    def started(result):
-        seen.append(result)
-        threading.Timer(0.3, stop.set).start()
+    def on_item(item):
+        got(item)
+        if len(got.items) == 2 * per_pass + 1:
+            stop.set()
 
     port = free_port()
-    result = play_bag(
-        rendered_bag,
-        rate=1.0,
-        loop=True,
-        connect=[f"tcp/127.0.0.1:{port}"],
-        listen=["tcp/127.0.0.1:0"],
-        stop=stop,
-        on_start=started,
+    sub = Ros2Subscriber({topic: ODOM}, on_item, config=listening_config(port))
+    try:
+        result = play_bag(
+            rendered_bag,
+            rate=0,
+            loop=True,
+            topics=[topic],
+            connect=[f"tcp/127.0.0.1:{port}"],
+            listen=["tcp/127.0.0.1:0"],
+            wait_subscribers=1,
+            wait_timeout=20,
+            stop=stop,
+        )
+        assert wait_until(lambda: sub.counts[topic] == result.counts[topic])
+    finally:
+        sub.close()
+    assert result.stopped and result.passes >= 2
+    assert result.counts[topic] > 2 * per_pass
+    seqs = [x.sequence_number for x in got.items]
+    assert seqs == list(range(1, len(seqs) + 1))
+    stamps = [x.stamp_ns for x in got.items]
+    assert stamps[per_pass : 2 * per_pass] == stamps[:per_pass]
+
+
+def test_ctrl_c_stops_bag_play_cleanly(rendered_bag):
+    """SIGINT to ``teamslam bag play --loop``: the counts, then exit status 130, no traceback."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from teamslam.ros2.bag_play import bag_topics
+
+    port = free_port()
+    argv = [sys.executable, "-m", "teamslam", "bag", "play", str(rendered_bag), "--loop"]
+    argv += ["--connect", f"tcp/127.0.0.1:{port}", "--listen", "tcp/127.0.0.1:0"]
+    proc = subprocess.Popen(
+        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy()
     )
-    assert result.stopped and seen == [result]
-    assert set(result.counts) == set(result.keys)
+    try:
+        first = proc.stdout.readline()
+        topics = len(bag_topics(rendered_bag))
+        assert first.startswith(f"playing {topics} topic(s)"), first + proc.stderr.read()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert "stopped after" in out and "/robot_0/odom:" in out
 
 
 def test_bag_play_command_errors(tmp_path, capsys):

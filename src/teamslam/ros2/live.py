@@ -58,6 +58,10 @@ def check_topic_name(topic: str) -> str:
     return topic
 
 
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
 @dataclass(frozen=True)
 class Received:
     """One message received on a topic.
@@ -166,12 +170,19 @@ class Ros2Subscriber:
         self._closed = False
         self._own_session = session is None
         self.session = open_session(config=config) if session is None else session
+        self._tokens: list = []
+        self._subscribers: list = []
+        try:
+            self._declare(node_id, first_entity_id)
+        except BaseException:
+            self.close()
+            raise
+
+    def _declare(self, node_id: int, first_entity_id: int) -> None:
         zid = str(self.session.info.zid())
         liveliness = self.session.liveliness()
-        self._tokens = [
-            liveliness.declare_token(liveliness_key(domain_id, zid, node_id, node)),
-        ]
-        self._subscribers = []
+        domain_id, node = self.domain_id, self.node
+        self._tokens.append(liveliness.declare_token(liveliness_key(domain_id, zid, node_id, node)))
         for k, (topic, msgtype) in enumerate(self.topics.items()):
             prefix = f"{domain_id}/{topic.strip('/')}/{m.dds_type_name(msgtype)}/"
             self._subscribers.append(
@@ -236,7 +247,7 @@ class Ros2Subscriber:
                 self._error(
                     topic,
                     f"{topic}: sample {seq} of publisher {gid.hex()} is not a {msgtype} "
-                    f"({type(exc).__name__}: {exc}), refused",
+                    f"({type(exc).__name__}: {_one_line(exc)}), refused",
                 )
                 return
             header = getattr(message, "header", None)
@@ -246,7 +257,11 @@ class Ros2Subscriber:
             try:
                 self._callback(item)
             except Exception as exc:
-                self._error(topic, f"{topic}: the callback failed on stamp {stamp} ns: {exc!r}")
+                self._error(
+                    topic,
+                    f"{topic}: the callback failed on stamp {stamp} ns: "
+                    f"{type(exc).__name__}: {_one_line(exc)}",
+                )
 
     def close(self) -> None:
         """Withdraw the tokens and subscriptions; close the session if it was opened here."""
@@ -279,9 +294,8 @@ class ApproximateTimeSync:
     its last received) is more than ``tolerance_ns`` later. When every queue then holds a
     message, their oldest form a set (their stamps span at most ``tolerance_ns``), emitted at
     once, without waiting for a closer partner. A queue longer than ``queue_size`` drops its
-    oldest. With a
-    tolerance below half the period of the slowest topic, every set is the one a sensor
-    triggered together.
+    oldest. With a tolerance below half the period of the slowest topic, every set is the one a
+    sensor triggered together.
 
     Parameters
     ----------
