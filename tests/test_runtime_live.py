@@ -362,3 +362,20 @@ def test_an_increment_over_dropped_frames_carries_their_steps_noise(observations
     assert summary["live"]["dropped"]["queue"] == 37
     # frames 0, 38, 39, 40: the first increment spans 38 frames, and has 38 steps' noise
     assert robot.sequence.odometry_spans.tolist() == [38.0, 1.0, 1.0]
+
+
+def test_the_robot_starts_at_the_truth_of_the_first_frame_it_processes(observations_bag, tmp_path):
+    bag, dataset, config = observations_bag
+    robot = live_robot(tmp_path, dataset, config, queue=3, ground_truth=TRUTH)
+    items = bag_messages(bag, {ODOM, OBS, TRUTH})
+    for item in items:
+        robot.feed(item)
+    robot.finish()
+    robot.run()
+    # frames 0..37 were dropped before the filter started: it starts at frame 38's truth
+    first = robot.sequence.stamps_ns[0]
+    truth = [
+        m.pose_matrix(i.message.pose) for i in items if i.topic == TRUTH and i.stamp_ns == first
+    ]
+    assert first == sorted(i.stamp_ns for i in items if i.topic == OBS)[-3]
+    assert np.array_equal(robot.sequence.T_world_body[0], truth[0])

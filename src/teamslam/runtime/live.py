@@ -330,6 +330,7 @@ class _Frame:
     payload: object
     arrived_ns: int  # monotonic arrival of the input that completed it
     number: int  # frames made before it
+    start: np.ndarray | None = None  # the ground truth's pose at it, until the filter starts
 
 
 @dataclass
@@ -427,7 +428,7 @@ class LiveRobot:
             if inputs.ground_truth is None
             else _PoseTrack(inputs.ground_truth, inputs.images, nearest=True)
         )
-        self._start_pose: np.ndarray | None = None
+        self._started = False  # whether the filter has its first frame
         self._made = 0  # frames made
         self._pending: list[tuple[int, str, object, int]] = []  # camera frames awaiting odometry
         self._last_frame_stamp = -1
@@ -465,7 +466,7 @@ class LiveRobot:
                 elif self.inputs.images and topic in (self.inputs.left, self.inputs.right):
                     self._image(received)
                 elif topic == self.inputs.ground_truth:
-                    if self._start_pose is None and not self._truth.add(
+                    if not self._started and not self._truth.add(
                         int(received.stamp_ns), received.message
                     ):
                         self._refuse_stamp(topic, received.stamp_ns, self._truth.stamps[-1])
@@ -579,7 +580,9 @@ class LiveRobot:
                         self.counts.dropped["no_odometry"] += 1
                         continue
                     break
-            if self._truth is not None and self._start_pose is None:
+            start = None
+            if self._truth is not None and not self._started:
+                # until the filter starts, each frame may be the first: its start pose
                 start = self._truth.at(stamp, self._ended)
                 if start is None:
                     if self._ended or (self._truth.stamps and stamp < self._truth.stamps[0]):
@@ -587,7 +590,6 @@ class LiveRobot:
                         self.counts.dropped["no_odometry"] += 1
                         continue
                     break
-                self._start_pose = start
             self._pending.pop(0)
             if kind == "odometry":
                 self.counts.odometry_frames += 1
@@ -595,7 +597,7 @@ class LiveRobot:
             if len(self._queue) >= self.inputs.queue:
                 self._queue.popleft()  # the oldest unprocessed frame
                 self.counts.dropped["queue"] += 1
-            self._queue.append(_Frame(stamp, pose, kind, payload, arrived, self._made))
+            self._queue.append(_Frame(stamp, pose, kind, payload, arrived, self._made, start))
             self._made += 1
         # poses older than every frame still to come are not needed again
         self._odom.forget_before(self._last_frame_stamp)
@@ -671,8 +673,10 @@ class LiveRobot:
             self._ensure_rig()
         if self.calibration is None:
             raise InputError(f"robot {self.robot}: observations need a camera calibration")
-        if self._start_pose is not None:
-            start = self._start_pose
+        with self._cond:
+            self._started = True
+        if frame.start is not None:
+            start = frame.start
         else:
             start = np.eye(4) if self.inputs.images else frame.T_odom
         self.sequence = LiveSequence(start)
@@ -813,6 +817,8 @@ class LiveRobot:
         if self.calibration is None:
             raise InputError(f"robot {self.robot}: observations need a camera calibration")
         self.sequence = LiveSequence.restore(snapshot)
+        with self._cond:
+            self._started = True
         self._make_driver()
         try:
             self.driver.agent.restore(snapshot)
