@@ -1,4 +1,4 @@
-"""One robot on live inputs (:mod:`teamslam.runtime.live`), fed the messages of a bag without
+"""One robot on live inputs (:mod:`teamslam.live`), fed the messages of a bag without
 Zenoh: the estimates equal the offline import's, and faults are named, counted and survived."""
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import pytest
 
 pytest.importorskip("rosbags", reason="the ros2 extra (rosbags) is not installed")
 
+from teamslam.live import LiveInputs, LiveRobot
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.configure import build_settings
 from teamslam.msckf.team import RobotDriver
@@ -19,7 +20,6 @@ from teamslam.ros2 import messages as m
 from teamslam.ros2.bags import RobotTopics, export_bag, import_bag
 from teamslam.ros2.live import Received
 from teamslam.runtime.agent_process import load_robot_result
-from teamslam.runtime.live import LiveInputs, LiveRobot
 from teamslam.runtime.team_file import RobotEntry, TeamFile
 from teamslam.sim import lissajous_team
 

@@ -655,7 +655,7 @@ def run_robot(
         ``period``; ``None`` values are ignored).
     live
         Run on live topics (``teamslam agent --live``,
-        :func:`~teamslam.runtime.live.run_live`): ``flags`` (overrides of the team file's
+        :func:`~teamslam.live.run_live`): ``flags`` (overrides of the team file's
         ``ros2.inputs``), ``frames``, ``idle_timeout_s``, ``budget_ms``.
 
     Raises
@@ -679,7 +679,7 @@ def run_robot(
 
         check_credentials(team.security, robot)  # one line naming a missing/unreadable key
     if live is not None:
-        from teamslam.runtime.live import run_live
+        from teamslam.live import run_live
 
         require_extras(ros2=True)
         return run_live(
