@@ -160,6 +160,16 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/live-input.md",
         f"{GENERATED}/live-input.md",
     ),
+    "live-robots-images": (
+        "python benchmarks/live_agents.py images --robots 3 --steps 100 --width 640 "
+        f"--runs lockstep:0.25 async:1 --markdown {GENERATED}/live-robots-images.md",
+        f"{GENERATED}/live-robots-images.md",
+    ),
+    "live-robots-observations": (
+        "python benchmarks/live_agents.py observations --robots 5 --steps 150 "
+        f"--runs lockstep:1 async:1 async:10 --markdown {GENERATED}/live-robots-observations.md",
+        f"{GENERATED}/live-robots-observations.md",
+    ),
 }
 
 #: one BLAS / OpenMP / numba thread: times comparable across machines with other work

@@ -641,6 +641,7 @@ def run_robot(
     resume: bool = False,
     ros2: bool = False,
     ros2_options: dict | None = None,
+    live: dict | None = None,
 ) -> dict:
     """Run one robot of a team file in this process (``teamslam agent``); its summary.
 
@@ -652,6 +653,10 @@ def run_robot(
     ros2_options
         Overrides of the team file's ``ros2`` section (``domain_id``, ``connect``, ``listen``,
         ``period``; ``None`` values are ignored).
+    live
+        Run on live topics (``teamslam agent --live``,
+        :func:`~teamslam.live.run_live`): ``flags`` (overrides of the team file's
+        ``ros2.inputs``), ``frames``, ``idle_timeout_s``, ``budget_ms``.
 
     Raises
     ------
@@ -673,6 +678,21 @@ def run_robot(
         from teamslam.runtime.security import check_credentials
 
         check_credentials(team.security, robot)  # one line naming a missing/unreadable key
+    if live is not None:
+        from teamslam.live import run_live
+
+        require_extras(ros2=True)
+        return run_live(
+            team,
+            robot,
+            Path(out),
+            live.get("flags"),
+            resume=resume,
+            frames=live.get("frames"),
+            idle_timeout_s=live.get("idle_timeout_s", 5.0),
+            budget_ms=live.get("budget_ms"),
+            ros2_options={k: v for k, v in (ros2_options or {}).items() if k != "period"},
+        )
     if not ros2 and team.ros2 is None:
         return run_agent(team, robot, Path(out), resume=resume)
     publisher = _ros2_publisher(team, robot, ros2_options or {})
@@ -687,7 +707,8 @@ def _ros2_publisher(team, robot: int, options: dict):
     from teamslam.eval.estimates import stamps_ns
     from teamslam.ros2.rmw_zenoh import Ros2Publisher, ros2_settings
 
-    settings = ros2_settings(team.ros2, **options)
+    section = {k: v for k, v in (team.ros2 or {}).items() if k != "inputs"}  # live robots'
+    settings = ros2_settings(section, **options)
     dataset_path, index = team.dataset_of(robot)
     sequence = load_dataset(dataset_path).robots[index]
     return Ros2Publisher(

@@ -40,19 +40,66 @@ def _cmd_team_certs(args: argparse.Namespace) -> int:
     return 0
 
 
+LIVE_FLAGS = {
+    "odometry": "odometry",
+    "observations": "observations",
+    "left": "left",
+    "right": "right",
+    "camera_info": "camera_info",
+    "camera": "camera",
+    "sync_tolerance": "sync_tolerance_s",
+    "queue": "queue",
+    "camera_timeout": "camera_timeout_s",
+}
+
+
 def _cmd_agent(args: argparse.Namespace) -> int:
     from teamslam import api
+    from teamslam.errors import InputError
 
+    live_given = [
+        f
+        for f in (*LIVE_FLAGS, "frames", "realtime_budget", "detections")
+        if getattr(args, f) is not None
+    ]
+    if live_given and not args.live:
+        raise InputError(f"--{live_given[0].replace('_', '-')} needs --live")
+    if args.detections is not None:
+        raise InputError(
+            "--detections: live Detection2DArray input is not supported yet (give "
+            "observations, or images whose objects are markers)"
+        )
     options = {
         "domain_id": args.domain_id,
         "connect": args.ros2_connect,
         "listen": args.ros2_listen,
         "period": args.period,
     }
+    live = None
+    if args.live:
+        live = {
+            "flags": {key: getattr(args, flag) for flag, key in LIVE_FLAGS.items()},
+            "frames": args.frames,
+            "idle_timeout_s": args.idle_timeout,
+            "budget_ms": args.realtime_budget,
+        }
+        if args.compressed:
+            live["flags"]["compressed"] = True
     summary = api.run_robot(
-        args.team, args.robot, args.out, args.resume, ros2=args.ros2, ros2_options=options
+        args.team,
+        args.robot,
+        args.out,
+        args.resume,
+        ros2=args.ros2,
+        ros2_options=options,
+        live=live,
     )
-    print(json.dumps({k: summary[k] for k in ("robot", "frames", "lost_neighbours")}))
+    keys = ("robot", "frames", "lost_neighbours")
+    shown = {k: summary[k] for k in keys}
+    if "live" in summary:
+        shown["latency_ms"] = summary["live"]["latency_ms"]
+        shown["dropped"] = summary["live"]["dropped"]
+    print(json.dumps(shown))
     return 0
 
 
@@ -94,6 +141,65 @@ def register(sub) -> None:
         default=None,
         metavar="ENDPOINT",
         help="endpoint the ROS 2 session listens on (default tcp/localhost:0)",
+    )
+    live = agent.add_argument_group(
+        "live inputs",
+        "--live: frames from ROS 2 topics (rmw_zenoh layout) instead of the dataset; the "
+        "topics come from the team file's ros2.inputs section, these flags override it "
+        "({id} and {name} in a topic are the robot's id and name)",
+    )
+    live.add_argument("--live", action="store_true", help="run on live topics")
+    live.add_argument("--odometry", help="nav_msgs/Odometry topic (every message kept)")
+    live.add_argument(
+        "--observations", help="teamslam_msgs/StereoObservations topic (no image front-end)"
+    )
+    live.add_argument("--left", help="left image topic (sensor_msgs/Image)")
+    live.add_argument("--right", help="right image topic")
+    live.add_argument(
+        "--compressed", action="store_true", help="the image topics are CompressedImage"
+    )
+    live.add_argument("--camera-info", help="LEFT,RIGHT sensor_msgs/CameraInfo topics (the rig)")
+    live.add_argument(
+        "--camera",
+        type=Path,
+        help="camera file: the rig of images (instead of camera_info), or the calibration of "
+        "observations",
+    )
+    live.add_argument(
+        "--detections", help="vision_msgs/Detection2DArray topic (not supported live yet)"
+    )
+    live.add_argument(
+        "--sync-tolerance",
+        type=number(float, lambda v: v >= 0, "seconds ≥ 0"),
+        help="largest stamp difference of a left and right image paired (default 0.005 s)",
+    )
+    live.add_argument(
+        "--queue",
+        type=number(int, lambda v: v >= 1, "a number of frames ≥ 1"),
+        help="frames waiting at most; when full the oldest is dropped (default 8)",
+    )
+    live.add_argument(
+        "--camera-timeout",
+        type=number(float, lambda v: v > 0, "seconds > 0"),
+        help="odometry seconds without camera input after which the robot runs on "
+        "odometry alone (default 1)",
+    )
+    live.add_argument(
+        "--frames",
+        type=number(int, lambda v: v >= 1, "a number of frames ≥ 1"),
+        help="stop after this many frames",
+    )
+    live.add_argument(
+        "--idle-timeout",
+        type=number(float, lambda v: v > 0, "seconds > 0"),
+        default=5.0,
+        help="end when no message came for this long and no publisher of the topics is left "
+        "(default 5 s)",
+    )
+    live.add_argument(
+        "--realtime-budget",
+        type=number(float, lambda v: v > 0, "milliseconds > 0"),
+        help="per-stage budget; the first overrun of each stage is said",
     )
     agent.set_defaults(handler=_cmd_agent)
 

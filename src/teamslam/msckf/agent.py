@@ -44,7 +44,7 @@ from teamslam.msckf.settings.health import (
 )
 from teamslam.msckf.settings.values import MsckfConfig
 
-__all__ = ["MsckfAgent"]
+__all__ = ["MsckfAgent", "grown"]
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +53,14 @@ log = logging.getLogger(__name__)
 #: object seen from a few frames has a flat cost along its depth, where 8 iterations — enough
 #: for geometric features, which are projected out — can stop metres short)
 OBJECT_GAUSS_NEWTON_ITERATIONS = 32
+
+
+def grown(array: np.ndarray, needed: int) -> np.ndarray:
+    """``array`` with room for at least ``needed`` rows along its first axis (capacity doubled,
+    the rows held kept, the new ones zero): per-frame records of a sequence that grows."""
+    out = np.zeros((max(needed, 2 * array.shape[0]), *array.shape[1:]), dtype=array.dtype)
+    out[: array.shape[0]] = array
+    return out
 
 
 class MsckfAgent:
@@ -230,7 +238,7 @@ class MsckfAgent:
             )
         self.state.restore({k[6:]: v for k, v in snapshot.items() if k.startswith("state_")})
         self.frame = frame
-        self._frame_times = np.zeros((self.sequence.frames, 3))
+        self._frame_times = np.zeros((max(self.sequence.frames, frame + 1), 3))
         self._frame_times[: frame + 1] = frame_times
         self.tracks = histories["tracks"]
         self.object_history = histories["objhist"]
@@ -308,12 +316,19 @@ class MsckfAgent:
         self.timings["propagation"] += stages[0]
         self.timings["update"] += stages[1]
         self.timings["initialisation"] += stages[2]
+        if t >= self._frame_times.shape[0]:  # a sequence that grows while it runs (live)
+            self._frame_times = grown(self._frame_times, t + 1)
         self._frame_times[t] = stages
         self.frame = t
 
     def _propagate(self, t: int) -> None:
         odometry = self.sequence.odometry[t - 1]
         cov = self.config.filter.odometry_cov()
+        # a sequence made while it is recorded may skip frames: an increment spanning k of
+        # them has k steps' noise (a recorded sequence has no spans: every increment one step)
+        spans = getattr(self.sequence, "odometry_spans", None)
+        if spans is not None and spans[t - 1] != 1:
+            cov = cov * spans[t - 1]
         if not np.all(np.isfinite(odometry)):
             self.reject("odometry", reason="non-finite relative pose")
             self._odometry_rejected.add(t - 1)

@@ -29,7 +29,7 @@ from tqdm import tqdm
 from teamslam.datasets.model import TeamDataset
 from teamslam.errors import EstimationError, InputError, OutputError
 from teamslam.graph import CommunicationGraph, EdgeLoss, complete
-from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.agent import MsckfAgent, grown
 from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.consensus.protocol import ConsensusProtocol
 from teamslam.msckf.consensus.transport import MemoryNetwork, Transport
@@ -295,6 +295,7 @@ class RobotDriver:
         for j in self.protocol.averaged_with:
             if not self.averaged_with[j] or self.averaged_with[j][-1] != t:
                 self.averaged_with[j].append(t)
+        self._room(t)
         self.consensus_times[t] += self.protocol.spent
 
     # ------------------------------------------------------------------ filter
@@ -303,8 +304,18 @@ class RobotDriver:
         with self._named(t, "filter"):
             self.agent.step(t)
 
+    def _room(self, t: int) -> None:
+        """Room for frame ``t`` in the per-frame records (a sequence that grows while it runs:
+        capacity doubled; a finished sequence's records are allocated whole up front)."""
+        if t >= self.poses.shape[0]:
+            self.poses = grown(self.poses, t + 1)
+            self.covs = grown(self.covs, t + 1)
+        if t >= self.consensus_times.shape[0]:
+            self.consensus_times = grown(self.consensus_times, t + 1)
+
     def record(self, t: int) -> None:
         """Keep the filtered pose of frame ``t`` and its covariance."""
+        self._room(t)
         with self._named(t, "filter"):
             self.poses[t] = self.agent.state.current_pose
             self.covs[t] = self.agent.state.current_pose_cov()
@@ -323,6 +334,7 @@ class RobotDriver:
     def restore(self, poses: np.ndarray, covs: np.ndarray) -> None:
         """Continue after the frames of a checkpoint (the agent restored already)."""
         self.done = poses.shape[0]
+        self._room(self.done - 1)
         self.poses[: self.done] = poses
         self.covs[: self.done] = covs
 

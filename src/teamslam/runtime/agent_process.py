@@ -48,9 +48,10 @@ def _atomic_json(path: Path, payload: dict) -> None:
     write_atomic(path, lambda tmp: tmp.write_text(text))
 
 
-def _save_checkpoint(path: Path, driver: RobotDriver, t: int) -> None:
+def _save_checkpoint(path: Path, driver: RobotDriver, t: int, extra: dict | None = None) -> None:
     arrays = {"poses": driver.poses[: t + 1], "covs": driver.covs[: t + 1]}
     arrays.update(driver.agent.snapshot())
+    arrays.update(extra or {})
     write_atomic(path / "checkpoint.npz", lambda tmp: np.savez_compressed(tmp, **arrays))
     _atomic_json(path / "checkpoint.json", {"frame": t})  # which frame the checkpoint holds
 
@@ -206,8 +207,11 @@ def _latency_ms(seconds) -> dict:
     }
 
 
-def _save(out, driver, transport, robot, team, step_latency, complete: bool) -> dict:
-    """Write the robot's result (a one-robot :class:`TeamResult`); its summary."""
+def _save(
+    out, driver, transport, robot, team, step_latency, complete: bool, extra: dict | None = None
+) -> dict:
+    """Write the robot's result (a one-robot :class:`TeamResult`); its summary (with
+    ``extra``)."""
     result = assemble_result(
         [driver],
         f"team file {team.team}",
@@ -231,6 +235,7 @@ def _save(out, driver, transport, robot, team, step_latency, complete: bool) -> 
         "bytes_per_step": counters["bytes"] / max(frames - 1, 1),
         "message_latency_ms": _latency_ms(network.get("latencies", [])),
         "step_latency_ms": _latency_ms(step_latency),
+        **(extra or {}),
     }
     result.extra["per_robot"] = [summary]
     save_result(result, out)
