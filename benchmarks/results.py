@@ -141,8 +141,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"{GENERATED}/consistency-kitti.md",
     ),
     "consistency-long-route": (
-        "python benchmarks/long_route.py --seeds 37 43 0 --runs 10 --robots 3 --steps 200 "
-        "--filters std fej --modes separate consensus --workers 2 "
+        "python benchmarks/long_route.py --seeds 37 43 0 --runs 10 --robots 3 --steps 100 "
+        "--filters fej --modes separate consensus --workers 2 "
         f"--markdown {GENERATED}/consistency-long-route.md",
         f"{GENERATED}/consistency-long-route.md",
     ),
