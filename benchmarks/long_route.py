@@ -10,8 +10,9 @@ For each route seed: ``teamslam montecarlo --route long --seed S`` (the same rou
 every run, each run its own noise) with the window of ``teamslam run`` (20) and the noise levels a
 user's ``teamslam run`` takes from the simulated dataset's sensor model. Prints and, with
 ``--markdown FILE``, writes one row per seed, linearisation and mode: pose ANEES/6 and object
-ANEES/3 with their 95 % χ² bands over the runs, the runs above the pose band, position and heading
-RMSE, and how long the seed took.
+ANEES/3 with their 95 % χ² bands over the runs, the pose ANEES over each third of the route's frames
+(overconfidence that builds up along the route shows as a rising sequence), the runs above the pose
+band, position and heading RMSE, and how long the seed took.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
 from threadpoolctl import threadpool_limits
 
 from _markdown import Markdown, add_option
@@ -30,6 +32,7 @@ COLUMNS = [
     "linearisation",
     "mode",
     "pose ANEES/6",
+    "pose ANEES/6 by third of the route",
     "pose band",
     "runs above band",
     "object ANEES/3",
@@ -67,7 +70,8 @@ def main() -> None:
         + ".",
     )
     print(
-        f"{'seed':>5} {'filter':<6} {'mode':<10} {'pose':>6} {'band':>11} {'above':>5} "
+        f"{'seed':>5} {'filter':<6} {'mode':<10} {'pose':>6} {'by third':>18} {'band':>11} "
+        f"{'above':>5} "
         f"{'object':>7} {'band':>11} {'RMSE m':>7} {'head rad':>8} {'s':>6}"
     )
     for seed in args.seeds:
@@ -88,11 +92,14 @@ def main() -> None:
         for filt in args.filters:
             for mode in args.modes:
                 r = summary["results"][filt][mode]
+                thirds = np.array_split(np.asarray(r["anees_pose_per_frame"]), 3)
+                by_third = " / ".join(f"{t.mean():.2f}" for t in thirds)
                 band = "{:.2f}–{:.2f}".format(*r["band"])
                 band_object = "{:.2f}–{:.2f}".format(*r["band_object"])
                 print(
-                    f"{seed:>5} {filt:<6} {mode:<10} {r['anees_pose']:6.2f} {band:>11} "
-                    f"{r['runs_above_band']:>5} {r['anees_object']:7.2f} {band_object:>11} "
+                    f"{seed:>5} {filt:<6} {mode:<10} {r['anees_pose']:6.2f} {by_third:>18} "
+                    f"{band:>11} {r['runs_above_band']:>5} {r['anees_object']:7.2f} "
+                    f"{band_object:>11} "
                     f"{r['position_rmse_m']:7.3f} {r['heading_rmse_rad']:8.4f} {took:6.0f}",
                     flush=True,
                 )
@@ -101,6 +108,7 @@ def main() -> None:
                     f"`{filt}`",
                     mode,
                     f"{r['anees_pose']:.2f}",
+                    by_third,
                     band,
                     f"{r['runs_above_band']} of {args.runs}",
                     f"{r['anees_object']:.2f}",
