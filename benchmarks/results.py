@@ -150,6 +150,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/cluster-overhead.md",
         f"{GENERATED}/cluster-overhead.md",
     ),
+    "consistency-long-route": (
+        "python benchmarks/long_route.py --seeds 37 43 0 --runs 10 --robots 3 --steps 100 "
+        "--filters fej --modes separate consensus --workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route.md",
+        f"{GENERATED}/consistency-long-route.md",
+    ),
     "consistency-make-run": (
         "python benchmarks/consistency.py --teams make-run --variants std fej oc "
         f"--modes separate consensus --markdown {GENERATED}/consistency-make-run.md",

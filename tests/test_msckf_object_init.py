@@ -35,10 +35,10 @@ def _run(team, monkeypatch, linearization="fej", settings=None):
         self._pending = (self.state.poses[widx].copy(), zs.copy())
         return original_add(self, oid, point, widx, zs, variance, n)
 
-    def state_add(state, oid, position, cov_pp, cov_ps):
+    def state_add(state, oid, position, cov_pp, cov_ps, **kwargs):
         poses, zs = agent._pending
         entered.append((position.copy(), cov_pp.copy(), state.current_pose.copy(), poses, zs))
-        original_state_add(state, oid, position, cov_pp, cov_ps)
+        original_state_add(state, oid, position, cov_pp, cov_ps, **kwargs)
 
     monkeypatch.setattr(MsckfAgent, "_add_object", add)
     monkeypatch.setattr(MsckfState, "add_object", state_add)

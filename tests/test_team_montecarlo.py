@@ -34,6 +34,27 @@ def test_runs_share_paths_and_map_but_not_noise():
     )
 
 
+def test_long_route_runs_share_the_route_and_map_but_not_noise():
+    spec = MonteCarloSpec(robots=2, steps=12, runs=2, route="long", seed=4)
+    a, b = spec.team(0), spec.team(1)
+    assert a.metadata["simulation"]["route"] == b.metadata["simulation"]["route"] == "long"
+    np.testing.assert_array_equal(a.robots[1].T_world_body, b.robots[1].T_world_body)
+    np.testing.assert_array_equal(a.object_positions, b.object_positions)
+    assert not np.allclose(a.robots[1].odometry, b.robots[1].odometry)
+    other = MonteCarloSpec(robots=2, steps=12, runs=2, route="long", seed=5).team(0)
+    assert not np.allclose(other.robots[0].T_world_body, a.robots[0].T_world_body)
+
+
+def test_montecarlo_command_runs_the_long_route(tmp_path, capsys):
+    argv = ["montecarlo", "--route", "long", "--robots", "2", "--steps", "12", "--runs", "2"]
+    argv += ["--filters", "fej", "--modes", "separate", "--workers", "1", "--json"]
+    assert main([*argv, "--out", str(tmp_path)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["route"] == "long" and summary["steps"] == 12
+    result = summary["results"]["fej"]["separate"]
+    assert len(result["anees_pose_per_frame"]) == 12 and np.isfinite(result["anees_pose"])
+
+
 def test_montecarlo_command_json_figures_and_ideal_consistency(tmp_path, capsys):
     argv = [
         "montecarlo",
@@ -121,6 +142,7 @@ def test_hybrid_mode_is_consistent_and_less_conservative_than_consensus(tmp_path
     [
         ["--filters", "std,best"],
         ["--modes", "everyone"],
+        ["--route", "moon"],
         ["--filters", ","],
         ["--set", "no_such_setting=1"],
         ["--set", "consensus.rule=maybe"],

@@ -32,6 +32,7 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
         settings=tuple(parse_assignments(args.set).items()),
         graph=args.graph,
         loss=args.loss,
+        route=args.route,
     )
     summary, figures, store = write_montecarlo(
         spec, args.out, args.workers, scheduler=args.scheduler, resume=args.resume
@@ -84,6 +85,12 @@ def register(subparsers) -> None:
         default=0.0,
         metavar="R",
         help="per-frame probability that a link is down (consensus modes)",
+    )
+    mc.add_argument(
+        "--route",
+        default="lissajous",
+        help="lissajous: curves through one arena; long: side by side along a long route that "
+        "never comes back (--steps metres; --seed draws the route, the same in every run)",
     )
     mc.add_argument("--objects-only", action="store_true", help="ignore geometric features")
     mc.add_argument("--seed", type=non_negative_int, default=0, help="seed of paths and map")

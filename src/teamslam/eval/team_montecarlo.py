@@ -1,6 +1,7 @@
 """Monte Carlo consistency of the 3D team filter: linearisation × team mode.
 
-``N`` noise realisations of one simulated team, each run through every linearisation policy and
+``N`` noise realisations of one simulated team (the Lissajous arena, or the long non-repeating
+route), each run through every linearisation policy and
 every mode (``separate``, ``consensus``, ``hybrid``, ``increments``, ``centralised``) over a
 process pool. Per filter and mode: pose ANEES (per frame, mean over runs, divided by 6) with its
 two-sided 95 % χ² band, object ANEES with its band, position and heading RMSE, the median run
@@ -45,6 +46,7 @@ __all__ = [
 
 MODES = ("separate", "consensus", "hybrid", "increments", "centralised")
 GRAPHS = ("complete", "ring", "random")
+ROUTES = ("lissajous", "long")
 # the team setting each consensus mode turns on
 _MODE_SETTINGS = {
     "consensus": {},
@@ -82,6 +84,10 @@ class MonteCarloSpec:
         MSCKF window size.
     settings
         Further filter settings for every run (``(name, value)`` pairs, as ``--set`` gives).
+    route
+        ``lissajous`` (:func:`~teamslam.sim.lissajous_team`) or ``long``
+        (:func:`~teamslam.sim.long_route_team`: robots side by side on a route that never comes
+        back, ``steps`` metres); ``seed`` draws the route and its map, the same in every run.
     """
 
     robots: int = 5
@@ -95,6 +101,7 @@ class MonteCarloSpec:
     settings: tuple[tuple[str, object], ...] = ()
     graph: str = "complete"
     loss: float = 0.0
+    route: str = "lissajous"
 
     def __post_init__(self) -> None:
         from teamslam.errors import InputError
@@ -113,6 +120,8 @@ class MonteCarloSpec:
             raise InputError(f"unknown graph {self.graph!r}; choose from {', '.join(GRAPHS)}")
         if not 0 <= self.loss < 1:
             raise InputError(f"link loss must lie in [0, 1), not {self.loss}")
+        if self.route not in ROUTES:
+            raise InputError(f"unknown route {self.route!r}; choose from {', '.join(ROUTES)}")
 
     def communication_graph(self):
         """The consensus modes' communication graph."""
@@ -122,9 +131,10 @@ class MonteCarloSpec:
 
     def team(self, run: int):
         """The simulated team of run ``run``."""
-        from teamslam.sim import lissajous_team
+        from teamslam.sim import lissajous_team, long_route_team
 
-        return lissajous_team(self.robots, self.steps, seed=self.seed, noise_seed=run)
+        make = long_route_team if self.route == "long" else lissajous_team
+        return make(self.robots, self.steps, seed=self.seed, noise_seed=run)
 
 
 def _heading_error(estimated: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -347,7 +357,8 @@ def write_montecarlo(
 def table(summary: dict) -> str:
     """Plain-text table of a summary."""
     lines = [
-        f"{summary['runs']} runs, {summary['robots']} robots, {summary['steps']} steps, "
+        f"{summary['runs']} runs, {summary['robots']} robots, {summary['steps']} steps"
+        f"{' on the long route' if summary.get('route') == 'long' else ''}, "
         f"{'objects only' if summary['objects_only'] else 'objects + geometric features'}; "
         "pose 95% band {:.2f}–{:.2f}, object band {:.2f}–{:.2f}".format(
             *next(iter(next(iter(summary["results"].values())).values()))["band"],

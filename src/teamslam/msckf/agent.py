@@ -716,11 +716,10 @@ class MsckfAgent:
         state = self.state
         pred = observe(self.camera, self.T_cam_body, state.poses[widx], point[None])
         true_point = self.truth.objects(np.array([oid]))[0] if self.policy.needs_truth else None
+        # the point the rows are evaluated at: the object's first estimate (linearization.py)
+        linearised = self.policy.feature_points(point, true_point)
         _, d_pose, d_point = observe_jacobians(
-            self.camera,
-            self.T_cam_body,
-            self._linearization_poses(widx),
-            self.policy.feature_points(point, true_point)[None],
+            self.camera, self.T_cam_body, self._linearization_poses(widx), linearised[None]
         )
         # the rows touch only the poses of the observations: work on those 6n columns
         cols = state.pose(widx).columns.ravel()
@@ -755,7 +754,7 @@ class MsckfAgent:
             if np.linalg.eigvalsh(cov_pp)[-1] > (limit * distance) ** 2:
                 self.counters["object_init_deferred"] += 1
                 return False
-        state.add_object(oid, position, cov_pp, cov_ps)
+        state.add_object(oid, position, cov_pp, cov_ps, first_estimate=linearised)
         self.counters["objects_initialised"] += 1
         # the landmark-free rows, compact over the poses of the observations
         state.update(h_s2, z2, variance * np.eye(4 * n - 3), columns=cols)

@@ -4,8 +4,11 @@ Builds the local observability matrix ``M = [H_0; H_1 Φ_0; …]`` from the filt
 :class:`~teamslam.msckf.filter.linearization.LinearizationPolicy`, fed with values drawn like a
 filter's (:func:`estimates_like_a_filter`). With ``ideal`` and ``fej`` its rank is ``dim − 6``,
 with ``std`` larger; :func:`falsely_observable` gives the singular values on the true
-unobservable directions. See the concept page *Linearisation*
-(``docs/concepts/linearization.md``).
+unobservable directions. :class:`NullspaceAudit` checks the same property on a running filter:
+every edit of a :class:`~teamslam.msckf.filter.state.MsckfState` — propagation, update, object
+initialisation, re-entry from the persistent map, with marginalisation and retirement in
+between — against the rigid motions of the world at the first estimates. See the concept page
+*Linearisation* (``docs/concepts/linearization.md``).
 """
 
 from __future__ import annotations
@@ -21,7 +24,9 @@ from teamslam.msckf.filter.linearization import LinearizationPolicy, unobservabl
 from teamslam.msckf.filter.models import observe_jacobians
 
 __all__ = [
+    "AUDITED",
     "FilterValues",
+    "NullspaceAudit",
     "estimates_like_a_filter",
     "falsely_observable",
     "nullspace",
@@ -162,3 +167,137 @@ def falsely_observable(matrix: np.ndarray, basis: np.ndarray) -> tuple[np.ndarra
     directions = vt @ r_factor  # back to ξ coordinates (up to scale)
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     return s / np.linalg.norm(matrix, 2), directions
+
+
+#: The edits :class:`NullspaceAudit` measures.
+AUDITED = ("propagation", "update", "initialisation", "re-entry")
+
+
+class NullspaceAudit:
+    """How far each edit of a running filter's state leaves the six rigid motions of the world.
+
+    Watches one :class:`~teamslam.msckf.filter.state.MsckfState` (wrapping its ``augment``,
+    ``update``, ``add_object`` and ``reenter_objects`` on the instance; the filter runs as
+    usual). Each window pose and object is given the point its unobservable directions are
+    taken at — its first estimate when it enters (a pose at propagation, an object at
+    initialisation) — and the point is kept through marginalisation, retirement and re-entry.
+    With ``N`` those directions (:func:`unobservable_basis`'s columns), a filter keeps its
+    null space when, as relative errors (``0``: kept, to round-off):
+
+    * ``propagation``: the propagation Jacobian maps the last pose's directions onto the new
+      pose's, ``‖Φ N_last − N_new‖ / ‖N_new‖``;
+    * ``update``: every update's rows, whitened by their noise, annihilate ``N``,
+      ``max_j ‖H N_j‖ / (‖H‖ ‖N_j‖)``;
+    * ``initialisation``: a new object's cross-covariance carries the directions of its first
+      estimate, ``‖F N_window − N_object‖ / ‖N_object‖`` with ``F`` the map from the window
+      poses to the object that its cross-covariance implies;
+    * ``re-entry``: a retired object comes back with the first estimate it left with.
+
+    Attributes
+    ----------
+    errors
+        ``{edit: [(frame, relative error), …]}`` for the edits of :data:`AUDITED`.
+    """
+
+    def __init__(self, state) -> None:
+        self.state = state
+        self.errors: dict[str, list[tuple[int, float]]] = {k: [] for k in AUDITED}
+        self._pose_point = {
+            (int(r), int(f)): t.copy()
+            for r, f, t in zip(state.robots, state.frames, state.pose_fe, strict=True)
+        }
+        retired = state.retired.arrays()
+        self._object_point = {
+            int(i): p.copy()
+            for i, p in zip(
+                np.concatenate([state.object_ids, retired["ids"]]),
+                np.concatenate([state.object_fe, retired["fe"]]),
+                strict=True,
+            )
+        }
+        for name in ("augment", "update", "add_object", "reenter_objects"):
+            setattr(state, name, getattr(self, f"_{name}")(getattr(state, name)))
+
+    def worst(self) -> dict[str, float]:
+        """The largest relative error of each edit (``nan`` for an edit that never happened)."""
+        return {k: max((e for _, e in v), default=float("nan")) for k, v in self.errors.items()}
+
+    def basis(self) -> np.ndarray:
+        """``(dim, 6)``: the rigid motions ``ξ = (δt, δθ)`` of the world in the state's error
+        state, at the points the audit keeps."""
+        s = self.state
+        out = np.zeros((s.dim, 6))
+        if s.n_poses:
+            points = np.stack(
+                [self._pose_point[int(r), int(f)] for r, f in zip(s.robots, s.frames, strict=True)]
+            )
+            out[: 6 * s.n_poses] = se3.adjoint(se3.inverse(points)).reshape(-1, 6)
+        if s.n_objects:
+            points = np.stack([self._object_point[int(i)] for i in s.object_ids])
+            out[6 * s.n_poses :] = _point_directions(points).reshape(-1, 6)
+        return out
+
+    def _frame(self) -> int:
+        return int(self.state.frames.max())
+
+    def _augment(self, original):
+        def augment(odometry, frame, odometry_cov, robot=0, jacobian_step=None):
+            s = self.state
+            last = int(np.flatnonzero(s.robots == robot)[-1])
+            before = self._pose_point[int(robot), int(s.frames[last])]
+            step = odometry if jacobian_step is None else jacobian_step
+            original(odometry, frame, odometry_cov, robot, jacobian_step)
+            point = s.pose_fe[last + 1].copy()
+            self._pose_point[int(robot), int(frame)] = point
+            moved = se3.adjoint(se3.inverse(step)) @ se3.adjoint(se3.inverse(before))
+            want = se3.adjoint(se3.inverse(point))
+            error = np.linalg.norm(moved - want) / np.linalg.norm(want)
+            self.errors["propagation"].append((int(frame), float(error)))
+
+        return augment
+
+    def _update(self, original):
+        def update(jacobian, residual, noise_cov, robot=None, columns=None):
+            basis = self.basis()
+            if columns is not None:
+                basis = basis[np.asarray(columns)]
+            h = np.linalg.solve(np.linalg.cholesky(noise_cov), jacobian)
+            scale = np.linalg.norm(h, 2) * np.linalg.norm(basis, axis=0)
+            error = np.max(np.linalg.norm(h @ basis, axis=0) / scale) if h.size else 0.0
+            self.errors["update"].append((self._frame(), float(error)))
+            return original(jacobian, residual, noise_cov, robot, columns)
+
+        return update
+
+    def _add_object(self, original):
+        def add_object(object_id, position, cov_pp, cov_ps, robot=None, first_estimate=None):
+            s = self.state
+            window = 6 * s.n_poses
+            implied = np.asarray(cov_ps)[:, :window] @ np.linalg.solve(
+                s.covariance(slice(0, window)), self.basis()[:window]
+            )
+            original(object_id, position, cov_pp, cov_ps, robot, first_estimate)
+            point = s.object_fe[-1].copy()
+            self._object_point[int(object_id)] = point
+            want = _point_directions(point[None])[0]
+            error = np.linalg.norm(implied - want) / np.linalg.norm(want)
+            self.errors["initialisation"].append((self._frame(), float(error)))
+
+        return add_object
+
+    def _reenter_objects(self, original):
+        def reenter_objects(ids, frame):
+            original(ids, frame)
+            s = self.state
+            for i in np.asarray(ids, dtype=np.int64).ravel().tolist():
+                want = _point_directions(self._object_point[i][None])[0]
+                got = _point_directions(s.object_fe[s.object_slots(np.array([i]))])[0]
+                error = np.linalg.norm(got - want) / np.linalg.norm(want)
+                self.errors["re-entry"].append((int(frame), float(error)))
+
+        return reenter_objects
+
+
+def _point_directions(points: np.ndarray) -> np.ndarray:
+    """``(k, 3, 6)``: a point's motion ``δt − p^ δθ`` under a rigid motion of the world."""
+    return unobservable_directions(np.eye(4), points)[:, 6:, :]

@@ -490,11 +490,14 @@ class MsckfState:
         cov_pp: np.ndarray,
         cov_ps: np.ndarray,
         robot: int | None = None,
+        first_estimate: np.ndarray | None = None,
     ) -> None:
         """Append an object with its covariance and cross-covariance with the state (eq. 30).
 
-        ``position`` is also the object's first estimate; it counts as observed at the newest
-        window frame.
+        Its first estimate is ``first_estimate`` — the point at which the initialisation's
+        Jacobians were evaluated, so that the directions its cross-covariance carries are those
+        of its first estimate — or ``position``. It counts as observed at the newest window
+        frame.
 
         Raises
         ------
@@ -505,6 +508,8 @@ class MsckfState:
         self.check_finite(
             f"initialisation of object {int(object_id)}", position, cov_pp, cov_ps, robot=robot
         )
+        first = position if first_estimate is None else first_estimate
+        self.check_finite(f"first estimate of object {int(object_id)}", first, robot=robot)
         n = self.dim
         cov = np.empty((n + 3, n + 3))
         cov[:n, :n] = self._cov
@@ -514,7 +519,7 @@ class MsckfState:
         self._cov = cov
         self.object_ids = np.append(self.object_ids, int(object_id))
         self.objects = np.vstack([self.objects, np.asarray(position, dtype=float)])
-        self.object_fe = np.vstack([self.object_fe, np.asarray(position, dtype=float)])
+        self.object_fe = np.vstack([self.object_fe, np.asarray(first, dtype=float)])
         self.object_last_seen = np.append(self.object_last_seen, int(self.frames.max()))
         self._check("object initialisation")
 
@@ -920,10 +925,17 @@ class RobotWindow:
         return self.state.iterated_update(rows_at, iterations, tolerance, robot=self.robot)
 
     def add_object(
-        self, object_id: int, position: np.ndarray, cov_pp: np.ndarray, cov_ps: np.ndarray
+        self,
+        object_id: int,
+        position: np.ndarray,
+        cov_pp: np.ndarray,
+        cov_ps: np.ndarray,
+        first_estimate: np.ndarray | None = None,
     ) -> None:
         """:meth:`MsckfState.add_object` to the shared state, errors naming this robot."""
-        self.state.add_object(object_id, position, cov_pp, cov_ps, robot=self.robot)
+        self.state.add_object(
+            object_id, position, cov_pp, cov_ps, robot=self.robot, first_estimate=first_estimate
+        )
 
     def check_finite(self, what: str, *arrays: np.ndarray) -> None:
         """:meth:`MsckfState.check_finite`, naming this robot."""
