@@ -207,14 +207,19 @@ def _tracking(dataset: TeamDataset, result: TeamResult) -> dict:
     their own detections and the dataset holds the truth of each (else nothing)."""
     from teamslam.eval.tracking import tracking_metrics
 
-    hypotheses = result.extra.get("tracking_hypotheses")
-    if hypotheses is None:  # robot processes: in each robot's summary
-        summaries = result.extra.get("per_robot", [])
-        hypotheses = [s.get("tracking_hypotheses", []) for s in summaries]
+    hypotheses = _hypotheses(result)
     if not any(len(h) for h in hypotheses) or len(hypotheses) != dataset.n_robots:
         return {}
     tracking = tracking_metrics(dataset, [np.asarray(h, dtype=np.int64) for h in hypotheses])
     return {} if tracking is None else {"tracking": tracking}
+
+
+def _hypotheses(result: TeamResult) -> list:
+    """Per robot the ids its tracker gave its detections (empty lists without a tracker)."""
+    hypotheses = result.extra.get("tracking_hypotheses")
+    if hypotheses is None:  # robot processes: in each robot's summary
+        hypotheses = [s.get("tracking_hypotheses", []) for s in result.extra.get("per_robot", [])]
+    return hypotheses
 
 
 def _association(dataset: TeamDataset, result: TeamResult) -> dict:
@@ -240,9 +245,7 @@ def _tracked_truth(dataset: TeamDataset, result: TeamResult) -> list | None:
 
     if dataset.object_id_scope == "global" or dataset.object_identity.size:
         return None
-    hypotheses = result.extra.get("tracking_hypotheses")
-    if hypotheses is None:
-        hypotheses = [s.get("tracking_hypotheses", []) for s in result.extra.get("per_robot", [])]
+    hypotheses = _hypotheses(result)
     robots = list(result.robots or range(len(hypotheses)))
     if len(hypotheses) != len(robots) or not any(len(h) for h in hypotheses):
         return None
