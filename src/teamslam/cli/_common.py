@@ -24,6 +24,7 @@ __all__ = [
     "print_mcap_summary",
     "print_run",
     "rate",
+    "ros_domain_id",
     "save_and_describe",
     "settings_arguments",
     "settings_line",
@@ -63,6 +64,7 @@ non_negative_int = number(int, lambda v: v >= 0, "an integer ≥ 0")
 rate = number(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
 positive_float = number(float, lambda v: v > 0, "a positive number")
 non_negative_float = number(float, lambda v: v >= 0, "a number ≥ 0")
+ros_domain_id = number(int, lambda v: 0 <= v <= 232, "a ROS domain id in 0..232")
 
 
 def save_and_describe(dataset, out: Path) -> Path:

@@ -13,10 +13,10 @@ from pathlib import Path
 from teamslam.cli._common import (
     non_negative_float,
     non_negative_int,
-    number,
     positive_float,
     positive_int,
     print_mcap_summary,
+    ros_domain_id,
 )
 
 __all__ = ["register"]
@@ -116,7 +116,7 @@ def register(subparsers) -> None:
     play.add_argument("--loop", action="store_true", help="play again from the start, until Ctrl-C")
     play.add_argument(
         "--domain-id",
-        type=number(int, lambda v: 0 <= v <= 232, "a ROS domain id in 0..232"),
+        type=ros_domain_id,
         default=0,
         help="ROS_DOMAIN_ID (default 0)",
     )

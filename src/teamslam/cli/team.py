@@ -9,7 +9,14 @@ from pathlib import Path
 
 import yaml
 
-from teamslam.cli._common import Parser, number, print_run
+from teamslam.cli._common import (
+    Parser,
+    non_negative_float,
+    positive_float,
+    positive_int,
+    print_run,
+    ros_domain_id,
+)
 
 __all__ = ["register"]
 
@@ -118,7 +125,7 @@ def register(sub) -> None:
     )
     agent.add_argument(
         "--domain-id",
-        type=number(int, lambda v: 0 <= v <= 232, "a ROS domain id in 0..232"),
+        type=ros_domain_id,
         default=None,
         help="ROS_DOMAIN_ID (default: the team file's ros2.domain_id, else 0)",
     )
@@ -170,35 +177,35 @@ def register(sub) -> None:
     )
     live.add_argument(
         "--sync-tolerance",
-        type=number(float, lambda v: v >= 0, "seconds ≥ 0"),
+        type=non_negative_float,
         help="largest stamp difference of a left and right image paired (default 0.005 s)",
     )
     live.add_argument(
         "--queue",
-        type=number(int, lambda v: v >= 1, "a number of frames ≥ 1"),
+        type=positive_int,
         help="frames waiting at most; when full the oldest is dropped (default 8)",
     )
     live.add_argument(
         "--camera-timeout",
-        type=number(float, lambda v: v > 0, "seconds > 0"),
+        type=positive_float,
         help="odometry seconds without camera input after which the robot runs on "
         "odometry alone (default 1)",
     )
     live.add_argument(
         "--frames",
-        type=number(int, lambda v: v >= 1, "a number of frames ≥ 1"),
+        type=positive_int,
         help="stop after this many frames",
     )
     live.add_argument(
         "--idle-timeout",
-        type=number(float, lambda v: v > 0, "seconds > 0"),
+        type=positive_float,
         default=5.0,
         help="end when no message came for this long and no publisher of the topics is left "
         "(default 5 s)",
     )
     live.add_argument(
         "--realtime-budget",
-        type=number(float, lambda v: v > 0, "milliseconds > 0"),
+        type=positive_float,
         help="per-stage budget; the first overrun of each stage is said",
     )
     agent.set_defaults(handler=_cmd_agent)

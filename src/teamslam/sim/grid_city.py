@@ -22,6 +22,7 @@ from teamslam.errors import InputError
 from teamslam.sim.lissajous import (
     SimulationConfig,
     _jsonable,
+    check_sensing_overrides,
     generators,
     noise_overrides,
     simulate_team,
@@ -227,9 +228,7 @@ def grid_city_team(
     TeamDataset
         With ground truth; ``metadata["simulation"]`` records every setting.
     """
-    for name in ("robots", "objects", "landmarks", "arena", "steps", "seed"):
-        if name in overrides:
-            raise InputError(f"grid_city_team has no {name!r} setting of the Lissajous arena")
+    check_sensing_overrides(overrides, "grid_city_team")
     nx, ny = (int(b) for b in blocks) if len(blocks) == 2 else (0, 0)
     if len(blocks) != 2 or nx < 1 or ny < 1 or (nx, ny) != tuple(blocks):
         raise InputError(f"blocks must be two positive integers (nx, ny), got {blocks!r}")

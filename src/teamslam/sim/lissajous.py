@@ -285,6 +285,14 @@ def _tracks(
     return out, pairs, next_id
 
 
+def check_sensing_overrides(overrides: dict, simulator: str) -> None:
+    """Refuse, in one line, an override of another route simulator that is a setting of the
+    Lissajous arena rather than of sensing (team size, map, arena, steps, seed)."""
+    for name in ("robots", "objects", "landmarks", "arena", "steps", "seed"):
+        if name in overrides:
+            raise InputError(f"{simulator} has no {name!r} setting of the Lissajous arena")
+
+
 def noise_overrides(noise_free: bool) -> dict[str, float]:
     """The :class:`SimulationConfig` fields that zero every noise level (none unless asked)."""
     if not noise_free:

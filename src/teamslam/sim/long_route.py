@@ -19,6 +19,7 @@ from teamslam.errors import InputError
 from teamslam.sim.lissajous import (
     SimulationConfig,
     _jsonable,
+    check_sensing_overrides,
     generators,
     noise_overrides,
     simulate_team,
@@ -95,9 +96,7 @@ def long_route_team(
     TeamDataset
         With ground truth; ``metadata["simulation"]`` records every setting.
     """
-    for name in ("robots", "objects", "landmarks", "arena", "steps", "seed"):
-        if name in overrides:
-            raise InputError(f"long_route_team has no {name!r} setting of the Lissajous arena")
+    check_sensing_overrides(overrides, "long_route_team")
     if objects_per_metre < 0 or landmarks_per_metre < 0:
         raise InputError("objects_per_metre and landmarks_per_metre must be non-negative")
     if lane_spacing < 0 or stagger < 0:
