@@ -219,6 +219,16 @@ class LiveSequence:
         """No appearance descriptors are given live."""
         return None
 
+    def frame_period_ns(self, t: int, window: int = 50) -> int:
+        """The stamp interval per frame made up to frame ``t`` (``t ≥ 1``): the median over
+        the last ``window`` increments of their stamp interval over the frames they span
+        (dropped frames included) — what a step of a robot that drops none lasts."""
+        if not 1 <= t < self._frames:
+            raise ValueError(f"no frame period at frame {t} of {self._frames}")
+        start = max(t - window, 0)
+        intervals = np.diff(self.stamps_ns[start : t + 1]) / self._spans[start:t]
+        return max(int(np.median(intervals)), 1)
+
     def snapshot(self) -> dict[str, np.ndarray]:
         """Start pose, increments and stamps, for a checkpoint."""
         return {
@@ -686,10 +696,12 @@ class LiveRobot:
         if callable(self.config):  # settings that scale with the rig, known now
             self.config = self.config(self.calibration)
         agent = MsckfAgent(self.robot, self.calibration, self.sequence, self.config)
+        # asynchronous live robots drop frames: their steps are not comparable, their
+        # messages are aged by the stamps of their frames
         wait = (
             LockStep(self.team.timeout_s)
             if self.team.sync == "lockstep"
-            else Asynchronous(self.team.max_age_steps)
+            else Asynchronous(self.team.max_age_steps, by_stamp=True, max_age_s=self.team.max_age_s)
         )
         self.driver = RobotDriver(
             agent,
@@ -714,6 +726,16 @@ class LiveRobot:
                 f"robot {self.robot}: {stage} took {seconds * 1e3:.1f} ms at frame {t}, over "
                 f"the real-time budget of {self.budget_ms:g} ms (further overruns counted)",
             )
+
+    def process_queued(self) -> bool:
+        """Process the oldest queued frame without waiting, for a caller that schedules robots
+        itself (e.g. several in one thread); whether there was one and it entered the filter.
+        :meth:`run` is the robot's own loop."""
+        with self._cond:
+            if not self._queue:
+                return False
+            frame = self._queue.popleft()
+        return self._process(frame)
 
     def _process(self, frame: _Frame) -> bool:
         """Run one frame; whether it entered the filter."""

@@ -127,6 +127,10 @@ class ConsensusProtocol:
         self.rule = consensus_rule(settings.rule if self.max_age == 0 else "average")
         self._prior: SharedPrior | None = self.rule.initial_prior(agent.state)
         self.step = -1
+        # the exchange's frame stamp and, for robots whose steps are not comparable (they drop
+        # frames), the oldest stamp accepted as ``stamp_ns − max_age_ns`` (None: by step)
+        self.stamp_ns: int | None = None
+        self.max_age_ns: int | None = None
         # L exchanges per step (lock-step only; asynchronous robots exchange once a step)
         self.iterations = int(settings.iterations) if self.max_age == 0 else 1
         self.iteration = 0
@@ -200,6 +204,8 @@ class ConsensusProtocol:
             self.agent.config.consensus.per_object,
             taken.keys(),
             heard,
+            self.stamp_ns,
+            self.max_age_ns,
         )
         if problem is not None:
             self.agent.reject("messages", reason=problem)
@@ -217,19 +223,33 @@ class ConsensusProtocol:
         return int(step) * self.iterations + int(iteration)
 
     def requests(
-        self, step: int, to: Iterable[int] | None = None, iteration: int = 0
+        self,
+        step: int,
+        to: Iterable[int] | None = None,
+        iteration: int = 0,
+        stamp_ns: int | None = None,
+        max_age_ns: int | None = None,
     ) -> list[MapIdsMessage]:
         """Round 1 of exchange ``iteration`` of ``step``: our map ids (and which moved) for
         each neighbour in ``to``.
+
+        ``stamp_ns`` is the stamp of the frame the exchange is at; every message of the
+        exchange carries it. With ``max_age_ns`` (asynchronous robots that drop frames, whose
+        steps are not comparable) the neighbours' messages are aged by their stamps, not their
+        steps (:class:`~teamslam.msckf.consensus.messages.MessageAge`).
 
         Raises
         ------
         EstimationError
             A marginal of ours that is not positive definite; robot and frame are named.
         """
+        if max_age_ns is not None and stamp_ns is None:
+            raise InternalError("ageing messages by stamp needs the frame's stamp")
         self.step = int(step)
         self.iteration = int(iteration)
         self.round = self.exchange(step, iteration)
+        self.stamp_ns = None if stamp_ns is None else int(stamp_ns)
+        self.max_age_ns = None if max_age_ns is None else int(max_age_ns)
         with self._named():
             return self._requests(to)
 
@@ -274,7 +294,7 @@ class ConsensusProtocol:
         for j in targets:
             moved = self._moved_for(j)
             summary = self._sent[j] = self._summary_for(j)
-            out.append(MapIdsMessage(self.robot, j, self.round, ids, moved, summary))
+            out.append(MapIdsMessage(self.robot, j, self.round, ids, moved, summary, self.stamp_ns))
             if summary is not None:
                 self.link_stats[j]["summaries_sent"] += 1
                 self.link_stats[j]["summary_bytes"] += summary_wire_bytes(summary)
@@ -467,6 +487,8 @@ class ConsensusProtocol:
                 keep=self._own_information if source is None else None,
                 prior=self.rule.message_prior(self._prior),
             )
+            if reply is not None and self.stamp_ns is not None:
+                reply = replace(reply, stamp_ns=self.stamp_ns)
             replies.append(reply)
         self.spent += time.perf_counter() - begin
         return replies
