@@ -216,3 +216,39 @@ def test_asynchronous_robots_that_drop_different_frames_keep_averaging(team_bag,
     assert periods == [S] * ROBOTS  # the bag's 1 Hz camera, whatever each robot dropped
     with pytest.raises(ValueError, match="no frame period"):
         robots[0].sequence.frame_period_ns(0)
+
+
+def test_robots_aged_by_stamp_answer_a_summary_out_of_their_phase_once():
+    """Own association: a neighbour's object summary comes at its own steps (every
+    ``association.interval``); a robot aged by stamp answers it with its own summary made then
+    — once, though the same newest request comes back (aged by step, the request of a later
+    step is refused)."""
+    from teamslam.datasets.identity import strip_object_ids
+    from teamslam.msckf import config_for
+    from teamslam.msckf.agent import MsckfAgent
+    from teamslam.msckf.consensus.protocol import ConsensusProtocol
+    from teamslam.sim import lissajous_team
+
+    team = strip_object_ids(lissajous_team(robots=2, steps=12, seed=4, landmarks=300), seed=2)
+    config = config_for(team, {"association.mode": "own", "filter.window": 6}, "never")
+    agents = [MsckfAgent(i, team.calibration, team.robots[i], config) for i in range(2)]
+    for agent in agents:
+        for t in range(11):
+            agent.step(t)
+
+    def associations(by_stamp: bool) -> list[int]:
+        age = {"max_age_ns": 3 * S} if by_stamp else {}
+        a, b = (ConsensusProtocol(agent, [1 - agent.robot], max_age=3) for agent in agents)
+        (request,) = a.requests(10, stamp_ns=10 * S, **age)  # a summary step of robot 0 ...
+        assert request.summary is not None and request.stamp_ns == 10 * S
+        counts = []
+        for step in (7, 8):  # ... at steps of robot 1 that are not, the request seen twice
+            b.requests(step, stamp_ns=(step + 3) * S, **age)
+            b.answer([request])
+            assert b.heard == ({0} if by_stamp else set())
+            stats = b.link_stats[0]
+            counts.append(stats["full_associations"] + stats["extensions"])
+        return counts
+
+    assert associations(by_stamp=True) == [1, 1]
+    assert associations(by_stamp=False) == [0, 0]

@@ -156,6 +156,7 @@ class ConsensusProtocol:
         #: samples this robot's summaries carry to its other neighbours)
         self._same: dict[int, np.ndarray] = {}
         self._sent: dict[int, ObjectSummary | None] = {}  # this step's summary, per neighbour
+        self._associated: dict[int, int] = {}  # aged by stamp: the last summary step associated
         #: per link: summaries sent and their bytes, full associations, extensions, seconds
         #: spent associating, objects left out of an average by the innovation test
         self.link_stats: dict[int, dict[str, float]] = {
@@ -276,18 +277,7 @@ class ConsensusProtocol:
             self._own = None
         if self.bounded:
             self._thresholds = self._object_thresholds(covs)[order]
-        self._summary = (
-            ObjectSummary(
-                self.robot,
-                ids,
-                means[order],
-                covs[order],
-                views=self.agent.views.of(ids),
-                appearance=self._appearance(ids),
-            )
-            if exchange
-            else None
-        )
+        self._summary = self._object_summary(ids, means[order], covs[order]) if exchange else None
         targets = sorted(self.neighbours if to is None else set(to) & self.neighbours)
         out = []
         self._sent = {}
@@ -300,6 +290,30 @@ class ConsensusProtocol:
                 self.link_stats[j]["summary_bytes"] += summary_wire_bytes(summary)
         self.spent = time.perf_counter() - begin
         return out
+
+    def _object_summary(
+        self, ids: np.ndarray, means: np.ndarray, covs: np.ndarray
+    ) -> ObjectSummary:
+        """Our object summary of ``ids`` (increasing) with their marginals ``means``, ``covs``."""
+        return ObjectSummary(
+            self.robot,
+            ids,
+            means,
+            covs,
+            views=self.agent.views.of(ids),
+            appearance=self._appearance(ids),
+        )
+
+    def _summary_now(self, j: int) -> ObjectSummary:
+        """Our summary of this step for link ``j``, made now: robots aged by stamp drop frames,
+        so a neighbour's summary step is not ours — we answer its summary with our own."""
+        if self._summary is None:
+            state = self.agent.state
+            order = np.argsort(state.object_ids)
+            means, covs = object_marginals(state)
+            self._summary = self._object_summary(state.object_ids[order], means[order], covs[order])
+        summary = self._sent[j] = self._summary_for(j)
+        return summary
 
     def _appearance(self, ids: np.ndarray) -> np.ndarray | None:
         """``(n, D)`` the appearance descriptors of our objects ``ids`` (zero rows: none), or
@@ -506,6 +520,14 @@ class ConsensusProtocol:
             )
             return False
         own = self._sent[j] if j in self._sent else self._summary_for(j)
+        if self.max_age_ns is not None:
+            # aged by stamp: the same newest request may come back in later steps, and its
+            # summary step is the neighbour's own — associate each summary once, with ours now
+            if self._associated.get(j) == request.step:
+                return True
+            self._associated[j] = request.step
+            if own is None:
+                own = self._summary_now(j)
         if own is None:  # we did not exchange summaries this step (a neighbour out of phase)
             return True
         begin = time.perf_counter()
