@@ -329,7 +329,7 @@ def main() -> None:
                 f"{rmse / off_rmse:.3f}",
                 diff,
                 f"{averaged_share(summaries, robots):.2f}",
-                str(sum(s["counters"]["rejected_messages"] for s in summaries)),
+                str(sum(s["counters"].get("rejected_messages", 0) for s in summaries)),
             )
             print("  ".join(row), flush=True)
             md.row(*row)
