@@ -902,16 +902,14 @@ class LiveRobot:
 
     def _publish(self, t: int) -> None:
         publisher = self.publisher
-        # a publisher made for a finished dataset reads the stamps it was given: give it the
-        # stamps so far with room after them (it publishes its path and map on their own
-        # schedule, not as if this frame were the last)
-        stamps = getattr(publisher, "stamps_ns", None)
-        if stamps is not None:
-            if stamps.shape[0] <= t + 1 or stamps is not getattr(self, "_stamps_given", None):
-                self._stamps_given = grown(self.sequence.stamps_ns, t + 2)
-            self._stamps_given[t] = self.sequence.stamps_ns[t]
-            publisher.stamps_ns = self._stamps_given
-        publisher.publish(t, self.driver.poses[: t + 1], self.driver.agent.state)
+        poses, state = self.driver.poses[: t + 1], self.driver.agent.state
+        if not getattr(publisher, "growing", False):  # e.g. a recorder
+            publisher.publish(t, poses, state)
+            return
+        stamps = self.sequence.stamps_ns
+        for k in range(publisher.stamps_ns.size, t):  # resumed: the frames done before
+            publisher.stamp(k, int(stamps[k]))
+        publisher.publish(t, poses, state, stamp_ns=int(stamps[t]))
 
     def _checkpoint(self, t: int) -> None:
         extra = self.sequence.snapshot()
@@ -1329,7 +1327,7 @@ def run_live(
         if publish:
             publisher = Ros2Publisher(
                 robot,
-                np.zeros(64, np.int64),
+                None,  # stamped frame by frame
                 domain_id=settings["domain_id"],
                 connect=settings["connect"],
                 listen=settings["listen"],
