@@ -209,13 +209,14 @@ def test_asynchronous_robots_that_drop_different_frames_keep_averaging(team_bag,
             assert len(robot.driver.averaged_with.get(j, [])) >= 0.5 * share * n, (robot.robot, j)
     # consensus keeps its benefit: near the run without drops, well below robots alone
     assert rmse < 1.25 * nodrop and rmse < 0.8 * alone
-    # the default age limit, max_age_steps frame periods: the period counts dropped frames
-    periods = [
-        robot.sequence.frame_period_ns(n - 1) for robot, n in zip(robots, frames, strict=True)
+    # the default age limit, max_age_steps of a robot's steps: longer steps when it drops
+    steps = [
+        robot.sequence.step_interval_ns(n - 1) for robot, n in zip(robots, frames, strict=True)
     ]
-    assert periods == [S] * ROBOTS  # the bag's 1 Hz camera, whatever each robot dropped
-    with pytest.raises(ValueError, match="no frame period"):
-        robots[0].sequence.frame_period_ns(0)
+    assert steps[0] == S  # the bag's 1 Hz camera: a robot that drops nothing
+    assert steps[1] > steps[2] > S  # the slowest robot takes the longest steps
+    with pytest.raises(ValueError, match="no step interval"):
+        robots[0].sequence.step_interval_ns(0)
 
 
 def test_robots_aged_by_stamp_answer_a_summary_out_of_their_phase_once():

@@ -267,15 +267,14 @@ class LiveSequence:
         """No appearance descriptors are given live."""
         return None
 
-    def frame_period_ns(self, t: int, window: int = 50) -> int:
-        """The stamp interval per frame made up to frame ``t`` (``t ≥ 1``): the median over
-        the last ``window`` increments of their stamp interval over the frames they span
-        (dropped frames included) — what a step of a robot that drops none lasts."""
+    def step_interval_ns(self, t: int, window: int = 50) -> int:
+        """How long a step of this robot lasts up to frame ``t`` (``t ≥ 1``), in stamps: the
+        mean interval between its consecutive frames over the last ``window`` — the input's
+        frame period times the frames it takes per step (more when it drops frames)."""
         if not 1 <= t < self._frames:
-            raise ValueError(f"no frame period at frame {t} of {self._frames}")
+            raise ValueError(f"no step interval at frame {t} of {self._frames}")
         start = max(t - window, 0)
-        intervals = np.diff(self.stamps_ns[start : t + 1]) / self._spans[start:t]
-        return max(int(np.median(intervals)), 1)
+        return max((int(self.stamps_ns[t]) - int(self.stamps_ns[start])) // (t - start), 1)
 
     def snapshot(self) -> dict[str, np.ndarray]:
         """Start pose, increments and stamps, for a checkpoint."""

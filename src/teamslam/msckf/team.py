@@ -152,8 +152,9 @@ class Asynchronous:
     ``by_stamp``: for robots that drop frames (live), whose steps count the frames each
     processed and are not comparable between them, messages are aged by the stamp of the frame
     they were sent at instead — accepted back to ``max_age_s`` seconds before the current
-    frame's stamp, by default ``max_age`` frame periods (the sequence's
-    ``frame_period_ns``: the stamp interval per frame made, dropped frames included).
+    frame's stamp, by default ``max_age`` of the robot's steps (the sequence's
+    ``step_interval_ns``: the mean stamp interval between the frames it processed — longer than the
+    input's frame period when it drops frames, as ``max_age`` steps are).
     """
 
     max_age: int = 3
@@ -205,7 +206,7 @@ class RobotDriver:
             else None
         )
         self.by_stamp = isinstance(wait, Asynchronous) and wait.by_stamp
-        if self.by_stamp and not hasattr(agent.sequence, "frame_period_ns"):
+        if self.by_stamp and not hasattr(agent.sequence, "step_interval_ns"):
             raise InternalError("ageing messages by stamp needs a sequence with frame stamps")
         frames = agent.sequence.frames
         self.poses = np.zeros((frames, 4, 4))
@@ -278,7 +279,7 @@ class RobotDriver:
         if self.wait.max_age_s is not None:
             max_age_ns = round(self.wait.max_age_s * 1e9)
         else:
-            max_age_ns = self.wait.max_age * sequence.frame_period_ns(t)
+            max_age_ns = self.wait.max_age * sequence.step_interval_ns(t)
         return int(sequence.stamps_ns[t]), int(max_age_ns)
 
     def _newest(self, kind: type, t: int) -> list:
