@@ -21,8 +21,10 @@ plays the bag at a rate, with the team file's ``sync`` set to the run's mode. Pe
 processed of those in the bag, frames dropped per stage, the latency from a frame's camera input
 arriving to its pose being published (robots pooled: the median of the robots' medians, the
 largest 99th percentile and maximum), the position RMSE against ground truth over every
-processed frame next to the offline run's, and the largest difference of a pose from the offline
-run's (when every frame was processed).
+processed frame next to the offline run's, the largest difference of a pose from the offline
+run's (when every frame was processed), and how consensus went: the share of (frame,
+neighbour) pairs in which a robot averaged with that neighbour, and the neighbours' messages
+it refused (robots pooled).
 """
 
 from __future__ import annotations
@@ -154,6 +156,14 @@ def truth_rmse(dataset, stamps: list[list[int]], poses: list[np.ndarray]) -> flo
     return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
 
+def averaged_share(summaries: list[dict], robots: int) -> float:
+    """The share of (frame, neighbour) pairs in which a robot averaged with that neighbour
+    (a complete graph: ``robots − 1`` neighbours each; consensus starts at the second frame)."""
+    pairs = sum(max(s["frames"] - 1, 0) * (robots - 1) for s in summaries)
+    done = sum(len(steps) for s in summaries for steps in s["averaged_with"].values())
+    return done / max(pairs, 1)
+
+
 def results(out: Path, robots: int) -> tuple[list[np.ndarray], list[dict]]:
     poses, summaries = [], []
     for i in range(robots):
@@ -276,13 +286,18 @@ def main() -> None:
                 "RMSE (m)",
                 "RMSE / offline",
                 "max |Δ pose| vs offline",
+                "averaged",
+                "refused",
             ],
             note="Latency: from the arrival of a frame's camera input to the publication of its "
             "pose (the front-end, waiting for the odometry to cover the stamp, consensus and "
             "the filter); p50 is the median of the robots' medians, p99 and max the largest "
             "over robots. Frames: processed of those in the bag. Δ pose: the largest absolute "
             "difference of a pose matrix entry from the offline run (only when every frame "
-            "was processed). One process per robot and the player share the machine's cores.",
+            "was processed). Averaged: the share of (frame, neighbour) pairs in which a robot "
+            "averaged with that neighbour; refused: neighbours' messages refused (too old, of a "
+            "later step, malformed). One process per robot and the player share the machine's "
+            "cores.",
         )
         total = sum(r.frames for r in dataset.robots)
         for run in runs:
@@ -313,6 +328,8 @@ def main() -> None:
                 f"{rmse:.4f}",
                 f"{rmse / off_rmse:.3f}",
                 diff,
+                f"{averaged_share(summaries, robots):.2f}",
+                str(sum(s["counters"].get("rejected_messages", 0) for s in summaries)),
             )
             print("  ".join(row), flush=True)
             md.row(*row)

@@ -149,7 +149,7 @@ def test_robot_process_publishes_decodable_ros2_samples(one_robot_team):
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
             with lock:
-                if sum(kind == "DELETE" for _, kind in tokens) >= 4:
+                if sum(kind == "DELETE" for _, kind in tokens) >= 5:
                     break
             time.sleep(0.05)
     arrays, _ = load_robot_result(directory / "out", 0)
@@ -181,6 +181,16 @@ def test_robot_process_publishes_decodable_ros2_samples(one_robot_team):
         R = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
         np.testing.assert_allclose(R, arrays["poses"][k][:3, :3], atol=1e-12)
 
+    # tf: world → the robot's base every frame, the pose's transform
+    transforms = [_decoder("tf2_msgs/msg/TFMessage")(p) for p, _ in by_topic[keys["tf"]]]
+    assert len(transforms) == frames
+    for k, msg in enumerate(transforms):
+        (tf,) = msg.transforms
+        assert (tf.header.frame_id, tf.child_frame_id) == ("world", "robot_0/base_link")
+        assert tf.header.stamp.sec * 10**9 + tf.header.stamp.nanosec == stamps[k]
+        v = tf.transform.translation
+        assert (v.x, v.y, v.z) == tuple(arrays["poses"][k][:3, 3])
+
     # path: the whole trajectory at the last frame
     last_path = _decoder("nav_msgs/msg/Path")(by_topic[keys["path"]][-1][0])
     assert [ps.pose.position.z for ps in last_path.poses] == list(arrays["poses"][:, 2, 3])
@@ -192,17 +202,80 @@ def test_robot_process_publishes_decodable_ros2_samples(one_robot_team):
     assert [mk.pose.position.x for mk in spheres] == list(arrays["objects"][:, 0])
     assert len(markers.markers) == 2 * len(spheres) > 0
 
-    # liveliness: a node and three publishers, whose GIDs are the hashes of their tokens
+    # liveliness: a node and four publishers, whose GIDs are the hashes of their tokens
     put = [key for key, kind in tokens if kind == "PUT"]
     assert sum("/NN/%/%/teamslam_robot_0" in key for key in put) == 1
     publishers = [key for key in put if "/MP/" in key]
-    assert len(publishers) == 3
+    assert len(publishers) == 4
     for name, topic in (("pose", "%robot_0%pose"), ("path", "%robot_0%path")):
         (token,) = [key for key in publishers if f"/{topic}/" in key]
         assert token.startswith(f"@ros2_lv/{domain}/")
         assert token.endswith("/::,10:,:,:,,")
         assert publisher_gid(token) == gids[name]
-    assert sum(kind == "DELETE" for _, kind in tokens) == 4, "tokens withdrawn on close"
+    assert sum(kind == "DELETE" for _, kind in tokens) == 5, "tokens withdrawn on close"
+
+
+def test_a_publisher_without_stamps_takes_each_frames_stamp():
+    """A live robot's sequence grows while it runs: its publisher is given each frame's stamp
+    (the frames of a resumed robot before its first one too)."""
+    import zenoh
+
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps("peer"))
+    config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{_port(7)}"]))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    got: list[tuple[str, bytes]] = []
+    lock = threading.Lock()
+
+    def on_sample(sample):
+        with lock:
+            got.append((str(sample.key_expr), sample.payload.to_bytes()))
+
+    class Map:  # a state with an empty map
+        def full_map(self):
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3))
+
+    poses = np.tile(np.eye(4), (4, 1, 1))
+    poses[:, 0, 3] = [0.0, 1.0, 2.0, 3.0]
+    stamps = [5_000_000_000, 5_100_000_000, 5_300_000_000, 5_400_000_000]
+    with zenoh.open(config) as session:
+        session.declare_subscriber("9/**", on_sample)
+        publisher = Ros2Publisher(
+            3, None, domain_id=9, connect=[f"tcp/127.0.0.1:{_port(7)}"], path_every=2
+        )
+        try:
+            assert publisher.wait_for_subscribers(10.0), "no Zenoh link to the test subscriber"
+            with pytest.raises(ValueError, match="stamp"):
+                publisher.publish(0, poses[:1], Map())
+            publisher.stamp(0, stamps[0])  # frame 0 was done before a restart
+            for k in (1, 2, 3):
+                publisher.publish(k, poses[: k + 1], Map(), stamp_ns=stamps[k])
+            assert publisher.stamps_ns.tolist() == stamps
+            keys = publisher.keys
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline:
+                with lock:
+                    if sum(k == keys["tf"] for k, _ in got) >= 3:
+                        break
+                time.sleep(0.05)
+        finally:
+            publisher.close()
+    with lock:
+        by_topic = {name: [p for k, p in got if k == key] for name, key in keys.items()}
+
+    def stamp(header) -> int:
+        return header.stamp.sec * 10**9 + header.stamp.nanosec
+
+    pose = _decoder("geometry_msgs/msg/PoseStamped")
+    assert [stamp(pose(p).header) for p in by_topic["pose"]] == stamps[1:]
+    tf = [_decoder("tf2_msgs/msg/TFMessage")(p).transforms[0] for p in by_topic["tf"]]
+    assert [(stamp(t.header), t.child_frame_id) for t in tf] == [
+        (s, "robot_3/base_link") for s in stamps[1:]
+    ]
+    assert [t.transform.translation.x for t in tf] == [1.0, 2.0, 3.0]
+    # paths at frames 1 and 3 (every 2 frames), from frame 0 on
+    paths = [_decoder("nav_msgs/msg/Path")(p).poses for p in by_topic["path"]]
+    assert [[stamp(ps.header) for ps in path] for path in paths] == [stamps[:2], stamps]
 
 
 def test_agent_command_with_a_ros2_team_file(one_robot_team, tmp_path):

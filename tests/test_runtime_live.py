@@ -282,6 +282,98 @@ def test_images_played_live_give_the_offline_estimates(image_bag, tmp_path):
     assert np.array_equal(arrays["poses"], expected)
 
 
+@pytest.fixture(scope="module")
+def detection_bag(tmp_path_factory):
+    """A rendered robot's stereo images and a simulated detector's boxes (a
+    ``Detection2DArray`` per left image) as a bag, and the offline import of it."""
+    pytest.importorskip("cv2", reason="the images extra (OpenCV) is not installed")
+    from teamslam.datasets.images import rendered_team_inputs
+    from teamslam.ros2.image_bags import ImageTopics, dataset_from_bag, images_to_bag
+    from teamslam.sim.detector import DetectorConfig
+    from teamslam.sim.render import RenderConfig, render_team
+
+    tmp = tmp_path_factory.mktemp("detections")
+    config = RenderConfig(
+        image_size=(320, 240),
+        focal=210.0,
+        layout="street",
+        objects="shapes",
+        robots=1,
+        steps=16,
+        markers_per_wall=0,
+    )
+    render_team(config, tmp / "rendered", detector=DetectorConfig())
+    inputs = rendered_team_inputs(tmp / "rendered")
+    bag = tmp / "boxes.mcap"
+    images_to_bag(
+        inputs["left_dirs"],
+        inputs["right_dirs"],
+        inputs["camera"],
+        inputs["timestamps"],
+        bag,
+        odometry=inputs["odometry"],
+        ground_truth=inputs["ground_truth"],
+        robot_names=["robot_0"],
+        detections=inputs["detections"],
+    )
+    topics = dataclasses.replace(ImageTopics.default("robot_0"), detections=BOXES)
+    dataset = dataset_from_bag(bag, [topics], progress=False)
+    settings = build_settings(dataset, calibrate="never").config
+    return bag, dataset, settings
+
+
+BOXES = "/robot_0/detections"
+
+
+def test_detections_played_live_give_the_offline_estimates(detection_bag, tmp_path):
+    """``agent --live --detections TOPIC``: each pair with the boxes of its stamp, measured
+    and tracked as after ``data import-bag --images … --detections TOPIC``."""
+    bag, dataset, config = detection_bag
+    offline = dataset.robots[0].detections
+    assert offline is not None and offline.measurements.shape[0] > 20  # boxes to track
+    inputs = LiveInputs(
+        ODOM,
+        left=LEFT,
+        right=RIGHT,
+        camera_info=INFO,
+        queue=10_000,
+        ground_truth=TRUTH,
+        detections=BOXES,
+    )
+    team = one_robot_team(checkpoint_every=0)
+    robot = LiveRobot(team, 0, inputs, config, tmp_path, publisher=Recorder())
+    items = bag_messages(bag, {ODOM, LEFT, RIGHT, TRUTH, BOXES, *INFO})
+    # a detector answers after its image: each message of boxes comes after the next pair
+    boxes = [i for i in items if i.topic == BOXES]
+    others = [i for i in items if i.topic != BOXES]
+    pairs = [k for k, i in enumerate(others) if i.topic == RIGHT]
+    order = []
+    for k, item in enumerate(others):
+        order.append(item)
+        if k in pairs[1:]:
+            order.append(boxes.pop(0))
+    order += boxes
+    for item in order:
+        robot.feed(item)
+    robot.finish()
+    summary = robot.run()
+    frames = dataset.robots[0].frames
+    assert summary["live"]["frames"] == frames
+    assert robot.driver.agent.tracker is not None
+    expected_driver_poses = offline_poses(dataset.robots[0], dataset.calibration, config)
+    arrays, _ = load_robot_result(tmp_path, 0)
+    assert np.array_equal(arrays["poses"], expected_driver_poses)
+    assert summary["tracking_hypotheses"] == offline_hypotheses(dataset, config)
+
+
+def offline_hypotheses(dataset, config) -> list[int]:
+    sequence = dataset.robots[0]
+    driver = RobotDriver(MsckfAgent(0, dataset.calibration, sequence, config), None, [], False)
+    for t in range(sequence.frames):
+        driver.frame(t)
+    return driver.tracking()
+
+
 def test_a_wrongly_encoded_image_is_counted_and_named(image_bag, tmp_path):
     bag, _, config = image_bag
     said: list[str] = []
@@ -324,7 +416,20 @@ def test_a_stage_over_the_realtime_budget_is_said_once_by_name(observations_bag,
         (["--live", "--odometry", "/robot_0/odom"], "need a camera file"),
         (["--live", "--odometry", "robot 0"], "not an absolute ROS 2 topic name"),
         (["--live", "--odometry", "/o", "--left", "/l", "--right", "/r"], "camera_info"),
-        (["--live", "--detections", "/d"], "not supported"),
+        (
+            [
+                "--live",
+                "--odometry",
+                "/o",
+                "--observations",
+                "/s",
+                "--camera",
+                "c",
+                "--detections",
+                "/d",
+            ],
+            "need images",
+        ),
     ],
 )
 def test_bad_live_arguments_give_one_line_and_exit_2(tmp_path, args, message):
@@ -379,3 +484,16 @@ def test_the_robot_starts_at_the_truth_of_the_first_frame_it_processes(observati
     ]
     assert first == sorted(i.stamp_ns for i in items if i.topic == OBS)[-3]
     assert np.array_equal(robot.sequence.T_world_body[0], truth[0])
+
+
+def test_live_class_labels_are_those_of_a_whole_topic_or_refused():
+    from teamslam.errors import InputError
+    from teamslam.ros2.detection_bags import LiveClassTable, class_table
+
+    for ids in (["3", "0", "3", "12"], ["car", "person", "car", "bike"]):
+        table = LiveClassTable()
+        assert [table.label(i, "here") for i in ids] == [class_table(ids)[i] for i in ids]
+    table = LiveClassTable()
+    table.label("car", "here")
+    with pytest.raises(InputError, match="here: class id '7' mixes numbers and names"):
+        table.label("7", "here")

@@ -2,7 +2,8 @@
 
 Messages reach :meth:`LiveRobot.feed` from a subscriber thread (thread-safe). Every odometry
 message is kept; camera inputs — ``StereoObservations`` messages, or left/right images paired by
-stamp (:class:`~teamslam.ros2.live.ApproximateTimeSync`, tolerance ``sync_tolerance_s``) — become
+stamp (:class:`~teamslam.ros2.live.ApproximateTimeSync`, tolerance ``sync_tolerance_s``), with a
+detector's ``Detection2DArray`` of the same stamp when ``detections`` is given — become
 a frame once the odometry covers their stamp: the odometry pose at the frame's stamp as the
 offline imports compute it (:func:`~teamslam.ros2.bags.import_bag` for observations,
 :func:`~teamslam.ros2.image_bags.dataset_from_bag` for images), so a bag played live gives the
@@ -55,6 +56,7 @@ CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 ODOMETRY = "nav_msgs/msg/Odometry"
 OBSERVATIONS = "teamslam_msgs/msg/StereoObservations"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+DETECTIONS = "vision_msgs/msg/Detection2DArray"
 #: the stages of a frame, as the real-time budget and the timings name them
 STAGES = ("frontend", "consensus", "filter", "publish")
 
@@ -78,6 +80,12 @@ class LiveInputs:
     ground_truth
         ``geometry_msgs/msg/PoseStamped`` (or ``Odometry``) topic giving where the robot starts:
         its pose at the first frame (optional; read for the start only).
+    detections
+        With images: a ``vision_msgs/msg/Detection2DArray`` topic of a detector's boxes in the
+        left images, each message stamped with its image's stamp; the robot names the objects
+        it detects itself (tracking). A pair waits for the message of its stamp until one of a
+        later stamp arrives or camera input ``camera_timeout_s`` later; without one it has no
+        boxes (as the offline import).
     sync_tolerance_s
         Largest stamp difference of a left and a right image paired into one frame.
     queue
@@ -94,6 +102,7 @@ class LiveInputs:
     camera_info: tuple[str, str] | None = None
     image_type: str = IMAGE
     ground_truth: str | None = None
+    detections: str | None = None
     sync_tolerance_s: float = 0.005
     queue: int = 8
     camera_timeout_s: float = 1.0
@@ -103,6 +112,8 @@ class LiveInputs:
             raise InputError("live inputs: give an observations topic, or left and right images")
         if self.observations is None and (self.left is None or self.right is None):
             raise InputError("live inputs: images need both a left and a right topic")
+        if self.detections is not None and self.observations is not None:
+            raise InputError("live inputs: detections are boxes in images: they need images")
         if self.image_type not in (IMAGE, COMPRESSED):
             raise InputError(f"live inputs: images must be {IMAGE} or {COMPRESSED}")
         if not (np.isfinite(self.sync_tolerance_s) and self.sync_tolerance_s >= 0):
@@ -125,6 +136,8 @@ class LiveInputs:
             out[self.right] = self.image_type
             for topic in self.camera_info or ():
                 out[topic] = CAMERA_INFO
+            if self.detections is not None:
+                out[self.detections] = DETECTIONS
         else:
             out[self.observations] = OBSERVATIONS
         if self.ground_truth is not None:
@@ -149,25 +162,56 @@ class _Frames:
         return self._frames[t]
 
 
+class _Detections:
+    """A growing robot's per-frame detections without ids: what the tracker reads of a
+    :class:`~teamslam.datasets.model.FrameDetections`; the current frame is kept."""
+
+    def __init__(self) -> None:
+        self._frames: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._dimension = 0
+
+    def add(self, t: int, z: np.ndarray, classes: np.ndarray, appearance: np.ndarray) -> None:
+        looks = np.asarray(appearance, np.float32)
+        if looks.size:
+            self._dimension = looks.shape[1]
+        else:  # no box (or an odometry frame): no descriptor, of the dimension seen
+            looks = np.zeros((0, self._dimension), np.float32)
+        self._frames[t] = (
+            np.asarray(z, float).reshape(-1, 4),
+            np.asarray(classes, np.int64),
+            looks,
+        )
+        for old in [k for k in self._frames if k < t - 1]:
+            del self._frames[old]
+
+    def frame(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        z, classes, _ = self._frames[t]
+        return z, classes
+
+    def appearance_of(self, t: int) -> np.ndarray:
+        return self._frames[t][2]
+
+
 class LiveSequence:
     """A robot's sequence while it is recorded: what :class:`~teamslam.msckf.agent.MsckfAgent`
     reads of a :class:`~teamslam.datasets.RobotSequence`, one frame appended at a time.
 
     ``T_world_body`` holds the start pose only (there is no truth live); the odometry
-    increments are kept whole (the filter's odometry health reads those of its window).
+    increments are kept whole (the filter's odometry health reads those of its window). With
+    ``detections``, frames carry a detector's boxes without ids (the filter tracks them).
     """
 
-    detections = None
     object_classes = None
     object_appearance = None
 
-    def __init__(self, T_world_start: np.ndarray) -> None:
+    def __init__(self, T_world_start: np.ndarray, detections: bool = False) -> None:
         self.T_world_body = np.asarray(T_world_start, float).reshape(1, 4, 4)
         self._odometry = np.zeros((64, 4, 4))
         self._spans = np.ones(64)
         self.stamps_ns = np.zeros(64, np.int64)
         self.features = _Frames()
         self.objects = _Frames()
+        self.detections = _Detections() if detections else None
         self._frames = 0
 
     @property
@@ -193,9 +237,11 @@ class LiveSequence:
         features: tuple[np.ndarray, np.ndarray],
         objects: tuple[np.ndarray, np.ndarray],
         span: int = 1,
+        detections: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> int:
         """Append a frame (``increment`` from the previous one, spanning ``span`` frames made;
-        ``None`` for the first); its index."""
+        ``None`` for the first; ``detections``: its boxes' ``(z, classes, appearance)``); its
+        index."""
         t = self._frames
         if (t == 0) != (increment is None):
             raise ValueError("the first frame has no odometry increment, every other one has")
@@ -212,12 +258,23 @@ class LiveSequence:
         self.stamps_ns[t] = stamp_ns
         self.features.add(t, *features)
         self.objects.add(t, *objects)
+        if self.detections is not None:
+            self.detections.add(t, *detections)
         self._frames = t + 1
         return t
 
     def appearance_of_objects(self, ids: np.ndarray) -> None:
         """No appearance descriptors are given live."""
         return None
+
+    def step_interval_ns(self, t: int, window: int = 50) -> int:
+        """How long a step of this robot lasts up to frame ``t`` (``t ≥ 1``), in stamps: the
+        mean interval between its consecutive frames over the last ``window`` — the input's
+        frame period times the frames it takes per step (more when it drops frames)."""
+        if not 1 <= t < self._frames:
+            raise ValueError(f"no step interval at frame {t} of {self._frames}")
+        start = max(t - window, 0)
+        return max((int(self.stamps_ns[t]) - int(self.stamps_ns[start])) // (t - start), 1)
 
     def snapshot(self) -> dict[str, np.ndarray]:
         """Start pose, increments and stamps, for a checkpoint."""
@@ -229,10 +286,10 @@ class LiveSequence:
         }
 
     @classmethod
-    def restore(cls, snapshot: dict[str, np.ndarray]) -> LiveSequence:
+    def restore(cls, snapshot: dict[str, np.ndarray], detections: bool = False) -> LiveSequence:
         """The sequence of a :meth:`snapshot` (frames without observations: their frames are
         past)."""
-        sequence = cls(snapshot["live_start"])
+        sequence = cls(snapshot["live_start"], detections)
         stamps = np.asarray(snapshot["live_stamps"], np.int64)
         odometry = np.asarray(snapshot["live_odometry"], float).reshape(-1, 4, 4)
         if odometry.shape[0] != max(stamps.size - 1, 0):
@@ -351,6 +408,7 @@ class _Counts:
     malformed: dict[str, int] = field(default_factory=dict)
     odometry_frames: int = 0
     camera_gaps: int = 0
+    without_detections: int = 0
 
 
 class LiveRobot:
@@ -436,6 +494,9 @@ class LiveRobot:
         self._camera_periods: deque[int] = deque(maxlen=20)
         self._camera_gap = False
         self._info: dict[str, object] = {}
+        self._boxes: dict[int, object] = {}  # detection messages by stamp, awaiting their pair
+        self._last_box_stamp: int | None = None
+        self._classes = None  # the detection topic's class labels (LiveClassTable)
         self._sync = None
         self._warned: set[str] = set()
         # the worker's side
@@ -470,6 +531,8 @@ class LiveRobot:
                         int(received.stamp_ns), received.message
                     ):
                         self._refuse_stamp(topic, received.stamp_ns, self._truth.stamps[-1])
+                elif topic == self.inputs.detections:
+                    self._detection_message(received)
                 elif self.inputs.camera_info and topic in self.inputs.camera_info:
                     self._info.setdefault(topic, received.message)
                 self._release()
@@ -523,6 +586,32 @@ class LiveRobot:
             period = int(np.median(self._camera_periods)) if self._camera_periods else 0
             if not self._pending and stamp - self._last_frame_stamp >= period:
                 self._pending.append((stamp, "odometry", None, received.received_ns))
+
+    def _detection_message(self, received) -> None:
+        stamp = int(received.stamp_ns)
+        if self._last_box_stamp is not None and stamp <= self._last_box_stamp:
+            self._refuse_stamp(received.topic, stamp, self._last_box_stamp)
+            return
+        self._last_box_stamp = stamp
+        if stamp > self._last_frame_stamp:  # a frame still to come may be stamped so
+            self._boxes[stamp] = received.message
+
+    def _boxes_at(self, stamp: int) -> tuple[bool, object]:
+        """``(ready, message)``: the detection message of a pair's stamp (``None``: it has
+        none — one of a later stamp came, its camera input is ``camera_timeout_s`` old, or the
+        input ended); ``ready`` is ``False`` while it may still come."""
+        msg = self._boxes.pop(stamp, None)
+        for old in [s for s in self._boxes if s < stamp]:
+            del self._boxes[old]
+        if msg is not None:
+            return True, msg
+        later = self._last_box_stamp is not None and self._last_box_stamp > stamp
+        newest = self._last_camera_stamp if self._last_camera_stamp is not None else stamp
+        late = newest - stamp > self.inputs.camera_timeout_s * 1e9
+        if later or late or self._ended:
+            self.counts.without_detections += 1
+            return True, None
+        return False, None
 
     def _image(self, received) -> None:
         if self._sync is None:
@@ -590,6 +679,11 @@ class LiveRobot:
                         self.counts.dropped["no_odometry"] += 1
                         continue
                     break
+            if kind == "images" and self.inputs.detections is not None:
+                ready, boxes = self._boxes_at(stamp)
+                if not ready:
+                    break
+                payload = (*payload, boxes)
             self._pending.pop(0)
             if kind == "odometry":
                 self.counts.odometry_frames += 1
@@ -604,12 +698,17 @@ class LiveRobot:
 
     # ------------------------------------------------------------------ the worker
     def _observations(self, frame: _Frame, where: str):
-        """``(features, objects)`` of a frame: its message's, or the front-end's on its images."""
+        """``(features, objects, detections)`` of a frame: its message's, or the front-end's on
+        its images; ``detections`` (with a detection topic): its boxes' ``(z, classes,
+        appearance)``, else ``None``."""
         from teamslam.ros2 import messages as m
 
         empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
+        no_boxes = None
+        if self.inputs.detections is not None:
+            no_boxes = (np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros((0, 0), np.float32))
         if frame.kind == "odometry":
-            return empty, empty
+            return empty, empty, no_boxes
         if frame.kind == "observations":
             msg = frame.payload.message
             try:
@@ -624,22 +723,49 @@ class LiveRobot:
                 raise InputError(f"{where}: fields of different lengths")
             if np.any((kinds != m.KIND_FEATURE) & (kinds != m.KIND_OBJECT)):
                 raise InputError(f"{where}: unknown observation kind {set(kinds.tolist())}")
-            return tuple(
+            features, objects = (
                 (ids[kinds == kind], z[kinds == kind]) for kind in (m.KIND_FEATURE, m.KIND_OBJECT)
             )
+            return features, objects, None
         from teamslam.ros2.image_bags import _check_size, _decode
 
-        left, right = frame.payload
+        left, right, *boxes = frame.payload
         rig = self._ensure_rig()
         images = [
             _check_size(_decode(r.message, r.topic, r.stamp_ns), rig, r.topic, r.stamp_ns)
             for r in (left, right)
         ]
-        measured = self.frontend.process(*images, where=where)
+        if self.inputs.detections is None:
+            measured = self.frontend.process(*images, where=where)
+            return (
+                (measured.feature_ids, measured.features),
+                (measured.object_ids, measured.objects),
+                None,
+            )
+        # a detector's boxes, measured and described as the offline import does it
+        from teamslam.datasets.images import _described
+
+        given = self._given_boxes(boxes[0], frame.stamp_ns, rig)
+        measured = self.frontend.process(*images, where=where, detections=given)
+        described, looks = _described(measured.boxes, given, images[0], None)
         return (
             (measured.feature_ids, measured.features),
-            (measured.object_ids, measured.objects),
+            empty,
+            (described.z, described.classes, looks),
         )
+
+    def _given_boxes(self, msg, stamp: int, rig):
+        """The :class:`~teamslam.frontend.detections.ImageDetections` of a pair's detection
+        message (none: no box)."""
+        from teamslam.frontend.detections import ImageDetections
+        from teamslam.ros2.detection_bags import LiveClassTable, message_detections
+
+        if msg is None:
+            return ImageDetections(np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros(0))
+        if self._classes is None:
+            self._classes = LiveClassTable()
+        where = f"{self.inputs.detections}, message at {stamp} ns"
+        return message_detections(msg, where, rig.image_size, self._classes)
 
     def _ensure_rig(self):
         """The stereo rig and front-end (from the calibration, else the camera_info topics)."""
@@ -679,17 +805,19 @@ class LiveRobot:
             start = frame.start
         else:
             start = np.eye(4) if self.inputs.images else frame.T_odom
-        self.sequence = LiveSequence(start)
+        self.sequence = LiveSequence(start, detections=self.inputs.detections is not None)
         self._make_driver()
 
     def _make_driver(self) -> None:
         if callable(self.config):  # settings that scale with the rig, known now
             self.config = self.config(self.calibration)
         agent = MsckfAgent(self.robot, self.calibration, self.sequence, self.config)
+        # asynchronous live robots drop frames: their steps are not comparable, their
+        # messages are aged by the stamps of their frames
         wait = (
             LockStep(self.team.timeout_s)
             if self.team.sync == "lockstep"
-            else Asynchronous(self.team.max_age_steps)
+            else Asynchronous(self.team.max_age_steps, by_stamp=True, max_age_s=self.team.max_age_s)
         )
         self.driver = RobotDriver(
             agent,
@@ -715,13 +843,23 @@ class LiveRobot:
                 f"the real-time budget of {self.budget_ms:g} ms (further overruns counted)",
             )
 
+    def process_queued(self) -> bool:
+        """Process the oldest queued frame without waiting, for a caller that schedules robots
+        itself (e.g. several in one thread); whether there was one and it entered the filter.
+        :meth:`run` is the robot's own loop."""
+        with self._cond:
+            if not self._queue:
+                return False
+            frame = self._queue.popleft()
+        return self._process(frame)
+
     def _process(self, frame: _Frame) -> bool:
         """Run one frame; whether it entered the filter."""
         t = 0 if self.sequence is None else self.sequence.frames
         where = f"robot {self.robot}, frame at stamp {frame.stamp_ns} ns"
         begin = time.perf_counter()
         try:
-            features, objects = self._observations(frame, where)
+            features, objects, detections = self._observations(frame, where)
         except InputError as exc:
             self.counts.dropped["frontend"] += 1
             self._once("frontend", f"{exc}: frame dropped; further ones only counted")
@@ -738,7 +876,7 @@ class LiveRobot:
             span = max(1, round((frame.stamp_ns - stamps[-1]) / period))
         else:
             span = 1
-        self.sequence.append(frame.stamp_ns, increment, features, objects, span)
+        self.sequence.append(frame.stamp_ns, increment, features, objects, span, detections)
         self._last_T_odom = frame.T_odom
         self._last_number = frame.number
         driver = self.driver
@@ -763,16 +901,14 @@ class LiveRobot:
 
     def _publish(self, t: int) -> None:
         publisher = self.publisher
-        # a publisher made for a finished dataset reads the stamps it was given: give it the
-        # stamps so far with room after them (it publishes its path and map on their own
-        # schedule, not as if this frame were the last)
-        stamps = getattr(publisher, "stamps_ns", None)
-        if stamps is not None:
-            if stamps.shape[0] <= t + 1 or stamps is not getattr(self, "_stamps_given", None):
-                self._stamps_given = grown(self.sequence.stamps_ns, t + 2)
-            self._stamps_given[t] = self.sequence.stamps_ns[t]
-            publisher.stamps_ns = self._stamps_given
-        publisher.publish(t, self.driver.poses[: t + 1], self.driver.agent.state)
+        poses, state = self.driver.poses[: t + 1], self.driver.agent.state
+        if not getattr(publisher, "growing", False):  # e.g. a recorder
+            publisher.publish(t, poses, state)
+            return
+        stamps = self.sequence.stamps_ns
+        for k in range(publisher.stamps_ns.size, t):  # resumed: the frames done before
+            publisher.stamp(k, int(stamps[k]))
+        publisher.publish(t, poses, state, stamp_ns=int(stamps[t]))
 
     def _checkpoint(self, t: int) -> None:
         extra = self.sequence.snapshot()
@@ -816,7 +952,7 @@ class LiveRobot:
             self._ensure_rig()
         if self.calibration is None:
             raise InputError(f"robot {self.robot}: observations need a camera calibration")
-        self.sequence = LiveSequence.restore(snapshot)
+        self.sequence = LiveSequence.restore(snapshot, self.inputs.detections is not None)
         with self._cond:
             self._started = True
         self._make_driver()
@@ -941,6 +1077,7 @@ class LiveRobot:
                 "malformed": dict(counts.malformed),
                 "messages": dict(counts.messages),
                 "odometry_frames": counts.odometry_frames,
+                "frames_without_detections": counts.without_detections,
                 "camera_gaps": counts.camera_gaps,
                 "stage_seconds": dict(self.stage_seconds),
                 "budget_ms": self.budget_ms,
@@ -990,6 +1127,7 @@ INPUT_KEYS = (
     "queue",
     "camera_timeout_s",
     "ground_truth",
+    "detections",
 )
 
 
@@ -1059,6 +1197,7 @@ def live_inputs(
             camera_info=camera_info,
             image_type=COMPRESSED if section.get("compressed") else IMAGE,
             ground_truth=topic("ground_truth"),
+            detections=topic("detections"),
             sync_tolerance_s=float(section.get("sync_tolerance_s", 0.005)),
             queue=int(section.get("queue", 8)),
             camera_timeout_s=float(section.get("camera_timeout_s", 1.0)),
@@ -1187,7 +1326,7 @@ def run_live(
         if publish:
             publisher = Ros2Publisher(
                 robot,
-                np.zeros(64, np.int64),
+                None,  # stamped frame by frame
                 domain_id=settings["domain_id"],
                 connect=settings["connect"],
                 listen=settings["listen"],

@@ -57,6 +57,7 @@ LIVE_FLAGS = {
     "sync_tolerance": "sync_tolerance_s",
     "queue": "queue",
     "camera_timeout": "camera_timeout_s",
+    "detections": "detections",
 }
 
 
@@ -65,17 +66,10 @@ def _cmd_agent(args: argparse.Namespace) -> int:
     from teamslam.errors import InputError
 
     live_given = [
-        f
-        for f in (*LIVE_FLAGS, "frames", "realtime_budget", "detections")
-        if getattr(args, f) is not None
+        f for f in (*LIVE_FLAGS, "frames", "realtime_budget") if getattr(args, f) is not None
     ]
     if live_given and not args.live:
         raise InputError(f"--{live_given[0].replace('_', '-')} needs --live")
-    if args.detections is not None:
-        raise InputError(
-            "--detections: live Detection2DArray input is not supported yet (give "
-            "observations, or images whose objects are markers)"
-        )
     options = {
         "domain_id": args.domain_id,
         "connect": args.ros2_connect,
@@ -173,7 +167,9 @@ def register(sub) -> None:
         "observations",
     )
     live.add_argument(
-        "--detections", help="vision_msgs/Detection2DArray topic (not supported live yet)"
+        "--detections",
+        help="with images: vision_msgs/Detection2DArray topic of a detector's boxes in the left "
+        "images (the robot tracks the objects it detects)",
     )
     live.add_argument(
         "--sync-tolerance",

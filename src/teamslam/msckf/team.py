@@ -27,7 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from teamslam.datasets.model import TeamDataset
-from teamslam.errors import EstimationError, InputError, OutputError
+from teamslam.errors import EstimationError, InputError, InternalError, OutputError
 from teamslam.graph import CommunicationGraph, EdgeLoss, complete
 from teamslam.msckf.agent import MsckfAgent, grown
 from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
@@ -147,9 +147,23 @@ class LockStep:
 
 @dataclass(frozen=True)
 class Asynchronous:
-    """Never wait: use each neighbour's newest message no older than ``max_age`` steps."""
+    """Never wait: use each neighbour's newest message no older than ``max_age`` steps.
+
+    ``by_stamp``: for robots that drop frames (live), whose steps count the frames each
+    processed and are not comparable between them, messages are aged by the stamp of the frame
+    they were sent at instead — accepted back to ``max_age_s`` seconds before the current
+    frame's stamp, by default ``max_age`` of the robot's steps (the sequence's
+    ``step_interval_ns``: the mean stamp interval between the frames it processed — longer than the
+    input's frame period when it drops frames, as ``max_age`` steps are).
+    """
 
     max_age: int = 3
+    by_stamp: bool = False
+    max_age_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.max_age_s is not None and not (np.isfinite(self.max_age_s) and self.max_age_s >= 0):
+            raise InputError(f"max_age_s must be seconds ≥ 0, got {self.max_age_s}")
 
 
 class RobotDriver:
@@ -191,6 +205,9 @@ class RobotDriver:
             if consensus and transport is not None
             else None
         )
+        self.by_stamp = isinstance(wait, Asynchronous) and wait.by_stamp
+        if self.by_stamp and not hasattr(agent.sequence, "step_interval_ns"):
+            raise InternalError("ageing messages by stamp needs a sequence with frame stamps")
         frames = agent.sequence.frames
         self.poses = np.zeros((frames, 4, 4))
         self.covs = np.zeros((frames, 6, 6))
@@ -249,8 +266,28 @@ class RobotDriver:
 
     def _requests(self, t: int, iteration: int) -> None:
         reachable = self.transport.reachable(self.protocol.exchange(t, iteration), self.neighbours)
-        for message in self.protocol.requests(t, reachable, iteration):
+        stamp_ns, max_age_ns = self._age(t)
+        for message in self.protocol.requests(t, reachable, iteration, stamp_ns, max_age_ns):
             self.transport.send(message)
+
+    def _age(self, t: int) -> tuple[int | None, int | None]:
+        """``(stamp_ns, max_age_ns)`` of frame ``t``'s exchanges: ``(None, None)`` when
+        messages are aged by step."""
+        if not self.by_stamp:
+            return None, None
+        sequence = self.agent.sequence
+        if self.wait.max_age_s is not None:
+            max_age_ns = round(self.wait.max_age_s * 1e9)
+        else:
+            max_age_ns = self.wait.max_age * sequence.step_interval_ns(t)
+        return int(sequence.stamps_ns[t]), int(max_age_ns)
+
+    def _newest(self, kind: type, t: int) -> list:
+        """Asynchronous: each neighbour's newest ``kind`` message of the age accepted."""
+        protocol = self.protocol
+        return self.transport.newest(
+            kind, self.neighbours, self.wait.max_age, t, protocol.stamp_ns, protocol.max_age_ns
+        )
 
     def _answer(self, t: int, iteration: int) -> None:
         number = self.protocol.exchange(t, iteration)
@@ -262,7 +299,7 @@ class RobotDriver:
                 number, MapIdsMessage, waiting, self.wait.timeout, also=self.neighbours - waiting
             )
         else:
-            heard = self.transport.newest(MapIdsMessage, self.neighbours, self.wait.max_age, t)
+            heard = self._newest(MapIdsMessage, t)
         for reply in self.protocol.answer(heard):
             self.transport.send(reply)
         if iteration > 0:
@@ -283,9 +320,7 @@ class RobotDriver:
                 self.wait.timeout,
             )
         else:
-            heard = self.transport.newest(
-                CommonMarginalMessage, self.neighbours, self.wait.max_age, t
-            )
+            heard = self._newest(CommonMarginalMessage, t)
         silent = self.neighbours - self.protocol.heard
         if silent:
             self.agent.counters["links_lost"] += len(silent)

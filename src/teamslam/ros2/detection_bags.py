@@ -8,7 +8,8 @@ highest-scoring hypothesis. Box coordinates are read as detectors publish them �
 so a box over the whole image has centre ``(W/2, H/2)`` and size ``(W, H)`` — and returned in
 the OpenCV pixel-centre convention, clipped to the image. :func:`write_detection_topic` writes
 such a topic (MCAP). Malformed messages raise :class:`~teamslam.errors.InputError` naming the
-topic, the stamp and the detection.
+topic, the stamp and the detection. Live, :func:`message_detections` reads one message the
+same way, its class labels from a :class:`LiveClassTable`.
 """
 
 from __future__ import annotations
@@ -30,7 +31,14 @@ from teamslam.frontend.detections import (
 from teamslam.ros2 import messages as m
 from teamslam.ros2.bags import _check_type, _read_topics
 
-__all__ = ["class_table", "detection_records", "read_detection_topic", "write_detection_topic"]
+__all__ = [
+    "LiveClassTable",
+    "class_table",
+    "detection_records",
+    "message_detections",
+    "read_detection_topic",
+    "write_detection_topic",
+]
 
 
 def class_table(names: Sequence[str]) -> dict[str, int]:
@@ -42,6 +50,60 @@ def class_table(names: Sequence[str]) -> dict[str, int]:
     if all(n.isascii() and n.isdigit() for n in distinct):
         return {n: int(n) for n in distinct}
     return {n: i for i, n in enumerate(distinct)}
+
+
+class LiveClassTable:
+    """The class labels of a live ``Detection2DArray`` topic, message by message: those
+    :func:`class_table` gives the whole topic when its ids are all integers (that integer) or
+    all names (numbered ``0, 1, …`` in order of first appearance). A topic that mixes the two
+    is refused: its labels would depend on ids not seen yet."""
+
+    def __init__(self) -> None:
+        self.table: dict[str, int] = {}
+        self._numeric: bool | None = None
+
+    def label(self, name: str, where: str) -> int:
+        """The label of class id ``name``.
+
+        Raises
+        ------
+        InputError
+            ``name`` is a number where names came before, or the other way round.
+        """
+        if name in self.table:
+            return self.table[name]
+        numeric = name.isascii() and name.isdigit()
+        if self._numeric is not None and numeric != self._numeric:
+            raise InputError(
+                f"{where}: class id {name!r} mixes numbers and names on one topic (live labels "
+                "need all of one kind)"
+            )
+        self._numeric = numeric
+        self.table[name] = int(name) if numeric else len(self.table)
+        return self.table[name]
+
+
+def message_detections(
+    msg, where: str, image_size: tuple[int, int], classes: LiveClassTable
+) -> ImageDetections:
+    """The boxes of one ``Detection2DArray`` message, read as :func:`read_detection_topic`
+    reads each message of a bag (clipped to ``image_size``, labels from ``classes``).
+
+    Raises
+    ------
+    InputError
+        A malformed detection, named with ``where`` and its index.
+    """
+    try:
+        detections = list(msg.detections)
+    except (AttributeError, TypeError):
+        raise InputError(f"{where}: not a {m.DETECTIONS_TYPE}") from None
+    rows = []
+    for k, det in enumerate(detections):
+        at = f"{where}, detection {k}"
+        name, score, box = _detection(det, at)
+        rows.append(_Box(0, box, classes.label(name, at), score, None))
+    return _assemble(rows, 1, _image_size(image_size), None, 0).images[0]
 
 
 def read_detection_topic(

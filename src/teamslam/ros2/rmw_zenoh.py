@@ -39,6 +39,7 @@ WHAT = "publishing ROS 2 topics (rmw_zenoh)"
 POSE = "geometry_msgs/msg/PoseStamped"
 PATH = "nav_msgs/msg/Path"
 MARKERS = "visualization_msgs/msg/MarkerArray"
+TF = "tf2_msgs/msg/TFMessage"
 # reliable, volatile, keep-last depth 10 against rmw_zenoh's defaults (reliable, volatile,
 # keep-last 42, infinite deadline/lifespan/lease, automatic liveliness)
 DEFAULT_QOS = "::,10:,:,:,,"
@@ -201,17 +202,20 @@ def ros2_settings(section: dict | None, **overrides) -> dict:
 class Ros2Publisher:
     """One robot's pose, path and map as ROS 2 topics on an rmw_zenoh network.
 
-    Topics: ``/robot_<i>/pose`` (PoseStamped, every frame), ``/robot_<i>/path`` (Path, every
-    ``path_every`` frames and the last) and ``/robot_<i>/objects`` (MarkerArray, spheres and
-    3σ ellipsoids, every ``objects_every`` frames and the last), frame ``world``, stamped with
-    ``stamps_ns`` (the dataset's timestamps, or frame index × period).
+    Topics: ``/robot_<i>/pose`` (PoseStamped, every frame), ``/tf`` (TFMessage ``world`` →
+    ``robot_<i>/base_link``, every frame, as ``teamslam run --mcap`` writes it),
+    ``/robot_<i>/path`` (Path, every ``path_every`` frames and the last) and
+    ``/robot_<i>/objects`` (MarkerArray, spheres and 3σ ellipsoids, every ``objects_every``
+    frames and the last), frame ``world``, stamped with ``stamps_ns`` (the dataset's
+    timestamps, or frame index × period) — or, for a sequence that grows while it runs (a live
+    robot), with the stamp each :meth:`publish` gives (no frame is then the last).
 
     Parameters
     ----------
     robot
         The robot's id (names the topics and the node ``teamslam_robot_<i>``).
     stamps_ns
-        Stamp of every frame, integer nanoseconds.
+        Stamp of every frame, integer nanoseconds; ``None``: given frame by frame.
     domain_id
         ``ROS_DOMAIN_ID``.
     connect, listen
@@ -227,7 +231,7 @@ class Ros2Publisher:
     def __init__(
         self,
         robot: int,
-        stamps_ns: np.ndarray,
+        stamps_ns: np.ndarray | None = None,
         domain_id: int = 0,
         connect: list[str] | None = None,
         listen: list[str] | None = None,
@@ -238,7 +242,11 @@ class Ros2Publisher:
     ) -> None:
         zenoh = require("zenoh", "network", WHAT)
         self.robot = robot
-        self.stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+        self.growing = stamps_ns is None
+        self._stamps = np.zeros(64 if self.growing else 0, dtype=np.int64)
+        self._given = 0  # growing: frames whose stamp was given
+        if not self.growing:
+            self._stamps = np.asarray(stamps_ns, dtype=np.int64)
         self.domain_id = int(domain_id)
         self.path_every = max(int(path_every), 1)
         self.objects_every = max(int(objects_every), 1)
@@ -248,7 +256,9 @@ class Ros2Publisher:
             "pose": (f"/robot_{robot}/pose", POSE),
             "path": (f"/robot_{robot}/path", PATH),
             "objects": (f"/robot_{robot}/objects", MARKERS),
+            "tf": ("/tf", TF),
         }
+        self.base_frame = f"robot_{robot}/base_link"
         self.sphere_diameter: float | None = None
         self._published: list = []
         self.samples_sent = 0
@@ -277,12 +287,17 @@ class Ros2Publisher:
             self.wait_for_subscribers(wait_s)
 
     @property
+    def stamps_ns(self) -> np.ndarray:
+        """The stamps of the frames (growing: those given so far)."""
+        return self._stamps[: self._given] if self.growing else self._stamps
+
+    @property
     def keys(self) -> dict[str, str]:
-        """Topic key expression of each of ``pose``, ``path``, ``objects``."""
+        """Topic key expression of each of ``pose``, ``path``, ``objects``, ``tf``."""
         return {name: str(p[0].key_expr) for name, p in self._publishers.items()}
 
     def gid(self, name: str) -> bytes:
-        """The GID of the publisher of ``pose``, ``path`` or ``objects``."""
+        """The GID of the publisher of ``pose``, ``path``, ``objects`` or ``tf``."""
         return self._publishers[name][2]
 
     def matched(self) -> bool:
@@ -307,18 +322,35 @@ class Ros2Publisher:
         self.samples_sent += 1
         self.bytes_sent += len(payload)
 
-    def publish(self, frame: int, poses: np.ndarray, state) -> None:
+    def publish(self, frame: int, poses: np.ndarray, state, stamp_ns: int | None = None) -> None:
         """Publish frame ``frame``: ``poses`` are the filtered poses of frames ``0..frame``,
-        ``state`` the robot's :class:`~teamslam.msckf.filter.state.MsckfState` (its map)."""
+        ``state`` the robot's :class:`~teamslam.msckf.filter.state.MsckfState` (its map);
+        ``stamp_ns`` its stamp, given when the publisher was made without stamps (a growing
+        sequence: frames in order; a resumed robot's first frame may come after others).
+
+        Raises
+        ------
+        ValueError
+            A stamp given to a publisher with stamps, or none to one without.
+        """
+        if self.growing == (stamp_ns is None):
+            raise ValueError(
+                "give each frame's stamp to a publisher made without stamps, and only to it"
+            )
         with self._lock:
-            stamp = int(self.stamps_ns[frame])
-            last = frame == len(self.stamps_ns) - 1
+            if self.growing:
+                self._stamp(frame, int(stamp_ns))
+            stamps = self.stamps_ns
+            stamp = int(stamps[frame])
+            last = not self.growing and frame == len(stamps) - 1
             if len(self._published) != frame:  # a resumed run: the frames before this one
-                self._published = m.poses_stamped(poses[:frame], self.stamps_ns[:frame])
+                self._published = m.poses_stamped(poses[:frame], stamps[:frame])
             self._published.append(m.pose_stamped(poses[frame], stamp))
             self._put("pose", self._published[-1])
+            transform = [(self._published[-1].pose, "world", self.base_frame)]
+            self._put("tf", m.tf_message(transform, stamp))
             if (frame + 1) % self.path_every == 0 or last:
-                self._put("path", m.path_msg(self._published, self.stamps_ns[: frame + 1]))
+                self._put("path", m.path_msg(self._published, stamps[: frame + 1]))
             if (frame + 1) % self.objects_every == 0 or last:
                 ids, means, covs = state.full_map()  # in the state and retired, by id
             else:
@@ -337,6 +369,22 @@ class Ros2Publisher:
                     n_sigma=self.n_sigma,
                 )
                 self._put("objects", markers)
+
+    def stamp(self, frame: int, stamp_ns: int) -> None:
+        """Record frame ``frame``'s stamp without publishing it (a publisher made without stamps:
+        e.g. the frames a resumed robot did before, which its path starts with)."""
+        if not self.growing:
+            raise ValueError("this publisher was given every frame's stamp")
+        with self._lock:
+            self._stamp(frame, int(stamp_ns))
+
+    def _stamp(self, frame: int, stamp_ns: int) -> None:
+        if frame >= self._stamps.shape[0]:
+            grown = np.zeros(max(2 * self._stamps.shape[0], frame + 1), dtype=np.int64)
+            grown[: self._stamps.shape[0]] = self._stamps
+            self._stamps = grown
+        self._stamps[frame] = stamp_ns
+        self._given = max(self._given, frame + 1)
 
     def close(self) -> None:
         """Withdraw the liveliness tokens and close the session."""

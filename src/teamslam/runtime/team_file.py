@@ -63,6 +63,7 @@ class TeamFile:
     sync: str = "lockstep"
     timeout_s: float = 5.0
     max_age_steps: int = 3
+    max_age_s: float | None = None
     checkpoint_every: int = 25
     message_loss: float = 0.0
     message_delay_ms: float = 0.0
@@ -160,6 +161,7 @@ def _parse(data, path: Path) -> TeamFile:
         "sync",
         "timeout_s",
         "max_age_steps",
+        "max_age_s",
         "checkpoint_every",
         "message_loss",
         "message_delay_ms",
@@ -254,6 +256,7 @@ def _parse(data, path: Path) -> TeamFile:
         sync=sync,
         timeout_s=_number(data, "timeout_s", 5.0, float, 0.0),
         max_age_steps=_number(data, "max_age_steps", 3, int, 0),
+        max_age_s=_max_age_s(data),
         checkpoint_every=_number(data, "checkpoint_every", 25, int, 0),
         message_loss=_number(data, "message_loss", 0.0, float, 0.0, 1.0),
         message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
@@ -263,6 +266,16 @@ def _parse(data, path: Path) -> TeamFile:
         ros2=_mapping(data, "ros2"),
         security=security,
     )
+
+
+def _max_age_s(data: dict) -> float | None:
+    """``max_age_s``: seconds of frame stamps (live asynchronous robots), or ``None``."""
+    if data.get("max_age_s") is None:
+        return None
+    value = _number(data, "max_age_s", None, float, 0.0)
+    if not np.isfinite(value):
+        raise TeamFileError(f"'max_age_s' must be finite seconds, got {value}")
+    return value
 
 
 def _security(raw, robots: list[RobotEntry], as_path) -> SecuritySection | None:

@@ -1,13 +1,14 @@
 """teamslam's wire format for consensus messages: versioned, compact, validated binary.
 
 A fixed little-endian header (magic ``b"TSLM"``, :data:`FORMAT_VERSION`, kind, degree, team
-id, sender, receiver, step, sizes) followed by the payload: ids as LEB128 varint deltas, then
-moved flags, or a mean and the upper triangle of a covariance or information matrix in float64
-or float32, object summaries (with class labels, with appearance descriptors in float16 and a
-histogram of same-object distances), or a prior, by kind. Older versions are refused by name.
-No pickle, no code: :func:`decode` checks every field and raises :class:`WireError` naming the
-first problem, and a transport drops and counts such a message. Byte by byte: the docs'
-reference page *Wire format*.
+id, sender, receiver, step, sizes), the sender's frame stamp when the kind says so
+(:data:`STAMPED`: messages of robots that drop frames), then the payload: ids as LEB128 varint
+deltas, then moved flags, or a mean and the upper triangle of a covariance or information
+matrix in float64 or float32, object summaries (with class labels, with appearance descriptors
+in float16 and a histogram of same-object distances), or a prior, by kind. Older versions are
+refused by name. No pickle, no code: :func:`decode` checks every field and raises
+:class:`WireError` naming the first problem, and a transport drops and counts such a message.
+Byte by byte: the docs' reference page *Wire format*.
 """
 
 from __future__ import annotations
@@ -60,6 +61,9 @@ _MARGINAL_KINDS = {
 KIND_PRIOR = 10  # joint information matrix with the sender's prior, float64; 11: float32
 _TRIU3 = np.triu_indices(3)
 HEADER = struct.Struct("<4sBBHQHHIIII")  # HEADER_BYTES long
+#: a kind with this bit set: the message's frame stamp (int64 ns) follows the header
+STAMPED = 0x80
+STAMP = struct.Struct("<q")  # STAMP_BYTES long
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024
 MAX_IDS = 100_000
 
@@ -93,7 +97,7 @@ def encode(message: Message, team: int) -> bytes:
         header = HEADER.pack(
             MAGIC,
             FORMAT_VERSION,
-            kind,
+            kind | _stamped(message),
             0,
             team,
             message.sender,
@@ -103,7 +107,7 @@ def encode(message: Message, team: int) -> bytes:
             len(id_bytes),
             len(flags),
         )
-        return header + id_bytes + flags + summary
+        return header + _stamp(message) + id_bytes + flags + summary
     per_object, single = message.per_object, message.single_precision
     information = message.info is not None
     dtype = "<f4" if single else "<f8"
@@ -119,7 +123,7 @@ def encode(message: Message, team: int) -> bytes:
     header = HEADER.pack(
         MAGIC,
         FORMAT_VERSION,
-        kind,
+        kind | _stamped(message),
         min(int(message.degree), 0xFFFF),
         team,
         message.sender,
@@ -129,7 +133,22 @@ def encode(message: Message, team: int) -> bytes:
         len(id_bytes),
         d,
     )
-    return header + id_bytes + mean.tobytes() + upper.tobytes() + prior
+    return header + _stamp(message) + id_bytes + mean.tobytes() + upper.tobytes() + prior
+
+
+def _stamped(message: Message) -> int:
+    """The kind's :data:`STAMPED` bit of a message."""
+    return 0 if message.stamp_ns is None else STAMPED
+
+
+def _stamp(message: Message) -> bytes:
+    """The frame stamp's bytes of a message (none without one)."""
+    if message.stamp_ns is None:
+        return b""
+    try:
+        return STAMP.pack(int(message.stamp_ns))
+    except struct.error as error:
+        raise WireError(f"frame stamp {message.stamp_ns} does not fit 64 bits") from error
 
 
 def _encode_prior(message: CommonMarginalMessage, n: int, dtype: str) -> bytes:
@@ -266,6 +285,13 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
                 f"{FORMAT_VERSION}: update the sender)"
             )
         raise WireError(f"unknown format version {version}")
+    stamp_ns, base = None, HEADER.size
+    if kind & STAMPED:
+        kind &= ~STAMPED
+        if len(data) < HEADER.size + STAMP.size:
+            raise WireError(f"truncated frame stamp ({len(data)} bytes)")
+        (stamp_ns,) = STAMP.unpack_from(data, HEADER.size)
+        base += STAMP.size
     if team_of != team:
         raise WireError("message from another team")
     if sender >= n_robots or receiver >= n_robots:
@@ -277,7 +303,7 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
             raise WireError(f"map-ids message with {d} bytes of flags for {n_ids} ids")
         if degree != 0:
             raise WireError("map-ids message with a degree")
-        expected = HEADER.size + c + d + _PER_SUMMARY[kind] * n_ids
+        expected = base + c + d + _PER_SUMMARY[kind] * n_ids
         if kind >= KIND_IDS_APPEARANCE:
             expected += _appearance_size(data, expected, n_ids)
     elif kind in _MARGINAL_KINDS.values() or kind in (KIND_PRIOR, KIND_PRIOR + 1):
@@ -286,7 +312,7 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
         per_object, width = kind in (4, 5), 4 if kind in (3, 5, 7, KIND_PRIOR + 1) else 8
         information = kind in (6, 7, KIND_PRIOR, KIND_PRIOR + 1)
         upper = 6 * n_ids if per_object else d * (d + 1) // 2
-        expected = HEADER.size + c + width * (d + upper)
+        expected = base + c + width * (d + upper)
     else:
         raise WireError(f"unknown message kind {kind}")
     with_prior = kind in (KIND_PRIOR, KIND_PRIOR + 1)
@@ -295,26 +321,26 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
     if not n_ids <= c <= 10 * n_ids:
         raise WireError(f"{c} bytes for {n_ids} ids")
     try:
-        ids = decode_ids(np.frombuffer(data, dtype=np.uint8, count=c, offset=HEADER.size), n_ids)
+        ids = decode_ids(np.frombuffer(data, dtype=np.uint8, count=c, offset=base), n_ids)
     except ValueError as error:
         raise WireError(f"bad ids: {error}") from error
     if kind in _IDS_KINDS:
         moved = None
         if d:
-            bits = np.frombuffer(data, dtype=np.uint8, count=d, offset=HEADER.size + c)
+            bits = np.frombuffer(data, dtype=np.uint8, count=d, offset=base + c)
             moved = np.unpackbits(bits, count=n_ids, bitorder="little").astype(bool)
         summary = None
         if kind != KIND_IDS:
             summary = _decode_summary(
                 data,
-                HEADER.size + c + d,
+                base + c + d,
                 int(sender),
                 ids,
                 kind in (KIND_IDS_SUMMARY + 1, KIND_IDS_APPEARANCE + 1),
                 kind >= KIND_IDS_APPEARANCE,
             )
-        return MapIdsMessage(int(sender), int(receiver), int(step), ids, moved, summary)
-    offset = HEADER.size + c
+        return MapIdsMessage(int(sender), int(receiver), int(step), ids, moved, summary, stamp_ns)
+    offset = base + c
     dtype = "<f4" if width == 4 else "<f8"
     mean = np.frombuffer(data, dtype=dtype, count=d, offset=offset).astype(float)
     values = np.frombuffer(data, dtype=dtype, count=upper, offset=offset + width * d)
@@ -342,7 +368,8 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
             prior_held=held,
             prior_mean=prior_mean,
             prior_info=prior_info,
+            stamp_ns=stamp_ns,
         )
     if information:
-        return CommonMarginalMessage(*head, None, int(degree), info=matrix)
-    return CommonMarginalMessage(*head, matrix, int(degree))
+        return CommonMarginalMessage(*head, None, int(degree), info=matrix, stamp_ns=stamp_ns)
+    return CommonMarginalMessage(*head, matrix, int(degree), stamp_ns=stamp_ns)

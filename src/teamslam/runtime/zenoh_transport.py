@@ -249,9 +249,17 @@ class ZenohTransport:
             step, kind, set(senders) | set(also), timeout, set(senders) | back
         )
 
-    def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
+    def newest(
+        self,
+        kind: type,
+        senders: set[int],
+        max_age: int,
+        step: int,
+        stamp_ns: int | None = None,
+        max_age_ns: int | None = None,
+    ) -> list[Message]:
         """See :meth:`teamslam.msckf.consensus.transport.Transport.newest`."""
-        return self._mailbox.newest(kind, senders, max_age, step)
+        return self._mailbox.newest(kind, senders, max_age, step, stamp_ns, max_age_ns)
 
     def statistics(self) -> dict:
         """Injected drops, messages rejected before decoding, and per-message latencies."""

@@ -1,6 +1,7 @@
 """Consensus, checking messages: every received message is checked here, once.
 
-:func:`check_message` checks a message's kind, step, sender and receiver, and for a marginal
+:func:`check_message` checks a message's kind, age (by step, or by its frame's stamp:
+:class:`~teamslam.msckf.consensus.messages.MessageAge`), sender and receiver, and for a marginal
 its ids, sizes, finiteness, symmetry and one Cholesky factorisation (:func:`receive_marginal`).
 A message that fails is described by a reason and never reaches the state.
 """
@@ -21,7 +22,7 @@ from teamslam.msckf.consensus.kernels import (
     NOT_SYMMETRIC,
     checked_symmetric_part,
 )
-from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage, MessageAge
 from teamslam.msckf.filter.state import MsckfState
 
 __all__ = [
@@ -43,6 +44,8 @@ def check_message(
     per_object: bool = False,
     taken: AbstractSet[int] = frozenset(),
     heard: MutableSet[int] | None = None,
+    stamp_ns: int | None = None,
+    max_age_ns: int | None = None,
 ) -> tuple[str | None, MapIdsMessage | ReceivedMarginal | None]:
     """Whether a received message can be used in this step of consensus.
 
@@ -68,6 +71,10 @@ def check_message(
         Round 2: the senders heard in round 1. In lock-step (``max_age = 0``) a marginal from
         a robot not heard is rejected; asynchronously its sender is added to ``heard`` (the
         link works), whether or not the marginal is then usable.
+    stamp_ns, max_age_ns
+        With ``max_age_ns``: messages are aged by their frame's stamp instead of their step —
+        accepted when sent at a frame stamped ``stamp_ns − max_age_ns`` or later
+        (:class:`~teamslam.msckf.consensus.messages.MessageAge`).
 
     Returns
     -------
@@ -78,8 +85,9 @@ def check_message(
     """
     if not isinstance(message, kind):
         return "unexpected message kind", None
-    if not step - max_age <= message.step <= step:
-        return f"message of step {message.step} at {step}", None
+    problem = MessageAge(step, max_age, stamp_ns, max_age_ns).problem(message)
+    if problem is not None:
+        return problem, None
     if message.sender not in neighbours or message.receiver != robot:
         return (
             f"message from robot {message.sender} (not a neighbour) to robot {message.receiver}",

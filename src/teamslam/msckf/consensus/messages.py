@@ -2,7 +2,9 @@
 
 Round 1, :class:`MapIdsMessage`: the sender's map ids; round 2, :class:`CommonMarginalMessage`:
 its marginal of the objects it shares with the receiver and its degree this step (with
-information increments, also its prior). Messages are plain data, moved by a
+information increments, also its prior). A message is aged by its step, or — between robots
+that drop frames, whose steps are not comparable — by its frame's stamp (:class:`MessageAge`).
+Messages are plain data, moved by a
 :class:`~teamslam.msckf.consensus.transport.Transport` and laid out on a network by
 :mod:`teamslam.runtime.wire`; ids, strictly increasing, travel as variable-length deltas
 (:func:`encode_ids`).
@@ -21,12 +23,14 @@ __all__ = [
     "CommonMarginalMessage",
     "MapIdsMessage",
     "Message",
+    "MessageAge",
     "decode_ids",
     "encode_ids",
     "summary_wire_bytes",
 ]
 
 HEADER_BYTES = 36  # the fixed header of every message on a wire (teamslam.runtime.wire)
+STAMP_BYTES = 8  # a stamped message's frame stamp, after the header
 _VARINT_GROUPS = 10  # 7-bit groups of a 64-bit integer
 
 
@@ -155,6 +159,10 @@ class MapIdsMessage:
         With association by the robots themselves (``association.mode = own``): the sender's
         object summary (ids, means, marginal covariances, classes) on the steps its link
         exchanges summaries, else ``None``.
+    stamp_ns
+        The stamp (ns) of the sender's frame it was sent at, or ``None``. Robots that drop
+        frames (live, asynchronous) count steps that are not comparable between them: their
+        messages carry the stamp and are aged by it.
     """
 
     sender: int
@@ -163,11 +171,18 @@ class MapIdsMessage:
     ids: np.ndarray
     moved: np.ndarray | None = None
     summary: ObjectSummary | None = None
+    stamp_ns: int | None = None
 
     def nbytes(self) -> int:
-        """Payload size on a wire (header, the ids, one bit per id for ``moved``, the summary)."""
+        """Payload size on a wire (header, the stamp, the ids, one bit per id for ``moved``,
+        the summary)."""
         flags = 0 if self.moved is None else (int(np.size(self.ids)) + 7) // 8
-        return HEADER_BYTES + encoded_ids_size(self.ids) + flags + summary_wire_bytes(self.summary)
+        return (
+            _header_bytes(self.stamp_ns)
+            + encoded_ids_size(self.ids)
+            + flags
+            + summary_wire_bytes(self.summary)
+        )
 
 
 @dataclass(frozen=True)
@@ -199,6 +214,9 @@ class CommonMarginalMessage:
         The sender's prior marginal of the flagged objects (``3h`` and ``(3h, 3h)``, ``h`` the
         flags set, in the order of ``ids``), in information form; ``None`` without a prior.
         Only with ``info`` (a joint marginal in information form).
+    stamp_ns
+        The stamp (ns) of the sender's frame it was computed at, or ``None`` (see
+        :class:`MapIdsMessage`).
     """
 
     sender: int
@@ -212,6 +230,7 @@ class CommonMarginalMessage:
     prior_held: np.ndarray | None = None
     prior_mean: np.ndarray | None = None
     prior_info: np.ndarray | None = None
+    stamp_ns: int | None = None
 
     def __post_init__(self) -> None:
         if (self.cov is None) == (self.info is None):
@@ -261,7 +280,14 @@ class CommonMarginalMessage:
         if self.has_prior:
             h = int(np.size(self.prior_mean))
             prior = (k + 7) // 8 + width * (h + h * (h + 1) // 2)
-        return HEADER_BYTES + encoded_ids_size(self.ids) + width * (d + upper) + prior
+        return (
+            _header_bytes(self.stamp_ns) + encoded_ids_size(self.ids) + width * (d + upper) + prior
+        )
+
+
+def _header_bytes(stamp_ns: int | None) -> int:
+    """The header's bytes on a wire, with the frame stamp when the message carries one."""
+    return HEADER_BYTES + (0 if stamp_ns is None else STAMP_BYTES)
 
 
 def _exactly_single(values: np.ndarray) -> bool:
@@ -272,3 +298,56 @@ def _exactly_single(values: np.ndarray) -> bool:
 
 
 Message = MapIdsMessage | CommonMarginalMessage
+
+
+@dataclass(frozen=True)
+class MessageAge:
+    """Which messages an exchange accepts, by age.
+
+    By step (``max_age_ns`` is ``None``): those of steps ``step − max_age`` to ``step``; a
+    step counts the frames a robot processed, the same for every robot of a team that
+    processes every frame. By stamp: those sent at a frame stamped ``stamp_ns − max_age_ns``
+    or later — robots that drop frames (live, asynchronous) process different numbers of
+    frames, and only the stamps of their frames are comparable. A message of a later stamp
+    (a neighbour ahead in time) is fresher, not stale: it is accepted.
+    """
+
+    step: int
+    max_age: int
+    stamp_ns: int | None = None
+    max_age_ns: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.max_age_ns is not None and self.stamp_ns is None:
+            raise ValueError("ageing messages by stamp needs the current frame's stamp")
+
+    @property
+    def by_stamp(self) -> bool:
+        """Whether messages are aged by their frame's stamp (else by step)."""
+        return self.max_age_ns is not None
+
+    def expired(self, message: Message) -> bool:
+        """Whether ``message`` is older than accepted (one of a later step or stamp is not;
+        by stamp, one without a stamp is judged by :meth:`problem`)."""
+        if self.by_stamp:
+            stamp = message.stamp_ns
+            return stamp is not None and stamp < self.stamp_ns - self.max_age_ns
+        return self.step - message.step > self.max_age
+
+    def problem(self, message: Message) -> str | None:
+        """Why ``message`` cannot be used at this age (``None``: it can)."""
+        if self.by_stamp:
+            if message.stamp_ns is None:
+                return (
+                    f"message of step {message.step} without a frame stamp (robots that drop "
+                    "frames age messages by it)"
+                )
+            if self.expired(message):
+                return (
+                    f"message of stamp {message.stamp_ns} ns at {self.stamp_ns} ns, older than "
+                    f"{self.max_age_ns / 1e9:g} s"
+                )
+            return None
+        if not self.step - self.max_age <= message.step <= self.step:
+            return f"message of step {message.step} at {self.step}"
+        return None

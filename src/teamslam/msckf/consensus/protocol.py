@@ -127,6 +127,10 @@ class ConsensusProtocol:
         self.rule = consensus_rule(settings.rule if self.max_age == 0 else "average")
         self._prior: SharedPrior | None = self.rule.initial_prior(agent.state)
         self.step = -1
+        # the exchange's frame stamp and, for robots whose steps are not comparable (they drop
+        # frames), the oldest stamp accepted as ``stamp_ns − max_age_ns`` (None: by step)
+        self.stamp_ns: int | None = None
+        self.max_age_ns: int | None = None
         # L exchanges per step (lock-step only; asynchronous robots exchange once a step)
         self.iterations = int(settings.iterations) if self.max_age == 0 else 1
         self.iteration = 0
@@ -152,6 +156,7 @@ class ConsensusProtocol:
         #: samples this robot's summaries carry to its other neighbours)
         self._same: dict[int, np.ndarray] = {}
         self._sent: dict[int, ObjectSummary | None] = {}  # this step's summary, per neighbour
+        self._associated: dict[int, int] = {}  # aged by stamp: the last summary step associated
         #: per link: summaries sent and their bytes, full associations, extensions, seconds
         #: spent associating, objects left out of an average by the innovation test
         self.link_stats: dict[int, dict[str, float]] = {
@@ -200,6 +205,8 @@ class ConsensusProtocol:
             self.agent.config.consensus.per_object,
             taken.keys(),
             heard,
+            self.stamp_ns,
+            self.max_age_ns,
         )
         if problem is not None:
             self.agent.reject("messages", reason=problem)
@@ -217,19 +224,33 @@ class ConsensusProtocol:
         return int(step) * self.iterations + int(iteration)
 
     def requests(
-        self, step: int, to: Iterable[int] | None = None, iteration: int = 0
+        self,
+        step: int,
+        to: Iterable[int] | None = None,
+        iteration: int = 0,
+        stamp_ns: int | None = None,
+        max_age_ns: int | None = None,
     ) -> list[MapIdsMessage]:
         """Round 1 of exchange ``iteration`` of ``step``: our map ids (and which moved) for
         each neighbour in ``to``.
+
+        ``stamp_ns`` is the stamp of the frame the exchange is at; every message of the
+        exchange carries it. With ``max_age_ns`` (asynchronous robots that drop frames, whose
+        steps are not comparable) the neighbours' messages are aged by their stamps, not their
+        steps (:class:`~teamslam.msckf.consensus.messages.MessageAge`).
 
         Raises
         ------
         EstimationError
             A marginal of ours that is not positive definite; robot and frame are named.
         """
+        if max_age_ns is not None and stamp_ns is None:
+            raise InternalError("ageing messages by stamp needs the frame's stamp")
         self.step = int(step)
         self.iteration = int(iteration)
         self.round = self.exchange(step, iteration)
+        self.stamp_ns = None if stamp_ns is None else int(stamp_ns)
+        self.max_age_ns = None if max_age_ns is None else int(max_age_ns)
         with self._named():
             return self._requests(to)
 
@@ -256,30 +277,43 @@ class ConsensusProtocol:
             self._own = None
         if self.bounded:
             self._thresholds = self._object_thresholds(covs)[order]
-        self._summary = (
-            ObjectSummary(
-                self.robot,
-                ids,
-                means[order],
-                covs[order],
-                views=self.agent.views.of(ids),
-                appearance=self._appearance(ids),
-            )
-            if exchange
-            else None
-        )
+        self._summary = self._object_summary(ids, means[order], covs[order]) if exchange else None
         targets = sorted(self.neighbours if to is None else set(to) & self.neighbours)
         out = []
         self._sent = {}
         for j in targets:
             moved = self._moved_for(j)
             summary = self._sent[j] = self._summary_for(j)
-            out.append(MapIdsMessage(self.robot, j, self.round, ids, moved, summary))
+            out.append(MapIdsMessage(self.robot, j, self.round, ids, moved, summary, self.stamp_ns))
             if summary is not None:
                 self.link_stats[j]["summaries_sent"] += 1
                 self.link_stats[j]["summary_bytes"] += summary_wire_bytes(summary)
         self.spent = time.perf_counter() - begin
         return out
+
+    def _object_summary(
+        self, ids: np.ndarray, means: np.ndarray, covs: np.ndarray
+    ) -> ObjectSummary:
+        """Our object summary of ``ids`` (increasing) with their marginals ``means``, ``covs``."""
+        return ObjectSummary(
+            self.robot,
+            ids,
+            means,
+            covs,
+            views=self.agent.views.of(ids),
+            appearance=self._appearance(ids),
+        )
+
+    def _summary_now(self, j: int) -> ObjectSummary:
+        """Our summary of this step for link ``j``, made now: robots aged by stamp drop frames,
+        so a neighbour's summary step is not ours — we answer its summary with our own."""
+        if self._summary is None:
+            state = self.agent.state
+            order = np.argsort(state.object_ids)
+            means, covs = object_marginals(state)
+            self._summary = self._object_summary(state.object_ids[order], means[order], covs[order])
+        summary = self._sent[j] = self._summary_for(j)
+        return summary
 
     def _appearance(self, ids: np.ndarray) -> np.ndarray | None:
         """``(n, D)`` the appearance descriptors of our objects ``ids`` (zero rows: none), or
@@ -467,6 +501,8 @@ class ConsensusProtocol:
                 keep=self._own_information if source is None else None,
                 prior=self.rule.message_prior(self._prior),
             )
+            if reply is not None and self.stamp_ns is not None:
+                reply = replace(reply, stamp_ns=self.stamp_ns)
             replies.append(reply)
         self.spent += time.perf_counter() - begin
         return replies
@@ -484,6 +520,14 @@ class ConsensusProtocol:
             )
             return False
         own = self._sent[j] if j in self._sent else self._summary_for(j)
+        if self.max_age_ns is not None:
+            # aged by stamp: the same newest request may come back in later steps, and its
+            # summary step is the neighbour's own — associate each summary once, with ours now
+            if self._associated.get(j) == request.step:
+                return True
+            self._associated[j] = request.step
+            if own is None:
+                own = self._summary_now(j)
         if own is None:  # we did not exchange summaries this step (a neighbour out of phase)
             return True
         begin = time.perf_counter()

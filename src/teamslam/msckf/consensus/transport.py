@@ -2,7 +2,8 @@
 
 An agent learns about a neighbour only from messages through its own :class:`Transport`
 endpoint: send, wait for one message of a kind and step from each of a set of neighbours
-(:meth:`Transport.collect`), take each neighbour's newest (:meth:`Transport.newest`), wait for
+(:meth:`Transport.collect`), take each neighbour's newest no older than an age — in steps, or
+in seconds of frame stamps (:meth:`Transport.newest`) —, wait for
 the neighbours to come up. :class:`MemoryNetwork` implements it in one process, optionally over
 lossy links (``links(step)``: a message over a link that is down is lost);
 :class:`LyingNetwork` is one whose member ``liar`` sends, in its own name, every marginal
@@ -20,7 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from teamslam.errors import InputError
-from teamslam.msckf.consensus.messages import CommonMarginalMessage, Message
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, Message, MessageAge
 
 __all__ = ["LyingNetwork", "Mailbox", "MemoryNetwork", "MemoryTransport", "Transport"]
 
@@ -56,8 +57,18 @@ class Transport(Protocol):
         messages stay buffered.
         """
 
-    def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
-        """Each sender's newest ``kind`` message no older than ``step − max_age``, by sender."""
+    def newest(
+        self,
+        kind: type,
+        senders: set[int],
+        max_age: int,
+        step: int,
+        stamp_ns: int | None = None,
+        max_age_ns: int | None = None,
+    ) -> list[Message]:
+        """Each sender's newest ``kind`` message no older than ``step − max_age``, by sender;
+        with ``max_age_ns``, none sent at a frame stamped before ``stamp_ns − max_age_ns``
+        (:class:`~teamslam.msckf.consensus.messages.MessageAge`)."""
 
     def wait_for_peers(self, count: int, timeout: float) -> int:
         """Block until ``count`` neighbours are reachable (or ``timeout``); how many are."""
@@ -122,20 +133,35 @@ class Mailbox:
             self._messages = keep
         return [picked[s] for s in sorted(picked)]
 
-    def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
-        """Each sender's newest ``kind`` message no older than ``step − max_age``, by sender;
-        expired messages are discarded."""
+    def newest(
+        self,
+        kind: type,
+        senders: set[int],
+        max_age: int,
+        step: int,
+        stamp_ns: int | None = None,
+        max_age_ns: int | None = None,
+    ) -> list[Message]:
+        """Each sender's newest ``kind`` message no older than ``step − max_age`` (with
+        ``max_age_ns``: sent at a frame stamped ``stamp_ns − max_age_ns`` or later), by sender;
+        expired messages are discarded. Aged by stamp, a message without one is handed over
+        once (the checks name it) and discarded."""
+        age = MessageAge(step, max_age, stamp_ns, max_age_ns)
         with self._cond:
             best: dict[int, Message] = {}
             for m in self._messages:
                 if (
                     isinstance(m, kind)
                     and m.sender in senders
-                    and step - m.step <= max_age
+                    and not age.expired(m)
                     and (m.sender not in best or m.step > best[m.sender].step)
                 ):
                     best[m.sender] = m
-            self._messages = [m for m in self._messages if step - m.step <= max_age]
+            self._messages = [
+                m
+                for m in self._messages
+                if not age.expired(m) and not (age.by_stamp and m.stamp_ns is None)
+            ]
         return [best[s] for s in sorted(best)]
 
 
@@ -247,9 +273,18 @@ class MemoryTransport:
         box = self.network.mailboxes[self.robot]
         return box.collect(step, kind, set(senders) | set(also), timeout, reachable)
 
-    def newest(self, kind: type, senders: set[int], max_age: int, step: int) -> list[Message]:
+    def newest(
+        self,
+        kind: type,
+        senders: set[int],
+        max_age: int,
+        step: int,
+        stamp_ns: int | None = None,
+        max_age_ns: int | None = None,
+    ) -> list[Message]:
         """See :meth:`Transport.newest`."""
-        return self.network.mailboxes[self.robot].newest(kind, senders, max_age, step)
+        box = self.network.mailboxes[self.robot]
+        return box.newest(kind, senders, max_age, step, stamp_ns, max_age_ns)
 
     def reachable(self, step: int, robots: set[int]) -> set[int]:
         """The robots whose link from this one works at ``step``."""

@@ -1,0 +1,255 @@
+"""Asynchronous live robots that drop different frames keep averaging: their steps are not
+comparable, so their messages carry their frame's stamp and are aged by it
+(:class:`~teamslam.msckf.consensus.messages.MessageAge`); without a network, in one thread."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage, MessageAge
+from teamslam.msckf.consensus.transport import Mailbox
+from teamslam.runtime import wire
+from teamslam.runtime.team_file import TeamFileError, load_team_file
+
+S = 1_000_000_000  # ns per second
+
+
+def ids_message(sender: int, step: int, stamp_ns: int | None) -> MapIdsMessage:
+    return MapIdsMessage(sender, 0, step, np.array([1, 4, 9]), None, None, stamp_ns)
+
+
+def test_an_age_by_stamp_accepts_neighbours_ahead_and_refuses_old_or_unstamped_messages():
+    age = MessageAge(step=10, max_age=3, stamp_ns=100 * S, max_age_ns=3 * S)
+    # steps say nothing here: a neighbour that dropped fewer frames is many steps ahead
+    assert age.problem(ids_message(1, 60, 100 * S)) is None
+    assert age.problem(ids_message(1, 2, 97 * S)) is None
+    assert age.problem(ids_message(1, 70, 104 * S)) is None  # ahead in time: fresher
+    assert "older than 3 s" in age.problem(ids_message(1, 9, 97 * S - 1))
+    assert "without a frame stamp" in age.problem(ids_message(1, 10, None))
+    # by step, as before: steps 7 to 10 only
+    by_step = MessageAge(step=10, max_age=3)
+    assert by_step.problem(ids_message(1, 7, None)) is None
+    assert by_step.problem(ids_message(1, 11, None)) == "message of step 11 at 10"
+    assert by_step.problem(ids_message(1, 6, None)) == "message of step 6 at 10"
+    with pytest.raises(ValueError, match="stamp"):
+        MessageAge(step=1, max_age=1, max_age_ns=S)
+
+
+def test_a_mailbox_hands_over_each_senders_newest_message_by_stamp_and_discards_expired_ones():
+    box = Mailbox()
+    for message in (
+        ids_message(1, 5, 90 * S),  # expired
+        ids_message(1, 6, 98 * S),
+        ids_message(1, 7, 99 * S),  # newest of robot 1
+        ids_message(2, 40, 101 * S),  # robot 2, ahead in steps and in time
+        ids_message(3, 8, None),  # no stamp: handed over once, for the checks to name
+    ):
+        box.put(message)
+    got = box.newest(MapIdsMessage, {1, 2, 3}, 3, 10, 100 * S, 3 * S)
+    assert [(m.sender, m.step) for m in got] == [(1, 7), (2, 40), (3, 8)]
+    again = box.newest(MapIdsMessage, {1, 2, 3}, 3, 11, 102 * S, 3 * S)
+    assert [(m.sender, m.step) for m in again] == [(1, 7), (2, 40)]
+    assert box.newest(MapIdsMessage, {1, 2, 3}, 3, 12, 110 * S, 3 * S) == []
+    # by step, a neighbour 30 steps ahead is expired for nobody, and one 4 steps behind is
+    box.put(ids_message(1, 6, None))
+    assert [m.step for m in box.newest(MapIdsMessage, {1}, 3, 10)] == []
+
+
+@pytest.mark.parametrize("kind", ["ids", "marginal"])
+def test_a_stamped_message_travels_with_its_stamp_and_an_unstamped_one_is_unchanged(kind):
+    team = wire.team_id("stamps")
+    if kind == "ids":
+        plain = MapIdsMessage(0, 1, 7, np.array([3, 4, 9]), np.array([True, False, True]))
+    else:
+        plain = CommonMarginalMessage(
+            0, 1, 7, np.array([3]), np.arange(3.0), None, 2, info=2.0 * np.eye(3)
+        )
+    stamped = type(plain)(**{**plain.__dict__, "stamp_ns": 1_700_000_000_123_456_789})
+    a, b = wire.encode(plain, team), wire.encode(stamped, team)
+    assert len(b) == len(a) + 8 == stamped.nbytes() and len(a) == plain.nbytes()
+    assert b[5] == a[5] | wire.STAMPED and b[:5] == a[:5] and b[6:36] == a[6:36]
+    assert b[44:] == a[36:]  # the payload, after the stamp
+    back = wire.decode(b, team, 2)
+    assert back.stamp_ns == stamped.stamp_ns and back.step == 7
+    assert np.array_equal(back.ids, plain.ids)
+    assert wire.decode(a, team, 2).stamp_ns is None
+    with pytest.raises(wire.WireError, match=r"length|truncated"):
+        wire.decode(b[:40], team, 2)
+
+
+def test_max_age_s_in_a_team_file_is_checked(tmp_path):
+    path = tmp_path / "team.yaml"
+    base = "team: t\nsync: async\nrobots:\n  - {id: 0}\n"
+    path.write_text(base + "max_age_s: 0.5\n")
+    assert load_team_file(path).max_age_s == 0.5
+    path.write_text(base)
+    assert load_team_file(path).max_age_s is None
+    for bad in ("-1", ".inf", "soon"):
+        path.write_text(base + f"max_age_s: {bad}\n")
+        with pytest.raises(TeamFileError, match="max_age_s"):
+            load_team_file(path)
+
+
+# ---------------------------------------------------------------------- live robots, in process
+ROBOTS, STEPS, OBJECTS, SEED = 3, 45, 40, 1
+
+
+@pytest.fixture(scope="module")
+def team_bag(tmp_path_factory):
+    """A 3-robot team's bag of odometry, observations and ground truth, and its import."""
+    pytest.importorskip("rosbags", reason="the ros2 extra (rosbags) is not installed")
+    from teamslam.msckf.configure import build_settings
+    from teamslam.ros2 import messages as m
+    from teamslam.ros2.bags import RobotTopics, export_bag, import_bag
+    from teamslam.ros2.live import Received
+    from teamslam.sim import lissajous_team
+
+    tmp = tmp_path_factory.mktemp("async_team")
+    team = lissajous_team(robots=ROBOTS, steps=STEPS, objects=OBJECTS, seed=SEED)
+    bag, camera = tmp / "team.mcap", tmp / "camera.json"
+    export_bag(team, bag, camera=camera)
+    names = [
+        RobotTopics(f"robot_{i}", f"/robot_{i}/odom", f"/robot_{i}/ground_truth")
+        for i in range(ROBOTS)
+    ]
+    dataset = import_bag(bag, names, "/{name}/stereo_observations", camera)
+    config = build_settings(dataset, calibrate="never").config
+    highlevel = m.rosbags("highlevel")
+    items = []
+    with highlevel.AnyReader([bag], default_typestore=m.typestore()) as reader:
+        for conn, _, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            stamp = m.stamp_ns(msg.header.stamp)
+            items.append(Received(conn.topic, conn.msgtype, stamp, msg, time.monotonic_ns()))
+    return dataset, config, items
+
+
+def run_team(tmp_path, team_bag, speeds, queue, consensus=True):
+    """The team's robots in one thread: messages fed in recorded order and, at each of the last
+    robot's camera frames, robot ``i`` processes ``speeds[i]`` frames on average (a slower robot
+    falls behind and its short queue drops its oldest frames). Position RMSE over every frame
+    processed (robots pooled), frames processed per robot, and the robots."""
+    from teamslam.live import LiveInputs, LiveRobot
+    from teamslam.msckf.consensus.transport import MemoryNetwork
+    from teamslam.runtime.team_file import RobotEntry, TeamFile
+
+    dataset, config, items = team_bag
+    entries = [
+        RobotEntry(i, "tcp/127.0.0.1:0", [j for j in range(ROBOTS) if j != i] if consensus else [])
+        for i in range(ROBOTS)
+    ]
+    team = TeamFile("async", None, entries, sync="async", max_age_steps=3, checkpoint_every=0)
+    network = MemoryNetwork(ROBOTS)
+    robots = [
+        LiveRobot(
+            team,
+            i,
+            LiveInputs(
+                f"/robot_{i}/odom",
+                observations=f"/robot_{i}/stereo_observations",
+                ground_truth=f"/robot_{i}/ground_truth",
+                queue=queue,
+            ),
+            config,
+            tmp_path,
+            calibration=dataset.calibration,
+            transport=network.endpoint(i) if consensus else None,
+            say=lambda text: None,
+        )
+        for i in range(ROBOTS)
+    ]
+    credit = np.zeros(ROBOTS)
+
+    def tick() -> None:
+        credit[:] += speeds
+        for i, robot in enumerate(robots):
+            while credit[i] >= 1 and robot.process_queued():
+                credit[i] -= 1
+            credit[i] = min(credit[i], 1.0)
+
+    last = f"/robot_{ROBOTS - 1}/stereo_observations"
+    for item in items:
+        robots[int(item.topic.split("/")[1].rsplit("_", 1)[1])].feed(item)
+        if item.topic == last:
+            tick()
+    for robot in robots:
+        robot.finish()
+    while any(robot.process_queued() for robot in robots):
+        pass
+    origin = int(dataset.metadata["ros2"]["stamp_origin_ns"])
+    errors = []
+    for robot, sequence in zip(robots, dataset.robots, strict=True):
+        index = {origin + round(t * 1e9): k for k, t in enumerate(sequence.timestamps)}
+        frames = [index[int(s)] for s in robot.sequence.stamps_ns[: robot.sequence.frames]]
+        estimate = robot.driver.poses[: robot.driver.done, :3, 3]
+        errors.append(estimate - sequence.T_world_body[frames, :3, 3])
+    e = np.concatenate(errors)
+    rmse = float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+    return rmse, [robot.sequence.frames for robot in robots], robots
+
+
+def test_asynchronous_robots_that_drop_different_frames_keep_averaging(team_bag, tmp_path):
+    speeds = np.array([1.0, 0.55, 0.75])
+    rmse, frames, robots = run_team(tmp_path / "drops", team_bag, speeds, queue=2)
+    nodrop, nodrop_frames, full = run_team(tmp_path / "nodrop", team_bag, np.ones(3), 10_000)
+    alone, _, _ = run_team(tmp_path / "alone", team_bag, speeds, queue=2, consensus=False)
+    # the robots dropped different frames: their steps drifted far apart
+    assert nodrop_frames == [STEPS + 1] * ROBOTS
+    assert frames[0] == STEPS + 1 and frames[0] - frames[2] > 5 and frames[2] - frames[1] > 5
+    assert [robot.counts.dropped["queue"] for robot in robots] == [STEPS + 1 - n for n in frames]
+    # every message was accepted, and each pair that averages without drops averages on about
+    # as large a share of its frames with them
+    for robot, reference, n in zip(robots, full, frames, strict=True):
+        assert robot.driver.agent.counters["rejected_messages"] == 0
+        for j, steps in reference.driver.averaged_with.items():
+            share = len(steps) / (STEPS + 1)
+            assert len(robot.driver.averaged_with.get(j, [])) >= 0.5 * share * n, (robot.robot, j)
+    # consensus keeps its benefit: near the run without drops, well below robots alone
+    assert rmse < 1.25 * nodrop and rmse < 0.8 * alone
+    # the default age limit, max_age_steps of a robot's steps: longer steps when it drops
+    steps = [
+        robot.sequence.step_interval_ns(n - 1) for robot, n in zip(robots, frames, strict=True)
+    ]
+    assert steps[0] == S  # the bag's 1 Hz camera: a robot that drops nothing
+    assert steps[1] > steps[2] > S  # the slowest robot takes the longest steps
+    with pytest.raises(ValueError, match="no step interval"):
+        robots[0].sequence.step_interval_ns(0)
+
+
+def test_robots_aged_by_stamp_answer_a_summary_out_of_their_phase_once():
+    """Own association: a neighbour's object summary comes at its own steps (every
+    ``association.interval``); a robot aged by stamp answers it with its own summary made then
+    — once, though the same newest request comes back (aged by step, the request of a later
+    step is refused)."""
+    from teamslam.datasets.identity import strip_object_ids
+    from teamslam.msckf import config_for
+    from teamslam.msckf.agent import MsckfAgent
+    from teamslam.msckf.consensus.protocol import ConsensusProtocol
+    from teamslam.sim import lissajous_team
+
+    team = strip_object_ids(lissajous_team(robots=2, steps=12, seed=4, landmarks=300), seed=2)
+    config = config_for(team, {"association.mode": "own", "filter.window": 6}, "never")
+    agents = [MsckfAgent(i, team.calibration, team.robots[i], config) for i in range(2)]
+    for agent in agents:
+        for t in range(11):
+            agent.step(t)
+
+    def associations(by_stamp: bool) -> list[int]:
+        age = {"max_age_ns": 3 * S} if by_stamp else {}
+        a, b = (ConsensusProtocol(agent, [1 - agent.robot], max_age=3) for agent in agents)
+        (request,) = a.requests(10, stamp_ns=10 * S, **age)  # a summary step of robot 0 ...
+        assert request.summary is not None and request.stamp_ns == 10 * S
+        counts = []
+        for step in (7, 8):  # ... at steps of robot 1 that are not, the request seen twice
+            b.requests(step, stamp_ns=(step + 3) * S, **age)
+            b.answer([request])
+            assert b.heard == ({0} if by_stamp else set())
+            stats = b.link_stats[0]
+            counts.append(stats["full_associations"] + stats["extensions"])
+        return counts
+
+    assert associations(by_stamp=True) == [1, 1]
+    assert associations(by_stamp=False) == [0, 0]
