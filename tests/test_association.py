@@ -19,6 +19,7 @@ from teamslam.association import (
 )
 from teamslam.association.candidates import _neighbourhoods, neighbourhood_sets, select_candidates
 from teamslam.association.distances import nearest_neighbours, pair_distances
+from teamslam.association.gate import frame_scale
 from teamslam.association.kernels import (
     consistent_pairs,
     gathered_objects,
@@ -947,3 +948,89 @@ def test_frame_probability_is_a_probability():
         with pytest.raises(InputError, match="frame_probability"):
             AssociationSettings(frame_probability=bad)
     assert AssociationSettings().frame_threshold is None
+
+
+def test_frame_scale_is_a_robust_scale_never_below_one():
+    rng = np.random.default_rng(0)
+    chi2 = rng.chisquare(3, 400)
+    assert frame_scale(np.zeros(0)) == 1.0
+    assert frame_scale(0.2 * chi2) == 1.0  # maps better than their covariances: the test stays
+    assert 0.8 < frame_scale(chi2) < 1.25
+    assert 16.0 * 0.8 < frame_scale(16.0 * chi2) < 16.0 * 1.25
+    # a minority of wrong pairs far off moves it little
+    spoiled = np.concatenate([16.0 * chi2, np.full(40, 1e6)])
+    assert frame_scale(spoiled) < 16.0 * 1.4
+    for bad in (0.5, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="frame_scale"):
+            AssociationSettings(frame_scale=bad)
+
+
+def _drifting_grid(shift: float, seed: int = 2):
+    """The 8 × 8 grid of objects 5 m apart in one world frame: the first map holds all of them;
+    the second its first 40 (``b``) and then all of them (``later``), the 24 objects seen
+    later off by ``shift`` metres along x and y that the covariances do not tell (the drift
+    of noisy odometry the standard linearisation does not account for). Object ``k`` is ``k``
+    in the first map and ``100 + k`` in the second."""
+    x, y = np.meshgrid(np.arange(8) * 5.0, np.arange(8) * 5.0)
+    grid = np.column_stack([x.ravel(), y.ravel(), np.zeros(64)])
+    rng = np.random.default_rng(seed)
+    a = _summary(0, np.arange(64), grid, rng, sigma=0.05)
+    later = _summary(1, np.arange(64) + 100, grid, rng, sigma=0.05)
+    later = ObjectSummary(
+        1, later.ids, later.means + (np.arange(64) >= 40)[:, None] * [shift, shift, 0.0], later.covs
+    )
+    b = ObjectSummary(1, later.ids[:40], later.means[:40], later.covs[:40])
+    return a, b, later
+
+
+def _full_association(table: CorrespondenceTable, a: ObjectSummary, b: ObjectSummary) -> None:
+    """A link's full association as a robot runs it: once more when it taught the table a
+    larger frame scale, then merged."""
+    result = associate(a, b, table.current_settings())
+    if table.learn_frame(result, a, b):
+        result = associate(a, b, table.current_settings())
+    table.merge(result, a, b)
+
+
+def _right(table: CorrespondenceTable) -> bool:
+    pairs = table.pairs()
+    return bool(np.all(pairs[:, 1] == pairs[:, 0] + 100))
+
+
+def test_a_link_learns_the_scale_of_maps_overconfident_against_each_other():
+    # the later objects' squared distance between the maps: about (2 · 0.35²) / (2 · 0.05²) =
+    # 49 against the covariances' 3 (a factor of 16), beyond the frame's χ²₃ quantile
+    a, b, later = _drifting_grid(0.35)
+    framed = AssociationSettings(frame_probability=0.99999)
+    table = CorrespondenceTable(a.robot, b.robot, framed)
+    _full_association(table, a, b)
+    assert len(table) >= 36 and _right(table)
+    assert table.frame_scale == 1.0  # nothing to learn from before the link held an answer
+    # with the frame taken at its word, the later objects are refused
+    plain = associate(a, later, framed)
+    assert np.count_nonzero(plain.pairs[:, 0] >= 40) <= 4
+    # the link learns the scale from the answer's pairs and accepts them
+    _full_association(table, a, later)
+    assert 8.0 < table.frame_scale < 32.0
+    assert np.count_nonzero(table.pairs()[:, 0] >= 40) >= 20 and _right(table)
+    # maps whose frames disagree by half a cell are still refused with the learned scale
+    learned = table.current_settings()
+    assert learned.frame_scale == table.frame_scale
+    assert associate(a, b, learned).matched
+    moved = b.transformed(_pose(0.0, (2.5, 2.5, 0.0)))
+    assert not associate(a, moved, learned).matched
+
+
+def test_the_scale_is_not_learned_by_consistent_maps_nor_without_a_frame():
+    a, b, later = _drifting_grid(0.0)
+    framed = AssociationSettings(frame_probability=0.99999)
+    table = CorrespondenceTable(a.robot, b.robot, framed)
+    assert not table.learn_frame(associate(a, b, framed), a, b)  # no pair held yet
+    _full_association(table, a, b)
+    _full_association(table, a, later)
+    assert len(table) >= 60 and _right(table)
+    assert table.frame_scale < 2.0
+    free = CorrespondenceTable(a.robot, b.robot)
+    _full_association(free, a, b)
+    _full_association(free, a, later)
+    assert free.frame_scale == 1.0 and free.current_settings() is free.settings

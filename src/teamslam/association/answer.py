@@ -82,6 +82,11 @@ class AssociationResult:
     clique_pairs
         ``(c, 2)`` the pairs of the consistent set behind the answer (for diagnostics; the
         answer is :attr:`pairs`).
+    gathered
+        ``(g, 2)`` the pairs the answer's consistent set gathered under its transform, before
+        the maps' shared frame dropped those it refuses (identified by shape, not by the frame:
+        a link's table learns the frame's scale from them,
+        :meth:`~teamslam.association.CorrespondenceTable.merge`); empty without an answer.
     """
 
     first: int
@@ -95,6 +100,7 @@ class AssociationResult:
     exact: bool = True
     flipped: int = 0
     clique_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    gathered: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
     def swapped(self) -> AssociationResult:
         """The same result seen from the second robot."""
@@ -110,6 +116,7 @@ class AssociationResult:
             second=self.first,
             pairs=flip(self.pairs),
             clique_pairs=flip(self.clique_pairs),
+            gathered=flip(self.gathered),
             T_first_second=None if t is None else se3.inverse(t),
         )
 
@@ -340,6 +347,7 @@ def _from_candidates(
     best = max(range(len(found)), key=lambda k: (framed[k][0].size, -k))
     rows, cols = framed[best]
     _, _, t, clique_pairs, (ca, cb) = found[best]
+    gathered = np.column_stack([a.ids[found[best][0]], b.ids[found[best][1]]])
     if rows.size >= 3 and rows.size < found[best][0].size:
         t = fit_transform(a.means[rows], b.means[cols], a.covs[rows], b.covs[cols])
     counts["clique"] = int(clique_pairs.shape[0])
@@ -387,6 +395,7 @@ def _from_candidates(
         "matched",
         exact=exact,
         clique_pairs=clique_pairs[np.argsort(clique_pairs[:, 0], kind="stable")],
+        gathered=gathered[np.argsort(gathered[:, 0], kind="stable")],
         **counts,
     )
 

@@ -20,12 +20,15 @@ from teamslam.association.distances import anchor_distance, nearest_distance
 from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
 from teamslam.association.transform import consensus_core, fit_transform, rigid_core
+from teamslam.gaussian import chi2_quantile
 
 __all__ = [
     "alone",
     "assign",
     "distinct",
     "frame_allowed",
+    "frame_nis",
+    "frame_scale",
     "gate_pairs",
     "in_frame",
     "separated",
@@ -93,9 +96,30 @@ def in_frame(
     chi2 = settings.frame_threshold
     if chi2 is None or rows.size == 0:
         return np.ones(rows.size, dtype=bool)
+    return frame_nis(first, second, rows, cols) <= chi2
+
+
+def frame_nis(
+    first: ObjectSummary, second: ObjectSummary, rows: np.ndarray, cols: np.ndarray
+) -> np.ndarray:
+    """``(k,)`` squared Mahalanobis distances under the identity of the pairs
+    ``(rows[k], cols[k])``: ``(μₐ − μ_b)ᵀ (Σₐ + Σ_b)⁻¹ (μₐ − μ_b)``, ``χ²₃`` when both maps are
+    estimates in one world frame with right marginal covariances."""
     d = first.means[rows] - second.means[cols]
     s = first.covs[rows] + second.covs[cols]
-    return np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0]) <= chi2
+    return np.einsum("pi,pi->p", d, np.linalg.solve(s, d[:, :, None])[:, :, 0])
+
+
+def frame_scale(nis: np.ndarray) -> float:
+    """The factor by which two maps' differences exceed their marginal covariances, learned
+    from the :func:`frame_nis` of pairs known to be the same objects: the median of ``nis``
+    over the median of ``χ²₃`` (a robust estimate of ``s`` when ``nis ~ s · χ²₃``: a minority of
+    wrong pairs moves it little), never below 1 (maps found more consistent than their
+    covariances say do not narrow the test)."""
+    nis = np.asarray(nis, dtype=float)
+    if nis.size == 0:
+        return 1.0
+    return max(1.0, float(np.median(nis)) / chi2_quantile(0.5, 3))
 
 
 def gate_pairs(

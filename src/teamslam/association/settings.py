@@ -68,6 +68,13 @@ class AssociationSettings:
         objects one spacing further), only the one the maps' own frames allow remains. A
         team's own association (``association.frame_probability``) sets it by default, at
         the probability of its revocation test: its robots start at known poses in one frame.
+    frame_scale
+        The factor (at least 1) by which the two maps' differences are known to exceed their
+        marginal covariances: the test of ``frame_probability`` compares the squared
+        Mahalanobis distance with ``frame_scale`` times the ``χ²₃`` quantile. 1 (default): the
+        covariances are taken as right. A link's table learns it from the pairs its held
+        pairs' transform identifies (:meth:`~teamslam.association.CorrespondenceTable.extend`):
+        not a setting to give by hand.
     """
 
     consistency_probability: float = 0.99
@@ -83,6 +90,7 @@ class AssociationSettings:
     rivals: int = 3
     separation: float = 0.5
     frame_probability: float | None = None
+    frame_scale: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("consistency_probability", "gate_probability"):
@@ -117,6 +125,8 @@ class AssociationSettings:
                 "association setting frame_probability must be in (0, 1) or None, got "
                 f"{self.frame_probability}"
             )
+        if not (np.isfinite(self.frame_scale) and self.frame_scale >= 1.0):
+            raise InputError(f"association setting frame_scale must be ≥ 1, got {self.frame_scale}")
         if self.descriptor_matches > self.neighbours:
             raise InputError("association setting descriptor_matches exceeds neighbours")
 
@@ -132,7 +142,9 @@ class AssociationSettings:
 
     @property
     def frame_threshold(self) -> float | None:
-        """``χ²₃`` quantile of :attr:`frame_probability` (``None`` without it)."""
+        """``χ²₃`` quantile of :attr:`frame_probability` times :attr:`frame_scale` (``None``
+        without it)."""
         if self.frame_probability is None:
             return None
-        return chi2_quantile(self.frame_probability, 3)
+        chi2 = chi2_quantile(self.frame_probability, 3)
+        return chi2 if self.frame_scale == 1.0 else chi2 * self.frame_scale

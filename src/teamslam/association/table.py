@@ -27,7 +27,15 @@ from teamslam.association.answer import AssociationResult
 from teamslam.association.appearance import beyond_chance, cosine_distances, link_model
 from teamslam.association.consistency import consistent_members
 from teamslam.association.distances import anchor_distance
-from teamslam.association.gate import alone, assign, distinct, gate_pairs, in_frame, separated
+from teamslam.association.gate import (
+    alone,
+    assign,
+    distinct,
+    frame_nis,
+    frame_scale,
+    gate_pairs,
+    separated,
+)
 from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
 from teamslam.association.transform import fit_transform
@@ -146,6 +154,11 @@ class CorrespondenceTable:
         #: whether the last summaries' appearance model was informative (the minimum of an
         #: answer is then three pairs: :func:`~teamslam.association.associate`)
         self._looks = False
+        #: the shared frame's scale learned from :attr:`_frame_samples` (1 until then)
+        self.frame_scale = 1.0
+        #: (own id, neighbour id) → squared Mahalanobis distance under the identity of a pair
+        #: identified by a transform while neither object was held (:meth:`_learn_frame`)
+        self._frame_samples: dict[tuple[int, int], float] = {}
 
     def __len__(self) -> int:
         return len(self._theirs)
@@ -171,6 +184,14 @@ class CorrespondenceTable:
         """Our ids of the neighbour's ``their_ids`` (-1 where unmatched)."""
         ids = np.asarray(their_ids, dtype=np.int64).reshape(-1)
         return np.array([self._ours.get(int(i), -1) for i in ids], dtype=np.int64)
+
+    def current_settings(self) -> AssociationSettings:
+        """The link's settings with the shared frame's scale it has learned
+        (:attr:`frame_scale`, see :meth:`extend`): what its full associations and extensions
+        use."""
+        if self.frame_scale == 1.0:
+            return self.settings
+        return replace(self.settings, frame_scale=self.frame_scale)
 
     def _blocked(self, pair: tuple[int, int], step: int | None) -> bool:
         if pair not in self._revoked:
@@ -208,6 +229,7 @@ class CorrespondenceTable:
                 f"association of robots {result.first}→{result.second} merged into the table of "
                 f"link {self.own}→{self.neighbour}"
             )
+        self.learn_frame(result, own, their)
         new = [
             (int(a), int(b))
             for a, b in result.pairs
@@ -264,7 +286,20 @@ class CorrespondenceTable:
           their objects' spacing: :attr:`~teamslam.association.AssociationSettings.separation`);
         * consistent two by two with the held pairs and the pairs added before them, as the
           members of a full association's consistent set are
-          (:func:`~teamslam.association.consistency.consistent_members`).
+          (:func:`~teamslam.association.consistency.consistent_members`);
+        * allowed by the maps' shared frame (when they share one: the test of
+          :attr:`~teamslam.association.AssociationSettings.frame_probability` with the scale
+          the link has learned).
+
+        The pairs that pass every test but the last are identified by the held pairs' transform,
+        not by the frame: their squared Mahalanobis distances under the identity
+        (:func:`~teamslam.association.gate.frame_nis`) measure how far the two maps' estimates
+        of one object lie apart against their covariances. When they are at least
+        ``min_inliers`` (none of them a pair consensus revoked), they set the link's
+        :attr:`frame_scale` (:func:`~teamslam.association.gate.frame_scale`), used from the next
+        association or extension on: maps overconfident against each other (noisy odometry
+        with the standard linearisation) no longer have their right pairs refused by the frame.
+        Before the link holds an answer the scale is 1.
 
         A pair left out waits for a full association or for covariances that tell its objects
         apart. Computed in the canonical order of the two robots, like
@@ -289,16 +324,23 @@ class CorrespondenceTable:
                 f"{self.own}→{self.neighbour}"
             )
         held = self.pairs()
-        settings, model = self.settings, self._model(own, their)
+        settings, model = self.current_settings(), self._model(own, their)
         self._looks = model is not None
         if model is not None:
             settings = replace(settings, min_inliers=3)
         if self._canonical_first():
-            found = _extend(own.sorted(), their.sorted(), held, settings, model)
+            found, nis, framed = _extend(own.sorted(), their.sorted(), held, settings, model)
         else:
-            found = _extend(their.sorted(), own.sorted(), held[:, ::-1], settings, model)[:, ::-1]
+            found, nis, framed = _extend(
+                their.sorted(), own.sorted(), held[:, ::-1], settings, model
+            )
+            found = found[:, ::-1]
         if model is not None and len(found):
-            found = found[_looks_alike(own, their, found, model, settings)]
+            alike = _looks_alike(own, their, found, model, settings)
+            found, nis, framed = found[alike], nis[alike], framed[alike]
+        if self.settings.frame_probability is not None:
+            self._learn_frame(own, their, found, nis=nis)
+        found = found[framed]
         self.proposed += len(found)
         new = [
             (int(a), int(b))
@@ -312,6 +354,74 @@ class CorrespondenceTable:
             self._ours[b] = a
         self.accepted += len(new)
         return np.array(new, dtype=np.int64).reshape(-1, 2)
+
+    def learn_frame(
+        self, result: AssociationResult, own: ObjectSummary, their: ObjectSummary
+    ) -> bool:
+        """Learn the shared frame's scale from a full association's answer (the pairs its
+        consistent set gathered by shape, :attr:`~teamslam.association.AssociationResult.
+        gathered`; see :meth:`_learn_frame`), as :meth:`merge` does.
+
+        Returns
+        -------
+        bool
+            Whether :attr:`frame_scale` grew: the association, run with the old scale, refused
+            pairs the maps' measured disagreement allows (the caller may run it again).
+        """
+        before = self.frame_scale
+        if result.matched and self.settings.frame_probability is not None:
+            self._learn_frame(own, their, result.gathered, fresh=True)
+        return self.frame_scale > before
+
+    def _learn_frame(
+        self,
+        own: ObjectSummary,
+        their: ObjectSummary,
+        pairs: np.ndarray,
+        nis: np.ndarray | None = None,
+        fresh: bool = False,
+    ) -> None:
+        """Learn the shared frame's scale from ``pairs`` (own id, neighbour id) identified by a
+        transform, not by the frame: those whose objects are both unmatched and that consensus
+        did not revoke are samples of the maps' disagreement
+        (:func:`~teamslam.association.gate.frame_nis`; a held pair's estimates were averaged,
+        so its distance says nothing of it), once the link holds an answer (``min_inliers``
+        pairs: until then the frame is taken at its word). ``fresh`` (a full association): at least
+        ``min_inliers`` of them replace the samples kept so far; else they are added, each pair
+        keeping its latest. From ``min_inliers`` samples on, :attr:`frame_scale` is
+        :func:`~teamslam.association.gate.frame_scale` of them."""
+        need = self.settings.min_inliers
+        if len(self) < need:
+            return  # before the link holds an answer the frame is taken at its word
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        keep = np.array(
+            [
+                int(a) not in self._theirs
+                and int(b) not in self._ours
+                and not self._blocked((int(a), int(b)), None)
+                for a, b in pairs
+            ],
+            dtype=bool,
+        )
+        pairs = pairs[keep]
+        if nis is None:
+            if pairs.size == 0:
+                return
+            ia = _indices(own.ids, pairs[:, 0])
+            ib = _indices(their.ids, pairs[:, 1])
+            if self._canonical_first():
+                nis = frame_nis(own, their, ia, ib)
+            else:
+                nis = frame_nis(their, own, ib, ia)
+        else:
+            nis = np.asarray(nis, dtype=float)[keep]
+        samples = {(int(a), int(b)): float(v) for (a, b), v in zip(pairs, nis, strict=True)}
+        if fresh and len(samples) >= need:
+            self._frame_samples = samples
+        else:
+            self._frame_samples.update(samples)
+        if len(self._frame_samples) >= need:
+            self.frame_scale = frame_scale(np.fromiter(self._frame_samples.values(), float))
 
     def _canonical_first(self) -> bool:
         return self.own <= self.neighbour
@@ -389,6 +499,7 @@ class CorrespondenceTable:
             return False
         del self._theirs[own_id]
         del self._ours[their_id]
+        self._frame_samples.pop((own_id, their_id), None)
         self._revoked[(own_id, their_id)] = -1 if step is None else int(step)
         self.revoked += 1
         return True
@@ -401,6 +512,12 @@ class CorrespondenceTable:
             "revoked": self.revoked,
             "held": len(self),
         }
+
+
+def _indices(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """Indices into ``ids`` (unique, in any order) of the ids ``wanted`` (all present)."""
+    order = np.argsort(ids, kind="stable")
+    return order[np.searchsorted(ids, wanted, sorter=order)]
 
 
 def _looks_alike(
@@ -429,10 +546,18 @@ def _extend(
     held: np.ndarray,
     settings: AssociationSettings,
     model=None,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """New pairs of unmatched objects of ``a`` and ``b`` under the held pairs' transform (with
     an appearance ``model``, pairs assigned and told apart by Mahalanobis distance plus
-    ``−2`` times their log likelihood ratio, as in the association)."""
+    ``−2`` times their log likelihood ratio, as in the association).
+
+    Returns
+    -------
+    pairs, nis, framed
+        ``(k, 2)`` the pairs that pass every test but the shared frame's (ids, sorted by the
+        first), their :func:`~teamslam.association.gate.frame_nis` and which the frame allows.
+    """
+    none = (np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0, bool))
     looks = None
     if model is not None:
         known_a = np.any(a.appearance != 0, axis=1)
@@ -456,7 +581,7 @@ def _extend(
     )
     ia, ib = ia[present], ib[present]
     if ia.size < settings.min_inliers:
-        return np.zeros((0, 2), np.int64)
+        return none
     t = fit_transform(a.means[ia], b.means[ib], a.covs[ia], b.covs[ib])
     cost, passed = gate_pairs(a, b, t, a.means[ia], b.means[ib], settings)
     if looks is not None:
@@ -497,9 +622,15 @@ def _extend(
     added[added] = spaced
     rows, cols = keep_rows[added], keep_cols[added]
     ok = consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
-    ok &= in_frame(a, b, rows, cols, settings)
-    pairs = np.column_stack([a.ids[rows[ok]], b.ids[cols[ok]]])
-    return pairs[np.argsort(pairs[:, 0], kind="stable")] if pairs.size else pairs
+    rows, cols = rows[ok], cols[ok]
+    if rows.size == 0:
+        return none
+    nis = frame_nis(a, b, rows, cols)
+    chi2 = settings.frame_threshold
+    framed = np.ones(rows.size, bool) if chi2 is None else nis <= chi2
+    pairs = np.column_stack([a.ids[rows], b.ids[cols]])
+    order = np.argsort(pairs[:, 0], kind="stable")
+    return pairs[order], nis[order], framed[order]
 
 
 def _merge_gate(

@@ -535,7 +535,13 @@ class ConsensusProtocol:
         stats = self.link_stats[j]
         if table.due(len(own), len(theirs)):
             held = table.pairs() if own.appearance is not None else None
-            table.merge(associate(own, theirs, table.settings, held), own, theirs, self.step)
+            result = associate(own, theirs, table.current_settings(), held)
+            if table.learn_frame(result, own, theirs):
+                # the answer showed the maps further apart than their covariances say: once
+                # more with the shared frame's scale learned from it
+                result = associate(own, theirs, table.current_settings(), held)
+                stats["full_associations"] += 1
+            table.merge(result, own, theirs, self.step)
             stats["full_associations"] += 1
         else:
             table.extend(own, theirs, self.step)
