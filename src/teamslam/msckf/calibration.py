@@ -455,6 +455,8 @@ def calibration_table(dataset: TeamDataset, result: CalibrationResult) -> str:
         ("object σ share of box", "object_size_share"),
         ("object depth (m)", "object_depth_range"),  # not calibrated: shown for reference
     ):
+        if key == "object_size_share" and noise.object_size_share is None:
+            continue  # only for detections with box sizes
         row = f"{label:<22}{format_value(getattr(noise, key)):>44}"
         if old is not None:
             row += f"  {format_value(getattr(old, key)):>44}"

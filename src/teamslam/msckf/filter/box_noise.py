@@ -39,7 +39,12 @@ def box_size2(rows: np.ndarray) -> np.ndarray:
 def box_variances(rows: np.ndarray, std: float, share: float) -> np.ndarray:
     """``(..., 4)`` variance of each centre coordinate of box rows (module docstring)."""
     size2 = box_size2(rows)
-    return std**2 + (share**2 + rows[..., 6:10]) * size2
+    out = std**2 + (share**2 + rows[..., 6:10]) * size2
+    # the hidden extents of the two images differ by the disparity: so may their centres' bias
+    half_disparity2 = 0.25 * (rows[..., 0] - rows[..., 2]) ** 2
+    out[..., 0] += rows[..., 6] * half_disparity2
+    out[..., 2] += rows[..., 8] * half_disparity2
+    return out
 
 
 def box_rows(
