@@ -8,9 +8,9 @@ object's by half the hidden extent, unknown). A plain row holds the centre only.
 
 Per coordinate the variance is ``σ₀² + (α·s)² + c·s²`` (:func:`box_variances`): ``σ₀`` is
 ``filter.object_std``, ``α`` ``filter.object_size_share``, ``s`` the box's size along the
-coordinate's axis (``w`` for ``u``, ``h`` for ``v``) and ``c`` the clipped flag (a bias of up
-to half a hidden part as large as the visible one, one σ). Plain rows keep ``σ₀²``. Derivation
-and measurement: the concept page *Objects from a detector* (``docs/concepts/box-noise.md``).
+coordinate's axis (``w`` for ``u``, ``h`` for ``v``) and ``c`` the clipped flag (a hidden part
+up to twice the visible one, at one σ; for ``u`` plus half the disparity, squared). Plain rows
+keep ``σ₀²``. Derivation: the concept page *Boxes* (``docs/concepts/boxes.md``).
 """
 
 from __future__ import annotations
