@@ -19,19 +19,24 @@ the box centres' errors against the true objects (evaluation only) by box width:
 spread as a share of the box, how many lie beyond three σ of the noise model the own run
 calibrated (``filter.object_std``, ``filter.object_size_share``), and how much of an object's
 error persists from one frame to the next.
+``--render DIR`` keeps the rendered street in ``DIR`` and renders again only when ``DIR`` does not
+hold a finished render of the same configuration (rendering is most of the benchmark's time).
 ``--markdown FILE`` writes the table headed by the commit,
 date, command and machine (``benchmarks/_markdown.py``).
 
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/detector_team.py [--robots 3 --steps 420]
+        [--render results/street-render]
 """
 
 from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import tempfile
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -139,15 +144,34 @@ def _box_errors(boxes, std: float, share: float) -> tuple[list[list[str]], str]:
     return out, note
 
 
+def _render(config: RenderConfig, directory: Path) -> None:
+    """Render the street into ``directory`` unless it holds a finished render of ``config``
+    (its ``render.json`` equal to ``config``'s, and a ``done`` mark written after rendering)."""
+    stored = directory / "render.json"
+    if (directory / "done").exists() and stored.exists():
+        written = json.loads(json.dumps(asdict(config)))  # tuples as lists, as on disk
+        if json.loads(stored.read_text()) == written:
+            return
+        raise SystemExit(f"{directory} holds a render of another configuration")
+    render_team(config, directory, detector=DetectorConfig())
+    (directory / "done").write_text("rendered\n")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--robots", type=int, default=3)
     parser.add_argument("--steps", type=int, default=420)
     parser.add_argument("--seed", type=int, default=17)
+    parser.add_argument(
+        "--render",
+        type=Path,
+        default=None,
+        help="keep the rendered street in DIR and reuse it (default: a temporary directory)",
+    )
     add_option(parser)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        render = Path(tmp) / "street"
+        render = args.render if args.render is not None else Path(tmp) / "street"
         config = RenderConfig(
             robots=args.robots,
             steps=args.steps,
@@ -156,7 +180,7 @@ def main() -> None:
             objects="shapes",
             markers_per_wall=0,
         )
-        render_team(config, render, detector=DetectorConfig())
+        _render(config, render)
         boxes = dataset_from_images(**rendered_team_inputs(render), progress=False)
     settings = {"filter.window": 10}
     oracle = api.run(oracle_object_ids(boxes), mode="compare", settings=settings, report=False)
