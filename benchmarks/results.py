@@ -132,7 +132,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"{GENERATED}/active-budget.md",
     ),
     "detector-team": (
-        "python benchmarks/detector_team.py --robots 3 --steps 420 "
+        "python benchmarks/detector_team.py --robots 3 --steps 420 --render results/street-render "
         f"--markdown {GENERATED}/detector-team.md",
         f"{GENERATED}/detector-team.md",
     ),

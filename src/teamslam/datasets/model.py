@@ -297,6 +297,12 @@ class FrameDetections:
         a, b = self.offsets[k], self.offsets[k + 1]
         return self.measurements[a:b], None if self.classes is None else self.classes[a:b]
 
+    def sizes_of(self, k: int) -> np.ndarray | None:
+        """``(D_k, 2)`` box sizes of frame ``k`` (a view), or ``None``."""
+        if self.sizes is None:
+            return None
+        return self.sizes[self.offsets[k] : self.offsets[k + 1]]
+
     def appearance_of(self, k: int) -> np.ndarray | None:
         """``(D_k, D)`` appearance descriptors of frame ``k`` (a view), or ``None``."""
         if self.appearance is None:

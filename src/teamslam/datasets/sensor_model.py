@@ -3,7 +3,9 @@
 A versioned ``"sensor_model"`` section of the dataset manifest: its ``origin`` and ``note``,
 team-wide ``odometry_std`` (six per-axis σ per step, metres then radians, right perturbation
 ``δT_measured = δT_true · exp(n)``), ``feature_std`` and ``object_std`` (σ per stereo coordinate
-in the units of ``K``), ``object_depth_range`` (metres), and optional per-robot overrides. Any
+in the units of ``K``), ``object_size_share`` (how a detector box centre's σ grows with the
+box, :mod:`teamslam.msckf.filter.box_noise`), ``object_depth_range`` (metres), and optional
+per-robot overrides. Any
 field may be ``null`` (unknown): the filter then takes it from calibration or a camera-scaled
 default. Layout and conventions: the concept page *Calibration*
 (``docs/concepts/calibration.md``).
@@ -48,12 +50,16 @@ class SensorNoise:
         centres, in the units of the camera intrinsics.
     object_depth_range
         ``(min, max)`` distance in metres at which objects are detected and initialised.
+    object_size_share
+        Share of a detector box's size (width for ``u``, height for ``v``) added in quadrature
+        to ``object_std`` (≥ 0).
     """
 
     odometry_std: tuple[float, ...] | None = None
     feature_std: float | None = None
     object_std: float | None = None
     object_depth_range: tuple[float, float] | None = None
+    object_size_share: float | None = None
 
     def __post_init__(self) -> None:
         self.check("sensor_model")
@@ -73,6 +79,11 @@ class SensorNoise:
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, _positive(value, f"{where}.{name}"))
+        if self.object_size_share is not None:
+            share = self.object_size_share
+            if share != 0:
+                share = _positive(share, f"{where}.object_size_share")
+            object.__setattr__(self, "object_size_share", float(share))
         if self.object_depth_range is not None:
             rng = self.object_depth_range
             if isinstance(rng, str) or not hasattr(rng, "__len__") or len(rng) != 2:

@@ -25,6 +25,7 @@ from teamslam.datasets.model import Calibration, RobotSequence
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry import se3
+from teamslam.msckf.filter.box_noise import box_rows, box_size2, box_variances, is_box
 from teamslam.msckf.filter.linearization import GroundTruth, linearization_policy
 from teamslam.msckf.filter.models import observe, observe_jacobians, points_in_camera
 from teamslam.msckf.filter.state import MsckfState, RobotWindow
@@ -99,6 +100,7 @@ class MsckfAgent:
         self.robot = robot
         self.camera = calibration.camera
         self.T_cam_body = calibration.T_cam_body
+        self.image_size = calibration.image_size
         self.sequence = sequence
         self.config = config
         self.policy = linearization_policy(config.filter.linearization)
@@ -193,7 +195,8 @@ class MsckfAgent:
                     zs.append(z)
             out[f"{name}_ids"] = np.array(ids, dtype=np.int64)
             out[f"{name}_frames"] = np.array(frames, dtype=np.int64)
-            out[f"{name}_z"] = np.array(zs, dtype=float).reshape(-1, 4)
+            width = len(zs[0]) if zs else 4  # box rows: filter/box_noise.py
+            out[f"{name}_z"] = np.array(zs, dtype=float).reshape(-1, width)
         out.update({f"views_{k}": v for k, v in self.views.arrays().items()})
         out["frame"] = np.array(self.frame, dtype=np.int64)
         out["frame_times"] = np.array(self.frame_times, dtype=float).reshape(-1, 3)
@@ -217,7 +220,8 @@ class MsckfAgent:
             histories = {}
             for name in ("tracks", "objhist"):
                 ids, frames = snapshot[f"{name}_ids"], snapshot[f"{name}_frames"]
-                zs = np.asarray(snapshot[f"{name}_z"], dtype=float).reshape(-1, 4)
+                zs = np.asarray(snapshot[f"{name}_z"], dtype=float)
+                zs = zs.reshape(ids.size, -1) if ids.size else zs.reshape(0, 4)
                 if not ids.shape == frames.shape == zs.shape[:1]:
                     raise InputError(f"snapshot {name}: {ids.shape} ids, {zs.shape} observations")
                 history: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
@@ -486,6 +490,12 @@ class MsckfAgent:
             self.counters["detections_monocular"] += int(monocular.sum())
             if (~finite & ~monocular).any():
                 self.reject("object_measurements", int((~finite & ~monocular).sum()), "non-finite")
+        sizes = self.sequence.detections.sizes_of(t)
+        if sizes is not None:  # each box its own noise (filter/box_noise.py)
+            f = self.config.filter
+            z = box_rows(z, sizes, self.image_size, f.object_std, f.object_size_share)
+            clipped = z[finite, 6:10].any(axis=1)
+            self.counters["detections_clipped"] += int(clipped.sum())
         frame = self.tracker.assign(
             t,
             z,
@@ -561,28 +571,37 @@ class MsckfAgent:
         if slots.size == 0:
             return empty
         r, local_h, local_p, noise_cov = self._object_linearization(slots, zk, ids)
-        variance = self.config.filter.object_std**2
+        f = self.config.filter
+        box = is_box(zk)
+        # box rows: each object's rows whitened by its own noise (unit variance after)
+        variance = box_variances(zk, f.object_std, f.object_size_share) if box else f.object_std**2
         s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + noise_cov
         accepted, nis = self.health.test(
-            "objects", r, s, variance, float(self.config.filter.gate(4))
+            "objects",
+            r,
+            s,
+            variance,
+            float(f.gate(4)),
+            size2=box_size2(zk) if box else None,
+            clipped=zk[:, 6:10].any(axis=1) if box else None,
         )
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
         self.counters["object_updates"] += int(accepted.sum())
         if not accepted.any():
             return empty
-        noise = np.full(int(accepted.sum()), variance)
+        noise = np.full(int(accepted.sum()), 1.0 if box else variance)
         if self.config.objects.loss != "none":  # one M-estimator reweighting step
             weight = self.config.objects.robust_weight(np.sqrt(nis[accepted]))
             self.counters["objects_downweighted"] += int((weight < 1).sum())
             noise = noise / weight
         slots, zk, ids = slots[accepted], zk[accepted], ids[accepted]
         rows = self._object_measurement_rows(
-            slots, local_h[accepted], r[accepted], noise_cov[accepted], noise
+            slots, local_h[accepted], r[accepted], noise_cov[accepted], noise, box
         )
 
         def rows_at() -> MeasurementRows:
             r, local_h, _, noise_cov = self._object_linearization(slots, zk, ids)
-            return self._object_measurement_rows(slots, local_h, r, noise_cov, noise)
+            return self._object_measurement_rows(slots, local_h, r, noise_cov, noise, box)
 
         return rows, rows_at
 
@@ -598,6 +617,7 @@ class MsckfAgent:
         """
         state = self.state
         k = slots.size
+        box = is_box(z)
         pred = observe(self.camera, self.T_cam_body, state.current_pose, state.objects[slots])
         _, d_pose, d_point = observe_jacobians(
             self.camera,
@@ -617,7 +637,12 @@ class MsckfAgent:
             d_pose, d_point, state.pose_fe[-1], state.object_fe[slots], local_p
         )
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
-        noise_cov = np.broadcast_to(self.config.filter.object_std**2 * np.eye(4), (k, 4, 4))
+        f = self.config.filter
+        if box:
+            variances = box_variances(z, f.object_std, f.object_size_share)
+            noise_cov = variances[:, :, None] * np.eye(4)
+        else:
+            noise_cov = np.broadcast_to(f.object_std**2 * np.eye(4), (k, 4, 4))
         if self.policy.compensates:
             # the rows are not the current-estimate Jacobians: their difference, times the
             # state error, is part of the residual (linearisation.py, FEJ2 compensation)
@@ -626,7 +651,7 @@ class MsckfAgent:
             )
             current_h = np.concatenate([c_pose, c_point], axis=2)
             noise_cov = noise_cov + self.policy.linearization_noise(local_h, current_h, local_p)
-        return z - pred, local_h, local_p, noise_cov
+        return z[:, :4] - pred, local_h, local_p, noise_cov
 
     def _object_measurement_rows(
         self,
@@ -635,11 +660,18 @@ class MsckfAgent:
         r: np.ndarray,
         noise_cov: np.ndarray,
         noise: np.ndarray,
+        box: bool = False,
     ) -> MeasurementRows:
         """Stacked rows of accepted objects ``slots`` (local Jacobians ``(k, 4, 9)`` over the
         current pose and the object) with per-object noise variance ``noise``, compact over the
-        current pose's and the objects' columns."""
-        if self.policy.compensates:
+        current pose's and the objects' columns; ``box``: each object its own 4 × 4 noise
+        ``noise_cov``, the rows whitened by it and ``noise`` relative to it."""
+        if box:
+            # each detection's own noise: whiten by all of it (the rows' variance is then 1)
+            chol = np.linalg.cholesky(noise_cov)
+            local_h = np.linalg.solve(chol, local_h)
+            r = np.linalg.solve(chol, r[..., None])[..., 0]
+        elif self.policy.compensates:
             # whiten each object's rows by its 4 × 4 noise: L⁻¹H, L⁻¹r with LLᵀ = noise
             chol = np.linalg.cholesky(noise_cov / self.config.filter.object_std**2)
             local_h = np.linalg.solve(chol, local_h)
@@ -679,7 +711,12 @@ class MsckfAgent:
             points, ok, rms = self._triangulate_objects(widx, zs)
             depth = np.linalg.norm(points - self.state.current_pose[:3, 3], axis=1)
             ok &= (depth > cfg.objects.min_depth) & (depth < cfg.objects.max_depth)
-            ok &= rms < 3.0 * cfg.filter.object_std
+            if is_box(zs):  # against the RMS σ of the boxes' own noise
+                f = cfg.filter
+                noise = box_variances(zs, f.object_std, f.object_size_share)
+                ok &= rms < 3.0 * np.sqrt(noise.mean(axis=(1, 2)))
+            else:
+                ok &= rms < 3.0 * cfg.filter.object_std
             self.counters["rejected_object_init"] += int((~ok).sum())
             moved = False
             for j in np.flatnonzero(ok):
@@ -703,7 +740,7 @@ class MsckfAgent:
             self.camera,
             self.T_cam_body,
             self.state.poses[window_index],
-            zs,
+            zs[..., :4],
             iterations=OBJECT_GAUSS_NEWTON_ITERATIONS,
         )
 
@@ -712,7 +749,8 @@ class MsckfAgent:
     ) -> bool:
         """QR initialisation (eqs. 29–30), then an update with the landmark-free rows.
 
-        Returns whether the object entered the state (and the state was updated)."""
+        Box rows ``zs`` (each observation its own noise) are whitened first, ``variance`` then
+        being 1. Returns whether the object entered the state (and the state was updated)."""
         state = self.state
         pred = observe(self.camera, self.T_cam_body, state.poses[widx], point[None])
         true_point = self.truth.objects(np.array([oid]))[0] if self.policy.needs_truth else None
@@ -727,7 +765,12 @@ class MsckfAgent:
         h_s[np.arange(n), :, np.arange(n), :] = d_pose
         h_s = h_s.reshape(4 * n, 6 * n)
         h_p = d_point.reshape(4 * n, 3)
-        r = (zs - pred).ravel()
+        r = (zs[:, :4] - pred).ravel()
+        if is_box(zs):
+            f = self.config.filter
+            weight = 1.0 / np.sqrt(box_variances(zs, f.object_std, f.object_size_share).ravel())
+            h_s, h_p, r = h_s * weight[:, None], h_p * weight[:, None], r * weight
+            variance = 1.0
         upper, projected = householder_project(h_p[None], np.column_stack([r, h_s])[None])
         r_p, projected = upper[0], projected[0]
         z1, z2 = projected[:3, 0], projected[3:, 0]

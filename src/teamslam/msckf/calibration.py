@@ -5,8 +5,11 @@ features and object box centres: a filter-free start above the epipolar lower bo
 (:func:`epipolar_noise`), then filter passes of every robot alone until no σ moves by more than
 ``tolerance`` — measurement σ by covariance matching of the innovations (:func:`nis_ratio`),
 odometry σ by expectation–maximisation over the smoothed window (every lag, non-negative least
-squares). The object depth range is not estimated. Derivation and references: the concept page
-*Calibration* (``docs/concepts/calibration.md``).
+squares). Object detections with a box size get a σ that grows with the box
+(:mod:`teamslam.msckf.filter.box_noise`): its floor and share are fitted to the noise the
+innovations show at each box size (:func:`box_noise_fit`), from a filter-free start of the same
+form (:func:`epipolar_box_noise`). The object depth range is not estimated. Derivation and
+references: the concept page *Calibration* (``docs/concepts/calibration.md``).
 """
 
 from __future__ import annotations
@@ -29,10 +32,12 @@ from teamslam.msckf.settings.values import MsckfConfig
 
 __all__ = [
     "CalibrationResult",
+    "box_noise_fit",
     "calibrate",
     "calibration_json",
     "calibration_table",
     "default_frames",
+    "epipolar_box_noise",
     "epipolar_noise",
     "nis_ratio",
     "params_check",
@@ -67,6 +72,93 @@ def epipolar_noise(dataset: TeamDataset, kind: str) -> float | None:
     normal = u[:, :, 3]
     residual = np.einsum("mi,mi->m", normal, z - camera.project(p_cam))
     return float(robust_std(residual))
+
+
+def _box_detections(dataset: TeamDataset) -> bool:
+    """Whether the team's objects are detections with a box size (each robot tracks them)."""
+    return all(
+        r.objects.ids.size == 0 and r.detections is not None and r.detections.sizes is not None
+        for r in dataset.robots
+    ) and any(r.detections.measurements.shape[0] for r in dataset.robots)
+
+
+#: Size bins of the box-noise fits (fewer when there are fewer than 20 innovations a bin).
+BOX_BINS = 8
+
+
+def _fit_floor_share(size2: np.ndarray, variance: np.ndarray, count: np.ndarray):
+    """``(σ₀², α²)`` of ``variance ≈ σ₀² + α² · size2`` over bins, non-negative, each bin
+    weighted by its count over its variance² (relative errors)."""
+    weight = np.sqrt(count) / np.maximum(variance, 1e-300)
+    design = np.column_stack([np.ones_like(size2), size2]) * weight[:, None]
+    solution, _ = optimize.nnls(design, variance * weight)
+    if solution[0] <= 0.0:  # a floor of zero: keep a thousandth of the smallest bin's σ²
+        solution[0] = 1e-3 * float(variance.min())
+    return float(solution[0]), float(solution[1])
+
+
+def _bins(x: np.ndarray) -> list[np.ndarray]:
+    """Indices of ``x`` in up to :data:`BOX_BINS` equal-count bins of at least 20."""
+    n = min(BOX_BINS, x.size // _MIN_INNOVATIONS)
+    order = np.argsort(x, kind="stable")
+    return [part for part in np.array_split(order, max(n, 1)) if part.size]
+
+
+def epipolar_box_noise(dataset: TeamDataset) -> tuple[float, float] | None:
+    """Filter-free ``(σ₀, α)`` of box detections: :func:`epipolar_noise`'s residual, whose
+    variance is ``σ₀² + α² Σ n_c² s_c²`` (``n`` its unit normal, ``s_c`` the box size along
+    coordinate ``c``), fitted over bins of that size term by their robust variances.
+    ``None`` with fewer than 20 stereo boxes."""
+    camera = dataset.calibration.camera
+    z = np.concatenate([r.detections.measurements for r in dataset.robots])
+    sizes = np.concatenate([r.detections.sizes for r in dataset.robots])
+    finite = np.all(np.isfinite(z), axis=1)
+    z, sizes = z[finite], sizes[finite]
+    if z.shape[0] < _MIN_INNOVATIONS:
+        return None
+    p_cam, ok = stereo_point(camera, np.eye(4), np.eye(4), z)
+    z, sizes, p_cam = z[ok], sizes[ok], p_cam[ok]
+    if z.shape[0] < _MIN_INNOVATIONS:
+        return None
+    u, _, _ = np.linalg.svd(camera.project_jacobian(p_cam))
+    normal = u[:, :, 3]
+    residual = np.einsum("mi,mi->m", normal, z - camera.project(p_cam))
+    size2 = np.einsum("mi,mi->m", normal**2, np.concatenate([sizes, sizes], axis=1) ** 2)
+    bins = _bins(size2)
+    floor2, share2 = _fit_floor_share(
+        np.array([size2[b].mean() for b in bins]),
+        np.array([robust_std(residual[b]) ** 2 for b in bins]),
+        np.array([b.size for b in bins], float),
+    )
+    return float(np.sqrt(floor2)), float(np.sqrt(share2))
+
+
+def box_noise_fit(record: InnovationRecord) -> tuple[float, float] | None:
+    """``(σ₀, α)`` that the recorded box innovations show (covariance matching by box size).
+
+    The innovations (whitened by the variance the filter used, :class:`InnovationRecord`) are
+    binned by their mean squared box size; in each bin the factor ``ρ`` by which the noise
+    exceeds the model solves ``Σ min(NIS, g) = Σ_i (λ_i + ρ)/(λ_i + 1)`` over the
+    innovations' directions (``λ`` the state's share, ``g`` the χ² winsorising quantile of
+    :func:`nis_ratio`), so ``ρ`` times the bin's mean model variance is the variance the data
+    show there; ``σ₀² + α² s²`` is fitted to those (non-negative least squares). ``None`` with
+    fewer than 20 innovations."""
+    if len(record.c2) < _MIN_INNOVATIONS:
+        return None
+    c2, lam = np.array(record.c2), np.array(record.lam)
+    size2 = np.array(record.size2).mean(axis=1)
+    variance = np.array(record.variance).mean(axis=1)
+    d = c2.shape[1]
+    cap = stats.chi2.ppf(NIS_WINSOR_PROBABILITY, d)
+    nis = np.minimum(np.sum(c2 / (lam + 1.0), axis=1), cap)
+    shown, sizes, counts = [], [], []
+    for b in _bins(size2):
+        rho = (nis[b].sum() - np.sum(lam[b] / (lam[b] + 1.0))) / np.sum(1.0 / (lam[b] + 1.0))
+        shown.append(max(rho, 1e-3) * variance[b].mean())
+        sizes.append(size2[b].mean())
+        counts.append(b.size)
+    floor2, share2 = _fit_floor_share(np.array(sizes), np.array(shown), np.array(counts, float))
+    return float(np.sqrt(floor2)), float(np.sqrt(share2))
 
 
 #: NIS beyond this χ² quantile is winsorised (counted as the quantile) by :func:`nis_ratio`.
@@ -230,10 +322,12 @@ def calibrate(
         determined.
     """
     begin = time.perf_counter()
+    boxes = config.filter.use_objects and _box_detections(dataset)
     use = {
         "features": config.filter.use_geometric_features
         and any(r.features.ids.size for r in dataset.robots),
-        "objects": config.filter.use_objects and any(r.objects.ids.size for r in dataset.robots),
+        "objects": config.filter.use_objects
+        and (any(r.objects.ids.size for r in dataset.robots) or boxes),
     }
     if frames is None:
         frames = default_frames(dataset.n_robots)
@@ -243,10 +337,19 @@ def calibrate(
     start: dict = {}
     std = {"features": config.filter.feature_std, "objects": config.filter.object_std}
     for sensor in SENSORS:
+        if sensor == "objects" and boxes:
+            continue
         bound = epipolar_noise(dataset, sensor) if use[sensor] else None
         start[f"{sensor}_epipolar_std"] = bound
         if bound is not None:
             std[sensor] = max(std[sensor], 3.0 * bound)
+    share = config.filter.object_size_share
+    if boxes:
+        # from above, like the others: three times the filter-free floor and share
+        bound = epipolar_box_noise(dataset)
+        start["objects_epipolar_std"], start["objects_epipolar_size_share"] = bound or (None, None)
+        if bound is not None:
+            std["objects"], share = 3.0 * bound[0], 3.0 * bound[1]
     # start the odometry from above: a filter that trusts its odometry too much explains the
     # data by odometry and EM then crawls; one that trusts it too little lets the data speak
     log_odometry = np.log(3.0 * np.asarray(config.filter.odometry_std))
@@ -258,6 +361,7 @@ def calibrate(
             filter={
                 "feature_std": searches["features"].value,
                 "object_std": searches["objects"].value,
+                "object_size_share": share,
                 "odometry_std": tuple(np.exp(log_odometry)),
             }
         )
@@ -267,6 +371,7 @@ def calibrate(
             "odometry_std": list(current.filter.odometry_std),
             "feature_std": current.filter.feature_std if use["features"] else None,
             "object_std": current.filter.object_std if use["objects"] else None,
+            "object_size_share": share if boxes else None,
             "nis": summary["nis"],
             "gate_rejection_rate": summary["gate_rejection_rate"],
         }
@@ -274,6 +379,17 @@ def calibrate(
         change = 0.0
         for sensor in SENSORS:
             if not use[sensor]:
+                continue
+            if sensor == "objects" and boxes:
+                found = box_noise_fit(health.records[sensor])
+                if found is not None:
+                    old = np.log([searches[sensor].value, max(share, 1e-12)])
+                    searches[sensor] = _Secant(found[0])
+                    share = found[1]
+                    new = np.log([found[0], max(share, 1e-12)])
+                    # a share the data put at zero stays there: no change to count
+                    moved = np.abs(new - old)[: 2 if share > 1e-9 else 1]
+                    change = max(change, float(np.max(moved)))
                 continue
             ratio = nis_ratio(health.records[sensor], searches[sensor].value)
             entry[f"{sensor}_nis_ratio"] = ratio
@@ -293,6 +409,7 @@ def calibrate(
         odometry_std=tuple(float(v) for v in np.exp(log_odometry)),
         feature_std=searches["features"].value if use["features"] else None,
         object_std=searches["objects"].value if use["objects"] else None,
+        object_size_share=share if boxes else None,
     )
     seconds = time.perf_counter() - begin
     note = (
@@ -335,8 +452,11 @@ def calibration_table(dataset: TeamDataset, result: CalibrationResult) -> str:
         ("odometry σ (m, rad)", "odometry_std"),
         ("feature σ (K units)", "feature_std"),
         ("object σ (K units)", "object_std"),
+        ("object σ share of box", "object_size_share"),
         ("object depth (m)", "object_depth_range"),  # not calibrated: shown for reference
     ):
+        if key == "object_size_share" and noise.object_size_share is None:
+            continue  # only for detections with box sizes
         row = f"{label:<22}{format_value(getattr(noise, key)):>44}"
         if old is not None:
             row += f"  {format_value(getattr(old, key)):>44}"

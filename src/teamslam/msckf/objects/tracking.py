@@ -21,6 +21,7 @@ from scipy.optimize import linear_sum_assignment
 
 from teamslam.gaussian import chi2_quantile
 from teamslam.geometry.camera import StereoCamera, in_image
+from teamslam.msckf.filter.box_noise import box_variances, is_box
 from teamslam.msckf.filter.models import observe_jacobians, points_in_camera
 from teamslam.msckf.filter.update import stereo_point
 from teamslam.msckf.objects.appearance import (
@@ -159,6 +160,8 @@ class ObjectTracker:
         p = config.tracking.gate_probability
         self._veto = float(np.log((1.0 - p) / p))
         self._descriptors: np.ndarray | None = None  # this frame's, unit rows
+        self._noise: np.ndarray | None = None  # this frame's detections' variances (box rows)
+        self._row_width = 4
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -177,7 +180,9 @@ class ObjectTracker:
         t
             The frame (after propagation to it).
         z, classes
-            The detections and their class labels (``None``: no classes).
+            The detections and their class labels (``None``: no classes). Box rows
+            (:mod:`~teamslam.msckf.filter.box_noise`, ``(D, 10)``) carry each detection's own
+            noise; plain rows ``(D, 4)`` share ``filter.object_std``.
         state
             The robot's filter state (:class:`~teamslam.msckf.filter.state.MsckfState` or its
             window).
@@ -205,11 +210,17 @@ class ObjectTracker:
         index = np.flatnonzero(np.all(np.isfinite(z), axis=1))
         z = z[index]
         d = z.shape[0]
+        # per detection the variance of its four coordinates (box rows), else one σ² for all
+        self._noise = None
+        if is_box(z):
+            f = self.config.filter
+            self._noise = box_variances(z, f.object_std, f.object_size_share)
+        self._row_width = z.shape[1]
         labels = np.full(d, -1, np.int64) if classes is None else np.asarray(classes, np.int64)
         labels = labels[index] if classes is not None else labels
         out = np.full(d, -1, np.int64)
         kinds, target_ids, seen, pred, s, h_point, in_front, target_labels = self._predict(
-            t, state, odometry_cov
+            t, state, odometry_cov, with_noise=self._noise is None
         )
         n_targets = target_ids.size
         assigned_target = np.full(d, -1, np.int64)
@@ -217,7 +228,11 @@ class ObjectTracker:
         lone_stale = np.full(d, -1, np.int64)  # the long-unseen object a detection is alone for
         looks = None  # (T, D) appearance distances and log-ratios, where both have descriptors
         if n_targets and d:
-            d2 = _squared_distances(s, pred, np.ascontiguousarray(z, dtype=float))  # (T, D)
+            centres = np.ascontiguousarray(z[:, :4], dtype=float)
+            if self._noise is None:
+                d2 = _squared_distances(s, pred, centres)  # (T, D)
+            else:  # S = H P Hᵀ + R of each detection
+                d2 = _squared_distances_each(s, pred, centres, self._noise)
             if classes is None:  # no labels: every pair of a target in front agrees
                 agree = in_front[:, None]
             else:
@@ -406,8 +421,11 @@ class ObjectTracker:
                 self.history.pop(i, None)
             self._keep(~held)
 
-    def _predict(self, t: int, state, odometry_cov: np.ndarray):
+    def _predict(self, t: int, state, odometry_cov: np.ndarray, with_noise: bool = True):
         """Every target's predicted measurement, innovation covariance and point Jacobian.
+
+        ``S = H P Hᵀ + σ² I`` with ``filter.object_std`` (``with_noise``), else ``H P Hᵀ`` (box
+        rows: each detection adds its own noise).
 
         Only targets in front of the camera and nearer than twice ``objects.max_depth``.
         Returns kinds (0 state, 1 persistent map, 2 track), ids, frame last seen, predictions
@@ -480,7 +498,7 @@ class ObjectTracker:
             np.ascontiguousarray(points, dtype=float),
             np.ascontiguousarray(p, dtype=float),
             self._min_depth,
-            float(cfg.filter.object_std) ** 2,
+            float(cfg.filter.object_std) ** 2 if with_noise else 0.0,
         )
         labels = np.full(ids.size, -1, np.int64)
         if self._label_ids.size and (kind < 2).any():
@@ -507,8 +525,11 @@ class ObjectTracker:
         hp = h_point[targets]  # (k, 4, 3)
         cov = self.covs[rows]
         cross = hp @ cov  # (k, 4, 3) = H C
-        gain_t = np.linalg.solve(s[targets], cross)  # (k, 4, 3) = S⁻¹ H C = Kᵀ
-        r = z[detections] - pred[targets]
+        s_pair = s[targets]
+        if self._noise is not None:
+            s_pair = s_pair + _diagonal(self._noise[detections])
+        gain_t = np.linalg.solve(s_pair, cross)  # (k, 4, 3) = S⁻¹ H C = Kᵀ
+        r = z[detections, :4] - pred[targets]
         self.points[rows] += np.einsum("kij,ki->kj", gain_t, r)
         cov = cov - np.swapaxes(cross, 1, 2) @ gain_t
         self.covs[rows] = 0.5 * (cov + np.swapaxes(cov, 1, 2))
@@ -546,7 +567,7 @@ class ObjectTracker:
             past = self.history.setdefault(tid, [])
             if new:
                 frames = np.array([f for f, _, _ in past], dtype=np.int64)
-                zs = np.array([zz for _, zz, _ in past]).reshape(-1, 4)
+                zs = np.array([zz for _, zz, _ in past]).reshape(-1, self._row_width)
                 for f, _, j in past:
                     self.log[f - self._first_logged][j] = tid
                 frame.confirmed.append((tid, frames, zs))
@@ -585,7 +606,7 @@ class ObjectTracker:
         """Tentative tracks from unassigned detections, stereo-triangulated at the current pose."""
         cfg = self.config
         pose = state.current_pose
-        points, ok = stereo_point(self.camera, self.T_cam_body, pose, z)
+        points, ok = stereo_point(self.camera, self.T_cam_body, pose, z[:, :4])
         depth = np.linalg.norm(points - pose[:3, 3], axis=1)
         ok &= np.all(np.isfinite(points), axis=1)
         ok &= (depth > cfg.objects.min_depth) & (depth < cfg.objects.max_depth)
@@ -595,7 +616,12 @@ class ObjectTracker:
         points, z, labels, index = points[ok], z[ok], labels[ok], index[ok]
         lone_stale = lone_stale[ok]
         _, _, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, points)
-        info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.filter.object_std**2
+        if self._noise is None:
+            info = np.swapaxes(d_point, 1, 2) @ d_point / cfg.filter.object_std**2
+        else:  # Jᵀ R⁻¹ J with each detection's own R
+            noise = box_variances(z, cfg.filter.object_std, cfg.filter.object_size_share)
+            weighted = d_point / noise[:, :, None]
+            info = np.swapaxes(d_point, 1, 2) @ weighted
         covs = np.linalg.solve(info, np.broadcast_to(np.eye(3), info.shape))
         k = points.shape[0]
         ids = np.arange(self.next_id, self.next_id + k, dtype=np.int64)
@@ -682,6 +708,14 @@ def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarr
     ra, ca = linear_sum_assignment(np.where(sub, cost[np.ix_(rows_idx, cols_idx)], 0.0))
     keep = sub[ra, ca]
     assigned[cols_idx[ca[keep]]] = rows_idx[ra[keep]]
+
+
+def _diagonal(variances: np.ndarray) -> np.ndarray:
+    """``(k, 4, 4)`` diagonal matrices of ``(k, 4)`` variances."""
+    out = np.zeros(variances.shape + variances.shape[-1:])
+    i = np.arange(variances.shape[-1])
+    out[..., i, i] = variances
+    return out
 
 
 def _alone(pairs: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
@@ -811,6 +845,40 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
             for c in range(4):
                 s[i, r, c] = 0.5 * (si[r, c] + si[c, r])
     return pred, s, d_point, in_front
+
+
+@numba.njit(cache=True)
+def _squared_distances_each(s, pred, z, noise):
+    """``d²[t, j] = (z_j − ẑ_t)ᵀ (S_t + R_j)⁻¹ (z_j − ẑ_t)``, ``R_j = diag(noise[j])``: one
+    Cholesky factorisation per pair (each detection its own noise)."""
+    n, d = pred.shape[0], z.shape[0]
+    out = np.empty((n, d))
+    chol = np.zeros((4, 4))
+    y = np.empty(4)
+    for t in range(n):
+        for j in range(d):
+            for a in range(4):
+                for b in range(a + 1):
+                    acc = s[t, a, b] + (noise[j, a] if a == b else 0.0)
+                    for k in range(b):
+                        acc -= chol[a, k] * chol[b, k]
+                    if a == b:
+                        if not acc > 0.0:
+                            raise np.linalg.LinAlgError(
+                                "innovation covariance not positive definite"
+                            )
+                        chol[a, a] = np.sqrt(acc)
+                    else:
+                        chol[a, b] = acc / chol[b, b]
+            total = 0.0
+            for a in range(4):
+                acc = z[j, a] - pred[t, a]
+                for k in range(a):
+                    acc -= chol[a, k] * y[k]
+                y[a] = acc / chol[a, a]
+                total += y[a] * y[a]
+            out[t, j] = total
+    return out
 
 
 @numba.njit(cache=True)

@@ -57,10 +57,17 @@ class InnovationRecord:
         Per innovation, the squared components ``(Vᵀ r)²``.
     lam
         Per innovation, the eigenvalues of ``H P Hᵀ`` (the state's share of ``S``).
+    size2, variance
+        Innovations whose coordinates each had their own noise (box rows): per innovation the
+        squared box size along each coordinate's axis and the variance the filter used, ``c2``
+        and ``lam`` then being those of the innovation whitened by that variance (unit
+        noise). Clipped boxes are not recorded. Empty otherwise.
     """
 
     c2: list[np.ndarray] = field(default_factory=list)
     lam: list[np.ndarray] = field(default_factory=list)
+    size2: list[np.ndarray] = field(default_factory=list)
+    variance: list[np.ndarray] = field(default_factory=list)
 
 
 def odometry_lag_residuals(
@@ -171,11 +178,16 @@ class SensorHealth:
         sensor: str,
         residual: np.ndarray,
         innovation_cov: np.ndarray,
-        variance: float,
+        variance: float | np.ndarray,
         threshold: np.ndarray | float,
+        size2: np.ndarray | None = None,
+        clipped: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """χ² test of ``G`` innovations ``(G, d)`` with covariances ``(G, d, d)``; returns the
-        acceptance mask and each innovation's NIS, and accumulates the NIS."""
+        acceptance mask and each innovation's NIS, and accumulates the NIS.
+
+        ``variance`` is the measurement noise variance in ``S``: one for all, or ``(G, d)`` per
+        coordinate (box rows, with ``size2`` and ``clipped`` per innovation for the record)."""
         residual = np.asarray(residual, dtype=float)
         g = residual.shape[0]
         if g == 0:
@@ -188,7 +200,18 @@ class SensorHealth:
         self.dof_sum[sensor] += g * residual.shape[1]
         self.tested[sensor] += g
         self.rejected[sensor] += int(g - accepted.sum())
-        if self.record:
+        if self.record and np.ndim(variance) == 2:
+            keep = ~clipped
+            scale = 1.0 / np.sqrt(variance[keep])
+            white = innovation_cov[keep] * scale[:, :, None] * scale[:, None, :]
+            lam, vec = np.linalg.eigh(white)
+            c2 = np.einsum("gji,gj->gi", vec, residual[keep] * scale) ** 2
+            rec = self.records[sensor]
+            rec.c2.extend(c2)
+            rec.lam.extend(np.maximum(lam - 1.0, 0.0))
+            rec.size2.extend(size2[keep])
+            rec.variance.extend(variance[keep])
+        elif self.record:
             lam, vec = np.linalg.eigh(innovation_cov)
             c2 = np.einsum("gji,gj->gi", vec, residual) ** 2
             rec = self.records[sensor]
@@ -243,6 +266,8 @@ class SensorHealth:
                 total.rejected[s] += p.rejected[s]
                 total.records[s].c2.extend(p.records[s].c2)
                 total.records[s].lam.extend(p.records[s].lam)
+                total.records[s].size2.extend(p.records[s].size2)
+                total.records[s].variance.extend(p.records[s].variance)
             total.odometry_ratio_sum += p.odometry_ratio_sum
             total.odometry_steps += p.odometry_steps
             total.lag_normal += p.lag_normal

@@ -53,7 +53,12 @@ log = logging.getLogger(__name__)
 
 SOURCES = ("default", "dataset", "calibration", "file", "flag")
 #: The noise levels a calibration estimates.
-CALIBRATED_KEYS = ("filter.odometry_std", "filter.feature_std", "filter.object_std")
+CALIBRATED_KEYS = (
+    "filter.odometry_std",
+    "filter.feature_std",
+    "filter.object_std",
+    "filter.object_size_share",
+)
 #: Default measurement noise as an angle (rad): σ = angle · focal length, in the camera's units.
 DEFAULT_FEATURE_ANGLE = 1.5e-3
 DEFAULT_OBJECT_ANGLE = 5e-3
@@ -254,6 +259,7 @@ def camera_defaults(dataset: TeamDataset) -> dict[str, Any]:
         "filter.odometry_std": (sigma_t,) * 3 + (sigma_r,) * 3,
         "filter.feature_std": DEFAULT_FEATURE_ANGLE * focal,
         "filter.object_std": DEFAULT_OBJECT_ANGLE * focal,
+        "filter.object_size_share": 0.0,
         "objects.min_depth": 2.0 * baseline,
         "objects.max_depth": 100.0 * baseline,
     }
@@ -275,6 +281,8 @@ def _sensor_values(noise: SensorNoise) -> dict[str, Any]:
         out["filter.feature_std"] = noise.feature_std
     if noise.object_std is not None:
         out["filter.object_std"] = noise.object_std
+    if noise.object_size_share is not None:
+        out["filter.object_size_share"] = noise.object_size_share
     if noise.object_depth_range is not None:
         out["objects.min_depth"], out["objects.max_depth"] = noise.object_depth_range
     return out
@@ -284,12 +292,15 @@ def _calibratable(dataset: TeamDataset, values: dict[str, Any]) -> tuple[str, ..
     """Noise levels the run will use on this data that a calibration estimates (the object
     depth range is not one of them: it comes from the dataset, a file, a flag or the
     camera-scaled default)."""
+    objects = values.get("filter.use_objects", True)
+    detections = [r.detections for r in dataset.robots if r.objects.ids.size == 0]
+    boxes = bool(detections) and all(d is not None and d.sizes is not None for d in detections)
     used = {
         "filter.odometry_std": True,
         "filter.feature_std": values.get("filter.use_geometric_features", True)
         and any(r.features.ids.size for r in dataset.robots),
-        "filter.object_std": values.get("filter.use_objects", True)
-        and any(r.objects.ids.size for r in dataset.robots),
+        "filter.object_std": objects and (any(r.objects.ids.size for r in dataset.robots) or boxes),
+        "filter.object_size_share": objects and boxes,
     }
     return tuple(k for k in CALIBRATED_KEYS if used[k])
 

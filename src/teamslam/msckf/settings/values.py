@@ -88,7 +88,13 @@ class FilterSettings:
         intrinsics (pixels; normalised coordinates when ``K = I``).
     object_std
         Std of each stereo coordinate of an object's box centre, in the units of the camera
-        intrinsics.
+        intrinsics; for detections with a box size, the part of that std that does not
+        grow with the box.
+    object_size_share
+        How a box centre's std grows with the box (detections with a box size only): per
+        coordinate ``σ² = object_std² + (object_size_share · s)²``, ``s`` the box's width (for
+        ``u``) or height (for ``v``); ``0``: the same σ for every box
+        (:mod:`teamslam.msckf.filter.box_noise`).
     min_track_length
         Fewest observations of a geometric feature used in an MSCKF update.
     gate_probability
@@ -115,6 +121,7 @@ class FilterSettings:
     )
     feature_std: float = field(default=1.0, metadata=_unit("camera units"))
     object_std: float = field(default=2.0, metadata=_unit("camera units"))
+    object_size_share: float = field(default=0.0, metadata=_unit(""))
     min_track_length: int = field(default=3, metadata=_unit("observations"))
     gate_probability: float = field(default=0.95, metadata=_unit(""))
     use_geometric_features: bool = field(default=True, metadata=_unit(""))
@@ -137,6 +144,8 @@ class FilterSettings:
         for name in ("feature_std", "object_std", "initial_pose_std"):
             if not _positive(getattr(self, name)):
                 raise InputError(f"filter.{name} must be a positive number")
+        if not (_is_number(self.object_size_share) and 0 <= self.object_size_share < np.inf):
+            raise InputError("filter.object_size_share must be a number ≥ 0")
         if not _is_count(self.min_track_length, 2):
             raise InputError(
                 "filter.min_track_length must be an integer of at least 2 observations"

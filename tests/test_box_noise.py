@@ -1,0 +1,198 @@
+"""A detector box centre's noise as a share of the box (``filter.object_size_share``).
+
+The calibration recovers a known size-proportional noise from a team's detections alone; an
+object seen only through boxes cut by the image border is estimated without bias (its error
+consistent with its covariance), which it is not when the cut goes unnoticed; data without box
+sizes keep the plain σ.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from teamslam.datasets.identity import strip_object_ids
+from teamslam.datasets.model import (
+    Calibration,
+    FrameDetections,
+    FrameObservations,
+    RobotSequence,
+)
+from teamslam.gaussian import chi2_quantile
+from teamslam.msckf.agent import MsckfAgent
+from teamslam.msckf.calibration import calibrate
+from teamslam.msckf.configure import build_settings
+from teamslam.msckf.filter.box_noise import box_rows, box_variances
+from teamslam.msckf.filter.models import observe
+from teamslam.msckf.settings.sources import calibration_start
+from teamslam.msckf.settings.values import MsckfConfig
+from teamslam.sim.lissajous import T_CAM_BODY, SimulationConfig, lissajous_team
+
+CAMERA = SimulationConfig().camera()
+IMAGE = (640, 480)
+
+
+def test_variances_grow_with_the_box_and_clipped_coordinates_are_flagged():
+    z = np.array([[320.0, 240.0, 300.0, 240.0], [10.0, 240.0, -5.0, 240.0]])
+    sizes = np.array([[40.0, 80.0], [21.0, 30.0]])  # the second's left edge at -0.5
+    rows = box_rows(z, sizes, IMAGE, 0.5, 0.03)
+    assert rows[0, 6:].tolist() == [0, 0, 0, 0]
+    assert rows[1, 6:].tolist() == [1, 0, 1, 0]  # u cut (both images), v not
+    var = box_variances(rows, 0.5, 0.03)
+    np.testing.assert_allclose(var[0], 0.25 + (0.03 * np.array([40.0, 80.0, 40.0, 80.0])) ** 2)
+    np.testing.assert_allclose(var[1, [1, 3]], 0.25 + (0.03 * 30.0) ** 2)
+    # a cut coordinate: the box's size, and half the disparity (the two images' hidden parts
+    # differ by it), as one σ each
+    np.testing.assert_allclose(var[1, [0, 2]], 0.25 + (0.03**2 + 1.0) * 21.0**2 + 7.5**2)
+    assert not box_rows(z, sizes, None, 0.5, 0.03)[:, 6:].any()  # no image size: no cut known
+
+
+def _boxed_team(floor: float, share: float, seed: int = 3):
+    """A simulated team whose detections carry box sizes (each object a width and height in
+    metres) and box-centre noise ``σ² = floor² + (share · size)²``, independent per coordinate
+    (``u`` with the width, ``v`` with the height)."""
+    team = strip_object_ids(lissajous_team(robots=3, steps=120, objects=120, seed=seed), to="none")
+    rng = np.random.default_rng(seed)
+    extent = rng.uniform(0.4, 2.5, (team.object_ids.size, 2))  # width, height (m)
+    positions = dict(zip(team.object_ids.tolist(), team.object_positions, strict=True))
+    robots = []
+    for robot in team.robots:
+        det = robot.detections
+        frame = np.repeat(np.arange(det.frames), np.diff(det.offsets))
+        z = np.empty_like(det.measurements)
+        sizes = np.empty((z.shape[0], 2))
+        for k, (f, oid) in enumerate(zip(frame.tolist(), det.truth.tolist(), strict=True)):
+            point = positions[oid][None]
+            z[k] = observe(CAMERA, T_CAM_BODY, robot.T_world_body[f], point)[0]
+            p_cam = T_CAM_BODY @ np.linalg.inv(robot.T_world_body[f]) @ np.append(point[0], 1.0)
+            sizes[k] = CAMERA.intrinsics[0, 0] * extent[oid] / p_cam[2]
+        std = np.sqrt(floor**2 + (share * np.concatenate([sizes, sizes], axis=1)) ** 2)
+        z = z + std * rng.standard_normal(z.shape)
+        robots.append(replace(robot, detections=replace(det, measurements=z, sizes=sizes)))
+    return replace(team, robots=robots, sensor_model=None)
+
+
+def test_calibration_recovers_a_size_proportional_noise():
+    floor, share = 0.5, 0.04
+    team = _boxed_team(floor, share)
+    boxes = sum(r.detections.measurements.shape[0] for r in team.robots)
+    start = calibration_start(team, build_settings(team, calibrate="never").config)
+    result = calibrate(team, start.with_(filter={"window": 10}))
+    noise = result.sensor_model.team
+    assert result.converged
+    # Monte Carlo error: a variance from n draws is within ±√(2/n) (1 σ); the share is fitted
+    # over 8 bins of ~boxes/8 innovations, the floor from the smallest ones: 3 σ of their
+    # variances, halved for σ, and the filter's share of each innovation
+    tolerance = 3 * np.sqrt(2 / (boxes / 8)) / 2
+    assert abs(noise.object_size_share / share - 1) < max(tolerance, 0.1)
+    assert abs(noise.object_std / floor - 1) < max(2 * tolerance, 0.25)
+
+
+def _clipped_sequence(seed: int, objects: int = 10):
+    """One robot driving straight past objects on its left, each detected only while the left
+    image border cuts its box (the visible part's box, its centre and size, plus noise)."""
+    rng = np.random.default_rng(seed)
+    step = 0.1
+    steps = int((12.0 + 4.0 * objects) / step)
+    poses = np.tile(np.eye(4), (steps + 1, 1, 1))
+    poses[:, 0, 3] = step * np.arange(steps + 1)
+    odometry = np.linalg.inv(poses[:-1]) @ poses[1:]
+    k = CAMERA.intrinsics
+    fx, cx = k[0, 0], k[0, 2]
+    # one after another along the way, each reaching the left border of the view at a depth
+    # of 6 to 12 m, at various heights; half-widths in metres
+    x = 12.0 + 4.0 * np.arange(objects)
+    y = rng.uniform(6.0, 12.0, objects) * cx / fx
+    z = rng.uniform(-1.0, 1.0, objects)
+    half = rng.uniform(1.0, 2.0, objects)
+    points = np.column_stack([x, y, z])
+    floor, share = 0.3, 0.03
+    offsets, rows, sizes, truth = [0], [], [], []
+    for t in range(steps + 1):
+        depth = points[:, 0] - poses[t, 0, 3]
+        ahead = depth > 1.0
+        z_true = np.full((objects, 4), np.nan)
+        z_true[ahead] = observe(CAMERA, T_CAM_BODY, poses[t], points[ahead])
+        width = 2 * fx * half / np.maximum(depth, 1.0)
+        height = 2 * fx * 0.5 / np.maximum(depth, 1.0)
+        count = 0
+        for j in range(objects):
+            if not ahead[j]:
+                continue
+            left, right = z_true[j, 0] - width[j] / 2, z_true[j, 0] + width[j] / 2
+            left_r, right_r = z_true[j, 2] - width[j] / 2, z_true[j, 2] + width[j] / 2
+            if not (left < -0.5 and left_r < -0.5 and right_r - (-0.5) > 0.4 * width[j]):
+                continue  # seen whole, or too little of it in the right image
+            centre_l, centre_r = (right - 0.5) / 2, (right_r - 0.5) / 2
+            w_vis = right + 0.5  # the left image's visible part
+            std = np.sqrt(floor**2 + (share * np.array([w_vis, height[j]])) ** 2)
+            noise = std[[0, 1, 0, 1]] * rng.standard_normal(4)
+            rows.append(np.array([centre_l, z_true[j, 1], centre_r, z_true[j, 3]]) + noise)
+            sizes.append([w_vis, height[j]])
+            truth.append(j)
+            count += 1
+        offsets.append(offsets[-1] + count)
+    detections = FrameDetections(
+        np.array(offsets), np.array(rows), truth=np.array(truth), sizes=np.array(sizes)
+    )
+    empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
+    sequence = RobotSequence(
+        T_world_body=poses,
+        odometry=odometry,
+        features=FrameObservations.from_frames([empty] * (steps + 1)),
+        objects=FrameObservations.from_frames([empty] * (steps + 1)),
+        detections=detections,
+    )
+    config = MsckfConfig.from_settings(
+        {
+            "filter.object_std": floor,
+            "filter.object_size_share": share,
+            "filter.odometry_std": (1e-3,) * 3 + (1e-4,) * 3,
+            "filter.window": 10,
+            "objects.retire_after": 0,
+        }
+    )
+    return sequence, points, config
+
+
+def _nees(image_size) -> tuple[float, int]:
+    """Mean NEES/3 of the objects one robot maps from cut boxes only, and how many."""
+    nees = []
+    for seed in range(3):
+        sequence, points, config = _clipped_sequence(seed)
+        agent = MsckfAgent(0, Calibration(CAMERA, T_CAM_BODY, image_size), sequence, config)
+        for t in range(sequence.frames):
+            agent.step(t)
+        hyp = agent.tracker.hypotheses()
+        truth = sequence.detections.truth
+        ids, means, covs = agent.state.full_map()
+        for oid, mean, cov in zip(ids.tolist(), means, covs, strict=True):
+            named = truth[: hyp.size][hyp == oid]
+            values, counts = np.unique(named, return_counts=True)
+            if not values.size:
+                continue
+            error = mean - points[values[np.argmax(counts)]]
+            nees.append(error @ np.linalg.solve(cov, error) / 3)
+    return float(np.mean(nees)), len(nees)
+
+
+def test_an_object_seen_only_through_cut_boxes_is_estimated_without_bias():
+    with_cut, n = _nees(IMAGE)
+    assert n >= 20
+    # consistent: the mean NEES/3 of n objects inside χ²(3n)/(3n)'s 99.9% quantile
+    assert with_cut < chi2_quantile(0.999, 3 * n) / (3 * n)
+    # the same boxes with the cut unnoticed (no image size): the inward bias shows
+    without, _ = _nees(None)
+    assert without > 3 * with_cut
+
+
+def test_data_without_box_sizes_keeps_one_sigma():
+    team = lissajous_team(robots=2, steps=30, objects=60, seed=1)
+    stripped = strip_object_ids(team, to="none")
+    assert all(r.detections.sizes is None for r in stripped.robots)
+    settings = build_settings(stripped, calibrate="never")
+    assert settings.config.filter.object_size_share == 0.0
+    assert "filter.object_size_share" not in {
+        k for k, v in settings.sources.items() if v == "calibration"
+    }
