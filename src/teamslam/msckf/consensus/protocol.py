@@ -42,7 +42,7 @@ from teamslam.association.appearance import BINS, cosine_distances, distance_cou
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError, kl_divergence, spd_inverse
 from teamslam.graph import metropolis_weight
-from teamslam.msckf.consensus.average import SharedPrior
+from teamslam.msckf.consensus.average import SharedPrior, persistent_average
 from teamslam.msckf.consensus.checks import ReceivedMarginal, check_message
 from teamslam.msckf.consensus.kernels import merged_record
 from teamslam.msckf.consensus.marginals import common_marginal_message, object_marginals
@@ -145,6 +145,17 @@ class ConsensusProtocol:
             self.tables = {
                 j: CorrespondenceTable(self.robot, j, matching) for j in sorted(self.neighbours)
             }
+        # the persistent map in consensus (consensus.persistent_map): its objects are asked for
+        # and averaged object by object — with the plain average, lock-step, moved flags
+        # (kl_threshold > 0), the paper's set and global ids
+        self.persistent = (
+            settings.persistent_map
+            and self.rule.name == "average"
+            and self.max_age == 0
+            and self.kl_threshold > 0
+            and not self.bounded
+            and self.association != "own"
+        )
         check = self.association == "own" or settings.innovation_check
         self.innovation_probability = association.revoke_probability if check else None
         self._summary: ObjectSummary | None = None
@@ -200,6 +211,7 @@ class ConsensusProtocol:
             self.agent.config.consensus.per_object,
             taken.keys(),
             heard,
+            self.persistent,
         )
         if problem is not None:
             self.agent.reject("messages", reason=problem)
@@ -256,6 +268,8 @@ class ConsensusProtocol:
             self._own = None
         if self.bounded:
             self._thresholds = self._object_thresholds(covs)[order]
+        if self._with_persistent_map():
+            ids = self._own[0]
         self._summary = (
             ObjectSummary(
                 self.robot,
@@ -280,6 +294,23 @@ class ConsensusProtocol:
                 self.link_stats[j]["summary_bytes"] += summary_wire_bytes(summary)
         self.spent = time.perf_counter() - begin
         return out
+
+    def _with_persistent_map(self) -> bool:
+        """With the persistent map in consensus and objects in it: add them to our marginals
+        of this exchange (``_own``, ids increasing); whether there were any."""
+        retired = self.agent.state.retired
+        if not self.persistent or len(retired) == 0:
+            return False
+        stored = retired.arrays()
+        ids, means, covs = self._own
+        ids = np.concatenate([ids, stored["ids"]])
+        order = np.argsort(ids, kind="stable")
+        self._own = (
+            ids[order],
+            np.concatenate([means, stored["means"]])[order],
+            np.concatenate([covs, stored["covs"]])[order],
+        )
+        return True
 
     def _appearance(self, ids: np.ndarray) -> np.ndarray | None:
         """``(n, D)`` the appearance descriptors of our objects ``ids`` (zero rows: none), or
@@ -415,7 +446,10 @@ class ConsensusProtocol:
                 requests[m.sender] = m
         self.heard = set(requests)
         replies = []
-        own = np.sort(self.agent.state.object_ids)
+        if self.persistent and len(self.agent.state.retired):
+            own = self._own[0]  # state and persistent map, increasing
+        else:
+            own = np.sort(self.agent.state.object_ids)
         for j in sorted(requests):
             their_ids = np.asarray(requests[j].ids, dtype=np.int64)
             if self.tables:
@@ -466,6 +500,7 @@ class ConsensusProtocol:
                 information=not settings.per_object,
                 keep=self._own_information if source is None else None,
                 prior=self.rule.message_prior(self._prior),
+                retired=self.agent.state.retired if self.persistent else None,
             )
             replies.append(reply)
         self.spent += time.perf_counter() - begin
@@ -561,6 +596,8 @@ class ConsensusProtocol:
         not averaged this step). ``None`` also when no object is left."""
         ids = marginal.ids
         k = ids.size
+        if k == 0:  # only objects of our persistent map
+            return marginal
         try:
             cov = spd_inverse(marginal.info, "information matrix")
         except (NotPositiveDefiniteError, np.linalg.LinAlgError):
@@ -600,7 +637,9 @@ class ConsensusProtocol:
         coords = index[ok].ravel()
         sub = cov[np.ix_(coords, coords)]
         info = spd_inverse(sub, "marginal covariance")
-        return ReceivedMarginal(j, ids[ok], info, info @ mean[coords], marginal.per_object)
+        return ReceivedMarginal(
+            j, ids[ok], info, info @ mean[coords], marginal.per_object, retired=marginal.retired
+        )
 
     def association_summary(self) -> dict:
         """Per link (neighbour id as a string): the table's pairs and counts and the exchange
@@ -664,7 +703,7 @@ class ConsensusProtocol:
             degrees[m.sender] = int(m.degree)
         self_weight, weights = self.weights(degrees)
         self.averaged_with = sorted(marginals)
-        used = [(weights[j], marginals[j]) for j in sorted(marginals)]
+        used = [(weights[j], marginals[j]) for j in sorted(marginals) if marginals[j].ids.size]
         averaged = self.rule.average(
             self.agent.state,
             self_weight,
@@ -674,6 +713,12 @@ class ConsensusProtocol:
             self._own_information,
         )
         self._own_information = {}  # the state has moved
+        if self.persistent:
+            stored = persistent_average(
+                self.agent.state.retired, [(weights[j], marginals[j].retired) for j in marginals]
+            )
+            if stored:
+                self.agent.counters["retired_averaged"] += stored
         self._prior = self.rule.next_prior(
             self.agent.state, self._prior, bool(self.expected or averaged)
         )

@@ -373,6 +373,14 @@ class ConsensusSettings:
         ``hybrid`` and ``increments`` rules each robot's new information is sent at its gain in
         the first exchange only, so no increment is counted twice for any ``L``. Lock-step only;
         every robot of a team must use the same ``L``.
+    persistent_map
+        Objects retired to the persistent map (``objects.retire_after``,
+        ``objects.max_active``) take part in consensus object by object: a robot asks for them
+        with its map ids, sends their stored marginals when a neighbour asks, and averages
+        them with the neighbours' marginals (eq. 19 per object: they have no correlation with
+        the state), all as for the objects in its state, at ``kl_threshold``. With the plain
+        average, lock-step exchanges, ``kl_threshold > 0``, ``set = all`` and oracle ids;
+        otherwise retired objects wait for re-entry.
     innovation_check
         With oracle association: the ``χ²₃`` test of each common object's consensus innovation
         (at ``association.revoke_probability``); a neighbour's marginal in which most objects
@@ -389,6 +397,7 @@ class ConsensusSettings:
     per_object: bool = field(default=False, metadata=_unit(""))
     float32: bool = field(default=True, metadata=_unit(""))
     iterations: int = field(default=1, metadata=_unit("exchanges per step"))
+    persistent_map: bool = field(default=True, metadata=_unit(""))
     innovation_check: bool = field(default=True, metadata=_unit(""))
 
     def __post_init__(self) -> None:
@@ -405,7 +414,9 @@ class ConsensusSettings:
             value = getattr(self, name)
             if not (_is_number(value) and value >= 0):  # inf: never by this test
                 raise InputError(f"consensus.{name} must be a number ≥ 0 (nats; inf allowed)")
-        _check_flags(self, "consensus", ("per_object", "float32", "innovation_check"))
+        _check_flags(
+            self, "consensus", ("per_object", "float32", "persistent_map", "innovation_check")
+        )
         if self.rule != "average" and self.per_object:
             raise InputError(
                 f"consensus.rule {self.rule} needs joint marginals: it cannot be used with "
