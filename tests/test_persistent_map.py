@@ -347,78 +347,60 @@ def test_persistent_average_is_eq_19_object_by_object():
     assert persistent_average(stored, [(0.5, None)]) == 0
 
 
-def test_a_marginal_of_state_and_persistent_map_objects_goes_and_comes_back():
-    """A sender's marginal of objects in its state and in its persistent map is the state's
-    joint marginal, block-diagonal with the stored ones; a receiver holding some of them
-    retired gets each one's own marginal apart and the rest as before."""
+def test_a_neighbours_marginal_of_objects_we_retired_is_kept_apart_per_object():
+    """A receiver holding some of a marginal's objects in its persistent map gets each one's
+    own marginal apart (information form) and the rest as before; without the persistent map
+    in consensus they are dropped."""
     from teamslam.msckf.consensus.checks import receive_marginal
     from teamslam.msckf.consensus.marginals import common_marginal_message
 
     sender = _random_state(3, 6, seed=1)
-    ids = sender.object_ids.copy()
-    sender.retire_objects(np.array([1, 4]))
-    asked = np.sort(ids)
+    asked = np.sort(sender.object_ids)
+    receiver = MsckfState.from_arrays(
+        np.tile(np.eye(4), (2, 1, 1)),
+        np.arange(2),
+        asked,
+        np.zeros((asked.size, 3)),
+        np.eye(12 + 3 * asked.size),
+        object_last_seen=np.zeros(asked.size, dtype=np.int64),
+    )
+    receiver.retire_objects(np.array([0, 3, 4]))
+    away = receiver.retired.contains(asked)
+    index = 3 * np.arange(asked.size)[:, None] + np.arange(3)
     for per_object in (False, True):
         message = common_marginal_message(
-            sender,
-            0,
-            1,
-            7,
-            asked,
-            per_object=per_object,
-            information=not per_object,
-            retired=sender.retired,
+            sender, 0, 1, 7, asked, per_object=per_object, information=not per_object
         )
-        np.testing.assert_array_equal(message.ids, asked)
-        in_state = sender.object_slots(asked) >= 0
-        cov = np.linalg.inv(message.matrix) if message.info is not None else message.matrix
-        index = 3 * np.arange(asked.size)[:, None] + np.arange(3)
-        blocks = cov if per_object else cov[index[:, :, None], index[:, None, :]]
-        means = np.asarray(message.mean).reshape(-1, 3)
-        r_mean, r_cov, _ = sender.retired.get(asked[~in_state])
-        np.testing.assert_allclose(blocks[~in_state], r_cov, rtol=1e-9, atol=1e-12)
-        np.testing.assert_allclose(means[~in_state], r_mean)
-        slots = sender.object_slots(asked[in_state])
-        np.testing.assert_allclose(
-            blocks[in_state], sender.object_covs()[slots], rtol=1e-9, atol=1e-12
-        )
-        if not per_object:  # no correlation between a stored object and any other
-            stored = index[~in_state].ravel()
-            others = np.setdiff1d(np.arange(cov.shape[0]), stored)
-            assert np.abs(cov[np.ix_(stored, others)]).max() < 1e-9
-
-        # a receiver with the same objects, two of them (one stored by the sender) retired
-        receiver = _random_state(2, 0, seed=2)
-        receiver = MsckfState.from_arrays(
-            np.tile(np.eye(4), (2, 1, 1)),
-            np.arange(2),
-            asked,
-            np.zeros((asked.size, 3)),
-            np.eye(12 + 3 * asked.size),
-            object_last_seen=np.zeros(asked.size, dtype=np.int64),
-        )
-        receiver.retire_objects(np.array([0, 1]))
-        away = receiver.retired.contains(asked)
+        cov = sender.covariance(sender.object(sender.object_slots(asked)).columns.ravel())
+        blocks = cov[index[:, :, None], index[:, None, :]]
         problem, marginal = receive_marginal(receiver, message, persistent=True)
         assert problem is None
         np.testing.assert_array_equal(marginal.ids, asked[~away])
         r_ids, r_info, r_vector = marginal.retired
         np.testing.assert_array_equal(r_ids, asked[away])
+        np.testing.assert_allclose(np.linalg.inv(r_info), blocks[away], rtol=1e-8, atol=1e-12)
+        means = sender.objects[sender.object_slots(asked)]
         np.testing.assert_allclose(
-            np.linalg.inv(r_info), blocks[away], rtol=1e-6, atol=1e-9
-        )  # float32 off: exact up to the inversions
-        np.testing.assert_allclose(
-            np.linalg.solve(r_info, r_vector[..., None])[..., 0], means[away], rtol=1e-9
+            np.linalg.solve(r_info, r_vector[..., None])[..., 0], means[away], rtol=1e-8
         )
-        # without the persistent map in consensus they are dropped, as before
-        problem, marginal = receive_marginal(receiver, message)
-        assert problem is None and marginal.retired is None
-        np.testing.assert_array_equal(marginal.ids, asked[~away])
+        # the objects still in the state: the marginal of those, as without the persistent map
+        problem, plain = receive_marginal(receiver, message)
+        assert problem is None and plain.retired is None
+        np.testing.assert_array_equal(plain.ids, asked[~away])
+        np.testing.assert_array_equal(plain.info, marginal.info)
+        np.testing.assert_array_equal(plain.info_vector, marginal.info_vector)
+    # a marginal of retired objects only: kept apart whole; without: refused
+    only = common_marginal_message(sender, 0, 1, 7, asked[away], information=True)
+    problem, marginal = receive_marginal(receiver, only, persistent=True)
+    assert problem is None and marginal.ids.size == 0 and marginal.retired[0].size == away.sum()
+    problem, _ = receive_marginal(receiver, only)
+    assert "retired" in problem
 
 
 def _budget_team(persistent: bool):
     from teamslam.eval.metrics import team_metrics
     from teamslam.msckf import run_team
+    from teamslam.msckf.consensus.protocol import ConsensusProtocol
 
     dataset = lissajous_team(robots=3, steps=60, seed=2)
     config = config_for(
@@ -429,14 +411,28 @@ def _budget_team(persistent: bool):
             "consensus.persistent_map": persistent,
         },
     )
-    result = run_team(dataset, config, progress=False)
+    sent_retired = []
+    answer = ConsensusProtocol._answer
+
+    def checked(protocol, received):
+        replies = answer(protocol, received)
+        for reply in replies:  # what is sent: objects of the state only
+            sent_retired.append(int(protocol.agent.state.retired.contains(reply.ids).sum()))
+        return replies
+
+    ConsensusProtocol._answer = checked
+    try:
+        result = run_team(dataset, config, progress=False)
+    finally:
+        ConsensusProtocol._answer = answer
+    assert sent_retired and not any(sent_retired)
     return result, team_metrics(dataset, result)
 
 
 def test_the_persistent_map_in_consensus_keeps_a_budget_accurate():
-    """With a budget, retired objects averaged with the neighbours' marginals: the robots'
-    maps agree better and are closer to the truth than when retired objects wait for
-    re-entry."""
+    """With a budget, retired objects averaged with the neighbours' in-state marginals: the
+    robots' maps agree better and are closer to the truth than when retired objects wait for
+    re-entry; a robot never sends an object it holds retired."""
     on, with_map = _budget_team(True)
     off, without = _budget_team(False)
     assert all(c["objects_retired"] > 0 for c in on.counters)

@@ -17,7 +17,6 @@ from teamslam.gaussian import spd_inverse
 from teamslam.msckf.consensus.average import SharedPrior, prior_marginal
 from teamslam.msckf.consensus.kernels import rounding_bound, single_rounding, symmetric_block
 from teamslam.msckf.consensus.messages import CommonMarginalMessage
-from teamslam.msckf.filter.persistent_map import PersistentMap
 from teamslam.msckf.filter.state import MsckfState
 
 __all__ = [
@@ -53,7 +52,6 @@ def common_marginal_message(
     information: bool = False,
     keep: MutableMapping[bytes, np.ndarray] | None = None,
     prior: SharedPrior | None = None,
-    retired: PersistentMap | None = None,
 ) -> CommonMarginalMessage | None:
     """The marginal of the objects ``ids`` (those the sender holds), or ``None`` if none.
 
@@ -71,31 +69,10 @@ def common_marginal_message(
     ``information`` sends a joint marginal in information form (``info = Σ⁻¹``); ``keep``, a
     mapping, then receives the exact (unrounded) ``Σ⁻¹`` under the key ``ids.tobytes()`` of
     the message's ids (``int64``), for :func:`consensus_average`'s ``own_information``.
-
-    ``retired``, the sender's persistent map when it takes part in consensus (with the state's
-    own marginals only: no ``source``, no ``prior``): the objects of ``ids`` stored there are
-    sent too, each with its stored marginal and no correlation with the rest — the sender's
-    belief about them (:mod:`teamslam.msckf.filter.persistent_map`).
     """
     ids = np.unique(np.asarray(ids, dtype=np.int64))  # increasing, as messages carry them
     slots = state.object_slots(ids)
     held = slots >= 0
-    if retired is not None and len(retired):
-        stored = ~held & retired.contains(ids)
-        if stored.any():
-            if source is not None or prior is not None:
-                raise InternalError("a persistent-map marginal is sent with the state's own")
-            return _with_retired(
-                state,
-                retired,
-                (sender, receiver, step, int(degree)),
-                ids,
-                held,
-                stored,
-                per_object,
-                float32,
-                information,
-            )
     if not held.any():
         return None
     if source is None:
@@ -153,61 +130,6 @@ def common_marginal_message(
     return CommonMarginalMessage(
         sender, receiver, step, ids[held].copy(), mean, cov.copy(), int(degree)
     )
-
-
-def _with_retired(
-    state: MsckfState,
-    retired: PersistentMap,
-    header: tuple[int, int, int, int],
-    ids: np.ndarray,
-    held: np.ndarray,
-    stored: np.ndarray,
-    per_object: bool,
-    float32: bool,
-    information: bool,
-) -> CommonMarginalMessage:
-    """:func:`common_marginal_message` of objects in the state (``held``) and in the
-    persistent map (``stored``): the state's joint marginal of the first, block-diagonal with
-    the stored marginals of the others, in increasing ids."""
-    sent = ids[held | stored]
-    n = sent.size
-    in_state = held[held | stored]
-    slots = state.object_slots(sent[in_state])
-    r_mean, r_cov, _ = retired.get(sent[~in_state])
-    r_cov = 0.5 * (r_cov + np.swapaxes(r_cov, 1, 2))
-    mean = np.empty((n, 3))
-    mean[in_state] = state.objects[slots]
-    mean[~in_state] = r_mean
-    mean = mean.ravel()
-    if per_object:
-        cov = np.empty((n, 3, 3))
-        cov[in_state] = state.covariance(state.object(slots).columns)
-        cov[~in_state] = r_cov
-        if float32:
-            mean32, cov32 = _single(mean), _single(cov)
-            if rounding_divergence(mean, cov, mean32, cov32) <= FLOAT32_MAX_KL:
-                mean, cov = mean32, cov32
-        return CommonMarginalMessage(*header[:3], sent, mean, cov, header[3])
-    a = (3 * np.flatnonzero(in_state)[:, None] + np.arange(3)).ravel()
-    b = 3 * np.flatnonzero(~in_state)[:, None] + np.arange(3)
-    cov = np.zeros((3 * n, 3 * n))
-    own = symmetric_block(state.cov, state.object(slots).columns.ravel())
-    cov[np.ix_(a, a)] = own
-    cov[b[:, :, None], b[:, None, :]] = r_cov
-    if information:
-        info = np.zeros_like(cov)
-        if a.size:
-            info[np.ix_(a, a)] = spd_inverse(own, "own marginal covariance")
-        info[b[:, :, None], b[:, None, :]] = np.linalg.inv(r_cov)
-        info = 0.5 * (info + info.T)
-        if float32:
-            mean, info = _rounded_information(mean, cov, info)
-        return CommonMarginalMessage(*header[:3], sent, mean, None, header[3], info=info)
-    if float32:
-        mean32, cov32 = _single(mean), _single(cov)
-        if rounding_divergence_bound(mean, cov, mean32, cov32) <= FLOAT32_MAX_KL:
-            mean, cov = mean32, cov32
-    return CommonMarginalMessage(*header[:3], sent, mean, cov, header[3])
 
 
 def _rounded_information(

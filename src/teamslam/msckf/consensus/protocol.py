@@ -146,8 +146,9 @@ class ConsensusProtocol:
                 j: CorrespondenceTable(self.robot, j, matching) for j in sorted(self.neighbours)
             }
         # the persistent map in consensus (consensus.persistent_map): its objects are asked for
-        # and averaged object by object — with the plain average, lock-step, moved flags
-        # (kl_threshold > 0), the paper's set and global ids
+        # and averaged object by object with the neighbours' in-state marginals, never sent —
+        # with the plain average, lock-step, moved flags (kl_threshold > 0), the paper's set
+        # and global ids
         self.persistent = (
             settings.persistent_map
             and self.rule.name == "average"
@@ -446,10 +447,7 @@ class ConsensusProtocol:
                 requests[m.sender] = m
         self.heard = set(requests)
         replies = []
-        if self.persistent and len(self.agent.state.retired):
-            own = self._own[0]  # state and persistent map, increasing
-        else:
-            own = np.sort(self.agent.state.object_ids)
+        own = np.sort(self.agent.state.object_ids)  # a retired object is asked for, not sent
         for j in sorted(requests):
             their_ids = np.asarray(requests[j].ids, dtype=np.int64)
             if self.tables:
@@ -500,7 +498,6 @@ class ConsensusProtocol:
                 information=not settings.per_object,
                 keep=self._own_information if source is None else None,
                 prior=self.rule.message_prior(self._prior),
-                retired=self.agent.state.retired if self.persistent else None,
             )
             replies.append(reply)
         self.spent += time.perf_counter() - begin

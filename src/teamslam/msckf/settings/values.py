@@ -375,12 +375,12 @@ class ConsensusSettings:
         every robot of a team must use the same ``L``.
     persistent_map
         Objects retired to the persistent map (``objects.retire_after``,
-        ``objects.max_active``) take part in consensus object by object: a robot asks for them
-        with its map ids, sends their stored marginals when a neighbour asks, and averages
-        them with the neighbours' marginals (eq. 19 per object: they have no correlation with
-        the state), all as for the objects in its state, at ``kl_threshold``. With the plain
-        average, lock-step exchanges, ``kl_threshold > 0``, ``set = all`` and oracle ids;
-        otherwise retired objects wait for re-entry.
+        ``objects.max_active``) listen to consensus: a robot asks for them with its map ids and
+        averages each with the neighbours' marginals of it (eq. 19 per object: it has no
+        correlation with the state), flagged at ``kl_threshold`` as the objects of its state;
+        it never sends them (a stale copy would pull the neighbours' working estimates back).
+        With the plain average, lock-step exchanges, ``kl_threshold > 0``, ``set = all`` and
+        oracle ids; otherwise, or ``false``, retired objects wait for re-entry.
     innovation_check
         With oracle association: the ``χ²₃`` test of each common object's consensus innovation
         (at ``association.revoke_probability``); a neighbour's marginal in which most objects
