@@ -6,7 +6,7 @@ Run on demand (BLAS pinned to one thread)::
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py accuracy [--frames 300] [--retire 40]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py revisit [--frames 1000] [--set k=v ...]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py budget [--frames 300] [--budgets 40 80]
-        [--team make-run|long] [--reference-frames N] [--waiting 80]
+        [--team make-run|long] [--reference-frames N] [--listening 80]
 
 ``cost`` runs a team (3 robots, consensus over a complete graph) along the long route
 (:func:`teamslam.sim.long_route_team`, a world of about 1.2 objects per metre) with objects
@@ -39,8 +39,8 @@ whole step (mean over robots) over frames 100–200 and over the last 100 and th
 trajectory RMSE and object error (final maps: state and persistent map) with their ratio to the
 unbounded run, and the objects retired per robot. ``--reference-frames N`` flies the unbounded
 run N frames only (its cost grows with the route) and each budget both N frames, for the
-ratios, and ``--frames`` frames; ``--waiting B…`` adds those budgets with retired objects out
-of consensus until they re-enter (``consensus.persistent_map = false``). ``--markdown FILE``
+ratios, and ``--frames`` frames; ``--listening B…`` adds those budgets with retired objects
+averaged with the neighbours' marginals (``consensus.persistent_map = true``). ``--markdown FILE``
 writes that table headed by the commit, date, command and machine.
 """
 
@@ -412,7 +412,7 @@ def budget(
     budgets: list[int],
     md: Markdown,
     reference_frames: int | None = None,
-    waiting: list[int] = (),
+    listening: list[int] = (),
 ) -> None:
     """Cost growth and accuracy of ``team`` under each ``objects.max_active``, against the
     run without a bound (over ``reference_frames`` frames when that is shorter: then each
@@ -439,10 +439,10 @@ def budget(
         "final map, its state and its persistent map. × unbounded: against the run without a "
         "bound over as many frames."
     )
-    if waiting:
+    if listening:
         note += (
-            " *waiting*: retired objects out of consensus until they re-enter "
-            "(`consensus.persistent_map = false`)."
+            " *listening*: retired objects averaged with the neighbours' marginals of them "
+            "(`consensus.persistent_map = true`); otherwise out of consensus until they re-enter."
         )
     md.table(
         f"A budget on the objects in each robot's state: {TEAMS[team]} flown for {frames} "
@@ -453,7 +453,7 @@ def budget(
     print(" | ".join(header), flush=True)
     runs = [(reference_frames, 0, {})]
     runs += [(reference_frames, b, {}) for b in budgets]
-    runs += [(reference_frames, b, {"consensus.persistent_map": False}) for b in waiting]
+    runs += [(reference_frames, b, {"consensus.persistent_map": True}) for b in listening]
     if reference_frames < frames:
         runs += [(frames, b, {}) for b in budgets]
     reference = None
@@ -468,7 +468,7 @@ def budget(
         )
         name = "none" if bound == 0 else str(bound)
         if settings:
-            name += ", waiting"
+            name += ", listening"
         c, st = row["consensus"], row["step"]
         cells = [
             str(length),
@@ -513,11 +513,11 @@ def main() -> None:
         "only (default: --frames)",
     )
     parser.add_argument(
-        "--waiting",
+        "--listening",
         type=int,
         nargs="*",
         default=[],
-        help="budget: these budgets also with retired objects out of consensus until re-entry",
+        help="budget: these budgets also with consensus.persistent_map = true",
     )
     add_option(parser)
     parser.add_argument("--set", nargs="*", default=[], help="bounded-set settings (revisit)")
@@ -535,7 +535,7 @@ def main() -> None:
             args.budgets,
             md,
             args.reference_frames,
-            args.waiting,
+            args.listening,
         )
         md.write()
     elif args.what == "revisit":

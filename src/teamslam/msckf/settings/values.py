@@ -380,7 +380,8 @@ class ConsensusSettings:
         correlation with the state), flagged at ``kl_threshold`` as the objects of its state;
         it never sends them (a stale copy would pull the neighbours' working estimates back).
         With the plain average, lock-step exchanges, ``kl_threshold > 0``, ``set = all`` and
-        oracle ids; otherwise, or ``false``, retired objects wait for re-entry.
+        oracle ids. Off by default: it does not lower a budget's object error over a long
+        mission (``docs/results/speed.md``); off, retired objects wait for re-entry.
     innovation_check
         With oracle association: the ``χ²₃`` test of each common object's consensus innovation
         (at ``association.revoke_probability``); a neighbour's marginal in which most objects
@@ -397,7 +398,7 @@ class ConsensusSettings:
     per_object: bool = field(default=False, metadata=_unit(""))
     float32: bool = field(default=True, metadata=_unit(""))
     iterations: int = field(default=1, metadata=_unit("exchanges per step"))
-    persistent_map: bool = field(default=True, metadata=_unit(""))
+    persistent_map: bool = field(default=False, metadata=_unit(""))
     innovation_check: bool = field(default=True, metadata=_unit(""))
 
     def __post_init__(self) -> None:
