@@ -6,6 +6,7 @@ Run on demand (BLAS pinned to one thread)::
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py accuracy [--frames 300] [--retire 40]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py revisit [--frames 1000] [--set k=v ...]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py budget [--frames 300] [--budgets 40 80]
+        [--team make-run|long] [--reference-frames N] [--listening 80]
 
 ``cost`` runs a team (3 robots, consensus over a complete graph) along the long route
 (:func:`teamslam.sim.long_route_team`, a world of about 1.2 objects per metre) with objects
@@ -31,11 +32,16 @@ machine disturbs less), the
 consensus bytes per robot-step, the objects averaged per robot-step and the state dimension
 (mean over robots) over the same frames, and the accuracy of each run and its ratio to the
 paper's set.
-``budget`` flies the same team once without a bound on the objects in each robot's state and
-once per ``--budgets`` value of ``objects.max_active``, and prints per run the median time per
-frame of consensus and of the whole step (mean over robots) over frames 100–200 and over the last
-100 and their ratio, and the trajectory RMSE and object error with their ratio to the unbounded
-run. ``--markdown FILE`` writes that table headed by the commit, date, command and machine.
+``budget`` flies a team — the team of ``make run`` or, ``--team long``, the long route — once
+without a bound on the objects in each robot's state and once per ``--budgets`` value of
+``objects.max_active``, and prints per run the median time per frame of consensus and of the
+whole step (mean over robots) over frames 100–200 and over the last 100 and their ratio, the
+trajectory RMSE and object error (final maps: state and persistent map) with their ratio to the
+unbounded run, and the objects retired per robot. ``--reference-frames N`` flies the unbounded
+run N frames only (its cost grows with the route) and each budget both N frames, for the
+ratios, and ``--frames`` frames; ``--listening B…`` adds those budgets with retired objects
+averaged with the neighbours' marginals (``consensus.persistent_map = true``). ``--markdown FILE``
+writes that table headed by the commit, date, command and machine.
 """
 
 from __future__ import annotations
@@ -363,11 +369,57 @@ def revisit(frames: int, seed: int, overrides: dict) -> None:
     print("ratio   " + " ".join(f"{metrics['active'][k] / metrics['all'][k]:10.3f}" for k in keys))
 
 
-def budget(frames: int, seed: int, budgets: list[int], md: Markdown) -> None:
-    """Cost growth and accuracy of the make-run team under each ``objects.max_active``."""
-    dataset = lissajous_team(5, frames, seed=seed)
+TEAMS = {
+    "make-run": "the make-run team (5 robots on Lissajous curves over 210 objects, complete "
+    "graph, window 10)",
+    "long": "the long route (3 robots, complete graph, about 1.2 objects per metre, never "
+    "revisited)",
+}
+
+
+def _team(team: str, frames: int, seed: int):
+    """``(dataset, settings)`` of a budget run of ``team`` for ``frames`` frames."""
+    if team == "long":
+        return long_route_team(robots=3, steps=frames, seed=seed), {}
+    return lissajous_team(5, frames, seed=seed), {"filter.window": 10}
+
+
+def _budget_row(team: str, frames: int, seed: int, bound: int, settings: dict) -> dict:
+    """One budget run: consensus and step times over frames 100–200 and the last 100, accuracy."""
+    dataset, base = _team(team, frames, seed)
+    config = config_for(dataset, {**base, "objects.max_active": bound, **settings})
+    begin = time.perf_counter()
+    result = run_team(dataset, config, progress=False)
+    wall = time.perf_counter() - begin
+    times = 1e3 * np.stack(result.frame_times).mean(axis=0)  # (frames + 1, 4)
     windows = [(100, 201), (frames - 99, frames + 1)]
+    metrics = team_metrics(dataset, result)  # the final maps: state and persistent map
+    robots = len(result.counters)
+    return {
+        "consensus": over(times[:, 0], windows),
+        "step": over(times.sum(axis=1), windows),
+        "rmse": metrics["trajectory_rmse_avg_m"],
+        "objects": metrics["object_error_avg_m"],
+        "retired": sum(c.get("objects_retired", 0) for c in result.counters) / robots,
+        "wall": wall,
+    }
+
+
+def budget(
+    team: str,
+    frames: int,
+    seed: int,
+    budgets: list[int],
+    md: Markdown,
+    reference_frames: int | None = None,
+    listening: list[int] = (),
+) -> None:
+    """Cost growth and accuracy of ``team`` under each ``objects.max_active``, against the
+    run without a bound (over ``reference_frames`` frames when that is shorter: then each
+    budget is also flown that long for the ratios)."""
+    reference_frames = frames if reference_frames is None else min(reference_frames, frames)
     header = [
+        "frames",
         "objects.max_active",
         "consensus ms, frames 100–200",
         "consensus ms, last 100",
@@ -379,40 +431,62 @@ def budget(frames: int, seed: int, budgets: list[int], md: Markdown) -> None:
         "× unbounded",
         "object error [m]",
         "× unbounded",
+        "retired per robot",
     ]
-    md.table(
-        f"A budget on the objects in each robot's state: the make-run team (5 robots, complete "
-        f"graph, window 10) flown for {frames} frames, consensus",
-        header,
+    note = (
         "Times: median over the frames of the window of the wall time per frame, mean over "
-        "robots; growth: last 100 frames over frames 100–200.",
+        "robots; growth: last 100 frames over frames 100–200. Object error: each robot's "
+        "final map, its state and its persistent map. × unbounded: against the run without a "
+        "bound over as many frames."
     )
-    print(" | ".join(header))
+    if listening:
+        note += (
+            " *listening*: retired objects averaged with the neighbours' marginals of them "
+            "(`consensus.persistent_map = true`); otherwise out of consensus until they re-enter."
+        )
+    md.table(
+        f"A budget on the objects in each robot's state: {TEAMS[team]} flown for {frames} "
+        "frames, consensus",
+        header,
+        note,
+    )
+    print(" | ".join(header), flush=True)
+    runs = [(reference_frames, 0, {})]
+    runs += [(reference_frames, b, {}) for b in budgets]
+    runs += [(reference_frames, b, {"consensus.persistent_map": True}) for b in listening]
+    if reference_frames < frames:
+        runs += [(frames, b, {}) for b in budgets]
     reference = None
-    for bound in [0, *budgets]:
-        config = config_for(dataset, {"filter.window": 10, "objects.max_active": bound})
-        result = run_team(dataset, config, progress=False)
-        times = 1e3 * np.stack(result.frame_times).mean(axis=0)  # (frames + 1, 4)
-        consensus = over(times[:, 0], windows)
-        step = over(times.sum(axis=1), windows)
-        metrics = team_metrics(dataset, result)
-        rmse, objects = metrics["trajectory_rmse_avg_m"], metrics["object_error_avg_m"]
-        reference = reference or (rmse, objects)
-        row = [
-            "none" if bound == 0 else str(bound),
-            f"{consensus[0]:.2f}",
-            f"{consensus[1]:.2f}",
-            f"{consensus[1] / consensus[0]:.2f}",
-            f"{step[0]:.2f}",
-            f"{step[1]:.2f}",
-            f"{step[1] / step[0]:.2f}",
-            f"{rmse:.4f}",
-            f"{rmse / reference[0]:.2f}",
-            f"{objects:.4f}",
-            f"{objects / reference[1]:.2f}",
+    for length, bound, settings in runs:
+        row = _budget_row(team, length, seed, bound, settings)
+        if bound == 0:
+            reference = (row["rmse"], row["objects"])
+        ratios = (
+            (f"{row['rmse'] / reference[0]:.2f}", f"{row['objects'] / reference[1]:.2f}")
+            if length == reference_frames
+            else ("—", "—")
+        )
+        name = "none" if bound == 0 else str(bound)
+        if settings:
+            name += ", listening"
+        c, st = row["consensus"], row["step"]
+        cells = [
+            str(length),
+            name,
+            f"{c[0]:.2f}",
+            f"{c[1]:.2f}",
+            f"{c[1] / c[0]:.2f}",
+            f"{st[0]:.2f}",
+            f"{st[1]:.2f}",
+            f"{st[1] / st[0]:.2f}",
+            f"{row['rmse']:.4f}",
+            ratios[0],
+            f"{row['objects']:.4f}",
+            ratios[1],
+            f"{row['retired']:.0f}",
         ]
-        md.row(*row)
-        print(" | ".join(row), flush=True)
+        md.row(*cells)
+        print(" | ".join(cells), f"(wall {row['wall']:.0f} s)", flush=True)
     md.end()
 
 
@@ -428,6 +502,23 @@ def main() -> None:
     parser.add_argument(
         "--budgets", type=int, nargs="*", default=[40, 80, 160], help="budget: objects.max_active"
     )
+    parser.add_argument(
+        "--team", choices=tuple(TEAMS), default="make-run", help="budget: the team flown"
+    )
+    parser.add_argument(
+        "--reference-frames",
+        type=int,
+        default=None,
+        help="budget: fly the unbounded run (and each budget, for the ratios) this many frames "
+        "only (default: --frames)",
+    )
+    parser.add_argument(
+        "--listening",
+        type=int,
+        nargs="*",
+        default=[],
+        help="budget: these budgets also with consensus.persistent_map = true",
+    )
     add_option(parser)
     parser.add_argument("--set", nargs="*", default=[], help="bounded-set settings (revisit)")
     parser.add_argument("--robots", type=int, default=3)
@@ -437,7 +528,15 @@ def main() -> None:
     args = parser.parse_args()
     if args.what == "budget":
         md = Markdown(args.markdown)
-        budget(args.frames or 300, args.seed, args.budgets, md)
+        budget(
+            args.team,
+            args.frames or 300,
+            args.seed,
+            args.budgets,
+            md,
+            args.reference_frames,
+            args.listening,
+        )
         md.write()
     elif args.what == "revisit":
         revisit(args.frames or 1000, args.seed, _overrides(args.set))

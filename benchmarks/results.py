@@ -127,9 +127,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"{GENERATED}/association-scenarios-appearance.md",
     ),
     "active-budget": (
-        "python benchmarks/msckf_long.py budget --frames 600 --budgets 40 80 160 "
+        "python benchmarks/msckf_long.py budget --frames 1000 --budgets 80 160 --listening 80 "
         f"--markdown {GENERATED}/active-budget.md",
         f"{GENERATED}/active-budget.md",
+    ),
+    "active-budget-long": (
+        "python benchmarks/msckf_long.py budget --team long --frames 5000 --reference-frames 300 "
+        f"--budgets 80 --markdown {GENERATED}/active-budget-long.md",
+        f"{GENERATED}/active-budget-long.md",
     ),
     "detector-team": (
         "python benchmarks/detector_team.py --robots 3 --steps 420 --render results/street-render "

@@ -1,6 +1,7 @@
 """Studies on a Dask cluster on loopback: a ``LocalCluster`` of two worker processes, and a
 scheduler and workers started as ``dask scheduler`` / ``dask worker`` processes, give the same
-result as the local run, bit for bit; a worker killed mid-study loses nothing.
+result as the local run, bit for bit (a team study, paper pieces, the FEJ Monte Carlo); a worker
+killed mid-study loses nothing.
 
 Worker processes on loopback ports: a ``network`` module (tests/conftest.py), run alone.
 """
@@ -164,6 +165,31 @@ def test_a_paper_piece_on_a_cluster_is_the_local_one(cluster, shared_data, tmp_p
     assert reproducer.timing()["workers"] == 2
     assert json.dumps(cells["local"]) == json.dumps(cells["cluster"])
     assert sum(c["ours"] is not None for c in cells["cluster"]) == 3 * 5 + 3 * 2 + 3 * 8
+
+
+def test_fej_table_on_a_cluster_is_the_local_one(cluster, tmp_path, capsys):
+    """``teamslam fej table --scheduler``: the printed table and table.json as with local
+    processes, and every per-step curve of every filter, bit for bit."""
+    from teamslam import api
+
+    tables = {}
+    for name, where in (
+        ("local", ["--workers", "2"]),
+        ("cluster", ["--scheduler", cluster.scheduler_address]),
+    ):
+        out = tmp_path / name
+        argv = ["fej", "table", "--env", "2", "--runs", "5", "--json", "--out", str(out), *where]
+        assert main(argv) == 0
+        tables[name] = (capsys.readouterr().out, (out / "table.json").read_text())
+    assert tables["local"] == tables["cluster"]
+    assert json.loads(tables["local"][0])["fej"]["r1_pose_nees"] > 0
+    env = api.fej_environment(2, 20)
+    local = api.fej_table(env, runs=5, workers=1)
+    remote = api.fej_table(env, runs=5, scheduler=cluster.scheduler_address)
+    assert local.curves.keys() == remote.curves.keys() == {"std", "fej", "ideal"}
+    for name, curves in local.curves.items():
+        for metric, values in curves.items():
+            np.testing.assert_array_equal(values, remote.curves[name][metric], strict=True)
 
 
 def _dask(*args: str, log: Path) -> subprocess.Popen:

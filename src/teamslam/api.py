@@ -848,9 +848,11 @@ def fej_environment(env: int = 1, features: int = 20, files: Sequence[str | Path
     )
 
 
-def fej_table(environment, runs: int = 100, seed: int = 0, workers=None, out=None):
+def fej_table(environment, runs: int = 100, seed: int = 0, workers=None, out=None, scheduler=None):
     """Monte Carlo NEES/RMSE of the standard, first-estimate and ideal planar EKFs; with
-    ``out`` also ``table.json``, ``nees_rmse.png`` and ``sigma_bounds.png``.
+    ``out`` also ``table.json``, ``nees_rmse.png`` and ``sigma_bounds.png``. With
+    ``scheduler`` (a Dask scheduler's address, the ``cluster`` extra) each run is a task there
+    instead of in one of ``workers`` processes; the table is the same, bit for bit.
 
     Returns
     -------
@@ -860,7 +862,7 @@ def fej_table(environment, runs: int = 100, seed: int = 0, workers=None, out=Non
     from teamslam.ekf2d.experiments import monte_carlo
     from teamslam.eval.outputs import write_json, writing
 
-    result = monte_carlo(environment, runs=runs, seed=seed, workers=workers)
+    result = monte_carlo(environment, runs=runs, seed=seed, workers=workers, scheduler=scheduler)
     if out is not None:
         from teamslam.eval.plots import plot_monte_carlo, plot_sigma_bounds
 

@@ -16,7 +16,9 @@ def _cmd_fej_table(args: argparse.Namespace) -> int:
     from teamslam.ekf2d.experiments import format_table
 
     env = api.fej_environment(args.env, args.features, args.environment or ())
-    result = api.fej_table(env, args.runs, args.seed, args.workers, args.out)
+    result = api.fej_table(
+        env, args.runs, args.seed, args.workers, args.out, scheduler=args.scheduler
+    )
     if args.json:
         print(json.dumps(result.table, indent=2))
     else:
@@ -48,6 +50,13 @@ def register(sub) -> None:
     table.add_argument("--seed", type=non_negative_int, default=0, help="base seed")
     table.add_argument(
         "--workers", type=positive_int, default=None, help="processes (default: all cores)"
+    )
+    table.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run each Monte Carlo run as a task of the Dask scheduler at ADDRESS "
+        "(tcp://host:8786; the 'cluster' extra) instead of --workers processes",
     )
     table.add_argument(
         "--environment",

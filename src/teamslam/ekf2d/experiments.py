@@ -113,10 +113,13 @@ def monte_carlo(
     workers: int | None = None,
     progress: bool | None = None,
     observation_noise_scale: tuple[float, float] = (1.0, 1.0),
+    scheduler: str | None = None,
 ) -> MonteCarloResult:
     """Run ``runs`` seeded Monte Carlo runs of every filter on ``env`` (the data's observation
     noise scaled per axis by ``observation_noise_scale``, see
-    :func:`~teamslam.ekf2d.simulate.simulate`)."""
+    :func:`~teamslam.ekf2d.simulate.simulate`), over ``workers`` processes or, with
+    ``scheduler`` (a Dask scheduler's address), each run a task there: the same result either
+    way, bit for bit (:func:`~teamslam.parallel.run_parallel`)."""
     if runs < 1:
         raise InputError("runs must be positive")
     for name in filters:
@@ -129,7 +132,9 @@ def monte_carlo(
         observation_noise_scale=tuple(observation_noise_scale),
     )
     seeds = run_seeds_of(runs, seed)
-    results = run_parallel(job, seeds, workers, progress, description=f"{env.name} Monte Carlo")
+    results = run_parallel(
+        job, seeds, workers, progress, description=f"{env.name} Monte Carlo", scheduler=scheduler
+    )
     return summarise_runs(env, results, filters)
 
 

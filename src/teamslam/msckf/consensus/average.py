@@ -6,7 +6,9 @@ conditional (Prop. 2) — and rebuilds the joint. :func:`hybrid_marginal` and
 :func:`increment_average` implement the optional rules ``consensus.rule = hybrid`` and
 ``consensus.rule = increments`` (lock-step only), whose gains never count one robot's new
 information
-more than once. Derivations: the concept page *Consensus* (``docs/concepts/consensus.md``).
+more than once. :func:`persistent_average` averages the objects of the persistent map, each on
+its own (they have no correlation with the state). Derivations: the concept page *Consensus*
+(``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from teamslam.gaussian import (
 from teamslam.msckf.consensus.checks import ReceivedMarginal, receive_marginal
 from teamslam.msckf.consensus.kernels import symmetric_block
 from teamslam.msckf.consensus.messages import CommonMarginalMessage
+from teamslam.msckf.filter.persistent_map import PersistentMap
 from teamslam.msckf.filter.state import MsckfState
 
 __all__ = [
@@ -35,6 +38,7 @@ __all__ = [
     "hybrid_marginal",
     "increment_average",
     "new_information",
+    "persistent_average",
     "prior_information",
     "prior_marginal",
     "shared_prior",
@@ -441,3 +445,52 @@ def _add_conditional(
         info[np.ix_(yr, yn)] += cross
         info[np.ix_(yr, yr)] += gain @ cross.T
         eta[yr] += gain @ p_eta[n]
+
+
+def persistent_average(
+    retired: PersistentMap,
+    received: Sequence[tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]]],
+) -> int:
+    """Average the objects of the persistent map with the neighbours' marginals of them.
+
+    Eq. 19 object by object: a retired object has no correlation with the state, so its
+    average is of its own ``3×3`` marginal, ``Ω ← Ω_i + Σ_j A_ij (Ω_j − Ω_i)`` and
+    ``η ← η_i + Σ_j A_ij (η_j − η_i)`` over the neighbours ``j`` that sent it (a neighbour
+    heard without it contributes our own term, as in :func:`consensus_average`). Its first
+    estimate is kept.
+
+    Parameters
+    ----------
+    retired
+        Our persistent map (edited in place).
+    received
+        ``(A_ij, (ids, Ω, η))`` per neighbour: its marginals of objects of ours that are in
+        the persistent map (:attr:`~teamslam.msckf.consensus.checks.ReceivedMarginal.retired`).
+
+    Returns
+    -------
+    int
+        The objects averaged. An object whose average is not positive definite keeps its
+        marginal (not counted).
+    """
+    received = [(w, part) for w, part in received if part is not None and part[0].size]
+    if not received:
+        return 0
+    ids = np.unique(np.concatenate([part[0] for _, part in received]))
+    means, covs, fe = retired.get(ids)
+    own_info = np.linalg.inv(0.5 * (covs + np.swapaxes(covs, 1, 2)))
+    own_vector = np.einsum("kij,kj->ki", own_info, means)
+    info, vector = own_info.copy(), own_vector.copy()
+    for weight, (their_ids, their_info, their_vector) in received:
+        k = np.searchsorted(ids, their_ids)
+        np.add.at(info, k, weight * (their_info - own_info[k]))
+        np.add.at(vector, k, weight * (their_vector - own_vector[k]))
+    info = 0.5 * (info + np.swapaxes(info, 1, 2))
+    ok = np.linalg.eigvalsh(info)[:, 0] > 0
+    if not ok.any():
+        return 0
+    cov = np.linalg.inv(info[ok])
+    cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
+    mean = np.einsum("kij,kj->ki", cov, vector[ok])
+    retired.store(ids[ok], mean, cov, fe[ok])
+    return int(ok.sum())

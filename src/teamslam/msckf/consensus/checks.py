@@ -46,6 +46,7 @@ def check_message(
     heard: MutableSet[int] | None = None,
     stamp_ns: int | None = None,
     max_age_ns: int | None = None,
+    persistent: bool = False,
 ) -> tuple[str | None, MapIdsMessage | ReceivedMarginal | None]:
     """Whether a received message can be used in this step of consensus.
 
@@ -75,6 +76,9 @@ def check_message(
         With ``max_age_ns``: messages are aged by their frame's stamp instead of their step —
         accepted when sent at a frame stamped ``stamp_ns − max_age_ns`` or later
         (:class:`~teamslam.msckf.consensus.messages.MessageAge`).
+    persistent
+        Round 2: the receiver's persistent map takes part in consensus — the marginal's objects
+        in it are kept apart (:attr:`ReceivedMarginal.retired`), not dropped.
 
     Returns
     -------
@@ -113,7 +117,7 @@ def check_message(
             f"robot exchanges {kinds[per_object]} marginals",
             None,
         )
-    return receive_marginal(state, message)
+    return receive_marginal(state, message, persistent)
 
 
 @dataclass(frozen=True)
@@ -132,6 +136,11 @@ class ReceivedMarginal:
         Consensus on information increments: ``(held, P, η_P)`` — which of ``ids`` were in the
         neighbour's prior, and the information matrix and vector of its prior marginal of
         those, in the order of ``ids`` — or ``None`` (a message without a prior).
+    retired
+        With the persistent map in consensus: ``(ids, Ω, η)`` of the objects of the marginal
+        that are in our persistent map — ``(r,)`` ids, ``(r, 3, 3)`` information matrices and
+        ``(r, 3)`` information vectors of each one's own marginal — or ``None``; ``ids`` then
+        holds the objects in our state only (possibly none).
     """
 
     sender: int
@@ -140,17 +149,20 @@ class ReceivedMarginal:
     info_vector: np.ndarray
     per_object: bool = False
     prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    retired: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 def receive_marginal(
-    state: MsckfState, message: CommonMarginalMessage
+    state: MsckfState, message: CommonMarginalMessage, persistent: bool = False
 ) -> tuple[str | None, ReceivedMarginal | None]:
     """Check a neighbour's marginal against our map and factorise it once.
 
     A marginal in moment form is inverted (its Cholesky factor gives the information matrix);
     one in information form is checked to be positive definite by its Cholesky factorisation.
-    Objects that have left our state for the persistent map since the neighbour asked (an
-    asynchronous message) are marginalised out of it; an object we never had makes it unusable.
+    Objects in our persistent map — retired since the neighbour asked (an asynchronous
+    message), or asked for because the persistent map takes part in consensus
+    (``persistent``) — are marginalised out of it, and with ``persistent`` their own marginals
+    kept apart (:attr:`ReceivedMarginal.retired`); an object we never had makes it unusable.
     Returns ``(None, marginal)`` when it can be used, ``(reason, None)`` when it cannot.
     """
     ids = np.asarray(message.ids)
@@ -181,13 +193,14 @@ def receive_marginal(
     if status == NOT_SYMMETRIC:
         return f"{name} is not symmetric", None
     absent = state.object_slots(ids) < 0
+    retired = None
     if absent.any():
         # an asynchronous message may be older than our last retirement: objects that left our
         # state for the persistent map are marginalised out of it (exact for a Gaussian);
         # objects we never had make the message unusable
         if not state.retired.contains(ids[absent]).all():
             return "ids not in this robot's map", None
-        if absent.all():
+        if absent.all() and not persistent:
             return "every object of the marginal has retired from this robot's state", None
         if information:  # marginalise in moment form (a rare path)
             try:
@@ -195,6 +208,20 @@ def receive_marginal(
             except NotPositiveDefiniteError:
                 return f"{name} is not positive definite", None
             information = False
+        if persistent:
+            problem, retired = _retired_part(ids, mean, matrix, absent, per_object)
+            if problem is not None:
+                return problem, None
+            if absent.all():
+                empty = np.zeros((0, 0))
+                return None, ReceivedMarginal(
+                    int(message.sender),
+                    ids[:0].astype(np.int64),
+                    empty,
+                    np.zeros(0),
+                    per_object,
+                    retired=retired,
+                )
         keep = np.flatnonzero(~absent)
         coords = (3 * keep[:, None] + np.arange(3)).ravel()
         ids, mean, k = ids[keep], mean[coords], keep.size
@@ -220,8 +247,27 @@ def receive_marginal(
         if problem is not None:
             return problem, None
     return None, ReceivedMarginal(
-        int(message.sender), ids.astype(np.int64), info, info @ mean, per_object, prior
+        int(message.sender), ids.astype(np.int64), info, info @ mean, per_object, prior, retired
     )
+
+
+def _retired_part(
+    ids: np.ndarray, mean: np.ndarray, cov: np.ndarray, absent: np.ndarray, per_object: bool
+) -> tuple[str | None, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
+    """``(ids, Ω, η)`` of each ``absent`` object's own marginal, from a marginal's mean and
+    covariance (joint ``(3k, 3k)`` or per-object ``(k, 3, 3)``), or a reason."""
+    which = np.flatnonzero(absent)
+    if per_object:
+        blocks = cov[which]
+    else:
+        index = 3 * which[:, None] + np.arange(3)
+        blocks = cov[index[:, :, None], index[:, None, :]]
+    if np.any(np.linalg.eigvalsh(blocks)[:, 0] <= 0):
+        return "a retired object's covariance is not positive definite", None
+    info = np.linalg.inv(blocks)
+    info = 0.5 * (info + np.swapaxes(info, 1, 2))
+    vector = np.einsum("kij,kj->ki", info, mean.reshape(-1, 3)[which])
+    return None, (ids[which].astype(np.int64), info, vector)
 
 
 def _received_prior(

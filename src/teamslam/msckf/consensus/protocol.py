@@ -42,7 +42,7 @@ from teamslam.association.appearance import BINS, cosine_distances, distance_cou
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError, kl_divergence, spd_inverse
 from teamslam.graph import metropolis_weight
-from teamslam.msckf.consensus.average import SharedPrior
+from teamslam.msckf.consensus.average import SharedPrior, persistent_average
 from teamslam.msckf.consensus.checks import ReceivedMarginal, check_message
 from teamslam.msckf.consensus.kernels import merged_record
 from teamslam.msckf.consensus.marginals import common_marginal_message, object_marginals
@@ -149,6 +149,18 @@ class ConsensusProtocol:
             self.tables = {
                 j: CorrespondenceTable(self.robot, j, matching) for j in sorted(self.neighbours)
             }
+        # the persistent map in consensus (consensus.persistent_map): its objects are asked for
+        # and averaged object by object with the neighbours' in-state marginals, never sent —
+        # with the plain average, lock-step, moved flags (kl_threshold > 0), the paper's set
+        # and global ids
+        self.persistent = (
+            settings.persistent_map
+            and self.rule.name == "average"
+            and self.max_age == 0
+            and self.kl_threshold > 0
+            and not self.bounded
+            and self.association != "own"
+        )
         check = self.association == "own" or settings.innovation_check
         self.innovation_probability = association.revoke_probability if check else None
         self._summary: ObjectSummary | None = None
@@ -207,6 +219,7 @@ class ConsensusProtocol:
             heard,
             self.stamp_ns,
             self.max_age_ns,
+            self.persistent,
         )
         if problem is not None:
             self.agent.reject("messages", reason=problem)
@@ -277,6 +290,8 @@ class ConsensusProtocol:
             self._own = None
         if self.bounded:
             self._thresholds = self._object_thresholds(covs)[order]
+        if self._with_persistent_map():
+            ids = self._own[0]
         self._summary = self._object_summary(ids, means[order], covs[order]) if exchange else None
         targets = sorted(self.neighbours if to is None else set(to) & self.neighbours)
         out = []
@@ -314,6 +329,23 @@ class ConsensusProtocol:
             self._summary = self._object_summary(state.object_ids[order], means[order], covs[order])
         summary = self._sent[j] = self._summary_for(j)
         return summary
+
+    def _with_persistent_map(self) -> bool:
+        """With the persistent map in consensus and objects in it: add them to our marginals
+        of this exchange (``_own``, ids increasing); whether there were any."""
+        retired = self.agent.state.retired
+        if not self.persistent or len(retired) == 0:
+            return False
+        stored = retired.arrays()
+        ids, means, covs = self._own
+        ids = np.concatenate([ids, stored["ids"]])
+        order = np.argsort(ids, kind="stable")
+        self._own = (
+            ids[order],
+            np.concatenate([means, stored["means"]])[order],
+            np.concatenate([covs, stored["covs"]])[order],
+        )
+        return True
 
     def _appearance(self, ids: np.ndarray) -> np.ndarray | None:
         """``(n, D)`` the appearance descriptors of our objects ``ids`` (zero rows: none), or
@@ -449,7 +481,7 @@ class ConsensusProtocol:
                 requests[m.sender] = m
         self.heard = set(requests)
         replies = []
-        own = np.sort(self.agent.state.object_ids)
+        own = np.sort(self.agent.state.object_ids)  # a retired object is asked for, not sent
         for j in sorted(requests):
             their_ids = np.asarray(requests[j].ids, dtype=np.int64)
             if self.tables:
@@ -611,6 +643,8 @@ class ConsensusProtocol:
         not averaged this step). ``None`` also when no object is left."""
         ids = marginal.ids
         k = ids.size
+        if k == 0:  # only objects of our persistent map
+            return marginal
         try:
             cov = spd_inverse(marginal.info, "information matrix")
         except (NotPositiveDefiniteError, np.linalg.LinAlgError):
@@ -650,7 +684,9 @@ class ConsensusProtocol:
         coords = index[ok].ravel()
         sub = cov[np.ix_(coords, coords)]
         info = spd_inverse(sub, "marginal covariance")
-        return ReceivedMarginal(j, ids[ok], info, info @ mean[coords], marginal.per_object)
+        return ReceivedMarginal(
+            j, ids[ok], info, info @ mean[coords], marginal.per_object, retired=marginal.retired
+        )
 
     def association_summary(self) -> dict:
         """Per link (neighbour id as a string): the table's pairs and counts and the exchange
@@ -714,7 +750,7 @@ class ConsensusProtocol:
             degrees[m.sender] = int(m.degree)
         self_weight, weights = self.weights(degrees)
         self.averaged_with = sorted(marginals)
-        used = [(weights[j], marginals[j]) for j in sorted(marginals)]
+        used = [(weights[j], marginals[j]) for j in sorted(marginals) if marginals[j].ids.size]
         averaged = self.rule.average(
             self.agent.state,
             self_weight,
@@ -724,6 +760,12 @@ class ConsensusProtocol:
             self._own_information,
         )
         self._own_information = {}  # the state has moved
+        if self.persistent:
+            stored = persistent_average(
+                self.agent.state.retired, [(weights[j], marginals[j].retired) for j in marginals]
+            )
+            if stored:
+                self.agent.counters["retired_averaged"] += stored
         self._prior = self.rule.next_prior(
             self.agent.state, self._prior, bool(self.expected or averaged)
         )

@@ -2,9 +2,11 @@
 
 With ``objects.retire_after = N > 0`` an object unobserved for ``N`` frames retires — exact
 marginalisation: its mean, 3×3 marginal and first estimate are kept here — and re-enters the
-state with them, without cross-covariance, when observed again. Retired objects take no part in
-consensus. Storing or re-entering ``k`` objects costs ``O(k)``. Why, and what re-entry
-approximates: the concept page *The persistent map* (``docs/concepts/persistent-map.md``).
+state with them, without cross-covariance, when observed again. Retired objects are never sent
+in consensus; with ``consensus.persistent_map = true`` they are averaged with the neighbours'
+in-state marginals of them (:func:`teamslam.msckf.consensus.average.persistent_average`).
+Storing or re-entering ``k`` objects costs ``O(k)``. Why, and what re-entry approximates: the
+concept page *The persistent map* (``docs/concepts/persistent-map.md``).
 """
 
 from __future__ import annotations

@@ -382,6 +382,15 @@ class ConsensusSettings:
         ``hybrid`` and ``increments`` rules each robot's new information is sent at its gain in
         the first exchange only, so no increment is counted twice for any ``L``. Lock-step only;
         every robot of a team must use the same ``L``.
+    persistent_map
+        Objects retired to the persistent map (``objects.retire_after``,
+        ``objects.max_active``) listen to consensus: a robot asks for them with its map ids and
+        averages each with the neighbours' marginals of it (eq. 19 per object: it has no
+        correlation with the state), flagged at ``kl_threshold`` as the objects of its state;
+        it never sends them (a stale copy would pull the neighbours' working estimates back).
+        With the plain average, lock-step exchanges, ``kl_threshold > 0``, ``set = all`` and
+        oracle ids. Off by default: it does not lower a budget's object error over a long
+        mission (``docs/results/speed.md``); off, retired objects wait for re-entry.
     innovation_check
         With oracle association: the ``χ²₃`` test of each common object's consensus innovation
         (at ``association.revoke_probability``); a neighbour's marginal in which most objects
@@ -398,6 +407,7 @@ class ConsensusSettings:
     per_object: bool = field(default=False, metadata=_unit(""))
     float32: bool = field(default=True, metadata=_unit(""))
     iterations: int = field(default=1, metadata=_unit("exchanges per step"))
+    persistent_map: bool = field(default=False, metadata=_unit(""))
     innovation_check: bool = field(default=True, metadata=_unit(""))
 
     def __post_init__(self) -> None:
@@ -414,7 +424,9 @@ class ConsensusSettings:
             value = getattr(self, name)
             if not (_is_number(value) and value >= 0):  # inf: never by this test
                 raise InputError(f"consensus.{name} must be a number ≥ 0 (nats; inf allowed)")
-        _check_flags(self, "consensus", ("per_object", "float32", "innovation_check"))
+        _check_flags(
+            self, "consensus", ("per_object", "float32", "persistent_map", "innovation_check")
+        )
         if self.rule != "average" and self.per_object:
             raise InputError(
                 f"consensus.rule {self.rule} needs joint marginals: it cannot be used with "
