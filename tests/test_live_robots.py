@@ -108,8 +108,12 @@ def test_three_live_robots_follow_a_played_bag_as_the_offline_team_does(live_tea
                     str(i),
                     "--out",
                     str(tmp / "live"),
+                    # the robot ends on the bag's frame count, not on a quiet spell: a loaded
+                    # machine may deliver the last messages seconds after the player is gone
+                    "--frames",
+                    "13",
                     "--idle-timeout",
-                    "2",
+                    "60",
                 ),
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
