@@ -379,6 +379,15 @@ class ConsensusSettings:
         fail (a member that sends marginals far off with a tiny covariance) is left out of the
         step's average whole. On by default: a check that protects the estimate must not need
         switching on. Own association always tests.
+    rigid_directions
+        With a linearisation that keeps first estimates (``fej``, ``oc``): a joint marginal
+        travels with its rigid-motion directions at its own mean, and the receiver moves them
+        to its own first estimates of the objects before it averages
+        (:mod:`teamslam.msckf.consensus.directions`), so a neighbour's marginal tells it no
+        more about the rigid motions of the world than it tells the neighbour. Off, robots that
+        first estimated a common object apart inform each other's unobservable directions
+        and become overconfident along a long route. No effect with ``std`` or ``ideal`` or
+        per-object marginals.
     """
 
     rule: str = field(default="average", metadata=_unit(""))
@@ -390,6 +399,7 @@ class ConsensusSettings:
     float32: bool = field(default=True, metadata=_unit(""))
     iterations: int = field(default=1, metadata=_unit("exchanges per step"))
     innovation_check: bool = field(default=True, metadata=_unit(""))
+    rigid_directions: bool = field(default=True, metadata=_unit(""))
 
     def __post_init__(self) -> None:
         if self.rule not in CONSENSUS_RULES:
@@ -405,7 +415,9 @@ class ConsensusSettings:
             value = getattr(self, name)
             if not (_is_number(value) and value >= 0):  # inf: never by this test
                 raise InputError(f"consensus.{name} must be a number ≥ 0 (nats; inf allowed)")
-        _check_flags(self, "consensus", ("per_object", "float32", "innovation_check"))
+        _check_flags(
+            self, "consensus", ("per_object", "float32", "innovation_check", "rigid_directions")
+        )
         if self.rule != "average" and self.per_object:
             raise InputError(
                 f"consensus.rule {self.rule} needs joint marginals: it cannot be used with "
