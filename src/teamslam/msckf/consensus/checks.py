@@ -124,8 +124,6 @@ class ReceivedMarginal:
         Consensus on information increments: ``(held, P, η_P)`` — which of ``ids`` were in the
         neighbour's prior, and the information matrix and vector of its prior marginal of
         those, in the order of ``ids`` — or ``None`` (a message without a prior).
-    mean
-        The neighbour's marginal mean ``μ`` (``3·len(ids)``), or ``None``.
     """
 
     sender: int
@@ -134,7 +132,6 @@ class ReceivedMarginal:
     info_vector: np.ndarray
     per_object: bool = False
     prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-    mean: np.ndarray | None = None
 
 
 def receive_marginal(
@@ -215,7 +212,7 @@ def receive_marginal(
         if problem is not None:
             return problem, None
     return None, ReceivedMarginal(
-        int(message.sender), ids.astype(np.int64), info, info @ mean, per_object, prior, mean
+        int(message.sender), ids.astype(np.int64), info, info @ mean, per_object, prior
     )
 
 

@@ -44,7 +44,6 @@ from teamslam.gaussian import NotPositiveDefiniteError, kl_divergence, spd_inver
 from teamslam.graph import metropolis_weight
 from teamslam.msckf.consensus.average import SharedPrior
 from teamslam.msckf.consensus.checks import ReceivedMarginal, check_message
-from teamslam.msckf.consensus.directions import at_first_estimates
 from teamslam.msckf.consensus.kernels import merged_record
 from teamslam.msckf.consensus.marginals import common_marginal_message, object_marginals
 from teamslam.msckf.consensus.messages import (
@@ -127,8 +126,8 @@ class ConsensusProtocol:
         # the averaging rule (lock-step only; asynchronous robots average) and the prior it
         # keeps: our joint marginal of the objects after the last exchange
         self.rule = consensus_rule(settings.rule if self.max_age == 0 else "average")
-        # a first-estimates filter: marginals travel with their rigid-motion directions at
-        # their means and are averaged with them at our first estimates
+        # a first-estimates filter: the average adds nothing along our rigid motions at our
+        # first estimates
         self.directions = bool(settings.rigid_directions) and keeps_first_estimates(
             agent.config.filter.linearization
         )
@@ -473,7 +472,6 @@ class ConsensusProtocol:
                 information=not settings.per_object,
                 keep=self._own_information if source is None else None,
                 prior=self.rule.message_prior(self._prior),
-                directions=self.directions,
             )
             replies.append(reply)
         self.spent += time.perf_counter() - begin
@@ -608,9 +606,7 @@ class ConsensusProtocol:
         coords = index[ok].ravel()
         sub = cov[np.ix_(coords, coords)]
         info = spd_inverse(sub, "marginal covariance")
-        return ReceivedMarginal(
-            j, ids[ok], info, info @ mean[coords], marginal.per_object, mean=mean[coords]
-        )
+        return ReceivedMarginal(j, ids[ok], info, info @ mean[coords], marginal.per_object)
 
     def association_summary(self) -> dict:
         """Per link (neighbour id as a string): the table's pairs and counts and the exchange
@@ -670,8 +666,6 @@ class ConsensusProtocol:
                 marginal = self._innovation_check(marginal)
             if marginal is None:
                 continue
-            if self.directions:
-                marginal = at_first_estimates(self.agent.state, marginal)
             marginals[m.sender] = marginal
             degrees[m.sender] = int(m.degree)
         self_weight, weights = self.weights(degrees)
@@ -684,6 +678,7 @@ class ConsensusProtocol:
             self._prior,
             self.agent.counters,
             self._own_information,
+            self.directions,
         )
         self._own_information = {}  # the state has moved
         self._prior = self.rule.next_prior(

@@ -380,14 +380,13 @@ class ConsensusSettings:
         step's average whole. On by default: a check that protects the estimate must not need
         switching on. Own association always tests.
     rigid_directions
-        With a linearisation that keeps first estimates (``fej``, ``oc``): a joint marginal
-        travels with its rigid-motion directions at its own mean, and the receiver moves them
-        to its own first estimates of the objects before it averages
-        (:mod:`teamslam.msckf.consensus.directions`), so a neighbour's marginal tells it no
-        more about the rigid motions of the world than it tells the neighbour. Off, robots that
-        first estimated a common object apart inform each other's unobservable directions
-        and become overconfident along a long route. No effect with ``std`` or ``ideal`` or
-        per-object marginals.
+        With a linearisation that keeps first estimates (``fej``, ``oc``): the consensus average
+        leaves the robot's information along the rigid motions of the world, taken at its
+        first estimates of the averaged objects, as it was
+        (:mod:`teamslam.msckf.consensus.directions`); the map's shape is averaged as before.
+        Off, robots that first estimated a common object apart hand each other information
+        along their unobservable directions and become overconfident along a long route. No
+        effect with ``std`` or ``ideal``.
     """
 
     rule: str = field(default="average", metadata=_unit(""))
