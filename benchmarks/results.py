@@ -161,6 +161,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/consistency-long-route.md",
         f"{GENERATED}/consistency-long-route.md",
     ),
+    "consistency-long-route-600": (
+        "python benchmarks/long_route.py --seeds 43 --runs 2 --robots 3 --steps 600 "
+        "--filters fej --modes consensus --workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route-600.md",
+        f"{GENERATED}/consistency-long-route-600.md",
+    ),
     "consistency-make-run": (
         "python benchmarks/consistency.py --teams make-run --variants std fej oc "
         f"--modes separate consensus --markdown {GENERATED}/consistency-make-run.md",

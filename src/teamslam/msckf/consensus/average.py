@@ -5,9 +5,10 @@ shared with at least one neighbour heard — each neighbour's marginal completed
 conditional (Prop. 2) — and rebuilds the joint. :func:`hybrid_marginal` and
 :func:`increment_average` implement the optional rules ``consensus.rule = hybrid`` and
 ``consensus.rule = increments`` (lock-step only), whose gains never count one robot's new
-information
-more than once. :func:`persistent_average` averages the objects of the persistent map, each on
-its own (they have no correlation with the state). Derivations: the concept page *Consensus*
+information more than once; a first-estimates filter's average leaves its rigid motions alone
+(:mod:`~teamslam.msckf.consensus.directions`). :func:`persistent_average` averages the objects of
+the persistent map, each on its own (they have no correlation with the state). Derivations: the
+concept page *Consensus*
 (``docs/concepts/consensus.md``).
 """
 
@@ -26,6 +27,7 @@ from teamslam.gaussian import (
     spd_inverse,
 )
 from teamslam.msckf.consensus.checks import ReceivedMarginal, receive_marginal
+from teamslam.msckf.consensus.directions import constrained_average
 from teamslam.msckf.consensus.kernels import symmetric_block
 from teamslam.msckf.consensus.messages import CommonMarginalMessage
 from teamslam.msckf.filter.persistent_map import PersistentMap
@@ -178,6 +180,7 @@ def consensus_average(
     counters: MutableMapping[str, int] | None = None,
     own_information: Mapping[bytes, np.ndarray] | None = None,
     increments: bool = False,
+    rigid_directions: bool = False,
 ) -> int:
     """Average the common objects with the neighbours' marginals and rebuild the joint.
 
@@ -214,6 +217,10 @@ def consensus_average(
         instead of inverting our marginal of the set again (and when the set is ``y``, our own
         information of ``y`` is taken from it too). The state must not have changed since they
         were computed.
+    rigid_directions
+        Keep our information along the rigid motions of the world at our first estimates of
+        the averaged objects as it was (a first-estimates filter, ``consensus.rigid_directions``;
+        :func:`~teamslam.msckf.consensus.directions.constrained_average`).
 
     Returns
     -------
@@ -251,8 +258,12 @@ def consensus_average(
         sub = (3 * position[:, None] + np.arange(3)).ravel()
         own_sub = None if own_information is None else own_information.get(m.ids.tobytes())
         terms.append((w, sub, m.info, m.info_vector, own_sub))
+    first = state.object_fe[slots] if rigid_directions else None
     if per_object.pop():
         mean, cov = completed_geometric_average(own_mean, own_cov, terms, block=3)
+        if first is not None:
+            own = spd_inverse(own_cov, "own marginal covariance", symmetric=True)
+            mean, cov = constrained_average(own_mean, own, mean, cov, first)
         state.replace_marginal(cols, mean, cov)
     else:
         # Σʸ⁻¹ serves the average (our own information) and the rebuild (A = Σˣʸ Σʸ⁻¹); when
@@ -270,6 +281,8 @@ def consensus_average(
                 if counters is not None:
                     counters["hybrid_fallbacks"] += 1
                 averaged = completed_geometric_average(own_mean, own_cov, terms, info=own_info)
+            if first is not None:
+                averaged = constrained_average(own_mean, own_info, *averaged, first)
             state.replace_marginal(cols, *averaged, info=own_info)
             return int(y_ids.size)
         extra = None
@@ -291,6 +304,8 @@ def consensus_average(
             if counters is not None:
                 counters["hybrid_fallbacks"] += 1
             mean, cov = completed_geometric_average(own_mean, own_cov, terms, info=own_info)
+        if first is not None:
+            mean, cov = constrained_average(own_mean, own_info, mean, cov, first)
         state.replace_marginal(cols, mean, cov, info=own_info)
     return int(y_ids.size)
 

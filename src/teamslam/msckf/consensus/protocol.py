@@ -54,6 +54,7 @@ from teamslam.msckf.consensus.messages import (
 )
 from teamslam.msckf.consensus.rules import consensus_rule
 from teamslam.msckf.consensus.selection import active_objects, settling_thresholds
+from teamslam.msckf.filter.linearization import keeps_first_estimates
 from teamslam.msckf.filter.state import MsckfState
 from teamslam.msckf.filter.views import ObjectViews
 from teamslam.msckf.settings.values import MsckfConfig
@@ -125,6 +126,11 @@ class ConsensusProtocol:
         # the averaging rule (lock-step only; asynchronous robots average) and the prior it
         # keeps: our joint marginal of the objects after the last exchange
         self.rule = consensus_rule(settings.rule if self.max_age == 0 else "average")
+        # a first-estimates filter: the average adds nothing along our rigid motions at our
+        # first estimates
+        self.directions = bool(settings.rigid_directions) and keeps_first_estimates(
+            agent.config.filter.linearization
+        )
         self._prior: SharedPrior | None = self.rule.initial_prior(agent.state)
         self.step = -1
         # the exchange's frame stamp and, for robots whose steps are not comparable (they drop
@@ -758,6 +764,7 @@ class ConsensusProtocol:
             self._prior,
             self.agent.counters,
             self._own_information,
+            self.directions,
         )
         self._own_information = {}  # the state has moved
         if self.persistent:

@@ -74,11 +74,17 @@ class ConsensusRule:
         prior: SharedPrior | None,
         counters: MutableMapping[str, int],
         own_information: Mapping[bytes, np.ndarray],
+        rigid_directions: bool = False,
     ) -> int:
         """Average the common objects in place; the number averaged
         (:func:`~teamslam.msckf.consensus.average.consensus_average`)."""
         return consensus_average(
-            state, self_weight, used, counters=counters, own_information=own_information
+            state,
+            self_weight,
+            used,
+            counters=counters,
+            own_information=own_information,
+            rigid_directions=rigid_directions,
         )
 
     def next_prior(
@@ -118,7 +124,9 @@ class HybridRule(ConsensusRule):
     #: whether the averages are of information increments (:class:`IncrementsRule`)
     increments = False
 
-    def average(self, state, self_weight, used, prior, counters, own_information):
+    def average(
+        self, state, self_weight, used, prior, counters, own_information, rigid_directions=False
+    ):
         return consensus_average(
             state,
             self_weight,
@@ -127,6 +135,7 @@ class HybridRule(ConsensusRule):
             counters=counters,
             own_information=own_information,
             increments=self.increments,
+            rigid_directions=rigid_directions,
         )
 
     def next_prior(self, state, prior, exchanged):

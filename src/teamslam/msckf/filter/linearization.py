@@ -28,6 +28,7 @@ __all__ = [
     "ObservabilityConstrained",
     "Standard",
     "annihilate",
+    "keeps_first_estimates",
     "linearization_policy",
     "unobservable_directions",
 ]
@@ -276,6 +277,12 @@ POLICIES: dict[str, type[LinearizationPolicy]] = {
     "ideal": Ideal,
     "oc": ObservabilityConstrained,
 }
+
+
+def keeps_first_estimates(name: str) -> bool:
+    """Whether policy ``name`` keeps the unobservable directions at first estimates (``fej``,
+    ``oc``)."""
+    return issubclass(POLICIES.get(name, LinearizationPolicy), FirstEstimate)
 
 
 def linearization_policy(name: str) -> LinearizationPolicy:

@@ -397,6 +397,14 @@ class ConsensusSettings:
         fail (a member that sends marginals far off with a tiny covariance) is left out of the
         step's average whole. On by default: a check that protects the estimate must not need
         switching on. Own association always tests.
+    rigid_directions
+        With a linearisation that keeps first estimates (``fej``, ``oc``): the consensus average
+        leaves the robot's information along the rigid motions of the world, taken at its
+        first estimates of the averaged objects, as it was
+        (:mod:`teamslam.msckf.consensus.directions`); the map's shape is averaged as before.
+        Off, robots that first estimated a common object apart hand each other information
+        along their unobservable directions and become overconfident along a long route. No
+        effect with ``std`` or ``ideal``.
     """
 
     rule: str = field(default="average", metadata=_unit(""))
@@ -409,6 +417,7 @@ class ConsensusSettings:
     iterations: int = field(default=1, metadata=_unit("exchanges per step"))
     persistent_map: bool = field(default=False, metadata=_unit(""))
     innovation_check: bool = field(default=True, metadata=_unit(""))
+    rigid_directions: bool = field(default=True, metadata=_unit(""))
 
     def __post_init__(self) -> None:
         if self.rule not in CONSENSUS_RULES:
@@ -425,7 +434,9 @@ class ConsensusSettings:
             if not (_is_number(value) and value >= 0):  # inf: never by this test
                 raise InputError(f"consensus.{name} must be a number ≥ 0 (nats; inf allowed)")
         _check_flags(
-            self, "consensus", ("per_object", "float32", "persistent_map", "innovation_check")
+            self,
+            "consensus",
+            ("per_object", "float32", "persistent_map", "innovation_check", "rigid_directions"),
         )
         if self.rule != "average" and self.per_object:
             raise InputError(
