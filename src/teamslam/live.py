@@ -167,10 +167,17 @@ class _Detections:
     :class:`~teamslam.datasets.model.FrameDetections`; the current frame is kept."""
 
     def __init__(self) -> None:
-        self._frames: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._frames: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._dimension = 0
 
-    def add(self, t: int, z: np.ndarray, classes: np.ndarray, appearance: np.ndarray) -> None:
+    def add(
+        self,
+        t: int,
+        z: np.ndarray,
+        classes: np.ndarray,
+        appearance: np.ndarray,
+        sizes: np.ndarray,
+    ) -> None:
         looks = np.asarray(appearance, np.float32)
         if looks.size:
             self._dimension = looks.shape[1]
@@ -180,16 +187,21 @@ class _Detections:
             np.asarray(z, float).reshape(-1, 4),
             np.asarray(classes, np.int64),
             looks,
+            np.asarray(sizes, float).reshape(-1, 2),
         )
         for old in [k for k in self._frames if k < t - 1]:
             del self._frames[old]
 
     def frame(self, t: int) -> tuple[np.ndarray, np.ndarray]:
-        z, classes, _ = self._frames[t]
+        z, classes, _, _ = self._frames[t]
         return z, classes
 
     def appearance_of(self, t: int) -> np.ndarray:
         return self._frames[t][2]
+
+    def sizes_of(self, t: int) -> np.ndarray:
+        """``(D_t, 2)`` the box sizes of frame ``t`` (the box-centre noise grows with them)."""
+        return self._frames[t][3]
 
 
 class LiveSequence:
@@ -237,11 +249,11 @@ class LiveSequence:
         features: tuple[np.ndarray, np.ndarray],
         objects: tuple[np.ndarray, np.ndarray],
         span: int = 1,
-        detections: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+        detections: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> int:
         """Append a frame (``increment`` from the previous one, spanning ``span`` frames made;
-        ``None`` for the first; ``detections``: its boxes' ``(z, classes, appearance)``); its
-        index."""
+        ``None`` for the first; ``detections``: its boxes' ``(z, classes, appearance, sizes)``);
+        its index."""
         t = self._frames
         if (t == 0) != (increment is None):
             raise ValueError("the first frame has no odometry increment, every other one has")
@@ -700,13 +712,18 @@ class LiveRobot:
     def _observations(self, frame: _Frame, where: str):
         """``(features, objects, detections)`` of a frame: its message's, or the front-end's on
         its images; ``detections`` (with a detection topic): its boxes' ``(z, classes,
-        appearance)``, else ``None``."""
+        appearance, sizes)``, else ``None``."""
         from teamslam.ros2 import messages as m
 
         empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
         no_boxes = None
         if self.inputs.detections is not None:
-            no_boxes = (np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros((0, 0), np.float32))
+            no_boxes = (
+                np.zeros((0, 4)),
+                np.zeros(0, np.int64),
+                np.zeros((0, 0), np.float32),
+                np.zeros((0, 2)),
+            )
         if frame.kind == "odometry":
             return empty, empty, no_boxes
         if frame.kind == "observations":
@@ -751,7 +768,7 @@ class LiveRobot:
         return (
             (measured.feature_ids, measured.features),
             empty,
-            (described.z, described.classes, looks),
+            (described.z, described.classes, looks, described.sizes),
         )
 
     def _given_boxes(self, msg, stamp: int, rig):
