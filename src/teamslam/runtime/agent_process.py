@@ -191,6 +191,11 @@ def run_agent(
                 _atomic_json(
                     out / "progress.json", {"frame": t, "frames": frames, "pid": os.getpid()}
                 )
+        # a session's transport waits until its neighbours have our last messages (a memory
+        # network delivers them at once and has nothing to wait for)
+        finish = getattr(transport, "finish", None)
+        if finish is not None:
+            finish(team.timeout_s)
     except EstimationError:
         _save(out, driver, transport, robot, team, step_latency, complete=False)
         raise

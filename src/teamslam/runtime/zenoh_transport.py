@@ -100,6 +100,7 @@ class ZenohTransport:
         # declared after the subscriber: a neighbour that sees this token also has our
         # subscription, so its first messages are not published into the void
         self._token = self.session.liveliness().declare_token(f"teamslam/{team.team}/alive/{robot}")
+        self._done_token = None
 
     def _on_sample(self, sample) -> None:
         data = bytes(sample.payload.to_bytes())
@@ -134,15 +135,38 @@ class ZenohTransport:
 
     def alive_neighbours(self) -> set[int]:
         """Neighbours whose liveliness token is visible now."""
-        replies = self.session.liveliness().get(f"teamslam/{self.team.team}/alive/*", timeout=1.0)
-        alive = set()
+        return self._tokens("alive")
+
+    def _tokens(self, kind: str) -> set[int]:
+        """Neighbours whose ``kind`` liveliness token (``alive``, ``done``) is visible now."""
+        replies = self.session.liveliness().get(f"teamslam/{self.team.team}/{kind}/*", timeout=1.0)
+        seen = set()
         for reply in replies:
             if reply.ok is not None:
                 try:
-                    alive.add(int(str(reply.ok.key_expr).rsplit("/", 1)[1]))
+                    seen.add(int(str(reply.ok.key_expr).rsplit("/", 1)[1]))
                 except ValueError:
                     continue
-        return alive & set(self.team.robots[self.robot].neighbours)
+        return seen & set(self.team.robots[self.robot].neighbours)
+
+    def finish(self, timeout: float) -> set[int]:
+        """Say this robot is done, then wait until every neighbour is done or gone (or
+        ``timeout``); returns the neighbours neither done nor gone at the end.
+
+        Closing the session right after the last step can drop our last messages while they
+        are still queued for a slow link, and a neighbour behind us then waits for them in
+        vain. A neighbour is done only after its last step, which needed our last messages:
+        once it is done (or gone), closing loses nothing it still needs."""
+        done_token = self.session.liveliness().declare_token(
+            f"teamslam/{self.team.team}/done/{self.robot}"
+        )
+        self._done_token = done_token
+        deadline = time.monotonic() + timeout
+        while True:
+            waiting = self.alive_neighbours() - self._tokens("done")
+            if not waiting or time.monotonic() >= deadline:
+                return waiting
+            time.sleep(0.02)
 
     def reachable(self, step: int, robots: set[int]) -> set[int]:
         """Every robot asked for: whether a message arrives is known only afterwards."""
@@ -274,6 +298,8 @@ class ZenohTransport:
     def close(self) -> None:
         """Close the Zenoh session."""
         try:
+            if self._done_token is not None:
+                self._done_token.undeclare()
             self._token.undeclare()
             self._subscriber.undeclare()
         finally:
