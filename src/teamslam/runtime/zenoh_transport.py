@@ -157,10 +157,9 @@ class ZenohTransport:
         are still queued for a slow link, and a neighbour behind us then waits for them in
         vain. A neighbour is done only after its last step, which needed our last messages:
         once it is done (or gone), closing loses nothing it still needs."""
-        done_token = self.session.liveliness().declare_token(
+        self._done_token = self.session.liveliness().declare_token(
             f"teamslam/{self.team.team}/done/{self.robot}"
         )
-        self._done_token = done_token
         deadline = time.monotonic() + timeout
         while True:
             waiting = self.alive_neighbours() - self._tokens("done")
