@@ -523,6 +523,27 @@ def test_a_wrong_pair_fails_its_innovation_test_and_is_revoked_for_good():
     assert table.counts()["revoked"] == 1 and len(table) == 39
 
 
+def test_the_pair_check_with_a_link_scale_keeps_pairs_as_far_apart_as_the_scale_says():
+    """Pairs whose differences are ``s`` times their covariances (``nis ~ s · χ²₃``, maps
+    overconfident against each other by ``s``) fail the plain test far more often than
+    ``1 − p``; with the link's scale ``s`` they fail at ``1 − p``. A neighbour 20 m off with a
+    tiny covariance fails both."""
+    rng = np.random.default_rng(3)
+    n, s, p = 20000, 9.0, 0.999
+    cov = np.broadcast_to(0.01 * np.eye(3), (n, 3, 3))
+    diff = rng.normal(scale=np.sqrt(2 * 0.01 * s), size=(n, 3))
+    own = rng.normal(size=(n, 3))
+    plain = pair_innovation_consistent(own, cov, own + diff, cov, probability=p)
+    scaled = pair_innovation_consistent(own, cov, own + diff, cov, probability=p, scale=s)
+    assert 1 - plain.mean() > 0.3
+    assert abs((1 - scaled.mean()) - (1 - p)) < 4 * np.sqrt(p * (1 - p) / n)
+    lie = own[:1] + np.array([20.0, 0.0, 0.0])
+    tiny = 1e-6 * np.eye(3)[None]
+    assert not pair_innovation_consistent(own[:1], cov[:1], lie, tiny, probability=p, scale=s)[0]
+    with pytest.raises(InputError, match="scale must be"):
+        pair_innovation_consistent(own, cov, own, cov, scale=0.5)
+
+
 def test_a_revoked_pair_may_return_after_the_hold_off():
     a, b, *_ = _two_maps()
     result = associate(a, b)

@@ -5,8 +5,10 @@ A robot holds one :class:`CorrespondenceTable` per neighbour. Each association r
 added only when it is consistent with the transform of the pairs already held (a ``χ²₃`` gate
 with the drift allowance), when neither of its objects is already matched to another object,
 and when it was not revoked before. Consensus then checks every matched pair's innovation
-(:func:`pair_innovation_consistent`); a pair that fails is :meth:`~CorrespondenceTable.revoke` d
-and never re-added (or, with a hold-off, not before that many steps have passed).
+(:func:`pair_innovation_consistent`, its quantile times the link's learned
+:attr:`~CorrespondenceTable.frame_scale`); a pair that fails is
+:meth:`~CorrespondenceTable.revoke` d and never re-added (or, with a hold-off, not before that
+many steps have passed).
 
 At run time a robot runs the full association when the table says it is
 :meth:`~CorrespondenceTable.due` (nothing merged yet, a map grown by a quarter since the last
@@ -99,15 +101,21 @@ def pair_innovation_consistent(
     cov_their: np.ndarray,
     T_own_their: np.ndarray | None = None,
     probability: float = 0.999,
+    scale: float = 1.0,
 ) -> np.ndarray:
     """Whether each matched pair's innovation passes the ``χ²₃`` test at ``probability``.
 
     See :func:`pair_innovation_nis` for the arguments; returns a ``(k,)`` boolean array.
+    ``scale`` (≥ 1): the factor by which the two maps' differences are known to exceed their
+    covariances (a link's learned :attr:`CorrespondenceTable.frame_scale`); the test is then
+    ``νᵀ S⁻¹ ν ≤ scale · χ²₃(probability)``, the hypothesis the link's frame gate tests.
     """
     if not 0.0 < probability < 1.0:
         raise InputError(f"probability must be in (0, 1), got {probability}")
+    if not scale >= 1.0:
+        raise InputError(f"scale must be ≥ 1, got {scale}")
     nis = pair_innovation_nis(mean_own, cov_own, mean_their, cov_their, T_own_their)
-    return nis <= chi2_quantile(probability, 3)
+    return nis <= scale * chi2_quantile(probability, 3)
 
 
 class CorrespondenceTable:

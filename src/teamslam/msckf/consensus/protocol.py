@@ -644,7 +644,11 @@ class ConsensusProtocol:
     def _innovation_check(self, marginal: ReceivedMarginal) -> ReceivedMarginal | None:
         """The marginal checked by the ``χ²₃`` test of each object's consensus innovation.
 
-        With own association: without the objects that fail (revoked from the link's table);
+        With own association: the quantile times the link's learned frame scale
+        (:attr:`~teamslam.association.CorrespondenceTable.frame_scale`: the maps' disagreement
+        against their covariances, which the link's association gate already allows; on noisy
+        odometry the plain test revoked right pairs by the tens), and without the objects that
+        fail (revoked from the link's table);
         with oracle ids: whole, unless most of its objects fail (then ``None``: the sender is
         not averaged this step). ``None`` also when no object is left."""
         ids = marginal.ids
@@ -662,19 +666,20 @@ class ConsensusProtocol:
         state = self.agent.state
         slots = state.object_slots(ids)
         own_covs = state.covariance(state.object(slots))[index[:, :, None], index[:, None, :]]
+        j = marginal.sender
+        table = self.tables.get(j)
         ok = pair_innovation_consistent(
             state.objects[slots],
             own_covs,
             mean.reshape(k, 3),
             blocks,
             probability=self.innovation_probability,
+            scale=1.0 if table is None else table.frame_scale,
         )
         if ok.all():
             return marginal
-        j = marginal.sender
         failed = ids[~ok]
         self.agent.counters["consensus_innovation_failures"] += int(failed.size)
-        table = self.tables.get(j)
         if table is None:  # oracle ids: judge the sender by the majority of its objects
             if 2 * int(failed.size) <= k:
                 return marginal

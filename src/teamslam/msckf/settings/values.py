@@ -471,7 +471,10 @@ class TeamAssociationSettings(AssociationSettings):
         With ``own`` (and with ``consensus.innovation_check``): probability of the ``χ²₃`` test
         of each matched pair's consensus innovation; a pair that fails is left out of the
         average and revoked for good. Close to 1, the test tolerates a somewhat overconfident
-        filter and still catches a neighbour far off with a tiny covariance.
+        filter and still catches a neighbour far off with a tiny covariance. With ``own`` the
+        test's ``χ²₃`` quantile is multiplied by the link's learned frame scale (how far the two
+        maps' estimates of one object lie apart against their covariances, learned from pairs
+        a transform identified): the hypothesis its association gate admitted the pair under.
     """
 
     mode: str = field(default="oracle", metadata=_unit(""))
