@@ -22,6 +22,7 @@ from teamslam.association.appearance import (
     AppearanceModel,
     chance_tail,
     distance_counts,
+    link_model,
     unit_rows,
 )
 from teamslam.datasets import load_dataset, save_dataset
@@ -166,6 +167,33 @@ def test_the_chance_bound_falls_with_evidence_and_grows_with_the_map():
     assert chance_tail(model, -1e9, 3, 30) == 1.0
     # more objects to choose a look-alike from: a chance set gets further
     assert chance_tail(model, 3 * strong, 3, 300) >= chance_tail(model, 3 * strong, 3, 30)
+
+
+def test_a_link_with_a_few_dozen_pairs_vetoes_a_pair_that_looks_nothing_alike():
+    """A link holding 40 pairs (noisy copies of one descriptor) and maps of 60 objects each:
+    most pairs of two unrelated objects (at distances common among different objects and never
+    seen among the same ones) are below the veto's odds at ``gate_probability`` — with one
+    pseudo-count per bin none was, the prior alone kept each above 1 : 99; every right pair is
+    above even odds."""
+    rng = np.random.default_rng(5)
+    n, held = 60, 40
+    looks = unit_rows(rng.standard_normal((n, 32)))
+    looks_a = looks + NOISE * rng.standard_normal((n, 32)) / np.sqrt(32)
+    looks_b = looks + NOISE * rng.standard_normal((n, 32)) / np.sqrt(32)
+    covs = np.tile(0.01 * np.eye(3), (n, 1, 1))
+    means = rng.uniform(0.0, 100.0, (n, 3))
+    a = ObjectSummary(0, np.arange(n), means, covs, appearance=looks_a)
+    b = ObjectSummary(1, np.arange(n) + 1000, means, covs, appearance=looks_b)
+    pairs = np.column_stack([np.arange(held), np.arange(held) + 1000])
+    settings = AssociationSettings()
+    model = link_model(a, b, pairs, settings.consistency_probability)
+    assert model.informative and model.same.sum() == held
+    veto = np.log1p(-settings.gate_probability) - np.log(settings.gate_probability)
+    d = 1.0 - unit_rows(looks_a) @ unit_rows(looks_b).T
+    right = model.log_ratio(np.diag(d)[held:])
+    wrong = model.log_ratio(d[held:, held:][~np.eye(n - held, dtype=bool)])
+    assert np.all(right > 0)
+    assert np.mean(wrong < veto) > 0.8, np.mean(wrong < veto)
 
 
 def test_a_summary_with_appearance_crosses_the_wire():
