@@ -1020,6 +1020,7 @@ class LiveRobot:
                     self._checkpoint(t)
                 if t % 5 == 0:
                     _atomic_json(self.out / "progress.json", {"frame": t, "pid": os.getpid()})
+            self._finish_links()
         except KeyboardInterrupt:
             self.say(f"robot {self.robot}: interrupted; writing the result of the frames done")
         except EstimationError:
@@ -1035,6 +1036,20 @@ class LiveRobot:
                 f"{'' if self.counts.messages else 'no message'})"
             )
         return self._write(complete=True)
+
+    def _finish_links(self) -> None:
+        """At the end of the input: say this robot is done and wait, up to the team file's
+        timeout, until every neighbour is done or gone, so that our last messages still under
+        way reach a slower neighbour before the session closes (the neighbours neither done
+        nor gone by then are named)."""
+        if self.transport is None or not self.neighbours:
+            return
+        waiting = self.transport.finish(self.team.timeout_s)
+        if waiting:
+            self.say(
+                f"robot {self.robot}: closing after {self.team.timeout_s:g} s with neighbours "
+                f"{', '.join(map(str, sorted(waiting)))} neither done nor gone"
+            )
 
     def connect(self) -> None:
         """Wait for the neighbours' links (a first run: every neighbour, up to the team file's
