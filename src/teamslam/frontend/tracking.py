@@ -6,7 +6,9 @@ the empty parts of the image up to ``max_features``. With ``affine_refinement`` 
 aligned to its own first appearance (affine warp, gain and offset; Shi and Tomasi's feature
 monitoring), which frame-to-frame Lucas–Kanade drifts from; a track ends when its aligned patch
 no longer correlates with its template (``template_ncc_min``), its warp degenerates, or it
-changed by more than ``max_track_warp`` (:func:`warp_change`).
+changed by more than ``max_track_warp`` (:func:`warp_change`). Across frames the tracker did
+not see (a live robot's dropped frames), a caller that knows the camera's motion says where
+each track is expected, and Lucas–Kanade starts there.
 """
 
 from __future__ import annotations
