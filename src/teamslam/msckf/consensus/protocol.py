@@ -17,9 +17,10 @@ it last exchanged them; every received message is checked once
 state; with global ids the consensus innovation check (``consensus.innovation_check``, on by
 default) leaves out whole a neighbour's marginal in which most objects fail their χ²₃ test.
 The counters ``objects_averaged``, ``hybrid_fallbacks`` and ``links_lost`` count per
-exchange, ``objects_inactive`` per step. Derivations (weights, moved flags, hybrid consensus,
-increments, iterations, association between maps): the concept page *Consensus*
-(``docs/concepts/consensus.md``).
+exchange, ``objects_inactive`` per step; each neighbour not averaged with in an exchange is
+named with why (:attr:`ConsensusProtocol.not_averaged`, :data:`NOT_AVERAGED`). Derivations
+(weights, moved flags, hybrid consensus, increments, iterations, association between maps): the
+concept page *Consensus* (``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations
