@@ -287,6 +287,7 @@ def main() -> None:
                 "RMSE / offline",
                 "max |Δ pose| vs offline",
                 "averaged",
+                "not averaged: not heard / nothing common / no marginal / inconsistent",
                 "refused",
             ],
             note="Latency: from the arrival of a frame's camera input to the publication of its "
@@ -295,8 +296,11 @@ def main() -> None:
             "over robots. Frames: processed of those in the bag. Δ pose: the largest absolute "
             "difference of a pose matrix entry from the offline run (only when every frame "
             "was processed). Averaged: the share of (frame, neighbour) pairs in which a robot "
-            "averaged with that neighbour; refused: neighbours' messages refused (too old, of a "
-            "later step, malformed). One process per robot and the player share the machine's "
+            "averaged with that neighbour, and why the others were not (counted per pair): the "
+            "neighbour's map ids of an accepted age were not heard, no object to average with it, "
+            "its marginal of an accepted age did not arrive, or it failed the consensus "
+            "innovation check; refused: neighbours' messages refused (too old, of a later step, "
+            "malformed). One process per robot and the player share the machine's "
             "cores.",
         )
         total = sum(r.frames for r in dataset.robots)
@@ -329,6 +333,10 @@ def main() -> None:
                 f"{rmse / off_rmse:.3f}",
                 diff,
                 f"{averaged_share(summaries, robots):.2f}",
+                " / ".join(
+                    str(sum(s["not_averaged"][k] for s in summaries))
+                    for k in ("not_heard", "nothing_common", "no_marginal", "inconsistent")
+                ),
                 str(sum(s["counters"].get("rejected_messages", 0) for s in summaries)),
             )
             print("  ".join(row), flush=True)

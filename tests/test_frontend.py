@@ -354,3 +354,40 @@ def test_without_opencv_the_error_names_the_extra(monkeypatch):
         InputError, match=r"needs the 'images' extra: pip install 'teamslam\[images\]'"
     ):
         require_cv2()
+
+
+def test_tracks_across_skipped_frames_are_looked_for_where_the_motion_takes_them():
+    """A live robot that dropped frames gives the front-end the camera's motion since the last
+    frame it saw: each track with a stereo depth is predicted where its point now projects
+    (exactly, up to the disparity's error), and the tracks survive a gap that loses them
+    without it."""
+    from teamslam.frontend.pipeline import StereoFrontend
+    from teamslam.geometry import se3
+
+    config = RenderConfig(**{**SMALL, "steps": 8})
+    team = render_team(config)
+    cam = config.camera()
+    rig = StereoRig(
+        config.image_size, cam.intrinsics, cam.intrinsics, np.zeros(5), np.zeros(5),
+        cam.T_left_right, T_CAM_BODY,
+    )  # fmt: skip
+    rng = np.random.default_rng(3)
+    gap = 6
+    frames = [render_stereo(team.room, team.T_world_cam(0, k), rng) for k in (0, gap)]
+    motion = se3.inverse(team.T_world_cam(0, 0)) @ team.T_world_cam(0, gap)  # T_prev_cur
+    kept = {}
+    for given in (False, True):
+        frontend = StereoFrontend(rig, FrontendConfig())
+        first = frontend.process(*frames[0])
+        uv = first.features[:, :2]
+        if given:
+            truth = team.project(0, gap, team.points_behind(0, 0, uv))[:, :2]
+            moved = np.linalg.norm(uv - truth, axis=1)
+            error = np.linalg.norm(
+                frontend.predicted(first.feature_ids, uv, motion) - truth, axis=1
+            )
+            assert np.median(moved) > 20.0 and np.median(error) < 0.5
+        second = frontend.process(*frames[1], motion=motion if given else None)
+        kept[given] = int(np.isin(first.feature_ids, second.feature_ids).sum())
+    assert first.feature_ids.size > 300
+    assert kept[False] < 30 and kept[True] > 120, kept

@@ -8,6 +8,7 @@ doubly-stochastic Metropolis–Hastings weights of the links that worked.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 
 import numpy as np
@@ -19,7 +20,7 @@ from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
 from teamslam.msckf.consensus.protocol import ConsensusProtocol
-from teamslam.msckf.consensus.transport import MemoryNetwork
+from teamslam.msckf.consensus.transport import LyingNetwork, MemoryNetwork
 from teamslam.runtime.agent_process import load_robot_result, run_agent
 from teamslam.runtime.team_file import load_team_file, write_team_file
 from teamslam.sim import lissajous_team
@@ -344,3 +345,54 @@ def test_with_one_common_object_per_object_averaging_is_the_joint_one(team4):
         consensus_average(target.state, 0.5, [(0.5, msg)])
     np.testing.assert_allclose(twin.state.cov, a.state.cov, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(twin.state.objects, a.state.objects, rtol=1e-12, atol=1e-15)
+
+
+def test_each_neighbour_not_averaged_with_is_counted_with_why(team4):
+    """Every (exchange, neighbour) pair not averaged has one reason: a neighbour not heard,
+    one with nothing to average, one whose marginal did not come, was refused or failed the
+    consensus innovation check."""
+    dataset, _ = team4
+    agents = _agents(dataset, 4)
+    protocols = [ConsensusProtocol(a, [j for j in range(4) if j != a.robot]) for a in agents]
+    network = LyingNetwork(4, liar=3)  # robot 3's marginals are far off and overconfident
+    ends = [network.endpoint(i) for i in range(4)]
+    for i in range(4):  # robot 2's map ids to robot 0 are lost
+        for m in protocols[i].requests(15):
+            if (m.sender, m.receiver) != (2, 0):
+                ends[i].send(m)
+    for i in range(4):
+        heard = ends[i].collect(15, MapIdsMessage, set(range(4)), 0.0)
+        for m in protocols[i].answer(heard):
+            ends[i].send(m)
+    marginals = ends[0].collect(15, CommonMarginalMessage, set(range(4)), 0.0)
+    assert sorted(m.sender for m in marginals) == [1, 2, 3]
+    # robot 1's marginal goes missing on its way, robot 2's answers a request it heard
+    protocols[0].average([m for m in marginals if m.sender == 3])
+    assert protocols[0].averaged_with == []
+    assert protocols[0].not_averaged == {1: "no_marginal", 2: "not_heard", 3: "inconsistent"}
+    assert agents[0].counters["consensus_marginals_left_out"] == 1
+    # robot 1 gets robot 0's marginal broken: refused, and counted as a rejected message
+    broken = [
+        dataclasses.replace(m, mean=np.full_like(m.mean, np.nan))
+        for m in ends[1].collect(15, CommonMarginalMessage, set(range(4)), 0.0)
+        if m.sender == 0
+    ]
+    rejected = agents[1].counters["rejected_messages"]
+    protocols[1].average(broken)
+    assert protocols[1].not_averaged[0] == "refused"
+    assert agents[1].counters["rejected_messages"] == rejected + 1
+
+
+def test_a_neighbour_with_nothing_to_average_is_counted_so(team4):
+    dataset, _ = team4
+    agents = _agents(dataset, 2)
+    protocols = [ConsensusProtocol(a, [1 - a.robot], kl_threshold=1e-3) for a in agents]
+    network = MemoryNetwork(2)
+    ends = [network.endpoint(i) for i in range(2)]
+    assert _exchange(protocols, ends, 15) == [2, 2]
+    assert protocols[0].not_averaged == {}
+    for k in range(30):  # until the pair agrees and nothing moves
+        if _exchange(protocols, ends, 16 + k) == [0, 0]:
+            break
+    assert protocols[0].not_averaged == {1: "nothing_common"}
+    assert protocols[1].not_averaged == {0: "nothing_common"}

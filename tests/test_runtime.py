@@ -436,3 +436,45 @@ def test_lockstep_transport_delivers_a_burst_to_a_slow_receiver(small_team, tmp_
     finally:
         sender.close()
         receiver.close()
+
+
+def test_a_robot_tracking_detections_resumes_with_the_same_ids(tmp_path, monkeypatch):
+    """A robot that names its objects itself (detections without ids, loop closure, appearance)
+    crashes after a checkpoint and resumes: the same estimate and the same id for every
+    detection as the uninterrupted run."""
+    from teamslam.datasets.identity import strip_object_ids
+    from teamslam.msckf.agent import MsckfAgent
+
+    team_data = lissajous_team(
+        robots=1, steps=60, objects=80, seed=3, clutter=0.05, miss=0.1, classes=3, appearance=8
+    )
+    save_dataset(strip_object_ids(team_data, to="none"), tmp_path / "data")
+    team_path = tmp_path / "solo.yaml"
+    team_path.write_text(
+        f"team: solo\ndataset: {tmp_path / 'data'}\ncheckpoint_every: 20\n"
+        "settings: {filter: {window: 10, object_std: 2.0}, tracking: {loop_closure: true}}\n"
+        f"robots:\n  - id: 0\n    listen: tcp/127.0.0.1:{_port(7)}\n"
+    )
+    team = load_team_file(team_path)
+    whole = run_agent(team, 0, tmp_path / "whole", transport=MemoryNetwork(1).endpoint(0))
+    original_step = MsckfAgent.step
+
+    def crashing(self, t):
+        if t == 50:
+            raise RuntimeError("simulated crash")
+        return original_step(self, t)
+
+    monkeypatch.setattr(MsckfAgent, "step", crashing)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        run_agent(team, 0, tmp_path / "crash", transport=MemoryNetwork(1).endpoint(0))
+    monkeypatch.setattr(MsckfAgent, "step", original_step)
+    resumed = run_agent(
+        team, 0, tmp_path / "crash", resume=True, transport=MemoryNetwork(1).endpoint(0)
+    )
+    a, _ = load_robot_result(tmp_path / "whole", 0)
+    b, _ = load_robot_result(tmp_path / "crash", 0)
+    np.testing.assert_array_equal(a["poses"], b["poses"])
+    np.testing.assert_array_equal(a["object_ids"], b["object_ids"])
+    np.testing.assert_array_equal(a["objects"], b["objects"])
+    assert whole["counters"]["tracks_confirmed"] > 10
+    assert resumed["tracking_hypotheses"] == whole["tracking_hypotheses"]

@@ -752,8 +752,9 @@ class LiveRobot:
             _check_size(_decode(r.message, r.topic, r.stamp_ns), rig, r.topic, r.stamp_ns)
             for r in (left, right)
         ]
+        motion = self._camera_motion(frame, rig)
         if self.inputs.detections is None:
-            measured = self.frontend.process(*images, where=where)
+            measured = self.frontend.process(*images, where=where, motion=motion)
             return (
                 (measured.feature_ids, measured.features),
                 (measured.object_ids, measured.objects),
@@ -763,13 +764,24 @@ class LiveRobot:
         from teamslam.datasets.images import _described
 
         given = self._given_boxes(boxes[0], frame.stamp_ns, rig)
-        measured = self.frontend.process(*images, where=where, detections=given)
+        measured = self.frontend.process(*images, where=where, detections=given, motion=motion)
         described, looks = _described(measured.boxes, given, images[0], None)
         return (
             (measured.feature_ids, measured.features),
             empty,
             (described.z, described.classes, looks, described.sizes),
         )
+
+    def _camera_motion(self, frame: _Frame, rig) -> np.ndarray | None:
+        """After frames were dropped (the front-end did not see them): the rectified left
+        camera's motion since the last frame processed by the odometry (``T_prev_cur``), so
+        that the front-end looks for its tracks where they went; ``None`` after a frame it saw
+        (the tracks are looked for where they were, as offline)."""
+        if self._last_number is None or frame.number - self._last_number <= 1:
+            return None
+        T_cam_body = rig.T_rect_body
+        increment = self._increment(frame.T_odom)
+        return T_cam_body @ increment @ se3.inverse(T_cam_body[None])[0]
 
     def _given_boxes(self, msg, stamp: int, rig):
         """The :class:`~teamslam.frontend.detections.ImageDetections` of a pair's detection
@@ -1020,6 +1032,7 @@ class LiveRobot:
                     self._checkpoint(t)
                 if t % 5 == 0:
                     _atomic_json(self.out / "progress.json", {"frame": t, "pid": os.getpid()})
+            self._finish_links()
         except KeyboardInterrupt:
             self.say(f"robot {self.robot}: interrupted; writing the result of the frames done")
         except EstimationError:
@@ -1035,6 +1048,20 @@ class LiveRobot:
                 f"{'' if self.counts.messages else 'no message'})"
             )
         return self._write(complete=True)
+
+    def _finish_links(self) -> None:
+        """At the end of the input: say this robot is done and wait, up to the team file's
+        timeout, until every neighbour is done or gone, so that our last messages still under
+        way reach a slower neighbour before the session closes (the neighbours neither done
+        nor gone by then are named)."""
+        if self.transport is None or not self.neighbours:
+            return
+        waiting = self.transport.finish(self.team.timeout_s)
+        if waiting:
+            self.say(
+                f"robot {self.robot}: closing after {self.team.timeout_s:g} s with neighbours "
+                f"{', '.join(map(str, sorted(waiting)))} neither done nor gone"
+            )
 
     def connect(self) -> None:
         """Wait for the neighbours' links (a first run: every neighbour, up to the team file's

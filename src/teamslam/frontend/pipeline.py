@@ -81,6 +81,30 @@ class StereoFrontend:
         """The next unused feature-track id."""
         return self.tracker.next_id
 
+    def predicted(self, ids: np.ndarray, uv: np.ndarray, T_prev_cur: np.ndarray) -> np.ndarray:
+        """``(N, 2)``: where the tracks ``ids`` at ``uv`` in the previous rectified left image
+        project in the current one, the camera having moved by ``T_prev_cur``: those with a
+        stereo disparity in the previous frame by their depth, the others as points at
+        infinity (by the rotation alone)."""
+        uv = np.asarray(uv, float)
+        _, i_now, i_last = np.intersect1d(ids, self._last_ids, return_indices=True)
+        depth = np.full(uv.shape[0], np.inf)
+        disparity = self._last_disparity[i_last]
+        ok = disparity > 0
+        depth[i_now[ok]] = self.camera.fx_baseline / disparity[ok]
+        k = self.camera.intrinsics
+        rays = np.column_stack([uv, np.ones(uv.shape[0])]) @ np.linalg.inv(k).T
+        T_cur_prev = np.linalg.inv(T_prev_cur)
+        finite = np.isfinite(depth)
+        # a point at depth z: R (z·ray) + t; at infinity: R ray
+        p_cur = rays @ T_cur_prev[:3, :3].T
+        p_cur[finite] = p_cur[finite] * depth[finite, None] + T_cur_prev[:3, 3]
+        ahead = p_cur[:, 2] > 1e-6
+        out = uv.copy()
+        projected = p_cur[ahead] @ k.T
+        out[ahead] = projected[:, :2] / projected[:, 2:]
+        return out
+
     def process(
         self,
         left: np.ndarray,
@@ -88,13 +112,20 @@ class StereoFrontend:
         where: str = "",
         detections: ImageDetections | None = None,
         right_detections: ImageDetections | None = None,
+        motion: np.ndarray | None = None,
     ) -> FrameMeasurements:
         """Measure one stereo frame of 8-bit grey images (raw; rectified here), and a
         detector's boxes in it when given (raw left-image pixels; the right image's boxes
-        too when the detector ran on it)."""
+        too when the detector ran on it).
+
+        ``motion``: the pose of this frame's rectified left camera in the previous frame's
+        (``T_prev_cur``, e.g. from odometry over frames dropped in between), or ``None``. With
+        it, each track with a stereo depth in the previous frame is looked for where that point
+        projects now (:meth:`predicted`); without it, where it was."""
         self.rig.check_images(left, right, where)
         left, right = self.rig.rectify(left, right)
-        ids, uv = self.tracker.track(left)
+        predict = None if motion is None else (lambda i, uv: self.predicted(i, uv, motion))
+        ids, uv = self.tracker.track(left, predict)
         guess = np.full(len(ids), np.nan)
         _, i_now, i_last = np.intersect1d(ids, self._last_ids, return_indices=True)
         guess[i_now] = self._last_disparity[i_last]

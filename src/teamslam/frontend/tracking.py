@@ -6,10 +6,14 @@ the empty parts of the image up to ``max_features``. With ``affine_refinement`` 
 aligned to its own first appearance (affine warp, gain and offset; Shi and Tomasi's feature
 monitoring), which frame-to-frame Lucas–Kanade drifts from; a track ends when its aligned patch
 no longer correlates with its template (``template_ncc_min``), its warp degenerates, or it
-changed by more than ``max_track_warp`` (:func:`warp_change`).
+changed by more than ``max_track_warp`` (:func:`warp_change`). Across frames the tracker did
+not see (a live robot's dropped frames), a caller that knows the camera's motion says where
+each track is expected, and Lucas–Kanade starts there.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
@@ -78,17 +82,27 @@ class FeatureTracker:
         self._A, self._photo = A, photo
         return uv, ok
 
-    def _lk(self, a: np.ndarray, b: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _lk(
+        self, a: np.ndarray, b: np.ndarray, pts: np.ndarray, guess: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Lucas–Kanade from ``a`` at ``pts`` into ``b`` (starting at ``guess`` when given)."""
         cv2 = require_cv2()
         win = self.px.lk_window
+        extra = {}
+        if guess is not None:
+            extra = {
+                "nextPts": np.asarray(guess, np.float32).reshape(-1, 1, 2).copy(),
+                "flags": cv2.OPTFLOW_USE_INITIAL_FLOW,
+            }
         out, status, _ = cv2.calcOpticalFlowPyrLK(
             a,
             b,
             pts.reshape(-1, 1, 2),
-            None,
+            extra.pop("nextPts", None),
             winSize=(win, win),
             maxLevel=self.config.lk_levels,
             criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 0.001),
+            **extra,
         )
         return out.reshape(-1, 2), status.ravel().astype(bool)
 
@@ -102,8 +116,16 @@ class FeatureTracker:
         w, h = self.image_size
         return (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
 
-    def track(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Follow the tracks into ``image`` (8-bit grey) and refill; return ``(ids, uv)``."""
+    def track(
+        self,
+        image: np.ndarray,
+        predict: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Follow the tracks into ``image`` (8-bit grey) and refill; return ``(ids, uv)``.
+
+        ``predict(ids, uv)``: where the tracks at ``uv`` in the previous image are expected in
+        this one (e.g. by the camera's motion over frames dropped in between), ``(N, 2)``; Lucas–
+        Kanade starts there instead of at ``uv``, and the backward check at ``uv``."""
         cv2 = require_cv2()
         if self.config.max_track_length and len(self.ids):
             young = self._age + 1 < self.config.max_track_length
@@ -111,8 +133,9 @@ class FeatureTracker:
             self.uv = self.uv[young]
         if self._previous is not None and len(self.ids):
             self._age += 1
-            fwd, ok_f = self._lk(self._previous, image, self.uv)
-            back, ok_b = self._lk(image, self._previous, fwd)
+            guess = None if predict is None else predict(self.ids, self.uv)
+            fwd, ok_f = self._lk(self._previous, image, self.uv, guess)
+            back, ok_b = self._lk(image, self._previous, fwd, None if guess is None else self.uv)
             fb = np.linalg.norm(back - self.uv, axis=1)
             keep = ok_f & ok_b & (fb <= self.px.forward_backward) & self._inside(fwd)
             self._keep(keep)

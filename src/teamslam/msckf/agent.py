@@ -14,6 +14,7 @@ page *The filter* (``docs/concepts/filter.md``).
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from collections import defaultdict
@@ -183,7 +184,8 @@ class MsckfAgent:
         The state (:meth:`MsckfState.snapshot`), the open feature tracks and object
         observation histories, the objects' views
         (:class:`~teamslam.msckf.filter.views.ObjectViews`),
-        per-frame stage times, counters and timings.
+        per-frame stage times, counters and timings; with a tracker of detections, its state
+        (:meth:`~teamslam.msckf.objects.tracking.ObjectTracker.state_dict`, keys ``tracker_*``).
         """
         out = {f"state_{k}": v for k, v in self.state.snapshot().items()}
         for name, history in (("tracks", self.tracks), ("objhist", self.object_history)):
@@ -204,6 +206,8 @@ class MsckfAgent:
         out["counter_values"] = np.array([self.counters[k] for k in sorted(self.counters)], int)
         out["timing_names"] = np.array(sorted(self.timings), dtype=str)
         out["timing_values"] = np.array([self.timings[k] for k in sorted(self.timings)], float)
+        if self.tracker is not None:
+            out.update({f"tracker_{k}": v for k, v in self.tracker.state_dict().items()})
         return out
 
     def restore(self, snapshot: dict[str, np.ndarray]) -> None:
@@ -233,6 +237,15 @@ class MsckfAgent:
             counters = dict(zip(names[0], values[0], strict=True))
             timings = dict(zip(names[1], values[1], strict=True))
             views = ObjectViews.from_arrays(snapshot["views_ids"], snapshot["views_sums"])
+            tracker = None
+            if self.tracker is not None:  # its ids continue (a copy: unchanged on failure)
+                tracker = copy.deepcopy(self.tracker)
+                try:
+                    tracker.load_state(
+                        {k[8:]: v for k, v in snapshot.items() if k[:8] == "tracker_"}
+                    )
+                except KeyError as exc:
+                    raise KeyError(f"tracker_{exc.args[0]}") from None
         except KeyError as exc:
             raise InputError(f"robot {self.robot}: snapshot lacks {exc.args[0]!r}") from None
         if not -1 <= frame < self.sequence.frames or frame_times.shape[0] != frame + 1:
@@ -249,8 +262,10 @@ class MsckfAgent:
         self.counters = defaultdict(int, counters)
         self.timings = defaultdict(float, timings)
         self.views = views
-        if self.tracker is not None and self.tracker.views is not None:
-            self.tracker.views = views.of
+        if tracker is not None:
+            self.tracker = tracker
+            if tracker.views is not None:
+                tracker.views = views.of
 
     # ------------------------------------------------------------------ Algorithm 1, steps 2-4
     def step(self, t: int) -> None:

@@ -31,7 +31,7 @@ from teamslam.errors import EstimationError, InputError, InternalError, OutputEr
 from teamslam.graph import CommunicationGraph, EdgeLoss, complete
 from teamslam.msckf.agent import MsckfAgent, grown
 from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
-from teamslam.msckf.consensus.protocol import ConsensusProtocol
+from teamslam.msckf.consensus.protocol import NOT_AVERAGED, ConsensusProtocol
 from teamslam.msckf.consensus.transport import MemoryNetwork, Transport
 from teamslam.msckf.filter.linearization import GroundTruth
 from teamslam.msckf.settings.health import SensorHealth
@@ -218,6 +218,9 @@ class RobotDriver:
         self.lost_reported: set[int] = set()
         self.lost_steps: list[int] = []
         self.averaged_with: dict[int, list[int]] = defaultdict(list)
+        #: (frame, neighbour) pairs of the exchanges not averaged, by reason
+        #: (:data:`~teamslam.msckf.consensus.protocol.NOT_AVERAGED`)
+        self.not_averaged: dict[str, int] = dict.fromkeys(NOT_AVERAGED, 0)
 
     @property
     def frames(self) -> int:
@@ -330,6 +333,8 @@ class RobotDriver:
         for j in self.protocol.averaged_with:
             if not self.averaged_with[j] or self.averaged_with[j][-1] != t:
                 self.averaged_with[j].append(t)
+        for reason in self.protocol.not_averaged.values():
+            self.not_averaged[reason] += 1
         self._room(t)
         self.consensus_times[t] += self.protocol.spent
 
@@ -380,6 +385,7 @@ class RobotDriver:
             "lost_neighbours": sorted(self.lost_reported),
             "steps_with_lost_links": list(self.lost_steps),
             "averaged_with": {str(j): s for j, s in sorted(self.averaged_with.items())},
+            "not_averaged": dict(self.not_averaged),
         }
         association = self.association()
         if association:

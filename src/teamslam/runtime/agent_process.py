@@ -193,9 +193,7 @@ def run_agent(
                 )
         # a session's transport waits until its neighbours have our last messages (a memory
         # network delivers them at once and has nothing to wait for)
-        finish = getattr(transport, "finish", None)
-        if finish is not None:
-            finish(team.timeout_s)
+        transport.finish(team.timeout_s)
     except EstimationError:
         _save(out, driver, transport, robot, team, step_latency, complete=False)
         raise

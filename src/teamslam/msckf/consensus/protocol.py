@@ -17,9 +17,10 @@ it last exchanged them; every received message is checked once
 state; with global ids the consensus innovation check (``consensus.innovation_check``, on by
 default) leaves out whole a neighbour's marginal in which most objects fail their χ²₃ test.
 The counters ``objects_averaged``, ``hybrid_fallbacks`` and ``links_lost`` count per
-exchange, ``objects_inactive`` per step. Derivations (weights, moved flags, hybrid consensus,
-increments, iterations, association between maps): the concept page *Consensus*
-(``docs/concepts/consensus.md``).
+exchange, ``objects_inactive`` per step; each neighbour not averaged with in an exchange is
+named with why (:attr:`ConsensusProtocol.not_averaged`, :data:`NOT_AVERAGED`). Derivations
+(weights, moved flags, hybrid consensus, increments, iterations, association between maps): the
+concept page *Consensus* (``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ from teamslam.msckf.filter.state import MsckfState
 from teamslam.msckf.filter.views import ObjectViews
 from teamslam.msckf.settings.values import MsckfConfig
 
-__all__ = ["ConsensusProtocol"]
+__all__ = ["NOT_AVERAGED", "ConsensusProtocol"]
 
 
 class ConsensusMember(Protocol):
@@ -144,6 +145,9 @@ class ConsensusProtocol:
         self.heard: set[int] = set()
         self.expected: set[int] = set()
         self.averaged_with: list[int] = []
+        #: the last exchange's neighbours not averaged with, each with why
+        #: (:data:`NOT_AVERAGED`)
+        self.not_averaged: dict[int, str] = {}
         self.spent = 0.0
         # association by the robots themselves: one correspondence table per link
         association = agent.config.association
@@ -278,6 +282,7 @@ class ConsensusProtocol:
         self.heard = set()
         self.expected = set()
         self.averaged_with = []
+        self.not_averaged = {}
         self._moved = {}
         self._pending = {}
         self._own_information = {}
@@ -745,22 +750,34 @@ class ConsensusProtocol:
         begin = time.perf_counter()
         marginals: dict[int, ReceivedMarginal] = {}
         degrees: dict[int, int] = {}
+        refused: set[int] = set()
+        inconsistent: set[int] = set()
         for m in received:
+            sender = getattr(m, "sender", None)
             if self.tables and isinstance(m, CommonMarginalMessage):
                 m = self._translate(m)
                 if m is None:
+                    refused.add(sender)
                     continue
             # asynchronous mode: a marginal from a neighbour whose ids we did not hear this
             # step still counts as heard (the link works)
             marginal = self._check(m, CommonMarginalMessage, marginals, self.heard)
-            if marginal is not None and self.innovation_probability is not None:
-                marginal = self._innovation_check(marginal)
             if marginal is None:
+                refused.add(sender)
                 continue
+            if self.innovation_probability is not None:
+                marginal = self._innovation_check(marginal)
+                if marginal is None:
+                    inconsistent.add(sender)
+                    continue
             marginals[m.sender] = marginal
             degrees[m.sender] = int(m.degree)
         self_weight, weights = self.weights(degrees)
         self.averaged_with = sorted(marginals)
+        self.not_averaged = {
+            j: _why_not_averaged(j, refused, inconsistent, self.heard, self.expected)
+            for j in sorted(self.neighbours - set(marginals))
+        }
         used = [(weights[j], marginals[j]) for j in sorted(marginals) if marginals[j].ids.size]
         averaged = self.rule.average(
             self.agent.state,
@@ -800,6 +817,30 @@ class ConsensusProtocol:
         self._agreed[j] = merged_record(
             *old, ids, means, covs, np.asarray(exchanged, dtype=np.int64), self.round
         )
+
+
+#: why a neighbour was not averaged with in an exchange: ``not_heard`` (no map ids of it
+#: of an accepted age), ``nothing_common`` (heard, but no object to average with it: none in
+#: common, or none that moved), ``no_marginal`` (objects to average, but no marginal of it of an
+#: accepted age arrived), ``refused`` (its marginal failed the checks: counted in
+#: ``rejected_messages``), ``inconsistent`` (its marginal failed the consensus innovation
+#: check)
+NOT_AVERAGED = ("not_heard", "nothing_common", "no_marginal", "refused", "inconsistent")
+
+
+def _why_not_averaged(
+    j: int, refused: set[int], inconsistent: set[int], heard: set[int], expected: set[int]
+) -> str:
+    """The :data:`NOT_AVERAGED` reason of neighbour ``j`` in an exchange."""
+    if j in refused:
+        return "refused"
+    if j in inconsistent:
+        return "inconsistent"
+    if j not in heard:
+        return "not_heard"
+    if j not in expected:
+        return "nothing_common"
+    return "no_marginal"
 
 
 def _reordered_prior(message: CommonMarginalMessage, order: np.ndarray) -> dict:

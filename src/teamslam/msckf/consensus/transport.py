@@ -80,6 +80,11 @@ class Transport(Protocol):
         """Figures of the link layer: ``injected_drops``, ``rejected_wire`` (messages dropped
         before decoding), ``latencies`` (seconds, one per message received) where known."""
 
+    def finish(self, timeout: float) -> set[int]:
+        """Say this robot is done and wait, up to ``timeout`` s, until each neighbour is done
+        or gone (so that messages still under way reach it before :meth:`close`); the
+        neighbours neither done nor gone at the end."""
+
     def close(self) -> None:
         """Release the endpoint."""
 
@@ -297,6 +302,10 @@ class MemoryTransport:
     def statistics(self) -> dict:
         """Messages lost on links that were down (network-wide)."""
         return {"dropped": self.network.dropped}
+
+    def finish(self, timeout: float) -> set[int]:
+        """Nothing to wait for: a message is in its receiver's mailbox once sent."""
+        return set()
 
     def close(self) -> None:
         """Nothing to release."""

@@ -59,6 +59,22 @@ class AppearanceMemory:
         if s is not None:
             self._sums[int(old)] = self._sums.get(int(old), 0.0) + s
 
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(ids, sums)``: every summary's object and its sum of unit descriptors."""
+        ids = np.array(list(self._sums), np.int64)
+        sums = np.array(list(self._sums.values()), float).reshape(ids.size, self.dimension)
+        return ids, sums
+
+    @classmethod
+    def from_arrays(cls, ids: np.ndarray, sums: np.ndarray) -> AppearanceMemory:
+        """The memory of :meth:`arrays`."""
+        sums = np.asarray(sums, float)
+        memory = cls(sums.shape[1])
+        memory._sums = {
+            int(i): s.copy() for i, s in zip(np.asarray(ids).tolist(), sums, strict=True)
+        }
+        return memory
+
     def forget(self, object_id: int) -> None:
         """Drop ``object_id``'s summary."""
         self._sums.pop(int(object_id), None)

@@ -64,6 +64,35 @@ class LoopClosure:
     _first_frame: int = 0
     _last_position: np.ndarray | None = None
 
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """What it learned so far, as arrays (for a checkpoint; :meth:`load_state`)."""
+        names = list(self.outcomes)
+        return {
+            "closures": np.array(self.closures, np.int64).reshape(-1, 3),
+            "attempts": np.array(self.attempts, np.int64),
+            "outcome_names": np.array(names, dtype=str),
+            "outcome_counts": np.array([self.outcomes[k] for k in names], np.int64),
+            "last_key": np.array(self._last_key, np.int64),
+            "path": np.array(self._path, float),
+            "first_frame": np.array(self._first_frame, np.int64),
+            "last_position": (
+                np.zeros(0) if self._last_position is None else self._last_position.copy()
+            ),
+        }
+
+    def load_state(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from a :meth:`state_dict`."""
+        self.closures = [tuple(c) for c in state["closures"].tolist()]
+        self.attempts = int(state["attempts"])
+        self.outcomes = dict(
+            zip(state["outcome_names"].tolist(), state["outcome_counts"].tolist(), strict=True)
+        )
+        self._last_key = tuple(state["last_key"].tolist())
+        self._path = state["path"].tolist()
+        self._first_frame = int(state["first_frame"])
+        position = np.asarray(state["last_position"], float)
+        self._last_position = position.copy() if position.size else None
+
     def travel(self, t: int, position: np.ndarray) -> None:
         """Record the robot's estimated position at frame ``t`` (every frame, in order)."""
         if self._last_position is None:

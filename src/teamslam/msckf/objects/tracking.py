@@ -325,6 +325,65 @@ class ObjectTracker:
         frame.ids = every
         return frame
 
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """What the tracker learned so far, as arrays (for a checkpoint): its tracks and their
+        detections, the next id, the log of ids given, the ids it created, merges and loop
+        closure, the appearance ratio's samples and the objects' appearance summaries.
+        :meth:`load_state` continues from it exactly."""
+        out = {name: getattr(self, name).copy() for name in _TRACK_ARRAYS}
+        out["next_id"] = np.array(self.next_id, np.int64)
+        out["first_logged"] = np.array(-1 if self._first_logged is None else self._first_logged)
+        out["counter_names"] = np.array(list(self.counters), dtype=str)
+        out["counter_values"] = np.array(list(self.counters.values()), np.int64)
+        rows = [(tid, f, z, j) for tid, hist in self.history.items() for f, z, j in hist]
+        out["history_keys"] = np.array([[r[0], r[1], r[3]] for r in rows], np.int64).reshape(-1, 3)
+        width = rows[0][2].size if rows else self._row_width
+        out["history_z"] = np.array([r[2] for r in rows], float).reshape(len(rows), width)
+        out["log_sizes"] = np.array([a.size for a in self.log], np.int64)
+        out["log"] = np.concatenate([np.zeros(0, np.int64), *self.log]).astype(np.int64)
+        out["revisits"] = np.array(self.revisits, np.int64).reshape(-1, 3)
+        out["created"] = np.array([self._created_ids, self._created_frames], np.int64)
+        out["merged"] = np.array(list(self.merged.items()), np.int64).reshape(-1, 2)
+        if self.loop is not None:
+            out.update({f"loop_{k}": v for k, v in self.loop.state_dict().items()})
+        if self.appearance is not None:
+            out["appearance_counts"] = np.stack([self.appearance.same, self.appearance.different])
+            ids, sums = self.memory.arrays()
+            out["memory_ids"], out["memory_sums"] = ids, sums
+        return out
+
+    def load_state(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from a :meth:`state_dict` of a tracker with the same settings.
+
+        Raises
+        ------
+        KeyError
+            A state without a part this tracker needs.
+        """
+        for name in _TRACK_ARRAYS:
+            setattr(self, name, np.array(state[name], dtype=getattr(self, name).dtype))
+        self.next_id = int(state["next_id"])
+        first = int(state["first_logged"])
+        self._first_logged = None if first < 0 else first
+        names, values = state["counter_names"].tolist(), state["counter_values"].tolist()
+        self.counters = dict(zip(names, values, strict=True))
+        self.history = {}
+        for (tid, f, j), z in zip(state["history_keys"].tolist(), state["history_z"], strict=True):
+            self.history.setdefault(tid, []).append((f, z.copy(), j))
+        self.log = np.split(np.asarray(state["log"], np.int64), np.cumsum(state["log_sizes"])[:-1])
+        self.log = self.log if state["log_sizes"].size else []
+        self.revisits = [tuple(r) for r in state["revisits"].tolist()]
+        self._created_ids, self._created_frames = (list(r) for r in state["created"].tolist())
+        self.merged = dict(state["merged"].tolist())
+        if self.loop is not None:
+            self.loop.load_state({k[5:]: v for k, v in state.items() if k.startswith("loop_")})
+        if "appearance_counts" in state:
+            same, different = np.asarray(state["appearance_counts"], float)
+            self.appearance = AppearanceModel(self.config.tracking.gate_probability)
+            self.appearance.add_counts(same, different)
+            self.memory = AppearanceMemory.from_arrays(state["memory_ids"], state["memory_sums"])
+
     def hypotheses(self) -> np.ndarray:
         """The id given to every detection so far, in frame order (``-1``: none); a merged
         object's detections carry the id of the object it continues (loop closure)."""
@@ -683,6 +742,23 @@ class ObjectTracker:
         labels = np.concatenate([self._labels, labels[labels >= 0]])
         order = np.argsort(ids)
         self._label_ids, self._labels = ids[order], labels[order]
+
+
+#: the per-track arrays of a tracker, and its class labels (in :meth:`ObjectTracker.state_dict`)
+_TRACK_ARRAYS = (
+    "ids",
+    "points",
+    "covs",
+    "first",
+    "last",
+    "hits",
+    "classes",
+    "confirmed",
+    "revisit_of",
+    "revisit_hits",
+    "_label_ids",
+    "_labels",
+)
 
 
 def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarray) -> None:
