@@ -126,13 +126,17 @@ def _messages(reader, connections, bag: Path) -> Iterator[tuple[str, int, bytes]
 
 
 class _Subscribers:
-    """Subscriptions announced (``MS`` tokens) on the played topics, by node."""
+    """Subscriptions announced (``MS`` tokens) on the played topics, by node; a node counts once
+    its node token (``NN``) is also there. rmw_zenoh declares a node before its entities; a live
+    teamslam robot declares its node token after its subscriptions, so that, one session's
+    declarations arriving in order, a robot counted has every one of its subscriptions routed."""
 
     def __init__(self, session, domain_id: int, topics: set[str]) -> None:
         zenoh = require("zenoh", "network", WHAT)
         self._put = zenoh.SampleKind.PUT
         self.topics = topics
         self.tokens: set[str] = set()
+        self.node_tokens: set[tuple[str, str]] = set()
         self.lock = threading.Lock()
         self.listener = session.liveliness().declare_subscriber(
             f"@ros2_lv/{domain_id}/**", self._on_token, history=True
@@ -140,6 +144,14 @@ class _Subscribers:
 
     def _on_token(self, sample) -> None:
         key = str(sample.key_expr)
+        parts = key.split("/")
+        if len(parts) == 9 and parts[0] == "@ros2_lv" and parts[5] == "NN":
+            with self.lock:
+                if sample.kind == self._put:
+                    self.node_tokens.add((parts[2], parts[3]))
+                else:
+                    self.node_tokens.discard((parts[2], parts[3]))
+            return
         fields = parse_liveliness_key(key)
         if fields is None or fields["kind"] != "MS" or fields["topic"] not in self.topics:
             return
@@ -152,7 +164,7 @@ class _Subscribers:
     def nodes(self) -> int:
         with self.lock:
             fields = [parse_liveliness_key(k) for k in self.tokens]
-        return len({(f["zid"], f["node_id"]) for f in fields})
+            return len({(f["zid"], f["node_id"]) for f in fields} & self.node_tokens)
 
     def topics_subscribed(self) -> set[str]:
         with self.lock:

@@ -182,7 +182,6 @@ class Ros2Subscriber:
         zid = str(self.session.info.zid())
         liveliness = self.session.liveliness()
         domain_id, node = self.domain_id, self.node
-        self._tokens.append(liveliness.declare_token(liveliness_key(domain_id, zid, node_id, node)))
         for k, (topic, msgtype) in enumerate(self.topics.items()):
             prefix = f"{domain_id}/{topic.strip('/')}/{m.dds_type_name(msgtype)}/"
             self._subscribers.append(
@@ -205,6 +204,9 @@ class Ros2Subscriber:
                     )
                 )
             )
+        # the node's token last: a player waiting for subscribers counts a node once its node
+        # token arrived, which on one session's ordered declarations is after every subscription
+        self._tokens.append(liveliness.declare_token(liveliness_key(domain_id, zid, node_id, node)))
 
     def _error(self, topic: str, text: str, once: str | None = None) -> None:
         self.errors[topic] += 1
