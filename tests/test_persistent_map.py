@@ -306,6 +306,49 @@ def test_max_active_bounds_the_state_by_size():
         config_for(dataset, {"objects.max_active": -1})
 
 
+def test_the_budget_learned_from_the_data_follows_the_objects_seen_per_window():
+    """``objects.active_windows = k``: the budget is ``k`` times the most objects of the state
+    observed within one window so far — it grows while the robot meets more objects per
+    window, never shrinks, and bounds the state as ``max_active`` does; with both set the
+    smaller bound holds; a snapshot carries it."""
+    dataset = lissajous_team(robots=1, steps=120, seed=3)
+    window, k = 6, 1
+    config = config_for(dataset, {"filter.window": window, "objects.active_windows": k})
+    agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
+    peak, budgets = 0, []
+    for t in range(dataset.robots[0].frames):
+        agent.step(t)
+        state = agent.state
+        now = state.object_last_seen == t
+        # an object observed within the window is never retired by a budget of k ≥ 1 times
+        # their most: they are all in the state now
+        peak = max(peak, int(np.sum(state.object_last_seen > t - window)))
+        assert agent.window_objects_peak == peak
+        budget = agent.active_budget(t)
+        assert budget == k * peak
+        budgets.append(budget)
+        assert state.n_objects <= max(budget, int(now.sum()))
+    assert np.all(np.diff(budgets) >= 0) and budgets[-1] > budgets[0]
+    assert agent.counters["objects_retired"] > 0
+    # a snapshot carries the learned peak: a restored robot keeps the same budget
+    again = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
+    again.restore(agent.snapshot())
+    assert again.window_objects_peak == agent.window_objects_peak > 0
+    # with a fixed budget too: the smaller one holds
+    both = config_for(
+        dataset,
+        {"filter.window": window, "objects.active_windows": k, "objects.max_active": 5},
+    )
+    agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], both)
+    for t in range(dataset.robots[0].frames):
+        agent.step(t)
+        assert agent.active_budget(t) == min(5, k * agent.window_objects_peak) or (
+            agent.window_objects_peak == 0
+        )
+    with pytest.raises(InputError, match="active_windows"):
+        config_for(dataset, {"objects.active_windows": -1})
+
+
 # ---------------------------------------------------------------- the persistent map in consensus
 
 
