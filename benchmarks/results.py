@@ -128,13 +128,18 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "active-budget": (
         "python benchmarks/msckf_long.py budget --frames 1000 --budgets 80 160 --listening 80 "
-        f"--markdown {GENERATED}/active-budget.md",
+        f"--windows 3 4 --markdown {GENERATED}/active-budget.md",
         f"{GENERATED}/active-budget.md",
     ),
     "active-budget-long": (
         "python benchmarks/msckf_long.py budget --team long --frames 5000 --reference-frames 300 "
         f"--budgets 80 --markdown {GENERATED}/active-budget-long.md",
         f"{GENERATED}/active-budget-long.md",
+    ),
+    "active-budget-learned-long": (
+        "python benchmarks/msckf_long.py budget --team long --frames 2000 --reference-frames 300 "
+        f"--budgets --windows 4 --markdown {GENERATED}/active-budget-learned-long.md",
+        f"{GENERATED}/active-budget-learned-long.md",
     ),
     "detector-team": (
         "python benchmarks/detector_team.py --robots 3 --steps 420 --render results/street-render "
