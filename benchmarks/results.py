@@ -128,7 +128,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "active-budget": (
         "python benchmarks/msckf_long.py budget --frames 1000 --budgets 80 160 --listening 80 "
-        f"--windows 3 4 --markdown {GENERATED}/active-budget.md",
+        f"--markdown {GENERATED}/active-budget.md",
         f"{GENERATED}/active-budget.md",
     ),
     "active-budget-long": (
