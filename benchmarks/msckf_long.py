@@ -6,7 +6,7 @@ Run on demand (BLAS pinned to one thread)::
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py accuracy [--frames 300] [--retire 40]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py revisit [--frames 1000] [--set k=v ...]
     OPENBLAS_NUM_THREADS=1 python benchmarks/msckf_long.py budget [--frames 300] [--budgets 40 80]
-        [--team make-run|long] [--reference-frames N] [--listening 80]
+        [--team make-run|long] [--reference-frames N] [--listening 80] [--windows 4]
 
 ``cost`` runs a team (3 robots, consensus over a complete graph) along the long route
 (:func:`teamslam.sim.long_route_team`, a world of about 1.2 objects per metre) with objects
@@ -40,8 +40,10 @@ trajectory RMSE and object error (final maps: state and persistent map) with the
 unbounded run, and the objects retired per robot. ``--reference-frames N`` flies the unbounded
 run N frames only (its cost grows with the route) and each budget both N frames, for the
 ratios, and ``--frames`` frames; ``--listening B…`` adds those budgets with retired objects
-averaged with the neighbours' marginals (``consensus.persistent_map = true``). ``--markdown FILE``
-writes that table headed by the commit, date, command and machine.
+averaged with the neighbours' marginals (``consensus.persistent_map = true``); ``--windows K…``
+adds runs with the budget learned from the data (``objects.active_windows = K``: ``K`` times the
+most objects observed within one window), with the largest budget that rule reached.
+``--markdown FILE`` writes that table headed by the commit, date, command and machine.
 """
 
 from __future__ import annotations
@@ -388,8 +390,20 @@ def _budget_row(team: str, frames: int, seed: int, bound: int, settings: dict) -
     """One budget run: consensus and step times over frames 100–200 and the last 100, accuracy."""
     dataset, base = _team(team, frames, seed)
     config = config_for(dataset, {**base, "objects.max_active": bound, **settings})
+    reached: dict[int, int] = {}
+    active_budget = MsckfAgent.active_budget
+
+    def recorded(agent: MsckfAgent, t: int) -> int:
+        value = active_budget(agent, t)
+        reached[agent.robot] = max(reached.get(agent.robot, 0), value)
+        return value
+
+    MsckfAgent.active_budget = recorded
     begin = time.perf_counter()
-    result = run_team(dataset, config, progress=False)
+    try:
+        result = run_team(dataset, config, progress=False)
+    finally:
+        MsckfAgent.active_budget = active_budget
     wall = time.perf_counter() - begin
     times = 1e3 * np.stack(result.frame_times).mean(axis=0)  # (frames + 1, 4)
     windows = [(100, 201), (frames - 99, frames + 1)]
@@ -401,6 +415,7 @@ def _budget_row(team: str, frames: int, seed: int, bound: int, settings: dict) -
         "rmse": metrics["trajectory_rmse_avg_m"],
         "objects": metrics["object_error_avg_m"],
         "retired": sum(c.get("objects_retired", 0) for c in result.counters) / robots,
+        "budget": max(reached.values(), default=0),
         "wall": wall,
     }
 
@@ -413,6 +428,7 @@ def budget(
     md: Markdown,
     reference_frames: int | None = None,
     listening: list[int] = (),
+    windows: list[int] = (),
 ) -> None:
     """Cost growth and accuracy of ``team`` under each ``objects.max_active``, against the
     run without a bound (over ``reference_frames`` frames when that is shorter: then each
@@ -444,6 +460,12 @@ def budget(
             " *listening*: retired objects averaged with the neighbours' marginals of them "
             "(`consensus.persistent_map = true`); otherwise out of consensus until they re-enter."
         )
+    if windows:
+        note += (
+            " *K windows*: the budget learned from the data (`objects.active_windows = K`): K "
+            "times the most objects a robot observed within one window, the largest budget "
+            "reached in brackets."
+        )
     md.table(
         f"A budget on the objects in each robot's state: {TEAMS[team]} flown for {frames} "
         "frames, consensus",
@@ -454,12 +476,15 @@ def budget(
     runs = [(reference_frames, 0, {})]
     runs += [(reference_frames, b, {}) for b in budgets]
     runs += [(reference_frames, b, {"consensus.persistent_map": True}) for b in listening]
+    learned = [(0, {"objects.active_windows": k}) for k in windows]
+    runs += [(reference_frames, b, extra) for b, extra in learned]
     if reference_frames < frames:
         runs += [(frames, b, {}) for b in budgets]
+        runs += [(frames, b, extra) for b, extra in learned]
     reference = None
     for length, bound, settings in runs:
         row = _budget_row(team, length, seed, bound, settings)
-        if bound == 0:
+        if bound == 0 and not settings:
             reference = (row["rmse"], row["objects"])
         ratios = (
             (f"{row['rmse'] / reference[0]:.2f}", f"{row['objects'] / reference[1]:.2f}")
@@ -467,7 +492,9 @@ def budget(
             else ("—", "—")
         )
         name = "none" if bound == 0 else str(bound)
-        if settings:
+        if "objects.active_windows" in settings:
+            name = f"{settings['objects.active_windows']} windows ({row['budget']})"
+        elif settings:
             name += ", listening"
         c, st = row["consensus"], row["step"]
         cells = [
@@ -519,6 +546,13 @@ def main() -> None:
         default=[],
         help="budget: these budgets also with consensus.persistent_map = true",
     )
+    parser.add_argument(
+        "--windows",
+        type=int,
+        nargs="*",
+        default=[],
+        help="budget: also the budget learned from the data, objects.active_windows = K",
+    )
     add_option(parser)
     parser.add_argument("--set", nargs="*", default=[], help="bounded-set settings (revisit)")
     parser.add_argument("--robots", type=int, default=3)
@@ -536,6 +570,7 @@ def main() -> None:
             md,
             args.reference_frames,
             args.listening,
+            args.windows,
         )
         md.write()
     elif args.what == "revisit":

@@ -136,6 +136,16 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--budgets 80 --markdown {GENERATED}/active-budget-long.md",
         f"{GENERATED}/active-budget-long.md",
     ),
+    "active-budget-learned": (
+        "python benchmarks/msckf_long.py budget --frames 500 --budgets 80 --windows 4 "
+        f"--markdown {GENERATED}/active-budget-learned.md",
+        f"{GENERATED}/active-budget-learned.md",
+    ),
+    "active-budget-learned-long": (
+        "python benchmarks/msckf_long.py budget --team long --frames 300 --budgets 80 "
+        f"--windows 4 --markdown {GENERATED}/active-budget-learned-long.md",
+        f"{GENERATED}/active-budget-learned-long.md",
+    ),
     "detector-team": (
         "python benchmarks/detector_team.py --robots 3 --steps 420 --render results/street-render "
         f"--markdown {GENERATED}/detector-team.md",

@@ -306,6 +306,49 @@ def test_max_active_bounds_the_state_by_size():
         config_for(dataset, {"objects.max_active": -1})
 
 
+def test_the_budget_learned_from_the_data_follows_the_objects_seen_per_window():
+    """``objects.active_windows = k``: the budget is ``k`` times the most objects of the state
+    observed within one window so far — it grows while the robot meets more objects per
+    window, never shrinks, and bounds the state as ``max_active`` does; with both set the
+    smaller bound holds; a snapshot carries it."""
+    dataset = lissajous_team(robots=1, steps=120, seed=3)
+    window, k = 6, 1
+    config = config_for(dataset, {"filter.window": window, "objects.active_windows": k})
+    agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
+    peak, budgets = 0, []
+    for t in range(dataset.robots[0].frames):
+        agent.step(t)
+        state = agent.state
+        now = state.object_last_seen == t
+        # an object observed within the window is never retired by a budget of k ≥ 1 times
+        # their most: they are all in the state now
+        peak = max(peak, int(np.sum(state.object_last_seen > t - window)))
+        assert agent.window_objects_peak == peak
+        budget = agent.active_budget(t)
+        assert budget == k * peak
+        budgets.append(budget)
+        assert state.n_objects <= max(budget, int(now.sum()))
+    assert np.all(np.diff(budgets) >= 0) and budgets[-1] > budgets[0]
+    assert agent.counters["objects_retired"] > 0
+    # a snapshot carries the learned peak: a restored robot keeps the same budget
+    again = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
+    again.restore(agent.snapshot())
+    assert again.window_objects_peak == agent.window_objects_peak > 0
+    # with a fixed budget too: the smaller one holds
+    both = config_for(
+        dataset,
+        {"filter.window": window, "objects.active_windows": k, "objects.max_active": 5},
+    )
+    agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], both)
+    for t in range(dataset.robots[0].frames):
+        agent.step(t)
+        assert agent.active_budget(t) == min(5, k * agent.window_objects_peak) or (
+            agent.window_objects_peak == 0
+        )
+    with pytest.raises(InputError, match="active_windows"):
+        config_for(dataset, {"objects.active_windows": -1})
+
+
 # ---------------------------------------------------------------- the persistent map in consensus
 
 
@@ -448,3 +491,68 @@ def test_the_persistent_map_in_consensus_keeps_a_budget_accurate():
 def test_a_bad_persistent_map_consensus_setting_is_refused(value):
     with pytest.raises(InputError, match=r"consensus\.persistent_map"):
         MsckfConfig.from_settings({"consensus.persistent_map": value})
+
+
+def test_a_listening_robot_asks_for_a_retired_object_again_only_once_it_moved():
+    """Retired objects are flagged in round 1 as the state's are: a neighbour's marginal of one,
+    once averaged in, goes on record with that neighbour (our marginal before the average), and
+    the object is asked for again only when its stored marginal moved beyond
+    ``consensus.kl_threshold`` since (the neighbour flags its own side)."""
+    from teamslam.gaussian import kl_divergence
+    from teamslam.msckf import run_team
+    from teamslam.msckf.consensus.protocol import ConsensusProtocol
+
+    dataset = lissajous_team(robots=3, steps=60, seed=2)
+    config = config_for(
+        dataset,
+        {"filter.window": 6, "objects.max_active": 20, "consensus.persistent_map": True},
+    )
+    threshold = config.consensus.kl_threshold
+    counts = {"recorded": 0, "asked_again": 0, "not_asked": 0}
+    requests, average = ConsensusProtocol._requests, ConsensusProtocol._average
+
+    def flags(protocol, to):
+        out = requests(protocol, to)
+        stored = protocol.agent.state.retired
+        for message in out:
+            record = protocol._agreed.get(message.receiver)
+            if record is None:
+                continue
+            on_record = stored.contains(message.ids) & np.isin(message.ids, record[0])
+            ids = message.ids[on_record]
+            pos = np.searchsorted(record[0], ids)
+            means, covs, _ = stored.get(ids)
+            kl = kl_divergence(means, covs, record[1][pos], record[2][pos])
+            asked = np.asarray(message.moved, dtype=bool)[on_record]
+            np.testing.assert_array_equal(asked, kl > threshold)
+            counts["asked_again"] += int(asked.sum())
+            counts["not_asked"] += int((~asked).sum())
+        return out
+
+    def averaged(protocol, received):
+        before = protocol._own
+        got = {m.sender: m.ids for m in received}
+        out = average(protocol, received)
+        for j, ids in got.items():
+            ids = np.asarray(ids)[protocol.agent.state.retired.contains(ids)]
+            record = protocol._agreed.get(j)
+            if ids.size == 0 or j not in protocol.averaged_with:
+                continue
+            # each retired object the neighbour sent is on record: our marginal before the average
+            assert record is not None and np.isin(ids, record[0]).all()
+            mine = np.searchsorted(before[0], ids)
+            pos = np.searchsorted(record[0], ids)
+            np.testing.assert_array_equal(record[1][pos], before[1][mine])
+            np.testing.assert_array_equal(record[2][pos], before[2][mine])
+            counts["recorded"] += ids.size
+        return out
+
+    ConsensusProtocol._requests, ConsensusProtocol._average = flags, averaged
+    try:
+        result = run_team(dataset, config, progress=False)
+    finally:
+        ConsensusProtocol._requests, ConsensusProtocol._average = requests, average
+    assert sum(c.get("retired_averaged", 0) for c in result.counters) > 0
+    assert counts["recorded"] > 0
+    # retired objects on record that did not move are not asked for again
+    assert counts["not_asked"] > 0 and counts["asked_again"] > 0

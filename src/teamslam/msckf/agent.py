@@ -131,6 +131,9 @@ class MsckfAgent:
         self._odometry_rejected: set[int] = set()
         self._frame_times = np.zeros((sequence.frames, 3))
         self.frame = -1
+        #: the most objects of the state observed within one window so far (the budget of
+        #: ``objects.active_windows`` is this many times that)
+        self.window_objects_peak = 0
         # detections without ids: the robot names its objects itself (tracking.py)
         self.tracker: ObjectTracker | None = None
         self._tracked: tuple[np.ndarray, np.ndarray] | None = None
@@ -201,6 +204,7 @@ class MsckfAgent:
             out[f"{name}_z"] = np.array(zs, dtype=float).reshape(-1, width)
         out.update({f"views_{k}": v for k, v in self.views.arrays().items()})
         out["frame"] = np.array(self.frame, dtype=np.int64)
+        out["window_objects_peak"] = np.array(self.window_objects_peak, dtype=np.int64)
         out["frame_times"] = np.array(self.frame_times, dtype=float).reshape(-1, 3)
         out["counter_names"] = np.array(sorted(self.counters), dtype=str)
         out["counter_values"] = np.array([self.counters[k] for k in sorted(self.counters)], int)
@@ -255,6 +259,7 @@ class MsckfAgent:
             )
         self.state.restore({k[6:]: v for k, v in snapshot.items() if k.startswith("state_")})
         self.frame = frame
+        self.window_objects_peak = int(snapshot.get("window_objects_peak", 0))
         self._frame_times = np.zeros((max(self.sequence.frames, frame + 1), 3))
         self._frame_times[: frame + 1] = frame_times
         self.tracks = histories["tracks"]
@@ -321,7 +326,8 @@ class MsckfAgent:
         after_update = time.perf_counter()
         if self.config.filter.use_objects:
             self._initialise_objects(t)
-            if self.config.objects.retire_after > 0 or self.config.objects.max_active > 0:
+            objects = self.config.objects
+            if objects.retire_after > 0 or objects.max_active > 0 or objects.active_windows > 0:
                 self._retire_objects(t)
         while self.state.n_poses > self.config.filter.window:
             self._odometry_health(0)
@@ -545,21 +551,38 @@ class MsckfAgent:
 
     def _retire_objects(self, t: int) -> None:
         """Move to the persistent map the objects unobserved for ``objects.retire_after``
-        frames, then, beyond ``objects.max_active``, the least recently observed ones not
-        observed at ``t``."""
+        frames, then, beyond the budget (:meth:`active_budget`), the least recently observed
+        ones not observed at ``t``."""
         cfg = self.config.objects
         last_seen = self.state.object_last_seen
         stale = np.zeros(last_seen.size, bool)
         if cfg.retire_after > 0:
             stale = t - last_seen >= cfg.retire_after
-        excess = last_seen.size - int(stale.sum()) - cfg.max_active
-        if cfg.max_active > 0 and excess > 0:
+        budget = self.active_budget(t)
+        excess = last_seen.size - int(stale.sum()) - budget
+        if budget > 0 and excess > 0:
             candidates = np.flatnonzero(~stale & (last_seen < t))
             oldest = candidates[np.argsort(last_seen[candidates], kind="stable")][:excess]
             stale[oldest] = True
         if stale.any():
             self.state.retire_objects(np.flatnonzero(stale))
             self.counters["objects_retired"] += int(stale.sum())
+
+    def active_budget(self, t: int) -> int:
+        """The most objects the state may hold after frame ``t`` (0: no bound).
+
+        ``objects.max_active``; with ``objects.active_windows = k > 0``, ``k`` times the most
+        objects of the state observed within one window (``filter.window`` frames) so far —
+        learned from the robot's own data, so it follows the scene — or the smaller of the two
+        when both are set.
+        """
+        cfg = self.config.objects
+        if cfg.active_windows == 0:
+            return cfg.max_active
+        observed = self.state.object_last_seen > t - self.config.filter.window
+        self.window_objects_peak = max(self.window_objects_peak, int(observed.sum()))
+        learned = cfg.active_windows * self.window_objects_peak
+        return learned if cfg.max_active == 0 or learned == 0 else min(learned, cfg.max_active)
 
     def _object_rows(self, t: int) -> tuple[MeasurementRows, Callable[[], tuple] | None]:
         """The gated object rows at the current estimate, and a function that linearises the

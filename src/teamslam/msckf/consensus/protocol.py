@@ -800,8 +800,18 @@ class ConsensusProtocol:
         )
         if self._own is not None:
             for j in marginals:
-                if j in self._pending:
-                    self._record_exchange(j, self._pending[j])
+                exchanged = self._pending.get(j)
+                retired = marginals[j].retired if self.persistent else None
+                if retired is not None and retired[0].size:
+                    # retired objects the neighbour sent: on record too, so that they are asked
+                    # for again only once they moved on either side, as the state's objects
+                    exchanged = (
+                        retired[0]
+                        if exchanged is None
+                        else np.union1d(exchanged, retired[0]).astype(np.int64)
+                    )
+                if exchanged is not None:
+                    self._record_exchange(j, exchanged)
         self.agent.counters["objects_averaged"] += averaged
         self.spent += time.perf_counter() - begin
         self.agent.timings["consensus"] += self.spent

@@ -218,6 +218,11 @@ class ObjectSettings:
         objects not observed this frame retire into the persistent map as with
         ``retire_after`` (and re-enter when observed again), which bounds the cost per frame
         by size rather than by time. 0: no bound.
+    active_windows
+        A budget learned from the data instead of picked per scene: the state may hold ``k``
+        times the most objects the robot observed within one window (``filter.window``
+        frames) so far; beyond it objects retire as with ``max_active`` (with both set, the
+        smaller bound holds). 0: off.
     """
 
     init_observations: int = field(default=3, metadata=_unit("observations"))
@@ -229,6 +234,7 @@ class ObjectSettings:
     update_iterations: int = field(default=1, metadata=_unit("linearisations"))
     retire_after: int = field(default=0, metadata=_unit("frames"))
     max_active: int = field(default=0, metadata=_unit("objects"))
+    active_windows: int = field(default=0, metadata=_unit("windows"))
 
     def __post_init__(self) -> None:
         if not _is_count(self.init_observations, 2):
@@ -258,6 +264,10 @@ class ObjectSettings:
         if not _is_count(self.max_active, 0):
             raise InputError(
                 "objects.max_active must be an integer number of objects ≥ 0 (0: no bound)"
+            )
+        if not _is_count(self.active_windows, 0):
+            raise InputError(
+                "objects.active_windows must be an integer number of windows ≥ 0 (0: off)"
             )
 
     def robust_weight(self, mahalanobis: np.ndarray) -> np.ndarray:
