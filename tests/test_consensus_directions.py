@@ -6,6 +6,7 @@ import copy
 
 import numpy as np
 import pytest
+import scipy.linalg
 
 from teamslam.geometry import se3
 from teamslam.msckf import config_for, run_team
@@ -37,12 +38,12 @@ def test_constrained_average_keeps_the_rigid_motions_and_averages_the_rest():
     )
     # the information vector moves by nothing along them either: Uᵀ(Ω'μ' − Ωμ) = Uᵀ Ω' (μ' − μ)
     np.testing.assert_allclose(u.T @ info @ (mean - own_mean), 0.0, atol=1e-6 * np.abs(u).max())
-    # off the rigid motions (directions Ω-orthogonal to them) the average is taken as it is
-    q = np.linalg.svd((own_info @ u).T)[2][6:].T  # (3k, 3k − 6): Uᵀ Ω q = 0
-    np.testing.assert_allclose(q.T @ info @ q, q.T @ avg_info @ q, rtol=1e-7)
-    np.testing.assert_allclose(
-        q.T @ info @ (mean - own_mean), q.T @ avg_info @ (avg_mean - own_mean), rtol=1e-7, atol=1e-8
-    )
+    # every quantity cᵀx the rigid motions leave unchanged (cᵀU = 0: the map's shape) takes the
+    # average's mean and variance — no more information than the average has of it
+    c = np.linalg.svd(u.T)[2][6:]  # (3k − 6, 3k): c U = 0
+    avg_cov = np.linalg.inv(avg_info)
+    np.testing.assert_allclose(c @ cov @ c.T, c @ avg_cov @ c.T, rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(c @ mean, c @ avg_mean, rtol=1e-9, atol=1e-9)
     # one object: its rigid motions are every direction it has, so the average is undone
     one = constrained_average(
         own_mean[:3], own_info[:3, :3], avg_mean[:3], np.linalg.inv(avg_info[:3, :3]), first[:1]
@@ -88,14 +89,26 @@ def test_an_average_gives_no_information_along_our_rigid_motions(two_robots):
     message = common_marginal_message(theirs, 1, 0, 0, common, information=True)
     before = _rigid_information(ours)
     scale = np.sqrt(np.outer(np.diag(before), np.diag(before)))
-    gained = {}
+    gained, states = {}, {}
     for constrained in (False, True):
         state = copy.deepcopy(ours)
         consensus_average(state, 0.5, [(0.5, message)], rigid_directions=constrained)
         gained[constrained] = (_rigid_information(state) - before) / scale
         assert not np.allclose(state.objects, ours.objects)
+        states[constrained] = state
     assert np.abs(gained[True]).max() < 1e-6
     assert np.abs(gained[False]).max() > 1e-2
+    # the shape of the common map (every cᵀy with cᵀU = 0) is known exactly as well as the
+    # average knows it, not better: taking the average's information on the complement of U
+    # as it is (without marginalising its part along U) claimed several times more
+    slots = ours.object_slots(common)
+    c = np.linalg.svd(rigid_directions(ours.object_fe[slots], np.zeros(3)).T)[2][6:]
+    shape = {}
+    for constrained, state in states.items():
+        cols = state.object(state.object_slots(common)).columns.ravel()
+        shape[constrained] = c @ state.cov[np.ix_(cols, cols)] @ c.T
+    ratio = scipy.linalg.eigh(shape[False], shape[True], eigvals_only=True)
+    np.testing.assert_allclose(ratio, 1.0, rtol=1e-6)
 
 
 def test_filters_without_first_estimates_average_as_before():

@@ -10,6 +10,7 @@ from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.filter.linearization import linearization_policy
 from teamslam.msckf.filter.observability import (
     AUDITED,
+    INFORMED,
     NullspaceAudit,
     estimates_like_a_filter,
     falsely_observable,
@@ -92,7 +93,7 @@ def test_first_estimate_rank_does_not_depend_on_the_metric_of_the_compensation(c
     assert singular.max() < 1e-12
 
 
-def _audited_run(linearization: str):
+def _audited_run(linearization: str, information: bool = False):
     """One robot on a short long route whose detector misses 30 % of the objects, with an
     active-map budget of 8: objects initialise, retire into the persistent map (not seen this
     frame) and re-enter when seen again, and window poses are marginalised."""
@@ -100,7 +101,7 @@ def _audited_run(linearization: str):
     settings = {"filter.linearization": linearization, "filter.window": 6}
     config = config_for(dataset, {**settings, "objects.max_active": 8})
     agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
-    audit = NullspaceAudit(agent.state)
+    audit = NullspaceAudit(agent.state, information)
     for t in range(dataset.robots[0].frames):
         agent.step(t)
     return agent, audit
@@ -126,3 +127,20 @@ def test_first_estimates_keep_the_nullspace_through_marginalisation_and_reentry(
     worst = standard.worst()
     assert worst["propagation"] > 1e-3 and worst["update"] > 1e-4
     assert worst["initialisation"] > 1e-2
+
+
+def test_the_information_each_edit_gives_along_the_rigid_motions():
+    """`fej`: no edit but re-entry gives the state information along the rigid motions of the
+    world at its first estimates — propagation, updates, initialisation and retirement leave it
+    as it was, marginalisation removes some. A retired object re-enters with its marginal and
+    no cross-covariance with the window, so the state counts the object's place in the world a
+    second time: the audit sees re-entry invent information along them."""
+    _, audit = _audited_run("fej", information=True)
+    gained = audit.most_information()
+    assert set(gained) == set(INFORMED)
+    for edit in ("propagation", "update", "initialisation", "retirement", "marginalisation"):
+        assert len(audit.information[edit]) > 20, edit
+        assert gained[edit] < 1e-9, (edit, gained[edit])
+    assert min(e for _, e in audit.information["marginalisation"]) < -0.1
+    assert len(audit.information["re-entry"]) > 20 and gained["re-entry"] > 0.1
+    assert np.isnan(gained["consensus"])  # one robot: no consensus

@@ -4,9 +4,11 @@ A first-estimates filter (``fej``, ``oc``) keeps the six rigid motions of the wo
 at the points its Jacobians were evaluated at — for an object, the first estimate this robot
 took of it. :func:`constrained_average` turns the consensus average of the common objects'
 marginal into a change that leaves this robot's information along those directions, and its
-mean's pull along them, exactly as they were; everything else (the map's shape) is averaged as
-before. Contract: ``Ω' U = Ω U`` for the directions ``U`` at the first estimates. Derivation:
-the concept page *Linearisation*, section *Consensus and first estimates*.
+mean along them, exactly as they were; every quantity the rigid motions leave unchanged (the
+map's shape) takes the average's mean and variance. Contract: ``Ω' U = Ω U`` for the directions
+``U`` at the first estimates, and ``cᵀ μ' = cᵀ μ̄``, ``cᵀ Σ' c = cᵀ Σ̄ c`` for every ``c`` with
+``cᵀ U = 0``. Derivation: the concept page *Linearisation*, section *Consensus and first
+estimates*.
 """
 
 from __future__ import annotations
@@ -52,26 +54,25 @@ def constrained_average(
     first: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The consensus average ``N(mean, cov)`` of our marginal ``N(own_mean, own_info⁻¹)`` of
-    ``k`` objects, with its change along our rigid motions at the objects' first estimates
-    ``first`` (``(k, 3)``) removed.
+    ``k`` objects, with our own information and mean along our rigid motions at the objects'
+    first estimates ``first`` (``(k, 3)``) in place of the average's.
 
-    With ``Ω`` our information, ``Ω̄ = cov⁻¹`` the average's, ``U`` the rigid motions at
-    ``first`` and ``P = I − U (Uᵀ Ω U)⁻¹ Uᵀ Ω`` (``P U = 0``), the average acts as a measurement
-    of information ``Δ = Ω̄ − Ω`` and gradient ``g = Ω̄ (μ̄ − μ)``; it is applied as ``Pᵀ Δ P``,
-    ``Pᵀ g`` — the constraint OC-EKF puts on a measurement's Jacobian, in our covariance metric:
-    ``Ω' = Pᵀ Ω̄ P + Ω U (Uᵀ Ω U)⁻¹ Uᵀ Ω`` (positive definite) and ``μ' = μ + Ω'⁻¹ Pᵀ g``.
+    With ``Ω`` our information, ``Ω̄ = cov⁻¹`` the average's and ``U`` the rigid motions at
+    ``first``: the average's information about the quantities the rigid motions leave unchanged
+    is ``Ω̄ − Ω̄ U (Uᵀ Ω̄ U)⁻¹ Uᵀ Ω̄`` (its information along ``U`` marginalised out), ours along
+    ``U`` is ``Ω U (Uᵀ Ω U)⁻¹ Uᵀ Ω``; their sum is ``Ω'`` (positive definite), and
+    ``μ' = μ + P (μ̄ − μ)`` with ``P = I − U (Uᵀ Ω U)⁻¹ Uᵀ Ω`` (``P U = 0``) moves the mean
+    to the average's on those quantities and not at all along ``U``.
     Returns ``(μ', Ω'⁻¹)``.
     """
     u = _basis(own_info, np.asarray(first, dtype=float).reshape(-1, 3))
-    info_u = own_info @ u
-    gram = u.T @ info_u
-    gram = 0.5 * (gram + gram.T)
     avg_info = spd_inverse(cov, "averaged covariance")
-    # P x = x − U (Uᵀ Ω U)⁻¹ Uᵀ Ω x; Pᵀ y = y − Ω U (Uᵀ Ω U)⁻¹ Uᵀ y
+    info_u, avg_u = own_info @ u, avg_info @ u
+    gram, avg_gram = u.T @ info_u, u.T @ avg_u
+    gram, avg_gram = 0.5 * (gram + gram.T), 0.5 * (avg_gram + avg_gram.T)
     solve = np.linalg.solve(gram, info_u.T)  # (r, 3k): (Uᵀ Ω U)⁻¹ Uᵀ Ω
-    p = np.eye(own_info.shape[0]) - u @ solve
-    info = p.T @ avg_info @ p + info_u @ solve
+    info = avg_info - avg_u @ np.linalg.solve(avg_gram, avg_u.T) + info_u @ solve
     info = 0.5 * (info + info.T)
     new_cov = spd_inverse(info, "constrained average")
-    gradient = p.T @ (avg_info @ (mean - own_mean))
-    return own_mean + new_cov @ gradient, new_cov
+    step = mean - own_mean
+    return own_mean + step - u @ (solve @ step), new_cov

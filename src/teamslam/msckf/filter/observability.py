@@ -7,7 +7,9 @@ with ``std`` larger; :func:`falsely_observable` gives the singular values on the
 unobservable directions. :class:`NullspaceAudit` checks the same property on a running filter:
 every edit of a :class:`~teamslam.msckf.filter.state.MsckfState` — propagation, update, object
 initialisation, re-entry from the persistent map, with marginalisation and retirement in
-between — against the rigid motions of the world at the first estimates. See the concept page
+between — against the rigid motions of the world at the first estimates, and with
+``information=True`` how much information each edit (consensus too) gives the state along them.
+See the concept page
 *Linearisation* (``docs/concepts/linearization.md``).
 """
 
@@ -16,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
@@ -25,6 +28,7 @@ from teamslam.msckf.filter.models import observe_jacobians
 
 __all__ = [
     "AUDITED",
+    "INFORMED",
     "FilterValues",
     "NullspaceAudit",
     "estimates_like_a_filter",
@@ -171,6 +175,17 @@ def falsely_observable(matrix: np.ndarray, basis: np.ndarray) -> tuple[np.ndarra
 
 #: The edits :class:`NullspaceAudit` measures.
 AUDITED = ("propagation", "update", "initialisation", "re-entry")
+#: The edits whose information along the rigid motions :class:`NullspaceAudit` measures
+#: (``information=True``), under the name it records them by, with the state's method.
+INFORMED = {
+    "propagation": "augment",
+    "update": "update",
+    "initialisation": "add_object",
+    "marginalisation": "marginalize_oldest",
+    "retirement": "retire_objects",
+    "re-entry": "reenter_objects",
+    "consensus": "replace_marginal",
+}
 
 
 class NullspaceAudit:
@@ -193,15 +208,29 @@ class NullspaceAudit:
       poses to the object that its cross-covariance implies;
     * ``re-entry``: a retired object comes back with the first estimate it left with.
 
+    With ``information=True`` it also measures, around every edit of :data:`INFORMED`
+    (consensus's rebuild of the joint included), the state's information along those
+    directions, ``J = Nᵀ Σ⁻¹ N`` (``6 × 6``; ``Σ`` scaled to a unit diagonal before it is
+    factored), and records the information the edit gave, the largest generalised eigenvalue of
+    ``(J_after, J_before)`` less one: ``0`` to round-off for an edit that adds none (an update
+    whose rows annihilate ``N``), negative for one that removes some (marginalisation), positive
+    for one that invents it. A Cholesky factor of the state per edit: for tests and probes.
+
     Attributes
     ----------
     errors
         ``{edit: [(frame, relative error), …]}`` for the edits of :data:`AUDITED`.
+    information
+        ``{edit: [(frame, information gained), …]}`` for the edits of :data:`INFORMED` (empty
+        without ``information=True``).
     """
 
-    def __init__(self, state) -> None:
+    def __init__(self, state, information: bool = False) -> None:
         self.state = state
         self.errors: dict[str, list[tuple[int, float]]] = {k: [] for k in AUDITED}
+        self.information: dict[str, list[tuple[int, float]]] = (
+            {k: [] for k in INFORMED} if information else {}
+        )
         self._pose_point = {
             (int(r), int(f)): t.copy()
             for r, f, t in zip(state.robots, state.frames, state.pose_fe, strict=True)
@@ -217,10 +246,46 @@ class NullspaceAudit:
         }
         for name in ("augment", "update", "add_object", "reenter_objects"):
             setattr(state, name, getattr(self, f"_{name}")(getattr(state, name)))
+        self._inside = False
+        if information:
+            for edit, name in INFORMED.items():
+                setattr(state, name, self._informed(edit, getattr(state, name)))
 
     def worst(self) -> dict[str, float]:
         """The largest relative error of each edit (``nan`` for an edit that never happened)."""
         return {k: max((e for _, e in v), default=float("nan")) for k, v in self.errors.items()}
+
+    def most_information(self) -> dict[str, float]:
+        """The most information along the rigid motions any one edit gave (``nan`` for an edit
+        that never happened; ``information=True``)."""
+        return {
+            k: max((e for _, e in v), default=float("nan")) for k, v in self.information.items()
+        }
+
+    def rigid_information(self) -> np.ndarray:
+        """``J = Nᵀ Σ⁻¹ N`` ``(6, 6)``: the state's information along the rigid motions of the
+        world at the points the audit keeps."""
+        scale = 1.0 / np.sqrt(np.diag(self.state.cov))
+        basis = self.basis() * scale[:, None]
+        factor = scipy.linalg.cho_factor(self.state.cov * np.outer(scale, scale))
+        return basis.T @ scipy.linalg.cho_solve(factor, basis)
+
+    def _informed(self, edit: str, original):
+        def informed(*args, **kwargs):
+            if self._inside:  # an edit made of others (an iterated update) counts once each
+                return original(*args, **kwargs)
+            before = self.rigid_information()
+            self._inside = True
+            try:
+                out = original(*args, **kwargs)
+            finally:
+                self._inside = False
+            after = self.rigid_information()
+            gained = scipy.linalg.eigh(after, before, eigvals_only=True)[-1] - 1.0
+            self.information[edit].append((self._frame(), float(gained)))
+            return out
+
+        return informed
 
     def basis(self) -> np.ndarray:
         """``(dim, 6)``: the rigid motions ``ξ = (δt, δθ)`` of the world in the state's error
