@@ -50,7 +50,8 @@ class TrackerFrame:
     ----------
     ids
         ``(D,)`` object id given to each detection, ``-1`` for one the filter does not get
-        (a tentative track's, or a rejected one).
+        (a tentative track's, or a rejected one); a box seen in the left image only is named
+        too, for the record (the filter's object update needs both images).
     confirmed
         Tracks confirmed this frame: ``(id, frames, measurements)`` of their earlier
         detections, to go into the filter's object history before this frame's.
@@ -141,8 +142,9 @@ class ObjectTracker:
             "revisits_taken": 0,
             "detections_monocular_named": 0,
         }
-        #: per frame the id the filter used each detection as (``-1``: none); a track's
-        #: detections before its confirmation are named when it is confirmed
+        #: per frame the id the filter used each detection as (``-1``: none; a box in the left
+        #: image only: its object's, not used); a track's detections before its confirmation
+        #: are named when it is confirmed
         self.log: list[np.ndarray] = []
         self._first_logged: int | None = None
         #: every re-identification: ``(frame, row of the frame's detections, object id)`` of a
