@@ -531,7 +531,7 @@ class MsckfAgent:
             self.object_history[tid].extend(
                 (int(f), row) for f, row in zip(frames.tolist(), zs, strict=True)
             )
-        out = frame.ids >= 0
+        out = (frame.ids >= 0) & finite  # a box named in the left image only: not for the filter
         self._tracked = (frame.ids[out], z[out])
         for name, value in self.tracker.counters.items():
             self.counters[name] = value

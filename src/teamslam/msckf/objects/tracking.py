@@ -33,7 +33,7 @@ from teamslam.msckf.objects.appearance import (
 from teamslam.msckf.objects.loop_closure import LoopClosure
 from teamslam.msckf.settings.values import MsckfConfig
 
-__all__ = ["ObjectTracker", "TrackerFrame", "track_id_base"]
+__all__ = ["LabelModel", "ObjectTracker", "TrackerFrame", "track_id_base"]
 
 
 def track_id_base(robot: int) -> int:
@@ -50,7 +50,8 @@ class TrackerFrame:
     ----------
     ids
         ``(D,)`` object id given to each detection, ``-1`` for one the filter does not get
-        (a tentative track's, or a rejected one).
+        (a tentative track's, or a rejected one); a box seen in the left image only is named
+        too, for the record (the filter's object update needs both images).
     confirmed
         Tracks confirmed this frame: ``(id, frames, measurements)`` of their earlier
         detections, to go into the filter's object history before this frame's.
@@ -126,6 +127,10 @@ class ObjectTracker:
         # class label of every confirmed id (sorted by id)
         self._label_ids = np.zeros(0, np.int64)
         self._labels = np.zeros(0, np.int64)
+        # per id the labels of its detections (box rows): an object's label is their majority
+        self._votes: dict[int, dict[int, int]] = {}
+        #: how often the detector gives an object's detection another class (box rows)
+        self.label_model = LabelModel()
         self.counters: dict[str, int] = {
             "tracks_started": 0,
             "tracks_confirmed": 0,
@@ -135,9 +140,11 @@ class ObjectTracker:
             "detections_near_object": 0,
             "revisits_refused": 0,
             "revisits_taken": 0,
+            "detections_monocular_named": 0,
         }
-        #: per frame the id the filter used each detection as (``-1``: none); a track's
-        #: detections before its confirmation are named when it is confirmed
+        #: per frame the id the filter used each detection as (``-1``: none; a box in the left
+        #: image only: its object's, not used); a track's detections before its confirmation
+        #: are named when it is confirmed
         self.log: list[np.ndarray] = []
         self._first_logged: int | None = None
         #: every re-identification: ``(frame, row of the frame's detections, object id)`` of a
@@ -207,7 +214,10 @@ class ObjectTracker:
             if self._created_ids and hasattr(state, "retire_objects"):
                 merged = self._close_loops(t, state)
         every = np.full(z.shape[0], -1, np.int64)
-        index = np.flatnonzero(np.all(np.isfinite(z), axis=1))
+        finite = np.all(np.isfinite(z), axis=1)
+        index = np.flatnonzero(finite)
+        monocular = np.flatnonzero(~finite & np.all(np.isfinite(z[:, :2]), axis=1))
+        z_monocular = z[monocular]
         z = z[index]
         d = z.shape[0]
         # per detection the variance of its four coordinates (box rows), else one σ² for all
@@ -233,15 +243,22 @@ class ObjectTracker:
                 d2 = _squared_distances(s, pred, centres)  # (T, D)
             else:  # S = H P Hᵀ + R of each detection
                 d2 = _squared_distances_each(s, pred, centres, self._noise)
+            cost = d2 - self.gate
             if classes is None:  # no labels: every pair of a target in front agrees
                 agree = in_front[:, None]
+            elif self._noise is not None:
+                # a detector's boxes: a label is evidence (a detector confuses classes), its
+                # −2 log likelihood ratio learned in the run added to the cost; refused at the
+                # gate's odds, as appearance
+                label_ratio = self.label_model.log_ratio(target_labels, labels)
+                agree = in_front[:, None] & (label_ratio >= self._veto)
+                cost = cost - 2.0 * label_ratio
             else:
                 agree = in_front[:, None] & (
                     (target_labels[:, None] < 0)
                     | (labels[None, :] < 0)
                     | (target_labels[:, None] == labels[None, :])
                 )
-            cost = d2 - self.gate
             if self._descriptors is not None:
                 # detections of one frame are different objects (one box per object and frame)
                 pairs = cosine_distances(self._descriptors[index], self._descriptors[index])
@@ -273,10 +290,9 @@ class ObjectTracker:
             # detection in the object's gate, no other target in the detection's (a wrong
             # revisit would pull the whole map; a second object for the same one is safe)
             # (none of it when no object not seen for N frames has a detection in its gate)
+            # (appearance may refuse such a pair, at the gate's odds, as any other: its
+            # *same* samples are of one pass, the object is seen again from elsewhere)
             stale_pairs = allowed & ~fresh[:, None] & self._can_be_detected(pred)[:, None]
-            if looks is not None and self.appearance.informative:
-                # appearance must say "the same" too, where both have a descriptor
-                stale_pairs &= (looks[1] > 0.0) | np.isnan(looks[0])
             if stale_pairs.any():
                 left = assigned_target < 0
                 lone = _alone(stale_pairs, allowed) & left[None, :]
@@ -305,6 +321,8 @@ class ObjectTracker:
             near_target = np.any(inside_birth & blocking[:, None], axis=0)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
+        if classes is not None and self._noise is not None and hit.any():
+            self._learn_labels(hit, assigned_target, kinds, target_ids, target_labels, labels)
         if self._descriptors is not None and hit.any():
             self._learn(looks, assigned_target, kinds, target_ids, index)
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
@@ -320,6 +338,14 @@ class ObjectTracker:
         new = np.flatnonzero(~hit & ~near_target)
         if new.size:
             self._start_tracks(t, z[new], index[new], labels[new], state, lone_stale[new])
+        if monocular.size and n_targets:
+            every[monocular] = self._name_monocular(
+                t,
+                z_monocular,
+                None if classes is None else np.asarray(classes, np.int64)[monocular],
+                frame.ids,
+                (kinds, target_ids, seen, pred, s, in_front, target_labels),
+            )
         self._drop_stale(t)
         every[index] = frame.ids
         frame.ids = every
@@ -329,8 +355,8 @@ class ObjectTracker:
     def state_dict(self) -> dict[str, np.ndarray]:
         """What the tracker learned so far, as arrays (for a checkpoint): its tracks and their
         detections, the next id, the log of ids given, the ids it created, merges and loop
-        closure, the appearance ratio's samples and the objects' appearance summaries.
-        :meth:`load_state` continues from it exactly."""
+        closure, the class labels' votes and model, the appearance ratio's samples and the
+        objects' appearance summaries. :meth:`load_state` continues from it exactly."""
         out = {name: getattr(self, name).copy() for name in _TRACK_ARRAYS}
         out["next_id"] = np.array(self.next_id, np.int64)
         out["first_logged"] = np.array(-1 if self._first_logged is None else self._first_logged)
@@ -345,6 +371,12 @@ class ObjectTracker:
         out["revisits"] = np.array(self.revisits, np.int64).reshape(-1, 3)
         out["created"] = np.array([self._created_ids, self._created_frames], np.int64)
         out["merged"] = np.array(list(self.merged.items()), np.int64).reshape(-1, 2)
+        votes = [(o, c, n) for o, counts in self._votes.items() for c, n in counts.items()]
+        out["votes"] = np.array(votes, np.int64).reshape(-1, 3)
+        out["label_counts"] = np.array(
+            [self.label_model.pairs, self.label_model.disagreeing], np.int64
+        )
+        out["label_frequency"] = self.label_model.frequency.copy()
         if self.loop is not None:
             out.update({f"loop_{k}": v for k, v in self.loop.state_dict().items()})
         if self.appearance is not None:
@@ -376,6 +408,12 @@ class ObjectTracker:
         self.revisits = [tuple(r) for r in state["revisits"].tolist()]
         self._created_ids, self._created_frames = (list(r) for r in state["created"].tolist())
         self.merged = dict(state["merged"].tolist())
+        self._votes = {}
+        for o, c, n in state["votes"].tolist():
+            self._votes.setdefault(o, {})[c] = n
+        self.label_model = LabelModel()
+        self.label_model.pairs, self.label_model.disagreeing = state["label_counts"].tolist()
+        self.label_model.frequency = np.array(state["label_frequency"], float)
         if self.loop is not None:
             self.loop.load_state({k[5:]: v for k, v in state.items() if k.startswith("loop_")})
         if "appearance_counts" in state:
@@ -383,6 +421,52 @@ class ObjectTracker:
             self.appearance = AppearanceModel(self.config.tracking.gate_probability)
             self.appearance.add_counts(same, different)
             self.memory = AppearanceMemory.from_arrays(state["memory_ids"], state["memory_sums"])
+
+    def _name_monocular(self, t, z, labels, taken, targets) -> np.ndarray:
+        """Ids of the boxes seen in the left image only (``z`` ``(M, ·)``, right columns NaN):
+        each one the object or confirmed track seen within the last ``N`` frames that took no
+        detection this frame (``taken``), by its left-image distance
+        ``d² = rᵀ (S + R)⁻¹ r`` over ``(u_l, v_l)`` gated at the ``tracking.gate_probability``
+        quantile of χ²(2) and global nearest neighbour, as stereo boxes (labels as there); ``-1``
+        for none. Named for the record (:attr:`log`): the filter's object update needs both
+        images."""
+        kinds, target_ids, seen, pred, s, in_front, target_labels = targets
+        confirmed_tracks = self.ids[self.confirmed]
+        known = ((kinds == 0) & (t - seen <= self.frames_allowed)) | (
+            (kinds == 2) & np.isin(target_ids, confirmed_tracks)
+        )
+        known &= in_front & ~np.isin(target_ids, taken[taken >= 0])
+        out = np.full(z.shape[0], -1, np.int64)
+        if not known.any():
+            return out
+        rows = np.flatnonzero(known)
+        f = self.config.filter
+        if is_box(z):
+            left = z.copy()  # no right box: no disparity in a clipped box's variance
+            left[:, 2:4] = z[:, :2]
+            noise = box_variances(left, f.object_std, f.object_size_share)[:, :2]
+        else:
+            noise = np.full((z.shape[0], 2), f.object_std**2)
+        r = z[None, :, :2] - pred[rows, None, :2]  # (T, M, 2)
+        cov = s[rows, None, :2, :2] + _diagonal(noise)[None]  # (T, M, 2, 2)
+        d2 = np.einsum("tmi,tmi->tm", r, np.linalg.solve(cov, r[..., None])[..., 0])
+        gate = chi2_quantile(self.config.tracking.gate_probability, 2)
+        cost = d2 - gate
+        agree = np.ones_like(d2, bool)
+        if labels is not None:
+            a, b = target_labels[rows], labels
+            if is_box(z):
+                ratio = self.label_model.log_ratio(a, b)
+                agree = ratio >= self._veto
+                cost = cost - 2.0 * ratio
+            else:
+                agree = (a[:, None] < 0) | (b[None, :] < 0) | (a[:, None] == b[None, :])
+        assigned = np.full(z.shape[0], -1, np.int64)
+        _nearest_neighbour((d2 <= gate) & agree, cost, assigned)
+        hit = assigned >= 0
+        out[hit] = target_ids[rows[assigned[hit]]]
+        self.counters["detections_monocular_named"] += int(hit.sum())
+        return out
 
     def hypotheses(self) -> np.ndarray:
         """The id given to every detection so far, in frame order (``-1``: none); a merged
@@ -456,6 +540,38 @@ class ObjectTracker:
                 self.appearance.add(same, block[off])
         for j, target in zip(index[hit].tolist(), targets.tolist(), strict=True):
             self.memory.add(int(target_ids[target]), self._descriptors[j])
+
+    def _learn_labels(self, hit, assigned_target, kinds, target_ids, target_labels, labels):
+        """Box rows with labels: count each assigned detection's label against its confirmed
+        target's (:class:`LabelModel`), and label each object and track by the majority of its
+        detections' labels (a confused first label does not stick)."""
+        cols = np.flatnonzero(hit & (labels >= 0))
+        rows = assigned_target[cols]
+        confirmed = kinds < 2
+        if (kinds == 2).any():
+            confirmed[kinds == 2] = self.confirmed  # tracks come last, in row order
+        sure = confirmed[rows] & (target_labels[rows] >= 0)
+        self.label_model.add(target_labels[rows[sure]], labels[cols[sure]])
+        self.label_model.count(labels[labels >= 0])
+        first_track = int(np.flatnonzero(kinds == 2)[0]) if (kinds == 2).any() else rows.size
+        for j, r in zip(cols.tolist(), rows.tolist(), strict=True):
+            oid = int(target_ids[r])
+            votes = self._votes.setdefault(oid, {})
+            votes[int(labels[j])] = votes.get(int(labels[j]), 0) + 1
+            best = max(sorted(votes), key=votes.__getitem__)
+            if best == target_labels[r]:
+                continue
+            if kinds[r] == 2:
+                self.classes[r - first_track] = best
+            else:
+                self._set_label(oid, best)
+
+    def _set_label(self, object_id: int, label: int) -> None:
+        pos = int(np.searchsorted(self._label_ids, object_id))
+        if pos < self._label_ids.size and self._label_ids[pos] == object_id:
+            self._labels[pos] = label
+        else:
+            self._add_labels(np.array([object_id]), np.array([label]))
 
     def _labels_of(self, ids: np.ndarray) -> np.ndarray:
         """Class label of each id (``-1``: none)."""
@@ -759,6 +875,46 @@ _TRACK_ARRAYS = (
     "_label_ids",
     "_labels",
 )
+
+
+class LabelModel:
+    """The likelihood ratio of a detection's class label: *same object* against *another*.
+
+    Same object: the object's label with probability ``1 − c``, each of the ``K − 1`` others with
+    ``c / (K − 1)``, ``c`` the detector's confusion counted in the run (a Beta(1, 1) prior:
+    ``c = (disagreeing + 1) / (pairs + 2)``); another object: the label's frequency among all
+    detections (a Dirichlet(1) prior over the ``K`` labels seen). 0 where either label is
+    unknown (``< 0``).
+    """
+
+    def __init__(self) -> None:
+        self.pairs = 0
+        self.disagreeing = 0
+        self.frequency = np.zeros(0)
+
+    def add(self, object_labels: np.ndarray, detection_labels: np.ndarray) -> None:
+        """Count detections' labels against the labels of the objects they were assigned to."""
+        self.pairs += int(object_labels.size)
+        self.disagreeing += int(np.count_nonzero(object_labels != detection_labels))
+
+    def count(self, labels: np.ndarray) -> None:
+        """Count labels of detections (the label frequencies)."""
+        if labels.size:
+            k = max(self.frequency.size, int(labels.max()) + 1)
+            self.frequency = np.pad(self.frequency, (0, k - self.frequency.size))
+            self.frequency += np.bincount(labels, minlength=k)
+
+    def log_ratio(self, object_labels: np.ndarray, detection_labels: np.ndarray) -> np.ndarray:
+        """``(T, D)`` log ratio of each (object label, detection label) pair."""
+        a, b = object_labels[:, None], detection_labels[None, :]
+        known = (a >= 0) & (b >= 0)
+        k = max(self.frequency.size, int(max(a.max(initial=-1), b.max(initial=-1))) + 1, 2)
+        frequency = np.pad(self.frequency, (0, k - self.frequency.size)) + 1.0
+        other = frequency / frequency.sum()
+        c = (self.disagreeing + 1.0) / (self.pairs + 2.0)
+        same = np.where(a == b, 1.0 - c, c / (k - 1))
+        ratio = np.log(same) - np.log(other[np.maximum(b, 0)])
+        return np.where(known, ratio, 0.0)
 
 
 def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarray) -> None:

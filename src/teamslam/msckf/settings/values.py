@@ -319,8 +319,8 @@ class TrackingSettings:
         (:mod:`teamslam.msckf.objects.appearance`): once appearance separates objects beyond
         chance (at ``gate_probability``), the assignment cost adds ``−2 log`` of the likelihood
         ratio learned in the run, a pair whose ratio falls below
-        ``(1 − gate_probability) / gate_probability`` is refused, and a long-unseen object is
-        re-identified only where appearance agrees. Without descriptors nothing changes.
+        ``(1 − gate_probability) / gate_probability`` is refused (a long-unseen object's
+        too). Without descriptors nothing changes.
     """
 
     gate_probability: float = field(default=0.99, metadata=_unit(""))
