@@ -837,18 +837,7 @@ class ObjectTracker:
             self._keep(~drop)
 
     def _keep(self, mask: np.ndarray) -> None:
-        for name in (
-            "ids",
-            "points",
-            "covs",
-            "first",
-            "last",
-            "hits",
-            "classes",
-            "confirmed",
-            "revisit_of",
-            "revisit_hits",
-        ):
+        for name in _PER_TRACK:
             setattr(self, name, getattr(self, name)[mask])
 
     def _add_labels(self, ids: np.ndarray, labels: np.ndarray) -> None:
@@ -860,8 +849,8 @@ class ObjectTracker:
         self._label_ids, self._labels = ids[order], labels[order]
 
 
-#: the per-track arrays of a tracker, and its class labels (in :meth:`ObjectTracker.state_dict`)
-_TRACK_ARRAYS = (
+#: the per-track arrays of a tracker (one row per track)
+_PER_TRACK = (
     "ids",
     "points",
     "covs",
@@ -872,9 +861,9 @@ _TRACK_ARRAYS = (
     "confirmed",
     "revisit_of",
     "revisit_hits",
-    "_label_ids",
-    "_labels",
 )
+#: the per-track arrays and the class labels of objects (in :meth:`ObjectTracker.state_dict`)
+_TRACK_ARRAYS = (*_PER_TRACK, "_label_ids", "_labels")
 
 
 class LabelModel:
