@@ -177,6 +177,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/consistency-long-route-600.md",
         f"{GENERATED}/consistency-long-route-600.md",
     ),
+    "consistency-long-route-600-active": (
+        "python benchmarks/long_route.py --seeds 43 37 0 --runs 4 --robots 3 --steps 600 "
+        "--filters fej --modes consensus --set consensus.set=active --workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route-600-active.md",
+        f"{GENERATED}/consistency-long-route-600-active.md",
+    ),
     "consistency-make-run": (
         "python benchmarks/consistency.py --teams make-run --variants std fej oc "
         f"--modes separate consensus --markdown {GENERATED}/consistency-make-run.md",
