@@ -1069,35 +1069,6 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
 
 
 @numba.njit(cache=True)
-def _cholesky4(s, extra, chol):
-    """Lower Cholesky factor of the 4 × 4 ``s + diag(extra)`` into ``chol``."""
-    for a in range(4):
-        for b in range(a + 1):
-            acc = s[a, b] + (extra[a] if a == b else 0.0)
-            for k in range(b):
-                acc -= chol[a, k] * chol[b, k]
-            if a == b:
-                if not acc > 0.0:
-                    raise np.linalg.LinAlgError("innovation covariance not positive definite")
-                chol[a, a] = np.sqrt(acc)
-            else:
-                chol[a, b] = acc / chol[b, b]
-
-
-@numba.njit(cache=True)
-def _whitened_norm4(chol, z, pred, y):
-    """``‖L⁻¹ (z − pred)‖²`` by forward substitution (``y``: workspace)."""
-    total = 0.0
-    for a in range(4):
-        acc = z[a] - pred[a]
-        for k in range(a):
-            acc -= chol[a, k] * y[k]
-        y[a] = acc / chol[a, a]
-        total += y[a] * y[a]
-    return total
-
-
-@numba.njit(cache=True)
 def _squared_distances_each(s, pred, z, noise):
     """``d²[t, j] = (z_j − ẑ_t)ᵀ (S_t + R_j)⁻¹ (z_j − ẑ_t)``, ``R_j = diag(noise[j])``: one
     Cholesky factorisation per pair (each detection its own noise)."""
@@ -1107,8 +1078,27 @@ def _squared_distances_each(s, pred, z, noise):
     y = np.empty(4)
     for t in range(n):
         for j in range(d):
-            _cholesky4(s[t], noise[j], chol)
-            out[t, j] = _whitened_norm4(chol, z[j], pred[t], y)
+            for a in range(4):
+                for b in range(a + 1):
+                    acc = s[t, a, b] + (noise[j, a] if a == b else 0.0)
+                    for k in range(b):
+                        acc -= chol[a, k] * chol[b, k]
+                    if a == b:
+                        if not acc > 0.0:
+                            raise np.linalg.LinAlgError(
+                                "innovation covariance not positive definite"
+                            )
+                        chol[a, a] = np.sqrt(acc)
+                    else:
+                        chol[a, b] = acc / chol[b, b]
+            total = 0.0
+            for a in range(4):
+                acc = z[j, a] - pred[t, a]
+                for k in range(a):
+                    acc -= chol[a, k] * y[k]
+                y[a] = acc / chol[a, a]
+                total += y[a] * y[a]
+            out[t, j] = total
     return out
 
 
@@ -1120,9 +1110,25 @@ def _squared_distances(s, pred, z):
     out = np.empty((n, d))
     chol = np.zeros((4, 4))
     y = np.empty(4)
-    none = np.zeros(4)
     for t in range(n):
-        _cholesky4(s[t], none, chol)
+        for a in range(4):
+            for b in range(a + 1):
+                acc = s[t, a, b]
+                for k in range(b):
+                    acc -= chol[a, k] * chol[b, k]
+                if a == b:
+                    if not acc > 0.0:
+                        raise np.linalg.LinAlgError("innovation covariance not positive definite")
+                    chol[a, a] = np.sqrt(acc)
+                else:
+                    chol[a, b] = acc / chol[b, b]
         for j in range(d):
-            out[t, j] = _whitened_norm4(chol, z[j], pred[t], y)
+            total = 0.0
+            for a in range(4):
+                acc = z[j, a] - pred[t, a]
+                for k in range(a):
+                    acc -= chol[a, k] * y[k]
+                y[a] = acc / chol[a, a]
+                total += y[a] * y[a]
+            out[t, j] = total
     return out
