@@ -112,6 +112,7 @@ NETWORK_MODULES = frozenset(
     {
         "test_cluster",
         "test_driver",
+        "test_foxglove",
         "test_live_robots",
         "test_netns",
         "test_rejoin",

@@ -135,6 +135,15 @@ def _commands(w):
             "ros2",
             "publishing ROS 2 topics",
         ),
+        "agent --live --foxglove": (
+            ("foxglove",),
+            [
+                *("agent", "--team", team, "--robot", "0", "--out", f"{tmp}/fg"),
+                *("--live", "--odometry", "/robot_0/odom", "--foxglove", "0"),
+            ],
+            "foxglove",
+            "a Foxglove live view (--foxglove)",
+        ),
         "simulate --images": (
             ("cv2",),
             ["simulate", "--images", "--robots", "1", "--steps", "2", "--out", f"{tmp}/im"],
@@ -179,6 +188,7 @@ COMMANDS = [
     "data export-bag",
     "data import-bag",
     "agent --ros2",
+    "agent --live --foxglove",
     "simulate --images",
     "data from-images",
     "montecarlo --scheduler",

@@ -32,6 +32,7 @@ LAYERS: list[set[str]] = [
     {"runtime"},
     {"eval"},
     {"ros2"},
+    {"viz"},
     {"live"},
     {"api"},
     {"paper"},

@@ -3,7 +3,8 @@
 A run over a dataset in one process needs none of them. Robots as processes need the
 ``network`` extra (Zenoh; cryptography for a secured team), ROS 2 bags, MCAP and live topics
 the ``ros2`` extra (rosbags; xxhash for rmw_zenoh's ids), images the ``images`` extra (OpenCV),
-studies on a Dask cluster the ``cluster`` extra (dask.distributed).
+studies on a Dask cluster the ``cluster`` extra (dask.distributed), a live view for Foxglove the
+``foxglove`` extra (foxglove-sdk).
 Every import of those modules goes through :func:`require`: the module, or
 :class:`MissingExtra` — an :class:`~teamslam.errors.InputError`, so ``teamslam`` exits with
 status 2 — whose text says what needs which extra and how to install it.
@@ -24,6 +25,7 @@ EXTRAS = {
     "ros2": ("rosbags", "xxhash"),
     "images": ("cv2",),
     "cluster": ("dask", "distributed"),
+    "foxglove": ("foxglove",),
 }
 
 

@@ -259,7 +259,7 @@ def run(
             stage.discard()  # nothing left behind unless moved into place
 
 
-def require_extras(processes=False, secure=False, mcap=False, ros2=False) -> None:
+def require_extras(processes=False, secure=False, mcap=False, ros2=False, foxglove=False) -> None:
     """Check that the optional extras a workflow needs are installed, before it starts.
 
     Raises
@@ -276,6 +276,10 @@ def require_extras(processes=False, secure=False, mcap=False, ros2=False) -> Non
     if ros2:
         require("rosbags", "ros2", "publishing ROS 2 topics")
         require("xxhash", "ros2", "publishing ROS 2 topics")
+    if foxglove:
+        from teamslam.viz.foxglove import WHAT
+
+        require("foxglove", "foxglove", WHAT)
 
 
 def with_association(effective, dataset, association: str):
@@ -656,7 +660,8 @@ def run_robot(
     live
         Run on live topics (``teamslam agent --live``,
         :func:`~teamslam.live.run_live`): ``flags`` (overrides of the team file's
-        ``ros2.inputs``), ``frames``, ``idle_timeout_s``, ``budget_ms``.
+        ``ros2.inputs``), ``frames``, ``idle_timeout_s``, ``budget_ms``, ``foxglove``
+        (``(host, port)`` of a Foxglove view, the ``foxglove`` extra).
 
     Raises
     ------
@@ -681,7 +686,7 @@ def run_robot(
     if live is not None:
         from teamslam.live import run_live
 
-        require_extras(ros2=True)
+        require_extras(ros2=True, foxglove=live.get("foxglove") is not None)
         return run_live(
             team,
             robot,
@@ -691,6 +696,7 @@ def run_robot(
             frames=live.get("frames"),
             idle_timeout_s=live.get("idle_timeout_s", 5.0),
             budget_ms=live.get("budget_ms"),
+            foxglove=live.get("foxglove"),
             ros2_options={k: v for k, v in (ros2_options or {}).items() if k != "period"},
         )
     if not ros2 and team.ros2 is None:

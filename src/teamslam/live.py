@@ -449,6 +449,10 @@ class LiveRobot:
     publisher
         Optional; gets ``publish(t, poses[: t + 1], state)`` after every frame (e.g. a
         :class:`~teamslam.ros2.rmw_zenoh.Ros2Publisher`).
+    view
+        Optional :class:`~teamslam.viz.foxglove.FoxgloveView`, fed after every frame (after
+        the publisher, so outside the frame's latency): the estimates, and on image robots the
+        left image with the detector's boxes and their tracked ids.
     lost_after
         Silent frames after which a neighbour is reported lost.
     budget_ms
@@ -468,6 +472,7 @@ class LiveRobot:
         rig=None,
         transport: Transport | None = None,
         publisher=None,
+        view=None,
         lost_after: int = 3,
         budget_ms: float | None = None,
         say: Callable[[str], None] | None = None,
@@ -481,6 +486,8 @@ class LiveRobot:
         self.rig = rig
         self.transport = transport
         self.publisher = publisher
+        self.view = view
+        self._shown: tuple | None = None  # the frame's left image and boxes, for the view
         self.lost_after = lost_after
         self.budget_ms = budget_ms
         self.say = say or (lambda text: print(text, file=sys.stderr, flush=True))
@@ -752,6 +759,8 @@ class LiveRobot:
             _check_size(_decode(r.message, r.topic, r.stamp_ns), rig, r.topic, r.stamp_ns)
             for r in (left, right)
         ]
+        if self.view is not None:
+            self._shown = (images[0], None)
         motion = self._camera_motion(frame, rig)
         if self.inputs.detections is None:
             measured = self.frontend.process(*images, where=where, motion=motion)
@@ -764,6 +773,8 @@ class LiveRobot:
         from teamslam.datasets.images import _described
 
         given = self._given_boxes(boxes[0], frame.stamp_ns, rig)
+        if self.view is not None:
+            self._shown = (images[0], given)
         measured = self.frontend.process(*images, where=where, detections=given, motion=motion)
         described, looks = _described(measured.boxes, given, images[0], None)
         return (
@@ -924,6 +935,8 @@ class LiveRobot:
         if self.publisher is not None:
             self._publish(t)
         self.latency_ns.append(time.monotonic_ns() - frame.arrived_ns)
+        if self.view is not None:
+            self._show(t)
         self._budget("publish", time.perf_counter() - after_filter, t)
         self.step_seconds.append(time.perf_counter() - step_begin)
         return True
@@ -938,6 +951,38 @@ class LiveRobot:
         for k in range(publisher.stamps_ns.size, t):  # resumed: the frames done before
             publisher.stamp(k, int(stamps[k]))
         publisher.publish(t, poses, state, stamp_ns=int(stamps[t]))
+
+    def _show(self, t: int) -> None:
+        """Feed the view frame ``t``: the estimates, the latency, and the left image of an
+        image frame with the detector's boxes and the ids the tracker gave them."""
+        from teamslam.viz.foxglove import Boxes
+
+        agent = self.driver.agent
+        image, given = self._shown if self._shown is not None else (None, None)
+        self._shown = None
+        boxes = None
+        if given is not None:
+            ids = agent.detection_ids
+            if ids is None or len(ids) != len(given.boxes):  # not named this frame
+                ids = None
+            boxes = Boxes(given.boxes, ids, given.classes)
+        if self.view.T_cam_body is None and self.rig is not None:
+            self.view.T_cam_body = self.rig.T_cam_body
+        names = None
+        if self._classes is not None:
+            names = {label: name for name, label in self._classes.table.items()}
+        tracker = agent.tracker
+        self.view.publish(
+            t,
+            self.driver.poses[: t + 1],
+            agent.state,
+            stamp_ns=int(self.sequence.stamps_ns[t]),
+            image=image,
+            boxes=boxes,
+            labels_of=None if tracker is None else tracker.labels_of,
+            class_names=names,
+            latency_ms=self.latency_ns[-1] / 1e6,
+        )
 
     def _checkpoint(self, t: int) -> None:
         extra = self.sequence.snapshot()
@@ -1331,10 +1376,13 @@ def run_live(
     ros2_options: dict | None = None,
     publish: bool = True,
     transport: Transport | None = None,
+    foxglove: tuple[str, int] | None = None,
 ) -> dict:
     """``teamslam agent --live``: robot ``robot`` of ``team`` on its live topics until
     ``frames`` are done, the input ends (no message for ``idle_timeout_s`` and no publisher
     of its topics left) or Ctrl-C; its summary (the result is written as ``agent`` writes it).
+    With ``foxglove`` (``(host, port)``) a :class:`~teamslam.viz.foxglove.FoxgloveView`
+    serves the robot's estimates there while it runs.
 
     Raises
     ------
@@ -1366,7 +1414,13 @@ def run_live(
         transport = ZenohTransport(team, robot)
     publisher = None
     session = None
+    view = None
     try:
+        if foxglove is not None:
+            from teamslam.viz.foxglove import FoxgloveView
+
+            view = FoxgloveView(robot, *foxglove)
+            print(f"robot {robot}: Foxglove view at {view.url}", file=sys.stderr, flush=True)
         if publish:
             publisher = Ros2Publisher(
                 robot,
@@ -1387,6 +1441,7 @@ def run_live(
             rig=rig,
             transport=transport,
             publisher=publisher,
+            view=view,
             budget_ms=budget_ms,
         )
         if resume:
@@ -1415,5 +1470,7 @@ def run_live(
     finally:
         if publisher is not None:
             publisher.close()
+        if view is not None:
+            view.close()
         if session is not None:
             session.close()

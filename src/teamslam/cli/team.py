@@ -17,6 +17,7 @@ from teamslam.cli._common import (
     print_run,
     ros_domain_id,
 )
+from teamslam.errors import InputError
 
 __all__ = ["register"]
 
@@ -63,10 +64,11 @@ LIVE_FLAGS = {
 
 def _cmd_agent(args: argparse.Namespace) -> int:
     from teamslam import api
-    from teamslam.errors import InputError
 
     live_given = [
-        f for f in (*LIVE_FLAGS, "frames", "realtime_budget") if getattr(args, f) is not None
+        f
+        for f in (*LIVE_FLAGS, "frames", "realtime_budget", "foxglove")
+        if getattr(args, f) is not None
     ]
     if live_given and not args.live:
         raise InputError(f"--{live_given[0].replace('_', '-')} needs --live")
@@ -83,6 +85,7 @@ def _cmd_agent(args: argparse.Namespace) -> int:
             "frames": args.frames,
             "idle_timeout_s": args.idle_timeout,
             "budget_ms": args.realtime_budget,
+            "foxglove": args.foxglove,
         }
         if args.compressed:
             live["flags"]["compressed"] = True
@@ -102,6 +105,16 @@ def _cmd_agent(args: argparse.Namespace) -> int:
         shown["dropped"] = summary["live"]["dropped"]
     print(json.dumps(shown))
     return 0
+
+
+def foxglove_address(text: str) -> tuple[str, int]:
+    """An argparse type: ``[HOST:]PORT`` as ``(host, port)``, host loopback by default."""
+    from teamslam.viz.foxglove import parse_address
+
+    try:
+        return parse_address(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def register(sub) -> None:
@@ -198,6 +211,13 @@ def register(sub) -> None:
         default=5.0,
         help="end when no message came for this long and no publisher of the topics is left "
         "(default 5 s)",
+    )
+    live.add_argument(
+        "--foxglove",
+        type=foxglove_address,
+        metavar="[HOST:]PORT",
+        help="serve a live view over the Foxglove WebSocket protocol there (host default "
+        "127.0.0.1; the foxglove extra): pose, path, map, /tf, left image with boxes, latency",
     )
     live.add_argument(
         "--realtime-budget",

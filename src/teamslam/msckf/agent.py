@@ -137,6 +137,9 @@ class MsckfAgent:
         # detections without ids: the robot names its objects itself (tracking.py)
         self.tracker: ObjectTracker | None = None
         self._tracked: tuple[np.ndarray, np.ndarray] | None = None
+        #: with a tracker: the object id the tracker gave each detection of the last frame
+        #: (``-1``: none, as :class:`~teamslam.msckf.objects.tracking.TrackerFrame` ``ids``)
+        self.detection_ids: np.ndarray | None = None
         #: from where the cameras saw each object (:mod:`teamslam.msckf.filter.views`): recorded
         # each
         #: frame when a summary of the map needs it (association without shared ids, loop
@@ -531,6 +534,7 @@ class MsckfAgent:
             self.object_history[tid].extend(
                 (int(f), row) for f, row in zip(frames.tolist(), zs, strict=True)
             )
+        self.detection_ids = frame.ids
         out = (frame.ids >= 0) & finite  # a box named in the left image only: not for the filter
         self._tracked = (frame.ids[out], z[out])
         for name, value in self.tracker.counters.items():

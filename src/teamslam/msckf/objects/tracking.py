@@ -578,6 +578,14 @@ class ObjectTracker:
         pos = np.clip(np.searchsorted(self._label_ids, ids), 0, self._label_ids.size - 1)
         return np.where(self._label_ids[pos] == ids, self._labels[pos], -1)
 
+    def labels_of(self, ids: np.ndarray) -> np.ndarray:
+        """The class label the detections of each confirmed object id voted for (``-1``: none
+        known, e.g. an id of another robot or without labels)."""
+        ids = np.asarray(ids, np.int64)
+        if not self._label_ids.size:
+            return np.full(ids.shape, -1, np.int64)
+        return self._labels_of(ids)
+
     @property
     def n_tracks(self) -> int:
         """Tracks held (tentative and confirmed not yet in the state)."""

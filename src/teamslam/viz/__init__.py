@@ -1,0 +1,1 @@
+"""Live views of a robot's estimates for visualisation tools (the ``foxglove`` extra)."""
