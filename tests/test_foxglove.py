@@ -163,7 +163,7 @@ def test_a_client_receives_each_frames_pose_path_map_and_latency(observations_ba
         latency = client.wait_for(view.topics["latency"], frames)
         tf = client.wait_for("/tf", frames)
         maps = client.wait_for(view.topics["objects"], frames)
-        paths = client.wait_for(view.topics["path"], frames)
+        paths = client.wait_for(view.topics["path"], len(range(0, frames, view.path_every)))
     finally:
         client.close()
         view.close()
@@ -184,7 +184,12 @@ def test_a_client_receives_each_frames_pose_path_map_and_latency(observations_ba
                               estimate[t][:3, 3])  # fmt: skip
     assert [m["frame"] for _, m in latency] == list(range(frames))
     assert np.array_equal([m["latency_ms"] for _, m in latency], np.array(robot.latency_ns) / 1e6)
-    assert len(paths[-1][1].poses) == frames
+    # the path every path_every frames: the poses so far
+    assert view.path_every == 10 and len(paths) == 5
+    for k, (_, message) in enumerate(paths):
+        assert len(message.poses) == 10 * k + 1
+        assert np.array_equal([[p.position.x, p.position.y, p.position.z] for p in message.poses],
+                              estimate[: 10 * k + 1, :3, 3])  # fmt: skip
     # the last map message holds the robot's map: every object at its mean, by id
     ids, means, covs = robot.driver.agent.state.full_map()
     assert ids.size > 10

@@ -106,11 +106,11 @@ def _pose(fm, T: np.ndarray):
     return fm.Pose(position=position, orientation=orientation)
 
 
-def _colour(fm, index: int, alpha: float = 1.0):
+def _palette() -> np.ndarray:
+    """``(10, 3)`` the colours of matplotlib's ``tab10``, for ids and classes."""
     import matplotlib
 
-    r, g, b, _ = matplotlib.colormaps["tab10"](int(index) % 10)
-    return fm.Color(r=float(r), g=float(g), b=float(b), a=float(alpha))
+    return np.asarray(matplotlib.colormaps["tab10"].colors, float)
 
 
 class FoxgloveView:
@@ -126,7 +126,7 @@ class FoxgloveView:
         Stamp of every frame (integer nanoseconds) for a caller that gives none
         (``publish(t, poses, state)``, as a run over a dataset calls its publisher).
     path_every, objects_every
-        Frames between path and between map messages (each grows with the run).
+        Frames between path messages (the path grows with the run) and between map messages.
     n_sigma
         Size of the objects' ellipsoids.
     jpeg_quality
@@ -149,7 +149,7 @@ class FoxgloveView:
         port: int = 8765,
         stamps_ns: np.ndarray | None = None,
         *,
-        path_every: int = 1,
+        path_every: int = 10,
         objects_every: int = 1,
         n_sigma: float = 3.0,
         jpeg_quality: int = 80,
@@ -168,6 +168,7 @@ class FoxgloveView:
         self.n_sigma = float(n_sigma)
         self.jpeg_quality = int(jpeg_quality)
         self.T_cam_body = None if T_cam_body is None else np.asarray(T_cam_body, float)
+        self._palette = _palette()  # read now: matplotlib's import is not a frame's cost
         #: messages logged, by channel name (a message is built only for a subscribed channel)
         self.logged = dict.fromkeys(TOPICS, 0)
         self._shown: set[int] = set()  # object ids in the last map message
@@ -208,6 +209,10 @@ class FoxgloveView:
     def subscribed(self, name: str) -> bool:
         """Whether a client subscribes to channel ``name`` (a key of :data:`TOPICS`)."""
         return bool(self._channels[name].has_sinks())
+
+    def _colour(self, index: int, alpha: float = 1.0):
+        r, g, b = self._palette[int(index) % len(self._palette)]
+        return self._fm.Color(r=float(r), g=float(g), b=float(b), a=float(alpha))
 
     def _log(self, name: str, message, stamp_ns: int) -> None:
         self._channels[name].log(message, log_time=int(stamp_ns))
@@ -316,7 +321,7 @@ class FoxgloveView:
             name = class_names.get(int(label), str(int(label))) if label >= 0 else ""
             position = fm.Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
             orientation = fm.Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
-            colour = _colour(fm, label + 1 if label >= 0 else 7, 0.4)
+            colour = self._colour(label + 1 if label >= 0 else 7, 0.4)
             size = fm.Vector3(x=float(s[0]), y=float(s[1]), z=float(s[2]))
             metadata = [fm.KeyValuePair(key="id", value=str(int(oid)))]
             if name:
@@ -376,7 +381,7 @@ class FoxgloveView:
         outlines, texts = [], []
         grey = fm.Color(r=0.6, g=0.6, b=0.6, a=1.0)
         for (x0, y0, x1, y1), oid, label in zip(xyxy, ids, classes, strict=True):
-            colour = grey if oid < 0 else _colour(fm, int(oid))
+            colour = grey if oid < 0 else self._colour(int(oid))
             corners = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
             outlines.append(
                 fm.PointsAnnotation(
