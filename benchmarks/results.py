@@ -198,6 +198,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--runs lockstep:0.25 async:1 --markdown {GENERATED}/live-robots-images.md",
         f"{GENERATED}/live-robots-images.md",
     ),
+    "foxglove-view": (
+        "python benchmarks/foxglove_view.py --steps 150 --image-steps 60 --width 640 "
+        f"--markdown {GENERATED}/foxglove-view.md",
+        f"{GENERATED}/foxglove-view.md",
+    ),
     "live-robots-observations": (
         "python benchmarks/live_agents.py observations --robots 5 --steps 150 "
         f"--runs lockstep:1 async:1 async:10 --markdown {GENERATED}/live-robots-observations.md",
