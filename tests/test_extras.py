@@ -135,12 +135,9 @@ def _commands(w):
             "ros2",
             "publishing ROS 2 topics",
         ),
-        "agent --live --foxglove": (
+        "agent --foxglove": (
             ("foxglove",),
-            [
-                *("agent", "--team", team, "--robot", "0", "--out", f"{tmp}/fg"),
-                *("--live", "--odometry", "/robot_0/odom", "--foxglove", "0"),
-            ],
+            ["agent", "--team", team, "--robot", "0", "--out", f"{tmp}/fg", "--foxglove", "0"],
             "foxglove",
             "a Foxglove live view (--foxglove)",
         ),
@@ -188,7 +185,7 @@ COMMANDS = [
     "data export-bag",
     "data import-bag",
     "agent --ros2",
-    "agent --live --foxglove",
+    "agent --foxglove",
     "simulate --images",
     "data from-images",
     "montecarlo --scheduler",

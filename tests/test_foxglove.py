@@ -301,3 +301,74 @@ def test_a_taken_port_is_one_line_and_addresses_parse():
     assert parse_address("8765") == ("127.0.0.1", 8765)
     assert parse_address("0.0.0.0:9000") == ("0.0.0.0", 9000)
     assert parse_address("[::1]:9000") == ("::1", 9000)
+
+
+@pytest.fixture(scope="module")
+def one_robot(tmp_path_factory):
+    """A one-robot team file over a small simulated dataset (the robot talks to nobody)."""
+    import os
+
+    from teamslam.datasets import save_dataset
+    from teamslam.runtime.team_file import load_team_file, write_team_file
+    from teamslam.sim import lissajous_team
+
+    tmp = tmp_path_factory.mktemp("offline")
+    dataset = save_dataset(lissajous_team(robots=1, steps=30, seed=2), tmp / "team1")
+    port = 33400 + (os.getpid() % 100) * 4  # loopback, distinct per test process
+    path = write_team_file(tmp / "team.yaml", "view", dataset, np.zeros((1, 1), bool), port)
+    return path, load_team_file(path)
+
+
+def test_a_robot_over_a_dataset_feeds_the_view_as_its_publisher(one_robot, tmp_path):
+    from teamslam.datasets import load_dataset
+    from teamslam.eval.estimates import stamps_ns
+    from teamslam.msckf.consensus.transport import MemoryNetwork
+    from teamslam.runtime.agent_process import load_robot_result, run_agent
+
+    _, team = one_robot
+    dataset_path, _ = team.dataset_of(0)
+    sequence = load_dataset(dataset_path).robots[0]
+    view = FoxgloveView(0, "127.0.0.1", 0, stamps_ns(sequence.timestamps, sequence.frames, 1.0))
+    client = Client(view.url)
+    try:
+        client.subscribe([view.topics["pose"], view.topics["objects"]])
+        _wait_subscribed(view, ("pose", "objects"))
+        run_agent(
+            team, 0, tmp_path / "with", transport=MemoryNetwork(1).endpoint(0), publisher=view
+        )
+        poses = client.wait_for(view.topics["pose"], sequence.frames)
+        maps = client.wait_for(view.topics["objects"], sequence.frames)
+    finally:
+        client.close()
+        view.close()
+    run_agent(team, 0, tmp_path / "without", transport=MemoryNetwork(1).endpoint(0))
+    with_view, _ = load_robot_result(tmp_path / "with", 0)
+    without, _ = load_robot_result(tmp_path / "without", 0)
+    assert np.array_equal(with_view["poses"], without["poses"])
+    assert len(poses) == len(maps) == sequence.frames == 31
+    for t, (_, message) in enumerate(poses):
+        assert np.array_equal(_matrix(message.pose)[:3, 3], with_view["poses"][t][:3, 3])
+    assert len(maps[-1][1].entities) > 10
+
+
+def test_teamslam_agent_foxglove_says_where_and_runs_as_without(one_robot, tmp_path):
+    import subprocess
+    import sys
+
+    from teamslam.runtime.agent_process import load_robot_result
+
+    path, _ = one_robot
+    argv = [sys.executable, "-m", "teamslam", "agent", "--team", str(path), "--robot", "0"]
+    results = {}
+    for name, extra in (("with", ["--foxglove", "127.0.0.1:0"]), ("without", [])):
+        done = subprocess.run(
+            [*argv, "--out", str(tmp_path / name), *extra],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert done.returncode == 0, done.stderr
+        results[name] = load_robot_result(tmp_path / name, 0)[0]["poses"]
+        said = "robot 0: Foxglove view at ws://127.0.0.1:" in done.stderr
+        assert said == (name == "with"), done.stderr
+    assert np.array_equal(results["with"], results["without"])

@@ -412,7 +412,6 @@ def test_a_stage_over_the_realtime_budget_is_said_once_by_name(observations_bag,
     ("args", "message"),
     [
         (["--odometry", "/robot_0/odom"], "--odometry needs --live"),
-        (["--foxglove", "8765"], "--foxglove needs --live"),
         (["--live", "--foxglove", "localhost:http"], "expected [HOST:]PORT"),
         (["--live", "--foxglove", "70000"], "a port in 0..65535, got '70000'"),
         (["--live"], "give the odometry topic"),

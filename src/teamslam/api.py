@@ -36,6 +36,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -646,6 +647,7 @@ def run_robot(
     ros2: bool = False,
     ros2_options: dict | None = None,
     live: dict | None = None,
+    foxglove: tuple[str, int] | None = None,
 ) -> dict:
     """Run one robot of a team file in this process (``teamslam agent``); its summary.
 
@@ -660,8 +662,11 @@ def run_robot(
     live
         Run on live topics (``teamslam agent --live``,
         :func:`~teamslam.live.run_live`): ``flags`` (overrides of the team file's
-        ``ros2.inputs``), ``frames``, ``idle_timeout_s``, ``budget_ms``, ``foxglove``
-        (``(host, port)`` of a Foxglove view, the ``foxglove`` extra).
+        ``ros2.inputs``), ``frames``, ``idle_timeout_s``, ``budget_ms``.
+    foxglove
+        ``(host, port)``: serve the robot's estimates there over the Foxglove WebSocket
+        protocol while it runs (:class:`~teamslam.viz.foxglove.FoxgloveView`, the
+        ``foxglove`` extra; over a dataset: pose, path, map and ``/tf``).
 
     Raises
     ------
@@ -677,7 +682,10 @@ def run_robot(
     if not 0 <= robot < team.n:
         raise InputError(f"robot must lie in 0..{team.n - 1}, got {robot}")
     require_extras(
-        processes=True, secure=team.security is not None, ros2=ros2 or team.ros2 is not None
+        processes=True,
+        secure=team.security is not None,
+        ros2=ros2 or team.ros2 is not None,
+        foxglove=foxglove is not None,
     )
     if team.security is not None:
         from teamslam.runtime.security import check_credentials
@@ -686,7 +694,7 @@ def run_robot(
     if live is not None:
         from teamslam.live import run_live
 
-        require_extras(ros2=True, foxglove=live.get("foxglove") is not None)
+        require_extras(ros2=True)
         return run_live(
             team,
             robot,
@@ -696,30 +704,69 @@ def run_robot(
             frames=live.get("frames"),
             idle_timeout_s=live.get("idle_timeout_s", 5.0),
             budget_ms=live.get("budget_ms"),
-            foxglove=live.get("foxglove"),
+            foxglove=foxglove,
             ros2_options={k: v for k, v in (ros2_options or {}).items() if k != "period"},
         )
-    if not ros2 and team.ros2 is None:
-        return run_agent(team, robot, Path(out), resume=resume)
-    publisher = _ros2_publisher(team, robot, ros2_options or {})
+    publishers = _Publishers()
     try:
-        return run_agent(team, robot, Path(out), resume=resume, publisher=publisher)
+        if ros2 or team.ros2 is not None:
+            publishers.add(_ros2_publisher(team, robot, ros2_options or {}))
+        if foxglove is not None:
+            publishers.add(_foxglove_view(team, robot, foxglove, ros2_options or {}))
+        return run_agent(team, robot, Path(out), resume=resume, publisher=publishers.one_or_none())
     finally:
-        publisher.close()
+        publishers.close()
+
+
+class _Publishers:
+    """The publishers of a robot over a dataset, fed as one (``publish(t, poses, state)``)."""
+
+    def __init__(self) -> None:
+        self.publishers: list = []
+
+    def add(self, publisher) -> None:
+        self.publishers.append(publisher)
+
+    def one_or_none(self):
+        return self if self.publishers else None
+
+    def publish(self, t: int, poses, state) -> None:
+        for publisher in self.publishers:
+            publisher.publish(t, poses, state)
+
+    def close(self) -> None:
+        for publisher in self.publishers:
+            publisher.close()
+
+
+def _frame_stamps(team, robot: int, period: float | None):
+    from teamslam.datasets import load_dataset
+    from teamslam.eval.estimates import stamps_ns
+
+    dataset_path, index = team.dataset_of(robot)
+    sequence = load_dataset(dataset_path).robots[index]
+    return stamps_ns(sequence.timestamps, sequence.frames, period)
+
+
+def _foxglove_view(team, robot: int, address: tuple[str, int], options: dict):
+    from teamslam.ros2.rmw_zenoh import ros2_settings
+    from teamslam.viz.foxglove import FoxgloveView
+
+    section = {k: v for k, v in (team.ros2 or {}).items() if k != "inputs"}
+    period = ros2_settings(section, **options)["period"]
+    view = FoxgloveView(robot, *address, stamps_ns=_frame_stamps(team, robot, period))
+    print(f"robot {robot}: Foxglove view at {view.url}", file=sys.stderr, flush=True)
+    return view
 
 
 def _ros2_publisher(team, robot: int, options: dict):
-    from teamslam.datasets import load_dataset
-    from teamslam.eval.estimates import stamps_ns
     from teamslam.ros2.rmw_zenoh import Ros2Publisher, ros2_settings
 
     section = {k: v for k, v in (team.ros2 or {}).items() if k != "inputs"}  # live robots'
     settings = ros2_settings(section, **options)
-    dataset_path, index = team.dataset_of(robot)
-    sequence = load_dataset(dataset_path).robots[index]
     return Ros2Publisher(
         robot=robot,
-        stamps_ns=stamps_ns(sequence.timestamps, sequence.frames, settings["period"]),
+        stamps_ns=_frame_stamps(team, robot, settings["period"]),
         domain_id=settings["domain_id"],
         connect=settings["connect"],
         listen=settings["listen"],

@@ -66,9 +66,7 @@ def _cmd_agent(args: argparse.Namespace) -> int:
     from teamslam import api
 
     live_given = [
-        f
-        for f in (*LIVE_FLAGS, "frames", "realtime_budget", "foxglove")
-        if getattr(args, f) is not None
+        f for f in (*LIVE_FLAGS, "frames", "realtime_budget") if getattr(args, f) is not None
     ]
     if live_given and not args.live:
         raise InputError(f"--{live_given[0].replace('_', '-')} needs --live")
@@ -85,7 +83,6 @@ def _cmd_agent(args: argparse.Namespace) -> int:
             "frames": args.frames,
             "idle_timeout_s": args.idle_timeout,
             "budget_ms": args.realtime_budget,
-            "foxglove": args.foxglove,
         }
         if args.compressed:
             live["flags"]["compressed"] = True
@@ -97,6 +94,7 @@ def _cmd_agent(args: argparse.Namespace) -> int:
         ros2=args.ros2,
         ros2_options=options,
         live=live,
+        foxglove=args.foxglove,
     )
     keys = ("robot", "frames", "lost_neighbours")
     shown = {k: summary[k] for k in keys}
@@ -156,6 +154,14 @@ def register(sub) -> None:
         metavar="ENDPOINT",
         help="endpoint the ROS 2 session listens on (default tcp/localhost:0)",
     )
+    agent.add_argument(
+        "--foxglove",
+        type=foxglove_address,
+        metavar="[HOST:]PORT",
+        help="serve the robot's estimates over the Foxglove WebSocket protocol there while it "
+        "runs (host default 127.0.0.1; the foxglove extra): pose, path, map, /tf; live, also "
+        "the left image with the boxes and tracked ids, and the latency",
+    )
     live = agent.add_argument_group(
         "live inputs",
         "--live: frames from ROS 2 topics (rmw_zenoh layout) instead of the dataset; the "
@@ -211,13 +217,6 @@ def register(sub) -> None:
         default=5.0,
         help="end when no message came for this long and no publisher of the topics is left "
         "(default 5 s)",
-    )
-    live.add_argument(
-        "--foxglove",
-        type=foxglove_address,
-        metavar="[HOST:]PORT",
-        help="serve a live view over the Foxglove WebSocket protocol there (host default "
-        "127.0.0.1; the foxglove extra): pose, path, map, /tf, left image with boxes, latency",
     )
     live.add_argument(
         "--realtime-budget",
