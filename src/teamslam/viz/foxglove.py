@@ -106,6 +106,18 @@ def _pose(fm, T: np.ndarray):
     return fm.Pose(position=position, orientation=orientation)
 
 
+def _poses(fm, Ts: np.ndarray) -> list:
+    """The ``Pose`` of each of ``(n, 4, 4)`` poses (the rotations converted at once)."""
+    quats = Rotation.from_matrix(Ts[:, :3, :3]).as_quat() if len(Ts) else np.zeros((0, 4))
+    return [
+        fm.Pose(
+            position=fm.Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+            orientation=fm.Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
+        )
+        for p, q in zip(Ts[:, :3, 3].tolist(), quats.tolist(), strict=True)
+    ]
+
+
 def _palette() -> np.ndarray:
     """``(10, 3)`` the colours of matplotlib's ``tab10``, for ids and classes."""
     import matplotlib
@@ -269,7 +281,7 @@ class FoxgloveView:
         if self.subscribed("tf"):
             self._log("tf", self._transforms(when, T_world_body), stamp_ns)
         if self.subscribed("path") and frame % self.path_every == 0:
-            path = [_pose(fm, T) for T in np.asarray(poses[: frame + 1], float)]
+            path = _poses(fm, np.asarray(poses[: frame + 1], float))
             message = fm.PosesInFrame(timestamp=when, frame_id=self.world_frame, poses=path)
             self._log("path", message, stamp_ns)
         if self.subscribed("objects") and frame % self.objects_every == 0:
