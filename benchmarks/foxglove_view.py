@@ -11,8 +11,8 @@ process, as the tests feed them): robot 0 of a simulated team on its observation
 images with a simulated detector's boxes (the image front-end and the tracker run). After a
 run that warms up what is compiled on first use, each is run three times: without a view, with
 a :class:`~teamslam.viz.foxglove.FoxgloveView` no client connects to, and with one whose every
-channel one Foxglove WebSocket client (subprotocol
-``foxglove.sdk.v1``, on loopback, reading in a thread of its own) subscribes to. Per run: the
+channel one Foxglove WebSocket client (subprotocol ``foxglove.sdk.v1``, on loopback, in a
+process of its own as a viewer is) subscribes to. Per run: the
 median, 95th percentile and largest time of the view's ``publish`` per frame (in the robot's
 thread: what the filter waits for), the median time of the robot's frame (front-end to
 publication) for scale, the messages and bytes the client received, and whether the estimates
@@ -24,8 +24,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import subprocess
+import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -56,38 +57,41 @@ class TimedView(FoxgloveView):
         self.seconds.append(time.perf_counter() - begin)
 
 
-class CountingClient:
-    """A Foxglove WebSocket client subscribed to every channel; counts what it receives."""
+def count_messages(url: str, channels: int) -> None:
+    """The client's process: subscribe to every channel of the server at ``url``, count the
+    messages and bytes that arrive until the server closes, print them as JSON."""
+    from websockets.sync.client import connect
 
-    def __init__(self, url: str, channels: int) -> None:
-        from websockets.sync.client import connect
-
-        self._connection = connect(url, subprotocols=[SUBPROTOCOL], open_timeout=30)
-        self.ws = self._connection.__enter__()
+    messages = size = 0
+    with connect(url, subprotocols=[SUBPROTOCOL], open_timeout=30) as ws:
         advertised: dict[int, dict] = {}
         while len(advertised) < channels:
-            text = json.loads(self.ws.recv(timeout=30))
+            text = json.loads(ws.recv(timeout=30))
             if text["op"] == "advertise":
                 advertised.update({c["id"]: c for c in text["channels"]})
         subscriptions = [{"id": k + 1, "channelId": cid} for k, cid in enumerate(advertised)]
-        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
-        self.messages = 0
-        self.bytes = 0
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
         try:
-            for frame in self.ws:
-                if isinstance(frame, bytes) and frame[0] == 0x01:
-                    self.messages += 1
-                    self.bytes += len(frame) - 13
-        except Exception:  # the connection closed
-            return
+            for frame in ws:
+                if isinstance(frame, bytes) and frame[0] == 0x01:  # message data
+                    messages += 1
+                    size += len(frame) - 13
+        except Exception:  # the server went away
+            pass
+    print(json.dumps({"messages": messages, "bytes": size}), flush=True)
 
-    def close(self) -> None:
-        self._connection.__exit__(None, None, None)
-        self._reader.join(30)
+
+class CountingClient:
+    """A Foxglove WebSocket client in a process of its own (as a viewer is), subscribed to
+    every channel; what it counted once the server closes."""
+
+    def __init__(self, url: str, channels: int) -> None:
+        argv = [sys.executable, __file__, "--client", url, "--channels", str(channels)]
+        self.process = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+
+    def counts(self) -> dict:
+        out, _ = self.process.communicate(timeout=60)
+        return json.loads(out.strip().splitlines()[-1])
 
 
 def bag_messages(bag: Path, topics: set[str]) -> list:
@@ -167,7 +171,7 @@ def run(case, out: Path, view_mode: str) -> dict:
         checkpoint_every=0,
     )  # fmt: skip
     view = None if view_mode == "none" else TimedView(0, "127.0.0.1", 0)
-    client = None
+    client = counts = None
     try:
         if view_mode == "client":
             client = CountingClient(view.url, len(view.topics))
@@ -184,18 +188,18 @@ def run(case, out: Path, view_mode: str) -> dict:
         if client is not None:  # what is under way arrives
             time.sleep(1.0)
     finally:
-        if client is not None:
-            client.close()
         if view is not None:
             view.close()
+        if client is not None:
+            counts = client.counts()
     frames = robot.sequence.frames
     return {
         "frames": frames,
         "poses": robot.driver.poses[:frames].copy(),
         "view_ms": None if view is None else np.asarray(view.seconds) * 1e3,
         "frame_ms": np.asarray(robot.step_seconds) * 1e3,
-        "messages": None if client is None else client.messages,
-        "bytes": None if client is None else client.bytes,
+        "messages": None if counts is None else counts["messages"],
+        "bytes": None if counts is None else counts["bytes"],
     }
 
 
@@ -204,8 +208,13 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=150, help="frames of the observations robot")
     parser.add_argument("--image-steps", type=int, default=60, help="frames of the image robot")
     parser.add_argument("--width", type=int, default=640, help="image width, pixels")
+    parser.add_argument("--client", metavar="URL", help=argparse.SUPPRESS)
+    parser.add_argument("--channels", type=int, help=argparse.SUPPRESS)
     add_option(parser)
     args = parser.parse_args()
+    if args.client:  # the client's own process
+        count_messages(args.client, args.channels)
+        return
     md = Markdown(args.markdown)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
