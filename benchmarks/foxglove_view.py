@@ -12,11 +12,11 @@ images with a simulated detector's boxes (the image front-end and the tracker ru
 run that warms up what is compiled on first use, each is run three times: without a view, with
 a :class:`~teamslam.viz.foxglove.FoxgloveView` no client connects to, and with one whose every
 channel one Foxglove WebSocket client (subprotocol ``foxglove.sdk.v1``, on loopback, in a
-process of its own as a viewer is) subscribes to. Per run: the
-median, 95th percentile and largest time of the view's ``publish`` per frame (in the robot's
-thread: what the filter waits for), the median time of the robot's frame (front-end to
-publication) for scale, the messages and bytes the client received, and whether the estimates
-equal those of the run without a view (they must, bit for bit).
+process of its own as a viewer is) subscribes to. Per run: the median, 95th percentile and
+largest time of the view's ``publish`` per frame (in the robot's thread: what the filter waits
+for), the median of the robot's step after its front-end (consensus, filter, publication and
+the view: ``LiveRobot.step_seconds``) for scale, the messages and bytes the client received,
+and whether the estimates equal those of the run without a view (they must, bit for bit).
 """
 
 from __future__ import annotations
@@ -197,7 +197,7 @@ def run(case, out: Path, view_mode: str) -> dict:
         "frames": frames,
         "poses": robot.driver.poses[:frames].copy(),
         "view_ms": None if view is None else np.asarray(view.seconds) * 1e3,
-        "frame_ms": np.asarray(robot.step_seconds) * 1e3,
+        "step_ms": np.asarray(robot.step_seconds) * 1e3,
         "messages": None if counts is None else counts["messages"],
         "bytes": None if counts is None else counts["bytes"],
     }
@@ -233,12 +233,13 @@ def main() -> None:
                 "view p50 ms",
                 "view p95 ms",
                 "view max ms",
-                "frame p50 ms",
+                "step p50 ms",
                 "messages received",
                 "MB received",
                 "estimates as without a view",
             ],
-            "frame: the robot's step (front-end, filter, publication), for scale; a client "
+            "step: the robot's step after its front-end (consensus, filter, publication, the "
+            "view), for scale; a client "
             "subscribes to every channel (pose, path, map, /tf, image, boxes, latency).",
         )
         for name, case in cases.items():
@@ -258,7 +259,7 @@ def main() -> None:
                     mode,
                     str(r["frames"]),
                     *cells,
-                    f"{np.median(r['frame_ms']):.1f}",
+                    f"{np.median(r['step_ms']):.1f}",
                     "–" if r["messages"] is None else str(r["messages"]),
                     "–" if r["bytes"] is None else f"{r['bytes'] / 1e6:.2f}",
                     "yes" if same else "NO",

@@ -722,6 +722,7 @@ class LiveRobot:
         appearance, sizes)``, else ``None``."""
         from teamslam.ros2 import messages as m
 
+        self._shown = None  # this frame's image, once read
         empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
         no_boxes = None
         if self.inputs.detections is not None:
