@@ -26,6 +26,9 @@ from teamslam.association.appearance import (
     chance_tail,
     cosine_distances,
     link_model,
+    rare_triples,
+    rarity,
+    unit_rows,
 )
 from teamslam.association.candidates import (
     appearance_candidates,
@@ -188,17 +191,49 @@ def _associate(
     model = None
     if a.appearance is not None and b.appearance is not None:
         model = link_model(a, b, held, settings.consistency_probability)
-    if model is None or not model.informative:
+    if model is None:
         return _by_position(a, b, settings)
+    if model.informative:
+        return _with_appearance(a, b, settings, model)
+    # no sample yet of how the same object looks (a link's first answer): a resemblance
+    # counts by how rarely different objects show it, when it can be rare enough at all
+    rare = rarity(model)
+    if not rare_triples(rare, max(len(a), len(b)), settings.consistency_probability):
+        return _by_position(a, b, settings)
+    result = _with_appearance(a, b, settings, rare, likelihood=False)
+    if not result.matched:
+        return result
+    # the answer's pairs alike beyond chance on their own are the link's first samples of the
+    # same object: with them the likelihood ratio is learned, and the answer is the one it
+    # gives (its veto included: a pair gathered by position that looks nothing alike goes)
+    rows = np.searchsorted(a.ids, result.pairs[:, 0])
+    cols = np.searchsorted(b.ids, result.pairs[:, 1])
+    d = np.einsum("pd,pd->p", unit_rows(a.appearance[rows]), unit_rows(b.appearance[cols]))
+    alike = beyond_chance(
+        rare, rare.log_ratio(1.0 - d), max(len(a), len(b)), settings.consistency_probability
+    )
+    model = link_model(a, b, result.pairs[alike], settings.consistency_probability)
+    if not model.informative:
+        return result
     return _with_appearance(a, b, settings, model)
 
 
 def _with_appearance(
-    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+    a: ObjectSummary,
+    b: ObjectSummary,
+    settings: AssociationSettings,
+    model,
+    likelihood: bool = True,
 ) -> AssociationResult:
-    """The association with an informative appearance model: the same stages with candidates
-    by appearance too, down to three pairs, and an answer of fewer than ``min_inliers`` pairs
-    held to the chance look-alike bound (:func:`~teamslam.association.appearance.chance_tail`)."""
+    """The association with appearance evidence: the same stages with candidates by
+    appearance too, down to three pairs, and an answer of fewer than ``min_inliers`` pairs held
+    to the chance look-alike bound (:func:`~teamslam.association.appearance.chance_tail`).
+
+    ``likelihood``: ``model`` is the link's informative likelihood ratio, which also vetoes
+    pairs that look different and weighs the assignment. Otherwise it is a rarity
+    (:func:`~teamslam.association.appearance.rarity`): it draws candidates, exempts pairs
+    alike beyond chance from the separation test and bounds a small answer, and nothing else.
+    """
     relaxed = replace(settings, min_inliers=3)
     if len(a) < 3 or len(b) < 3:
         return _no_answer(a, b, "too-few")
@@ -209,7 +244,7 @@ def _with_appearance(
     llr[:, ~known_b] = 0.0
     # a pair that looks different at the gate's odds is no candidate and no answer
     veto = np.log1p(-settings.gate_probability) - np.log(settings.gate_probability)
-    allowed = llr >= veto
+    allowed = llr >= veto if likelihood else np.ones(llr.shape, dtype=bool)
     if a.classes is not None and b.classes is not None:
         allowed &= a.classes[:, None] == b.classes[None, :]
     geo_a = pair_distances(a.means, a.covs)
@@ -227,14 +262,19 @@ def _with_appearance(
     # the assignment and the distinctness test weigh a pair by −2 log of its full likelihood
     # ratio: the Mahalanobis distance and −2 ℓ (shifted to ≥ 0: a constant changes neither
     # the assignment nor a difference of costs)
-    looks = -2.0 * llr
-    looks -= looks.min(initial=0.0)
+    looks = None
+    if likelihood:
+        looks = -2.0 * llr
+        looks -= looks.min(initial=0.0)
     # a pair alike beyond chance on its own is no neighbour of its object taken for it: the
     # separation test does not apply to it
     told = beyond_chance(model, llr, max(len(a), len(b)), settings.consistency_probability) & (
         known_a[:, None] & known_b[None, :]
     )
-    result = _from_candidates(a, b, ia, ib, members, geo_a, geo_b, relaxed, looks, told)
+    # a rival's pair that looks more like two different objects than one is no alternative
+    # to the answer's: only the rival's pairs that look alike (or cannot be compared) count
+    plausible = ((llr > 0) | unknown) if likelihood else None
+    result = _from_candidates(a, b, ia, ib, members, geo_a, geo_b, relaxed, looks, told, plausible)
     if not result.matched:
         return result
     rows = np.searchsorted(a.ids, result.pairs[:, 0])
@@ -298,10 +338,12 @@ def _from_candidates(
     settings: AssociationSettings,
     looks: np.ndarray | None = None,
     told: np.ndarray | None = None,
+    plausible: np.ndarray | None = None,
 ) -> AssociationResult:
     """The stages after the candidates: consistent sets, their transforms and gates, the
     answer (``looks``: the appearance term of every pair's assignment cost, or ``None``;
-    ``told``: the pairs exempt from the separation test, or ``None``)."""
+    ``told``: the pairs exempt from the separation test, or ``None``; ``plausible``: the
+    pairs a rival may count, or ``None`` for all)."""
     need = settings.min_inliers
     graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
     # the largest consistent sets, one after another: each next one among the candidates that
@@ -360,7 +402,7 @@ def _from_candidates(
     counts["rival"] = max(
         (
             sum(
-                (r, c) not in held
+                (r, c) not in held and (plausible is None or plausible[r, c])
                 for r, c in zip(
                     *(p.tolist() for p in (framed[k] if by_frame else other[:2])), strict=True
                 )
