@@ -38,7 +38,7 @@ from teamslam.association.candidates import (
 from teamslam.association.clique import maximum_clique
 from teamslam.association.consistency import consistency_graph, consistent_members
 from teamslam.association.distances import pair_distances
-from teamslam.association.gate import in_frame, separated, support, told_apart_by_frame
+from teamslam.association.gate import crowd, in_frame, separated, support, told_apart_by_frame
 from teamslam.association.mirror import flipped
 from teamslam.association.seeds import seed_sets
 from teamslam.association.settings import AssociationSettings
@@ -266,11 +266,16 @@ def _with_appearance(
     if likelihood:
         looks = -2.0 * llr
         looks -= looks.min(initial=0.0)
-    # a pair alike beyond chance on its own is no neighbour of its object taken for it: the
-    # separation test does not apply to it
-    told = beyond_chance(model, llr, max(len(a), len(b)), settings.consistency_probability) & (
-        known_a[:, None] & known_b[None, :]
-    )
+
+    # a pair alike beyond what chance look-alikes among the neighbours its gate holds give is
+    # no neighbour of its object taken for it: the separation test does not apply to it
+    def told(rows: np.ndarray, cols: np.ndarray, near: np.ndarray) -> np.ndarray:
+        out = known_a[rows] & known_b[cols]
+        for k in np.flatnonzero(out):
+            tail = chance_tail(model, float(llr[rows[k], cols[k]]), 1, 1 + int(near[k]))
+            out[k] = tail <= 1.0 - settings.consistency_probability
+        return out
+
     # a rival's pair that looks more like two different objects than one is no alternative
     # to the answer's: only the rival's pairs that look alike (or cannot be compared) count
     plausible = ((llr > 0) | unknown) if likelihood else None
@@ -337,12 +342,13 @@ def _from_candidates(
     geo_b: tuple[np.ndarray, np.ndarray],
     settings: AssociationSettings,
     looks: np.ndarray | None = None,
-    told: np.ndarray | None = None,
+    told=None,
     plausible: np.ndarray | None = None,
 ) -> AssociationResult:
     """The stages after the candidates: consistent sets, their transforms and gates, the
     answer (``looks``: the appearance term of every pair's assignment cost, or ``None``;
-    ``told``: the pairs exempt from the separation test, or ``None``; ``plausible``: the
+    ``told``: which pairs ``(rows, cols)`` with ``near`` objects within their gates are
+    exempt from the separation test, or ``None``; ``plausible``: the
     pairs a rival may count, or ``None`` for all)."""
     need = settings.min_inliers
     graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
@@ -416,9 +422,12 @@ def _from_candidates(
         return _no_answer(a, b, "ambiguous", exact=exact, **counts)
     # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
     # left must still be an answer
-    ok = separated(a, b, t, a.means[rows], b.means[cols], rows, cols, settings)
-    if told is not None:
-        ok |= told[rows, cols]
+    anchors = (a.means[rows], b.means[cols])
+    ok = separated(a, b, t, *anchors, rows, cols, settings)
+    if told is not None and not ok.all():
+        loose = np.flatnonzero(~ok)
+        near = crowd(a, b, t, *anchors, rows[loose], cols[loose], settings)
+        ok[loose] = told(rows[loose], cols[loose], near)
     if np.count_nonzero(ok) < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
     rows, cols = rows[ok], cols[ok]
