@@ -194,7 +194,12 @@ def _associate(
     if model is None:
         return _by_position(a, b, settings)
     if model.informative:
-        return _with_appearance(a, b, settings, model)
+        result = _with_appearance(a, b, settings, model)
+        if result.matched:
+            return result
+        # appearance weighs the sets by position too; what position alone answers stands,
+        # without the pairs that look different at the gate's odds
+        return _unless_vetoed(a, b, _by_position(a, b, settings), model, settings)
     # no sample yet of how the same object looks (a link's first answer): a resemblance
     # counts by how rarely different objects show it, when it can be rare enough at all
     rare = rarity(model)
@@ -202,7 +207,9 @@ def _associate(
         return _by_position(a, b, settings)
     result = _with_appearance(a, b, settings, rare, likelihood=False)
     if not result.matched:
-        return result
+        # rarity only adds evidence for a set, never against one: what position alone answers
+        # stands (with three pairs allowed its rival test is stricter than position's)
+        return _by_position(a, b, settings)
     # the answer's pairs alike beyond chance on their own are the link's first samples of the
     # same object: with them the likelihood ratio is learned, and the answer is the one it
     # gives (its veto included: a pair gathered by position that looks nothing alike goes)
@@ -215,7 +222,29 @@ def _associate(
     model = link_model(a, b, result.pairs[alike], settings.consistency_probability)
     if not model.informative:
         return result
-    return _with_appearance(a, b, settings, model)
+    learned = _with_appearance(a, b, settings, model)
+    return learned if learned.matched else _unless_vetoed(a, b, result, model, settings)
+
+
+def _unless_vetoed(
+    a: ObjectSummary, b: ObjectSummary, result: AssociationResult, model, settings
+) -> AssociationResult:
+    """``result`` without its pairs that look different at the gate's odds under the learned
+    ``model``; no answer when that leaves fewer than it needed (``min_inliers``, or all of a
+    smaller answer's pairs, whose bound held for them together)."""
+    if not result.matched:
+        return result
+    rows = np.searchsorted(a.ids, result.pairs[:, 0])
+    cols = np.searchsorted(b.ids, result.pairs[:, 1])
+    la, lb = a.appearance[rows], b.appearance[cols]
+    unknown = ~np.any(la != 0, axis=1) | ~np.any(lb != 0, axis=1)
+    d = 1.0 - np.einsum("pd,pd->p", unit_rows(la), unit_rows(lb))
+    veto = np.log1p(-settings.gate_probability) - np.log(settings.gate_probability)
+    ok = unknown | (model.log_ratio(np.clip(d, 0.0, 2.0)) >= veto)
+    need = min(settings.min_inliers, len(result.pairs))
+    if np.count_nonzero(ok) < need:
+        return _no_answer(a, b, "too-few", **_counts(result))
+    return replace(result, pairs=result.pairs[ok])
 
 
 def _with_appearance(
