@@ -9,8 +9,12 @@ mirror`) and the seeds (:mod:`~teamslam.association.seeds`) — give an answer o
 carry appearance and the link's learned appearance model is informative
 (:mod:`~teamslam.association.appearance`), candidates are also drawn by appearance and class, pairs
 that look different at the gate's odds are vetoed, and an answer may hold as few as three pairs
-if their appearance is beyond what chance look-alikes give at ``consistency_probability``; without
-appearance, or with appearance that separates nothing, the rules are exactly those above. The
+if their appearance is beyond what chance look-alikes give at ``consistency_probability``. Before
+the model is informative (no sample yet of the same object) the same bound holds for the rarity
+of the resemblance among different objects (:func:`~teamslam.association.appearance.rarity`),
+and the answer's pairs then teach the model. What position alone answers stands when appearance
+gives no answer, without vetoed pairs. Without appearance, or with appearance that separates
+nothing, the rules are exactly those above. The
 result is a deterministic function of the two summaries in a canonical order (the smaller robot
 id first, objects by id, ties by index), so both ends of a link hold the same correspondences.
 """
