@@ -313,3 +313,41 @@ def test_a_team_with_appearance_holds_right_pairs_mirrored_at_both_ends():
     assert all(link["ends_agree"] for link in looks["links"].values())
     sent = {k: m["team"]["summary_bytes_per_robot_step"] for k, m in metrics.items()}
     assert sent["none"] < sent["looks"] < 2 * sent["none"]
+
+
+def _first_contact(summary: ObjectSummary) -> ObjectSummary:
+    """The summary as on a link's first exchange with no sample yet of how one object looks
+    to two robots (no held pair, no same-object histogram)."""
+    return replace(summary, same_counts=None)
+
+
+def test_a_first_answer_from_three_rare_resemblances():
+    """Before a link knows how the same object looks, three consistent pairs whose
+    resemblance different objects of either map never reach are an answer: the rarity of a
+    resemblance among different objects is the evidence, bounded against chance look-alikes."""
+    a, b, truth = _maps(seed=1, types=None, shared_geometry=True, shared_objects=True)
+    a, b = _first_contact(a), _first_contact(b)
+    settings = AssociationSettings()
+    assert not link_model(a, b, None, settings.consistency_probability).informative
+    assert not associate(_without(a), _without(b), settings).matched
+    result = associate(a, b, settings)
+    assert result.matched, result.status
+    np.testing.assert_array_equal(result.pairs, truth)
+    np.testing.assert_array_equal(associate(b, a, settings).pairs, truth[:, ::-1])
+
+
+def test_a_first_contact_refuses_a_chance_triangle_of_lookalikes(monkeypatch):
+    """Unrelated places whose objects come in three look-alike types, with no sample of the
+    same object yet: a congruent triangle of matching types is no answer (look-alikes are
+    common among different objects: the resemblance is not rare), and neither is one among
+    descriptors that are all equal. It is the chance bound that refuses the first."""
+    a, b, _ = _maps(seed=2, types=3, shared_geometry=True, shared_objects=False)
+    a, b = _first_contact(a), _first_contact(b)
+    result = associate(a, b)
+    assert not result.matched and result.pairs.size == 0
+    equal = [replace(s, appearance=np.ones_like(s.appearance)) for s in (a, b)]
+    assert not associate(*equal).matched
+    monkeypatch.setattr("teamslam.association.answer.chance_tail", lambda *args: 0.0)
+    monkeypatch.setattr("teamslam.association.appearance.chance_tail", lambda *args: 0.0)
+    wrong = associate(a, b)
+    assert wrong.matched and len(wrong.pairs) == 3

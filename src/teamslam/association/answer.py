@@ -9,8 +9,12 @@ mirror`) and the seeds (:mod:`~teamslam.association.seeds`) — give an answer o
 carry appearance and the link's learned appearance model is informative
 (:mod:`~teamslam.association.appearance`), candidates are also drawn by appearance and class, pairs
 that look different at the gate's odds are vetoed, and an answer may hold as few as three pairs
-if their appearance is beyond what chance look-alikes give at ``consistency_probability``; without
-appearance, or with appearance that separates nothing, the rules are exactly those above. The
+if their appearance is beyond what chance look-alikes give at ``consistency_probability``. Before
+the model is informative (no sample yet of the same object) the same bound holds for the rarity
+of the resemblance among different objects (:func:`~teamslam.association.appearance.rarity`),
+and the answer's pairs then teach the model. What position alone answers stands when appearance
+gives no answer, without vetoed pairs. Without appearance, or with appearance that separates
+nothing, the rules are exactly those above. The
 result is a deterministic function of the two summaries in a canonical order (the smaller robot
 id first, objects by id, ties by index), so both ends of a link hold the same correspondences.
 """
@@ -26,6 +30,9 @@ from teamslam.association.appearance import (
     chance_tail,
     cosine_distances,
     link_model,
+    rare_triples,
+    rarity,
+    unit_rows,
 )
 from teamslam.association.candidates import (
     appearance_candidates,
@@ -35,7 +42,7 @@ from teamslam.association.candidates import (
 from teamslam.association.clique import maximum_clique
 from teamslam.association.consistency import consistency_graph, consistent_members
 from teamslam.association.distances import pair_distances
-from teamslam.association.gate import in_frame, separated, support, told_apart_by_frame
+from teamslam.association.gate import crowd, in_frame, separated, support, told_apart_by_frame
 from teamslam.association.mirror import flipped
 from teamslam.association.seeds import seed_sets
 from teamslam.association.settings import AssociationSettings
@@ -188,17 +195,78 @@ def _associate(
     model = None
     if a.appearance is not None and b.appearance is not None:
         model = link_model(a, b, held, settings.consistency_probability)
-    if model is None or not model.informative:
+    if model is None:
         return _by_position(a, b, settings)
-    return _with_appearance(a, b, settings, model)
+    if model.informative:
+        result = _with_appearance(a, b, settings, model)
+        if result.matched:
+            return result
+        # appearance weighs the sets by position too; what position alone answers stands,
+        # without the pairs that look different at the gate's odds
+        return _unless_vetoed(a, b, _by_position(a, b, settings), model, settings)
+    # no sample yet of how the same object looks (a link's first answer): a resemblance
+    # counts by how rarely different objects show it, when it can be rare enough at all
+    rare = rarity(model)
+    if not rare_triples(rare, max(len(a), len(b)), settings.consistency_probability):
+        return _by_position(a, b, settings)
+    result = _with_appearance(a, b, settings, rare, likelihood=False)
+    if not result.matched:
+        # rarity only adds evidence for a set, never against one: what position alone answers
+        # stands (with three pairs allowed its rival test is stricter than position's)
+        return _by_position(a, b, settings)
+    # the answer's pairs alike beyond chance on their own are the link's first samples of the
+    # same object: with them the likelihood ratio is learned, and the answer is the one it
+    # gives (its veto included: a pair gathered by position that looks nothing alike goes)
+    rows = np.searchsorted(a.ids, result.pairs[:, 0])
+    cols = np.searchsorted(b.ids, result.pairs[:, 1])
+    d = np.einsum("pd,pd->p", unit_rows(a.appearance[rows]), unit_rows(b.appearance[cols]))
+    alike = beyond_chance(
+        rare, rare.log_ratio(1.0 - d), max(len(a), len(b)), settings.consistency_probability
+    )
+    model = link_model(a, b, result.pairs[alike], settings.consistency_probability)
+    if not model.informative:
+        return result
+    learned = _with_appearance(a, b, settings, model)
+    return learned if learned.matched else _unless_vetoed(a, b, result, model, settings)
+
+
+def _unless_vetoed(
+    a: ObjectSummary, b: ObjectSummary, result: AssociationResult, model, settings
+) -> AssociationResult:
+    """``result`` without its pairs that look different at the gate's odds under the learned
+    ``model``; no answer when that leaves fewer than it needed (``min_inliers``, or all of a
+    smaller answer's pairs, whose bound held for them together)."""
+    if not result.matched:
+        return result
+    rows = np.searchsorted(a.ids, result.pairs[:, 0])
+    cols = np.searchsorted(b.ids, result.pairs[:, 1])
+    la, lb = a.appearance[rows], b.appearance[cols]
+    unknown = ~np.any(la != 0, axis=1) | ~np.any(lb != 0, axis=1)
+    d = 1.0 - np.einsum("pd,pd->p", unit_rows(la), unit_rows(lb))
+    veto = np.log1p(-settings.gate_probability) - np.log(settings.gate_probability)
+    ok = unknown | (model.log_ratio(np.clip(d, 0.0, 2.0)) >= veto)
+    need = min(settings.min_inliers, len(result.pairs))
+    if np.count_nonzero(ok) < need:
+        return _no_answer(a, b, "too-few", **_counts(result))
+    return replace(result, pairs=result.pairs[ok])
 
 
 def _with_appearance(
-    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+    a: ObjectSummary,
+    b: ObjectSummary,
+    settings: AssociationSettings,
+    model,
+    likelihood: bool = True,
 ) -> AssociationResult:
-    """The association with an informative appearance model: the same stages with candidates
-    by appearance too, down to three pairs, and an answer of fewer than ``min_inliers`` pairs
-    held to the chance look-alike bound (:func:`~teamslam.association.appearance.chance_tail`)."""
+    """The association with appearance evidence: the same stages with candidates by
+    appearance too, down to three pairs, and an answer of fewer than ``min_inliers`` pairs held
+    to the chance look-alike bound (:func:`~teamslam.association.appearance.chance_tail`).
+
+    ``likelihood``: ``model`` is the link's informative likelihood ratio, which also vetoes
+    pairs that look different and weighs the assignment. Otherwise it is a rarity
+    (:func:`~teamslam.association.appearance.rarity`): it draws candidates, exempts pairs
+    alike beyond chance from the separation test and bounds a small answer, and nothing else.
+    """
     relaxed = replace(settings, min_inliers=3)
     if len(a) < 3 or len(b) < 3:
         return _no_answer(a, b, "too-few")
@@ -209,7 +277,7 @@ def _with_appearance(
     llr[:, ~known_b] = 0.0
     # a pair that looks different at the gate's odds is no candidate and no answer
     veto = np.log1p(-settings.gate_probability) - np.log(settings.gate_probability)
-    allowed = llr >= veto
+    allowed = llr >= veto if likelihood else np.ones(llr.shape, dtype=bool)
     if a.classes is not None and b.classes is not None:
         allowed &= a.classes[:, None] == b.classes[None, :]
     geo_a = pair_distances(a.means, a.covs)
@@ -227,14 +295,24 @@ def _with_appearance(
     # the assignment and the distinctness test weigh a pair by −2 log of its full likelihood
     # ratio: the Mahalanobis distance and −2 ℓ (shifted to ≥ 0: a constant changes neither
     # the assignment nor a difference of costs)
-    looks = -2.0 * llr
-    looks -= looks.min(initial=0.0)
-    # a pair alike beyond chance on its own is no neighbour of its object taken for it: the
-    # separation test does not apply to it
-    told = beyond_chance(model, llr, max(len(a), len(b)), settings.consistency_probability) & (
-        known_a[:, None] & known_b[None, :]
-    )
-    result = _from_candidates(a, b, ia, ib, members, geo_a, geo_b, relaxed, looks, told)
+    looks = None
+    if likelihood:
+        looks = -2.0 * llr
+        looks -= looks.min(initial=0.0)
+
+    # a pair alike beyond what chance look-alikes among the neighbours its gate holds give is
+    # no neighbour of its object taken for it: the separation test does not apply to it
+    def told(rows: np.ndarray, cols: np.ndarray, near: np.ndarray) -> np.ndarray:
+        out = known_a[rows] & known_b[cols]
+        for k in np.flatnonzero(out):
+            tail = chance_tail(model, float(llr[rows[k], cols[k]]), 1, 1 + int(near[k]))
+            out[k] = tail <= 1.0 - settings.consistency_probability
+        return out
+
+    # a rival's pair that looks more like two different objects than one is no alternative
+    # to the answer's: only the rival's pairs that look alike (or cannot be compared) count
+    plausible = ((llr > 0) | unknown) if likelihood else None
+    result = _from_candidates(a, b, ia, ib, members, geo_a, geo_b, relaxed, looks, told, plausible)
     if not result.matched:
         return result
     rows = np.searchsorted(a.ids, result.pairs[:, 0])
@@ -297,11 +375,14 @@ def _from_candidates(
     geo_b: tuple[np.ndarray, np.ndarray],
     settings: AssociationSettings,
     looks: np.ndarray | None = None,
-    told: np.ndarray | None = None,
+    told=None,
+    plausible: np.ndarray | None = None,
 ) -> AssociationResult:
     """The stages after the candidates: consistent sets, their transforms and gates, the
     answer (``looks``: the appearance term of every pair's assignment cost, or ``None``;
-    ``told``: the pairs exempt from the separation test, or ``None``)."""
+    ``told``: which pairs ``(rows, cols)`` with ``near`` objects within their gates are
+    exempt from the separation test, or ``None``; ``plausible``: the
+    pairs a rival may count, or ``None`` for all)."""
     need = settings.min_inliers
     graph = consistency_graph(ia, ib, geo_a, geo_b, settings)
     # the largest consistent sets, one after another: each next one among the candidates that
@@ -360,7 +441,7 @@ def _from_candidates(
     counts["rival"] = max(
         (
             sum(
-                (r, c) not in held
+                (r, c) not in held and (plausible is None or plausible[r, c])
                 for r, c in zip(
                     *(p.tolist() for p in (framed[k] if by_frame else other[:2])), strict=True
                 )
@@ -374,9 +455,12 @@ def _from_candidates(
         return _no_answer(a, b, "ambiguous", exact=exact, **counts)
     # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
     # left must still be an answer
-    ok = separated(a, b, t, a.means[rows], b.means[cols], rows, cols, settings)
-    if told is not None:
-        ok |= told[rows, cols]
+    anchors = (a.means[rows], b.means[cols])
+    ok = separated(a, b, t, *anchors, rows, cols, settings)
+    if told is not None and not ok.all():
+        loose = np.flatnonzero(~ok)
+        near = crowd(a, b, t, *anchors, rows[loose], cols[loose], settings)
+        ok[loose] = told(rows[loose], cols[loose], near)
     if np.count_nonzero(ok) < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
     rows, cols = rows[ok], cols[ok]

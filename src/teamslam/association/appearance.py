@@ -13,8 +13,11 @@ either map (a map holds each object once), *same* the pairs the link already hol
 samples each summary carries (:attr:`~teamslam.association.ObjectSummary.same_counts`); both ends
 of a link build the same model. :func:`chance_tail` is the probability that ``k`` chance
 look-alikes — each object paired with the best-looking of ``m`` unrelated objects — reach a summed
-log ratio: the bound an answer from fewer than ``min_inliers`` pairs must beat. The derivation:
-the association concept page, *Appearance*.
+log ratio: the bound an answer from fewer than ``min_inliers`` pairs must beat. Before a link
+knows what the same object looks like (no *same* sample yet: its first answer), :func:`rarity`
+scores a resemblance by how rarely different objects resemble each other as closely —
+``−log P(d' ≤ d | different)``, the *different* histogram alone — and :func:`chance_tail` bounds
+a set of such pairs alike. The derivation: the association concept page, *Appearance*.
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ __all__ = [
     "chance_tail",
     "cosine_distances",
     "link_model",
+    "rare_triples",
+    "rarity",
     "unit_rows",
 ]
 
@@ -247,3 +252,32 @@ def beyond_chance(model: AppearanceModel, log_ratio: np.ndarray, m: int, probabi
     values, inverse = np.unique(log_ratio, return_inverse=True)
     ok = np.array([chance_tail(model, float(v), 1, m) <= 1.0 - probability for v in values])
     return ok[inverse].reshape(log_ratio.shape) if values.size else np.zeros(log_ratio.shape, bool)
+
+
+def rarity(model: AppearanceModel) -> AppearanceModel:
+    """The evidence of a resemblance without a *same* distribution: ``model`` with its log ratio
+    replaced by ``r(d) = −log P(d' ≤ d | different)``, how rarely two different objects look at
+    least as alike (from the *different* histogram with its prior, per bin).
+
+    ``r`` is 0 where every different pair is as close or closer, grows as close resemblances
+    get rarer, and never speaks against a pair. It is no likelihood ratio — nothing says how
+    the same object looks yet — but a significance: :func:`chance_tail` and
+    :func:`beyond_chance` of the returned model bound ``k`` chance look-alikes by it, each the
+    best-looking of ``m`` objects drawn from the *different* distribution, exactly as for the
+    learned ratio. The model's other parts (histograms, :attr:`~AppearanceModel.informative`)
+    are ``model``'s.
+    """
+    out = AppearanceModel(model.probability, model.prior_weight)
+    out.add_counts(model.same, model.different)
+    mass_at_or_below = np.cumsum(out.p_different())
+    out._table = -np.log(np.minimum(mass_at_or_below, 1.0))
+    return out
+
+
+def rare_triples(model: AppearanceModel, m: int, probability: float) -> bool:
+    """Whether three pairs alike at the closest distance ``model`` knows can lie beyond what
+    three chance look-alikes among ``m`` objects reach at ``probability`` (:func:`chance_tail`):
+    whether its evidence could ever answer from fewer pairs than position alone needs. Never
+    for descriptors that are all alike (every distance in the closest bin: its rarity is 0)."""
+    best = float(model._table.max(initial=0.0))
+    return best > 0.0 and chance_tail(model, 3.0 * best, 3, m) <= 1.0 - probability

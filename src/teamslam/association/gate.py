@@ -25,6 +25,7 @@ from teamslam.gaussian import chi2_quantile
 __all__ = [
     "alone",
     "assign",
+    "crowd",
     "distinct",
     "frame_allowed",
     "frame_nis",
@@ -236,14 +237,53 @@ def separated(
     """
     if settings.separation <= 0 or rows.size == 0:
         return np.ones(rows.size, dtype=bool)
+    extent = _extent(a, b, T_first_second, anchors_first, anchors_second, rows, cols, settings)
+    spacing = np.minimum(nearest_distance(a.means)[rows], nearest_distance(b.means)[cols])
+    return settings.separation**2 * settings.gate_threshold * extent <= spacing**2
+
+
+def _extent(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    T_first_second: np.ndarray,
+    anchors_first: np.ndarray,
+    anchors_second: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """Each pair's bound on ``λ_max(S)`` (:func:`separated`): the sum of its two covariances'
+    largest eigenvalues and the drift allowance from the nearest anchors."""
     r = T_first_second[:3, :3]
     top_a = np.linalg.eigvalsh(a.covs[rows])[:, -1]
     top_b = np.linalg.eigvalsh(r @ b.covs[cols] @ r.T)[:, -1]
     ra = anchor_distance(a.means[rows], anchors_first)
     rb = anchor_distance(b.means[cols], anchors_second)
-    extent = top_a + top_b + 0.5 * settings.drift_ratio**2 * (ra**2 + rb**2)
-    spacing = np.minimum(nearest_distance(a.means)[rows], nearest_distance(b.means)[cols])
-    return settings.separation**2 * settings.gate_threshold * extent <= spacing**2
+    return top_a + top_b + 0.5 * settings.drift_ratio**2 * (ra**2 + rb**2)
+
+
+def crowd(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    T_first_second: np.ndarray,
+    anchors_first: np.ndarray,
+    anchors_second: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    settings: AssociationSettings,
+) -> np.ndarray:
+    """How many other objects lie within each pair's gate: of its first object's map within
+    the longest semi-axis ``√(χ²₃ · λ_max(S))`` (:func:`separated`) of it, or of the second's
+    of it, whichever is more — the neighbours the gate could take for the object."""
+    if rows.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    extent = _extent(a, b, T_first_second, anchors_first, anchors_second, rows, cols, settings)
+    reach2 = settings.gate_threshold * extent
+    counts = []
+    for means, index in ((a.means, rows), (b.means, cols)):
+        d2 = np.sum((means[index][:, None] - means[None]) ** 2, axis=2)
+        counts.append(np.count_nonzero(d2 <= reach2[:, None], axis=1) - 1)
+    return np.maximum(*counts)
 
 
 def support(

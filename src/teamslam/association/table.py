@@ -26,7 +26,13 @@ from dataclasses import replace
 import numpy as np
 
 from teamslam.association.answer import AssociationResult
-from teamslam.association.appearance import beyond_chance, cosine_distances, link_model
+from teamslam.association.appearance import (
+    beyond_chance,
+    cosine_distances,
+    link_model,
+    rare_triples,
+    rarity,
+)
 from teamslam.association.consistency import consistent_members
 from teamslam.association.distances import anchor_distance
 from teamslam.association.gate import (
@@ -159,8 +165,9 @@ class CorrespondenceTable:
         self.revoked = 0
         self.T_own_their: np.ndarray | None = None
         self._sizes: tuple[int, int] | None = None  # map sizes at the last full association
-        #: whether the last summaries' appearance model was informative (the minimum of an
-        #: answer is then three pairs: :func:`~teamslam.association.associate`)
+        #: whether the last summaries' appearance could answer from three pairs (an
+        #: informative model, or resemblances rare enough among different objects:
+        #: :func:`~teamslam.association.associate`)
         self._looks = False
         #: the shared frame's scale learned from :attr:`_frame_samples` (1 until then)
         self.frame_scale = 1.0
@@ -244,7 +251,7 @@ class CorrespondenceTable:
             if self._theirs.get(int(a)) != int(b)  # not already held
         ]
         self._sizes = (len(own), len(their))
-        self._looks = self._model(own, their) is not None
+        self._looks = self._from_three(own, their)
         self.proposed += len(new)
         new = [
             p
@@ -333,7 +340,7 @@ class CorrespondenceTable:
             )
         held = self.pairs()
         settings, model = self.current_settings(), self._model(own, their)
-        self._looks = model is not None
+        self._looks = model is not None or self._from_three(own, their)
         if model is not None:
             settings = replace(settings, min_inliers=3)
         if self._canonical_first():
@@ -450,14 +457,34 @@ class CorrespondenceTable:
             )
         return model if model is not None and model.informative else None
 
+    def _from_three(self, own: ObjectSummary, their: ObjectSummary) -> bool:
+        """Whether the two summaries' appearance may give an answer of three pairs: the
+        link's model is informative, or, before it is, three resemblances can be rarer among
+        different objects than chance look-alikes (:func:`~teamslam.association.appearance.
+        rare_triples`), as the association decides."""
+        if own.appearance is None or their.appearance is None:
+            return False
+        if self._model(own, their) is not None:
+            return True
+        held = self.pairs()
+        first, second = (own, their) if self._canonical_first() else (their, own)
+        held = held if self._canonical_first() else held[:, ::-1]
+        model = link_model(
+            first.sorted(), second.sorted(), held, self.settings.consistency_probability
+        )
+        if model is None:
+            return False
+        m = max(len(own), len(their))
+        return rare_triples(rarity(model), m, self.settings.consistency_probability)
+
     def due(self, own_objects: int, their_objects: int, growth: float = 1.25) -> bool:
         """Whether a full association is worth running now.
 
         Yes when none was merged yet; when either map has grown by the factor ``growth`` since
         the last one; and, while the table holds fewer pairs than an answer needs
         (:attr:`~teamslam.association.AssociationSettings.min_inliers`), when either map holds
-        that many objects more than at the last one (three while the link's appearance model
-        is informative: an answer may then hold three pairs). In between, :meth:`extend` grows the
+        that many objects more than at the last one (three while the link's appearance may
+        answer from three pairs: :meth:`_from_three`). In between, :meth:`extend` grows the
         table for the cost of one gate.
 
         The growth factor spaces the full associations of a link that has an answer (maps of
