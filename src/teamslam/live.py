@@ -842,11 +842,16 @@ class LiveRobot:
             self.config = self.config(self.calibration)
         agent = MsckfAgent(self.robot, self.calibration, self.sequence, self.config)
         # asynchronous live robots drop frames: their steps are not comparable, their
-        # messages are aged by the stamps of their frames
+        # messages are aged by the stamps of their frames, up to an age learned per neighbour
         wait = (
             LockStep(self.team.timeout_s)
             if self.team.sync == "lockstep"
-            else Asynchronous(self.team.max_age_steps, by_stamp=True, max_age_s=self.team.max_age_s)
+            else Asynchronous(
+                self.team.max_age_steps,
+                by_stamp=True,
+                max_age_s=self.team.max_age_s,
+                lag_quantile=self.team.max_age_quantile,
+            )
         )
         self.driver = RobotDriver(
             agent,
