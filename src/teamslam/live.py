@@ -950,6 +950,9 @@ class LiveRobot:
         extra["live_frontend_next_id"] = np.array(
             self.frontend.next_id if self.frontend is not None else 0, np.int64
         )
+        if self.frontend is not None:  # its tracks: a resumed robot continues them exactly
+            state = self.frontend.state_dict()
+            extra.update({f"live_frontend_{k}": v for k, v in state.items()})
         if self.inputs.images and self.frontend is not None:
             from teamslam.ros2 import messages as m
 
@@ -984,6 +987,13 @@ class LiveRobot:
         self._first_feature_id = int(snapshot["live_frontend_next_id"])
         if self.inputs.images:
             self._ensure_rig()
+            prefix = "live_frontend_"
+            state = {k[len(prefix) :]: v for k, v in snapshot.items() if k.startswith(prefix)}
+            if "last_ids" in state:  # the front-end's tracks (older checkpoints: none)
+                try:
+                    self.frontend.load_state_dict(state)
+                except ValueError as exc:
+                    raise InputError(f"{path}: {exc}") from None
         if self.calibration is None:
             raise InputError(f"robot {self.robot}: observations need a camera calibration")
         self.sequence = LiveSequence.restore(snapshot, self.inputs.detections is not None)
