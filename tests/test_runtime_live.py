@@ -528,3 +528,14 @@ def test_live_class_labels_are_those_of_a_whole_topic_or_refused():
     table.label("car", "here")
     with pytest.raises(InputError, match="here: class id '7' mixes numbers and names"):
         table.label("7", "here")
+    # a checkpoint's table: a resumed robot gives every name seen before the same label, and
+    # numbers the names it sees next on from them
+    for ids in (["car", "person"], ["3", "12"]):
+        table = LiveClassTable()
+        labels = [table.label(i, "here") for i in ids]
+        again = LiveClassTable.from_state(table.state_dict())
+        assert [again.label(i, "here") for i in reversed(ids)] == labels[::-1]
+    again = LiveClassTable.from_state(
+        LiveClassTable.from_state({"names": np.array(["car", "person"])}).state_dict()
+    )
+    assert again.label("bike", "here") == 2 and again.label("car", "here") == 0

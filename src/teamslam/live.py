@@ -953,6 +953,8 @@ class LiveRobot:
         if self.frontend is not None:  # its tracks: a resumed robot continues them exactly
             state = self.frontend.state_dict()
             extra.update({f"live_frontend_{k}": v for k, v in state.items()})
+        if self._classes is not None:  # the detection topic's labels, named in order seen
+            extra["live_class_names"] = self._classes.state_dict()["names"]
         if self.inputs.images and self.frontend is not None:
             from teamslam.ros2 import messages as m
 
@@ -994,6 +996,13 @@ class LiveRobot:
                     self.frontend.load_state_dict(state)
                 except ValueError as exc:
                     raise InputError(f"{path}: {exc}") from None
+        if "live_class_names" in snapshot:
+            from teamslam.ros2.detection_bags import LiveClassTable
+
+            try:
+                self._classes = LiveClassTable.from_state({"names": snapshot["live_class_names"]})
+            except InputError as exc:
+                raise InputError(f"{path}: {exc}") from None
         if self.calibration is None:
             raise InputError(f"robot {self.robot}: observations need a camera calibration")
         self.sequence = LiveSequence.restore(snapshot, self.inputs.detections is not None)
