@@ -66,40 +66,48 @@ def test_a_mailbox_hands_over_each_senders_newest_message_by_stamp_and_discards_
 def test_a_neighbour_whose_messages_arrive_late_is_heard_up_to_its_learned_lag():
     """A fast robot (1 s frames, floor 3 s) and a slow neighbour sending one message every 2 s
     of stamps, each reaching the robot 4 or 5 s of stamps after it was sent: by the robot's own
-    steps alone every message of the neighbour is too old (counted); with the lags learned,
-    once ``1 / (1 − q)`` of them are known, the neighbour's newest message is used at every
-    exchange."""
+    steps alone every message of the neighbour is too old (counted); with the lags learned the
+    neighbour's newest message is used at every exchange, up to the lags' quantile plus the
+    neighbour's interval."""
     # message k: sent at a frame stamped 96 + 2k s, first found at our frame t_k = 2k + k % 2
     # (stamped 100 + t_k s): a lag of 4 s for even k, 5 s for odd k
     arrives = {2 * k + k % 2: k for k in range(30)}
 
-    def exchanges(lags: MessageLags | None) -> list[int | None]:
+    def exchanges(lags: MessageLags | None, floor: int = 3 * S) -> list[int | None]:
         box = Mailbox()
         used = []
         for t in range(60):
             if t in arrives:
                 box.put(ids_message(1, arrives[t], 96 * S + 2 * arrives[t] * S))
-            got = box.newest(MapIdsMessage, {1}, 3, t, 100 * S + t * S, 3 * S, lags)
+            got = box.newest(MapIdsMessage, {1}, 3, t, 100 * S + t * S, floor, lags)
             used.append(got[0].step if got else None)
         return used
 
-    assert exchanges(None) == [None] * 60
+    own = MessageLags(quantile=None)  # the floor alone: what is found too old is counted
+    assert exchanges(own) == [None] * 60
+    assert own.too_old == {1: 30}
     lags = MessageLags(quantile=0.9)  # ten lags to estimate the quantile
     assert lags.needed == 10
-    new = exchanges(lags)
-    learned = 2 * 9 + 1  # the tenth message's frame
-    assert new[:learned] == [None] * learned  # nine lags known: the floor alone
-    newest = [max(k for t_k, k in arrives.items() if t_k <= t) for t in range(learned, 60)]
-    assert new[learned:] == newest  # the newest message, at every exchange
+    newest = [max(k for t_k, k in arrives.items() if t_k <= t) for t in range(60)]
+    # the newest message at every exchange, but for the first's second one: one lag (4 s) and
+    # no interval known, it expired at 5 s
+    assert exchanges(lags) == [0, None, None, *newest[3:]]
+    assert lags.too_old == {1: 1}
     # the limit: the lags' 0.9-quantile (5 s) plus the neighbour's interval (2 s)
     assert lags.limit_ns(1, MapIdsMessage, 3 * S) == 7 * S
     assert lags.limit_ns(1, MapIdsMessage, 8 * S) == 8 * S  # never below the floor
     assert lags.limit_ns(2, MapIdsMessage, 3 * S) == 3 * S  # a neighbour never heard
-    assert lags.too_old == {1: 9}  # the first nine, discarded before the limit was learned
     assert not lags.stale(1, MapIdsMessage, MessageAge(59, 3, 159 * S, 3 * S, lags))
     # the neighbour falls silent: its last message (stamp 154 s) expires 7 s after it was sent
     assert not lags.stale(1, MapIdsMessage, MessageAge(61, 3, 161 * S, 3 * S, lags))
     assert lags.stale(1, MapIdsMessage, MessageAge(62, 3, 161 * S + 1, 3 * S, lags))
+    # before ten lags are known, the largest one stands for the quantile
+    early = MessageLags(quantile=0.9)
+    box = Mailbox()
+    box.put(ids_message(1, 0, 96 * S))
+    box.put(ids_message(1, 1, 97 * S))
+    assert [m.step for m in box.newest(MapIdsMessage, {1}, 3, 0, 101 * S, 3 * S, early)] == [1]
+    assert early.limit_ns(1, MapIdsMessage, 3 * S) == 5 * S + S  # lags 5 s and 4 s, 1 s apart
     with pytest.raises(ValueError, match="quantile"):
         MessageLags(quantile=1.0)
 
@@ -329,9 +337,7 @@ def test_a_fast_robot_keeps_averaging_with_a_neighbour_that_lags_behind(team_bag
     limit learned from the lags, robot 0 and robot 2 keep averaging with each other."""
     speeds, queues = np.array([1.0, 1.0, 0.5]), [2, 2, 8]
     _, frames, own = run_team(tmp_path / "own", team_bag, speeds, queues, quantile=None)
-    _, learned_frames, learned = run_team(
-        tmp_path / "learned", team_bag, speeds, queues, quantile=0.8
-    )
+    _, learned_frames, learned = run_team(tmp_path / "learned", team_bag, speeds, queues)
     assert frames == learned_frames and frames[2] < 0.7 * frames[0]
     assert own[0].counts.dropped["queue"] == 0 < own[2].counts.dropped["queue"]
     late = range(2 * frames[0] // 3, frames[0])  # robot 2 is 8 frames behind

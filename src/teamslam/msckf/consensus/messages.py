@@ -316,9 +316,10 @@ class MessageLags:
     ``quantile`` of their last ``window`` lags plus the median interval between them — its
     newest message is usable at that share of our exchanges however its lag compares with our
     own frame interval, and a neighbour that stops talking expires that long after its last
-    message. The quantile is estimated once ``1 / (1 − quantile)`` lags are known; until then,
-    and with ``quantile`` ``None``, the age limit given (the floor) applies alone. Derivation:
-    the concept page *Consensus*.
+    message. The empirical quantile exists once ``1 / (1 − quantile)`` lags are known; until
+    then the largest lag seen stands for it (a neighbour's first message is used). With
+    ``quantile`` ``None`` the age limit given (the floor) applies alone. Derivation: the concept
+    page *Consensus*.
 
     Parameters
     ----------
@@ -366,13 +367,14 @@ class MessageLags:
 
     def learned_ns(self, sender: int, kind: type) -> int | None:
         """The age in ns up to which ``sender``'s ``kind`` messages are usable by its lags
-        (``None``: not enough lags yet)."""
+        (``None``: no lag known)."""
         key = (sender, kind)
         if key not in self._learned:
             lags = self._lags.get(key, ())
             learned = None
-            if self.quantile is not None and len(lags) >= self.needed:
-                lag = np.quantile(np.fromiter(lags, np.int64), self.quantile, method="higher")
+            if self.quantile is not None and lags:
+                q = self.quantile if len(lags) >= self.needed else 1.0  # the largest, until then
+                lag = np.quantile(np.fromiter(lags, np.int64), q, method="higher")
                 intervals = self._intervals.get(key, ())
                 interval = np.median(np.fromiter(intervals, np.int64)) if intervals else 0
                 learned = int(lag) + round(float(interval))
