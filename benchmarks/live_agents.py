@@ -32,6 +32,7 @@ RMSE against the offline run's of that robot, averaged share.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import socket
 import subprocess
@@ -45,6 +46,8 @@ import yaml
 from _markdown import Markdown, add_option
 from teamslam.datasets import load_dataset, save_dataset
 from teamslam.runtime.team_file import write_team_file
+
+_RUNS = itertools.count()
 
 
 def _free_port(count: int = 1) -> int:
@@ -197,7 +200,10 @@ def per_robot(dataset, off_stamps, offline, poses, summaries, robots: int) -> li
             f"latency p50 {live['latency_ms']['p50']:.0f} ms, RMSE {rmse:.4f} m = "
             f"{rmse / off:.2f} × offline, averaged {averaged_share([s], robots):.2f}, "
             f"not heard {why['not_heard']}, too old {why.get('too_old', 0)}, "
-            f"messages too old {s['counters'].get('messages_too_old', 0)}"
+            f"messages too old {s['counters'].get('messages_too_old', 0)}, consensus "
+            f"{live['stage_seconds']['consensus'] / max(live['frames'], 1) * 1e3:.0f} ms and "
+            f"filter {live['stage_seconds']['filter'] / max(live['frames'], 1) * 1e3:.0f} ms "
+            "per frame"
         )
     return lines
 
@@ -223,7 +229,7 @@ def live_run(
     quantile: float | None = 0.95,
 ) -> Path:
     player = _free_port()
-    name = f"{mode}-{rate:g}".replace(".", "_")
+    name = f"{mode}-{rate:g}-{next(_RUNS)}".replace(".", "_")  # each run its own directory
     path = team_file(tmp, name, dataset_dir, robots, mode, inputs, player, quantile)
     out = tmp / name
     # lock-step: every robot must process every frame (a queue as long as the run);
@@ -279,7 +285,8 @@ def main() -> None:
         default=None,
         metavar="MODE:RATE",
         help="lockstep:R or async:R (default lockstep:0.25 async:1 for images, lockstep:1 "
-        "async:10 for observations)",
+        "async:10 for observations); async:R:Q runs with max_age_quantile Q (or none) instead "
+        "of --max-age-quantile",
     )
     parser.add_argument(
         "--max-age-quantile",
@@ -362,9 +369,10 @@ def main() -> None:
         )
         total = sum(r.frames for r in dataset.robots)
         for run in runs:
-            mode, rate = run.split(":")
+            mode, rate, *rule = run.split(":")
             rate = float(rate)
-            out = live_run(tmp, bag, dataset_dir, robots, inputs, mode, rate, quantile)
+            q = quantile if not rule else None if rule[0] == "none" else float(rule[0])
+            out = live_run(tmp, bag, dataset_dir, robots, inputs, mode, rate, q)
             poses, summaries = results(out, robots)
             live = [s["live"] for s in summaries]
             frames = sum(s["frames"] for s in live)
@@ -378,7 +386,7 @@ def main() -> None:
                 gaps = [float(np.abs(p - o).max()) for p, o in zip(poses, offline, strict=True)]
                 diff = f"{max(gaps):.1e}"
             row = (
-                mode,
+                mode if not rule else f"{mode}, max_age_quantile {rule[0]}",
                 f"{rate:g}",
                 f"{period / rate * 1e3:.0f}",
                 f"{frames} of {total}",
