@@ -23,13 +23,16 @@ arriving to its pose being published (robots pooled: the median of the robots' m
 largest 99th percentile and maximum), the position RMSE against ground truth over every
 processed frame next to the offline run's, the largest difference of a pose from the offline
 run's (when every frame was processed), and how consensus went: the share of (frame,
-neighbour) pairs in which a robot averaged with that neighbour, and the neighbours' messages
-it refused (robots pooled).
+neighbour) pairs in which a robot averaged with that neighbour, why the others were not, the
+neighbours' messages found too old (discarded while the newest of their sender) and those
+refused (robots pooled). Per robot, the same on standard output: frames, drops, latency,
+RMSE against the offline run's of that robot, averaged share.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import socket
 import subprocess
@@ -43,6 +46,8 @@ import yaml
 from _markdown import Markdown, add_option
 from teamslam.datasets import load_dataset, save_dataset
 from teamslam.runtime.team_file import write_team_file
+
+_RUNS = itertools.count()
 
 
 def _free_port(count: int = 1) -> int:
@@ -119,7 +124,14 @@ def observations_team(tmp: Path, robots: int, steps: int) -> tuple[Path, Path, d
 
 
 def team_file(
-    tmp: Path, name: str, dataset: Path, robots: int, sync: str, inputs: dict, player: int | None
+    tmp: Path,
+    name: str,
+    dataset: Path,
+    robots: int,
+    sync: str,
+    inputs: dict,
+    player: int | None,
+    quantile: float | None = 0.95,
 ) -> Path:
     path = write_team_file(
         tmp / f"{name}.yaml",
@@ -129,7 +141,7 @@ def team_file(
         base_port=_free_port(robots),
     )
     data = yaml.safe_load(path.read_text())
-    data.update(sync=sync, timeout_s=30.0, checkpoint_every=0)
+    data.update(sync=sync, timeout_s=30.0, checkpoint_every=0, max_age_quantile=quantile)
     data["settings"] = {"filter": {"window": 10}}
     if player is None:  # offline
         path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -164,6 +176,38 @@ def averaged_share(summaries: list[dict], robots: int) -> float:
     return done / max(pairs, 1)
 
 
+def robot_rmse(dataset, robot: int, stamps: list[int], poses: np.ndarray) -> float:
+    """One robot's position RMSE against ground truth at its frames' stamps."""
+    origin = int(dataset.metadata.get("ros2", {}).get("stamp_origin_ns", 0))
+    sequence = dataset.robots[robot]
+    index = {int(origin + round(t * 1e9)): k for k, t in enumerate(sequence.timestamps)}
+    k = np.array([index[s] for s in stamps])
+    e = poses[:, :3, 3] - sequence.T_world_body[k, :3, 3]
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+
+def per_robot(dataset, off_stamps, offline, poses, summaries, robots: int) -> list[str]:
+    """One line per robot: frames, drops, median latency, RMSE / the offline run's of the
+    robot, averaged share and why not, messages found too old."""
+    lines = []
+    for i, s in enumerate(summaries):
+        live = s["live"]
+        rmse = robot_rmse(dataset, i, live["stamps_ns"], poses[i])
+        off = robot_rmse(dataset, i, off_stamps[i], offline[i])
+        why = s["not_averaged"]
+        lines.append(
+            f"  robot {i}: frames {live['frames']}, dropped {sum(live['dropped'].values())}, "
+            f"latency p50 {live['latency_ms']['p50']:.0f} ms, RMSE {rmse:.4f} m = "
+            f"{rmse / off:.2f} × offline, averaged {averaged_share([s], robots):.2f}, "
+            f"not heard {why['not_heard']}, too old {why.get('too_old', 0)}, "
+            f"messages too old {s['counters'].get('messages_too_old', 0)}, consensus "
+            f"{live['stage_seconds']['consensus'] / max(live['frames'], 1) * 1e3:.0f} ms and "
+            f"filter {live['stage_seconds']['filter'] / max(live['frames'], 1) * 1e3:.0f} ms "
+            "per frame"
+        )
+    return lines
+
+
 def results(out: Path, robots: int) -> tuple[list[np.ndarray], list[dict]]:
     poses, summaries = [], []
     for i in range(robots):
@@ -175,11 +219,18 @@ def results(out: Path, robots: int) -> tuple[list[np.ndarray], list[dict]]:
 
 
 def live_run(
-    tmp: Path, bag: Path, dataset_dir: Path, robots: int, inputs: dict, mode: str, rate: float
+    tmp: Path,
+    bag: Path,
+    dataset_dir: Path,
+    robots: int,
+    inputs: dict,
+    mode: str,
+    rate: float,
+    quantile: float | None = 0.95,
 ) -> Path:
     player = _free_port()
-    name = f"{mode}-{rate:g}".replace(".", "_")
-    path = team_file(tmp, name, dataset_dir, robots, mode, inputs, player)
+    name = f"{mode}-{rate:g}-{next(_RUNS)}".replace(".", "_")  # each run its own directory
+    path = team_file(tmp, name, dataset_dir, robots, mode, inputs, player, quantile)
     out = tmp / name
     # lock-step: every robot must process every frame (a queue as long as the run);
     # asynchronous: a short queue bounds the latency
@@ -234,7 +285,14 @@ def main() -> None:
         default=None,
         metavar="MODE:RATE",
         help="lockstep:R or async:R (default lockstep:0.25 async:1 for images, lockstep:1 "
-        "async:10 for observations)",
+        "async:10 for observations); async:R:Q runs with max_age_quantile Q (or none) instead "
+        "of --max-age-quantile",
+    )
+    parser.add_argument(
+        "--max-age-quantile",
+        default="0.95",
+        help="the team file's max_age_quantile of the live runs ('none': the age limit is "
+        "max_age_steps of a robot's own steps alone, the rule before it was learned)",
     )
     add_option(parser)
     args = parser.parse_args()
@@ -244,6 +302,7 @@ def main() -> None:
     steps = args.steps or (100 if images else 150)
     runs = args.runs or (["lockstep:0.25", "async:1"] if images else ["lockstep:1", "async:10"])
     period = 0.1 if images else 1.0
+    quantile = None if args.max_age_quantile == "none" else float(args.max_age_quantile)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         if images:
@@ -273,7 +332,8 @@ def main() -> None:
         ]
         off_rmse = truth_rmse(dataset, off_stamps, offline)
         md.table(
-            f"agent --live on loopback: {what}; offline position RMSE {off_rmse:.4f} m",
+            f"agent --live on loopback: {what}; offline position RMSE {off_rmse:.4f} m; "
+            f"max_age_quantile {args.max_age_quantile}",
             [
                 "sync",
                 "rate",
@@ -287,7 +347,8 @@ def main() -> None:
                 "RMSE / offline",
                 "max |Δ pose| vs offline",
                 "averaged",
-                "not averaged: not heard / nothing common / no marginal / inconsistent",
+                "not averaged: not heard / too old / nothing common / no marginal / inconsistent",
+                "messages too old",
                 "refused",
             ],
             note="Latency: from the arrival of a frame's camera input to the publication of its "
@@ -297,17 +358,21 @@ def main() -> None:
             "difference of a pose matrix entry from the offline run (only when every frame "
             "was processed). Averaged: the share of (frame, neighbour) pairs in which a robot "
             "averaged with that neighbour, and why the others were not (counted per pair): the "
-            "neighbour's map ids of an accepted age were not heard, no object to average with it, "
-            "its marginal of an accepted age did not arrive, or it failed the consensus "
-            "innovation check; refused: neighbours' messages refused (too old, of a later step, "
-            "malformed). One process per robot and the player share the machine's "
-            "cores.",
+            "neighbour's map ids were not heard, its newest map ids (or marginal) arrived but "
+            "older than the age limit, no object to average with it, its marginal did not "
+            "arrive, or it failed the consensus innovation check. Messages too old: neighbours' "
+            "messages discarded as older than the age limit while the newest of their sender "
+            "(asynchronous robots' age limit: learned per neighbour from the lags of its "
+            "messages, team file max_age_quantile); refused: neighbours' messages refused by "
+            "the checks (of a later step, malformed). One process per robot and the player "
+            "share the machine's cores.",
         )
         total = sum(r.frames for r in dataset.robots)
         for run in runs:
-            mode, rate = run.split(":")
+            mode, rate, *rule = run.split(":")
             rate = float(rate)
-            out = live_run(tmp, bag, dataset_dir, robots, inputs, mode, rate)
+            q = quantile if not rule else None if rule[0] == "none" else float(rule[0])
+            out = live_run(tmp, bag, dataset_dir, robots, inputs, mode, rate, q)
             poses, summaries = results(out, robots)
             live = [s["live"] for s in summaries]
             frames = sum(s["frames"] for s in live)
@@ -321,7 +386,7 @@ def main() -> None:
                 gaps = [float(np.abs(p - o).max()) for p, o in zip(poses, offline, strict=True)]
                 diff = f"{max(gaps):.1e}"
             row = (
-                mode,
+                mode if not rule else f"{mode}, max_age_quantile {rule[0]}",
                 f"{rate:g}",
                 f"{period / rate * 1e3:.0f}",
                 f"{frames} of {total}",
@@ -334,12 +399,20 @@ def main() -> None:
                 diff,
                 f"{averaged_share(summaries, robots):.2f}",
                 " / ".join(
-                    str(sum(s["not_averaged"][k] for s in summaries))
-                    for k in ("not_heard", "nothing_common", "no_marginal", "inconsistent")
+                    str(sum(s["not_averaged"].get(k, 0) for s in summaries))
+                    for k in (
+                        "not_heard",
+                        "too_old",
+                        "nothing_common",
+                        "no_marginal",
+                        "inconsistent",
+                    )
                 ),
+                str(sum(s["counters"].get("messages_too_old", 0) for s in summaries)),
                 str(sum(s["counters"].get("rejected_messages", 0) for s in summaries)),
             )
             print("  ".join(row), flush=True)
+            print("\n".join(per_robot(dataset, off_stamps, offline, poses, summaries, robots)))
             md.row(*row)
         md.end()
     md.write()

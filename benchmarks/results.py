@@ -208,6 +208,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--runs lockstep:1 async:1 async:10 --markdown {GENERATED}/live-robots-observations.md",
         f"{GENERATED}/live-robots-observations.md",
     ),
+    "live-robots-age-limit": (
+        f"python benchmarks/async_lag.py --markdown {GENERATED}/live-robots-age-limit.md",
+        f"{GENERATED}/live-robots-age-limit.md",
+    ),
 }
 
 #: one BLAS / OpenMP / numba thread: times comparable across machines with other work

@@ -9,7 +9,12 @@ import time
 import numpy as np
 import pytest
 
-from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage, MessageAge
+from teamslam.msckf.consensus.messages import (
+    CommonMarginalMessage,
+    MapIdsMessage,
+    MessageAge,
+    MessageLags,
+)
 from teamslam.msckf.consensus.transport import Mailbox
 from teamslam.runtime import wire
 from teamslam.runtime.team_file import TeamFileError, load_team_file
@@ -58,6 +63,55 @@ def test_a_mailbox_hands_over_each_senders_newest_message_by_stamp_and_discards_
     assert [m.step for m in box.newest(MapIdsMessage, {1}, 3, 10)] == []
 
 
+def test_a_neighbour_whose_messages_arrive_late_is_heard_up_to_its_learned_lag():
+    """A fast robot (1 s frames, floor 3 s) and a slow neighbour sending one message every 2 s
+    of stamps, each reaching the robot 4 or 5 s of stamps after it was sent: by the robot's own
+    steps alone every message of the neighbour is too old (counted); with the lags learned the
+    neighbour's newest message is used at every exchange, up to the lags' quantile plus the
+    neighbour's interval."""
+    # message k: sent at a frame stamped 96 + 2k s, first found at our frame t_k = 2k + k % 2
+    # (stamped 100 + t_k s): a lag of 4 s for even k, 5 s for odd k
+    arrives = {2 * k + k % 2: k for k in range(30)}
+
+    def exchanges(lags: MessageLags | None, floor: int = 3 * S) -> list[int | None]:
+        box = Mailbox()
+        used = []
+        for t in range(60):
+            if t in arrives:
+                box.put(ids_message(1, arrives[t], 96 * S + 2 * arrives[t] * S))
+            got = box.newest(MapIdsMessage, {1}, 3, t, 100 * S + t * S, floor, lags)
+            used.append(got[0].step if got else None)
+        return used
+
+    own = MessageLags(quantile=None)  # the floor alone: what is found too old is counted
+    assert exchanges(own) == [None] * 60
+    assert own.too_old == {1: 30}
+    lags = MessageLags(quantile=0.9)  # ten lags to estimate the quantile
+    assert lags.needed == 10
+    newest = [max(k for t_k, k in arrives.items() if t_k <= t) for t in range(60)]
+    # the newest message at every exchange, but for the first's second one: one lag (4 s) and
+    # no interval known, it expired at 5 s
+    assert exchanges(lags) == [0, None, None, *newest[3:]]
+    assert lags.too_old == {1: 1}
+    # the limit: the lags' 0.9-quantile (5 s) plus the neighbour's interval (2 s)
+    assert lags.limit_ns(1, MapIdsMessage, 3 * S) == 7 * S
+    assert lags.limit_ns(1, MapIdsMessage, 8 * S) == 8 * S  # never below the floor
+    assert lags.limit_ns(2, MapIdsMessage, 3 * S) == 3 * S  # a neighbour never heard
+    assert not lags.stale(1, MapIdsMessage, MessageAge(59, 3, 159 * S, 3 * S, lags))
+    # the neighbour falls silent: its last message (stamp 154 s) expires 7 s after it was sent
+    assert not lags.stale(1, MapIdsMessage, MessageAge(61, 3, 161 * S, 3 * S, lags))
+    assert lags.stale(1, MapIdsMessage, MessageAge(62, 3, 161 * S + 1, 3 * S, lags))
+    # before ten lags are known, the largest one stands for the quantile
+    early = MessageLags(quantile=0.9)
+    box = Mailbox()
+    box.put(ids_message(1, 0, 96 * S))
+    box.put(ids_message(1, 1, 97 * S))
+    assert [m.step for m in box.newest(MapIdsMessage, {1}, 3, 0, 101 * S, 3 * S, early)] == [1]
+    assert early.limit_ns(1, MapIdsMessage, 3 * S) == 5 * S + S  # lags 5 s and 4 s, 1 s apart
+    with pytest.raises(ValueError, match="quantile"):
+        MessageLags(quantile=1.0)
+
+
 @pytest.mark.parametrize("kind", ["ids", "marginal"])
 def test_a_stamped_message_travels_with_its_stamp_and_an_unstamped_one_is_unchanged(kind):
     team = wire.team_id("stamps")
@@ -90,6 +144,16 @@ def test_max_age_s_in_a_team_file_is_checked(tmp_path):
     for bad in ("-1", ".inf", "soon"):
         path.write_text(base + f"max_age_s: {bad}\n")
         with pytest.raises(TeamFileError, match="max_age_s"):
+            load_team_file(path)
+    path.write_text(base)
+    assert load_team_file(path).max_age_quantile == 0.95
+    path.write_text(base + "max_age_quantile: null\n")
+    assert load_team_file(path).max_age_quantile is None
+    path.write_text(base + "max_age_quantile: 0.8\n")
+    assert load_team_file(path).max_age_quantile == 0.8
+    for bad in ("0", "1", "1.5", "often"):
+        path.write_text(base + f"max_age_quantile: {bad}\n")
+        with pytest.raises(TeamFileError, match="max_age_quantile"):
             load_team_file(path)
 
 
@@ -127,11 +191,13 @@ def team_bag(tmp_path_factory):
     return dataset, config, items
 
 
-def run_team(tmp_path, team_bag, speeds, queue, consensus=True):
+def run_team(tmp_path, team_bag, speeds, queue, consensus=True, quantile=0.95):
     """The team's robots in one thread: messages fed in recorded order and, at each of the last
     robot's camera frames, robot ``i`` processes ``speeds[i]`` frames on average (a slower robot
-    falls behind and its short queue drops its oldest frames). Position RMSE over every frame
+    falls behind and its queue, ``queue`` or ``queue[i]`` frames, drops its oldest frames; the
+    longer its queue, the older the frames it processes). Position RMSE over every frame
     processed (robots pooled), frames processed per robot, and the robots."""
+    queues = [queue] * ROBOTS if np.isscalar(queue) else list(queue)
     from teamslam.live import LiveInputs, LiveRobot
     from teamslam.msckf.consensus.transport import MemoryNetwork
     from teamslam.runtime.team_file import RobotEntry, TeamFile
@@ -141,7 +207,15 @@ def run_team(tmp_path, team_bag, speeds, queue, consensus=True):
         RobotEntry(i, "tcp/127.0.0.1:0", [j for j in range(ROBOTS) if j != i] if consensus else [])
         for i in range(ROBOTS)
     ]
-    team = TeamFile("async", None, entries, sync="async", max_age_steps=3, checkpoint_every=0)
+    team = TeamFile(
+        "async",
+        None,
+        entries,
+        sync="async",
+        max_age_steps=3,
+        max_age_quantile=quantile,
+        checkpoint_every=0,
+    )
     network = MemoryNetwork(ROBOTS)
     robots = [
         LiveRobot(
@@ -151,7 +225,7 @@ def run_team(tmp_path, team_bag, speeds, queue, consensus=True):
                 f"/robot_{i}/odom",
                 observations=f"/robot_{i}/stereo_observations",
                 ground_truth=f"/robot_{i}/ground_truth",
-                queue=queue,
+                queue=queues[i],
             ),
             config,
             tmp_path,
@@ -253,3 +327,30 @@ def test_robots_aged_by_stamp_answer_a_summary_out_of_their_phase_once():
 
     assert associations(by_stamp=True) == [1, 1]
     assert associations(by_stamp=False) == [0, 0]
+
+
+def test_a_fast_robot_keeps_averaging_with_a_neighbour_that_lags_behind(team_bag, tmp_path):
+    """Robots 0 and 1 process every frame; robot 2, at half their speed with a long queue,
+    processes frames up to eight of their frames old. By a robot's own steps
+    (``max_age_steps`` of them, 3 s) robot 2's messages are too old for robot 0 once its queue
+    filled — counted — and robot 0's marginals never reach robot 2 in answer; with the age
+    limit learned from the lags, robot 0 and robot 2 keep averaging with each other."""
+    speeds, queues = np.array([1.0, 1.0, 0.5]), [2, 2, 8]
+    _, frames, own = run_team(tmp_path / "own", team_bag, speeds, queues, quantile=None)
+    _, learned_frames, learned = run_team(tmp_path / "learned", team_bag, speeds, queues)
+    assert frames == learned_frames and frames[2] < 0.7 * frames[0]
+    assert own[0].counts.dropped["queue"] == 0 < own[2].counts.dropped["queue"]
+    late = range(2 * frames[0] // 3, frames[0])  # robot 2 is 8 frames behind
+
+    def averaged(robots, i, j, frames=None) -> int:
+        steps = robots[i].driver.averaged_with.get(j, [])
+        return len(steps) if frames is None else len(set(steps) & set(frames))
+
+    assert averaged(own, 0, 2, late) == 0 and averaged(own, 2, 0) == 0
+    assert averaged(learned, 0, 2, late) > 0.5 * len(late)
+    assert averaged(learned, 2, 0) > 0.3 * frames[2]
+    # robot 2's messages robot 0 found too old are counted, and the pairs they cost
+    fast_own, fast = own[0].driver, learned[0].driver
+    assert fast_own.agent.counters["messages_too_old"] > fast.agent.counters["messages_too_old"]
+    assert fast_own.not_averaged["too_old"] > 0.5 * len(late)
+    assert fast.not_averaged["too_old"] < 0.5 * fast_own.not_averaged["too_old"]

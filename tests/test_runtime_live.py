@@ -260,11 +260,11 @@ def image_bag(tmp_path_factory):
     return bag, dataset, settings
 
 
-def image_robot(tmp_path, config, say=None) -> LiveRobot:
+def image_robot(tmp_path, config, say=None, checkpoint_every=0) -> LiveRobot:
     inputs = LiveInputs(
         ODOM, left=LEFT, right=RIGHT, camera_info=INFO, queue=10_000, ground_truth=TRUTH
     )
-    team = one_robot_team(checkpoint_every=0)
+    team = one_robot_team(checkpoint_every=checkpoint_every)
     return LiveRobot(team, 0, inputs, config, tmp_path, publisher=Recorder(), say=say)
 
 
@@ -277,6 +277,37 @@ def test_images_played_live_give_the_offline_estimates(image_bag, tmp_path):
     summary = robot.run()
     assert summary["live"]["frames"] == 13
     assert not np.array_equal(robot.sequence.T_world_body[0], np.eye(4))  # the truth's start
+    arrays, _ = load_robot_result(tmp_path, 0)
+    expected = offline_poses(dataset.robots[0], dataset.calibration, config)
+    assert np.array_equal(arrays["poses"], expected)
+
+
+def test_a_restarted_image_robot_resumes_its_feature_tracks_bit_for_bit(image_bag, tmp_path):
+    """An image robot stopped after a checkpoint and restarted from it continues the front-end's
+    feature tracks (ids, positions, templates, the last image) where the checkpoint left them:
+    the same estimate as the uninterrupted run, bit for bit."""
+    bag, dataset, config = image_bag
+    items = bag_messages(bag, {ODOM, LEFT, RIGHT, TRUTH, *INFO})
+    first = image_robot(tmp_path, config, checkpoint_every=5)
+    for item in items:
+        first.feed(item)
+    first.finish()
+    first.run(frames=8)  # stopped after frame 7; its checkpoint holds frames 0..4
+    tracks = first.frontend.tracker.ids
+    with np.load(tmp_path / "robot_0" / "checkpoint.npz") as checkpoint:
+        held = checkpoint["live_frontend_tracker_ids"]
+        assert checkpoint["live_frontend_tracker_previous"].shape == (240, 320)
+    assert held.size > 20 and np.isin(held, tracks).any()  # tracks that outlived frame 4
+    stamps = [i.stamp_ns for i in items if i.topic == LEFT]
+    again = image_robot(tmp_path, config, checkpoint_every=5)
+    assert again.resume() == 5
+    assert np.array_equal(again.frontend.tracker.ids, held)
+    for item in items:  # the topics from frame 5 on (and what is stamped as frame 4)
+        if item.stamp_ns >= stamps[4]:
+            again.feed(item)
+    again.finish()
+    summary = again.run()
+    assert summary["frames"] == 13
     arrays, _ = load_robot_result(tmp_path, 0)
     expected = offline_poses(dataset.robots[0], dataset.calibration, config)
     assert np.array_equal(arrays["poses"], expected)
@@ -499,3 +530,14 @@ def test_live_class_labels_are_those_of_a_whole_topic_or_refused():
     table.label("car", "here")
     with pytest.raises(InputError, match="here: class id '7' mixes numbers and names"):
         table.label("7", "here")
+    # a checkpoint's table: a resumed robot gives every name seen before the same label, and
+    # numbers the names it sees next on from them
+    for ids in (["car", "person"], ["3", "12"]):
+        table = LiveClassTable()
+        labels = [table.label(i, "here") for i in ids]
+        again = LiveClassTable.from_state(table.state_dict())
+        assert [again.label(i, "here") for i in reversed(ids)] == labels[::-1]
+    again = LiveClassTable.from_state(
+        LiveClassTable.from_state({"names": np.array(["car", "person"])}).state_dict()
+    )
+    assert again.label("bike", "here") == 2 and again.label("car", "here") == 0

@@ -854,11 +854,16 @@ class LiveRobot:
             self.config = self.config(self.calibration)
         agent = MsckfAgent(self.robot, self.calibration, self.sequence, self.config)
         # asynchronous live robots drop frames: their steps are not comparable, their
-        # messages are aged by the stamps of their frames
+        # messages are aged by the stamps of their frames, up to an age learned per neighbour
         wait = (
             LockStep(self.team.timeout_s)
             if self.team.sync == "lockstep"
-            else Asynchronous(self.team.max_age_steps, by_stamp=True, max_age_s=self.team.max_age_s)
+            else Asynchronous(
+                self.team.max_age_steps,
+                by_stamp=True,
+                max_age_s=self.team.max_age_s,
+                lag_quantile=self.team.max_age_quantile,
+            )
         )
         self.driver = RobotDriver(
             agent,
@@ -991,6 +996,11 @@ class LiveRobot:
         extra["live_frontend_next_id"] = np.array(
             self.frontend.next_id if self.frontend is not None else 0, np.int64
         )
+        if self.frontend is not None:  # its tracks: a resumed robot continues them exactly
+            state = self.frontend.state_dict()
+            extra.update({f"live_frontend_{k}": v for k, v in state.items()})
+        if self._classes is not None:  # the detection topic's labels, named in order seen
+            extra["live_class_names"] = self._classes.state_dict()["names"]
         if self.inputs.images and self.frontend is not None:
             from teamslam.ros2 import messages as m
 
@@ -1025,6 +1035,20 @@ class LiveRobot:
         self._first_feature_id = int(snapshot["live_frontend_next_id"])
         if self.inputs.images:
             self._ensure_rig()
+            prefix = "live_frontend_"
+            state = {k[len(prefix) :]: v for k, v in snapshot.items() if k.startswith(prefix)}
+            if "last_ids" in state:  # the front-end's tracks (older checkpoints: none)
+                try:
+                    self.frontend.load_state_dict(state)
+                except ValueError as exc:
+                    raise InputError(f"{path}: {exc}") from None
+        if "live_class_names" in snapshot:
+            from teamslam.ros2.detection_bags import LiveClassTable
+
+            try:
+                self._classes = LiveClassTable.from_state({"names": snapshot["live_class_names"]})
+            except InputError as exc:
+                raise InputError(f"{path}: {exc}") from None
         if self.calibration is None:
             raise InputError(f"robot {self.robot}: observations need a camera calibration")
         self.sequence = LiveSequence.restore(snapshot, self.inputs.detections is not None)

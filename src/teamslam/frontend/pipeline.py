@@ -1,5 +1,7 @@
 """One robot's stereo front-end: rectify, track, match, detect markers, measure a detector's
-boxes in stereo, per frame."""
+boxes in stereo, per frame. What it carries from one frame to the next — the feature tracks
+and the last frame's stereo disparities — is its :meth:`StereoFrontend.state_dict` (a
+checkpoint's)."""
 
 from __future__ import annotations
 
@@ -80,6 +82,38 @@ class StereoFrontend:
     def next_id(self) -> int:
         """The next unused feature-track id."""
         return self.tracker.next_id
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """What the front-end carries to the next frame: the tracker's state
+        (:meth:`~teamslam.frontend.tracking.FeatureTracker.state_dict`, keys ``tracker_*``) and
+        the last frame's stereo-matched track ids and disparities."""
+        out = {f"tracker_{k}": v for k, v in self.tracker.state_dict().items()}
+        out["last_ids"] = self._last_ids.copy()
+        out["last_disparity"] = self._last_disparity.copy()
+        return out
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from a :meth:`state_dict` of a front-end of the same rig and settings: the
+        next frames are measured exactly as the original front-end would have.
+
+        Raises
+        ------
+        ValueError
+            A key missing or arrays that do not fit together.
+        """
+        if "last_ids" not in state or "last_disparity" not in state:
+            raise ValueError("front-end state without the last frame's disparities")
+        last_ids = np.asarray(state["last_ids"], np.int64).reshape(-1)
+        disparity = np.array(state["last_disparity"]).reshape(-1)
+        if disparity.shape != last_ids.shape:
+            raise ValueError(
+                f"front-end state: {disparity.size} disparities for {last_ids.size} tracks"
+            )
+        prefix = "tracker_"
+        self.tracker.load_state_dict(
+            {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
+        )
+        self._last_ids, self._last_disparity = last_ids.copy(), disparity.copy()
 
     def predicted(self, ids: np.ndarray, uv: np.ndarray, T_prev_cur: np.ndarray) -> np.ndarray:
         """``(N, 2)``: where the tracks ``ids`` at ``uv`` in the previous rectified left image

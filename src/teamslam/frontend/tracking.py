@@ -8,7 +8,9 @@ monitoring), which frame-to-frame Lucas–Kanade drifts from; a track ends when 
 no longer correlates with its template (``template_ncc_min``), its warp degenerates, or it
 changed by more than ``max_track_warp`` (:func:`warp_change`). Across frames the tracker did
 not see (a live robot's dropped frames), a caller that knows the camera's motion says where
-each track is expected, and Lucas–Kanade starts there.
+each track is expected, and Lucas–Kanade starts there. :meth:`FeatureTracker.state_dict` is
+everything the tracker carries from one image to the next (a checkpoint's): a tracker given it
+back continues exactly as the one it came from.
 """
 
 from __future__ import annotations
@@ -61,6 +63,60 @@ class FeatureTracker:
         self._template = np.zeros((0, self._window.ox.size), np.float32)
         self._A = np.zeros((0, 2, 2))
         self._photo = np.zeros((0, 2))  # gain, offset
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """What the tracker carries to the next image: the next id, each track's id, age,
+        position, template, warp and gain/offset, and the last image (``(0, 0)`` before the
+        first)."""
+        previous = np.zeros((0, 0), np.uint8) if self._previous is None else self._previous
+        return {
+            "next_id": np.array(self.next_id, np.int64),
+            "ids": self.ids.copy(),
+            "age": self._age.copy(),
+            "uv": self.uv.copy(),
+            "previous": np.array(previous),
+            "template": self._template.copy(),
+            "A": self._A.copy(),
+            "photo": self._photo.copy(),
+        }
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from a :meth:`state_dict` of a tracker of the same image size and settings.
+
+        Raises
+        ------
+        ValueError
+            A key missing, or arrays that do not fit together or these images.
+        """
+        missing = {"next_id", "ids", "age", "uv", "previous", "template", "A", "photo"} - set(state)
+        if missing:
+            raise ValueError(f"feature tracker state without {sorted(missing)}")
+        ids = np.asarray(state["ids"], np.int64).reshape(-1)
+        n = ids.size
+        shapes = {"age": (n,), "uv": (n, 2)}
+        if self.config.affine_refinement:
+            shapes.update(template=(n, self._window.ox.size), A=(n, 2, 2), photo=(n, 2))
+        for key, shape in shapes.items():
+            if np.shape(state[key]) != shape:
+                raise ValueError(
+                    f"feature tracker state: {key} of shape {np.shape(state[key])} for {n} tracks"
+                )
+        previous = np.asarray(state["previous"])
+        width, height = self.image_size
+        if previous.size and previous.shape != (height, width):
+            raise ValueError(
+                f"feature tracker state: a last image of {previous.shape[1]}×{previous.shape[0]} "
+                f"for images of {width}×{height}"
+            )
+        self.next_id = int(state["next_id"])
+        self.ids = ids.copy()
+        self._age = np.asarray(state["age"], np.int64).copy()
+        self.uv = np.array(state["uv"])
+        self._previous = previous.copy() if previous.size else None
+        # the arrays as they were (their dtypes too: a template may be float32 or float64)
+        self._template = np.array(state["template"])
+        self._A = np.array(state["A"])
+        self._photo = np.array(state["photo"])
 
     def _refine(self, image: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Align every track's template to ``image`` (affine + gain/offset); return the

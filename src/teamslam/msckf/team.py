@@ -30,7 +30,7 @@ from teamslam.datasets.model import TeamDataset
 from teamslam.errors import EstimationError, InputError, InternalError, OutputError
 from teamslam.graph import CommunicationGraph, EdgeLoss, complete
 from teamslam.msckf.agent import MsckfAgent, grown
-from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage
+from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage, MessageLags
 from teamslam.msckf.consensus.protocol import NOT_AVERAGED, ConsensusProtocol
 from teamslam.msckf.consensus.transport import MemoryNetwork, Transport
 from teamslam.msckf.filter.linearization import GroundTruth
@@ -152,18 +152,24 @@ class Asynchronous:
     ``by_stamp``: for robots that drop frames (live), whose steps count the frames each
     processed and are not comparable between them, messages are aged by the stamp of the frame
     they were sent at instead — accepted back to ``max_age_s`` seconds before the current
-    frame's stamp, by default ``max_age`` of the robot's steps (the sequence's
-    ``step_interval_ns``: the mean stamp interval between the frames it processed — longer than the
-    input's frame period when it drops frames, as ``max_age`` steps are).
+    frame's stamp when it is given; by default each neighbour's messages up to the age learned
+    from how late they arrive (the ``lag_quantile`` of their lags plus the neighbour's interval
+    between messages, :class:`~teamslam.msckf.consensus.messages.MessageLags`), never less than
+    ``max_age`` of the robot's steps (the sequence's ``step_interval_ns``: the mean stamp
+    interval between the frames it processed — longer than the input's frame period when it
+    drops frames, as ``max_age`` steps are). ``lag_quantile`` ``None``: that floor alone.
     """
 
     max_age: int = 3
     by_stamp: bool = False
     max_age_s: float | None = None
+    lag_quantile: float | None = 0.95
 
     def __post_init__(self) -> None:
         if self.max_age_s is not None and not (np.isfinite(self.max_age_s) and self.max_age_s >= 0):
             raise InputError(f"max_age_s must be seconds ≥ 0, got {self.max_age_s}")
+        if self.lag_quantile is not None and not 0.0 < self.lag_quantile < 1.0:
+            raise InputError(f"the lag quantile must be in (0, 1), got {self.lag_quantile}")
 
 
 class RobotDriver:
@@ -206,6 +212,13 @@ class RobotDriver:
             else None
         )
         self.by_stamp = isinstance(wait, Asynchronous) and wait.by_stamp
+        #: asynchronous: the neighbours' messages seen, their lags and the age limits learned
+        #: from them (aged by stamp without a fixed ``max_age_s``), those found too old
+        self.lags: MessageLags | None = None
+        if isinstance(wait, Asynchronous) and self.protocol is not None:
+            learn = self.by_stamp and wait.max_age_s is None
+            self.lags = MessageLags(wait.lag_quantile if learn else None)
+        self._too_old = 0  # messages found too old so far, counted in messages_too_old
         if self.by_stamp and not hasattr(agent.sequence, "step_interval_ns"):
             raise InternalError("ageing messages by stamp needs a sequence with frame stamps")
         frames = agent.sequence.frames
@@ -270,7 +283,8 @@ class RobotDriver:
     def _requests(self, t: int, iteration: int) -> None:
         reachable = self.transport.reachable(self.protocol.exchange(t, iteration), self.neighbours)
         stamp_ns, max_age_ns = self._age(t)
-        for message in self.protocol.requests(t, reachable, iteration, stamp_ns, max_age_ns):
+        requests = self.protocol.requests(t, reachable, iteration, stamp_ns, max_age_ns, self.lags)
+        for message in requests:
             self.transport.send(message)
 
     def _age(self, t: int) -> tuple[int | None, int | None]:
@@ -286,11 +300,23 @@ class RobotDriver:
         return int(sequence.stamps_ns[t]), int(max_age_ns)
 
     def _newest(self, kind: type, t: int) -> list:
-        """Asynchronous: each neighbour's newest ``kind`` message of the age accepted."""
+        """Asynchronous: each neighbour's newest ``kind`` message of the age accepted (those
+        found too old are counted in the agent's ``messages_too_old``)."""
         protocol = self.protocol
-        return self.transport.newest(
-            kind, self.neighbours, self.wait.max_age, t, protocol.stamp_ns, protocol.max_age_ns
+        heard = self.transport.newest(
+            kind,
+            self.neighbours,
+            self.wait.max_age,
+            t,
+            protocol.stamp_ns,
+            protocol.max_age_ns,
+            self.lags,
         )
+        too_old = sum(self.lags.too_old.values())
+        if too_old > self._too_old:
+            self.agent.counters["messages_too_old"] += too_old - self._too_old
+            self._too_old = too_old
+        return heard
 
     def _answer(self, t: int, iteration: int) -> None:
         number = self.protocol.exchange(t, iteration)

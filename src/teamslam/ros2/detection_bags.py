@@ -82,6 +82,18 @@ class LiveClassTable:
         self.table[name] = int(name) if numeric else len(self.table)
         return self.table[name]
 
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The labels given so far (a checkpoint's): names in order of first appearance."""
+        return {"names": np.array(list(self.table), dtype=str)}
+
+    @classmethod
+    def from_state(cls, state: dict[str, np.ndarray]) -> LiveClassTable:
+        """The table of a :meth:`state_dict`: the same label for every name seen before it."""
+        table = cls()
+        for name in np.asarray(state["names"], dtype=str).tolist():
+            table.label(name, "checkpoint")
+        return table
+
 
 def message_detections(
     msg, where: str, image_size: tuple[int, int], classes: LiveClassTable

@@ -64,6 +64,7 @@ class TeamFile:
     timeout_s: float = 5.0
     max_age_steps: int = 3
     max_age_s: float | None = None
+    max_age_quantile: float | None = 0.95
     checkpoint_every: int = 25
     message_loss: float = 0.0
     message_delay_ms: float = 0.0
@@ -162,6 +163,7 @@ def _parse(data, path: Path) -> TeamFile:
         "timeout_s",
         "max_age_steps",
         "max_age_s",
+        "max_age_quantile",
         "checkpoint_every",
         "message_loss",
         "message_delay_ms",
@@ -257,6 +259,7 @@ def _parse(data, path: Path) -> TeamFile:
         timeout_s=_number(data, "timeout_s", 5.0, float, 0.0),
         max_age_steps=_number(data, "max_age_steps", 3, int, 0),
         max_age_s=_max_age_s(data),
+        max_age_quantile=_max_age_quantile(data),
         checkpoint_every=_number(data, "checkpoint_every", 25, int, 0),
         message_loss=_number(data, "message_loss", 0.0, float, 0.0, 1.0),
         message_delay_ms=_number(data, "message_delay_ms", 0.0, float, 0.0),
@@ -275,6 +278,18 @@ def _max_age_s(data: dict) -> float | None:
     value = _number(data, "max_age_s", None, float, 0.0)
     if not np.isfinite(value):
         raise TeamFileError(f"'max_age_s' must be finite seconds, got {value}")
+    return value
+
+
+def _max_age_quantile(data: dict) -> float | None:
+    """``max_age_quantile``: the share of a neighbour's message lags its age limit covers
+    (live asynchronous robots; :class:`~teamslam.msckf.consensus.messages.MessageLags`), or
+    ``None`` (null: ``max_age_steps`` of the robot's own steps alone)."""
+    if "max_age_quantile" in data and data["max_age_quantile"] is None:
+        return None
+    value = _number(data, "max_age_quantile", 0.95, float)
+    if not 0.0 < value < 1.0:
+        raise TeamFileError(f"'max_age_quantile' must be a probability in (0, 1), got {value}")
     return value
 
 

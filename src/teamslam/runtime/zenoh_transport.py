@@ -20,7 +20,7 @@ from collections import defaultdict
 import numpy as np
 
 from teamslam._optional import require
-from teamslam.msckf.consensus.messages import MapIdsMessage, Message
+from teamslam.msckf.consensus.messages import MapIdsMessage, Message, MessageLags
 from teamslam.msckf.consensus.transport import Mailbox
 from teamslam.runtime.team_file import TeamFile
 from teamslam.runtime.wire import WireError, decode, encode, team_id
@@ -280,9 +280,10 @@ class ZenohTransport:
         step: int,
         stamp_ns: int | None = None,
         max_age_ns: int | None = None,
+        lags: MessageLags | None = None,
     ) -> list[Message]:
         """See :meth:`teamslam.msckf.consensus.transport.Transport.newest`."""
-        return self._mailbox.newest(kind, senders, max_age, step, stamp_ns, max_age_ns)
+        return self._mailbox.newest(kind, senders, max_age, step, stamp_ns, max_age_ns, lags)
 
     def statistics(self) -> dict:
         """Injected drops, messages rejected before decoding, and per-message latencies."""

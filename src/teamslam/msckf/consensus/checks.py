@@ -22,7 +22,12 @@ from teamslam.msckf.consensus.kernels import (
     NOT_SYMMETRIC,
     checked_symmetric_part,
 )
-from teamslam.msckf.consensus.messages import CommonMarginalMessage, MapIdsMessage, MessageAge
+from teamslam.msckf.consensus.messages import (
+    CommonMarginalMessage,
+    MapIdsMessage,
+    MessageAge,
+    MessageLags,
+)
 from teamslam.msckf.filter.state import MsckfState
 
 __all__ = [
@@ -47,6 +52,7 @@ def check_message(
     stamp_ns: int | None = None,
     max_age_ns: int | None = None,
     persistent: bool = False,
+    lags: MessageLags | None = None,
 ) -> tuple[str | None, MapIdsMessage | ReceivedMarginal | None]:
     """Whether a received message can be used in this step of consensus.
 
@@ -79,6 +85,9 @@ def check_message(
     persistent
         Round 2: the receiver's persistent map takes part in consensus — the marginal's objects
         in it are kept apart (:attr:`ReceivedMarginal.retired`), not dropped.
+    lags
+        With ``max_age_ns``: the age limits learned per neighbour, when longer
+        (:class:`~teamslam.msckf.consensus.messages.MessageLags`).
 
     Returns
     -------
@@ -89,7 +98,7 @@ def check_message(
     """
     if not isinstance(message, kind):
         return "unexpected message kind", None
-    problem = MessageAge(step, max_age, stamp_ns, max_age_ns).problem(message)
+    problem = MessageAge(step, max_age, stamp_ns, max_age_ns, lags).problem(message)
     if problem is not None:
         return problem, None
     if message.sender not in neighbours or message.receiver != robot:

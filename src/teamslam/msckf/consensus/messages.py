@@ -3,7 +3,8 @@
 Round 1, :class:`MapIdsMessage`: the sender's map ids; round 2, :class:`CommonMarginalMessage`:
 its marginal of the objects it shares with the receiver and its degree this step (with
 information increments, also its prior). A message is aged by its step, or — between robots
-that drop frames, whose steps are not comparable — by its frame's stamp (:class:`MessageAge`).
+that drop frames, whose steps are not comparable — by its frame's stamp (:class:`MessageAge`),
+up to an age learned per neighbour from how late its messages arrive (:class:`MessageLags`).
 Messages are plain data, moved by a
 :class:`~teamslam.msckf.consensus.transport.Transport` and laid out on a network by
 :mod:`teamslam.runtime.wire`; ids, strictly increasing, travel as variable-length deltas
@@ -12,6 +13,8 @@ Messages are plain data, moved by a
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +27,7 @@ __all__ = [
     "MapIdsMessage",
     "Message",
     "MessageAge",
+    "MessageLags",
     "decode_ids",
     "encode_ids",
     "summary_wire_bytes",
@@ -300,22 +304,122 @@ def _exactly_single(values: np.ndarray) -> bool:
 Message = MapIdsMessage | CommonMarginalMessage
 
 
+class MessageLags:
+    """How late each neighbour's messages reach this robot, and the age up to which they are
+    used, learned from their stamps (robots aged by stamp); messages found too old, counted.
+
+    A message's lag is the stamp of this robot's frame at the first exchange that finds it in
+    the mailbox minus the stamp of the neighbour's frame it was sent at: the neighbour's latency
+    minus ours, plus the time on the way and until our next exchange. The newest message of a
+    neighbour that keeps talking is replaced one of its intervals later, so it is at most its
+    arrival lag plus that interval old; a neighbour's messages of a kind are accepted up to the
+    ``quantile`` of their last ``window`` lags plus the median interval between them — its
+    newest message is usable at that share of our exchanges however its lag compares with our
+    own frame interval, and a neighbour that stops talking expires that long after its last
+    message. The empirical quantile exists once ``1 / (1 − quantile)`` lags are known; until
+    then the largest lag seen stands for it (a neighbour's first message is used). With
+    ``quantile`` ``None`` the age limit given (the floor) applies alone. Derivation: the concept
+    page *Consensus*.
+
+    Parameters
+    ----------
+    quantile
+        The share of the neighbour's arrival lags covered (``None``: nothing is learned).
+    window
+        How many of a neighbour's latest lags and intervals are kept.
+    """
+
+    def __init__(self, quantile: float | None = 0.95, window: int = 50) -> None:
+        if quantile is not None and not 0.0 < quantile < 1.0:
+            raise ValueError(f"the lag quantile must be in (0, 1), got {quantile}")
+        self.quantile = quantile
+        self.window = int(window)
+        self.needed = 0 if quantile is None else math.ceil(1.0 / (1.0 - quantile) - 1e-9)
+        self._latest: dict[tuple[int, type], Message] = {}
+        self._lags: dict[tuple[int, type], deque[int]] = {}
+        self._intervals: dict[tuple[int, type], deque[int]] = {}
+        self._learned: dict[tuple[int, type], int | None] = {}
+        #: messages discarded as older than their limit while the newest of their sender and
+        #: kind, by sender
+        self.too_old: dict[int, int] = {}
+
+    def seen(self, message: Message, stamp_ns: int | None) -> None:
+        """``message`` is in the mailbox at the exchange of our frame stamped ``stamp_ns``: the
+        first time a neighbour's newer message is seen, its lag and interval are kept."""
+        key = (message.sender, type(message))
+        latest = self._latest.get(key)
+        stamp = message.stamp_ns
+        if stamp is None or stamp_ns is None:  # by step: only which one is the newest
+            if latest is None or message.step > latest.step:
+                self._latest[key] = message
+            return
+        if latest is not None and latest.stamp_ns is not None and stamp <= latest.stamp_ns:
+            return
+        self._latest[key] = message
+        if self.quantile is None:
+            return
+        lags = self._lags.setdefault(key, deque(maxlen=self.window))
+        lags.append(int(stamp_ns) - int(stamp))
+        if latest is not None and latest.stamp_ns is not None:
+            intervals = self._intervals.setdefault(key, deque(maxlen=self.window))
+            intervals.append(int(stamp) - int(latest.stamp_ns))
+        self._learned.pop(key, None)
+
+    def learned_ns(self, sender: int, kind: type) -> int | None:
+        """The age in ns up to which ``sender``'s ``kind`` messages are usable by its lags
+        (``None``: no lag known)."""
+        key = (sender, kind)
+        if key not in self._learned:
+            lags = self._lags.get(key, ())
+            learned = None
+            if self.quantile is not None and lags:
+                q = self.quantile if len(lags) >= self.needed else 1.0  # the largest, until then
+                lag = np.quantile(np.fromiter(lags, np.int64), q, method="higher")
+                intervals = self._intervals.get(key, ())
+                interval = np.median(np.fromiter(intervals, np.int64)) if intervals else 0
+                learned = int(lag) + round(float(interval))
+            self._learned[key] = learned
+        return self._learned[key]
+
+    def limit_ns(self, sender: int, kind: type, floor_ns: int) -> int:
+        """The age limit of ``sender``'s ``kind`` messages: the learned one, never below
+        ``floor_ns``."""
+        learned = self.learned_ns(sender, kind)
+        return floor_ns if learned is None else max(int(floor_ns), learned)
+
+    def discarded(self, message: Message) -> None:
+        """``message`` was discarded as expired: counted in :attr:`too_old` when it was its
+        sender's newest of its kind (a message superseded by a newer one expires unused as a
+        matter of course)."""
+        if self._latest.get((message.sender, type(message))) is message:
+            self.too_old[message.sender] = self.too_old.get(message.sender, 0) + 1
+
+    def stale(self, sender: int, kind: type, age: MessageAge) -> bool:
+        """Whether ``sender``'s newest ``kind`` message seen is too old at ``age`` (it was
+        heard, but nothing of an accepted age)."""
+        latest = self._latest.get((sender, kind))
+        return latest is not None and age.expired(latest)
+
+
 @dataclass(frozen=True)
 class MessageAge:
     """Which messages an exchange accepts, by age.
 
     By step (``max_age_ns`` is ``None``): those of steps ``step − max_age`` to ``step``; a
     step counts the frames a robot processed, the same for every robot of a team that
-    processes every frame. By stamp: those sent at a frame stamped ``stamp_ns − max_age_ns``
-    or later — robots that drop frames (live, asynchronous) process different numbers of
-    frames, and only the stamps of their frames are comparable. A message of a later stamp
-    (a neighbour ahead in time) is fresher, not stale: it is accepted.
+    processes every frame. By stamp: those sent at a frame stamped ``stamp_ns − limit`` or
+    later — robots that drop frames (live, asynchronous) process different numbers of frames,
+    and only the stamps of their frames are comparable; ``limit`` is ``max_age_ns``, or with
+    ``lags`` the age learned from the sender's lags when longer
+    (:meth:`MessageLags.limit_ns`). A message of a later stamp (a neighbour ahead in time) is
+    fresher, not stale: it is accepted.
     """
 
     step: int
     max_age: int
     stamp_ns: int | None = None
     max_age_ns: int | None = None
+    lags: MessageLags | None = None
 
     def __post_init__(self) -> None:
         if self.max_age_ns is not None and self.stamp_ns is None:
@@ -326,12 +430,18 @@ class MessageAge:
         """Whether messages are aged by their frame's stamp (else by step)."""
         return self.max_age_ns is not None
 
+    def limit_ns(self, message: Message) -> int:
+        """Aged by stamp: the oldest age in ns accepted of ``message``'s sender and kind."""
+        if self.lags is None:
+            return self.max_age_ns
+        return self.lags.limit_ns(message.sender, type(message), self.max_age_ns)
+
     def expired(self, message: Message) -> bool:
         """Whether ``message`` is older than accepted (one of a later step or stamp is not;
         by stamp, one without a stamp is judged by :meth:`problem`)."""
         if self.by_stamp:
             stamp = message.stamp_ns
-            return stamp is not None and stamp < self.stamp_ns - self.max_age_ns
+            return stamp is not None and stamp < self.stamp_ns - self.limit_ns(message)
         return self.step - message.step > self.max_age
 
     def problem(self, message: Message) -> str | None:
@@ -345,7 +455,7 @@ class MessageAge:
             if self.expired(message):
                 return (
                     f"message of stamp {message.stamp_ns} ns at {self.stamp_ns} ns, older than "
-                    f"{self.max_age_ns / 1e9:g} s"
+                    f"{self.limit_ns(message) / 1e9:g} s"
                 )
             return None
         if not self.step - self.max_age <= message.step <= self.step:

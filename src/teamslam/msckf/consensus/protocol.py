@@ -26,7 +26,7 @@ concept page *Consensus* (``docs/concepts/consensus.md``).
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import replace
 from typing import Protocol
@@ -51,6 +51,8 @@ from teamslam.msckf.consensus.messages import (
     CommonMarginalMessage,
     MapIdsMessage,
     Message,
+    MessageAge,
+    MessageLags,
     summary_wire_bytes,
 )
 from teamslam.msckf.consensus.rules import consensus_rule
@@ -138,6 +140,8 @@ class ConsensusProtocol:
         # frames), the oldest stamp accepted as ``stamp_ns − max_age_ns`` (None: by step)
         self.stamp_ns: int | None = None
         self.max_age_ns: int | None = None
+        # with it, the age limits learned from each neighbour's lags (MessageLags)
+        self.lags: MessageLags | None = None
         # L exchanges per step (lock-step only; asynchronous robots exchange once a step)
         self.iterations = int(settings.iterations) if self.max_age == 0 else 1
         self.iteration = 0
@@ -212,6 +216,14 @@ class ConsensusProtocol:
                 named = base(f"{where}: consensus: {exc}")
             raise named from exc
 
+    def _stale(self, sender: int, kind: type) -> bool:
+        """Whether ``sender``'s newest ``kind`` message arrived but is too old for this exchange
+        (known with :attr:`lags` only: asynchronous robots)."""
+        if self.lags is None:
+            return False
+        age = MessageAge(self.round, self.max_age, self.stamp_ns, self.max_age_ns, self.lags)
+        return self.lags.stale(sender, kind, age)
+
     def _check(self, message: object, kind: type, taken: dict, heard: set | None = None):
         """The message's usable content (:func:`~teamslam.msckf.consensus.checks.check_message`),
         or ``None``: ignored (a second message of a sender in ``taken``) or rejected (counted on
@@ -230,6 +242,7 @@ class ConsensusProtocol:
             self.stamp_ns,
             self.max_age_ns,
             self.persistent,
+            self.lags,
         )
         if problem is not None:
             self.agent.reject("messages", reason=problem)
@@ -253,6 +266,7 @@ class ConsensusProtocol:
         iteration: int = 0,
         stamp_ns: int | None = None,
         max_age_ns: int | None = None,
+        lags: MessageLags | None = None,
     ) -> list[MapIdsMessage]:
         """Round 1 of exchange ``iteration`` of ``step``: our map ids (and which moved) for
         each neighbour in ``to``.
@@ -260,7 +274,9 @@ class ConsensusProtocol:
         ``stamp_ns`` is the stamp of the frame the exchange is at; every message of the
         exchange carries it. With ``max_age_ns`` (asynchronous robots that drop frames, whose
         steps are not comparable) the neighbours' messages are aged by their stamps, not their
-        steps (:class:`~teamslam.msckf.consensus.messages.MessageAge`).
+        steps (:class:`~teamslam.msckf.consensus.messages.MessageAge`), up to the limits
+        ``lags`` learned per neighbour when given
+        (:class:`~teamslam.msckf.consensus.messages.MessageLags`).
 
         Raises
         ------
@@ -274,6 +290,7 @@ class ConsensusProtocol:
         self.round = self.exchange(step, iteration)
         self.stamp_ns = None if stamp_ns is None else int(stamp_ns)
         self.max_age_ns = None if max_age_ns is None else int(max_age_ns)
+        self.lags = lags
         with self._named():
             return self._requests(to)
 
@@ -775,7 +792,7 @@ class ConsensusProtocol:
         self_weight, weights = self.weights(degrees)
         self.averaged_with = sorted(marginals)
         self.not_averaged = {
-            j: _why_not_averaged(j, refused, inconsistent, self.heard, self.expected)
+            j: _why_not_averaged(j, refused, inconsistent, self.heard, self.expected, self._stale)
             for j in sorted(self.neighbours - set(marginals))
         }
         used = [(weights[j], marginals[j]) for j in sorted(marginals) if marginals[j].ids.size]
@@ -830,27 +847,41 @@ class ConsensusProtocol:
 
 
 #: why a neighbour was not averaged with in an exchange: ``not_heard`` (no map ids of it
-#: of an accepted age), ``nothing_common`` (heard, but no object to average with it: none in
-#: common, or none that moved), ``no_marginal`` (objects to average, but no marginal of it of an
-#: accepted age arrived), ``refused`` (its marginal failed the checks: counted in
-#: ``rejected_messages``), ``inconsistent`` (its marginal failed the consensus innovation
-#: check)
-NOT_AVERAGED = ("not_heard", "nothing_common", "no_marginal", "refused", "inconsistent")
+#: of an accepted age), ``too_old`` (asynchronous: its newest map ids, or its newest marginal
+#: when its ids were heard, arrived but are older than accepted), ``nothing_common`` (heard,
+#: but no object to average with it: none in common, or none that moved), ``no_marginal``
+#: (objects to average, but no marginal of it of an accepted age arrived), ``refused`` (its
+#: marginal failed the checks: counted in ``rejected_messages``), ``inconsistent`` (its
+#: marginal failed the consensus innovation check)
+NOT_AVERAGED = (
+    "not_heard",
+    "too_old",
+    "nothing_common",
+    "no_marginal",
+    "refused",
+    "inconsistent",
+)
 
 
 def _why_not_averaged(
-    j: int, refused: set[int], inconsistent: set[int], heard: set[int], expected: set[int]
+    j: int,
+    refused: set[int],
+    inconsistent: set[int],
+    heard: set[int],
+    expected: set[int],
+    stale: Callable[[int, type], bool],
 ) -> str:
-    """The :data:`NOT_AVERAGED` reason of neighbour ``j`` in an exchange."""
+    """The :data:`NOT_AVERAGED` reason of neighbour ``j`` in an exchange (``stale(j, kind)``:
+    whether its newest ``kind`` message arrived but is too old)."""
     if j in refused:
         return "refused"
     if j in inconsistent:
         return "inconsistent"
     if j not in heard:
-        return "not_heard"
+        return "too_old" if stale(j, MapIdsMessage) else "not_heard"
     if j not in expected:
         return "nothing_common"
-    return "no_marginal"
+    return "too_old" if stale(j, CommonMarginalMessage) else "no_marginal"
 
 
 def _reordered_prior(message: CommonMarginalMessage, order: np.ndarray) -> dict:

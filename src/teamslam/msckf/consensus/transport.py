@@ -21,7 +21,12 @@ from typing import Protocol
 import numpy as np
 
 from teamslam.errors import InputError
-from teamslam.msckf.consensus.messages import CommonMarginalMessage, Message, MessageAge
+from teamslam.msckf.consensus.messages import (
+    CommonMarginalMessage,
+    Message,
+    MessageAge,
+    MessageLags,
+)
 
 __all__ = ["LyingNetwork", "Mailbox", "MemoryNetwork", "MemoryTransport", "Transport"]
 
@@ -65,10 +70,12 @@ class Transport(Protocol):
         step: int,
         stamp_ns: int | None = None,
         max_age_ns: int | None = None,
+        lags: MessageLags | None = None,
     ) -> list[Message]:
         """Each sender's newest ``kind`` message no older than ``step − max_age``, by sender;
         with ``max_age_ns``, none sent at a frame stamped before ``stamp_ns − max_age_ns``
-        (:class:`~teamslam.msckf.consensus.messages.MessageAge`)."""
+        (:class:`~teamslam.msckf.consensus.messages.MessageAge`; with ``lags``, each sender's
+        limit learned from its lags, and the messages found too old counted there)."""
 
     def wait_for_peers(self, count: int, timeout: float) -> int:
         """Block until ``count`` neighbours are reachable (or ``timeout``); how many are."""
@@ -146,13 +153,19 @@ class Mailbox:
         step: int,
         stamp_ns: int | None = None,
         max_age_ns: int | None = None,
+        lags: MessageLags | None = None,
     ) -> list[Message]:
         """Each sender's newest ``kind`` message no older than ``step − max_age`` (with
         ``max_age_ns``: sent at a frame stamped ``stamp_ns − max_age_ns`` or later), by sender;
         expired messages are discarded. Aged by stamp, a message without one is handed over
-        once (the checks name it) and discarded."""
-        age = MessageAge(step, max_age, stamp_ns, max_age_ns)
+        once (the checks name it) and discarded. With ``lags``, every message here is shown to
+        it first (:meth:`~teamslam.msckf.consensus.messages.MessageLags.seen`: the limits are
+        learned from them) and each one discarded as expired is counted there."""
+        age = MessageAge(step, max_age, stamp_ns, max_age_ns, lags)
         with self._cond:
+            if lags is not None:
+                for m in self._messages:
+                    lags.seen(m, stamp_ns)
             best: dict[int, Message] = {}
             for m in self._messages:
                 if (
@@ -162,11 +175,14 @@ class Mailbox:
                     and (m.sender not in best or m.step > best[m.sender].step)
                 ):
                     best[m.sender] = m
-            self._messages = [
-                m
-                for m in self._messages
-                if not age.expired(m) and not (age.by_stamp and m.stamp_ns is None)
-            ]
+            keep = []
+            for m in self._messages:
+                if age.expired(m):
+                    if lags is not None:
+                        lags.discarded(m)
+                elif not (age.by_stamp and m.stamp_ns is None):
+                    keep.append(m)
+            self._messages = keep
         return [best[s] for s in sorted(best)]
 
 
@@ -286,10 +302,11 @@ class MemoryTransport:
         step: int,
         stamp_ns: int | None = None,
         max_age_ns: int | None = None,
+        lags: MessageLags | None = None,
     ) -> list[Message]:
         """See :meth:`Transport.newest`."""
         box = self.network.mailboxes[self.robot]
-        return box.newest(kind, senders, max_age, step, stamp_ns, max_age_ns)
+        return box.newest(kind, senders, max_age, step, stamp_ns, max_age_ns, lags)
 
     def reachable(self, step: int, robots: set[int]) -> set[int]:
         """The robots whose link from this one works at ``step``."""
