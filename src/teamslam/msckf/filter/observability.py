@@ -264,10 +264,16 @@ class NullspaceAudit:
 
     def rigid_information(self) -> np.ndarray:
         """``J = Nᵀ Σ⁻¹ N`` ``(6, 6)``: the state's information along the rigid motions of the
-        world at the points the audit keeps."""
-        scale = 1.0 / np.sqrt(np.diag(self.state.cov))
-        basis = self.basis() * scale[:, None]
-        factor = scipy.linalg.cho_factor(self.state.cov * np.outer(scale, scale))
+        world at the points the audit keeps — of the whole joint, the persistent map's consider
+        states included (retirement and re-entry move objects within it)."""
+        cov, retired = self.state.with_consider()
+        basis = self.basis()
+        if retired.size:
+            points = np.stack([self._object_point[int(i)] for i in retired])
+            basis = np.vstack([basis, _point_directions(points).reshape(-1, 6)])
+        scale = 1.0 / np.sqrt(np.diag(cov))
+        basis = basis * scale[:, None]
+        factor = scipy.linalg.cho_factor(cov * np.outer(scale, scale))
         return basis.T @ scipy.linalg.cho_solve(factor, basis)
 
     def _informed(self, edit: str, original):
@@ -335,13 +341,15 @@ class NullspaceAudit:
         return update
 
     def _add_object(self, original):
-        def add_object(object_id, position, cov_pp, cov_ps, robot=None, first_estimate=None):
+        def add_object(
+            object_id, position, cov_pp, cov_ps, robot=None, first_estimate=None, **kwargs
+        ):
             s = self.state
             window = 6 * s.n_poses
             implied = np.asarray(cov_ps)[:, :window] @ np.linalg.solve(
                 s.covariance(slice(0, window)), self.basis()[:window]
             )
-            original(object_id, position, cov_pp, cov_ps, robot, first_estimate)
+            original(object_id, position, cov_pp, cov_ps, robot, first_estimate, **kwargs)
             point = s.object_fe[-1].copy()
             self._object_point[int(object_id)] = point
             want = _point_directions(point[None])[0]
