@@ -185,3 +185,43 @@ def test_a_snapshot_carries_the_consider_states_and_checks_the_joint():
     with pytest.raises(Exception, match="not positive definite"):
         other.restore(bad)
     np.testing.assert_array_equal(other.with_consider()[0], state.with_consider()[0])
+
+
+def test_a_bound_on_the_consider_states_drops_the_earliest_correlations():
+    """``max_consider``: beyond it the earliest retired objects keep their marginals only —
+    exact marginalisation of the joint — and re-enter without correlations; a snapshot keeps
+    which is which."""
+    rng = np.random.default_rng(5)
+    state = _random_state(rng, 2, 6)
+    ref = Reference(_labels(state), state.cov)
+    assert state.retire_objects(state.object_slots(np.array([12])), max_consider=2) == 0
+    assert state.retire_objects(state.object_slots(np.array([10, 15])), max_consider=2) == 1
+    assert state.retire_objects(state.object_slots(np.array([11])), max_consider=2) == 1
+    np.testing.assert_array_equal(
+        state.retired.is_consider(np.array([12, 10, 15, 11])), [False, False, True, True]
+    )
+    assert len(state.retired) == 4 and state.retired.n_consider == 2
+    # the consider part of the joint is the original's marginal, and so are the loose marginals
+    _compare(state, ref)
+    for i in (12, 10):
+        cov = state.retired.get(np.array([i]))[1][0]
+        index = ref.index([("obj", i)])
+        np.testing.assert_array_equal(cov, ref.cov[np.ix_(index, index)])
+    other = _random_state(rng, 1, 0)
+    other.restore(state.snapshot())
+    np.testing.assert_array_equal(
+        other.retired.is_consider(np.array([12, 10, 15, 11])), [False, False, True, True]
+    )
+    # a loose object re-enters with its marginal and no correlation; a consider state exactly
+    state.reenter_objects(np.array([12, 15]), 2)
+    slot = state.object_slots(np.array([12]))[0]
+    col = state.object_columns(np.array([slot]))[0]
+    rest = np.setdiff1d(np.arange(state.dim), col)
+    np.testing.assert_array_equal(state.cov[np.ix_(col, rest)], 0.0)
+    cov, retired = state.with_consider()
+    labels = [lab for lab in _labels(state) if lab != ("obj", 12)]
+    labels += [("obj", int(i)) for i in retired]
+    keep = np.setdiff1d(np.arange(cov.shape[0]), col)
+    np.testing.assert_allclose(
+        cov[np.ix_(keep, keep)], ref.cov[np.ix_(ref.index(labels), ref.index(labels))], rtol=1e-12
+    )

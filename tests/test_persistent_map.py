@@ -52,9 +52,9 @@ def test_retirement_and_reentry_keep_the_marginals_exactly():
     np.testing.assert_array_equal(fe, before["object_fe"][gone])
 
     # the map keeps every number of the joint: theirs, and with the state that stays
-    stored = state.retired.arrays()
-    order = np.argsort(ids0[gone])
-    coords = cols[order].ravel()
+    stored = state.retired.consider_arrays()
+    order = np.searchsorted(ids0[gone], stored["consider_ids"], sorter=np.argsort(ids0[gone]))
+    coords = cols[np.argsort(ids0[gone])[order]].ravel()
     np.testing.assert_array_equal(stored["joint"], cov0[np.ix_(coords, coords)])
     np.testing.assert_array_equal(stored["cross"], cov0[np.ix_(coords, np.flatnonzero(keep))])
 
@@ -216,6 +216,7 @@ def test_snapshot_carries_the_persistent_map(long_route):
     for t in range(60):
         original.step(t)
     assert len(original.state.retired) > 0
+    assert np.any(original.state.retired.cross != 0)  # consider states: correlated with the state
     snapshot = original.snapshot()
     assert all(isinstance(v, np.ndarray) and v.dtype != object for v in snapshot.values())
     resumed = MsckfAgent(0, long_route.calibration, sequence, config)

@@ -565,8 +565,10 @@ class MsckfAgent:
             oldest = candidates[np.argsort(last_seen[candidates], kind="stable")][:excess]
             stale[oldest] = True
         if stale.any():
-            self.state.retire_objects(np.flatnonzero(stale))
+            loosened = self.state.retire_objects(np.flatnonzero(stale), cfg.max_consider)
             self.counters["objects_retired"] += int(stale.sum())
+            if loosened:
+                self.counters["consider_states_dropped"] += loosened
 
     def active_budget(self, t: int) -> int:
         """The most objects the state may hold after frame ``t`` (0: no bound).

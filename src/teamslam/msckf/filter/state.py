@@ -123,7 +123,7 @@ class MsckfState:
         """The whole state as arrays (copies): window poses, frames, robots and first estimates,
         objects, their first estimates and the frame each was last observed, covariance, and the
         persistent map of retired objects."""
-        retired = self.retired.arrays()
+        retired = {**self.retired.arrays(), **self.retired.consider_arrays()}
         return {
             "window_poses": self.poses.copy(),
             "window_frames": self.frames.copy(),
@@ -172,9 +172,8 @@ class MsckfState:
                 snapshot.get(f"retired_{k}", np.zeros((0, *shape)))
                 for k, shape in (("ids", ()), ("means", (3,)), ("covs", (3, 3)), ("fe", (3,)))
             ),
-            snapshot.get("retired_joint"),
-            snapshot.get("retired_cross"),
-            dim,
+            *(snapshot.get(f"retired_{k}") for k in ("consider_ids", "joint", "cross", "age")),
+            dim=dim,
         )
         if np.any(retired.contains(ids)):
             raise InputError("state snapshot: an object is both in the state and retired")
@@ -400,7 +399,7 @@ class MsckfState:
             return
         if not np.allclose(self._cov, self._cov.T, atol=1e-9 * max(1.0, np.abs(self._cov).max())):
             raise NotPositiveDefiniteError(f"covariance lost symmetry after {what}")
-        if len(self.retired) and self.retired.dim != self.dim:
+        if self.retired.n_consider and self.retired.dim != self.dim:
             raise InternalError(f"the persistent map's columns lost the state's after {what}")
         try:
             np.linalg.cholesky(_with_consider(self._cov, self.retired))
@@ -541,7 +540,7 @@ class MsckfState:
         )
         first = position if first_estimate is None else first_estimate
         self.check_finite(f"first estimate of object {int(object_id)}", first, robot=robot)
-        if len(self.retired) and from_columns is None:
+        if self.retired.n_consider and from_columns is None:
             raise InternalError(
                 "an object initialised next to retired objects needs its map from the state "
                 "(from_columns) for its cross-covariance with them"
@@ -570,22 +569,25 @@ class MsckfState:
         """Record that the objects in ``slots`` were observed at ``frame``."""
         self.object_last_seen[np.asarray(slots, dtype=np.int64)] = int(frame)
 
-    def retire_objects(self, slots: np.ndarray) -> None:
+    def retire_objects(self, slots: np.ndarray, max_consider: int = 0) -> int:
         """Move objects out of the active state into the persistent map as consider states.
 
         Their rows and columns leave the active covariance (whose marginal is unchanged); the
         persistent map keeps their means, first estimates, joint covariance, cross-covariance
         with the active state and with the objects retired before — every number the joint had.
+        With ``max_consider > 0`` at most that many retired objects stay consider states: the
+        earliest retired of the others keep their means and marginals only (exact
+        marginalisation; they re-enter without correlations). Returns how many lost them.
         """
         slots = np.unique(np.asarray(slots, dtype=np.int64))
         if slots.size == 0:
-            return
+            return 0
         cols = self.object_columns(slots).ravel()
         keep = np.ones(self.dim, dtype=bool)
         keep[cols] = False
         joint = self._cov[np.ix_(cols, cols)]
         cross = self._cov[np.ix_(cols, keep)]
-        if len(self.retired):
+        if self.retired.n_consider:
             consider = self.retired.cross
             with_retired = consider[:, cols].T
             self.retired.set_columns(consider[:, keep])
@@ -607,7 +609,9 @@ class MsckfState:
         self.objects = self.objects[kept]
         self.object_fe = self.object_fe[kept]
         self.object_last_seen = self.object_last_seen[kept]
+        loosened = self.retired.loosen(max_consider)
         self._check("object retirement")
+        return loosened
 
     def reenter_objects(self, ids: np.ndarray, frame: int) -> None:
         """Bring retired objects ``ids`` back into the active state, observed at ``frame``.
@@ -639,7 +643,7 @@ class MsckfState:
     def _consider_columns(self, edit: Callable[[np.ndarray], np.ndarray] | None) -> None:
         """After an edit of the active state's columns: the consider states' cross-covariance
         ``edit(C)`` (an empty map follows the new dimension)."""
-        if len(self.retired):
+        if self.retired.n_consider:
             self.retired.set_columns(edit(self.retired.cross))
         else:
             self.retired.resize(self._cov.shape[0])
@@ -710,7 +714,7 @@ class MsckfState:
         delta = whitened.T @ step
         self.check_finite("correction of the update", delta, robot=robot)
         self._cov = self._cov - whitened.T @ whitened
-        if len(self.retired):
+        if self.retired.n_consider:
             # Schmidt: the consider states' gain is zero, their means and covariance stay;
             # their cross-covariance becomes C (I − K H)ᵀ = C − (U⁻ᵀ H Cᵀ)ᵀ W
             consider = self.retired.cross
@@ -842,7 +846,7 @@ class MsckfState:
         if mean.shape != (k,) or cov.shape != (k, k):
             raise InternalError(f"new marginal {mean.shape}, {cov.shape} for {k} coordinates")
         self.check_finite("consensus marginal", mean, cov)
-        if len(self.retired):
+        if self.retired.n_consider:
             self._consider_consensus(index, cov, info)
         shift_y = mean - self.objects.ravel()[slot_cols]
         delta, self._cov = replace_marginal_shift(self._cov, index, shift_y, cov, info)
@@ -869,7 +873,11 @@ class MsckfState:
         means = np.asarray(means, dtype=float).reshape(-1, 3)
         self.check_finite("consensus marginal of retired objects", means, covs)
         retired = self.retired
-        for object_id, mean, cov in zip(ids.tolist(), means, covs, strict=True):
+        loose = ~retired.is_consider(ids)
+        retired.set_loose(ids[loose], means[loose], covs[loose])  # uncorrelated: replaced
+        for object_id, mean, cov in zip(
+            ids[~loose].tolist(), means[~loose], covs[~loose], strict=True
+        ):
             y = retired.coordinates(np.array([object_id]))
             consider, joint = retired.cross, retired.joint
             sigma_y = joint[np.ix_(y, y)]
@@ -1105,7 +1113,7 @@ class RobotWindow:
 
 def _with_consider(cov: np.ndarray, retired: PersistentMap) -> np.ndarray:
     """The joint covariance of the active state and the persistent map's consider states."""
-    if len(retired) == 0:
+    if retired.n_consider == 0:
         return cov
     n, cross = cov.shape[0], retired.cross
     out = np.empty((n + cross.shape[0], n + cross.shape[0]))
