@@ -225,3 +225,28 @@ def test_a_bound_on_the_consider_states_drops_the_earliest_correlations():
     np.testing.assert_allclose(
         cov[np.ix_(keep, keep)], ref.cov[np.ix_(ref.index(labels), ref.index(labels))], rtol=1e-12
     )
+
+
+@pytest.mark.parametrize("consensus", ["gains", "loses"])
+def test_an_average_of_a_retired_object_is_prop_2_with_the_rest_a_consider_state(consensus):
+    """``consensus.persistent_map``: a retired object's new marginal with Prop. 2's
+    cross-covariances; where the average adds information nothing else changes, where it
+    loses some everything else grows as Prop. 2 makes it grow (the joint stays a covariance)."""
+    rng = np.random.default_rng(11)
+    state = _random_state(rng, 2, 5)
+    ref = Reference(_labels(state), state.cov)
+    state.retire_objects(state.object_slots(np.array([11, 13])))
+    cov, retired = state.with_consider()
+    labels = _labels(state) + [("obj", int(i)) for i in retired]
+    joint = ref.cov[np.ix_(ref.index(labels), ref.index(labels))]
+    np.testing.assert_allclose(cov, joint, rtol=1e-12)
+    y = cov.shape[0] - 6 + 3 * list(retired).index(13) + np.arange(3)
+    new_cov = (0.5 if consensus == "gains" else 2.0) * joint[np.ix_(y, y)]
+    _, want = replace_marginal_shift(joint, y, np.zeros(3), new_cov)
+    if consensus == "gains":
+        rest = np.setdiff1d(np.arange(joint.shape[0]), y)
+        want[np.ix_(rest, rest)] = joint[np.ix_(rest, rest)]
+    mean = state.retired.get(np.array([13]))[0] + 0.1
+    state.average_retired(np.array([13]), mean, new_cov[None])
+    np.testing.assert_allclose(state.with_consider()[0], want, rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(state.retired.get(np.array([13]))[0], mean)

@@ -210,8 +210,9 @@ class NullspaceAudit:
 
     With ``information=True`` it also measures, around every edit of :data:`INFORMED`
     (consensus's rebuild of the joint included), the state's information along those
-    directions, ``J = Nᵀ Σ⁻¹ N`` (``6 × 6``; ``Σ`` scaled to a unit diagonal before it is
-    factored), and records the information the edit gave, the largest generalised eigenvalue of
+    directions, ``J = Nᵀ Σ⁻¹ N`` (``6 × 6``; ``Σ`` the whole joint, the persistent map's
+    consider states included, scaled to a unit diagonal before it is factored), and records the
+    information the edit gave, the largest generalised eigenvalue of
     ``(J_after, J_before)`` less one: ``0`` to round-off for an edit that adds none (an update
     whose rows annihilate ``N``), negative for one that removes some (marginalisation), positive
     for one that invents it. A Cholesky factor of the state per edit: for tests and probes.
