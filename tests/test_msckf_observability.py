@@ -130,17 +130,23 @@ def test_first_estimates_keep_the_nullspace_through_marginalisation_and_reentry(
 
 
 def test_the_information_each_edit_gives_along_the_rigid_motions():
-    """`fej`: no edit but re-entry gives the state information along the rigid motions of the
-    world at its first estimates — propagation, updates, initialisation and retirement leave it
-    as it was, marginalisation removes some. A retired object re-enters with its marginal and
-    no cross-covariance with the window, so the state counts the object's place in the world a
-    second time: the audit sees re-entry invent information along them."""
-    _, audit = _audited_run("fej", information=True)
+    """`fej`: no edit gives the state information along the rigid motions of the world at its
+    first estimates — propagation, initialisation, retirement and re-entry leave it as it was
+    (to round-off), updates leave it or remove some (the retired objects are consider states:
+    the update's gain for them is zero, which is conservative), marginalisation removes some.
+    The information is the whole joint's, the persistent map's consider states included: a
+    retired object keeps its cross-covariance with the state and re-enters with it, so its place
+    in the world is not counted twice (re-entering with its marginal alone, as before consider
+    states, gave every re-entry information along them: a median of 29 %, up to 85 %)."""
+    agent, audit = _audited_run("fej", information=True)
+    assert agent.counters["objects_reentered"] > 20
     gained = audit.most_information()
     assert set(gained) == set(INFORMED)
     for edit in ("propagation", "update", "initialisation", "retirement", "marginalisation"):
         assert len(audit.information[edit]) > 20, edit
         assert gained[edit] < 1e-9, (edit, gained[edit])
     assert min(e for _, e in audit.information["marginalisation"]) < -0.1
-    assert len(audit.information["re-entry"]) > 20 and gained["re-entry"] > 0.1
+    assert len(audit.information["re-entry"]) > 20
+    for edit in ("re-entry", "retirement"):  # objects move within the joint: exact
+        assert max(abs(e) for _, e in audit.information[edit]) < 1e-9, edit
     assert np.isnan(gained["consensus"])  # one robot: no consensus

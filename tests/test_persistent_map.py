@@ -51,19 +51,28 @@ def test_retirement_and_reentry_keep_the_marginals_exactly():
     np.testing.assert_array_equal(covs, cov0[cols[:, :, None], cols[:, None, :]])
     np.testing.assert_array_equal(fe, before["object_fe"][gone])
 
-    # one comes back: its own marginal as it left, no cross-covariance, the rest unchanged
+    # the map keeps every number of the joint: theirs, and with the state that stays
+    stored = state.retired.consider_arrays()
+    order = np.searchsorted(ids0[gone], stored["consider_ids"], sorter=np.argsort(ids0[gone]))
+    coords = cols[np.argsort(ids0[gone])[order]].ravel()
+    np.testing.assert_array_equal(stored["joint"], cov0[np.ix_(coords, coords)])
+    np.testing.assert_array_equal(stored["cross"], cov0[np.ix_(coords, np.flatnonzero(keep))])
+
+    # one comes back: with its covariance with the state and with the objects still retired
     state.reenter_objects(ids0[gone[1:2]], frame=9)
     assert len(state.retired) == 2 and state.n_objects == 5
     slot = state.object_slots(ids0[gone[1:2]])[0]
-    col = state.object_columns(np.array([slot]))[0]
     np.testing.assert_array_equal(state.objects[slot], before["objects"][gone[1]])
     np.testing.assert_array_equal(state.object_fe[slot], before["object_fe"][gone[1]])
-    np.testing.assert_array_equal(state.cov[np.ix_(col, col)], covs[1])
-    rest = np.setdiff1d(np.arange(state.dim), col)
-    np.testing.assert_array_equal(state.cov[np.ix_(col, rest)], 0.0)
-    np.testing.assert_array_equal(state.cov[np.ix_(rest, rest)], cov0[np.ix_(keep, keep)])
     assert state.object_last_seen[slot] == 9
-    np.linalg.cholesky(state.cov)
+    # every other one too: the joint is the one before retirement, in the new order, exactly
+    state.reenter_objects(ids0[gone[[2, 0]]], frame=9)
+    assert len(state.retired) == 0
+    old_slot = {int(i): k for k, i in enumerate(ids0)}
+    order = np.array([old_slot[int(i)] for i in state.object_ids])
+    perm = np.concatenate([np.arange(24), (24 + 3 * order[:, None] + np.arange(3)).ravel()])
+    np.testing.assert_array_equal(state.cov, cov0[np.ix_(perm, perm)])
+    np.testing.assert_array_equal(state.objects, before["objects"][order])
 
 
 @pytest.mark.parametrize("form", ["joint", "per_object", "information"])
@@ -207,6 +216,7 @@ def test_snapshot_carries_the_persistent_map(long_route):
     for t in range(60):
         original.step(t)
     assert len(original.state.retired) > 0
+    assert np.any(original.state.retired.cross != 0)  # consider states: correlated with the state
     snapshot = original.snapshot()
     assert all(isinstance(v, np.ndarray) and v.dtype != object for v in snapshot.values())
     resumed = MsckfAgent(0, long_route.calibration, sequence, config)
@@ -365,7 +375,9 @@ def test_persistent_average_is_eq_19_object_by_object():
     rng = np.random.default_rng(4)
     ids = np.array([3, 8, 11, 20])
     means, covs, fe = rng.standard_normal((4, 3)), _spd(rng, 4), rng.standard_normal((4, 3))
-    stored = PersistentMap.from_arrays(ids, means, covs, fe)
+    state = _random_state(1, 0)
+    state.retired.store(ids, means, covs, fe)
+    stored = state.retired
     sent = {1: np.array([3, 11]), 2: np.array([11, 20])}
     weights = {1: 0.25, 2: 0.3}
     theirs = {j: (_spd(rng, s.size), rng.standard_normal((s.size, 3))) for j, s in sent.items()}
@@ -374,7 +386,7 @@ def test_persistent_average_is_eq_19_object_by_object():
         cov, mean = theirs[j]
         info = np.linalg.inv(cov)
         received.append((weights[j], (s, info, np.einsum("kij,kj->ki", info, mean))))
-    assert persistent_average(stored, received) == 3
+    assert persistent_average(state, received) == 3
     for k, i in enumerate(ids):
         own_info = np.linalg.inv(covs[k])
         info, vector = own_info.copy(), own_info @ means[k]
@@ -387,7 +399,7 @@ def test_persistent_average_is_eq_19_object_by_object():
         np.testing.assert_allclose(cov[0], np.linalg.inv(info), rtol=1e-10, atol=1e-12)
         np.testing.assert_allclose(mean[0], np.linalg.solve(info, vector), rtol=1e-10, atol=1e-12)
         np.testing.assert_array_equal(first[0], fe[k])
-    assert persistent_average(stored, [(0.5, None)]) == 0
+    assert persistent_average(state, [(0.5, None)]) == 0
 
 
 def test_a_neighbours_marginal_of_objects_we_retired_is_kept_apart_per_object():

@@ -569,8 +569,10 @@ class MsckfAgent:
             oldest = candidates[np.argsort(last_seen[candidates], kind="stable")][:excess]
             stale[oldest] = True
         if stale.any():
-            self.state.retire_objects(np.flatnonzero(stale))
+            loosened = self.state.retire_objects(np.flatnonzero(stale), cfg.max_consider)
             self.counters["objects_retired"] += int(stale.sum())
+            if loosened:
+                self.counters["consider_states_dropped"] += loosened
 
     def active_budget(self, t: int) -> int:
         """The most objects the state may hold after frame ``t`` (0: no bound).
@@ -829,7 +831,8 @@ class MsckfAgent:
         state.check_finite(f"initialisation rows of object {oid}", r_p, projected)
         r_p_inv = np.linalg.inv(r_p)
         position = point + r_p_inv @ z1
-        cov_ps = -(r_p_inv @ h_s1) @ state.cross_covariance(cols)  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
+        gain = -(r_p_inv @ h_s1)  # the object's error from the poses': δp = G δx[cols] + noise
+        cov_ps = gain @ state.cross_covariance(cols)  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
         cov_pp = r_p_inv @ (h_s1 @ cov_cc @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
         limit = self.config.objects.init_max_relative_std
         if limit > 0:
@@ -839,7 +842,9 @@ class MsckfAgent:
             if np.linalg.eigvalsh(cov_pp)[-1] > (limit * distance) ** 2:
                 self.counters["object_init_deferred"] += 1
                 return False
-        state.add_object(oid, position, cov_pp, cov_ps, first_estimate=linearised)
+        state.add_object(
+            oid, position, cov_pp, cov_ps, first_estimate=linearised, from_columns=(gain, cols)
+        )
         self.counters["objects_initialised"] += 1
         # the landmark-free rows, compact over the poses of the observations
         state.update(h_s2, z2, variance * np.eye(4 * n - 3), columns=cols)

@@ -7,9 +7,8 @@ conditional (Prop. 2) — and rebuilds the joint. :func:`hybrid_marginal` and
 ``consensus.rule = increments`` (lock-step only), whose gains never count one robot's new
 information more than once; a first-estimates filter's average leaves its rigid motions alone
 (:mod:`~teamslam.msckf.consensus.directions`). :func:`persistent_average` averages the objects of
-the persistent map, each on its own (they have no correlation with the state). Derivations: the
-concept page *Consensus*
-(``docs/concepts/consensus.md``).
+the persistent map, each on its own marginal, the rest of the state a consider state of that
+average. Derivations: the concept page *Consensus* (``docs/concepts/consensus.md``).
 """
 
 from __future__ import annotations
@@ -30,7 +29,6 @@ from teamslam.msckf.consensus.checks import ReceivedMarginal, receive_marginal
 from teamslam.msckf.consensus.directions import constrained_average
 from teamslam.msckf.consensus.kernels import symmetric_block
 from teamslam.msckf.consensus.messages import CommonMarginalMessage
-from teamslam.msckf.filter.persistent_map import PersistentMap
 from teamslam.msckf.filter.state import MsckfState
 
 __all__ = [
@@ -463,21 +461,22 @@ def _add_conditional(
 
 
 def persistent_average(
-    retired: PersistentMap,
+    state: MsckfState,
     received: Sequence[tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]]],
 ) -> int:
     """Average the objects of the persistent map with the neighbours' marginals of them.
 
-    Eq. 19 object by object: a retired object has no correlation with the state, so its
-    average is of its own ``3×3`` marginal, ``Ω ← Ω_i + Σ_j A_ij (Ω_j − Ω_i)`` and
+    Eq. 19 object by object on its own ``3×3`` marginal, ``Ω ← Ω_i + Σ_j A_ij (Ω_j − Ω_i)`` and
     ``η ← η_i + Σ_j A_ij (η_j − η_i)`` over the neighbours ``j`` that sent it (a neighbour
     heard without it contributes our own term, as in :func:`consensus_average`). Its first
-    estimate is kept.
+    estimate is kept. A retired object is a consider state correlated with the active state and
+    the other retired objects: the average replaces its marginal and the rest of the joint is a
+    consider state of it (:meth:`~teamslam.msckf.filter.state.MsckfState.average_retired`).
 
     Parameters
     ----------
-    retired
-        Our persistent map (edited in place).
+    state
+        Our state, whose persistent map is averaged (edited in place).
     received
         ``(A_ij, (ids, Ω, η))`` per neighbour: its marginals of objects of ours that are in
         the persistent map (:attr:`~teamslam.msckf.consensus.checks.ReceivedMarginal.retired`).
@@ -492,7 +491,7 @@ def persistent_average(
     if not received:
         return 0
     ids = np.unique(np.concatenate([part[0] for _, part in received]))
-    means, covs, fe = retired.get(ids)
+    means, covs, _ = state.retired.get(ids)
     own_info = np.linalg.inv(0.5 * (covs + np.swapaxes(covs, 1, 2)))
     own_vector = np.einsum("kij,kj->ki", own_info, means)
     info, vector = own_info.copy(), own_vector.copy()
@@ -507,5 +506,5 @@ def persistent_average(
     cov = np.linalg.inv(info[ok])
     cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
     mean = np.einsum("kij,kj->ki", cov, vector[ok])
-    retired.store(ids[ok], mean, cov, fe[ok])
+    state.average_retired(ids[ok], mean, cov)
     return int(ok.sum())

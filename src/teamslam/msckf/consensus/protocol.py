@@ -808,7 +808,7 @@ class ConsensusProtocol:
         self._own_information = {}  # the state has moved
         if self.persistent:
             stored = persistent_average(
-                self.agent.state.retired, [(weights[j], marginals[j].retired) for j in marginals]
+                self.agent.state, [(weights[j], marginals[j].retired) for j in marginals]
             )
             if stored:
                 self.agent.counters["retired_averaged"] += stored

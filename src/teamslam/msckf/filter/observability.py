@@ -210,8 +210,9 @@ class NullspaceAudit:
 
     With ``information=True`` it also measures, around every edit of :data:`INFORMED`
     (consensus's rebuild of the joint included), the state's information along those
-    directions, ``J = Nᵀ Σ⁻¹ N`` (``6 × 6``; ``Σ`` scaled to a unit diagonal before it is
-    factored), and records the information the edit gave, the largest generalised eigenvalue of
+    directions, ``J = Nᵀ Σ⁻¹ N`` (``6 × 6``; ``Σ`` the whole joint, the persistent map's
+    consider states included, scaled to a unit diagonal before it is factored), and records the
+    information the edit gave, the largest generalised eigenvalue of
     ``(J_after, J_before)`` less one: ``0`` to round-off for an edit that adds none (an update
     whose rows annihilate ``N``), negative for one that removes some (marginalisation), positive
     for one that invents it. A Cholesky factor of the state per edit: for tests and probes.
@@ -264,10 +265,16 @@ class NullspaceAudit:
 
     def rigid_information(self) -> np.ndarray:
         """``J = Nᵀ Σ⁻¹ N`` ``(6, 6)``: the state's information along the rigid motions of the
-        world at the points the audit keeps."""
-        scale = 1.0 / np.sqrt(np.diag(self.state.cov))
-        basis = self.basis() * scale[:, None]
-        factor = scipy.linalg.cho_factor(self.state.cov * np.outer(scale, scale))
+        world at the points the audit keeps — of the whole joint, the persistent map's consider
+        states included (retirement and re-entry move objects within it)."""
+        cov, retired = self.state.with_consider()
+        basis = self.basis()
+        if retired.size:
+            points = np.stack([self._object_point[int(i)] for i in retired])
+            basis = np.vstack([basis, _point_directions(points).reshape(-1, 6)])
+        scale = 1.0 / np.sqrt(np.diag(cov))
+        basis = basis * scale[:, None]
+        factor = scipy.linalg.cho_factor(cov * np.outer(scale, scale))
         return basis.T @ scipy.linalg.cho_solve(factor, basis)
 
     def _informed(self, edit: str, original):
@@ -335,13 +342,15 @@ class NullspaceAudit:
         return update
 
     def _add_object(self, original):
-        def add_object(object_id, position, cov_pp, cov_ps, robot=None, first_estimate=None):
+        def add_object(
+            object_id, position, cov_pp, cov_ps, robot=None, first_estimate=None, **kwargs
+        ):
             s = self.state
             window = 6 * s.n_poses
             implied = np.asarray(cov_ps)[:, :window] @ np.linalg.solve(
                 s.covariance(slice(0, window)), self.basis()[:window]
             )
-            original(object_id, position, cov_pp, cov_ps, robot, first_estimate)
+            original(object_id, position, cov_pp, cov_ps, robot, first_estimate, **kwargs)
             point = s.object_fe[-1].copy()
             self._object_point[int(object_id)] = point
             want = _point_directions(point[None])[0]

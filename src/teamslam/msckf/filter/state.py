@@ -4,8 +4,12 @@ The error state is a right perturbation ``(ρ, φ)`` per window pose (``T = T̂ 
 oldest first), then a 3-vector per object. **Every covariance edit goes through**
 :class:`MsckfState` (augment, marginalise, add, update, replace the marginal, retire,
 re-enter); a non-finite input is refused before any edit, and with ``debug=True`` each edit
-checks that the covariance stays symmetric positive definite. Callers reach the layout through
-handles (:class:`PoseHandle`, :class:`ObjectHandle`); the state also keeps first estimates, and
+checks that the covariance — with the persistent map's consider states — stays symmetric
+positive definite. Retired objects are consider states (Schmidt–Kalman): every edit of the
+active state edits their cross-covariance with it as it edits its own rows, none moves their
+means or shrinks their covariance, and re-entry restores the exact joint. Callers reach the
+layout through handles (:class:`PoseHandle`, :class:`ObjectHandle`); the state also keeps first
+estimates, and
 can hold several robots' windows (:class:`RobotWindow`). See the concept page *The filter*
 (``docs/concepts/filter.md``).
 """
@@ -107,7 +111,7 @@ class MsckfState:
         self.objects = np.zeros((0, 3))
         self.object_fe = np.zeros((0, 3))
         self.object_last_seen = np.zeros(0, dtype=np.int64)
-        self.retired = PersistentMap()
+        self.retired = PersistentMap(dim=6)
         # every edit below keeps the covariance exactly symmetric; it starts so
         pose_cov = np.asarray(pose_cov, dtype=float).reshape(6, 6)
         self._cov = 0.5 * (pose_cov + pose_cov.T)
@@ -119,7 +123,7 @@ class MsckfState:
         """The whole state as arrays (copies): window poses, frames, robots and first estimates,
         objects, their first estimates and the frame each was last observed, covariance, and the
         persistent map of retired objects."""
-        retired = self.retired.arrays()
+        retired = {**self.retired.arrays(), **self.retired.consider_arrays()}
         return {
             "window_poses": self.poses.copy(),
             "window_frames": self.frames.copy(),
@@ -161,11 +165,15 @@ class MsckfState:
         ).ravel()
         if last_seen.shape != (m,):
             raise InputError(f"state snapshot: {last_seen.size} last-seen frames for {m} objects")
+        dim = 6 * c + 3 * m
+        # snapshots written before consider states: retired objects uncorrelated
         retired = PersistentMap.from_arrays(
             *(
                 snapshot.get(f"retired_{k}", np.zeros((0, *shape)))
                 for k, shape in (("ids", ()), ("means", (3,)), ("covs", (3, 3)), ("fe", (3,)))
-            )
+            ),
+            *(snapshot.get(f"retired_{k}") for k in ("consider_ids", "joint", "cross", "age")),
+            dim=dim,
         )
         if np.any(retired.contains(ids)):
             raise InputError("state snapshot: an object is both in the state and retired")
@@ -175,7 +183,6 @@ class MsckfState:
             raise InputError("state snapshot: robots or first estimates do not match the state")
         if objects.shape != (m, 3) or np.unique(ids).size != m:
             raise InputError(f"state snapshot: {m} object ids for objects {objects.shape}")
-        dim = 6 * c + 3 * m
         if cov.shape != (dim, dim):
             raise InputError(f"state snapshot: covariance {cov.shape}, state dimension {dim}")
         if not all(np.all(np.isfinite(a)) for a in (poses, objects, cov, pose_fe, object_fe)):
@@ -183,9 +190,11 @@ class MsckfState:
         if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
             raise InputError("state snapshot: covariance is not symmetric")
         try:
-            np.linalg.cholesky(cov)
+            np.linalg.cholesky(_with_consider(cov, retired))
         except np.linalg.LinAlgError:
-            raise InputError("state snapshot: covariance is not positive definite") from None
+            raise InputError(
+                "state snapshot: covariance (with the persistent map's) is not positive definite"
+            ) from None
         self.poses, self.frames, self.object_ids, self.objects = poses, frames, ids, objects
         self.robots, self.pose_fe, self.object_fe = robots, pose_fe, object_fe
         self.object_last_seen, self.retired = last_seen, retired
@@ -205,6 +214,7 @@ class MsckfState:
         state.frames = np.full(n, frame, dtype=np.int64)
         state.robots = np.arange(n, dtype=np.int64)
         state._cov = np.kron(np.eye(n), np.asarray(pose_cov, dtype=float).reshape(6, 6))
+        state.retired.resize(state.dim)
         return state
 
     @classmethod
@@ -260,6 +270,7 @@ class MsckfState:
         state.objects, state.object_fe = objects.copy(), snapshot["object_fe"].reshape(-1, 3)
         state.object_last_seen = snapshot["object_last_seen"].copy()
         state._cov = snapshot["cov"].copy()
+        state.retired = PersistentMap(dim=state.dim)
         return state
 
     def window(self, robot: int) -> RobotWindow:
@@ -362,6 +373,12 @@ class MsckfState:
         """``(k, dim)``: the covariance of error-state ``columns`` with the whole state."""
         return self._cov[np.asarray(columns), :]
 
+    def with_consider(self) -> tuple[np.ndarray, np.ndarray]:
+        """The joint covariance of the active error state and the persistent map's consider
+        states ``(dim + 3r, dim + 3r)`` (the active state first, then the retired objects'
+        coordinates), and the retired ids in that order."""
+        return _with_consider(self._cov, self.retired), self.retired.row_ids()
+
     def object_covs(self) -> np.ndarray:
         """``(m, 3, 3)`` marginal covariance of each object."""
         cols = self.object_columns(np.arange(self.n_objects))
@@ -382,8 +399,10 @@ class MsckfState:
             return
         if not np.allclose(self._cov, self._cov.T, atol=1e-9 * max(1.0, np.abs(self._cov).max())):
             raise NotPositiveDefiniteError(f"covariance lost symmetry after {what}")
+        if self.retired.n_consider and self.retired.dim != self.dim:
+            raise InternalError(f"the persistent map's columns lost the state's after {what}")
         try:
-            np.linalg.cholesky(self._cov)
+            np.linalg.cholesky(_with_consider(self._cov, self.retired))
         except np.linalg.LinAlgError:
             raise NotPositiveDefiniteError(
                 f"covariance not positive definite after {what}"
@@ -461,6 +480,10 @@ class MsckfState:
         cov[after, new] = cross[:, split:].T
         cov[new, new] = 0.5 * (block + block.T)
         self._cov = cov
+        # the consider states' covariance with the new pose: C Φᵀ
+        self._consider_columns(
+            lambda c: np.concatenate([c[:, :split], c[:, last] @ jac.T, c[:, split:]], axis=1)
+        )
         at = last_index + 1
         self.poses = np.insert(self.poses, at, new_pose, axis=0)
         self.pose_fe = np.insert(self.pose_fe, at, new_pose, axis=0)
@@ -477,6 +500,7 @@ class MsckfState:
             keep = np.ones(self.dim, dtype=bool)
             keep[6 * first : 6 * first + 6] = False
             self._cov = self._cov[np.ix_(keep, keep)]
+        self._consider_columns(lambda c: np.delete(c, np.s_[6 * first : 6 * first + 6], axis=1))
         self.poses = np.delete(self.poses, first, axis=0)
         self.pose_fe = np.delete(self.pose_fe, first, axis=0)
         self.frames = np.delete(self.frames, first)
@@ -491,8 +515,14 @@ class MsckfState:
         cov_ps: np.ndarray,
         robot: int | None = None,
         first_estimate: np.ndarray | None = None,
+        from_columns: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         """Append an object with its covariance and cross-covariance with the state (eq. 30).
+
+        ``from_columns = (G, columns)`` says how its error depends on the state's — ``δp =
+        G δx[columns] +`` noise independent of the state, so that ``cov_ps = G Σ[columns, :]``
+        — and gives its cross-covariance with the persistent map's consider states,
+        ``G Σ[columns, consider]``; it is needed once objects have retired.
 
         Its first estimate is ``first_estimate`` — the point at which the initialisation's
         Jacobians were evaluated, so that the directions its cross-covariance carries are those
@@ -510,6 +540,11 @@ class MsckfState:
         )
         first = position if first_estimate is None else first_estimate
         self.check_finite(f"first estimate of object {int(object_id)}", first, robot=robot)
+        if self.retired.n_consider and from_columns is None:
+            raise InternalError(
+                "an object initialised next to retired objects needs its map from the state "
+                "(from_columns) for its cross-covariance with them"
+            )
         n = self.dim
         cov = np.empty((n + 3, n + 3))
         cov[:n, :n] = self._cov
@@ -517,6 +552,13 @@ class MsckfState:
         cov[:n, n:] = cov_ps.T
         cov[n:, n:] = 0.5 * (cov_pp + cov_pp.T)
         self._cov = cov
+        if from_columns is not None:
+            gain, columns = from_columns
+            self._consider_columns(
+                lambda c: np.concatenate([c, c[:, np.asarray(columns)] @ gain.T], axis=1)
+            )
+        else:
+            self._consider_columns(None)
         self.object_ids = np.append(self.object_ids, int(object_id))
         self.objects = np.vstack([self.objects, np.asarray(position, dtype=float)])
         self.object_fe = np.vstack([self.object_fe, np.asarray(first, dtype=float)])
@@ -527,24 +569,39 @@ class MsckfState:
         """Record that the objects in ``slots`` were observed at ``frame``."""
         self.object_last_seen[np.asarray(slots, dtype=np.int64)] = int(frame)
 
-    def retire_objects(self, slots: np.ndarray) -> None:
-        """Move objects out of the state into the persistent map (exact marginalisation).
+    def retire_objects(self, slots: np.ndarray, max_consider: int = 0) -> int:
+        """Move objects out of the active state into the persistent map as consider states.
 
-        Their means, 3×3 marginal covariances and first estimates are stored; their rows and
-        columns leave the covariance, which leaves the marginal of everything else unchanged.
+        Their rows and columns leave the active covariance (whose marginal is unchanged); the
+        persistent map keeps their means, first estimates, joint covariance, cross-covariance
+        with the active state and with the objects retired before — every number the joint had.
+        With ``max_consider > 0`` at most that many retired objects stay consider states: the
+        earliest retired of the others keep their means and marginals only (exact
+        marginalisation; they re-enter without correlations). Returns how many lost them.
         """
         slots = np.unique(np.asarray(slots, dtype=np.int64))
         if slots.size == 0:
-            return
-        cols = self.object_columns(slots)
-        self.retired.store(
+            return 0
+        cols = self.object_columns(slots).ravel()
+        keep = np.ones(self.dim, dtype=bool)
+        keep[cols] = False
+        joint = self._cov[np.ix_(cols, cols)]
+        cross = self._cov[np.ix_(cols, keep)]
+        if self.retired.n_consider:
+            consider = self.retired.cross
+            with_retired = consider[:, cols].T
+            self.retired.set_columns(consider[:, keep])
+        else:
+            with_retired = np.zeros((cols.size, 0))
+            self.retired.resize(int(keep.sum()))
+        self.retired.add(
             self.object_ids[slots],
             self.objects[slots],
-            self._cov[cols[:, :, None], cols[:, None, :]],
             self.object_fe[slots],
+            joint,
+            with_retired,
+            cross,
         )
-        keep = np.ones(self.dim, dtype=bool)
-        keep[cols.ravel()] = False
         self._cov = self._cov[np.ix_(keep, keep)]
         kept = np.ones(self.n_objects, dtype=bool)
         kept[slots] = False
@@ -552,24 +609,29 @@ class MsckfState:
         self.objects = self.objects[kept]
         self.object_fe = self.object_fe[kept]
         self.object_last_seen = self.object_last_seen[kept]
+        loosened = self.retired.loosen(max_consider)
         self._check("object retirement")
+        return loosened
 
     def reenter_objects(self, ids: np.ndarray, frame: int) -> None:
-        """Bring retired objects ``ids`` back into the state, observed at ``frame``.
+        """Bring retired objects ``ids`` back into the active state, observed at ``frame``.
 
-        Each comes back with its stored mean, marginal covariance and first estimate and no
-        cross-covariance with the rest of the state (:mod:`teamslam.msckf.filter.persistent_map`).
+        Each comes back with its stored mean and first estimate, and the joint covariance comes
+        back whole: theirs, their cross-covariance with the active state and with the objects
+        that stay retired (:mod:`teamslam.msckf.filter.persistent_map`).
         """
         ids = np.asarray(ids, dtype=np.int64).ravel()
         if ids.size == 0:
             return
-        means, covs, fe = self.retired.take(ids)
+        means, fe, joint, cross, with_retired = self.retired.take(ids)
         n, k = self.dim, ids.size
-        cov = np.zeros((n + 3 * k, n + 3 * k))
+        cov = np.empty((n + 3 * k, n + 3 * k))
         cov[:n, :n] = self._cov
-        rows = n + 3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]
-        cov[rows, np.swapaxes(rows, 1, 2)] = 0.5 * (covs + np.swapaxes(covs, 1, 2))
+        cov[n:, :n] = cross
+        cov[:n, n:] = cross.T
+        cov[n:, n:] = joint
         self._cov = cov
+        self._consider_columns(lambda c: np.concatenate([c, with_retired], axis=1))
         self.object_ids = np.concatenate([self.object_ids, ids])
         self.objects = np.vstack([self.objects, means])
         self.object_fe = np.vstack([self.object_fe, fe])
@@ -577,6 +639,14 @@ class MsckfState:
             [self.object_last_seen, np.full(k, int(frame), dtype=np.int64)]
         )
         self._check("object re-entry")
+
+    def _consider_columns(self, edit: Callable[[np.ndarray], np.ndarray] | None) -> None:
+        """After an edit of the active state's columns: the consider states' cross-covariance
+        ``edit(C)`` (an empty map follows the new dimension)."""
+        if self.retired.n_consider:
+            self.retired.set_columns(edit(self.retired.cross))
+        else:
+            self.retired.resize(self._cov.shape[0])
 
     def correct(self, delta: np.ndarray) -> None:
         """Apply an error-state correction: ``T ← T · exp(δ_T)``, ``p ← p + δ_p`` (eqs. 21, 28)."""
@@ -586,9 +656,10 @@ class MsckfState:
 
     def _innovation_factor(
         self, jacobian: np.ndarray, noise_cov: np.ndarray, columns: np.ndarray | None = None
-    ) -> tuple[np.ndarray, tuple[np.ndarray, bool], np.ndarray]:
+    ) -> tuple[np.ndarray, tuple[np.ndarray, bool], np.ndarray, np.ndarray]:
         """``P Hᵀ`` and the Cholesky factor of ``S = H P Hᵀ + R``, on the columns the rows
-        touch only (feature rows touch only window poses), and those columns.
+        touch only (feature rows touch only window poses), and the rows ``H`` on those columns
+        with the columns.
 
         ``jacobian`` is over the error-state ``columns`` (default: all, in order); its columns
         that are exactly zero are left out.
@@ -608,7 +679,7 @@ class MsckfState:
             raise NotPositiveDefiniteError(
                 "innovation covariance is not positive definite"
             ) from None
-        return pht, factor, h
+        return pht, factor, h, cols
 
     def update(
         self,
@@ -635,7 +706,7 @@ class MsckfState:
         self.check_finite("measurement Jacobian", jacobian, robot=robot)
         self.check_finite("measurement residual", residual, robot=robot)
         self.check_finite("measurement noise", noise_cov, robot=robot)
-        pht, (upper, _), _ = self._innovation_factor(jacobian, noise_cov, columns)
+        pht, (upper, _), h, cols = self._innovation_factor(jacobian, noise_cov, columns)
         # S = Uᵀ U: with W = U⁻ᵀ (P Hᵀ)ᵀ the gain is K = Wᵀ U⁻ᵀ and P⁺ = P − Wᵀ W, one
         # symmetric rank-k product (BLAS syrk): exactly symmetric, half the flops of K (P Hᵀ)ᵀ
         whitened = scipy.linalg.solve_triangular(upper, pht.T, trans="T", check_finite=False)
@@ -643,6 +714,14 @@ class MsckfState:
         delta = whitened.T @ step
         self.check_finite("correction of the update", delta, robot=robot)
         self._cov = self._cov - whitened.T @ whitened
+        if self.retired.n_consider:
+            # Schmidt: the consider states' gain is zero, their means and covariance stay;
+            # their cross-covariance becomes C (I − K H)ᵀ = C − (U⁻ᵀ H Cᵀ)ᵀ W
+            consider = self.retired.cross
+            seen = scipy.linalg.solve_triangular(
+                upper, h @ consider[:, cols].T, trans="T", check_finite=False
+            )
+            consider -= seen.T @ whitened
         self.correct(delta)
         self._check("update")
         return delta
@@ -710,7 +789,7 @@ class MsckfState:
                 # H δ as a full-width product: the sum over every column keeps the arithmetic
                 # (and the results, bit for bit) of full-width rows; P Hᵀ and S stay compact
                 wide = rows.full(self.dim)
-                pht, factor, _ = self._innovation_factor(
+                pht, factor, _, _ = self._innovation_factor(
                     rows.jacobian, np.diag(rows.variance), rows.columns
                 )
                 step = pht @ scipy.linalg.cho_solve(factor, rows.residual + wide @ delta)
@@ -767,10 +846,93 @@ class MsckfState:
         if mean.shape != (k,) or cov.shape != (k, k):
             raise InternalError(f"new marginal {mean.shape}, {cov.shape} for {k} coordinates")
         self.check_finite("consensus marginal", mean, cov)
+        if self.retired.n_consider:
+            self._consider_consensus(index, cov, info)
         shift_y = mean - self.objects.ravel()[slot_cols]
         delta, self._cov = replace_marginal_shift(self._cov, index, shift_y, cov, info)
         self.correct(delta)
         self._check("consensus")
+
+    def average_retired(self, ids: np.ndarray, means: np.ndarray, covs: np.ndarray) -> None:
+        """Consensus on the persistent map: retired objects ``ids`` take new means ``(k, 3)`` and
+        3×3 marginals ``covs``, one object ``y`` at a time.
+
+        Prop. 2 with everything else a consider state of that average: no other mean moves, the
+        object's cross-covariances follow Prop. 2, ``Σ_zy ← A_z Σ̄ʸ`` with ``A_z = Σ_zy Σʸ⁻¹``,
+        and where the average loses information (``Σ̄ʸ − Σʸ`` has positive eigenvalues
+        ``D₊``) the rest grows by ``A D₊ Aᵀ``, what Prop. 2 would add to it, so the joint stays a
+        covariance; where it adds information nothing else changes (Schmidt).
+
+        Raises
+        ------
+        EstimationError
+            A non-finite mean or marginal; the state is left as it was.
+        """
+        ids = np.asarray(ids, dtype=np.int64).ravel()
+        covs = np.asarray(covs, dtype=float).reshape(-1, 3, 3)
+        means = np.asarray(means, dtype=float).reshape(-1, 3)
+        self.check_finite("consensus marginal of retired objects", means, covs)
+        retired = self.retired
+        loose = ~retired.is_consider(ids)
+        retired.set_loose(ids[loose], means[loose], covs[loose])  # uncorrelated: replaced
+        for object_id, mean, cov in zip(
+            ids[~loose].tolist(), means[~loose], covs[~loose], strict=True
+        ):
+            y = retired.coordinates(np.array([object_id]))
+            consider, joint = retired.cross, retired.joint
+            sigma_y = joint[np.ix_(y, y)]
+            info = scipy.linalg.cho_solve(
+                scipy.linalg.cho_factor(sigma_y), np.eye(3), check_finite=False
+            )
+            from_active = consider[y].T @ info  # (d, 3)
+            from_retired = joint[:, y] @ info  # (3r, 3), zero on y itself
+            from_retired[y] = 0.0
+            cov = 0.5 * (cov + cov.T)
+            values, vectors = np.linalg.eigh(cov - sigma_y)
+            lost = values > 0
+            if lost.any():
+                root = vectors[:, lost] * np.sqrt(values[lost])
+                grow_a, grow_r = from_active @ root, from_retired @ root
+                self._cov = self._cov + 0.5 * (grow_a @ grow_a.T + (grow_a @ grow_a.T).T)
+                consider += grow_r @ grow_a.T
+                joint += 0.5 * (grow_r @ grow_r.T + (grow_r @ grow_r.T).T)
+            consider[y] = (from_active @ cov).T
+            column = from_retired @ cov
+            joint[:, y] = column
+            joint[y, :] = column.T
+            joint[np.ix_(y, y)] = cov
+            retired.set_mean(object_id, mean)
+        self._check("consensus on the persistent map")
+
+    def _consider_consensus(
+        self, index: np.ndarray, cov_y: np.ndarray, info: np.ndarray | None
+    ) -> None:
+        """The persistent map's part of :meth:`replace_marginal` (before the active state's).
+
+        A neighbour's average is a consider update for the retired objects (Schmidt): their
+        means and covariance stay, their cross-covariance with the active state follows Prop. 2
+        as the active state's own rows do, ``C ← C + B (Σ̄ʸ − Σʸ) Σʸ⁻¹ Σ[y, :]`` with
+        ``B = C[:, y] Σʸ⁻¹`` (so ``C[:, y] ← B Σ̄ʸ``). Where the average loses information
+        (``Σ̄ʸ − Σʸ`` has positive eigenvalues ``D₊``) a fixed consider covariance would no longer
+        fit the joint: it grows by ``B D₊ Bᵀ``, what Prop. 2 would add to it, so the joint
+        stays a covariance (conservative where the average adds information).
+        """
+        rows = self._cov[index, :]
+        sigma_y = rows[:, index]
+        if info is None:
+            info = scipy.linalg.cho_solve(
+                scipy.linalg.cho_factor(sigma_y), np.eye(index.size), check_finite=False
+            )
+        consider = self.retired.cross
+        regression = consider[:, index] @ info
+        change = 0.5 * (cov_y + cov_y.T) - sigma_y
+        consider += (regression @ change @ info) @ rows
+        values, vectors = np.linalg.eigh(change)
+        lost = values > 0
+        if lost.any():
+            grow = regression @ (vectors[:, lost] * np.sqrt(values[lost]))
+            joint = self.retired.joint
+            joint += 0.5 * (grow @ grow.T + (grow @ grow.T).T)
 
 
 def _shared(name: str, doc: str) -> property:
@@ -931,12 +1093,32 @@ class RobotWindow:
         cov_pp: np.ndarray,
         cov_ps: np.ndarray,
         first_estimate: np.ndarray | None = None,
+        from_columns: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         """:meth:`MsckfState.add_object` to the shared state, errors naming this robot."""
         self.state.add_object(
-            object_id, position, cov_pp, cov_ps, robot=self.robot, first_estimate=first_estimate
+            object_id,
+            position,
+            cov_pp,
+            cov_ps,
+            robot=self.robot,
+            first_estimate=first_estimate,
+            from_columns=from_columns,
         )
 
     def check_finite(self, what: str, *arrays: np.ndarray) -> None:
         """:meth:`MsckfState.check_finite`, naming this robot."""
         self.state.check_finite(what, *arrays, robot=self.robot)
+
+
+def _with_consider(cov: np.ndarray, retired: PersistentMap) -> np.ndarray:
+    """The joint covariance of the active state and the persistent map's consider states."""
+    if retired.n_consider == 0:
+        return cov
+    n, cross = cov.shape[0], retired.cross
+    out = np.empty((n + cross.shape[0], n + cross.shape[0]))
+    out[:n, :n] = cov
+    out[n:, :n] = cross
+    out[:n, n:] = cross.T
+    out[n:, n:] = retired.joint
+    return out

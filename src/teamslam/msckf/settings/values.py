@@ -208,9 +208,11 @@ class ObjectSettings:
         no predicted measurement moves by more than a hundredth of its noise std. Every row
         keeps the linearisation policy's pose Jacobians (first estimates for ``fej``).
     retire_after
-        Frames an object may go unobserved before it leaves the filter state for the robot's
-        persistent map (its mean and 3×3 marginal kept; it re-enters with them when observed
-        again): this bounds the state, and so the cost per frame, over a long mission. 0 never
+        Frames an object may go unobserved before it leaves the filter's active state for the
+        robot's persistent map, as a consider state (its mean and every covariance it has with
+        the state kept and updated, never corrected; it re-enters with them, exactly, when
+        observed again): this bounds the active state — the cost of an update is then
+        quadratic in it and linear in the persistent map — over a long mission. 0 never
         retires an object. Policy, exactness and what it means for consensus:
         :mod:`teamslam.msckf.filter.persistent_map`.
     max_active
@@ -223,6 +225,14 @@ class ObjectSettings:
         times the most objects the robot observed within one window (``filter.window``
         frames) so far; beyond it objects retire as with ``max_active`` (with both set, the
         smaller bound holds). 0: off.
+    max_consider
+        The most retired objects kept as consider states (correlated with the state, so that
+        they re-enter exactly): an update costs ``O(active × consider)`` more and the map holds
+        their ``(3c)²`` joint covariance. Beyond it the earliest retired lose their
+        correlations — their means and marginals stay — and re-enter as independent priors,
+        which counts their place in the world twice. For long missions through new ground,
+        whose persistent map grows without end. 0: no bound (every retired object is a
+        consider state: consistent).
     """
 
     init_observations: int = field(default=3, metadata=_unit("observations"))
@@ -235,6 +245,7 @@ class ObjectSettings:
     retire_after: int = field(default=0, metadata=_unit("frames"))
     max_active: int = field(default=0, metadata=_unit("objects"))
     active_windows: int = field(default=0, metadata=_unit("windows"))
+    max_consider: int = field(default=0, metadata=_unit("objects"))
 
     def __post_init__(self) -> None:
         if not _is_count(self.init_observations, 2):
@@ -264,6 +275,10 @@ class ObjectSettings:
         if not _is_count(self.max_active, 0):
             raise InputError(
                 "objects.max_active must be an integer number of objects ≥ 0 (0: no bound)"
+            )
+        if not _is_count(self.max_consider, 0):
+            raise InputError(
+                "objects.max_consider must be an integer number of objects ≥ 0 (0: no bound)"
             )
         if not _is_count(self.active_windows, 0):
             raise InputError(
@@ -395,8 +410,9 @@ class ConsensusSettings:
     persistent_map
         Objects retired to the persistent map (``objects.retire_after``,
         ``objects.max_active``) listen to consensus: a robot asks for them with its map ids and
-        averages each with the neighbours' marginals of it (eq. 19 per object: it has no
-        correlation with the state), flagged at ``kl_threshold`` as the objects of its state;
+        averages each with the neighbours' marginals of it (eq. 19 per object, the rest of the
+        joint a consider state of that average), flagged at ``kl_threshold`` as the objects of
+        its state;
         it never sends them (a stale copy would pull the neighbours' working estimates back).
         With the plain average, lock-step exchanges, ``kl_threshold > 0``, ``set = all`` and
         oracle ids. Off by default: it does not lower a budget's object error over a long
