@@ -1,4 +1,5 @@
-"""Consensus adds nothing along a first-estimates filter's rigid motions at its first estimates."""
+"""Consensus adds nothing along a first-estimates filter's rigid motions at its first estimates,
+and averaging again marginals that did not change adds no information."""
 
 from __future__ import annotations
 
@@ -12,7 +13,11 @@ from teamslam.geometry import se3
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus.average import consensus_average
-from teamslam.msckf.consensus.directions import constrained_average, rigid_directions
+from teamslam.msckf.consensus.directions import (
+    constrained_average,
+    rigid_directions,
+    shape_average,
+)
 from teamslam.msckf.consensus.marginals import common_marginal_message
 from teamslam.sim import long_route_team
 
@@ -50,6 +55,105 @@ def test_constrained_average_keeps_the_rigid_motions_and_averages_the_rest():
     )
     np.testing.assert_allclose(one[0], own_mean[:3], atol=1e-9)
     np.testing.assert_allclose(np.linalg.inv(one[1]), own_info[:3, :3], rtol=1e-9)
+
+
+def _shape_information(info: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``S(Ω) = Ω − Ω U (Uᵀ Ω U)⁻¹ Uᵀ Ω``: what ``Ω`` knows of the shape (``U`` marginalised)."""
+    w = info @ u
+    return info - w @ np.linalg.solve(u.T @ w, w.T)
+
+
+def test_shape_average_averages_the_shape_marginals_and_keeps_the_rigid_motions():
+    """The plain average of a first-estimates filter: our marginal along our rigid motions as it
+    was, and on the shape the eq. 19 average of the robots' shape marginals — each neighbour's
+    marginal completed by our conditional on the objects it lacks (eq. 42)."""
+    rng = np.random.default_rng(5)
+    k = 7
+    first = rng.normal(size=(k, 3)) * 15 + [250.0, -40.0, 1.0]
+    own_info = _spd(rng, 3 * k)
+    own_cov = np.linalg.inv(own_info)
+    own_mean = first.ravel() + rng.normal(size=3 * k)
+    u = rigid_directions(first, np.zeros(3))
+    terms, completed = [], []
+    for weight, objects in ((0.3, np.arange(k)), (0.25, np.array([0, 2, 3, 5, 6]))):
+        sub = (3 * objects[:, None] + np.arange(3)).ravel()
+        m_info = _spd(rng, sub.size) * 2.0
+        m_mean = own_mean[sub] + rng.normal(size=sub.size)
+        own_sub = np.linalg.inv(own_cov[np.ix_(sub, sub)])
+        terms.append((weight, sub, m_info, m_info @ m_mean, own_sub))
+        # completed by our conditional: information Ω + Lᵀ(M − Ω_C)L, vector likewise
+        info_j = own_info.copy()
+        info_j[np.ix_(sub, sub)] += m_info - own_sub
+        eta_j = own_info @ own_mean
+        eta_j[sub] += m_info @ m_mean - own_sub @ own_mean[sub]
+        completed.append((weight, info_j, eta_j))
+    completed.append((1.0 - 0.3 - 0.25, own_info, own_info @ own_mean))
+    mean, cov = shape_average(own_mean, own_info, terms, first)
+    info = np.linalg.inv(cov)
+    # Ω' U = Ω U and the mean does not move along U
+    np.testing.assert_allclose(
+        info @ u, own_info @ u, rtol=1e-7, atol=1e-7 * np.abs(own_info @ u).max()
+    )
+    np.testing.assert_allclose(u.T @ own_info @ (mean - own_mean), 0.0, atol=1e-6 * np.abs(u).max())
+    # on the shape: the weighted sum of the completed marginals' shape informations and vectors
+    shape = sum(w * _shape_information(i, u) for w, i, _ in completed)
+    vector = sum(w * _shape_information(i, u) @ np.linalg.solve(i, e) for w, i, e in completed)
+    scale = np.abs(shape).max()
+    np.testing.assert_allclose(_shape_information(info, u), shape, atol=1e-8 * scale)
+    np.testing.assert_allclose(
+        _shape_information(info, u) @ mean, vector, atol=1e-8 * np.abs(vector).max()
+    )
+    # a neighbour marginal equal to ours leaves ours as it was
+    same = shape_average(
+        own_mean,
+        own_info,
+        [(0.5, np.arange(3 * k), own_info, own_info @ own_mean, own_info)],
+        first,
+    )
+    np.testing.assert_allclose(same[0], own_mean, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.inv(same[1]), own_info, rtol=1e-9, atol=1e-9)
+
+
+def test_averaging_again_marginals_that_did_not_change_adds_no_information():
+    """Two robots with the same first estimates average each other's marginal twice with no
+    measurement in between. The first average makes their shape marginals agree, so the second
+    changes nothing. The marginal of the joint average (the constrained version of a finished
+    average) instead gains shape information at every repeat — each robot keeps its own
+    information along U, and the two rigid parts together know something of the shape — which
+    is how `consensus.set=all` built up overconfidence with first estimates: an old object that
+    moved is averaged again, and the invented information moves it again."""
+    rng = np.random.default_rng(11)
+    k = 6
+    first = rng.normal(size=(k, 3)) * 15
+    u = rigid_directions(first, np.zeros(3))
+    everything = np.arange(3 * k)
+    for version in ("shape", "marginal"):
+        infos = [_spd(rng, 3 * k), _spd(rng, 3 * k)]
+        means = [first.ravel() + rng.normal(size=3 * k) for _ in range(2)]
+        shape = []
+        for _ in range(3):
+            new = []
+            for r in range(2):
+                other = infos[1 - r], infos[1 - r] @ means[1 - r]
+                if version == "shape":
+                    term = (0.5, everything, *other, infos[r])
+                    new.append(shape_average(means[r], infos[r], [term], first))
+                else:
+                    avg_info = 0.5 * (infos[r] + other[0])
+                    avg_mean = np.linalg.solve(avg_info, 0.5 * (infos[r] @ means[r] + other[1]))
+                    avg = avg_mean, np.linalg.inv(avg_info)
+                    new.append(constrained_average(means[r], infos[r], *avg, first))
+            means = [m for m, _ in new]
+            infos = [np.linalg.inv(c) for _, c in new]
+            shape.append(_shape_information(infos[0], u))
+        # generalised eigenvalues of the shape information after the third average against the
+        # first's (the 6 directions along U are zero in both: left out)
+        c = np.linalg.svd(u.T)[2][6:]
+        gain = scipy.linalg.eigh(c @ shape[2] @ c.T, c @ shape[0] @ c.T, eigvals_only=True)
+        if version == "shape":
+            np.testing.assert_allclose(gain, 1.0, rtol=1e-7)
+        else:
+            assert gain.max() > 1.5
 
 
 @pytest.fixture(scope="module")
@@ -98,17 +202,49 @@ def test_an_average_gives_no_information_along_our_rigid_motions(two_robots):
         states[constrained] = state
     assert np.abs(gained[True]).max() < 1e-6
     assert np.abs(gained[False]).max() > 1e-2
-    # the shape of the common map (every cᵀy with cᵀU = 0) is known exactly as well as the
-    # average knows it, not better: taking the average's information on the complement of U
-    # as it is (without marginalising its part along U) claimed several times more
+    # the shape of the common map (every cᵀy with cᵀU = 0): the eq. 19 average of the two
+    # robots' shape marginals, never more than the unconstrained average knows of it
     slots = ours.object_slots(common)
-    c = np.linalg.svd(rigid_directions(ours.object_fe[slots], np.zeros(3)).T)[2][6:]
+    u = rigid_directions(ours.object_fe[slots], np.zeros(3))
+    cols = ours.object(slots).columns.ravel()
+    own = np.linalg.inv(ours.cov[np.ix_(cols, cols)])
+    expected = 0.5 * (_shape_information(own, u) + _shape_information(message.info, u))
     shape = {}
     for constrained, state in states.items():
         cols = state.object(state.object_slots(common)).columns.ravel()
-        shape[constrained] = c @ state.cov[np.ix_(cols, cols)] @ c.T
-    ratio = scipy.linalg.eigh(shape[False], shape[True], eigvals_only=True)
+        shape[constrained] = _shape_information(np.linalg.inv(state.cov[np.ix_(cols, cols)]), u)
+    c = np.linalg.svd(u.T)[2][6:]
+    ratio = scipy.linalg.eigh(c @ shape[True] @ c.T, c @ expected @ c.T, eigvals_only=True)
     np.testing.assert_allclose(ratio, 1.0, rtol=1e-6)
+    less = scipy.linalg.eigh(c @ shape[True] @ c.T, c @ shape[False] @ c.T, eigvals_only=True)
+    assert less.max() < 1 + 1e-6
+
+
+def test_repeated_averages_with_an_unchanged_neighbour_end_with_its_knowledge_of_the_shape(
+    two_robots,
+):
+    """Robot 0 averages robot 1's marginal, unchanged, again and again: its shape information
+    moves half way to robot 1's each time (a convex combination), and ends with robot 1's — not
+    more, as the marginal of the joint average gave it."""
+    ours, theirs = (agent.state for agent in two_robots)
+    common = np.intersect1d(ours.object_ids, theirs.object_ids)
+    message = common_marginal_message(theirs, 1, 0, 0, common, information=True)
+    slots = ours.object_slots(common)
+    u = rigid_directions(ours.object_fe[slots], np.zeros(3))
+    c = np.linalg.svd(u.T)[2][6:]
+    cols = ours.object(slots).columns.ravel()
+
+    def shape_of(state):
+        info = np.linalg.inv(state.cov[np.ix_(cols, cols)])
+        return c @ _shape_information(info, u) @ c.T
+
+    start, neighbour = shape_of(ours), c @ _shape_information(message.info, u) @ c.T
+    state = copy.deepcopy(ours)
+    for n in range(1, 4):
+        consensus_average(state, 0.5, [(0.5, message)], rigid_directions=True)
+        expected = 0.5**n * start + (1 - 0.5**n) * neighbour
+        ratio = scipy.linalg.eigh(shape_of(state), expected, eigvals_only=True)
+        np.testing.assert_allclose(ratio, 1.0, rtol=1e-5)
 
 
 def test_filters_without_first_estimates_average_as_before():

@@ -26,7 +26,7 @@ from teamslam.gaussian import (
     spd_inverse,
 )
 from teamslam.msckf.consensus.checks import ReceivedMarginal, receive_marginal
-from teamslam.msckf.consensus.directions import constrained_average
+from teamslam.msckf.consensus.directions import constrained_average, shape_average
 from teamslam.msckf.consensus.kernels import symmetric_block
 from teamslam.msckf.consensus.messages import CommonMarginalMessage
 from teamslam.msckf.filter.state import MsckfState
@@ -217,8 +217,11 @@ def consensus_average(
         were computed.
     rigid_directions
         Keep our information along the rigid motions of the world at our first estimates of
-        the averaged objects as it was (a first-estimates filter, ``consensus.rigid_directions``;
-        :func:`~teamslam.msckf.consensus.directions.constrained_average`).
+        the averaged objects as it was (a first-estimates filter, ``consensus.rigid_directions``):
+        the plain average averages the robots' marginals of the map's shape
+        (:func:`~teamslam.msckf.consensus.directions.shape_average`), the hybrid and increments
+        rules and per-object marginals constrain their finished average
+        (:func:`~teamslam.msckf.consensus.directions.constrained_average`).
 
     Returns
     -------
@@ -283,6 +286,15 @@ def consensus_average(
                 averaged = constrained_average(own_mean, own_info, *averaged, first)
             state.replace_marginal(cols, *averaged, info=own_info)
             return int(y_ids.size)
+        if first is not None and prior is None:
+            # the plain average of a first-estimates filter: eq. 19 on the map's shape
+            terms = [
+                (w, sub, info, vector, _own_sub_information(own_info, own_cov, sub, known))
+                for w, sub, info, vector, known in terms
+            ]
+            mean, cov = shape_average(own_mean, own_info, terms, first)
+            state.replace_marginal(cols, mean, cov, info=own_info)
+            return int(y_ids.size)
         extra = None
         if prior is not None:
             # our own new information Δ, added with the weight of the messages that hold all
@@ -306,6 +318,17 @@ def consensus_average(
             mean, cov = constrained_average(own_mean, own_info, mean, cov, first)
         state.replace_marginal(cols, mean, cov, info=own_info)
     return int(y_ids.size)
+
+
+def _own_sub_information(
+    own_info: np.ndarray, own_cov: np.ndarray, sub: np.ndarray, known: np.ndarray | None
+) -> np.ndarray:
+    """Our information of the coordinates ``sub`` of ``y`` (``known`` if already inverted)."""
+    if known is not None:
+        return known
+    if sub.size == own_info.shape[0]:  # positions increase: all of y, in order
+        return own_info
+    return spd_inverse(own_cov[np.ix_(sub, sub)], "own marginal covariance", symmetric=True)
 
 
 @dataclass(frozen=True)

@@ -2,13 +2,15 @@
 
 A first-estimates filter (``fej``, ``oc``) keeps the six rigid motions of the world unobservable
 at the points its Jacobians were evaluated at — for an object, the first estimate this robot
-took of it. :func:`constrained_average` turns the consensus average of the common objects'
-marginal into a change that leaves this robot's information along those directions, and its
-mean along them, exactly as they were; every quantity the rigid motions leave unchanged (the
-map's shape) takes the average's mean and variance. Contract: ``Ω' U = Ω U`` for the directions
-``U`` at the first estimates, and ``cᵀ μ' = cᵀ μ̄``, ``cᵀ Σ' c = cᵀ Σ̄ c`` for every ``c`` with
-``cᵀ U = 0``. Derivation: the concept page *Linearisation*, section *Consensus and first
-estimates*.
+took of it. :func:`shape_average` (the plain average, eq. 19) averages the robots' marginals of
+the map's *shape* — each completed marginal with its part along our rigid motions marginalised
+out — and keeps our own information along those motions, and our mean along them, exactly as
+they were; averaging again a marginal that did not change adds nothing. Contract: ``Ω' U = Ω U``
+for the directions ``U`` at the first estimates, ``Uᵀ Ω (μ' − μ) = 0``, and on the shape
+(``cᵀ U = 0``) the eq. 19 average of the robots' shape marginals.
+:func:`constrained_average` constrains a finished average instead (the hybrid and increments
+rules, per-object marginals): the shape takes the average's marginal. Derivation: the concept
+page *Linearisation*, section *Consensus and first estimates*.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 from teamslam.gaussian import spd_inverse
 from teamslam.msckf.filter.linearization import unobservable_directions
 
-__all__ = ["constrained_average", "rigid_directions"]
+__all__ = ["constrained_average", "rigid_directions", "shape_average"]
 
 # directions whose information, relative to the largest (columns scaled to unit information),
 # is below this are not six independent motions of the marginal's objects (one object: the
@@ -76,3 +78,54 @@ def constrained_average(
     new_cov = spd_inverse(info, "constrained average")
     step = mean - own_mean
     return own_mean + step - u @ (solve @ step), new_cov
+
+
+def shape_average(
+    own_mean: np.ndarray,
+    own_info: np.ndarray,
+    terms: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+    first: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 19 on the map's shape: the robots' marginals of the quantities our rigid motions
+    leave unchanged are averaged, our own marginal along the rigid motions is kept.
+
+    Our marginal of the ``k`` objects ``y`` is ``N(own_mean, own_info⁻¹)``; ``first`` (``(k, 3)``)
+    our first estimates of them. Each neighbour's term ``(w_j, index_j, M_j, m_j, Ω_C)`` is
+    its information ``M_j`` and information vector ``m_j`` of the coordinates ``index_j`` of
+    ``y`` (whole objects) and ``Ω_C`` our own information of those, completed by our conditional
+    (eq. 42): ``Ω_j = Ω + Lⱼᵀ (M_j − Ω_C) Lⱼ``. With ``S(A) = A − A U (Uᵀ A U)⁻¹ Uᵀ A`` the
+    information of ``A`` about the shape (its part along the rigid motions ``U`` marginalised
+    out) and weights summing to one with our own,
+
+        ``Ω' = Ω + Σ_j w_j (S(Ω_j) − S(Ω))``,  ``μ' = μ + Ω'⁻¹ Σ_j w_j S(Ω_j) (μ_j − μ)``
+
+    — ``S(Ω') = Σ w_j S(Ω_j)`` (ours included), ``Ω' U = Ω U`` and ``Uᵀ Ω (μ' − μ) = 0``. The
+    shape terms are a convex combination, so a marginal that equals ours adds nothing, and
+    averaging again marginals that did not change does not add information (the marginal of the
+    joint average, :func:`constrained_average`, gains ``S(Σ w_j Ω_j) − Σ w_j S(Ω_j)`` each time).
+    Returns ``(μ', Ω'⁻¹)``.
+    """
+    u = _basis(own_info, np.asarray(first, dtype=float).reshape(-1, 3))
+    own_u = own_info @ u
+    own_gram = u.T @ own_u
+    own_rigid = own_u @ np.linalg.solve(0.5 * (own_gram + own_gram.T), own_u.T)
+    info = own_info.copy()
+    shift = np.zeros(own_mean.size)
+    for weight, index, m_info, m_eta, own_sub in terms:
+        sub = np.asarray(index, dtype=np.intp)
+        # Ω_j − Ω lives on the neighbour's objects; d_j = Ω_j (μ_j − μ) too
+        delta = np.asarray(m_info, dtype=float) - own_sub
+        info_j = own_info.copy()
+        info_j[np.ix_(sub, sub)] += delta
+        d = np.zeros(own_mean.size)
+        d[sub] = m_eta - m_info @ own_mean[sub]
+        w_u = info_j @ u
+        gram = u.T @ w_u
+        solve = np.linalg.solve(0.5 * (gram + gram.T), np.column_stack([w_u.T, u.T @ d]))
+        rigid_j = w_u @ solve[:, :-1]
+        info[np.ix_(sub, sub)] += weight * delta
+        info += weight * (own_rigid - rigid_j)
+        shift += weight * (d - w_u @ solve[:, -1])
+    info = 0.5 * (info + info.T)
+    new_cov = spd_inverse(info, "constrained average")
+    return own_mean + new_cov @ shift, new_cov

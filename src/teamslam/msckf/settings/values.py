@@ -426,8 +426,9 @@ class ConsensusSettings:
     rigid_directions
         With a linearisation that keeps first estimates (``fej``, ``oc``): the consensus average
         leaves the robot's information along the rigid motions of the world, taken at its
-        first estimates of the averaged objects, as it was
-        (:mod:`teamslam.msckf.consensus.directions`); the map's shape is averaged as before.
+        first estimates of the averaged objects, as it was, and averages the robots' marginals
+        of the map's shape (:mod:`teamslam.msckf.consensus.directions`; the hybrid and
+        increments rules and ``per_object`` take their finished average's marginal of it).
         Off, robots that first estimated a common object apart hand each other information
         along their unobservable directions and become overconfident along a long route. No
         effect with ``std`` or ``ideal``.
