@@ -189,3 +189,37 @@ def test_a_diverging_filter_exits_1_naming_robot_and_frame(tmp_path, capsys, mon
     assert "error:" not in err  # a failure, not a usage error
     # a dataset that is not there is the user's input: exit 2
     assert main(["run", str(tmp_path / "missing"), "--separate"]) == 2
+
+
+@pytest.mark.parametrize("inherited", ["ignored", "blocked", "default"])
+def test_ctrl_c_interrupts_only_inside_its_block(inherited):
+    """The commands that run until stopped raise KeyboardInterrupt on SIGINT even when the
+    process inherited it ignored or blocked, and leave the process's SIGINT as it was after."""
+    import signal
+
+    from teamslam.cli._common import ctrl_c_interrupts
+
+    def state():
+        return signal.getsignal(signal.SIGINT), signal.SIGINT in signal.pthread_sigmask(
+            signal.SIG_BLOCK, []
+        )
+
+    before = state()
+    try:
+        if inherited == "ignored":
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        elif inherited == "blocked":
+            signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT])
+        else:
+            signal.signal(signal.SIGINT, signal.SIG_DFL)
+        outside = state()
+        with ctrl_c_interrupts():
+            assert state() == (signal.default_int_handler, False)
+            with pytest.raises(KeyboardInterrupt):
+                signal.raise_signal(signal.SIGINT)
+        assert state() == outside
+    finally:
+        how = signal.SIG_BLOCK if before[1] else signal.SIG_UNBLOCK
+        signal.pthread_sigmask(how, [signal.SIGINT])
+        signal.signal(signal.SIGINT, before[0])
+    assert state() == before

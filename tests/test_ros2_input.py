@@ -357,8 +357,20 @@ def test_bag_play_loops_until_stopped(rendered_bag):
     assert stamps[per_pass : 2 * per_pass] == stamps[:per_pass]
 
 
-def test_ctrl_c_stops_bag_play_cleanly(rendered_bag):
-    """SIGINT to ``teamslam bag play --loop``: the counts, then exit status 130, no traceback."""
+#: how the process that starts ``teamslam bag play`` leaves SIGINT to it (exec keeps both an
+#: ignored disposition and the signal mask): as a terminal does; ignored, as a shell without job
+#: control does to a background job (``make test &``) or a launcher to its children; blocked
+START_SIGINT = {
+    "default": "",
+    "ignored": "signal.signal(signal.SIGINT, signal.SIG_IGN); ",
+    "blocked": "signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT]); ",
+}
+
+
+@pytest.mark.parametrize("start", sorted(START_SIGINT))
+def test_ctrl_c_stops_bag_play_cleanly(rendered_bag, start):
+    """SIGINT to ``teamslam bag play --loop``: the counts, then exit status 130, no traceback —
+    also when the command was started with SIGINT ignored or blocked (it would play forever)."""
     import os
     import signal
     import subprocess
@@ -367,7 +379,11 @@ def test_ctrl_c_stops_bag_play_cleanly(rendered_bag):
     from teamslam.ros2.bag_play import bag_topics
 
     port = free_port()
-    argv = [sys.executable, "-m", "teamslam", "bag", "play", str(rendered_bag), "--loop"]
+    starter = (
+        f"import os, signal, sys; {START_SIGINT[start]}"
+        "os.execv(sys.executable, [sys.executable, '-m', 'teamslam', *sys.argv[1:]])"
+    )
+    argv = [sys.executable, "-c", starter, "bag", "play", str(rendered_bag), "--loop"]
     argv += ["--connect", f"tcp/127.0.0.1:{port}", "--listen", "tcp/127.0.0.1:0"]
     proc = subprocess.Popen(
         argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy()

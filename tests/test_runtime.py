@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -365,9 +366,9 @@ def test_ctrl_c_stops_every_agent(tmp_path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        # Ctrl-C as at a terminal: a suite started in the background (`make test &`) passes its
-        # children SIGINT ignored, and Python then never raises KeyboardInterrupt
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        # started with SIGINT ignored, as a shell without job control starts a background job
+        # (`make test &`) and what it runs: the launcher still stops on it
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
     )
     deadline = time.monotonic() + 120
 
@@ -389,7 +390,14 @@ def test_ctrl_c_stops_every_agent(tmp_path):
             except (OSError, ValueError):
                 continue
     launcher.send_signal(signal.SIGINT)
-    _, err = launcher.communicate(timeout=60)
+    try:
+        _, err = launcher.communicate(timeout=60)
+    finally:  # a launcher that did not stop leaves no team running after the test
+        if launcher.poll() is None:
+            for pid in [launcher.pid, *pids]:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            launcher.wait()
     assert launcher.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     # an interrupted run leaves nothing that looks like a run

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 from teamslam.errors import InputError
@@ -13,6 +17,7 @@ from teamslam.errors import InputError
 __all__ = [
     "Parser",
     "UsageError",
+    "ctrl_c_interrupts",
     "default_data",
     "effective_settings",
     "non_negative_float",
@@ -41,6 +46,39 @@ class Parser(argparse.ArgumentParser):
 
 class UsageError(InputError):
     """A command-line value that parses but cannot be used."""
+
+
+@contextlib.contextmanager
+def ctrl_c_interrupts() -> Iterator[None]:
+    """While the block runs, SIGINT (Ctrl-C, ``kill -INT``, a launcher's shutdown) raises
+    KeyboardInterrupt in the main thread, whatever the process inherited.
+
+    A process started with SIGINT ignored — a job a shell without job control put in the
+    background (``cmd &`` in a script), or a launcher that ignores it in its children — or with
+    SIGINT in its signal mask never sees it: Python installs its KeyboardInterrupt handler only
+    when SIGINT is not ignored, and a blocked signal stays pending. The commands that run until
+    stopped (``bag play --loop``, ``agent``, ``team launch``) run in this block. The handler is
+    set (when SIGINT was ignored or at the system default) and SIGINT unblocked in the calling
+    thread only for the block; both are restored after it. Outside the main thread, where
+    Python runs no signal handler, nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handler = signal.getsignal(signal.SIGINT)
+    replace = handler in (signal.SIG_IGN, signal.SIG_DFL)
+    blocked = signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    if replace:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if blocked:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
+    try:
+        yield
+    finally:
+        if blocked:
+            signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT])
+        if replace:
+            signal.signal(signal.SIGINT, handler)
 
 
 def number(kind: type, accept, expected: str):

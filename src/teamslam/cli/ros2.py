@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from teamslam.cli._common import (
+    ctrl_c_interrupts,
     non_negative_float,
     non_negative_int,
     positive_float,
@@ -44,19 +45,20 @@ def _cmd_bag_play(args: argparse.Namespace) -> int:
             print(f"waiting for {args.wait_subscribers} subscribing node(s)")
         sys.stdout.flush()
 
-    result = play_bag(
-        args.bag,
-        rate=rate,
-        topics=args.topics,
-        loop=args.loop,
-        domain_id=args.domain_id,
-        start_delay=args.start_delay,
-        wait_subscribers=args.wait_subscribers,
-        wait_timeout=args.wait_timeout,
-        connect=args.connect,
-        listen=args.listen,
-        on_start=started,
-    )
+    with ctrl_c_interrupts():  # --loop ends on Ctrl-C only, even started with it ignored
+        result = play_bag(
+            args.bag,
+            rate=rate,
+            topics=args.topics,
+            loop=args.loop,
+            domain_id=args.domain_id,
+            start_delay=args.start_delay,
+            wait_subscribers=args.wait_subscribers,
+            wait_timeout=args.wait_timeout,
+            connect=args.connect,
+            listen=args.listen,
+            on_start=started,
+        )
     for topic, count in result.counts.items():
         print(f"  {topic}: {count} message(s)")
     total = sum(result.counts.values())

@@ -11,6 +11,7 @@ import yaml
 
 from teamslam.cli._common import (
     Parser,
+    ctrl_c_interrupts,
     non_negative_float,
     positive_float,
     positive_int,
@@ -25,7 +26,8 @@ __all__ = ["register"]
 def _cmd_team_launch(args: argparse.Namespace) -> int:
     from teamslam import api
 
-    run = api.launch(args.team_file, args.out, overwrite=args.overwrite)
+    with ctrl_c_interrupts():  # Ctrl-C stops the robots, even started with it ignored
+        run = api.launch(args.team_file, args.out, overwrite=args.overwrite)
     print_run(run, args.out)
     return run.exit_status
 
@@ -86,16 +88,17 @@ def _cmd_agent(args: argparse.Namespace) -> int:
         }
         if args.compressed:
             live["flags"]["compressed"] = True
-    summary = api.run_robot(
-        args.team,
-        args.robot,
-        args.out,
-        args.resume,
-        ros2=args.ros2,
-        ros2_options=options,
-        live=live,
-        foxglove=args.foxglove,
-    )
+    with ctrl_c_interrupts():  # a live robot runs until Ctrl-C, even started with it ignored
+        summary = api.run_robot(
+            args.team,
+            args.robot,
+            args.out,
+            args.resume,
+            ros2=args.ros2,
+            ros2_options=options,
+            live=live,
+            foxglove=args.foxglove,
+        )
     keys = ("robot", "frames", "lost_neighbours")
     shown = {k: summary[k] for k in keys}
     if "live" in summary:
