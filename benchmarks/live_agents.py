@@ -25,8 +25,11 @@ processed frame next to the offline run's, the largest difference of a pose from
 run's (when every frame was processed), and how consensus went: the share of (frame,
 neighbour) pairs in which a robot averaged with that neighbour, why the others were not, the
 neighbours' messages found too old (discarded while the newest of their sender) and those
-refused (robots pooled). Per robot, the same on standard output: frames, drops, latency,
-RMSE against the offline run's of that robot, averaged share.
+refused (robots pooled), and the robot processes' CPU time (their first frame to their last)
+per frame processed against the CPU they had (what the library costs apart from what the
+machine's load left it). Per robot, the
+same on standard output: frames, drops, latency, RMSE against the offline run's of that robot,
+averaged share, the front-end's, consensus's and the filter's time per frame.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -200,7 +204,9 @@ def per_robot(dataset, off_stamps, offline, poses, summaries, robots: int) -> li
             f"latency p50 {live['latency_ms']['p50']:.0f} ms, RMSE {rmse:.4f} m = "
             f"{rmse / off:.2f} × offline, averaged {averaged_share([s], robots):.2f}, "
             f"not heard {why['not_heard']}, too old {why.get('too_old', 0)}, "
-            f"messages too old {s['counters'].get('messages_too_old', 0)}, consensus "
+            f"messages too old {s['counters'].get('messages_too_old', 0)}, front-end "
+            f"{live['stage_seconds']['frontend'] / max(live['frames'], 1) * 1e3:.0f} ms, "
+            "consensus "
             f"{live['stage_seconds']['consensus'] / max(live['frames'], 1) * 1e3:.0f} ms and "
             f"filter {live['stage_seconds']['filter'] / max(live['frames'], 1) * 1e3:.0f} ms "
             "per frame"
@@ -227,7 +233,9 @@ def live_run(
     mode: str,
     rate: float,
     quantile: float | None = 0.95,
-) -> Path:
+) -> tuple[Path, float]:
+    """Play the bag into one ``agent --live`` process per robot; the output folder and the
+    seconds the player played (its start to its end)."""
     player = _free_port()
     name = f"{mode}-{rate:g}-{next(_RUNS)}".replace(".", "_")  # each run its own directory
     path = team_file(tmp, name, dataset_dir, robots, mode, inputs, player, quantile)
@@ -261,7 +269,9 @@ def live_run(
         play = _teamslam("bag", "play", str(bag), "--rate", f"{rate:g}", "--domain-id", "41")
         play += ["--listen", f"tcp/127.0.0.1:{player}", "--wait-subscribers", str(robots)]
         play += ["--wait-timeout", "900"]
+        begin = time.monotonic()
         subprocess.run(play, check=True, stdout=subprocess.DEVNULL)
+        wall = time.monotonic() - begin
         for p in procs:
             _, err = p.communicate(timeout=600)
             if p.returncode != 0:
@@ -270,7 +280,7 @@ def live_run(
         for p in procs:
             if p.poll() is None:
                 p.kill()
-    return out
+    return out, wall
 
 
 def main() -> None:
@@ -350,6 +360,9 @@ def main() -> None:
                 "not averaged: not heard / too old / nothing common / no marginal / inconsistent",
                 "messages too old",
                 "refused",
+                "robots' CPU per frame (ms)",
+                "cores to keep up",
+                "cores had",
             ],
             note="Latency: from the arrival of a frame's camera input to the publication of its "
             "pose (the front-end, waiting for the odometry to cover the stamp, consensus and "
@@ -364,20 +377,25 @@ def main() -> None:
             "messages discarded as older than the age limit while the newest of their sender "
             "(asynchronous robots' age limit: learned per neighbour from the lags of its "
             "messages, team file max_age_quantile); refused: neighbours' messages refused by "
-            "the checks (of a later step, malformed). One process per robot and the player "
-            "share the machine's cores.",
+            "the checks (of a later step, malformed). CPU: the robot processes' CPU time (user + "
+            "system, every thread: front-end, consensus, filter, input decoding, Zenoh) from "
+            "each robot's first frame to its last, per frame processed; cores to keep up: that "
+            "per frame times the robots' frames per second at the run's rate (every frame "
+            "processed); cores had: the robots' CPU time over the time the player played. One "
+            "process per robot and the player share the machine's cores.",
         )
         total = sum(r.frames for r in dataset.robots)
         for run in runs:
             mode, rate, *rule = run.split(":")
             rate = float(rate)
             q = quantile if not rule else None if rule[0] == "none" else float(rule[0])
-            out = live_run(tmp, bag, dataset_dir, robots, inputs, mode, rate, q)
+            out, wall = live_run(tmp, bag, dataset_dir, robots, inputs, mode, rate, q)
             poses, summaries = results(out, robots)
             live = [s["live"] for s in summaries]
             frames = sum(s["frames"] for s in live)
             dropped = {k: sum(s["dropped"][k] for s in live) for k in ("queue", "sync", "frontend")}
             rmse = truth_rmse(dataset, [s["stamps_ns"] for s in live], poses)
+            cpu = sum(s["cpu_seconds"] for s in live)
             same = frames == total and all(
                 p.shape == o.shape for p, o in zip(poses, offline, strict=True)
             )
@@ -410,6 +428,9 @@ def main() -> None:
                 ),
                 str(sum(s["counters"].get("messages_too_old", 0) for s in summaries)),
                 str(sum(s["counters"].get("rejected_messages", 0) for s in summaries)),
+                f"{cpu / max(frames, 1) * 1e3:.0f}",
+                f"{cpu / max(frames, 1) * robots * rate / period:.2f}",
+                f"{cpu / wall:.2f}",
             )
             print("  ".join(row), flush=True)
             print("\n".join(per_robot(dataset, off_stamps, offline, poses, summaries, robots)))

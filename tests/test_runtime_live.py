@@ -113,6 +113,8 @@ def test_observations_played_live_give_the_offline_estimates(observations_bag, t
     live = summary["live"]
     assert live["frames"] == 41 and not any(live["dropped"].values())
     assert len(robot.latency_ns) == 41 and live["latency_ms"]["p50"] > 0
+    # the process's CPU time from the first frame to the last: some, and within what it used
+    assert 0 < live["cpu_seconds"] <= time.process_time()
 
 
 def test_a_full_queue_drops_the_oldest_frames_and_the_pose_stays_continuous(

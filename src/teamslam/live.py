@@ -529,6 +529,8 @@ class LiveRobot:
         self.step_seconds: list[float] = []
         self.stage_seconds = {s: 0.0 for s in STAGES}
         self.overruns = dict.fromkeys(STAGES, 0)
+        # the process's CPU time (every thread) when the first frame began and the last ended
+        self._cpu_span: list[float] = []
 
     # ------------------------------------------------------------------ inputs (any thread)
     def feed(self, received) -> None:
@@ -903,6 +905,8 @@ class LiveRobot:
         """Run one frame; whether it entered the filter."""
         t = 0 if self.sequence is None else self.sequence.frames
         where = f"robot {self.robot}, frame at stamp {frame.stamp_ns} ns"
+        if not self._cpu_span:
+            self._cpu_span.append(time.process_time())
         begin = time.perf_counter()
         try:
             features, objects, detections = self._observations(frame, where)
@@ -945,6 +949,7 @@ class LiveRobot:
             self._show(t)
         self._budget("publish", time.perf_counter() - after_filter, t)
         self.step_seconds.append(time.perf_counter() - step_begin)
+        self._cpu_span[1:] = [time.process_time()]
         return True
 
     def _publish(self, t: int) -> None:
@@ -1194,6 +1199,9 @@ class LiveRobot:
                 "frames_without_detections": counts.without_detections,
                 "camera_gaps": counts.camera_gaps,
                 "stage_seconds": dict(self.stage_seconds),
+                "cpu_seconds": (
+                    self._cpu_span[-1] - self._cpu_span[0] if len(self._cpu_span) == 2 else 0.0
+                ),
                 "budget_ms": self.budget_ms,
                 "budget_overruns": dict(self.overruns),
                 "queue": self.inputs.queue,
