@@ -112,6 +112,50 @@ def test_a_neighbour_whose_messages_arrive_late_is_heard_up_to_its_learned_lag()
         MessageLags(quantile=1.0)
 
 
+def test_a_resumed_robot_keeps_the_lags_it_learned(tmp_path):
+    """The lags learned go into the checkpoint: restored from it, a robot has the same age limit
+    for every neighbour (not the floor a new robot starts from), and the same after the next
+    messages (the lags and intervals kept go on, window and all)."""
+    from types import SimpleNamespace
+
+    from teamslam.runtime.agent_process import LAGS, _restore_lags
+
+    def feed(lags: MessageLags, ks: range) -> None:
+        for k in ks:  # neighbour 1: 4 or 5 s late every 2 s; neighbour 2: 1 s late every 3 s
+            t_k = 2 * k + k % 2
+            lags.seen(ids_message(1, k, 96 * S + 2 * k * S), 100 * S + t_k * S)
+            lags.seen(ids_message(2, k, 10 * S + 3 * k * S), 11 * S + 3 * k * S)
+
+    lags = MessageLags(quantile=0.9, window=12)
+    feed(lags, range(20))
+    before = {j: lags.limit_ns(j, MapIdsMessage, 3 * S) for j in (1, 2)}
+    assert before == {1: 7 * S, 2: 4 * S}  # quantile of the lags plus the interval
+    np.savez_compressed(
+        tmp_path / "c.npz", **{f"{LAGS}{k}": v for k, v in lags.state_dict().items()}
+    )
+    with np.load(tmp_path / "c.npz", allow_pickle=False) as c:
+        snapshot = {k: c[k] for k in c.files}
+    resumed = SimpleNamespace(lags=MessageLags(quantile=0.9, window=12))
+    assert resumed.lags.limit_ns(1, MapIdsMessage, 3 * S) == 3 * S  # nothing learned yet
+    _restore_lags(resumed, snapshot)
+    for j in (1, 2):
+        for floor in (0, 3 * S):
+            assert resumed.lags.limit_ns(j, MapIdsMessage, floor) == lags.limit_ns(
+                j, MapIdsMessage, floor
+            )
+        assert resumed.lags.limit_ns(j, CommonMarginalMessage, 0) == 0  # no such lags
+    # the next messages: the same lags kept (the window of 12 slides the same way); a resumed
+    # robot has not seen the neighbours' last messages before it went down, so their first
+    # interval after it is not known to it, the lags are
+    feed(lags, range(20, 40))
+    feed(resumed.lags, range(20, 40))
+    for j in (1, 2):
+        assert resumed.lags.limit_ns(j, MapIdsMessage, 0) == lags.limit_ns(j, MapIdsMessage, 0)
+    bad = dict(snapshot, **{f"{LAGS}kinds": np.array(["Nothing", "Nothing"])})
+    with pytest.raises(ValueError, match="unknown message kind"):
+        _restore_lags(SimpleNamespace(lags=MessageLags()), bad)
+
+
 @pytest.mark.parametrize("kind", ["ids", "marginal"])
 def test_a_stamped_message_travels_with_its_stamp_and_an_unstamped_one_is_unchanged(kind):
     team = wire.team_id("stamps")

@@ -37,7 +37,12 @@ from teamslam.msckf.agent import MsckfAgent, grown
 from teamslam.msckf.consensus.transport import Transport
 from teamslam.msckf.settings.values import MsckfConfig
 from teamslam.msckf.team import Asynchronous, LockStep, RobotDriver
-from teamslam.runtime.agent_process import _atomic_json, _save, _save_checkpoint
+from teamslam.runtime.agent_process import (
+    _atomic_json,
+    _restore_lags,
+    _save,
+    _save_checkpoint,
+)
 from teamslam.runtime.team_file import TeamFile
 
 __all__ = [
@@ -1062,7 +1067,8 @@ class LiveRobot:
         self._make_driver()
         try:
             self.driver.agent.restore(snapshot)
-        except (InputError, ValueError) as exc:
+            _restore_lags(self.driver, snapshot)
+        except (InputError, KeyError, ValueError) as exc:
             raise InputError(f"{path}: {exc}") from None
         t = self.driver.agent.frame
         self.driver.restore(snapshot["poses"][: t + 1], snapshot["covs"][: t + 1])

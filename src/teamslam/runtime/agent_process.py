@@ -51,15 +51,32 @@ def _atomic_json(path: Path, payload: dict) -> None:
 def _save_checkpoint(path: Path, driver: RobotDriver, t: int, extra: dict | None = None) -> None:
     arrays = {"poses": driver.poses[: t + 1], "covs": driver.covs[: t + 1]}
     arrays.update(driver.agent.snapshot())
+    if driver.lags is not None:  # the neighbours' lags learned: a resumed robot keeps its limits
+        arrays.update({f"{LAGS}{k}": v for k, v in driver.lags.state_dict().items()})
     arrays.update(extra or {})
     write_atomic(path / "checkpoint.npz", lambda tmp: np.savez_compressed(tmp, **arrays))
     _atomic_json(path / "checkpoint.json", {"frame": t})  # which frame the checkpoint holds
+
+
+#: the prefix of the learned message lags' arrays in a checkpoint
+LAGS = "consensus_lags_"
+
+
+def _restore_lags(driver: RobotDriver, snapshot: dict) -> None:
+    """Give ``driver`` the message lags a checkpoint holds (older checkpoints: none)."""
+    state = {k[len(LAGS) :]: v for k, v in snapshot.items() if k.startswith(LAGS)}
+    if driver.lags is not None and state:
+        driver.lags.load_state_dict(state)
 
 
 def _load_checkpoint(path: Path, driver: RobotDriver) -> int:
     with np.load(path / "checkpoint.npz", allow_pickle=False) as c:
         snapshot = {k: c[k] for k in c.files}
     driver.agent.restore(snapshot)
+    try:
+        _restore_lags(driver, snapshot)
+    except (KeyError, ValueError) as exc:
+        raise InputError(f"{path / 'checkpoint.npz'}: {exc}") from None
     t = driver.agent.frame
     driver.restore(snapshot["poses"][: t + 1], snapshot["covs"][: t + 1])
     return t

@@ -394,6 +394,48 @@ class MessageLags:
         if self._latest.get((message.sender, type(message))) is message:
             self.too_old[message.sender] = self.too_old.get(message.sender, 0) + 1
 
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """What was learned, as arrays (a checkpoint's): each (sender, kind)'s kept lags and
+        intervals; :meth:`load_state_dict` gives a resumed robot the same age limits."""
+        keys = sorted(set(self._lags) | set(self._intervals), key=lambda k: (k[0], k[1].__name__))
+        lags = [list(self._lags.get(k, ())) for k in keys]
+        intervals = [list(self._intervals.get(k, ())) for k in keys]
+        return {
+            "senders": np.array([k[0] for k in keys], np.int64),
+            "kinds": np.array([k[1].__name__ for k in keys], dtype="U32"),
+            "counts": np.array([[len(a), len(b)] for a, b in zip(lags, intervals, strict=True)])
+            .astype(np.int64)
+            .reshape(-1, 2),
+            "lags_ns": np.array([x for a in lags for x in a], np.int64),
+            "intervals_ns": np.array([x for b in intervals for x in b], np.int64),
+        }
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        """Take the lags and intervals of :meth:`state_dict` (a malformed state: ValueError)."""
+        kinds = {cls.__name__: cls for cls in (MapIdsMessage, CommonMarginalMessage)}
+        senders, names, counts = state["senders"], state["kinds"], state["counts"]
+        values, gaps = np.asarray(state["lags_ns"]), np.asarray(state["intervals_ns"])
+        counts = np.asarray(counts, np.int64).reshape(-1, 2)
+        if not len(senders) == len(names) == len(counts) or np.any(counts < 0):
+            raise ValueError("message lags: senders, kinds and counts of different lengths")
+        if counts[:, 0].sum() != values.size or counts[:, 1].sum() != gaps.size:
+            raise ValueError("message lags: the counts do not add up to the lags kept")
+        lags: dict[tuple[int, type], deque[int]] = {}
+        intervals: dict[tuple[int, type], deque[int]] = {}
+        a = b = 0
+        for sender, name, (n_lags, n_intervals) in zip(senders, names, counts, strict=True):
+            if str(name) not in kinds:
+                raise ValueError(f"message lags: unknown message kind {str(name)!r}")
+            key = (int(sender), kinds[str(name)])
+            lags[key] = deque((int(x) for x in values[a : a + n_lags]), maxlen=self.window)
+            if n_intervals:
+                intervals[key] = deque(
+                    (int(x) for x in gaps[b : b + n_intervals]), maxlen=self.window
+                )
+            a, b = a + n_lags, b + n_intervals
+        self._lags, self._intervals = lags, intervals
+        self._learned.clear()
+
     def stale(self, sender: int, kind: type, age: MessageAge) -> bool:
         """Whether ``sender``'s newest ``kind`` message seen is too old at ``age`` (it was
         heard, but nothing of an accepted age)."""
