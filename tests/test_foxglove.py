@@ -372,3 +372,74 @@ def test_teamslam_agent_foxglove_says_where_and_runs_as_without(one_robot, tmp_p
         said = "robot 0: Foxglove view at ws://127.0.0.1:" in done.stderr
         assert said == (name == "with"), done.stderr
     assert np.array_equal(results["with"], results["without"])
+
+
+def _free_ports(count: int) -> int:
+    """A loopback port with ``count`` free ports from it."""
+    import socket
+
+    for _ in range(100):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            base = s.getsockname()[1]
+        if base + count > 65536:
+            continue
+        taken = []
+        try:
+            for k in range(count):
+                t = socket.socket()
+                taken.append(t)
+                t.bind(("127.0.0.1", base + k))
+            return base
+        except OSError:
+            continue
+        finally:
+            for t in taken:
+                t.close()
+    raise RuntimeError("no free loopback ports")
+
+
+def test_team_launch_foxglove_puts_robot_i_on_base_port_plus_i(tmp_path):
+    """``teamslam team launch --foxglove HOST:BASE``: robot i serves its view on BASE + i (said
+    by the command and in the robot's log), the estimates those of the run without it; a base
+    whose robots' ports go past 65535 is one line, exit 2."""
+    import os
+    import subprocess
+    import sys
+
+    from teamslam.datasets import save_dataset
+    from teamslam.runtime.agent_process import load_robot_result
+    from teamslam.runtime.team_file import write_team_file
+    from teamslam.sim import lissajous_team
+
+    dataset = save_dataset(lissajous_team(robots=2, steps=20, seed=3), tmp_path / "team2")
+    port = 33800 + (os.getpid() % 100) * 4  # the robots' Zenoh ports, distinct per process
+    team = write_team_file(tmp_path / "team.yaml", "views", dataset, ~np.eye(2, dtype=bool), port)
+    argv = [sys.executable, "-m", "teamslam", "team", "launch", str(team)]
+    base = _free_ports(2)
+    runs = {}
+    for name, extra in (("with", ["--foxglove", f"127.0.0.1:{base}"]), ("without", [])):
+        done = subprocess.run(
+            [*argv, "--out", str(tmp_path / name), *extra],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert done.returncode == 0, done.stderr
+        runs[name] = [load_robot_result(tmp_path / name, r)[0]["poses"] for r in (0, 1)]
+        for r in (0, 1):
+            said = f"robot {r}: Foxglove view at ws://127.0.0.1:{base + r}"
+            assert (said in done.stdout) == (name == "with"), done.stdout
+            log = (tmp_path / name / f"robot_{r}.log").read_text()
+            assert (said in log) == (name == "with"), log
+    for with_view, without in zip(runs["with"], runs["without"], strict=True):
+        assert np.array_equal(with_view, without)
+    done = subprocess.run(
+        [*argv, "--out", str(tmp_path / "bad"), "--foxglove", "65535"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "past 65535" in done.stderr, done.stderr
+    assert not (tmp_path / "bad").exists()

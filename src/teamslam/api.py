@@ -55,6 +55,7 @@ __all__ = [
     "calibrate",
     "evaluate",
     "export",
+    "foxglove_ports",
     "launch",
     "load_run",
     "require_extras",
@@ -546,6 +547,7 @@ def launch(
     settings=None,
     progress=None,
     overwrite: bool = False,
+    foxglove: tuple[str, int] | None = None,
 ) -> Run:
     """Run every robot of a team file as its own process; gather their results.
 
@@ -561,25 +563,50 @@ def launch(
         The :class:`~teamslam.msckf.settings.sources.EffectiveConfig` to report with the metrics.
     overwrite
         Replace an earlier run at ``out`` (entirely); without it one is refused.
+    foxglove
+        ``(host, base port)``: robot ``i`` serves its estimates over the Foxglove WebSocket
+        protocol on ``base port + i`` (``teamslam agent --foxglove``); base port 0: each robot
+        on a free port of its own (its log says which).
 
     Raises
     ------
     InputError
-        ``out`` cannot take the run (see :func:`write_run`), a wrong team file or setting.
+        ``out`` cannot take the run (see :func:`write_run`), a wrong team file or setting, a
+        Foxglove base port whose robots' ports go past 65535.
     """
     from teamslam.eval.outputs import stage_run_directory
 
     stage = stage_run_directory(out, overwrite)
     try:
-        return _launch_into(stage, Path(team_path), settings, progress)
+        return _launch_into(stage, Path(team_path), settings, progress, foxglove=foxglove)
     finally:
         stage.discard()
 
 
-def _launch_into(stage, team_path: Path, settings, progress, keep_out: Path | None = None) -> Run:
+def foxglove_ports(robots: list[int], host: str, base_port: int) -> dict[int, str]:
+    """Each robot's ``HOST:PORT`` of ``team launch --foxglove``: robot ``i`` on ``base_port +
+    i`` (base 0: a free port each); a port past 65535 is an InputError."""
+    if base_port and base_port + max(robots, default=0) > 65535:
+        raise InputError(
+            f"--foxglove {base_port}: robot {max(robots)} would be on port "
+            f"{base_port + max(robots)}, past 65535"
+        )
+    where = f"[{host}]" if ":" in host else host
+    return {r: f"{where}:{base_port + r if base_port else 0}" for r in robots}
+
+
+def _launch_into(
+    stage,
+    team_path: Path,
+    settings,
+    progress,
+    keep_out: Path | None = None,
+    foxglove: tuple[str, int] | None = None,
+) -> Run:
     """Launch the team file's robots into the staging folder ``stage``, gather, write the run
     (``run.json`` last; ``complete`` when every robot finished) and move it into place;
-    ``keep_out``: a folder of ``stage`` not to move (secrets)."""
+    ``keep_out``: a folder of ``stage`` not to move (secrets); ``foxglove``: ``(host, base
+    port)`` of the robots' Foxglove views."""
     from teamslam.eval.outputs import write_team_outputs
     from teamslam.runtime.launch import exit_summary, gather, launch_team
     from teamslam.runtime.team_file import load_team_file
@@ -588,7 +615,12 @@ def _launch_into(stage, team_path: Path, settings, progress, keep_out: Path | No
     team = load_team_file(team_path)
     require_extras(processes=True, secure=team.security is not None, ros2=team.ros2 is not None)
     validate_team(team)
-    codes = launch_team(team, team_path, work, progress=progress)
+    extra_args = None
+    if foxglove is not None:
+        require_extras(foxglove=True)
+        ports = foxglove_ports([r.id for r in team.robots], *foxglove)
+        extra_args = {r: ["--foxglove", where] for r, where in ports.items()}
+    codes = launch_team(team, team_path, work, progress=progress, extra_args=extra_args)
     if keep_out is not None:
         shutil.rmtree(keep_out, ignore_errors=True)
     finished = [r for r, c in sorted(codes.items()) if c == 0]

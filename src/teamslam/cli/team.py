@@ -24,10 +24,19 @@ __all__ = ["register"]
 
 
 def _cmd_team_launch(args: argparse.Namespace) -> int:
+    import sys
+
     from teamslam import api
 
+    if args.foxglove is not None and args.foxglove[1]:
+        from teamslam.runtime.team_file import load_team_file
+
+        robots = [r.id for r in load_team_file(args.team_file).robots]
+        for robot, where in api.foxglove_ports(robots, *args.foxglove).items():
+            print(f"robot {robot}: Foxglove view at ws://{where}")
+        sys.stdout.flush()
     with ctrl_c_interrupts():  # Ctrl-C stops the robots, even started with it ignored
-        run = api.launch(args.team_file, args.out, overwrite=args.overwrite)
+        run = api.launch(args.team_file, args.out, overwrite=args.overwrite, foxglove=args.foxglove)
     print_run(run, args.out)
     return run.exit_status
 
@@ -238,6 +247,14 @@ def register(sub) -> None:
         "--overwrite",
         action="store_true",
         help="replace an earlier run in --out (entirely); without it one is refused",
+    )
+    launch.add_argument(
+        "--foxglove",
+        type=foxglove_address,
+        metavar="[HOST:]BASEPORT",
+        help="each robot serves its estimates over the Foxglove WebSocket protocol while it "
+        "runs, robot i on BASEPORT+i (host default 127.0.0.1; 0: a free port each, in its log; "
+        "the foxglove extra)",
     )
     launch.set_defaults(handler=_cmd_team_launch)
 
