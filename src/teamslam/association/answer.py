@@ -42,7 +42,14 @@ from teamslam.association.candidates import (
 from teamslam.association.clique import maximum_clique
 from teamslam.association.consistency import consistency_graph, consistent_members
 from teamslam.association.distances import pair_distances
-from teamslam.association.gate import crowd, in_frame, separated, support, told_apart_by_frame
+from teamslam.association.gate import (
+    crowd,
+    frame_allowed,
+    in_frame,
+    separated,
+    support,
+    told_apart_by_frame,
+)
 from teamslam.association.mirror import flipped
 from teamslam.association.seeds import seed_sets
 from teamslam.association.settings import AssociationSettings
@@ -197,6 +204,20 @@ def _associate(
         model = link_model(a, b, held, settings.consistency_probability)
     if model is None:
         return _by_position(a, b, settings)
+    result = _by_sets(a, b, settings, model)
+    if result.matched or settings.frame_probability is None:
+        return result
+    # no consistent set answers: the maps' shared frame is a known transform, and a pair it
+    # allows that looks alike beyond chance among every pair it allows is the same object
+    framed = _by_frame(a, b, settings, model if model.informative else rarity(model))
+    return result if framed is None else framed
+
+
+def _by_sets(
+    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+) -> AssociationResult:
+    """The answer of the consistent sets with appearance ``model`` (the link's, informative or
+    not)."""
     if model.informative:
         result = _with_appearance(a, b, settings, model)
         if result.matched:
@@ -228,6 +249,55 @@ def _associate(
         return result
     learned = _with_appearance(a, b, settings, model)
     return learned if learned.matched else _unless_vetoed(a, b, result, model, settings)
+
+
+def _by_frame(
+    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+) -> AssociationResult | None:
+    """The pairs the maps' shared frame and appearance identify one by one, without a
+    consistent set: ``None`` when there are none.
+
+    The shared frame (``frame_probability``) is a transform known before any pair: the
+    identity, its uncertainty each estimate's marginal covariance. The hypotheses it leaves are
+    the ``M`` pairs it allows (:func:`~teamslam.association.gate.frame_allowed`, both objects
+    with a descriptor, of one class). A pair is kept when it is the one best-looking partner
+    of each of its two objects among them (``model``'s log ratio: the link's learned one, or
+    the rarity before it is informative) and looks alike beyond what the best of ``M`` chance
+    look-alikes reaches at ``consistency_probability`` (:func:`~teamslam.association.
+    appearance.chance_tail` of one pair): under the hypothesis that none of the ``M`` is the
+    same object, the probability that any of them is kept is at most ``1 −
+    consistency_probability``. The result is ``matched`` with the identity as its transform.
+    """
+    frame = frame_allowed(a, b, settings)
+    if frame is None or len(a) == 0 or len(b) == 0:
+        return None
+    allowed = frame & np.any(a.appearance != 0, axis=1)[:, None]
+    allowed &= np.any(b.appearance != 0, axis=1)[None, :]
+    if a.classes is not None and b.classes is not None:
+        allowed &= a.classes[:, None] == b.classes[None, :]
+    hypotheses = int(np.count_nonzero(allowed))
+    if hypotheses == 0:
+        return None
+    score = np.where(
+        allowed, model.log_ratio(cosine_distances(a.appearance, b.appearance)), -np.inf
+    )
+    # the one best of its row and of its column (a tie chooses neither)
+    row_best = score == score.max(axis=1, keepdims=True)
+    col_best = score == score.max(axis=0, keepdims=True)
+    mutual = allowed & row_best & col_best
+    mutual &= (row_best.sum(axis=1) == 1)[:, None] & (col_best.sum(axis=0) == 1)[None, :]
+    rows, cols = np.nonzero(mutual)
+    if rows.size == 0:
+        return None
+    alike = beyond_chance(model, score[rows, cols], hypotheses, settings.consistency_probability)
+    rows, cols = rows[alike], cols[alike]
+    if rows.size == 0:
+        return None
+    pairs = np.column_stack([a.ids[rows], b.ids[cols]])
+    pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
+    return AssociationResult(
+        a.robot, b.robot, pairs, np.eye(4), "matched", candidates=hypotheses, clique=len(pairs)
+    )
 
 
 def _unless_vetoed(
