@@ -17,7 +17,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from teamslam.association import AssociationSettings, ObjectSummary, associate
+from teamslam.association import (
+    AssociationResult,
+    AssociationSettings,
+    CorrespondenceTable,
+    ObjectSummary,
+    associate,
+)
 from teamslam.association.appearance import (
     AppearanceModel,
     chance_tail,
@@ -354,16 +360,17 @@ def test_a_first_contact_refuses_a_chance_triangle_of_lookalikes(monkeypatch):
     assert wrong.matched and len(wrong.pairs) == 3
 
 
-def _one_shared_object(seed: int, types: int | None = None, offset: float = 0.0):
-    """Two maps of 30 objects each in one world frame (σ 0.3 m), sharing one object, the others
-    different objects scattered over the same 60 m square (some within the frame's gate of
-    one another). The shared object's second estimate lies ``offset`` metres from its first.
-    Descriptors as in :func:`_maps` (``types``: look-alike types)."""
+def _one_shared_object(seed: int, types: int | None = None, offset: float = 0.0, shared: int = 1):
+    """Two maps of 30 objects each in one world frame (σ 0.3 m), sharing one object (the first
+    ``shared``), the others different objects scattered over the same 60 m square (some within
+    the frame's gate of one another). The last shared object's second estimate lies ``offset``
+    metres from its first. Descriptors as in :func:`_maps` (``types``: look-alike types)."""
     rng = np.random.default_rng(seed)
     n = 30
     a_means = rng.uniform(0.0, 60.0, (n, 3)) * [1, 1, 0.02]
     b_means = rng.uniform(0.0, 60.0, (n, 3)) * [1, 1, 0.02]
-    b_means[0] = a_means[0] + [0.3 + offset, -0.15, 0.0]
+    b_means[:shared] = a_means[:shared] + np.array([0.3, -0.15, 0.0])
+    b_means[shared - 1, 0] += offset
     if types is None:
         looks_a = unit_rows(rng.standard_normal((n, DIM)))
         looks_b = unit_rows(rng.standard_normal((n, DIM)))
@@ -371,13 +378,13 @@ def _one_shared_object(seed: int, types: int | None = None, offset: float = 0.0)
         kinds = unit_rows(rng.standard_normal((types, DIM)))
         looks_a = kinds[rng.integers(0, types, n)]
         looks_b = kinds[rng.integers(0, types, n)]
-    looks_b[0] = looks_a[0]
+    looks_b[:shared] = looks_a[:shared]
     looks_a = looks_a + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
     looks_b = looks_b + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
     covs = np.tile(0.3**2 * np.eye(3), (n, 1, 1))
     a = ObjectSummary(0, np.arange(100, 100 + n), a_means, covs, appearance=looks_a)
     b = ObjectSummary(1, np.arange(500, 500 + n), b_means, covs, appearance=looks_b)
-    return a, b, np.array([[100, 500]])
+    return a, b, np.column_stack([np.arange(100, 100 + shared), np.arange(500, 500 + shared)])
 
 
 FRAME = AssociationSettings(frame_probability=0.99999)
@@ -417,3 +424,24 @@ def test_one_pair_of_common_lookalikes_in_the_shared_frame_is_no_answer(monkeypa
     assert not associate(a, b, FRAME).matched
     monkeypatch.setattr("teamslam.association.appearance.chance_tail", lambda *args: 0.0)
     assert associate(a, b, FRAME).matched
+
+
+@pytest.mark.parametrize("offset", [0.0, 3.7])
+def test_a_link_takes_a_new_rare_pair_the_shared_frame_admits_and_refuses_one_it_does_not(offset):
+    """A link holding two pairs (no transform of its own yet, nothing for an extension to gate
+    under) whose maps, in one world frame, now share a third object that looks alike beyond
+    chance: the extension takes it, at both ends alike. With the third object's second estimate
+    4 m from its first (thirteen σ of each), the frame refuses it and nothing is added."""
+    a, b, truth = _one_shared_object(seed=11, offset=offset, shared=3)
+    tables = [CorrespondenceTable(0, 1, FRAME), CorrespondenceTable(1, 0, FRAME)]
+    first_two = AssociationResult(0, 1, truth[:2], np.eye(4), "matched")
+    tables[0].merge(first_two, a, b)
+    tables[1].merge(first_two.swapped(), b, a)
+    added = tables[0].extend(a, b), tables[1].extend(b, a)
+    if offset == 0.0:
+        np.testing.assert_array_equal(added[0], truth[2:])
+        np.testing.assert_array_equal(tables[0].pairs(), truth)
+    else:
+        assert added[0].size == 0
+        np.testing.assert_array_equal(tables[0].pairs(), truth[:2])
+    np.testing.assert_array_equal(tables[1].pairs(), tables[0].pairs()[:, ::-1])

@@ -45,6 +45,7 @@ from teamslam.association.distances import pair_distances
 from teamslam.association.gate import (
     crowd,
     frame_allowed,
+    gate_extent,
     in_frame,
     separated,
     support,
@@ -58,7 +59,7 @@ from teamslam.association.transform import fit_transform, pair_nis
 from teamslam.errors import InputError
 from teamslam.geometry import se3
 
-__all__ = ["AssociationResult", "associate"]
+__all__ = ["AssociationResult", "associate", "identified_by_frame"]
 
 
 @dataclass(frozen=True)
@@ -254,30 +255,62 @@ def _by_sets(
 def _by_frame(
     a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
 ) -> AssociationResult | None:
+    """The pairs the maps' shared frame and appearance identify one by one
+    (:func:`identified_by_frame`) as an answer with the identity as its transform, or ``None``
+    when there are none."""
+    rows, cols, hypotheses = identified_by_frame(a, b, settings, model)
+    if rows.size == 0:
+        return None
+    pairs = np.column_stack([a.ids[rows], b.ids[cols]])
+    pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
+    return AssociationResult(
+        a.robot, b.robot, pairs, np.eye(4), "matched", candidates=hypotheses, clique=len(pairs)
+    )
+
+
+def identified_by_frame(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    settings: AssociationSettings,
+    model,
+    free: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """The pairs the maps' shared frame and appearance identify one by one, without a
-    consistent set: ``None`` when there are none.
+    consistent set.
 
     The shared frame (``frame_probability``) is a transform known before any pair: the
-    identity, its uncertainty each estimate's marginal covariance. The hypotheses it leaves are
-    the ``M`` pairs it allows (:func:`~teamslam.association.gate.frame_allowed`, both objects
-    with a descriptor, of one class). A pair is kept when it is the one best-looking partner
-    of each of its two objects among them (``model``'s log ratio: the link's learned one, or
-    the rarity before it is informative) and looks alike beyond what the best of ``M`` chance
-    look-alikes reaches at ``consistency_probability`` (:func:`~teamslam.association.
-    appearance.chance_tail` of one pair): under the hypothesis that none of the ``M`` is the
-    same object, the probability that any of them is kept is at most ``1 −
-    consistency_probability``. The result is ``matched`` with the identity as its transform.
+    identity, its uncertainty each estimate's marginal covariance (times the link's learned
+    ``frame_scale``). The hypotheses it leaves are the ``M`` pairs it allows
+    (:func:`~teamslam.association.gate.frame_allowed`; both objects with a descriptor, of one
+    class, and among ``free`` — boolean masks of the objects of ``a`` and ``b`` still
+    unmatched — when given). A pair is kept when it is the one best-looking partner of each of
+    its two objects among them (``model``'s log ratio: the link's learned one, or the rarity
+    before it is informative) and looks alike beyond what the best of ``M`` chance look-alikes
+    reaches at ``consistency_probability`` (:func:`~teamslam.association.appearance.
+    chance_tail` of one pair): under the hypothesis that none of the ``M`` is the same object,
+    the probability that any is kept is at most ``1 − consistency_probability``.
+
+    Returns
+    -------
+    rows, cols, hypotheses
+        Indices of the pairs into ``a`` and ``b`` (none without a shared frame or
+        descriptors) and ``M``.
     """
+    none = (np.zeros(0, np.int64), np.zeros(0, np.int64), 0)
+    if a.appearance is None or b.appearance is None or len(a) == 0 or len(b) == 0:
+        return none
     frame = frame_allowed(a, b, settings)
-    if frame is None or len(a) == 0 or len(b) == 0:
-        return None
+    if frame is None:
+        return none
     allowed = frame & np.any(a.appearance != 0, axis=1)[:, None]
     allowed &= np.any(b.appearance != 0, axis=1)[None, :]
     if a.classes is not None and b.classes is not None:
         allowed &= a.classes[:, None] == b.classes[None, :]
+    if free is not None:
+        allowed &= free[0][:, None] & free[1][None, :]
     hypotheses = int(np.count_nonzero(allowed))
     if hypotheses == 0:
-        return None
+        return none
     score = np.where(
         allowed, model.log_ratio(cosine_distances(a.appearance, b.appearance)), -np.inf
     )
@@ -288,16 +321,9 @@ def _by_frame(
     mutual &= (row_best.sum(axis=1) == 1)[:, None] & (col_best.sum(axis=0) == 1)[None, :]
     rows, cols = np.nonzero(mutual)
     if rows.size == 0:
-        return None
+        return none
     alike = beyond_chance(model, score[rows, cols], hypotheses, settings.consistency_probability)
-    rows, cols = rows[alike], cols[alike]
-    if rows.size == 0:
-        return None
-    pairs = np.column_stack([a.ids[rows], b.ids[cols]])
-    pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
-    return AssociationResult(
-        a.robot, b.robot, pairs, np.eye(4), "matched", candidates=hypotheses, clique=len(pairs)
-    )
+    return rows[alike], cols[alike], hypotheses
 
 
 def _unless_vetoed(
@@ -526,10 +552,11 @@ def _from_candidates(
     # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
     # left must still be an answer
     anchors = (a.means[rows], b.means[cols])
-    ok = separated(a, b, t, *anchors, rows, cols, settings)
+    extent = gate_extent(a, b, t, *anchors, rows, cols, settings)
+    ok = separated(a, b, t, *anchors, rows, cols, settings, extent=extent)
     if told is not None and not ok.all():
         loose = np.flatnonzero(~ok)
-        near = crowd(a, b, t, *anchors, rows[loose], cols[loose], settings)
+        near = crowd(a, b, t, *anchors, rows[loose], cols[loose], settings, extent=extent[loose])
         ok[loose] = told(rows[loose], cols[loose], near)
     if np.count_nonzero(ok) < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)
