@@ -13,8 +13,11 @@ if their appearance is beyond what chance look-alikes give at ``consistency_prob
 the model is informative (no sample yet of the same object) the same bound holds for the rarity
 of the resemblance among different objects (:func:`~teamslam.association.appearance.rarity`),
 and the answer's pairs then teach the model. What position alone answers stands when appearance
-gives no answer, without vetoed pairs. Without appearance, or with appearance that separates
-nothing, the rules are exactly those above. The
+gives no answer, without vetoed pairs. When no consistent set answers and the two maps share
+one world frame (``frame_probability``), the pairs the frame allows that look alike beyond
+chance among all it allows are the answer one by one (:func:`identified_by_frame`), with the
+identity as transform. Without appearance, or with appearance that separates nothing, the rules
+are exactly those above. The
 result is a deterministic function of the two summaries in a canonical order (the smaller robot
 id first, objects by id, ties by index), so both ends of a link hold the same correspondences.
 """
@@ -552,7 +555,9 @@ def _from_candidates(
     # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
     # left must still be an answer
     anchors = (a.means[rows], b.means[cols])
-    extent = gate_extent(a, b, t, *anchors, rows, cols, settings)
+    extent = None
+    if rows.size and settings.separation > 0:
+        extent = gate_extent(a, b, t, *anchors, rows, cols, settings)
     ok = separated(a, b, t, *anchors, rows, cols, settings, extent=extent)
     if told is not None and not ok.all():
         loose = np.flatnonzero(~ok)

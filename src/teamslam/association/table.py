@@ -13,7 +13,8 @@ many steps have passed).
 At run time a robot runs the full association when the table says it is
 :meth:`~CorrespondenceTable.due` (nothing merged yet, a map grown by a quarter since the last
 one, or — while the link has no answer — ``min_inliers`` new objects in a map) and grows the
-table in between with :meth:`~CorrespondenceTable.extend` (one gate, one assignment). Both ends
+table in between with :meth:`~CorrespondenceTable.extend` (one gate, one assignment; between maps
+in one world frame, also the single pairs the frame and appearance identify). Both ends
 of a link merge the same results in the same order and compute every decision in the canonical
 order of the two robots, so their tables stay mirror images of each
 other (own ↔ neighbour ids swapped).
@@ -306,6 +307,13 @@ class CorrespondenceTable:
           :attr:`~teamslam.association.AssociationSettings.frame_probability` with the scale
           the link has learned).
 
+        Between maps in one world frame, with appearance, the pairs of objects neither end holds
+        that the frame and appearance identify one by one
+        (:func:`~teamslam.association.answer.identified_by_frame`) are added too when the merge's
+        gate under the held pairs' transform admits them (all, while fewer than three held
+        pairs are in the summaries): a link without a transform of its own takes a new shared
+        object at the next exchange, not at its next full association.
+
         The pairs that pass every test but the last are identified by the held pairs' transform,
         not by the frame: their squared Mahalanobis distances under the identity
         (:func:`~teamslam.association.gate.frame_nis`) measure how far the two maps' estimates
@@ -330,8 +338,9 @@ class CorrespondenceTable:
         Returns
         -------
         numpy.ndarray
-            ``(k, 2)`` the pairs added; none while fewer than ``min_inliers`` held pairs are in
-            the summaries.
+            ``(k, 2)`` the pairs added; none under the held pairs' transform while fewer than
+            ``min_inliers`` held pairs (three with an informative appearance model) are in the
+            summaries, only those the shared frame and appearance identify.
         """
         if own.robot != self.own or their.robot != self.neighbour:
             raise InputError(
