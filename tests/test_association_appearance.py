@@ -17,7 +17,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from teamslam.association import AssociationSettings, ObjectSummary, associate
+from teamslam.association import (
+    AssociationResult,
+    AssociationSettings,
+    CorrespondenceTable,
+    ObjectSummary,
+    associate,
+)
 from teamslam.association.appearance import (
     AppearanceModel,
     chance_tail,
@@ -25,6 +31,7 @@ from teamslam.association.appearance import (
     link_model,
     unit_rows,
 )
+from teamslam.association.gate import frame_allowed
 from teamslam.datasets import load_dataset, save_dataset
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.datasets.storage import FORMAT_VERSION
@@ -351,3 +358,90 @@ def test_a_first_contact_refuses_a_chance_triangle_of_lookalikes(monkeypatch):
     monkeypatch.setattr("teamslam.association.appearance.chance_tail", lambda *args: 0.0)
     wrong = associate(a, b)
     assert wrong.matched and len(wrong.pairs) == 3
+
+
+def _one_shared_object(seed: int, types: int | None = None, offset: float = 0.0, shared: int = 1):
+    """Two maps of 30 objects each in one world frame (σ 0.3 m), sharing one object (the first
+    ``shared``), the others different objects scattered over the same 60 m square (some within
+    the frame's gate of one another). The last shared object's second estimate lies ``offset``
+    metres from its first. Descriptors as in :func:`_maps` (``types``: look-alike types)."""
+    rng = np.random.default_rng(seed)
+    n = 30
+    a_means = rng.uniform(0.0, 60.0, (n, 3)) * [1, 1, 0.02]
+    b_means = rng.uniform(0.0, 60.0, (n, 3)) * [1, 1, 0.02]
+    b_means[:shared] = a_means[:shared] + np.array([0.3, -0.15, 0.0])
+    b_means[shared - 1, 0] += offset
+    if types is None:
+        looks_a = unit_rows(rng.standard_normal((n, DIM)))
+        looks_b = unit_rows(rng.standard_normal((n, DIM)))
+    else:
+        kinds = unit_rows(rng.standard_normal((types, DIM)))
+        looks_a = kinds[rng.integers(0, types, n)]
+        looks_b = kinds[rng.integers(0, types, n)]
+    looks_b[:shared] = looks_a[:shared]
+    looks_a = looks_a + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
+    looks_b = looks_b + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
+    covs = np.tile(0.3**2 * np.eye(3), (n, 1, 1))
+    a = ObjectSummary(0, np.arange(100, 100 + n), a_means, covs, appearance=looks_a)
+    b = ObjectSummary(1, np.arange(500, 500 + n), b_means, covs, appearance=looks_b)
+    return a, b, np.column_stack([np.arange(100, 100 + shared), np.arange(500, 500 + shared)])
+
+
+FRAME = AssociationSettings(frame_probability=0.99999)
+
+
+def test_one_shared_object_that_looks_alike_beyond_chance_is_identified_by_the_shared_frame():
+    """Two maps in one world frame share a single object: no consistent set of three exists,
+    but the frame is a transform known before any pair. The one pair it allows that looks alike
+    beyond what the best of every pair it allows gives by chance is the answer — with or
+    without a sample of the same object yet; seen from either end alike."""
+    a, b, truth = _one_shared_object(seed=11)
+    assert np.count_nonzero(frame_allowed(a, b, FRAME)) > 3  # other hypotheses are in the gate
+    for first, second in ((a, b), (_first_contact(a), _first_contact(b))):
+        result = associate(first, second, FRAME)
+        assert result.matched, result.status
+        np.testing.assert_array_equal(result.pairs, truth)
+        np.testing.assert_array_equal(result.T_first_second, np.eye(4))
+        np.testing.assert_array_equal(associate(second, first, FRAME).pairs, truth[:, ::-1])
+    # without appearance one pair is no answer
+    assert not associate(_without(a), _without(b), FRAME).matched
+
+
+def test_one_shared_object_whose_estimates_the_shared_frame_refuses_is_no_answer():
+    """The same object with its second estimate 4 m from the first (thirteen σ of each): the
+    frame refuses the pair, however alike the two look, and nothing else is taken for it."""
+    a, b, _ = _one_shared_object(seed=11, offset=3.7)
+    result = associate(a, b, FRAME)
+    assert not np.isin(100, result.pairs[:, 0]) and not np.isin(500, result.pairs[:, 1])
+
+
+def test_one_pair_of_common_lookalikes_in_the_shared_frame_is_no_answer(monkeypatch):
+    """Unrelated places whose objects come in three look-alike types, two objects of one type
+    in the frame's gate of each other (as alike as one object's two copies): the pair is not
+    beyond chance among the pairs the frame allows (look-alikes are common), and is no answer;
+    it is the chance bound that refuses it."""
+    a, b, _ = _one_shared_object(seed=12, types=3)
+    assert not associate(a, b, FRAME).matched
+    monkeypatch.setattr("teamslam.association.appearance.chance_tail", lambda *args: 0.0)
+    assert associate(a, b, FRAME).matched
+
+
+@pytest.mark.parametrize("offset", [0.0, 3.7])
+def test_a_link_takes_a_new_rare_pair_the_shared_frame_admits_and_refuses_one_it_does_not(offset):
+    """A link holding two pairs (no transform of its own yet, nothing for an extension to gate
+    under) whose maps, in one world frame, now share a third object that looks alike beyond
+    chance: the extension takes it, at both ends alike. With the third object's second estimate
+    4 m from its first (thirteen σ of each), the frame refuses it and nothing is added."""
+    a, b, truth = _one_shared_object(seed=11, offset=offset, shared=3)
+    tables = [CorrespondenceTable(0, 1, FRAME), CorrespondenceTable(1, 0, FRAME)]
+    first_two = AssociationResult(0, 1, truth[:2], np.eye(4), "matched")
+    tables[0].merge(first_two, a, b)
+    tables[1].merge(first_two.swapped(), b, a)
+    added = tables[0].extend(a, b), tables[1].extend(b, a)
+    if offset == 0.0:
+        np.testing.assert_array_equal(added[0], truth[2:])
+        np.testing.assert_array_equal(tables[0].pairs(), truth)
+    else:
+        assert added[0].size == 0
+        np.testing.assert_array_equal(tables[0].pairs(), truth[:2])
+    np.testing.assert_array_equal(tables[1].pairs(), tables[0].pairs()[:, ::-1])

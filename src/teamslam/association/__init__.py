@@ -7,7 +7,9 @@ maximum consistent set (PCM, Mangelson et al. ICRA 2018), the relative transform
 a Mahalanobis gate under it — and gives none rather than guess; appearance, when its learned
 model separates objects (:mod:`~teamslam.association.appearance`), adds candidates and vetoes
 and lets three pairs beyond chance answer (before any sample of the same object, by the rarity
-of their resemblance among different objects). A :class:`CorrespondenceTable` per link keeps the
+of their resemblance among different objects) — and, between maps in one world frame, single
+pairs whose resemblance is beyond chance among all the frame allows. A
+:class:`CorrespondenceTable` per link keeps the
 pairs across steps, grows them, revokes a pair whose consensus innovation fails its ``χ²`` test
 (:func:`pair_innovation_consistent`). :func:`score_correspondences` measures precision and recall
 against ground truth.

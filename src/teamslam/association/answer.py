@@ -13,8 +13,11 @@ if their appearance is beyond what chance look-alikes give at ``consistency_prob
 the model is informative (no sample yet of the same object) the same bound holds for the rarity
 of the resemblance among different objects (:func:`~teamslam.association.appearance.rarity`),
 and the answer's pairs then teach the model. What position alone answers stands when appearance
-gives no answer, without vetoed pairs. Without appearance, or with appearance that separates
-nothing, the rules are exactly those above. The
+gives no answer, without vetoed pairs. When no consistent set answers and the two maps share
+one world frame (``frame_probability``), the pairs the frame allows that look alike beyond
+chance among all it allows are the answer one by one (:func:`identified_by_frame`), with the
+identity as transform. Without appearance, or with appearance that separates nothing, the rules
+are exactly those above. The
 result is a deterministic function of the two summaries in a canonical order (the smaller robot
 id first, objects by id, ties by index), so both ends of a link hold the same correspondences.
 """
@@ -42,7 +45,15 @@ from teamslam.association.candidates import (
 from teamslam.association.clique import maximum_clique
 from teamslam.association.consistency import consistency_graph, consistent_members
 from teamslam.association.distances import pair_distances
-from teamslam.association.gate import crowd, in_frame, separated, support, told_apart_by_frame
+from teamslam.association.gate import (
+    crowd,
+    frame_allowed,
+    gate_extent,
+    in_frame,
+    separated,
+    support,
+    told_apart_by_frame,
+)
 from teamslam.association.mirror import flipped
 from teamslam.association.seeds import seed_sets
 from teamslam.association.settings import AssociationSettings
@@ -51,7 +62,7 @@ from teamslam.association.transform import fit_transform, pair_nis
 from teamslam.errors import InputError
 from teamslam.geometry import se3
 
-__all__ = ["AssociationResult", "associate"]
+__all__ = ["AssociationResult", "associate", "identified_by_frame"]
 
 
 @dataclass(frozen=True)
@@ -197,6 +208,20 @@ def _associate(
         model = link_model(a, b, held, settings.consistency_probability)
     if model is None:
         return _by_position(a, b, settings)
+    result = _by_sets(a, b, settings, model)
+    if result.matched or settings.frame_probability is None:
+        return result
+    # no consistent set answers: the maps' shared frame is a known transform, and a pair it
+    # allows that looks alike beyond chance among every pair it allows is the same object
+    framed = _by_frame(a, b, settings, model if model.informative else rarity(model))
+    return result if framed is None else framed
+
+
+def _by_sets(
+    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+) -> AssociationResult:
+    """The answer of the consistent sets with appearance ``model`` (the link's, informative or
+    not)."""
     if model.informative:
         result = _with_appearance(a, b, settings, model)
         if result.matched:
@@ -228,6 +253,80 @@ def _associate(
         return result
     learned = _with_appearance(a, b, settings, model)
     return learned if learned.matched else _unless_vetoed(a, b, result, model, settings)
+
+
+def _by_frame(
+    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+) -> AssociationResult | None:
+    """The pairs the maps' shared frame and appearance identify one by one
+    (:func:`identified_by_frame`) as an answer with the identity as its transform, or ``None``
+    when there are none."""
+    rows, cols, hypotheses = identified_by_frame(a, b, settings, model)
+    if rows.size == 0:
+        return None
+    pairs = np.column_stack([a.ids[rows], b.ids[cols]])
+    pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
+    return AssociationResult(
+        a.robot, b.robot, pairs, np.eye(4), "matched", candidates=hypotheses, clique=len(pairs)
+    )
+
+
+def identified_by_frame(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    settings: AssociationSettings,
+    model,
+    free: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """The pairs the maps' shared frame and appearance identify one by one, without a
+    consistent set.
+
+    The shared frame (``frame_probability``) is a transform known before any pair: the
+    identity, its uncertainty each estimate's marginal covariance (times the link's learned
+    ``frame_scale``). The hypotheses it leaves are the ``M`` pairs it allows
+    (:func:`~teamslam.association.gate.frame_allowed`; both objects with a descriptor, of one
+    class, and among ``free`` — boolean masks of the objects of ``a`` and ``b`` still
+    unmatched — when given). A pair is kept when it is the one best-looking partner of each of
+    its two objects among them (``model``'s log ratio: the link's learned one, or the rarity
+    before it is informative) and looks alike beyond what the best of ``M`` chance look-alikes
+    reaches at ``consistency_probability`` (:func:`~teamslam.association.appearance.
+    chance_tail` of one pair): under the hypothesis that none of the ``M`` is the same object,
+    the probability that any is kept is at most ``1 − consistency_probability``.
+
+    Returns
+    -------
+    rows, cols, hypotheses
+        Indices of the pairs into ``a`` and ``b`` (none without a shared frame or
+        descriptors) and ``M``.
+    """
+    none = (np.zeros(0, np.int64), np.zeros(0, np.int64), 0)
+    if a.appearance is None or b.appearance is None or len(a) == 0 or len(b) == 0:
+        return none
+    frame = frame_allowed(a, b, settings)
+    if frame is None:
+        return none
+    allowed = frame & np.any(a.appearance != 0, axis=1)[:, None]
+    allowed &= np.any(b.appearance != 0, axis=1)[None, :]
+    if a.classes is not None and b.classes is not None:
+        allowed &= a.classes[:, None] == b.classes[None, :]
+    if free is not None:
+        allowed &= free[0][:, None] & free[1][None, :]
+    hypotheses = int(np.count_nonzero(allowed))
+    if hypotheses == 0:
+        return none
+    score = np.where(
+        allowed, model.log_ratio(cosine_distances(a.appearance, b.appearance)), -np.inf
+    )
+    # the one best of its row and of its column (a tie chooses neither)
+    row_best = score == score.max(axis=1, keepdims=True)
+    col_best = score == score.max(axis=0, keepdims=True)
+    mutual = allowed & row_best & col_best
+    mutual &= (row_best.sum(axis=1) == 1)[:, None] & (col_best.sum(axis=0) == 1)[None, :]
+    rows, cols = np.nonzero(mutual)
+    if rows.size == 0:
+        return none
+    alike = beyond_chance(model, score[rows, cols], hypotheses, settings.consistency_probability)
+    return rows[alike], cols[alike], hypotheses
 
 
 def _unless_vetoed(
@@ -456,10 +555,13 @@ def _from_candidates(
     # the answer's pairs too loosely placed to tell from a neighbour are left out; what is
     # left must still be an answer
     anchors = (a.means[rows], b.means[cols])
-    ok = separated(a, b, t, *anchors, rows, cols, settings)
+    extent = None
+    if rows.size and settings.separation > 0:
+        extent = gate_extent(a, b, t, *anchors, rows, cols, settings)
+    ok = separated(a, b, t, *anchors, rows, cols, settings, extent=extent)
     if told is not None and not ok.all():
         loose = np.flatnonzero(~ok)
-        near = crowd(a, b, t, *anchors, rows[loose], cols[loose], settings)
+        near = crowd(a, b, t, *anchors, rows[loose], cols[loose], settings, extent=extent[loose])
         ok[loose] = told(rows[loose], cols[loose], near)
     if np.count_nonzero(ok) < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)

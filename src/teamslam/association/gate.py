@@ -30,6 +30,7 @@ __all__ = [
     "frame_allowed",
     "frame_nis",
     "frame_scale",
+    "gate_extent",
     "gate_pairs",
     "in_frame",
     "separated",
@@ -226,6 +227,7 @@ def separated(
     rows: np.ndarray,
     cols: np.ndarray,
     settings: AssociationSettings,
+    extent: np.ndarray | None = None,
 ) -> np.ndarray:
     """Which pairs ``(rows[k], cols[k])`` have a gate narrower than their objects' spacing.
 
@@ -233,16 +235,20 @@ def separated(
     the innovation covariance of :func:`gate_pairs` (bounded above by the sum of the largest
     eigenvalues of its terms); the pair passes when ``separation² · χ²₃ · λ_max(S)`` is at most
     the squared distance from each of its two objects to its nearest neighbour in its own map.
-    All distances are the maps' own: no unit enters.
+    All distances are the maps' own: no unit enters. ``extent``: the pairs' bounds on
+    ``λ_max(S)`` (:func:`gate_extent`) when the caller has them.
     """
     if settings.separation <= 0 or rows.size == 0:
         return np.ones(rows.size, dtype=bool)
-    extent = _extent(a, b, T_first_second, anchors_first, anchors_second, rows, cols, settings)
+    if extent is None:
+        extent = gate_extent(
+            a, b, T_first_second, anchors_first, anchors_second, rows, cols, settings
+        )
     spacing = np.minimum(nearest_distance(a.means)[rows], nearest_distance(b.means)[cols])
     return settings.separation**2 * settings.gate_threshold * extent <= spacing**2
 
 
-def _extent(
+def gate_extent(
     a: ObjectSummary,
     b: ObjectSummary,
     T_first_second: np.ndarray,
@@ -271,13 +277,19 @@ def crowd(
     rows: np.ndarray,
     cols: np.ndarray,
     settings: AssociationSettings,
+    extent: np.ndarray | None = None,
 ) -> np.ndarray:
     """How many other objects lie within each pair's gate: of its first object's map within
     the longest semi-axis ``√(χ²₃ · λ_max(S))`` (:func:`separated`) of it, or of the second's
-    of it, whichever is more — the neighbours the gate could take for the object."""
+    of it, whichever is more — the neighbours the gate could take for the object.
+    ``extent``: the pairs' bounds on ``λ_max(S)`` (:func:`gate_extent`) when the caller has
+    them (:func:`separated` computed them)."""
     if rows.size == 0:
         return np.zeros(0, dtype=np.int64)
-    extent = _extent(a, b, T_first_second, anchors_first, anchors_second, rows, cols, settings)
+    if extent is None:
+        extent = gate_extent(
+            a, b, T_first_second, anchors_first, anchors_second, rows, cols, settings
+        )
     reach2 = settings.gate_threshold * extent
     counts = []
     for means, index in ((a.means, rows), (b.means, cols)):

@@ -13,7 +13,8 @@ many steps have passed).
 At run time a robot runs the full association when the table says it is
 :meth:`~CorrespondenceTable.due` (nothing merged yet, a map grown by a quarter since the last
 one, or — while the link has no answer — ``min_inliers`` new objects in a map) and grows the
-table in between with :meth:`~CorrespondenceTable.extend` (one gate, one assignment). Both ends
+table in between with :meth:`~CorrespondenceTable.extend` (one gate, one assignment; between maps
+in one world frame, also the single pairs the frame and appearance identify). Both ends
 of a link merge the same results in the same order and compute every decision in the canonical
 order of the two robots, so their tables stay mirror images of each
 other (own ↔ neighbour ids swapped).
@@ -25,7 +26,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from teamslam.association.answer import AssociationResult
+from teamslam.association.answer import AssociationResult, identified_by_frame
 from teamslam.association.appearance import (
     beyond_chance,
     cosine_distances,
@@ -306,6 +307,13 @@ class CorrespondenceTable:
           :attr:`~teamslam.association.AssociationSettings.frame_probability` with the scale
           the link has learned).
 
+        Between maps in one world frame, with appearance, the pairs of objects neither end holds
+        that the frame and appearance identify one by one
+        (:func:`~teamslam.association.answer.identified_by_frame`) are added too when the merge's
+        gate under the held pairs' transform admits them (all, while fewer than three held
+        pairs are in the summaries): a link without a transform of its own takes a new shared
+        object at the next exchange, not at its next full association.
+
         The pairs that pass every test but the last are identified by the held pairs' transform,
         not by the frame: their squared Mahalanobis distances under the identity
         (:func:`~teamslam.association.gate.frame_nis`) measure how far the two maps' estimates
@@ -330,8 +338,9 @@ class CorrespondenceTable:
         Returns
         -------
         numpy.ndarray
-            ``(k, 2)`` the pairs added; none while fewer than ``min_inliers`` held pairs are in
-            the summaries.
+            ``(k, 2)`` the pairs added; none under the held pairs' transform while fewer than
+            ``min_inliers`` held pairs (three with an informative appearance model) are in the
+            summaries, only those the shared frame and appearance identify.
         """
         if own.robot != self.own or their.robot != self.neighbour:
             raise InputError(
@@ -367,8 +376,48 @@ class CorrespondenceTable:
         for a, b in new:
             self._theirs[a] = b
             self._ours[b] = a
+        framed = self._identified_by_frame(own, their, step)
+        self.proposed += len(framed)
+        for a, b in framed:
+            self._theirs[a] = b
+            self._ours[b] = a
+        new += framed
         self.accepted += len(new)
         return np.array(new, dtype=np.int64).reshape(-1, 2)
+
+    def _identified_by_frame(
+        self, own: ObjectSummary, their: ObjectSummary, step: int | None
+    ) -> list[tuple[int, int]]:
+        """New pairs of objects neither end holds yet that the maps' shared frame and appearance
+        identify one by one (:func:`~teamslam.association.answer.identified_by_frame`, with the
+        link's appearance model, or the rarity before it is informative) and that the held
+        pairs' transform admits (the merge's gate, when three held pairs are in the summaries),
+        never a revoked one; computed in the canonical order. None without a shared frame or
+        descriptors."""
+        settings = self.current_settings()
+        if settings.frame_probability is None or own.appearance is None:
+            return []
+        if their.appearance is None or own.appearance.shape[1] != their.appearance.shape[1]:
+            return []
+        held = self.pairs()
+        first, second = (own, their) if self._canonical_first() else (their, own)
+        first, second = first.sorted(), second.sorted()
+        held = held if self._canonical_first() else held[:, ::-1]
+        model = link_model(first, second, held, settings.consistency_probability)
+        model = model if model.informative else rarity(model)
+        free = (~np.isin(first.ids, held[:, 0]), ~np.isin(second.ids, held[:, 1]))
+        rows, cols, _ = identified_by_frame(first, second, settings, model, free)
+        found = np.column_stack([first.ids[rows], second.ids[cols]])
+        if not self._canonical_first():
+            found = found[:, ::-1]
+        found = found[[not self._blocked((int(a), int(b)), step) for a, b in found]]
+        if len(found) == 0:
+            return []
+        if self._canonical_first():
+            ok, _ = _merge_gate(own, their, self.pairs(), found, self.settings)
+        else:
+            ok, _ = _merge_gate(their, own, self.pairs()[:, ::-1], found[:, ::-1], self.settings)
+        return [(int(a), int(b)) for a, b in found[ok]]
 
     def learn_frame(
         self, result: AssociationResult, own: ObjectSummary, their: ObjectSummary
