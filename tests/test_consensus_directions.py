@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from teamslam.gaussian import completed_geometric_average
 from teamslam.geometry import se3
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
@@ -261,3 +262,70 @@ def test_filters_without_first_estimates_average_as_before():
             for on in (False, True)
         ]
         assert np.array_equal(poses[0], poses[1]) == same
+
+
+def _linear_team(rng: np.random.Generator, k: int = 6):
+    """Two robots' marginals of ``k`` common objects in a linear-Gaussian team with the same
+    first estimates (where eq. 19's guarantees hold): each map is the truth moved by the team's
+    common placement error ``g`` (the starts' shared world frame, covariance ``prior``) and by
+    the robot's own drift ``d_i`` along the rigid motions ``U``, plus its own shape error.
+    Robot 0 drifted far, robot 1 hardly at all. Returns the first estimates, ``U``, the prior,
+    each robot's covariance and the joint covariance of the two robots' errors."""
+    first = rng.normal(size=(k, 3)) * 12.0 + [80.0, -30.0, 1.0]
+    u = rigid_directions(first, first.mean(axis=0))
+    prior = np.diag([0.02**2] * 3 + [1e-3**2] * 3)
+    drifts = (np.diag([2.0**2] * 3 + [0.05**2] * 3), 1e-3 * prior)
+    shapes = [0.05**2 * _spd(rng, 3 * k) / (3 * k) for _ in range(2)]
+    covs = [u @ (prior + d) @ u.T + n for d, n in zip(drifts, shapes, strict=True)]
+    common = u @ prior @ u.T  # the two robots' errors share the placement of the world frame
+    joint = np.block([[covs[0], common], [common, covs[1]]])
+    return first, u, prior, covs, joint
+
+
+def test_on_a_linear_team_the_plain_average_pools_drift_but_not_the_world_frame():
+    """Robot 0 averages robot 1's marginal, again and again, in a linear-Gaussian team. The
+    plain average (eq. 19, ``consensus.rigid_directions=false``) stays consistent — its
+    covariance bounds the error of its mean, whatever the two robots' errors share — so along
+    the rigid motions of the map it never knows more than the team's prior on the world frame,
+    which no measurement and no average can sharpen; and it learns robot 0's drift from robot 1,
+    which has hardly drifted, until it knows the placement nearly as well as robot 1.
+    Keeping robot 0's own marginal along its rigid motions (``true``) leaves its drift as it
+    was: the information the team has on it is thrown away. Adding robot 1's marginal at every
+    exchange (counting the shared world frame again each time) breaks the bound."""
+    rng = np.random.default_rng(21)
+    first, u, prior, covs, joint = _linear_team(rng)
+    infos = [np.linalg.inv(c) for c in covs]
+    means = [first.ravel() + rng.multivariate_normal(np.zeros(u.shape[0]), c) for c in covs]
+    # our coordinates along the rigid motions, b = G y with G U = I
+    g = np.linalg.solve(u.T @ infos[0] @ u, u.T @ infos[0])
+    n = u.shape[0]
+    everything = np.arange(n)
+    term = (0.5, everything, infos[1], infos[1] @ means[1])
+    mean, cov = means[0], covs[0]
+    # the average's error is A e₀ + B e₁ (linear in the two robots' errors)
+    gains = np.hstack([np.eye(n), np.zeros((n, n))])
+    for _ in range(8):
+        info = np.linalg.inv(cov)
+        mean, new_cov = completed_geometric_average(mean, cov, [term], info=info)
+        gains = 0.5 * new_cov @ (info @ gains + infos[1] @ np.hstack([np.zeros((n, n)), np.eye(n)]))
+        cov = new_cov
+        # consistent: the covariance of its error under the joint is bounded by the one reported
+        error_cov = gains @ joint @ gains.T
+        assert np.linalg.eigvalsh(cov - error_cov).min() > -1e-9 * np.abs(cov).max()
+        # along the rigid motions never more than the prior on the world frame
+        placement = g @ cov @ g.T
+        assert scipy.linalg.eigh(prior, placement, eigvals_only=True).max() <= 1 + 1e-9
+    # robot 0 learnt its drift from robot 1: it knows its placement nearly as robot 1 does,
+    # a hundred times better and more than it did
+    neighbour, own = g @ covs[1] @ g.T, g @ covs[0] @ g.T
+    assert scipy.linalg.eigh(neighbour, placement, eigvals_only=True).min() > 0.9
+    assert scipy.linalg.eigh(placement, own, eigvals_only=True).max() < 0.01
+    np.testing.assert_allclose(g @ mean, g @ means[1], atol=0.05 * np.sqrt(np.diag(own)).max())
+    # the old constraint keeps robot 0's own marginal along them, drift and all
+    kept_mean, kept_cov = shape_average(means[0], infos[0], [(*term, infos[0])], first)
+    np.testing.assert_allclose(g @ kept_cov @ g.T, own, atol=1e-9 * np.abs(own).max())
+    np.testing.assert_allclose(g @ kept_mean, g @ means[0], atol=1e-8)
+    # adding robot 1's information at each exchange instead counts the shared world frame again
+    # and again, and claims more than the prior
+    summed = np.linalg.inv(infos[0] + 8 * infos[1])
+    assert scipy.linalg.eigh(prior, g @ summed @ g.T, eigvals_only=True).max() > 1.5
