@@ -432,7 +432,7 @@ class ConsensusSettings:
         Off by default: a robot's drift relative to its neighbours is a rigid motion of its
         map that the common objects make known to the team, and the constraint threw it away —
         off, ``fej`` with consensus is more accurate on every team measured (KITTI 00: 5.9 m
-        against 10.2 m) and no more overconfident on the long route, though more so on KITTI 00
+        against 10.2 m), though more overconfident on KITTI 00
         (``docs/results/consistency.md``). No effect with ``std`` or ``ideal``.
     """
 
