@@ -166,7 +166,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"{GENERATED}/cluster-overhead.md",
     ),
     "consistency-long-route": (
-        "python benchmarks/long_route.py --seeds 37 43 0 --runs 3 --robots 3 --steps 100 "
+        "python benchmarks/long_route.py --seeds 37 43 0 --runs 10 --robots 3 --steps 100 "
         "--filters fej --modes separate consensus --workers 2 "
         f"--markdown {GENERATED}/consistency-long-route.md",
         f"{GENERATED}/consistency-long-route.md",
@@ -178,7 +178,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"{GENERATED}/consistency-long-route-600.md",
     ),
     "consistency-long-route-600-active": (
-        "python benchmarks/long_route.py --seeds 43 37 0 --runs 2 --robots 3 --steps 600 "
+        "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
         "--filters fej --modes consensus --set consensus.set=active --workers 2 "
         f"--markdown {GENERATED}/consistency-long-route-600-active.md",
         f"{GENERATED}/consistency-long-route-600-active.md",

@@ -429,11 +429,13 @@ class ConsensusSettings:
         first estimates of the averaged objects, as it was, and averages the robots' marginals
         of the map's shape (:mod:`teamslam.msckf.consensus.directions`; the hybrid and
         increments rules and ``per_object`` take their finished average's marginal of it).
-        Off by default: a robot's drift relative to its neighbours is a rigid motion of its
-        map that the common objects make known to the team, and the constraint threw it away —
-        off, ``fej`` with consensus is more accurate on every team measured (KITTI 00: 5.9 m
-        against 10.2 m), though more overconfident on KITTI 00
-        (``docs/results/consistency.md``). No effect with ``std`` or ``ideal``.
+        On by default. It also throws away what the team knows of a robot's drift relative to
+        its neighbours (a rigid motion of its map that the common objects show): off, ``fej``
+        with consensus is more accurate on every team measured (KITTI 00: 5.9 m against
+        10.2 m), but robots that first estimated a common object apart hand each other
+        information along their unobservable directions, and the team becomes overconfident
+        along a long route whichever objects it averages (``docs/concepts/linearization.md``).
+        No effect with ``std`` or ``ideal``.
     """
 
     rule: str = field(default="average", metadata=_unit(""))
@@ -446,7 +448,7 @@ class ConsensusSettings:
     iterations: int = field(default=1, metadata=_unit("exchanges per step"))
     persistent_map: bool = field(default=False, metadata=_unit(""))
     innovation_check: bool = field(default=True, metadata=_unit(""))
-    rigid_directions: bool = field(default=False, metadata=_unit(""))
+    rigid_directions: bool = field(default=True, metadata=_unit(""))
 
     def __post_init__(self) -> None:
         if self.rule not in CONSENSUS_RULES:
