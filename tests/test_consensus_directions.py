@@ -14,8 +14,11 @@ from teamslam.geometry import se3
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus.average import consensus_average
+from teamslam.msckf.consensus.checks import receive_marginal
 from teamslam.msckf.consensus.directions import (
+    at_first_estimates,
     constrained_average,
+    reexpressed_information,
     rigid_directions,
     shape_average,
 )
@@ -329,3 +332,68 @@ def test_on_a_linear_team_the_plain_average_pools_drift_but_not_the_world_frame(
     # and again, and claims more than the prior
     summed = np.linalg.inv(infos[0] + 8 * infos[1])
     assert scipy.linalg.eigh(prior, g @ summed @ g.T, eigvals_only=True).max() > 1.5
+
+
+def _along(info: np.ndarray, points: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """``Uᵀ Ω U``: the information of a marginal along the rigid motions at ``points``."""
+    u = rigid_directions(points, centre)
+    return u.T @ info @ u
+
+
+def test_reexpressed_information_moves_the_rigid_motions_and_nothing_else():
+    rng = np.random.default_rng(3)
+    k = 7
+    points = rng.normal(size=(k, 3)) * 15 + [250.0, -40.0, 1.0]
+    others = points + rng.normal(size=(k, 3)) * 2.0
+    info = _spd(rng, 3 * k)
+    cov = np.linalg.inv(info)
+    moved, moved_cov = reexpressed_information(info, points, others, cov)
+    centre = points.mean(axis=0)
+    before = _along(info, points, centre)
+    after = _along(moved, others, centre)
+    np.testing.assert_allclose(after, before, rtol=1e-9, atol=1e-9 * np.abs(before).max())
+    # the information along the old directions is not what it was: the change is real
+    assert np.abs(_along(moved, points, centre) - before).max() > 1e-3 * np.abs(before).max()
+    # directions Ω-orthogonal to the old rigid motions keep their information
+    u = rigid_directions(points, centre)
+    q, _ = np.linalg.qr(np.linalg.solve(info, np.linalg.svd(u.T)[2][6:].T))
+    np.testing.assert_allclose(q.T @ np.linalg.inv(moved_cov) @ q, q.T @ info @ q, rtol=1e-8)
+    np.testing.assert_allclose(np.linalg.inv(moved_cov), moved, rtol=1e-8, atol=1e-10)
+    # moving back gives the marginal it started from
+    back = reexpressed_information(moved, others, points)
+    np.testing.assert_allclose(back, info, rtol=1e-9, atol=1e-9 * np.abs(info).max())
+    # agreeing points, or too few objects to span six directions: the same array
+    assert reexpressed_information(info, points, points) is info
+    two = info[:6, :6]
+    assert reexpressed_information(two, points[:2], others[:2]) is two
+
+
+def test_a_moved_marginal_tells_no_more_about_our_rigid_motions_than_its_own(two_robots):
+    """Robot 1's marginal of the objects both robots hold, as robot 0 averages it with
+    ``consensus.at_first_estimates``: along robot 0's rigid motions at its first estimates it
+    carries what it carries along robot 1's at its own — where robot 1 places the map. Sent as
+    the state holds it, it carries far more: the robots first estimated the same objects apart,
+    and what robot 1 knows of their shape then reads as knowledge of robot 0's unobservable
+    rotations."""
+    ours, theirs = (agent.state for agent in two_robots)
+    common = np.intersect1d(ours.object_ids, theirs.object_ids)
+    first_ours = ours.object_fe[ours.object_slots(common)]
+    first_theirs = theirs.object_fe[theirs.object_slots(common)]
+    assert np.median(np.linalg.norm(first_ours - first_theirs, axis=1)) > 0.1
+    cols = theirs.object(theirs.object_slots(common)).columns.ravel()
+    own_info = np.linalg.inv(theirs.covariance(cols))
+    centre = first_theirs.mean(axis=0)
+    reference = _along(own_info, first_theirs, centre)  # robot 1's, along its own directions
+    received = {}
+    for moved in (False, True):
+        message = common_marginal_message(
+            theirs, 1, 0, 0, common, information=True, directions=moved
+        )
+        problem, marginal = receive_marginal(ours, message)
+        assert problem is None
+        if moved:
+            marginal = at_first_estimates(ours, marginal)
+        received[moved] = _along(marginal.info, first_ours, centre)
+    ratio = scipy.linalg.eigh(received[True], reference, eigvals_only=True)
+    np.testing.assert_allclose(ratio, 1.0, atol=1e-6)
+    assert scipy.linalg.eigh(received[False], reference, eigvals_only=True).max() > 1.5
