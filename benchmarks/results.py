@@ -183,6 +183,34 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/consistency-long-route-600-active.md",
         f"{GENERATED}/consistency-long-route-600-active.md",
     ),
+    "consistency-rigid-directions-off": (
+        "python benchmarks/consistency.py --teams make-run kitti --variants fej "
+        "--modes consensus --set consensus.rigid_directions=false "
+        f"--markdown {GENERATED}/consistency-rigid-directions-off.md",
+        f"{GENERATED}/consistency-rigid-directions-off.md",
+    ),
+    "consistency-at-first-estimates": (
+        "python benchmarks/consistency.py --teams make-run kitti --variants fej "
+        "--modes consensus --set consensus.rigid_directions=false "
+        "--set consensus.at_first_estimates=true "
+        f"--markdown {GENERATED}/consistency-at-first-estimates.md",
+        f"{GENERATED}/consistency-at-first-estimates.md",
+    ),
+    "consistency-long-route-600-rigid-directions-off": (
+        "python benchmarks/long_route.py --seeds 43 --runs 2 --robots 3 --steps 600 "
+        "--filters fej --modes consensus --set consensus.set=active "
+        "--set consensus.rigid_directions=false --workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route-600-rigid-directions-off.md",
+        f"{GENERATED}/consistency-long-route-600-rigid-directions-off.md",
+    ),
+    "consistency-long-route-600-at-first-estimates": (
+        "python benchmarks/long_route.py --seeds 43 --runs 2 --robots 3 --steps 600 "
+        "--filters fej --modes consensus --set consensus.set=active "
+        "--set consensus.rigid_directions=false --set consensus.at_first_estimates=true "
+        "--workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route-600-at-first-estimates.md",
+        f"{GENERATED}/consistency-long-route-600-at-first-estimates.md",
+    ),
     "consistency-make-run": (
         "python benchmarks/consistency.py --teams make-run --variants std fej oc "
         f"--modes separate consensus --markdown {GENERATED}/consistency-make-run.md",

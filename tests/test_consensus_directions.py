@@ -9,12 +9,16 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from teamslam.gaussian import completed_geometric_average
 from teamslam.geometry import se3
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.consensus.average import consensus_average
+from teamslam.msckf.consensus.checks import receive_marginal
 from teamslam.msckf.consensus.directions import (
+    at_first_estimates,
     constrained_average,
+    reexpressed_information,
     rigid_directions,
     shape_average,
 )
@@ -261,3 +265,135 @@ def test_filters_without_first_estimates_average_as_before():
             for on in (False, True)
         ]
         assert np.array_equal(poses[0], poses[1]) == same
+
+
+def _linear_team(rng: np.random.Generator, k: int = 6):
+    """Two robots' marginals of ``k`` common objects in a linear-Gaussian team with the same
+    first estimates (where eq. 19's guarantees hold): each map is the truth moved by the team's
+    common placement error ``g`` (the starts' shared world frame, covariance ``prior``) and by
+    the robot's own drift ``d_i`` along the rigid motions ``U``, plus its own shape error.
+    Robot 0 drifted far, robot 1 hardly at all. Returns the first estimates, ``U``, the prior,
+    each robot's covariance and the joint covariance of the two robots' errors."""
+    first = rng.normal(size=(k, 3)) * 12.0 + [80.0, -30.0, 1.0]
+    u = rigid_directions(first, first.mean(axis=0))
+    prior = np.diag([0.02**2] * 3 + [1e-3**2] * 3)
+    drifts = (np.diag([2.0**2] * 3 + [0.05**2] * 3), 1e-3 * prior)
+    shapes = [0.05**2 * _spd(rng, 3 * k) / (3 * k) for _ in range(2)]
+    covs = [u @ (prior + d) @ u.T + n for d, n in zip(drifts, shapes, strict=True)]
+    common = u @ prior @ u.T  # the two robots' errors share the placement of the world frame
+    joint = np.block([[covs[0], common], [common, covs[1]]])
+    return first, u, prior, covs, joint
+
+
+def test_on_a_linear_team_the_plain_average_pools_drift_but_not_the_world_frame():
+    """Robot 0 averages robot 1's marginal, again and again, in a linear-Gaussian team. The
+    plain average (eq. 19, ``consensus.rigid_directions=false``) stays consistent — its
+    covariance bounds the error of its mean, whatever the two robots' errors share — so along
+    the rigid motions of the map it never knows more than the team's prior on the world frame,
+    which no measurement and no average can sharpen; and it learns robot 0's drift from robot 1,
+    which has hardly drifted, until it knows the placement nearly as well as robot 1.
+    Keeping robot 0's own marginal along its rigid motions (``true``) leaves its drift as it
+    was: the information the team has on it is thrown away. Adding robot 1's marginal at every
+    exchange (counting the shared world frame again each time) breaks the bound."""
+    rng = np.random.default_rng(21)
+    first, u, prior, covs, joint = _linear_team(rng)
+    infos = [np.linalg.inv(c) for c in covs]
+    means = [first.ravel() + rng.multivariate_normal(np.zeros(u.shape[0]), c) for c in covs]
+    # our coordinates along the rigid motions, b = G y with G U = I
+    g = np.linalg.solve(u.T @ infos[0] @ u, u.T @ infos[0])
+    n = u.shape[0]
+    everything = np.arange(n)
+    term = (0.5, everything, infos[1], infos[1] @ means[1])
+    mean, cov = means[0], covs[0]
+    # the average's error is A e₀ + B e₁ (linear in the two robots' errors)
+    gains = np.hstack([np.eye(n), np.zeros((n, n))])
+    for _ in range(8):
+        info = np.linalg.inv(cov)
+        mean, new_cov = completed_geometric_average(mean, cov, [term], info=info)
+        gains = 0.5 * new_cov @ (info @ gains + infos[1] @ np.hstack([np.zeros((n, n)), np.eye(n)]))
+        cov = new_cov
+        # consistent: the covariance of its error under the joint is bounded by the one reported
+        error_cov = gains @ joint @ gains.T
+        assert np.linalg.eigvalsh(cov - error_cov).min() > -1e-9 * np.abs(cov).max()
+        # along the rigid motions never more than the prior on the world frame
+        placement = g @ cov @ g.T
+        assert scipy.linalg.eigh(prior, placement, eigvals_only=True).max() <= 1 + 1e-9
+    # robot 0 learnt its drift from robot 1: it knows its placement nearly as robot 1 does,
+    # a hundred times better and more than it did
+    neighbour, own = g @ covs[1] @ g.T, g @ covs[0] @ g.T
+    assert scipy.linalg.eigh(neighbour, placement, eigvals_only=True).min() > 0.9
+    assert scipy.linalg.eigh(placement, own, eigvals_only=True).max() < 0.01
+    np.testing.assert_allclose(g @ mean, g @ means[1], atol=0.05 * np.sqrt(np.diag(own)).max())
+    # the old constraint keeps robot 0's own marginal along them, drift and all
+    kept_mean, kept_cov = shape_average(means[0], infos[0], [(*term, infos[0])], first)
+    np.testing.assert_allclose(g @ kept_cov @ g.T, own, atol=1e-9 * np.abs(own).max())
+    np.testing.assert_allclose(g @ kept_mean, g @ means[0], atol=1e-8)
+    # adding robot 1's information at each exchange instead counts the shared world frame again
+    # and again, and claims more than the prior
+    summed = np.linalg.inv(infos[0] + 8 * infos[1])
+    assert scipy.linalg.eigh(prior, g @ summed @ g.T, eigvals_only=True).max() > 1.5
+
+
+def _along(info: np.ndarray, points: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """``Uᵀ Ω U``: the information of a marginal along the rigid motions at ``points``."""
+    u = rigid_directions(points, centre)
+    return u.T @ info @ u
+
+
+def test_reexpressed_information_moves_the_rigid_motions_and_nothing_else():
+    rng = np.random.default_rng(3)
+    k = 7
+    points = rng.normal(size=(k, 3)) * 15 + [250.0, -40.0, 1.0]
+    others = points + rng.normal(size=(k, 3)) * 2.0
+    info = _spd(rng, 3 * k)
+    cov = np.linalg.inv(info)
+    moved, moved_cov = reexpressed_information(info, points, others, cov)
+    centre = points.mean(axis=0)
+    before = _along(info, points, centre)
+    after = _along(moved, others, centre)
+    np.testing.assert_allclose(after, before, rtol=1e-9, atol=1e-9 * np.abs(before).max())
+    # the information along the old directions is not what it was: the change is real
+    assert np.abs(_along(moved, points, centre) - before).max() > 1e-3 * np.abs(before).max()
+    # directions Ω-orthogonal to the old rigid motions keep their information
+    u = rigid_directions(points, centre)
+    q, _ = np.linalg.qr(np.linalg.solve(info, np.linalg.svd(u.T)[2][6:].T))
+    np.testing.assert_allclose(q.T @ np.linalg.inv(moved_cov) @ q, q.T @ info @ q, rtol=1e-8)
+    np.testing.assert_allclose(np.linalg.inv(moved_cov), moved, rtol=1e-8, atol=1e-10)
+    # moving back gives the marginal it started from
+    back = reexpressed_information(moved, others, points)
+    np.testing.assert_allclose(back, info, rtol=1e-9, atol=1e-9 * np.abs(info).max())
+    # agreeing points, or too few objects to span six directions: the same array
+    assert reexpressed_information(info, points, points) is info
+    two = info[:6, :6]
+    assert reexpressed_information(two, points[:2], others[:2]) is two
+
+
+def test_a_moved_marginal_tells_no_more_about_our_rigid_motions_than_its_own(two_robots):
+    """Robot 1's marginal of the objects both robots hold, as robot 0 averages it with
+    ``consensus.at_first_estimates``: along robot 0's rigid motions at its first estimates it
+    carries what it carries along robot 1's at its own — where robot 1 places the map. Sent as
+    the state holds it, it carries far more: the robots first estimated the same objects apart,
+    and what robot 1 knows of their shape then reads as knowledge of robot 0's unobservable
+    rotations."""
+    ours, theirs = (agent.state for agent in two_robots)
+    common = np.intersect1d(ours.object_ids, theirs.object_ids)
+    first_ours = ours.object_fe[ours.object_slots(common)]
+    first_theirs = theirs.object_fe[theirs.object_slots(common)]
+    assert np.median(np.linalg.norm(first_ours - first_theirs, axis=1)) > 0.1
+    cols = theirs.object(theirs.object_slots(common)).columns.ravel()
+    own_info = np.linalg.inv(theirs.covariance(cols))
+    centre = first_theirs.mean(axis=0)
+    reference = _along(own_info, first_theirs, centre)  # robot 1's, along its own directions
+    received = {}
+    for moved in (False, True):
+        message = common_marginal_message(
+            theirs, 1, 0, 0, common, information=True, directions=moved
+        )
+        problem, marginal = receive_marginal(ours, message)
+        assert problem is None
+        if moved:
+            marginal = at_first_estimates(ours, marginal)
+        received[moved] = _along(marginal.info, first_ours, centre)
+    ratio = scipy.linalg.eigh(received[True], reference, eigvals_only=True)
+    np.testing.assert_allclose(ratio, 1.0, atol=1e-6)
+    assert scipy.linalg.eigh(received[False], reference, eigvals_only=True).max() > 1.5

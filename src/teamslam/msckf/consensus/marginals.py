@@ -15,6 +15,7 @@ from scipy.linalg import lapack, solve_triangular
 from teamslam.errors import InternalError
 from teamslam.gaussian import spd_inverse
 from teamslam.msckf.consensus.average import SharedPrior, prior_marginal
+from teamslam.msckf.consensus.directions import reexpressed_information
 from teamslam.msckf.consensus.kernels import rounding_bound, single_rounding, symmetric_block
 from teamslam.msckf.consensus.messages import CommonMarginalMessage
 from teamslam.msckf.filter.state import MsckfState
@@ -52,6 +53,7 @@ def common_marginal_message(
     information: bool = False,
     keep: MutableMapping[bytes, np.ndarray] | None = None,
     prior: SharedPrior | None = None,
+    directions: bool = False,
 ) -> CommonMarginalMessage | None:
     """The marginal of the objects ``ids`` (those the sender holds), or ``None`` if none.
 
@@ -69,6 +71,11 @@ def common_marginal_message(
     ``information`` sends a joint marginal in information form (``info = Σ⁻¹``); ``keep``, a
     mapping, then receives the exact (unrounded) ``Σ⁻¹`` under the key ``ids.tobytes()`` of
     the message's ids (``int64``), for :func:`consensus_average`'s ``own_information``.
+
+    ``directions`` (information form): the marginal and prior sent have their rigid-motion
+    directions moved from our first estimates of the objects to their means
+    (:func:`~teamslam.msckf.consensus.directions.reexpressed_information`); ``keep`` still
+    receives our own ``Σ⁻¹``.
     """
     ids = np.unique(np.asarray(ids, dtype=np.int64))  # increasing, as messages carry them
     slots = state.object_slots(ids)
@@ -98,12 +105,19 @@ def common_marginal_message(
         info = spd_inverse(cov, "own marginal covariance", symmetric=source is None)
         if keep is not None:
             keep[ids[held].tobytes()] = info
-        message_info = info
+        message_info, message_cov = info, cov
+        first = state.object_fe[slots[held]]
+        if directions:
+            message_info, message_cov = reexpressed_information(info, first, mean, cov)
         if float32:
-            mean, message_info = _rounded_information(mean, cov, info)
+            mean, message_info = _rounded_information(mean, message_cov, message_info)
         prior_part = {}
         if prior is not None:
             prior_held, prior_mean, prior_info, prior_cov = prior_marginal(prior, ids[held])
+            if directions and prior_held.any():
+                prior_info, prior_cov = reexpressed_information(
+                    prior_info, first[prior_held], prior_mean, prior_cov
+                )
             if float32 and prior_held.any():
                 prior_mean, prior_info = _rounded_information(prior_mean, prior_cov, prior_info)
             prior_part = {

@@ -45,6 +45,7 @@ from teamslam.gaussian import NotPositiveDefiniteError, kl_divergence, spd_inver
 from teamslam.graph import metropolis_weight
 from teamslam.msckf.consensus.average import SharedPrior, persistent_average
 from teamslam.msckf.consensus.checks import ReceivedMarginal, check_message
+from teamslam.msckf.consensus.directions import at_first_estimates
 from teamslam.msckf.consensus.kernels import merged_record
 from teamslam.msckf.consensus.marginals import common_marginal_message, object_marginals
 from teamslam.msckf.consensus.messages import (
@@ -131,8 +132,12 @@ class ConsensusProtocol:
         self.rule = consensus_rule(settings.rule if self.max_age == 0 else "average")
         # a first-estimates filter: the average adds nothing along our rigid motions at our
         # first estimates
-        self.directions = bool(settings.rigid_directions) and keeps_first_estimates(
-            agent.config.filter.linearization
+        first_estimates = keeps_first_estimates(agent.config.filter.linearization)
+        self.directions = bool(settings.rigid_directions) and first_estimates
+        # and marginals travel with their rigid-motion directions at their means and are
+        # averaged with them at our first estimates (joint marginals only)
+        self.moved = (
+            bool(settings.at_first_estimates) and first_estimates and not settings.per_object
         )
         self._prior: SharedPrior | None = self.rule.initial_prior(agent.state)
         self.step = -1
@@ -560,6 +565,7 @@ class ConsensusProtocol:
                 information=not settings.per_object,
                 keep=self._own_information if source is None else None,
                 prior=self.rule.message_prior(self._prior),
+                directions=self.moved,
             )
             if reply is not None and self.stamp_ns is not None:
                 reply = replace(reply, stamp_ns=self.stamp_ns)
@@ -787,6 +793,8 @@ class ConsensusProtocol:
                 if marginal is None:
                     inconsistent.add(sender)
                     continue
+            if self.moved:
+                marginal = at_first_estimates(self.agent.state, marginal)
             marginals[m.sender] = marginal
             degrees[m.sender] = int(m.degree)
         self_weight, weights = self.weights(degrees)
