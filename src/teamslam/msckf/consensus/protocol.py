@@ -644,7 +644,10 @@ class ConsensusProtocol:
                 self._held[j] = self._joined(self._held.get(j), theirs, request_ids.size)
             if j not in self._given or j not in self._held:
                 return True
-            return self._associated_maps(j, self._given[j], self._held[j])
+            # a full association only on the whole summaries of the interval's steps: in
+            # between, the objects new to the link extend its table
+            tick = self.step % self.association_interval == 0
+            return self._associated_maps(j, self._given[j], self._held[j], full=tick)
         own = self._sent[j] if j in self._sent else self._summary_for(j)
         if self.max_age_ns is not None:
             # aged by stamp: the same newest request may come back in later steps, and its
@@ -658,13 +661,15 @@ class ConsensusProtocol:
             return True
         return self._associated_maps(j, own, theirs)
 
-    def _associated_maps(self, j: int, own: ObjectSummary, theirs: ObjectSummary) -> bool:
+    def _associated_maps(
+        self, j: int, own: ObjectSummary, theirs: ObjectSummary, full: bool = True
+    ) -> bool:
         """Run link ``j``'s association on the two maps' summaries ``own``, ``theirs``: a
-        full one when its table is due, else an extension."""
+        full one when its table is due (and ``full``), else an extension."""
         begin = time.perf_counter()
         table = self.tables[j]
         stats = self.link_stats[j]
-        if table.due(len(own), len(theirs)):
+        if full and table.due(len(own), len(theirs)):
             held = table.pairs() if own.appearance is not None else None
             result = associate(own, theirs, table.current_settings(), held)
             if table.learn_frame(result, own, theirs):
