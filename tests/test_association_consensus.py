@@ -391,3 +391,123 @@ def test_the_team_matcher_tests_pairs_in_the_shared_frame_unless_set_off():
     assert off.association.matching().frame_probability is None
     with pytest.raises(InputError, match="frame_probability"):
         MsckfConfig.from_settings({"association.frame_probability": 1.5})
+
+
+def _recording(monkeypatch):
+    """Record, per (robot, neighbour), each step's map ids and summary sent, and each pair a
+    table took with the step it took it at."""
+    from teamslam.association import CorrespondenceTable
+
+    sent, taken = {}, {}
+    requests = ConsensusProtocol._requests
+
+    def recorded_requests(self, to):
+        out = requests(self, to)
+        for m in out:
+            summary = None if m.summary is None else m.summary.ids.copy()
+            sent.setdefault((m.sender, m.receiver), []).append((self.step, m.ids.copy(), summary))
+        return out
+
+    def recorder(method):
+        def recorded(self, *args):
+            added = method(self, *args)
+            step = args[-1]
+            for a, b in added:
+                taken.setdefault((self.own, self.neighbour), []).append((step, int(a), int(b)))
+            return added
+
+        return recorded
+
+    monkeypatch.setattr(ConsensusProtocol, "_requests", recorded_requests)
+    for name in ("extend", "merge"):
+        method = getattr(CorrespondenceTable, name)
+        monkeypatch.setattr(CorrespondenceTable, name, recorder(method))
+    return sent, taken
+
+
+def test_a_link_pairs_new_objects_before_the_interval_and_both_ends_agree(
+    stripped3, team3, monkeypatch
+):
+    """``association.sooner``: objects new to a link are summarised at the next step, not at
+    the next interval tick; both ends take the same pairs at the same step."""
+    config = config_for(team3, {"filter.window": 6}).with_(
+        {"association.mode": "own", "association.interval": 5}
+    )
+    assert config.association.sooner == 1  # on by default
+    sent, taken = _recording(monkeypatch)
+    result = run_team(stripped3, config, progress=False)
+    metrics = team_metrics(stripped3, result)["association"]
+    assert metrics["team"]["precision"] == 1.0
+    assert all(link["ends_agree"] for link in metrics["links"].values())
+    # pairs taken between two ticks of the interval, the same at both ends, at the same step
+    between = {k: {(s, a, b) for s, a, b in v if s % 5} for k, v in taken.items()}
+    assert sum(len(v) for v in between.values()) > 0
+    for (i, j), pairs in between.items():
+        assert pairs == {(s, b, a) for s, a, b in between.get((j, i), set())}
+    # a summary between the ticks holds exactly the ids the link did not hold yet, and none
+    # goes out when there are none
+    extra = 0
+    for records in sent.values():
+        known = np.zeros(0, np.int64)
+        for step, ids, summary in records:
+            fresh = np.setdiff1d(ids, known)
+            if step % 5 == 0:
+                np.testing.assert_array_equal(summary, ids)  # the whole map
+                known = ids
+            elif fresh.size == 0:
+                assert summary is None
+            else:
+                np.testing.assert_array_equal(summary, fresh)
+                known = np.union1d(known, fresh)
+                extra += 1
+    assert extra > 0
+
+
+def test_summaries_only_at_the_interval_with_sooner_off(stripped3, team3, monkeypatch):
+    config = config_for(team3, {"filter.window": 6}).with_(
+        {"association.mode": "own", "association.interval": 5, "association.sooner": 0}
+    )
+    sent, taken = _recording(monkeypatch)
+    run_team(stripped3, config, progress=False)
+    assert all(
+        (summary is not None) == (step % 5 == 0)
+        for records in sent.values()
+        for step, _, summary in records
+    )
+    assert all(s % 5 == 0 for pairs in taken.values() for s, _, _ in pairs)
+    with pytest.raises(InputError, match=r"association\.sooner must be an integer"):
+        MsckfConfig.from_settings({"association.sooner": -1})
+
+
+def test_a_summary_of_some_ids_crosses_the_wire():
+    from teamslam.association import ObjectSummary
+    from teamslam.msckf.consensus.messages import summary_wire_bytes
+
+    ids = np.array([3, 9, 40, 41, 50, 77, 80, 90, 91])
+    some = ObjectSummary(
+        2,
+        ids[[1, 4, 8]],
+        np.arange(9.0).reshape(3, 3),
+        np.stack([np.eye(3)] * 3),
+        appearance=np.eye(3, 4),
+    )
+    team = team_id("own")
+    message = MapIdsMessage(2, 0, 7, ids, None, some)
+    data = encode(message, team)
+    assert len(data) == message.nbytes()
+    assert summary_wire_bytes(some, ids.size) == summary_wire_bytes(some) + 2  # the bit mask
+    back = decode(data, team, 3)
+    np.testing.assert_array_equal(back.ids, ids)
+    np.testing.assert_array_equal(back.summary.ids, some.ids)
+    np.testing.assert_array_equal(back.summary.means, some.means)
+    np.testing.assert_array_equal(back.summary.appearance, some.appearance)
+    with pytest.raises(WireError, match="length"):
+        decode(data[:-1], team, 3)
+    # a link's map after it: the earlier objects with the new ones, ids increasing
+    earlier = ObjectSummary(
+        2, ids[[0, 1]], np.ones((2, 3)), np.stack([2 * np.eye(3)] * 2), appearance=np.ones((2, 4))
+    )
+    both = earlier.updated(some)
+    np.testing.assert_array_equal(both.ids, [3, 9, 50, 91])
+    np.testing.assert_array_equal(both.means[1], some.means[0])  # 9: the newer estimate
+    np.testing.assert_array_equal(both.means[0], earlier.means[0])

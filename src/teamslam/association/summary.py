@@ -188,6 +188,40 @@ class ObjectSummary:
         """The objects whose ids are in ``ids`` (in this summary's order)."""
         return self.take(np.flatnonzero(np.isin(self.ids, np.asarray(ids, dtype=np.int64))))
 
+    def updated(self, newer: ObjectSummary) -> ObjectSummary:
+        """This summary with the objects of ``newer`` (a later, partial summary of the same
+        robot) added or replacing theirs; ids increasing, ``newer``'s *same* histogram.
+
+        What a neighbour holds of a map whose summaries since the last whole one carried only
+        the objects new to it.
+        """
+        if newer.robot != self.robot:
+            raise InputError(
+                f"object summary of robot {newer.robot} added to one of robot {self.robot}"
+            )
+        if (self.classes is None) != (newer.classes is None) or (self.appearance is None) != (
+            newer.appearance is None
+        ):
+            raise InputError(f"object summaries of robot {self.robot} carry different fields")
+        if self.appearance is not None and self.appearance.shape[1] != newer.appearance.shape[1]:
+            raise InputError(f"object summaries of robot {self.robot} differ in appearance size")
+        kept = self.take(np.flatnonzero(~np.isin(self.ids, newer.ids)))
+
+        def joined(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else np.concatenate([a, b])
+
+        both = ObjectSummary(
+            self.robot,
+            np.concatenate([kept.ids, newer.ids]),
+            np.concatenate([kept.means, newer.means]),
+            np.concatenate([kept.covs, newer.covs]),
+            joined(kept.classes, newer.classes),
+            None if kept.views is None or newer.views is None else joined(kept.views, newer.views),
+            joined(kept.appearance, newer.appearance),
+            newer.same_counts,
+        )
+        return both.sorted()
+
     def transformed(self, T_new_old: np.ndarray) -> ObjectSummary:
         """The summary expressed in another frame: ``p_new = T_new_old · p_old``."""
         t = np.asarray(T_new_old, dtype=float)

@@ -175,6 +175,9 @@ class CorrespondenceTable:
         #: (own id, neighbour id) → squared Mahalanobis distance under the identity of a pair
         #: identified by a transform while neither object was held (:meth:`_learn_frame`)
         self._frame_samples: dict[tuple[int, int], float] = {}
+        #: during one :meth:`extend`: the link's appearance models computed, by held pairs (the
+        #: same two summaries give the same model, computed once)
+        self._models: dict | None = None
 
     def __len__(self) -> int:
         return len(self._theirs)
@@ -347,6 +350,26 @@ class CorrespondenceTable:
                 f"summaries of robots {own.robot}→{their.robot} given to the table of link "
                 f"{self.own}→{self.neighbour}"
             )
+        self._models = {}
+        try:
+            return self._extend_with(own, their, step)
+        finally:
+            self._models = None
+
+    def _link_model(self, first: ObjectSummary, second: ObjectSummary, held: np.ndarray):
+        """:func:`~teamslam.association.appearance.link_model` of the sorted summaries in the
+        canonical order, once per held pairs during an :meth:`extend`."""
+        probability = self.settings.consistency_probability
+        if self._models is None:
+            return link_model(first, second, held, probability)
+        key = held.tobytes()
+        if key not in self._models:
+            self._models[key] = link_model(first, second, held, probability)
+        return self._models[key]
+
+    def _extend_with(
+        self, own: ObjectSummary, their: ObjectSummary, step: int | None
+    ) -> np.ndarray:
         held = self.pairs()
         settings, model = self.current_settings(), self._model(own, their)
         self._looks = model is not None or self._from_three(own, their)
@@ -403,7 +426,7 @@ class CorrespondenceTable:
         first, second = (own, their) if self._canonical_first() else (their, own)
         first, second = first.sorted(), second.sorted()
         held = held if self._canonical_first() else held[:, ::-1]
-        model = link_model(first, second, held, settings.consistency_probability)
+        model = self._link_model(first, second, np.ascontiguousarray(held))
         model = model if model.informative else rarity(model)
         free = (~np.isin(first.ids, held[:, 0]), ~np.isin(second.ids, held[:, 1]))
         rows, cols, _ = identified_by_frame(first, second, settings, model, free)
@@ -497,12 +520,10 @@ class CorrespondenceTable:
             return None
         held = self.pairs()
         if self._canonical_first():
-            model = link_model(
-                own.sorted(), their.sorted(), held, self.settings.consistency_probability
-            )
+            model = self._link_model(own.sorted(), their.sorted(), held)
         else:
-            model = link_model(
-                their.sorted(), own.sorted(), held[:, ::-1], self.settings.consistency_probability
+            model = self._link_model(
+                their.sorted(), own.sorted(), np.ascontiguousarray(held[:, ::-1])
             )
         return model if model is not None and model.informative else None
 
@@ -518,9 +539,7 @@ class CorrespondenceTable:
         held = self.pairs()
         first, second = (own, their) if self._canonical_first() else (their, own)
         held = held if self._canonical_first() else held[:, ::-1]
-        model = link_model(
-            first.sorted(), second.sorted(), held, self.settings.consistency_probability
-        )
+        model = self._link_model(first.sorted(), second.sorted(), np.ascontiguousarray(held))
         if model is None:
             return False
         m = max(len(own), len(their))

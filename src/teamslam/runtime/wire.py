@@ -91,14 +91,21 @@ def encode(message: Message, team: int) -> bytes:
             if moved.shape != ids.shape:
                 raise WireError(f"{moved.size} moved flags for {ids.size} ids")
             flags = np.packbits(moved, bitorder="little").tobytes()
-        kind, summary = KIND_IDS, b""
+        kind, summary, partial = KIND_IDS, b"", 0
         if message.summary is not None:
-            kind, summary = _encode_summary(message.summary, ids)
+            held = ids
+            if not np.array_equal(message.summary.ids, ids):
+                # a summary of some of the ids (those new to the link): one bit per id says which
+                mask = np.isin(ids, message.summary.ids)
+                held, partial = ids[mask], 1
+            kind, summary = _encode_summary(message.summary, held)
+            if partial:
+                summary = np.packbits(mask, bitorder="little").tobytes() + summary
         header = HEADER.pack(
             MAGIC,
             FORMAT_VERSION,
             kind | _stamped(message),
-            0,
+            partial,
             team,
             message.sender,
             message.receiver,
@@ -190,9 +197,10 @@ def _decode_prior(
 
 
 def _encode_summary(summary: ObjectSummary, ids: np.ndarray) -> tuple[int, bytes]:
-    """Kind and bytes of an object summary riding on a map-ids message (same ids, same order)."""
+    """Kind and bytes of an object summary riding on a map-ids message: of ``ids`` (the
+    message's, or those of them its bit mask names), in their order."""
     if not np.array_equal(summary.ids, ids):
-        raise WireError("an object summary must hold exactly the message's ids, in their order")
+        raise WireError("an object summary must hold the message's ids, in their order")
     means = np.ascontiguousarray(summary.means, dtype="<f8")
     upper = np.ascontiguousarray(summary.covs[:, _TRIU3[0], _TRIU3[1]], dtype="<f8")
     views = np.zeros((ids.size, 3)) if summary.views is None else summary.views
@@ -301,11 +309,19 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
     if kind in _IDS_KINDS:
         if d not in (0, (n_ids + 7) // 8) or (n_ids == 0 and d != 0):
             raise WireError(f"map-ids message with {d} bytes of flags for {n_ids} ids")
-        if degree != 0:
+        # the degree field of a map-ids message: 1 when its summary holds some of the ids
+        if degree not in (0, 1) or (degree == 1 and kind == KIND_IDS):
             raise WireError("map-ids message with a degree")
-        expected = base + c + d + _PER_SUMMARY[kind] * n_ids
+        mask_bytes = (n_ids + 7) // 8 if degree == 1 else 0
+        held = n_ids
+        if degree == 1:
+            if len(data) < base + c + d + mask_bytes:
+                raise WireError(f"truncated summary mask ({len(data)} bytes)")
+            bits = np.frombuffer(data, dtype=np.uint8, count=mask_bytes, offset=base + c + d)
+            held = int(np.unpackbits(bits, bitorder="little")[:n_ids].sum())
+        expected = base + c + d + mask_bytes + _PER_SUMMARY[kind] * held
         if kind >= KIND_IDS_APPEARANCE:
-            expected += _appearance_size(data, expected, n_ids)
+            expected += _appearance_size(data, expected, held)
     elif kind in _MARGINAL_KINDS.values() or kind in (KIND_PRIOR, KIND_PRIOR + 1):
         if d != 3 * n_ids or n_ids == 0:
             raise WireError(f"marginal of {n_ids} objects with mean length {d}")
@@ -329,13 +345,19 @@ def decode(data: bytes, team: int, n_robots: int, max_bytes: int = MAX_MESSAGE_B
         if d:
             bits = np.frombuffer(data, dtype=np.uint8, count=d, offset=base + c)
             moved = np.unpackbits(bits, count=n_ids, bitorder="little").astype(bool)
-        summary = None
+        summary, held_ids, offset = None, ids, base + c + d
+        if degree == 1:
+            bits = np.frombuffer(data, dtype=np.uint8, count=mask_bytes, offset=offset)
+            mask = np.unpackbits(bits, bitorder="little").astype(bool)
+            if mask[n_ids:].any():
+                raise WireError("summary mask names ids the message does not hold")
+            held_ids, offset = ids[mask[:n_ids]], offset + mask_bytes
         if kind != KIND_IDS:
             summary = _decode_summary(
                 data,
-                base + c + d,
+                offset,
                 int(sender),
-                ids,
+                held_ids,
                 kind in (KIND_IDS_SUMMARY + 1, KIND_IDS_APPEARANCE + 1),
                 kind >= KIND_IDS_APPEARANCE,
             )

@@ -137,15 +137,17 @@ def decode_ids(data: bytes | np.ndarray, count: int) -> np.ndarray:
     return ids
 
 
-def summary_wire_bytes(summary: ObjectSummary | None) -> int:
-    """Bytes an object summary adds to a round-1 message on a wire: per object its mean (3 ×
-    8), the upper triangle of its covariance (6 × 8), where the sender's cameras were (3 × 4)
-    and its class (8) when the map has classes, its appearance descriptor (2 per dimension)
-    with the dimension and the histogram of same-object distances once when the map has
-    appearance — the ids travel once, as the message's map ids."""
+def summary_wire_bytes(summary: ObjectSummary | None, n_ids: int | None = None) -> int:
+    """Bytes an object summary adds to a round-1 message of ``n_ids`` map ids on a wire: per
+    object its mean (3 × 8), the upper triangle of its covariance (6 × 8), where the sender's
+    cameras were (3 × 4) and its class (8) when the map has classes, its appearance descriptor
+    (2 per dimension) with the dimension and the histogram of same-object distances once when
+    the map has appearance — the ids travel once, as the message's map ids; a summary of some
+    of them (``association.sooner``) adds one bit per map id saying which."""
     if summary is None:
         return 0
-    return summary.nbytes - 8 * len(summary)
+    partial = n_ids is not None and len(summary) != n_ids
+    return summary.nbytes - 8 * len(summary) + ((n_ids + 7) // 8 if partial else 0)
 
 
 @dataclass(frozen=True)
@@ -162,7 +164,8 @@ class MapIdsMessage:
     summary
         With association by the robots themselves (``association.mode = own``): the sender's
         object summary (ids, means, marginal covariances, classes) on the steps its link
-        exchanges summaries, else ``None``.
+        exchanges summaries, else ``None``: of every id, or of some of them (those new to the
+        link, sent before the interval: ``association.sooner``).
     stamp_ns
         The stamp (ns) of the sender's frame it was sent at, or ``None``. Robots that drop
         frames (live, asynchronous) count steps that are not comparable between them: their
@@ -185,7 +188,7 @@ class MapIdsMessage:
             _header_bytes(self.stamp_ns)
             + encoded_ids_size(self.ids)
             + flags
-            + summary_wire_bytes(self.summary)
+            + summary_wire_bytes(self.summary, int(np.size(self.ids)))
         )
 
 

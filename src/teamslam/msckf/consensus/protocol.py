@@ -162,6 +162,13 @@ class ConsensusProtocol:
         association = agent.config.association
         self.association = association.mode
         self.association_interval = int(association.interval)
+        # summaries before the interval of the objects new to a link (lock-step only: both
+        # ends then hold the same maps of each other, the last whole summaries with the
+        # partial ones since)
+        self.sooner = int(association.sooner) if self.max_age == 0 else 0
+        #: per link: our map as the neighbour holds it / its map as we hold it
+        self._given: dict[int, ObjectSummary] = {}
+        self._held: dict[int, ObjectSummary] = {}
         self.tables: dict[int, CorrespondenceTable] = {}
         if self.association == "own":
             matching = association.matching()
@@ -315,7 +322,10 @@ class ConsensusProtocol:
             and self.iteration == 0
             and self.step % self.association_interval == 0
         )
-        if self.kl_threshold > 0 or exchange or self.bounded:
+        sooner = (
+            self.association == "own" and self.iteration == 0 and not exchange and self._partial()
+        )
+        if self.kl_threshold > 0 or exchange or sooner or self.bounded:
             means, covs = object_marginals(self.agent.state)
         if self.kl_threshold > 0 or self.bounded:
             self._own = (ids, means[order], covs[order])
@@ -325,19 +335,54 @@ class ConsensusProtocol:
             self._thresholds = self._object_thresholds(covs)[order]
         if self._with_persistent_map():
             ids = self._own[0]
-        self._summary = self._object_summary(ids, means[order], covs[order]) if exchange else None
         targets = sorted(self.neighbours if to is None else set(to) & self.neighbours)
+        new = self._new_to(targets, ids) if sooner else {}
+        self._summary = None
+        if exchange or new:
+            wanted = np.unique(np.concatenate(list(new.values()))) if new else ids
+            keep = np.isin(ids, wanted)
+            self._summary = self._object_summary(ids[keep], means[order][keep], covs[order][keep])
         out = []
         self._sent = {}
         for j in targets:
             moved = self._moved_for(j)
-            summary = self._sent[j] = self._summary_for(j)
+            summary = self._summary_for(j)
+            if sooner:
+                summary = summary.select(new[j]) if j in new else None
+            self._sent[j] = summary
             out.append(MapIdsMessage(self.robot, j, self.round, ids, moved, summary, self.stamp_ns))
             if summary is not None:
                 self.link_stats[j]["summaries_sent"] += 1
-                self.link_stats[j]["summary_bytes"] += summary_wire_bytes(summary)
+                self.link_stats[j]["summary_bytes"] += summary_wire_bytes(summary, ids.size)
+                if self._partial():
+                    self._given[j] = self._joined(self._given.get(j), summary, ids.size)
         self.spent = time.perf_counter() - begin
         return out
+
+    def _partial(self) -> bool:
+        """Whether summaries go out before the interval (:attr:`sooner`; robots in lock-step,
+        not aged by stamp)."""
+        return self.sooner > 0 and self.max_age_ns is None
+
+    def _new_to(self, targets: list[int], ids: np.ndarray) -> dict[int, np.ndarray]:
+        """Per neighbour of ``targets`` to send a summary before the interval: our ``ids`` its
+        link does not hold yet (not in our summaries since the last whole one), when at least
+        :attr:`sooner` of them."""
+        new = {}
+        for j in targets:
+            given = self._given.get(j)
+            fresh = ids if given is None else ids[~np.isin(ids, given.ids)]
+            if fresh.size >= self.sooner:
+                new[j] = fresh
+        return new
+
+    @staticmethod
+    def _joined(held: ObjectSummary | None, summary: ObjectSummary, n_ids: int) -> ObjectSummary:
+        """A map as a link holds it after ``summary`` (of a message of ``n_ids`` ids): a whole
+        summary replaces it, a partial one adds its objects."""
+        if held is None or len(summary) == n_ids:
+            return summary
+        return held.updated(summary)
 
     def _object_summary(
         self, ids: np.ndarray, means: np.ndarray, covs: np.ndarray
@@ -518,7 +563,10 @@ class ConsensusProtocol:
         for j in sorted(requests):
             their_ids = np.asarray(requests[j].ids, dtype=np.int64)
             if self.tables:
-                if requests[j].summary is not None and not self._associate(j, requests[j]):
+                exchanged = requests[j].summary is not None or (
+                    self._partial() and self._sent.get(j) is not None
+                )
+                if exchanged and not self._associate(j, requests[j]):
                     continue
                 # their ids in ours: the pairs of the link's table (-1: not matched)
                 ours = self.tables[j].ours(their_ids)
@@ -577,14 +625,35 @@ class ConsensusProtocol:
         """Update the table of link ``j`` with both summaries of this step (``False``: the
         neighbour's summary was rejected)."""
         theirs = request.summary
-        if not isinstance(theirs, ObjectSummary) or theirs.robot != j:
-            self.agent.reject("messages", reason=f"object summary of robot {j} names another robot")
-            return False
-        if not np.array_equal(theirs.ids, np.asarray(request.ids, dtype=np.int64)):
-            self.agent.reject(
-                "messages", reason=f"object summary of robot {j} disagrees with its ids"
+        request_ids = np.asarray(request.ids, dtype=np.int64)
+        if theirs is not None:
+            if not isinstance(theirs, ObjectSummary) or theirs.robot != j:
+                self.agent.reject(
+                    "messages", reason=f"object summary of robot {j} names another robot"
+                )
+                return False
+            whole = np.array_equal(theirs.ids, request_ids)
+            some = (
+                self._partial()
+                and np.all(theirs.ids[1:] > theirs.ids[:-1])
+                and bool(np.isin(theirs.ids, request_ids).all())
             )
-            return False
+            if not (whole or some):
+                self.agent.reject(
+                    "messages", reason=f"object summary of robot {j} disagrees with its ids"
+                )
+                return False
+        if self._partial():
+            # both ends associate the maps as the link holds them: the last whole summaries
+            # with the partial ones since (the same two on both ends when none was lost)
+            if theirs is not None:
+                self._held[j] = self._joined(self._held.get(j), theirs, request_ids.size)
+            if j not in self._given or j not in self._held:
+                return True
+            # a full association only on the whole summaries of the interval's steps: in
+            # between, the objects new to the link extend its table
+            tick = self.step % self.association_interval == 0
+            return self._associated_maps(j, self._given[j], self._held[j], full=tick)
         own = self._sent[j] if j in self._sent else self._summary_for(j)
         if self.max_age_ns is not None:
             # aged by stamp: the same newest request may come back in later steps, and its
@@ -596,10 +665,17 @@ class ConsensusProtocol:
                 own = self._summary_now(j)
         if own is None:  # we did not exchange summaries this step (a neighbour out of phase)
             return True
+        return self._associated_maps(j, own, theirs)
+
+    def _associated_maps(
+        self, j: int, own: ObjectSummary, theirs: ObjectSummary, full: bool = True
+    ) -> bool:
+        """Run link ``j``'s association on the two maps' summaries ``own``, ``theirs``: a
+        full one when its table is due (and ``full``), else an extension."""
         begin = time.perf_counter()
         table = self.tables[j]
         stats = self.link_stats[j]
-        if table.due(len(own), len(theirs)):
+        if full and table.due(len(own), len(theirs)):
             held = table.pairs() if own.appearance is not None else None
             result = associate(own, theirs, table.current_settings(), held)
             if table.learn_frame(result, own, theirs):

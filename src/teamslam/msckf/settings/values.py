@@ -513,7 +513,14 @@ class TeamAssociationSettings(AssociationSettings):
         :mod:`teamslam.association`, and consensus averages the matched pairs).
     interval
         With ``own``: steps between two exchanges of object summaries on a link (each exchange
-        runs a full association when the link's table is due, else grows it).
+        runs a full association when the link's table is due, else grows it): the longest a
+        link goes without a whole summary.
+    sooner
+        With ``own``, lock-step: a robot that holds at least this many objects its last
+        summaries to a neighbour did not carry sends it, before the interval, a summary of
+        those objects alone; the link then associates at once (both ends on the two maps as
+        they hold them: the last whole summaries with the partial ones since). 0: summaries
+        only every ``interval`` steps.
     revoke_probability
         With ``own`` (and with ``consensus.innovation_check``): probability of the ``χ²₃`` test
         of each matched pair's consensus innovation; a pair that fails is left out of the
@@ -526,6 +533,7 @@ class TeamAssociationSettings(AssociationSettings):
 
     mode: str = field(default="oracle", metadata=_unit(""))
     interval: int = field(default=5, metadata=_unit("steps"))
+    sooner: int = field(default=1, metadata=_unit("objects"))
     revoke_probability: float = field(default=0.99999, metadata=_unit(""))
     # a team's maps are estimates in the one world frame every robot starts in (at its known
     # first pose): the matcher tests a pair under the identity as consensus does
@@ -540,6 +548,8 @@ class TeamAssociationSettings(AssociationSettings):
             raise InputError(f"association.mode must be oracle or own, not {self.mode!r}")
         if not _is_count(self.interval, 1):
             raise InputError("association.interval must be an integer number of steps ≥ 1")
+        if not _is_count(self.sooner, 0):
+            raise InputError("association.sooner must be an integer number of objects ≥ 0")
         if not _probability(self.revoke_probability):
             raise InputError("association.revoke_probability must lie in (0, 1)")
 
