@@ -166,23 +166,34 @@ class ObjectSummary:
         return len(self) * per + BYTES_APPEARANCE_HEADER
 
     def sorted(self) -> ObjectSummary:
-        """The same summary with its objects in increasing id order."""
+        """The same summary with its objects in increasing id order (itself when they are)."""
+        if np.all(self.ids[1:] > self.ids[:-1]):
+            return self
         order = np.argsort(self.ids, kind="stable")
         return self.take(order)
 
     def take(self, index: np.ndarray) -> ObjectSummary:
-        """The objects at positions ``index`` (in that order)."""
+        """The objects at positions ``index`` (in that order).
+
+        The rows are this summary's, already checked and rounded as the wire carries them, so
+        they are taken as they are: checking them again would cost an eigen-decomposition per
+        object, and normalising a rounded descriptor again can move it by one float16 step.
+        """
         index = np.asarray(index, dtype=np.int64)
-        return ObjectSummary(
-            self.robot,
-            self.ids[index],
-            self.means[index],
-            self.covs[index],
-            None if self.classes is None else self.classes[index],
-            None if self.views is None else self.views[index],
-            None if self.appearance is None else self.appearance[index],
-            self.same_counts,
-        )
+        part = object.__new__(ObjectSummary)
+        fields = {
+            "robot": self.robot,
+            "ids": self.ids[index],
+            "means": self.means[index],
+            "covs": self.covs[index],
+            "classes": None if self.classes is None else self.classes[index],
+            "views": None if self.views is None else self.views[index],
+            "appearance": None if self.appearance is None else self.appearance[index],
+            "same_counts": self.same_counts,
+        }
+        for name, value in fields.items():
+            object.__setattr__(part, name, value)
+        return part
 
     def select(self, ids: np.ndarray) -> ObjectSummary:
         """The objects whose ids are in ``ids`` (in this summary's order)."""
