@@ -561,7 +561,7 @@ def _from_candidates(
     ok = separated(a, b, t, *anchors, rows, cols, settings, extent=extent)
     if told is not None and not ok.all():
         loose = np.flatnonzero(~ok)
-        near = crowd(a, b, t, *anchors, rows[loose], cols[loose], settings, extent=extent[loose])
+        near = crowd(a, b, rows[loose], cols[loose], extent[loose], settings)
         ok[loose] = told(rows[loose], cols[loose], near)
     if np.count_nonzero(ok) < need:
         return _no_answer(a, b, "too-few", exact=exact, **counts)

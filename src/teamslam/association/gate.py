@@ -271,25 +271,18 @@ def gate_extent(
 def crowd(
     a: ObjectSummary,
     b: ObjectSummary,
-    T_first_second: np.ndarray,
-    anchors_first: np.ndarray,
-    anchors_second: np.ndarray,
     rows: np.ndarray,
     cols: np.ndarray,
+    extent: np.ndarray,
     settings: AssociationSettings,
-    extent: np.ndarray | None = None,
 ) -> np.ndarray:
     """How many other objects lie within each pair's gate: of its first object's map within
     the longest semi-axis ``√(χ²₃ · λ_max(S))`` (:func:`separated`) of it, or of the second's
     of it, whichever is more — the neighbours the gate could take for the object.
-    ``extent``: the pairs' bounds on ``λ_max(S)`` (:func:`gate_extent`) when the caller has
-    them (:func:`separated` computed them)."""
+    ``extent``: the pairs' bounds on ``λ_max(S)`` (:func:`gate_extent`, which
+    :func:`separated` uses too)."""
     if rows.size == 0:
         return np.zeros(0, dtype=np.int64)
-    if extent is None:
-        extent = gate_extent(
-            a, b, T_first_second, anchors_first, anchors_second, rows, cols, settings
-        )
     reach2 = settings.gate_threshold * extent
     counts = []
     for means, index in ((a.means, rows), (b.means, cols)):
