@@ -23,9 +23,9 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from scipy.spatial.transform import Rotation
 from websockets.sync.client import connect
 
-from teamslam.errors import OutputError
+from teamslam.errors import InputError, OutputError
 from teamslam.live import LiveInputs, LiveRobot
-from teamslam.viz.foxglove import TOPICS, FoxgloveView, parse_address
+from teamslam.viz.foxglove import TOPICS, CameraModel, FoxgloveView, parse_address
 from test_runtime_live import (  # noqa: F401 - the bags are fixtures
     BOXES,
     INFO,
@@ -139,6 +139,15 @@ def _matrix(pose) -> np.ndarray:
     return T
 
 
+def _transform(link) -> np.ndarray:
+    """``T_parent_child`` of a FrameTransform."""
+    T = np.eye(4)
+    q, t = link.rotation, link.translation
+    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    T[:3, 3] = [t.x, t.y, t.z]
+    return T
+
+
 def _stamp(timestamp) -> int:
     return timestamp.seconds * 1_000_000_000 + timestamp.nanos
 
@@ -236,7 +245,7 @@ def test_an_image_robot_shows_its_left_image_and_the_tracked_boxes(detection_bag
     client = Client(view.url)
     robot = LiveRobot(one_robot_team(checkpoint_every=0), 0, inputs, config, tmp_path,
                       publisher=Recorder(), view=view)  # fmt: skip
-    names = ("image", "boxes", "tf", "objects")
+    names = ("image", "boxes", "tf", "objects", "calibration")
     shown = {}
     try:
         client.subscribe(view.topics[n] for n in names)
@@ -281,7 +290,37 @@ def test_an_image_robot_shows_its_left_image_and_the_tracked_boxes(detection_bag
         ("world", "robot_0/base_link"),
         ("robot_0/base_link", "robot_0/camera_left"),
     ]
-    map_ids, _, _ = robot.driver.agent.state.full_map()
+    # each image comes with the left camera's calibration, the rig's
+    rig = robot.rig
+    assert len(shown["calibration"]) == frames
+    calibration = shown["calibration"][-1][1]
+    assert calibration.frame_id == "robot_0/camera_left"
+    assert (calibration.width, calibration.height) == (width, height)
+    assert np.allclose(np.reshape(calibration.K, (3, 3)), rig.K_left)
+    assert np.allclose(np.reshape(calibration.R, (3, 3)), rig.R_rect_left)
+    assert np.allclose(np.reshape(calibration.P, (3, 4)), rig.P_rect_left)
+    assert calibration.distortion_model == "plumb_bob" and len(calibration.D) == 5
+    # with it and /tf, the app draws the tracked objects inside the boxes the tracker named
+    # them by (an estimate: most, not all)
+    T_world_body, T_body_cam = (_transform(x) for x in links)
+    T_cam_world = np.linalg.inv(T_world_body @ T_body_cam)
+    map_ids, positions, _ = robot.driver.agent.state.full_map()
+    at = dict(zip(map_ids.tolist(), np.asarray(positions).reshape(-1, 3), strict=True))
+    inside = []  # per named box: its object's projection falls inside it
+    for outline, oid in zip(shown["boxes"][-1][1].points, ids, strict=True):
+        if oid not in at:
+            continue
+        corners = np.array([(p.x, p.y) for p in outline.points])
+        (x0, y0), (x1, y1) = corners.min(axis=0), corners.max(axis=0)
+        p_cam = T_cam_world[:3, :3] @ at[oid] + T_cam_world[:3, 3]
+        uv, _ = cv2.projectPoints(
+            p_cam[None], np.zeros(3), np.zeros(3), np.reshape(calibration.K, (3, 3)),
+            np.asarray(calibration.D),
+        )  # fmt: skip
+        u, v = uv.ravel()
+        inside.append(x0 <= u <= x1 and y0 <= v <= y1)
+    # a wrong frame (the camera's pose inverted, the body's for the camera's) puts none inside
+    assert len(inside) >= 3 and np.mean(inside) >= 0.75, inside
     entities = shown["objects"][-1][1].entities
     assert [int(e.id) for e in entities] == map_ids.tolist() and map_ids.size
     labels = robot.driver.agent.tracker.labels_of(map_ids)
@@ -443,3 +482,22 @@ def test_team_launch_foxglove_puts_robot_i_on_base_port_plus_i(tmp_path):
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "past 65535" in done.stderr, done.stderr
     assert not (tmp_path / "bad").exists()
+
+
+def test_the_camera_calibration_names_foxgloves_distortion_model_or_refuses_in_one_line():
+    K, R, P = np.diag([500.0, 500.0, 1.0]), np.eye(3), np.hstack([np.eye(3), np.zeros((3, 1))])
+
+    def model(d):
+        return CameraModel((640, 480), K, np.asarray(d, float), R, P).distortion_model()
+
+    assert model([]) == ("plumb_bob", [0.0] * 5)
+    assert model([0.1, -0.2, 0.001, 0.002]) == ("plumb_bob", [0.1, -0.2, 0.001, 0.002, 0.0])
+    assert model([0.1, -0.2, 0.001, 0.002, 0.03]) == ("plumb_bob", [0.1, -0.2, 0.001, 0.002, 0.03])
+    eight = [0.1, -0.2, 0.001, 0.002, 0.03, 0.4, 0.05, 0.006]
+    assert model(eight) == ("rational_polynomial", eight)
+    assert model([*eight, 0, 0, 0, 0, 0, 0]) == ("rational_polynomial", eight)  # 14, no prism
+    assert model([0.1, -0.2, 0.001, 0.002, 0.03, 0, 0, 0, 0, 0, 0, 0]) == (
+        "plumb_bob", [0.1, -0.2, 0.001, 0.002, 0.03]
+    )  # fmt: skip
+    with pytest.raises(InputError, match="coefficient 9 is not zero"):
+        model([*eight, 0.01, 0, 0, 0])  # a thin prism term: no Foxglove model

@@ -984,6 +984,7 @@ class LiveRobot:
             boxes = Boxes(given.boxes, ids, given.classes)
         if self.view.T_cam_body is None and self.rig is not None:
             self.view.T_cam_body = self.rig.T_cam_body
+            self._view_camera()
         names = None
         if self._classes is not None:
             names = {label: name for name, label in self._classes.table.items()}
@@ -999,6 +1000,19 @@ class LiveRobot:
             class_names=names,
             latency_ms=self.latency_ns[-1] / 1e6,
         )
+
+    def _view_camera(self) -> None:
+        """Give the view the left camera's calibration (said once if Foxglove has no model
+        for its distortion; the image is still shown)."""
+        from teamslam.viz.foxglove import CameraModel
+
+        rig = self.rig
+        try:
+            self.view.camera = CameraModel(
+                rig.image_size, rig.K_left, rig.distortion_left, rig.R_rect_left, rig.P_rect_left
+            )
+        except InputError as exc:
+            self._once("view camera", f"robot {self.robot}: Foxglove view: {exc}; no calibration")
 
     def _checkpoint(self, t: int) -> None:
         extra = self.sequence.snapshot()

@@ -131,6 +131,14 @@ class StereoRig:
         return self._R_right
 
     @property
+    def P_rect_left(self) -> np.ndarray:
+        """``(3, 4)`` projection of the rectified left image (``[K_rect | 0]``)."""
+        self._rectify_setup()
+        if self._projections is not None:
+            return np.asarray(self._projections[0], float).copy()
+        return np.hstack([self.camera.intrinsics, np.zeros((3, 1))])
+
+    @property
     def T_rect_body(self) -> np.ndarray:
         """Body → rectified left optical frame."""
         rot = np.eye(4)

@@ -2,13 +2,13 @@
 
 :class:`FoxgloveView` runs the SDK's WebSocket server and, fed after each frame, logs the
 robot's pose, path, map and transforms, and on image robots the left image with the detector's
-boxes and their tracked ids, in Foxglove's well-known schemas (protobuf), so that the Foxglove
-app connects to the robot with no ROS installed. Frames are explicit: ``world`` and
-``robot_<i>/base_link`` (and ``robot_<i>/camera_left`` for images), as the ROS 2 publisher
-names them. Contract: a message is built only when a client subscribes to its channel (the SDK
-says whether a channel has sinks), so with no client a frame costs a few look-ups and no image
-is encoded; logging never blocks (the SDK queues per client and drops the oldest message of a
-slow one); the view reads the estimates and never writes them.
+boxes, their tracked ids and the camera's calibration, in Foxglove's well-known schemas
+(protobuf), so that the Foxglove app connects to the robot with no ROS installed. Frames are
+explicit: ``world`` and ``robot_<i>/base_link`` (and ``robot_<i>/camera_left`` for images), as
+the ROS 2 publisher names them. Contract: a message is built only when a client subscribes to
+its channel (the SDK says whether a channel has sinks), so with no client a frame costs a few
+look-ups and no image is encoded; logging never blocks (the SDK queues per client and drops the
+oldest message of a slow one); the view reads the estimates and never writes them.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 from teamslam._optional import require
 from teamslam.errors import InputError, OutputError
 
-__all__ = ["TOPICS", "WHAT", "Boxes", "FoxgloveView", "parse_address"]
+__all__ = ["TOPICS", "WHAT", "Boxes", "CameraModel", "FoxgloveView", "parse_address"]
 
 #: what needs the extra, in the error when it is missing
 WHAT = "a Foxglove live view (--foxglove)"
@@ -35,6 +35,10 @@ TOPICS = {
     "tf": ("/tf", "FrameTransforms: world → robot_<i>/base_link (→ camera_left)"),
     "image": ("/robot_{robot}/camera/left/compressed", "CompressedImage: the left image, JPEG"),
     "boxes": ("/robot_{robot}/camera/left/boxes", "ImageAnnotations: boxes, tracked ids"),
+    "calibration": (
+        "/robot_{robot}/camera/left/calibration",
+        "CameraCalibration: the left camera's intrinsics, distortion and rectification",
+    ),
     "latency": ("/robot_{robot}/latency", "JSON: the frame's latency in milliseconds"),
 }
 
@@ -68,6 +72,60 @@ class Boxes:
     boxes: np.ndarray
     ids: np.ndarray | None = None
     classes: np.ndarray | None = None
+
+
+#: Foxglove's distortion models of OpenCV's coefficients by their count: ``(k1, k2, p1, p2, k3)``
+#: and ``(k1, k2, p1, p2, k3, k4, k5, k6)``
+_DISTORTION_MODELS = {5: "plumb_bob", 8: "rational_polynomial"}
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """The left camera as the Foxglove app needs it to draw the 3D scene over the image.
+
+    Attributes
+    ----------
+    image_size
+        ``(width, height)`` of the raw image, in pixels.
+    K
+        ``(3, 3)`` raw intrinsics.
+    distortion
+        OpenCV distortion coefficients of the raw image (``k1, k2, p1, p2[, k3[, k4, k5,
+        k6]]``; longer vectors only with trailing zeros).
+    R
+        ``(3, 3)`` rotation from the raw to the rectified left frame.
+    P
+        ``(3, 4)`` projection of the rectified left image.
+    """
+
+    image_size: tuple[int, int]
+    K: np.ndarray
+    distortion: np.ndarray
+    R: np.ndarray
+    P: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.distortion_model()  # a vector Foxglove cannot show is refused when made
+
+    def distortion_model(self) -> tuple[str, list[float]]:
+        """Foxglove's name of the distortion model and its coefficients.
+
+        Raises
+        ------
+        InputError
+            Coefficients beyond ``k6`` that are not zero (thin prism, tilt: no Foxglove
+            model), named in one line.
+        """
+        d = np.asarray(self.distortion, float).ravel()
+        n = int(np.flatnonzero(d)[-1]) + 1 if np.any(d) else 0  # trailing zeros say nothing
+        if n > max(_DISTORTION_MODELS):
+            raise InputError(
+                f"camera distortion of {d.size} coefficients: coefficient {n} is not zero "
+                "and Foxglove has no model for it"
+            )
+        size = min(m for m in _DISTORTION_MODELS if m >= n)
+        d = np.concatenate([d[:n], np.zeros(size - n)])
+        return _DISTORTION_MODELS[size], [float(x) for x in d]
 
 
 def parse_address(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
@@ -145,6 +203,9 @@ class FoxgloveView:
         Of the left image.
     T_cam_body
         The left camera's pose in the body (``camera_left`` in ``/tf``; images only).
+    camera
+        The left camera's calibration, logged with each image so that the Foxglove app draws
+        the map over it (images only; may be set later through :attr:`camera`).
 
     Raises
     ------
@@ -166,6 +227,7 @@ class FoxgloveView:
         n_sigma: float = 3.0,
         jpeg_quality: int = 80,
         T_cam_body: np.ndarray | None = None,
+        camera: CameraModel | None = None,
     ) -> None:
         foxglove = require("foxglove", "foxglove", WHAT)
         self._fm = require("foxglove.messages", "foxglove", WHAT)
@@ -180,6 +242,8 @@ class FoxgloveView:
         self.n_sigma = float(n_sigma)
         self.jpeg_quality = int(jpeg_quality)
         self.T_cam_body = None if T_cam_body is None else np.asarray(T_cam_body, float)
+        #: the left camera, for the calibration beside each image (images only)
+        self.camera = camera
         self._palette = _palette()  # read now: matplotlib's import is not a frame's cost
         #: messages logged, by channel name (a message is built only for a subscribed channel)
         self.logged = dict.fromkeys(TOPICS, 0)
@@ -194,6 +258,7 @@ class FoxgloveView:
             "tf": channels.FrameTransformsChannel(topic["tf"], context=ctx),
             "image": channels.CompressedImageChannel(topic["image"], context=ctx),
             "boxes": channels.ImageAnnotationsChannel(topic["boxes"], context=ctx),
+            "calibration": channels.CameraCalibrationChannel(topic["calibration"], context=ctx),
             "latency": foxglove.Channel(topic["latency"], schema=LATENCY_SCHEMA, context=ctx),
         }
         self.topics = topic
@@ -289,6 +354,8 @@ class FoxgloveView:
             self._log("objects", message, stamp_ns)
         if image is not None and self.subscribed("image"):
             self._log("image", self._image(when, image), stamp_ns)
+        if image is not None and self.camera is not None and self.subscribed("calibration"):
+            self._log("calibration", self._calibration(when), stamp_ns)
         if image is not None and boxes is not None and self.subscribed("boxes"):
             self._log("boxes", self._boxes(when, boxes, class_names or {}), stamp_ns)
         if latency_ms is not None and self.subscribed("latency"):
@@ -380,6 +447,26 @@ class FoxgloveView:
             raise OutputError(f"robot {self.robot}: the left image cannot be encoded as JPEG")
         return self._fm.CompressedImage(
             timestamp=when, frame_id=self.camera_frame, data=jpeg.tobytes(), format="jpeg"
+        )
+
+    def _calibration(self, when):
+        camera = self.camera
+        model, d = camera.distortion_model()
+        width, height = camera.image_size
+
+        def flat(matrix) -> list[float]:
+            return [float(x) for x in np.asarray(matrix, float).ravel()]
+
+        return self._fm.CameraCalibration(
+            timestamp=when,
+            frame_id=self.camera_frame,
+            width=int(width),
+            height=int(height),
+            distortion_model=model,
+            D=d,
+            K=flat(camera.K),
+            R=flat(camera.R),
+            P=flat(camera.P),
         )
 
     def _boxes(self, when, boxes: Boxes, class_names: Mapping[int, str]):
