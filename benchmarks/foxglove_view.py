@@ -239,8 +239,8 @@ def main() -> None:
                 "estimates as without a view",
             ],
             "step: the robot's step after its front-end (consensus, filter, publication, the "
-            "view), for scale; a client "
-            "subscribes to every channel (pose, path, map, /tf, image, boxes, latency).",
+            "view), for scale; a client subscribes to every channel (pose, path, map, /tf, "
+            "image, boxes, calibration, latency).",
         )
         for name, case in cases.items():
             (tmp / name).mkdir()
