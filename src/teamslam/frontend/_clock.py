@@ -17,7 +17,6 @@ __all__ = ["STAGES", "StageClock"]
 #: the front-end's stages, in the order a frame goes through them
 STAGES = (
     "rectification",
-    "pyramids",
     "temporal LK",
     "track alignment",
     "feature detection",
