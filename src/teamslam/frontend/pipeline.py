@@ -169,12 +169,13 @@ class StereoFrontend:
         with clock.stage("rectification"):
             left, right = self.rig.rectify(left, right)
         predict = None if motion is None else (lambda i, uv: self.predicted(i, uv, motion))
-        ids, uv = self.tracker.track(left, predict)
+        left_f = left.astype(np.float32)  # one conversion for the tracker and the matcher
+        ids, uv = self.tracker.track(left, predict, left_f)
         guess = np.full(len(ids), np.nan)
         _, i_now, i_last = np.intersect1d(ids, self._last_ids, return_indices=True)
         guess[i_now] = self._last_disparity[i_last]
         m = match_stereo(
-            left, right, uv, self.disparity_range, self.config, self.pixels, guess, clock
+            left, right, uv, self.disparity_range, self.config, self.pixels, guess, clock, left_f
         )
         z = np.concatenate([uv, m.uv_right], axis=1)[m.accepted]
         self._last_ids, self._last_disparity = ids[m.accepted], z[:, 0] - z[:, 2]

@@ -117,6 +117,7 @@ def match_stereo(
     pixels: PixelSettings | None = None,
     disparity_guess: np.ndarray | None = None,
     clock: StageClock | None = None,
+    left_f: np.ndarray | None = None,
 ) -> StereoMatches:
     """Match left-image points into the right image of a rectified 8-bit grey pair.
 
@@ -139,6 +140,8 @@ def match_stereo(
         ``guess ± max(3, 20 %)`` pixels. Otherwise the NCC search covers only that interval.
     clock
         Where the CPU time of the search, Lucas–Kanade and the alignment is counted.
+    left_f
+        ``left`` as float32, when the caller has it (converted here otherwise).
     """
     cv2 = require_cv2()
     config = config or FrontendConfig()
@@ -151,7 +154,7 @@ def match_stereo(
     size = 2 * r + 1
     d_lo = max(0, int(np.floor(disparity_range[0])))
     d_hi_all = int(np.ceil(disparity_range[1]))
-    left_f = left.astype(np.float32)
+    left_f = left.astype(np.float32) if left_f is None else left_f
     right_f = right.astype(np.float32)
     coarse = np.full(n, np.nan)
     searched = np.zeros(n, bool)
@@ -206,10 +209,12 @@ def match_stereo(
         return StereoMatches(uv_right, accepted, searched)
     with clock.stage("stereo LK"):
         # global gain/offset correction so Lucas–Kanade (a sum of squared differences) is
-        # unbiased
+        # unbiased (in place: one temporary image, not four)
         gain = left_f.std() / max(float(right_f.std()), 1e-6)
-        right_c = (right_f - right_f.mean()) * gain + left_f.mean()
-        right_c = np.clip(right_c, 0, 255).astype(np.uint8)
+        right_c = right_f - right_f.mean()
+        right_c *= gain
+        right_c += left_f.mean()
+        right_c = np.clip(right_c, 0, 255, out=right_c).astype(np.uint8)
         win = px.lk_window
         outs, oks, idxs, refs = [], [], [], []
         idx = np.flatnonzero(np.isfinite(coarse))

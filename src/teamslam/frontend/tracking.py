@@ -126,13 +126,13 @@ class FeatureTracker:
         self._A = np.array(state["A"])
         self._photo = np.array(state["photo"])
 
-    def _refine(self, image: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Align every track's template to ``image`` (affine + gain/offset); return the
-        refined points and which tracks still match their template."""
+    def _refine(self, image_f: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Align every track's template to ``image_f`` (float32 grey; affine + gain/offset);
+        return the refined points and which tracks still match their template."""
         uv, A, photo, ncc = align_patches(
             self._window,
             self._template,
-            with_gradients(image),
+            with_gradients(image_f),
             uv,
             self._A,
             self._photo,
@@ -180,9 +180,10 @@ class FeatureTracker:
         w, h = self.image_size
         return (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
 
-    def _detect(self, cv2, image: np.ndarray, room: int) -> None:
+    def _detect(self, cv2, image: np.ndarray, room: int, image_f: np.ndarray) -> None:
         """New corners with fresh ids in the parts of ``image`` away from the tracks (at most
-        ``room``), refined to sub-pixel, with their templates."""
+        ``room``), refined to sub-pixel, with their templates (sampled from ``image_f``, the
+        image as float32)."""
         mask = np.full(image.shape, 255, np.uint8)
         radius = max(1, round(self.px.spacing))
         for u, v in np.rint(self.uv).astype(int):
@@ -214,7 +215,7 @@ class FeatureTracker:
             self.uv = np.concatenate([self.uv, new])
             if self.config.affine_refinement:
                 eye = np.tile(np.eye(2), (len(new), 1, 1))
-                tmpl = self._window.sample(image.astype(np.float32), new, eye)
+                tmpl = self._window.sample(image_f, new, eye)
                 self._template = np.concatenate([self._template, tmpl])
                 self._A = np.concatenate([self._A, eye])
                 self._photo = np.concatenate([self._photo, np.tile([1.0, 0.0], (len(new), 1))])
@@ -223,13 +224,17 @@ class FeatureTracker:
         self,
         image: np.ndarray,
         predict: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+        image_f: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Follow the tracks into ``image`` (8-bit grey) and refill; return ``(ids, uv)``.
 
         ``predict(ids, uv)``: where the tracks at ``uv`` in the previous image are expected in
         this one (e.g. by the camera's motion over frames dropped in between), ``(N, 2)``; Lucas–
-        Kanade starts there instead of at ``uv``, and the backward check at ``uv``."""
+        Kanade starts there instead of at ``uv``, and the backward check at ``uv``. ``image_f``:
+        the image as float32, when the caller has it (converted here otherwise)."""
         cv2 = require_cv2()
+        if image_f is None:
+            image_f = image.astype(np.float32)
         if self.config.max_track_length and len(self.ids):
             young = self._age + 1 < self.config.max_track_length
             self._keep(young)
@@ -249,7 +254,7 @@ class FeatureTracker:
             self.uv = fwd[keep].astype(np.float32)
             if self.config.affine_refinement and len(self.ids):
                 with clock.stage("track alignment"):
-                    refined, ok = self._refine(image, self.uv)
+                    refined, ok = self._refine(image_f, self.uv)
                 ok &= np.linalg.norm(refined - self.uv, axis=1) <= self.px.refine_track
                 ok &= self._inside(refined)
                 self.uv = refined.astype(np.float32)
@@ -261,6 +266,6 @@ class FeatureTracker:
         room = self.config.max_features - len(self.ids)
         if room > 0:
             with clock.stage("feature detection"):
-                self._detect(cv2, image, room)
+                self._detect(cv2, image, room, image_f)
         self._previous = image
         return self.ids.copy(), self.uv.astype(np.float64)
