@@ -71,11 +71,12 @@ class FeatureTracker:
         self._template = np.zeros((0, self._window.ox.size), np.float32)
         self._A = np.zeros((0, 2, 2))
         self._photo = np.zeros((0, 2))  # gain, offset
+        self._since_detection = 0  # images since corners were last looked for
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """What the tracker carries to the next image: the next id, each track's id, age,
-        position, template, warp and gain/offset, and the last image (``(0, 0)`` before the
-        first)."""
+        position, template, warp and gain/offset, the last image (``(0, 0)`` before the
+        first) and the images since corners were last looked for."""
         previous = np.zeros((0, 0), np.uint8) if self._previous is None else self._previous
         return {
             "next_id": np.array(self.next_id, np.int64),
@@ -86,6 +87,7 @@ class FeatureTracker:
             "template": self._template.copy(),
             "A": self._A.copy(),
             "photo": self._photo.copy(),
+            "since_detection": np.array(self._since_detection, np.int64),
         }
 
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
@@ -125,6 +127,8 @@ class FeatureTracker:
         self._template = np.array(state["template"])
         self._A = np.array(state["A"])
         self._photo = np.array(state["photo"])
+        # a state written before detection_interval existed: corners were looked for each image
+        self._since_detection = int(state.get("since_detection", 0))
 
     def _refine(self, image_f: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Align every track's template to ``image_f`` (float32 grey; affine + gain/offset);
@@ -264,8 +268,12 @@ class FeatureTracker:
             self.ids, self.uv = np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
             self._age = np.zeros(0, np.int64)
         room = self.config.max_features - len(self.ids)
-        if room > 0:
+        due = self._previous is None or self._since_detection + 1 >= self.config.detection_interval
+        if room > 0 and due:
             with clock.stage("feature detection"):
                 self._detect(cv2, image, room, image_f)
+            self._since_detection = 0
+        else:
+            self._since_detection += 1
         self._previous = image
         return self.ids.copy(), self.uv.astype(np.float64)
