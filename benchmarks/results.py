@@ -230,6 +230,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "python benchmarks/frontend_cost.py --repeats 3 --accuracy --variant max_features=250 "
         "--variant lk_window_share=0.019 --variant lk_levels=1 --variant affine_iterations=1 "
         "--variant stereo_affine_iterations=0 --variant marker_threshold_passes=1 "
+        "--variant detection_interval=2 --variant detection_interval=3 "
         "--variant max_features=250,lk_window_share=0.019,affine_iterations=1 "
         f"--markdown {GENERATED}/frontend-cost.md",
         f"{GENERATED}/frontend-cost.md",
