@@ -5,7 +5,7 @@ Run on demand::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/frontend_cost.py [--robots 3] [--steps 100] \\
         [--width 640] [--repeats 3] [--rendered DIR] [--variant NAME=VALUE[,NAME=VALUE] ...] \\
-        [--accuracy] [--markdown FILE]
+        [--accuracy] [--objects shapes] [--markdown FILE]
 
 The team is rendered as the live benchmark renders it (``teamslam simulate --images --seed 0``;
 ``--rendered DIR``: one rendered before, e.g. into ``results/``). Its ``images.mcap`` is read as
@@ -16,7 +16,10 @@ robot (the rig from the ``camera_info`` topics, feature ids continuing from robo
 :class:`~teamslam.frontend._clock.StageClock` gives the CPU time of each stage, "other" the
 rest of :meth:`~teamslam.frontend.StereoFrontend.process` (conversions, bookkeeping). Stereo
 visual odometry (``stereo_motion`` between consecutive frames) is timed too, though a robot with
-an odometry topic does not run it.
+an odometry topic does not run it. ``--objects shapes`` renders the team with textured objects
+and a simulated detector (``teamslam simulate --images --objects shapes``): each frame's boxes
+come from the bag's detection topic, as a live robot with a detector reads them, and the box
+stereo and the boxes' appearance descriptors (as ``agent --live`` describes them) are timed too.
 
 One OpenCV and one BLAS thread, process time: CPU milliseconds, comparable under any load. The
 whole sequence is measured ``--repeats`` times, each time by fresh front-ends (a frame meets the
@@ -45,24 +48,30 @@ from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.config import FrontendConfig, resolve_frontend
 
 #: the stages of a live frame's front-end in the table: decoding, the front-end's, the rest
-COLUMNS = ("decoding", *STAGES, "other", "odometry")
+COLUMNS = ("decoding", *STAGES, "appearance", "other", "odometry")
 
 
-def render(out: Path, robots: int, steps: int, width: int) -> Path:
-    """``teamslam simulate --images`` as ``benchmarks/live_agents.py`` runs it; the bag."""
+def render(out: Path, robots: int, steps: int, width: int, objects: str | None) -> Path:
+    """``teamslam simulate --images`` as ``benchmarks/live_agents.py`` runs it (with
+    ``--objects`` when given); the bag."""
     argv = [sys.executable, "-m", "teamslam", "simulate", "--images", "--quiet"]
     argv += ["--robots", str(robots), "--steps", str(steps), "--image-width", str(width)]
     argv += ["--seed", "0", "--out", str(out)]
+    if objects:
+        argv += ["--objects", objects]
     subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
     return out / "images.mcap"
 
 
-def read_bag(bag: Path, robots: int):
+def read_bag(bag: Path, robots: int, boxes: bool = False):
     """The rig (from the first robot's ``camera_info``), the robots' topics and per robot its
-    ``(stamp, left, right)`` image pairs in stamp order, each image its ``(serialised message,
-    message type)`` as ``agent --live`` receives it."""
+    ``(stamp, left, right, boxes)`` frames in stamp order, each image its ``(serialised message,
+    message type)`` as ``agent --live`` receives it; ``boxes`` the frame's
+    :class:`~teamslam.frontend.detections.ImageDetections` from the robot's detection topic
+    (with ``boxes``), else ``None``."""
     from teamslam.frontend.camera import rig_from_camera_info
     from teamslam.ros2 import messages as m
+    from teamslam.ros2.detection_bags import read_detection_topic
     from teamslam.ros2.image_bags import ImageTopics
 
     topics = [ImageTopics.default(f"robot_{i}") for i in range(robots)]
@@ -80,13 +89,20 @@ def read_bag(bag: Path, robots: int):
     pairs = []
     for r in topics:
         right = dict(data[r.right])
-        pairs.append([(s, msg, right[s]) for s, msg in sorted(data[r.left], key=lambda x: x[0])])
+        left = sorted(data[r.left], key=lambda x: x[0])
+        given = [None] * len(left)
+        if boxes:
+            stamps = [s for s, _ in left]
+            given = read_detection_topic(bag, f"/{r.name}/detections", stamps, rig.image_size)
+            given = given.images
+        pairs.append([(s, msg, right[s], b) for (s, msg), b in zip(left, given, strict=True)])
     return rig, topics, pairs
 
 
 def one_pass(rig, pairs, config: FrontendConfig):
     """Every robot's frames through fresh front-ends: per frame ``{stage: CPU s}`` and the
     measurements (to check that passes agree)."""
+    from teamslam.frontend.appearance import DEFAULT_DESCRIPTOR, describe
     from teamslam.frontend.odometry import stereo_motion
     from teamslam.frontend.pipeline import StereoFrontend
     from teamslam.ros2 import messages as m
@@ -99,17 +115,21 @@ def one_pass(rig, pairs, config: FrontendConfig):
     for frames in pairs:
         frontend = StereoFrontend(rig, config, first_id=next_id)
         previous = None
-        for stamp, left_msg, right_msg in frames:
+        for stamp, left_msg, right_msg, boxes in frames:
             begin = time.process_time()  # as a live robot receives and decodes a pair
             left = _decode(store.deserialize_cdr(*left_msg), "left", stamp)
             right = _decode(store.deserialize_cdr(*right_msg), "right", stamp)
             decoded = time.process_time()
             frontend.clock.reset()
-            measured = frontend.process(left, right)
+            measured = frontend.process(left, right, detections=boxes)
             done = time.process_time()
             row = frontend.clock.reset()
             row["other"] = done - decoded - sum(row.values())
             row["decoding"] = decoded - begin
+            if boxes is not None:  # as agent --live describes a frame's boxes
+                start = time.process_time()
+                looks = describe(left, boxes.boxes, DEFAULT_DESCRIPTOR)
+                row["appearance"] = time.process_time() - start
             if previous is not None:
                 start = time.process_time()
                 stereo_motion(
@@ -127,6 +147,8 @@ def one_pass(rig, pairs, config: FrontendConfig):
             times.append(row)
             m = measured
             out.append((m.feature_ids, m.features, m.object_ids, m.objects))
+            if boxes is not None:
+                out[-1] += (m.boxes.z, looks)
         next_id = frontend.next_id
     return times, out
 
@@ -203,8 +225,17 @@ def main() -> None:
         action="store_true",
         help="the offline position RMSE of each setting (a dataset and a filter run each)",
     )
+    parser.add_argument(
+        "--objects",
+        choices=["shapes"],
+        default=None,
+        help="render textured objects and a simulated detector's boxes, and time the box "
+        "stereo and the boxes' appearance too",
+    )
     add_option(parser)
     args = parser.parse_args()
+    if args.objects and args.accuracy:
+        parser.error("--accuracy is for the team without objects (the live benchmark's)")
     md = Markdown(args.markdown)
     cv2 = require_cv2()
     cv2.setNumThreads(1)
@@ -216,8 +247,8 @@ def main() -> None:
         if args.rendered is not None:
             bag = args.rendered / "images.mcap"
         else:
-            bag = render(tmp / "rendered", args.robots, args.steps, args.width)
-        rig, topics, pairs = read_bag(bag, args.robots)
+            bag = render(tmp / "rendered", args.robots, args.steps, args.width, args.objects)
+        rig, topics, pairs = read_bag(bag, args.robots, boxes=bool(args.objects))
         # compile (or load) the alignment kernels before any frame is timed
         one_pass(rig, [frames[:3] for frames in pairs[:1]], FrontendConfig())
         width, height = rig.image_size
@@ -225,9 +256,16 @@ def main() -> None:
         columns = ["settings", *COLUMNS, "total (no odometry)"]
         if args.accuracy:
             columns += ["stereo observations per frame", "offline RMSE (m)"]
+        team = "the live benchmark's" if not args.objects else f"with objects: {args.objects}"
+        boxes = (
+            "box stereo: none (the team has no detector); appearance: none"
+            if not args.objects
+            else "box stereo: the detector's boxes measured in stereo; appearance: the boxes' "
+            "descriptors (the default kind, on the grey left image, as agent --live makes them)"
+        )
         md.table(
             f"Front-end CPU ms per stereo frame by stage: rendered team, {args.robots} robots × "
-            f"{frames // args.robots} stereo frames {width}×{height} (the live benchmark's), "
+            f"{frames // args.robots} stereo frames {width}×{height} ({team}), "
             f"median of {args.repeats} passes per frame, mean over frames",
             columns,
             note="One OpenCV and one BLAS thread, process time. Decoding: the two images of a "
@@ -239,7 +277,7 @@ def main() -> None:
             "and new templates; stereo search: the NCC row search of new points; stereo LK: "
             "the right image's gain correction and the left→right Lucas–Kanade (and back); "
             "stereo alignment: the affine left→right alignment; markers: ArUco in both images; "
-            "box stereo: none (the team has no detector). Other: the rest of a frame's "
+            f"{boxes}. Other: the rest of a frame's "
             "front-end (conversions, bookkeeping). Odometry: stereo visual odometry between "
             "consecutive frames, which a robot with an odometry topic (as here) does not run."
             + (

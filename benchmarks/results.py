@@ -226,6 +226,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/frontend-cost-stages.md",
         f"{GENERATED}/frontend-cost-stages.md",
     ),
+    "frontend-cost-objects": (
+        "python benchmarks/frontend_cost.py --repeats 3 --objects shapes "
+        f"--markdown {GENERATED}/frontend-cost-objects.md",
+        f"{GENERATED}/frontend-cost-objects.md",
+    ),
     "frontend-cost": (
         "python benchmarks/frontend_cost.py --repeats 3 --accuracy --variant max_features=250 "
         "--variant lk_window_share=0.019 --variant lk_levels=1 --variant affine_iterations=1 "
