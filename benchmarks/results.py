@@ -221,6 +221,25 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/live-input.md",
         f"{GENERATED}/live-input.md",
     ),
+    "frontend-cost-stages": (
+        "python benchmarks/frontend_cost.py --repeats 3 "
+        f"--markdown {GENERATED}/frontend-cost-stages.md",
+        f"{GENERATED}/frontend-cost-stages.md",
+    ),
+    "frontend-cost-objects": (
+        "python benchmarks/frontend_cost.py --repeats 3 --objects shapes "
+        f"--markdown {GENERATED}/frontend-cost-objects.md",
+        f"{GENERATED}/frontend-cost-objects.md",
+    ),
+    "frontend-cost": (
+        "python benchmarks/frontend_cost.py --repeats 3 --accuracy --variant max_features=250 "
+        "--variant lk_window_share=0.019 --variant lk_levels=1 --variant affine_iterations=1 "
+        "--variant stereo_affine_iterations=0 --variant marker_threshold_passes=1 "
+        "--variant detection_interval=2 --variant detection_interval=3 "
+        "--variant max_features=250,lk_window_share=0.019,affine_iterations=1 "
+        f"--markdown {GENERATED}/frontend-cost.md",
+        f"{GENERATED}/frontend-cost.md",
+    ),
     "live-robots-images": (
         "python benchmarks/live_agents.py images --robots 3 --steps 100 --width 640 "
         f"--runs lockstep:0.25 async:1 --markdown {GENERATED}/live-robots-images.md",

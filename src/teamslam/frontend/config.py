@@ -57,6 +57,10 @@ class FrontendConfig:
         Gauss–Newton steps); end a track whose aligned patch correlates below
         ``template_ncc_min`` with its template, or moves more than ``refine_track_share`` of
         the diagonal from the frame-to-frame track.
+    detection_interval
+        New corners are looked for in every this many frames (1: every frame; always in the
+        first); in the frames between, the tracks that ended are not replaced. Detection and
+        the stereo search of the new corners are a frame's cost that does not follow a track.
     max_track_length
         Most frames a track is followed (0: no limit); a longer one ends and its corner may
         start a new track with a fresh template and id. Aligned to its first appearance, a
@@ -144,6 +148,7 @@ class FrontendConfig:
     affine_iterations: int = 2
     template_ncc_min: float = 0.93
     refine_track_share: float = 0.0025
+    detection_interval: int = 1
     max_track_length: int = 0
     max_track_warp: float = 0.2
     min_depth: float = 0.5
@@ -179,6 +184,8 @@ class FrontendConfig:
             raise InputError(
                 "marker_min_perimeter_share < 4 and marker_threshold_passes ≥ 1 needed"
             )
+        if self.detection_interval < 1:
+            raise InputError("detection_interval must be at least 1 (every frame)")
         if self.max_track_length < 0 or self.max_track_length == 1:
             raise InputError("max_track_length must be 0 (no limit) or at least 2 frames")
         if self.max_features < 1 or self.lk_levels < 0 or self.vo_min_inliers < 4:

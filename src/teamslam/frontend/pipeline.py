@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from teamslam.frontend._clock import StageClock
 from teamslam.frontend.boxes import BoxMeasurements, BoxStereo
 from teamslam.frontend.camera import StereoRig
 from teamslam.frontend.config import FrontendConfig
@@ -62,6 +63,12 @@ class StereoFrontend:
     first_id
         First feature-track id (give each robot its own range; :attr:`next_id` after a run
         is the next free id).
+
+    Attributes
+    ----------
+    clock
+        The CPU time of each stage of the frames measured so far
+        (:class:`~teamslam.frontend._clock.StageClock`).
     """
 
     def __init__(
@@ -72,7 +79,8 @@ class StereoFrontend:
         self.camera = rig.camera
         self.pixels = self.config.pixels(rig.image_size)
         self.disparity_range = self.config.disparity_range(self.camera.fx_baseline)
-        self.tracker = FeatureTracker(rig.image_size, self.config, first_id)
+        self.clock = StageClock()
+        self.tracker = FeatureTracker(rig.image_size, self.config, first_id, self.clock)
         self.markers = MarkerDetector(self.config)
         self.boxes = BoxStereo(rig, self.config)
         self._last_ids = np.zeros(0, np.int64)
@@ -157,21 +165,28 @@ class StereoFrontend:
         it, each track with a stereo depth in the previous frame is looked for where that point
         projects now (:meth:`predicted`); without it, where it was."""
         self.rig.check_images(left, right, where)
-        left, right = self.rig.rectify(left, right)
+        clock = self.clock
+        with clock.stage("rectification"):
+            left, right = self.rig.rectify(left, right)
         predict = None if motion is None else (lambda i, uv: self.predicted(i, uv, motion))
-        ids, uv = self.tracker.track(left, predict)
+        left_f = left.astype(np.float32)  # one conversion for the tracker and the matcher
+        ids, uv = self.tracker.track(left, predict, left_f)
         guess = np.full(len(ids), np.nan)
         _, i_now, i_last = np.intersect1d(ids, self._last_ids, return_indices=True)
         guess[i_now] = self._last_disparity[i_last]
-        m = match_stereo(left, right, uv, self.disparity_range, self.config, self.pixels, guess)
+        m = match_stereo(
+            left, right, uv, self.disparity_range, self.config, self.pixels, guess, clock, left_f
+        )
         z = np.concatenate([uv, m.uv_right], axis=1)[m.accepted]
         self._last_ids, self._last_disparity = ids[m.accepted], z[:, 0] - z[:, 2]
-        obj_ids, obj_z = self.markers.detect_stereo(
-            left, right, self.disparity_range, self.pixels.marker_row
-        )
+        with clock.stage("markers"):
+            obj_ids, obj_z = self.markers.detect_stereo(
+                left, right, self.disparity_range, self.pixels.marker_row
+            )
         boxes = None
         if detections is not None:
-            boxes = self.boxes.measure(left, right, detections, right_detections)
+            with clock.stage("box stereo"):
+                boxes = self.boxes.measure(left, right, detections, right_detections)
         return FrameMeasurements(
             feature_ids=ids[m.accepted],
             features=z,

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from teamslam.frontend._align import PatchWindow, align_patches, with_gradients
+from teamslam.frontend._clock import StageClock
 from teamslam.frontend._cv import require_cv2
 from teamslam.frontend.config import FrontendConfig, PixelSettings
 
@@ -115,6 +116,8 @@ def match_stereo(
     config: FrontendConfig | None = None,
     pixels: PixelSettings | None = None,
     disparity_guess: np.ndarray | None = None,
+    clock: StageClock | None = None,
+    left_f: np.ndarray | None = None,
 ) -> StereoMatches:
     """Match left-image points into the right image of a rectified 8-bit grey pair.
 
@@ -135,9 +138,14 @@ def match_stereo(
         searched: pyramidal Lucas–Kanade follows it from the guess into the right image and
         back again (the left–right check), and the match must stay within
         ``guess ± max(3, 20 %)`` pixels. Otherwise the NCC search covers only that interval.
+    clock
+        Where the CPU time of the search, Lucas–Kanade and the alignment is counted.
+    left_f
+        ``left`` as float32, when the caller has it (converted here otherwise).
     """
     cv2 = require_cv2()
     config = config or FrontendConfig()
+    clock = clock or StageClock()
     h, w = left.shape
     px = pixels or config.pixels((w, h))
     uv_left = np.asarray(uv_left, dtype=np.float64).reshape(-1, 2)
@@ -146,7 +154,7 @@ def match_stereo(
     size = 2 * r + 1
     d_lo = max(0, int(np.floor(disparity_range[0])))
     d_hi_all = int(np.ceil(disparity_range[1]))
-    left_f = left.astype(np.float32)
+    left_f = left.astype(np.float32) if left_f is None else left_f
     right_f = right.astype(np.float32)
     coarse = np.full(n, np.nan)
     searched = np.zeros(n, bool)
@@ -158,78 +166,85 @@ def match_stereo(
     g_hi = np.minimum(np.minimum(d_hi_all, np.ceil(guess + margin_all)), np.floor(u_all - r - 1))
     with np.errstate(invalid="ignore"):
         predicted = inside & np.isfinite(guess) & (g_hi - g_lo >= 4) & config.stereo_from_guess
-    for k in np.flatnonzero(inside & ~predicted):
-        u, v = uv_left[k]
-        d_lo_k, d_hi_k = d_lo, d_hi_all
-        if np.isfinite(guess[k]):
-            margin = max(3.0, 0.2 * guess[k])
-            d_lo_k = max(d_lo, int(np.floor(guess[k] - margin)))
-            d_hi_k = min(d_hi_all, int(np.ceil(guess[k] + margin)))
-        d_hi = min(d_hi_k, int(np.floor(u - r - 1)))
-        if d_hi - d_lo_k < 4:
-            continue
-        searched[k] = True
-        patch = cv2.getRectSubPix(left_f, (size, size), (float(u), float(v)))
-        span = d_hi - d_lo_k
-        centre = (float(u - (d_lo_k + d_hi) / 2.0), float(v))
-        strip = cv2.getRectSubPix(right_f, (size + span, size), centre)
-        scores = cv2.matchTemplate(strip, patch, cv2.TM_CCOEFF_NORMED).ravel()
-        i, off, second = _best(scores)
-        best = scores[i]
-        if best < config.ncc_min or second >= config.uniqueness * best:
-            continue
-        d = d_hi - (i + off)
-        # left-right check: the right patch searched for in the left image
-        u_r = u - d
-        back_hi = min(d_hi_k, int(np.floor(w - 2 - r - u_r)))
-        if back_hi - d_lo_k < 4:
-            continue
-        patch_r = cv2.getRectSubPix(right_f, (size, size), (float(u_r), float(v)))
-        centre_l = (float(u_r + (d_lo_k + back_hi) / 2.0), float(v))
-        strip_l = cv2.getRectSubPix(left_f, (size + back_hi - d_lo_k, size), centre_l)
-        scores_l = cv2.matchTemplate(strip_l, patch_r, cv2.TM_CCOEFF_NORMED).ravel()
-        j, off_l, _ = _best(scores_l)
-        d_back = d_lo_k + j + off_l
-        if abs(d_back - d) > px.left_right:
-            continue
-        coarse[k] = d
+    with clock.stage("stereo search"):
+        for k in np.flatnonzero(inside & ~predicted):
+            u, v = uv_left[k]
+            d_lo_k, d_hi_k = d_lo, d_hi_all
+            if np.isfinite(guess[k]):
+                margin = max(3.0, 0.2 * guess[k])
+                d_lo_k = max(d_lo, int(np.floor(guess[k] - margin)))
+                d_hi_k = min(d_hi_all, int(np.ceil(guess[k] + margin)))
+            d_hi = min(d_hi_k, int(np.floor(u - r - 1)))
+            if d_hi - d_lo_k < 4:
+                continue
+            searched[k] = True
+            patch = cv2.getRectSubPix(left_f, (size, size), (float(u), float(v)))
+            span = d_hi - d_lo_k
+            centre = (float(u - (d_lo_k + d_hi) / 2.0), float(v))
+            strip = cv2.getRectSubPix(right_f, (size + span, size), centre)
+            scores = cv2.matchTemplate(strip, patch, cv2.TM_CCOEFF_NORMED).ravel()
+            i, off, second = _best(scores)
+            best = scores[i]
+            if best < config.ncc_min or second >= config.uniqueness * best:
+                continue
+            d = d_hi - (i + off)
+            # left-right check: the right patch searched for in the left image
+            u_r = u - d
+            back_hi = min(d_hi_k, int(np.floor(w - 2 - r - u_r)))
+            if back_hi - d_lo_k < 4:
+                continue
+            patch_r = cv2.getRectSubPix(right_f, (size, size), (float(u_r), float(v)))
+            centre_l = (float(u_r + (d_lo_k + back_hi) / 2.0), float(v))
+            strip_l = cv2.getRectSubPix(left_f, (size + back_hi - d_lo_k, size), centre_l)
+            scores_l = cv2.matchTemplate(strip_l, patch_r, cv2.TM_CCOEFF_NORMED).ravel()
+            j, off_l, _ = _best(scores_l)
+            d_back = d_lo_k + j + off_l
+            if abs(d_back - d) > px.left_right:
+                continue
+            coarse[k] = d
     searched |= predicted
     uv_right = np.full((n, 2), np.nan)
     accepted = np.zeros(n, bool)
     if not (np.any(np.isfinite(coarse)) or np.any(predicted)):
         return StereoMatches(uv_right, accepted, searched)
-    # global gain/offset correction so Lucas–Kanade (a sum of squared differences) is unbiased
-    gain = left_f.std() / max(float(right_f.std()), 1e-6)
-    right_c = np.clip((right_f - right_f.mean()) * gain + left_f.mean(), 0, 255).astype(np.uint8)
-    win = px.lk_window
-    outs, oks, idxs, refs = [], [], [], []
-    idx = np.flatnonzero(np.isfinite(coarse))
-    if idx.size:
-        start = uv_left[idx].copy()
-        start[:, 0] -= coarse[idx]
-        out, ok = _lk_pair(cv2, left, right_c, uv_left[idx], start, win, 0)
-        outs.append(out), oks.append(ok), idxs.append(idx), refs.append(start[:, 0])
-    idx = np.flatnonzero(predicted)
-    if idx.size:
-        # a tracked point: followed from its guessed disparity, then back to the left image
-        start = uv_left[idx].copy()
-        start[:, 0] -= guess[idx]
-        levels = config.lk_levels
-        out, ok = _lk_pair(cv2, left, right_c, uv_left[idx], start, win, levels)
-        back, ok_b = _lk_pair(cv2, right_c, left, out, uv_left[idx], win, levels)
-        d = uv_left[idx, 0] - out[:, 0]
-        ok &= ok_b & (np.linalg.norm(back - uv_left[idx], axis=1) <= px.left_right)
-        ok &= np.abs(out[:, 1] - uv_left[idx, 1]) <= px.refine
-        ok &= (d >= g_lo[idx]) & (d <= g_hi[idx])
-        outs.append(out), oks.append(ok), idxs.append(idx), refs.append(out[:, 0])
+    with clock.stage("stereo LK"):
+        # global gain/offset correction so Lucas–Kanade (a sum of squared differences) is
+        # unbiased (in place: one temporary image, not four)
+        gain = left_f.std() / max(float(right_f.std()), 1e-6)
+        right_c = right_f - right_f.mean()
+        right_c *= gain
+        right_c += left_f.mean()
+        right_c = np.clip(right_c, 0, 255, out=right_c).astype(np.uint8)
+        win = px.lk_window
+        outs, oks, idxs, refs = [], [], [], []
+        idx = np.flatnonzero(np.isfinite(coarse))
+        if idx.size:
+            start = uv_left[idx].copy()
+            start[:, 0] -= coarse[idx]
+            out, ok = _lk_pair(cv2, left, right_c, uv_left[idx], start, win, 0)
+            outs.append(out), oks.append(ok), idxs.append(idx), refs.append(start[:, 0])
+        idx = np.flatnonzero(predicted)
+        if idx.size:
+            # a tracked point: followed from its guessed disparity, then back to the left image
+            start = uv_left[idx].copy()
+            start[:, 0] -= guess[idx]
+            levels = config.lk_levels
+            out, ok = _lk_pair(cv2, left, right_c, uv_left[idx], start, win, levels)
+            back, ok_b = _lk_pair(cv2, right_c, left, out, uv_left[idx], win, levels)
+            d = uv_left[idx, 0] - out[:, 0]
+            ok &= ok_b & (np.linalg.norm(back - uv_left[idx], axis=1) <= px.left_right)
+            ok &= np.abs(out[:, 1] - uv_left[idx, 1]) <= px.refine
+            ok &= (d >= g_lo[idx]) & (d <= g_hi[idx])
+            outs.append(out), oks.append(ok), idxs.append(idx), refs.append(out[:, 0])
     idx, out, ok = np.concatenate(idxs), np.concatenate(outs), np.concatenate(oks)
     ref = np.concatenate(refs)
     if config.stereo_affine_iterations and idx.size:
         # left and right see a slanted surface with different foreshortening and a
         # different vignetting: align each left patch with an affine warp, gain and offset
-        aligned, ncc = affine_align(
-            left_f, uv_left[idx], right_f, out, win // 2, config.stereo_affine_iterations
-        )
+        with clock.stage("stereo alignment"):
+            aligned, ncc = affine_align(
+                left_f, uv_left[idx], right_f, out, win // 2, config.stereo_affine_iterations
+            )
         ok &= ncc >= config.ncc_min
         out = aligned
     # the outlier gate: refinement moves the disparity (from the NCC peak, or from the tracked
