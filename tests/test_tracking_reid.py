@@ -5,6 +5,8 @@ consistent."""
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -187,3 +189,18 @@ def test_difference_d2_uses_the_cross_covariance_and_the_posterior_weighs_the_ru
 def test_revisit_probability_must_be_a_probability():
     with pytest.raises(InputError, match="revisit_probability"):
         MsckfConfig.from_settings({"tracking.revisit_probability": 1.0})
+
+
+def test_a_checkpoint_mid_revisit_continues_to_the_same_merge():
+    rng = np.random.default_rng(1)
+    tracker, state = _beside(rng)
+    look = _look(_chord_angle(0.05))
+    _run(tracker, state, rng, look, frames=range(60, 62))  # a tentative track holds boxes
+    resumed = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)
+    resumed.load_state(tracker.state_dict())
+    assert resumed._boxes.keys() == tracker._boxes.keys() and resumed._boxes
+    copy_state = copy.deepcopy(state)
+    ids = _run(tracker, state, np.random.default_rng(5), look, frames=range(62, 70))
+    again = _run(resumed, copy_state, np.random.default_rng(5), look, frames=range(62, 70))
+    assert again == ids and resumed.merged == tracker.merged
+    assert list(tracker.merged.values()) == [7]
