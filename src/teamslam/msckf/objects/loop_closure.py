@@ -4,8 +4,11 @@
 between its *recent* objects and its *old* ones (unseen for longer than the window, and those
 of the persistent map), with its views so that a mirror image is refused and a turn beyond the
 drift (:func:`turn_within_drift`) too; it never guesses (too few pairs or a rival set gives
-nothing). :func:`merge_objects` closes the loop: one EKF update with ``x_n − x_o = 0`` for every
-accepted pair, then ``x_n`` leaves the state. Derivation: the concept page *Tracking*
+nothing). A single new object is re-identified by its own boxes instead: :func:`difference_d2`
+gates ``x_n − x_o`` with its covariance from the joint state, :func:`revisit_posterior` weighs the
+gated candidates' evidence against a new object and against each other.
+:func:`merge_objects` closes the loop: one EKF update with ``x_n − x_o = 0`` for every accepted
+pair, then ``x_n`` leaves the state. Derivation: the concept page *Tracking*
 (``docs/concepts/tracking.md``).
 """
 
@@ -18,7 +21,13 @@ from scipy.spatial.transform import Rotation
 
 from teamslam.association import AssociationResult, AssociationSettings, ObjectSummary, associate
 
-__all__ = ["LoopClosure", "find_loop", "merge_objects"]
+__all__ = [
+    "LoopClosure",
+    "difference_d2",
+    "find_loop",
+    "merge_objects",
+    "revisit_posterior",
+]
 
 #: Noise of the merge constraint, relative to each pair's own prior variance of ``x_n − x_o``.
 MERGE_RELATIVE_NOISE = 1e-9
@@ -360,3 +369,77 @@ def merge_objects(state, pairs: np.ndarray, frame: int) -> np.ndarray:
     state.retire_objects(slots_n)
     state.retired.take(new)
     return delta
+
+
+def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
+    """``d² = rᵀ D⁻¹ r`` of ``r = x_n − x_o`` for object ``new`` against each of ``old``.
+
+    ``D = P_nn + P_oo − P_no − P_on`` from the joint state: an old object of the state shares
+    the robot's pose uncertainty with the new one through the cross-covariance; one of the
+    persistent map keeps only its own covariance (no cross term).
+
+    Parameters
+    ----------
+    state
+        A :class:`~teamslam.msckf.filter.state.MsckfState` holding ``new``.
+    new
+        The new object's id.
+    old
+        ``(k,)`` ids, each in the state or the persistent map.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k,)`` squared Mahalanobis distances (χ²(3) when ``x_n`` and ``x_o`` are one object).
+    """
+    old = np.asarray(old, np.int64).reshape(-1)
+    out = np.empty(old.size)
+    slot_n = state.object_slots(np.array([new]))
+    cols_n = state.object_columns(slot_n)[0]
+    slots = state.object_slots(old)
+    inside = slots >= 0
+    if inside.any():
+        cols_o = state.object_columns(slots[inside])
+        cols = np.concatenate([np.broadcast_to(cols_n, cols_o.shape), cols_o], axis=1)
+        cov = state.covariance(cols)  # (k, 6, 6)
+        diff = cov[:, :3, :3] + cov[:, 3:, 3:] - cov[:, :3, 3:] - cov[:, 3:, :3]
+        r = state.objects[slot_n] - state.objects[slots[inside]]
+        out[inside] = np.einsum("ki,ki->k", r, np.linalg.solve(diff, r[..., None])[..., 0])
+    if (~inside).any():
+        retired = state.retired.arrays()
+        where = _positions(retired["ids"], old[~inside])
+        own = state.covariance(cols_n)
+        r = state.objects[slot_n] - retired["means"][where]
+        diff = own[None] + retired["covs"][where]
+        out[~inside] = np.einsum("ki,ki->k", r, np.linalg.solve(diff, r[..., None])[..., 0])
+    return out
+
+
+def revisit_posterior(log_ratio: np.ndarray, prior: float) -> np.ndarray:
+    """Posterior probability that a new object is each candidate old object seen again.
+
+    Hypotheses: a new object (prior ``1 − π``) or one of the ``k`` candidates (``π / k``
+    each); each candidate's evidence weighs in by its log likelihood ratio of *same object*
+    against *another* (the new-object hypothesis its reference, ratio 1). So a candidate wins
+    only against both a new object and its runner-up.
+
+    Parameters
+    ----------
+    log_ratio
+        ``(k,)`` log likelihood ratio of each candidate's evidence.
+    prior
+        ``π``, the probability that a new object is a revisit (learned in the run).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k,)`` posterior probabilities (the rest is the new object's).
+    """
+    log_ratio = np.asarray(log_ratio, float).reshape(-1)
+    if not log_ratio.size:
+        return np.zeros(0)
+    a = np.log(prior / log_ratio.size) + log_ratio
+    b = np.log1p(-prior)
+    top = max(float(a.max()), b)
+    weights = np.exp(a - top)
+    return weights / (np.exp(b - top) + weights.sum())

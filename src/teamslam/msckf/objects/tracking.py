@@ -6,8 +6,9 @@ innovation covariance at the ``tracking.gate_probability`` quantile of χ²(4), 
 by global nearest neighbour with miss and birth costs, and names the detections: an object's id,
 or a tentative track confirmed after ``M`` detections within ``N`` frames. A false detection no
 other confirms never reaches the filter. With ``tracking.loop_closure`` revisits are merged first
-(:mod:`teamslam.msckf.objects.loop_closure`). The rules and why: the concept page *Tracking*
-(``docs/concepts/tracking.md``).
+(:mod:`teamslam.msckf.objects.loop_closure`); with boxes and appearance, a new object whose boxes
+show it to be a long-unseen one is merged into it (:meth:`ObjectTracker.reidentify`). The rules
+and why: the concept page *Tracking* (``docs/concepts/tracking.md``).
 """
 
 from __future__ import annotations
@@ -30,7 +31,12 @@ from teamslam.msckf.objects.appearance import (
     cosine_distances,
     unit_rows,
 )
-from teamslam.msckf.objects.loop_closure import LoopClosure
+from teamslam.msckf.objects.loop_closure import (
+    LoopClosure,
+    difference_d2,
+    merge_objects,
+    revisit_posterior,
+)
 from teamslam.msckf.settings.values import MsckfConfig
 
 __all__ = ["LabelModel", "ObjectTracker", "TrackerFrame", "track_id_base"]
@@ -169,6 +175,12 @@ class ObjectTracker:
         self._descriptors: np.ndarray | None = None  # this frame's, unit rows
         self._noise: np.ndarray | None = None  # this frame's detections' variances (box rows)
         self._row_width = 4
+        # re-identification by several boxes (boxes with appearance): the unit descriptors of
+        # every track's boxes and of objects confirmed within the last ``filter.window``
+        # frames, and the frame each of those was confirmed
+        self._boxes: dict[int, list[np.ndarray]] = {}
+        self._confirmed_at: dict[int, int] = {}
+        self.revisit_gate = chi2_quantile(config.tracking.gate_probability, 3)
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -213,6 +225,8 @@ class ObjectTracker:
             self.loop.travel(t, state.current_pose[:3, 3])
             if self._created_ids and hasattr(state, "retire_objects"):
                 merged = self._close_loops(t, state)
+        if self._descriptors is not None and is_box(z) and hasattr(state, "retire_objects"):
+            merged = np.concatenate([merged, self.reidentify(t, state)])
         every = np.full(z.shape[0], -1, np.int64)
         finite = np.all(np.isfinite(z), axis=1)
         index = np.flatnonzero(finite)
@@ -383,6 +397,14 @@ class ObjectTracker:
             out["appearance_counts"] = np.stack([self.appearance.same, self.appearance.different])
             ids, sums = self.memory.arrays()
             out["memory_ids"], out["memory_sums"] = ids, sums
+            boxes = [(i, d) for i, rows in self._boxes.items() for d in rows]
+            out["boxes_ids"] = np.array([i for i, _ in boxes], np.int64)
+            out["boxes_descriptors"] = np.array([d for _, d in boxes], float).reshape(
+                len(boxes), self.memory.dimension
+            )
+            out["confirmed_at"] = np.array(list(self._confirmed_at.items()), np.int64).reshape(
+                -1, 2
+            )
         return out
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
@@ -421,6 +443,10 @@ class ObjectTracker:
             self.appearance = AppearanceModel(self.config.tracking.gate_probability)
             self.appearance.add_counts(same, different)
             self.memory = AppearanceMemory.from_arrays(state["memory_ids"], state["memory_sums"])
+            self._boxes = {}
+            for i, d in zip(state["boxes_ids"].tolist(), state["boxes_descriptors"], strict=True):
+                self._boxes.setdefault(i, []).append(d.copy())
+            self._confirmed_at = dict(state["confirmed_at"].tolist())
 
     def _name_monocular(self, t, z, labels, taken, targets) -> np.ndarray:
         """Ids of the boxes seen in the left image only (``z`` ``(M, ·)``, right columns NaN):
@@ -516,6 +542,84 @@ class ObjectTracker:
         self.counters["loop_closures"] = len(self.loop.closures)
         return pairs
 
+    def reidentify(self, t: int, state) -> np.ndarray:
+        """Merge each object confirmed within the last ``filter.window`` frames into the
+        long-unseen object its boxes show it to be; the pairs ``(new id, old id)`` merged.
+
+        Candidates: the objects of the state last seen before the new object's first box and
+        those of the persistent map, of its class where both have one. Each is gated by the
+        squared Mahalanobis distance of ``x_n − x_o`` under its covariance from the joint state
+        (:func:`~teamslam.msckf.objects.loop_closure.difference_d2`, the
+        ``tracking.gate_probability`` quantile of χ²(3)); the gated ones are weighed by the
+        log likelihood ratios of the appearance and the class of every box of the new object,
+        summed, against a new object whose prior is the share of confirmed tracks found to be
+        revisits so far (Beta(1, 1)), and against each other
+        (:func:`~teamslam.msckf.objects.loop_closure.revisit_posterior`). The best is merged
+        (:func:`~teamslam.msckf.objects.loop_closure.merge_objects`) when its posterior reaches
+        ``tracking.revisit_probability``; from then on its boxes carry the old id, and
+        :meth:`hypotheses` names the earlier ones so too.
+        """
+        none = np.zeros((0, 2), np.int64)
+        gap = self.config.filter.window
+        self._confirmed_at = {i: f for i, f in self._confirmed_at.items() if t - f <= gap}
+        keep = set(self.ids.tolist()) | set(self._confirmed_at)
+        for i in [i for i in self._boxes if i not in keep]:
+            del self._boxes[i]
+        if not self.appearance.informative or not self._confirmed_at:
+            return none
+        young = np.array(sorted(self._confirmed_at), np.int64)
+        young = young[state.object_slots(young) >= 0]
+        if not young.size:
+            return none
+        created = dict(zip(self._created_ids, self._created_frames, strict=True))
+        retired = state.retired.arrays()["ids"] if len(state.retired) else np.zeros(0, np.int64)
+        confirmed = self.counters["tracks_confirmed"]
+        prior = (self.counters.get("tracks_reidentified", 0) + 1.0) / (confirmed + 2.0)
+        pairs: list[tuple[int, int]] = []
+        for n in young.tolist():
+            old = state.object_ids[state.object_last_seen < created[n]]
+            old = np.concatenate([old, retired])
+            old = old[~np.isin(old, young) & ~np.isin(old, [o for _, o in pairs])]
+            label = int(self.labels_of(np.array([n]))[0])
+            if label >= 0 and old.size:
+                labels = self.labels_of(old)
+                old = old[(labels < 0) | (labels == label)]
+            if not old.size:
+                continue
+            old = old[difference_d2(state, n, old) <= self.revisit_gate]
+            if not old.size:
+                continue
+            boxes = unit_rows(np.array(self._boxes[n]))
+            looks = self.appearance.log_ratio(cosine_distances(self.memory.summaries(old), boxes))
+            ratio = np.nansum(looks, axis=1)
+            votes = self._votes.get(n, {})
+            if votes:
+                seen = np.array(sorted(votes), np.int64)
+                counts = np.array([votes[c] for c in seen.tolist()], float)
+                ratio = ratio + self.label_model.log_ratio(self.labels_of(old), seen) @ counts
+            posterior = revisit_posterior(ratio, prior)
+            best = int(np.argmax(posterior))
+            if posterior[best] >= self.config.tracking.revisit_probability:
+                pairs.append((n, int(old[best])))
+        if not pairs:
+            return none
+        merged = np.array(pairs, np.int64)
+        merge_objects(state, merged, t)
+        for n, o in pairs:
+            self.merged[n] = o
+            self.memory.merge(n, o)
+            for label, count in self._votes.pop(n, {}).items():
+                votes = self._votes.setdefault(o, {})
+                votes[label] = votes.get(label, 0) + count
+            self._boxes.pop(n, None)
+            self._confirmed_at.pop(n, None)
+            self._count("tracks_reidentified")
+            self._count("objects_merged_by_boxes")
+        return merged
+
+    def _count(self, name: str) -> None:
+        self.counters[name] = self.counters.get(name, 0) + 1
+
     def _looks(self, target_ids: np.ndarray, descriptors: np.ndarray):
         """``(distance, log ratio)``, each ``(T, D)``, between the targets' appearance summaries
         and the detections' descriptors (ratio 0 for a target without a summary)."""
@@ -540,6 +644,9 @@ class ObjectTracker:
                 self.appearance.add(same, block[off])
         for j, target in zip(index[hit].tolist(), targets.tolist(), strict=True):
             self.memory.add(int(target_ids[target]), self._descriptors[j])
+            boxes = self._boxes.get(int(target_ids[target]))
+            if boxes is not None:
+                boxes.append(self._descriptors[j])
 
     def _learn_labels(self, hit, assigned_target, kinds, target_ids, target_labels, labels):
         """Box rows with labels: count each assigned detection's label against its confirmed
@@ -737,6 +844,7 @@ class ObjectTracker:
             taken.add(oid)
             if self.memory is not None:
                 self.memory.merge(int(self.ids[row]), oid)
+                self._count("tracks_reidentified")
             frame.ids[det] = oid
             self.revisits.append((t, int(index[det]), oid))
             self.counters["revisits_taken"] += 1
@@ -757,6 +865,8 @@ class ObjectTracker:
                 self.counters["tracks_confirmed"] += 1
                 self._created_ids.append(tid)
                 self._created_frames.append(int(frames[0]) if frames.size else t)
+                if tid in self._boxes:
+                    self._confirmed_at[tid] = t
                 self._add_labels(np.array([tid]), self.classes[row : row + 1])
             if self.confirmed[row]:
                 frame.ids[det] = tid
@@ -823,6 +933,7 @@ class ObjectTracker:
             self.history[tid] = [(t, row.copy(), j)]
             if self._descriptors is not None:
                 self.memory.add(tid, self._descriptors[j])
+                self._boxes[tid] = [self._descriptors[j]]
         self.counters["tracks_started"] += k
         if self.hits_needed <= 1:  # confirmed by its first detection
             self.confirmed[-k:] = True

@@ -336,6 +336,14 @@ class TrackingSettings:
         ratio learned in the run, a pair whose ratio falls below
         ``(1 − gate_probability) / gate_probability`` is refused (a long-unseen object's
         too). Without descriptors nothing changes.
+    revisit_probability
+        Re-identification of a long-unseen object by the boxes of a new one
+        (:meth:`~teamslam.msckf.objects.tracking.ObjectTracker.reidentify`): a new object of the
+        tracker is merged into an object last seen before its first box when the posterior
+        probability that it is that object (its position difference inside the
+        ``gate_probability`` gate of χ²(3), appearance and class of all its boxes, against a new
+        object and every other candidate) reaches this. Boxes with sizes and appearance only
+        (otherwise nothing changes).
     """
 
     gate_probability: float = field(default=0.99, metadata=_unit(""))
@@ -344,10 +352,11 @@ class TrackingSettings:
     confirm_frames: int = field(default=0, metadata=_unit("frames"))
     loop_closure: bool = field(default=False, metadata=_unit(""))
     appearance: bool = field(default=True, metadata=_unit(""))
+    revisit_probability: float = field(default=0.99, metadata=_unit(""))
 
     def __post_init__(self) -> None:
         _check_flags(self, "tracking", ("loop_closure", "appearance"))
-        for name in ("gate_probability", "birth_probability"):
+        for name in ("gate_probability", "birth_probability", "revisit_probability"):
             if not _probability(getattr(self, name)):
                 raise InputError(f"tracking.{name} must lie in (0, 1)")
         for name in ("confirm_hits", "confirm_frames"):

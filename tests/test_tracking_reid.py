@@ -1,0 +1,206 @@
+"""Re-identification of a long-unseen object from several boxes of a new one: where one box is
+ambiguous, the boxes together name the object that looks alike and fits; a look-alike at a
+wrong place, or two equally likely candidates, give no merge; a merge keeps the estimate
+consistent."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from teamslam.errors import InputError
+from teamslam.gaussian import chi2_band
+from teamslam.msckf.filter.box_noise import box_rows, box_variances
+from teamslam.msckf.filter.models import observe
+from teamslam.msckf.filter.state import MsckfState
+from teamslam.msckf.objects.appearance import AppearanceMemory, AppearanceModel
+from teamslam.msckf.objects.loop_closure import difference_d2, revisit_posterior
+from teamslam.msckf.objects.tracking import ObjectTracker
+from teamslam.msckf.settings.values import MsckfConfig
+from teamslam.sim.lissajous import T_CAM_BODY, SimulationConfig
+
+CAMERA = SimulationConfig().camera()
+STD, SHARE = 0.5, 0.03
+CONFIG = MsckfConfig.from_settings(
+    {"filter.object_std": STD, "filter.object_size_share": SHARE, "filter.window": 10}
+)
+W = CONFIG.filter.odometry_cov()
+SIZE = (20.0, 30.0)
+DIM = 8
+TRUE = np.array([10.0, 1.0, 0.0])  # the revisited object, in front of the camera
+OLD_STD = 0.3  # the old objects' uncertainty after the robot drove away [m]
+
+
+def _look(angle: float) -> np.ndarray:
+    """A unit descriptor at ``angle`` from the first axis (in the plane of the first two)."""
+    out = np.zeros(DIM)
+    out[0], out[1] = np.cos(angle), np.sin(angle)
+    return out
+
+
+def _chord_angle(chord: float) -> float:
+    """The angle between two unit vectors ``chord`` apart."""
+    return 2.0 * np.arcsin(chord / 2.0)
+
+
+def _tracker(old: dict[int, np.ndarray]) -> ObjectTracker:
+    """A tracker that already learned what alike means: *same* at chords below 0.4, *different*
+    at chords of 0.2 to 2 (so at a chord of 0.5 a box is unlike, yet not vetoed), with the old
+    objects' summaries and their class 2."""
+    tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)
+    tracker.appearance = AppearanceModel(CONFIG.tracking.gate_probability)
+    same = np.linspace(0.0, 0.4, 400) ** 2 / 2.0  # d = chord² / 2
+    different = np.linspace(0.2, 2.0, 1800) ** 2 / 2.0
+    tracker.appearance.add(same, different)
+    assert tracker.appearance.informative
+    tracker.memory = AppearanceMemory(DIM)
+    for oid, look in old.items():
+        tracker.memory.add(oid, look)
+    ids = np.array(sorted(old), np.int64)
+    tracker._add_labels(ids, np.full(ids.size, 2))
+    return tracker
+
+
+def _state(old: dict[int, np.ndarray], rng) -> MsckfState:
+    """One pose (the truth), the old objects last seen at frame 0, each estimate drawn from its
+    covariance ``OLD_STD² I`` about the given position (a consistent filter's)."""
+    state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-8)
+    for oid, p in old.items():
+        estimate = p + rng.normal(scale=OLD_STD, size=3)
+        state.add_object(oid, estimate, np.eye(3) * OLD_STD**2, np.zeros((3, state.dim)))
+    return state
+
+
+def _run(tracker, state, rng, look, frames=range(60, 75)):
+    """The robot back at the old objects: each frame one box of the true object (noise of the
+    box model), its descriptor ``look`` and class 2; a track confirmed enters the state with
+    the tracker's point (as the filter's initialisation would), objects named are marked seen.
+    Returns the ids given, frame by frame."""
+    ids = []
+    for t in frames:
+        z = observe(CAMERA, T_CAM_BODY, state.current_pose, TRUE[None])
+        row = box_rows(z, np.array([SIZE]), None, STD, SHARE)
+        row[:, :4] += rng.normal(size=4) * np.sqrt(box_variances(row, STD, SHARE))
+        frame = tracker.assign(t, row, np.array([2]), state, W, look[None])
+        for tid, _, _ in frame.confirmed:
+            k = int(np.flatnonzero(tracker.ids == tid)[0])
+            cov = tracker.covs[k]
+            state.add_object(tid, tracker.points[k], cov, np.zeros((3, state.dim)))
+        named = frame.ids[frame.ids >= 0]
+        slots = state.object_slots(named)
+        state.mark_seen(slots[slots >= 0], t)
+        ids.append(int(frame.ids[0]))
+    return ids
+
+
+def _beside(rng):
+    """Object 8 beside the revisited 7 (both in one box's gate), same class, looking unlike it."""
+    old = {7: TRUE, 8: TRUE + np.array([0.0, 0.4, 0.0])}
+    looks = {7: _look(0.0), 8: _look(_chord_angle(0.5))}
+    return _tracker(looks), _state(old, rng)
+
+
+def test_one_box_is_ambiguous_and_the_boxes_together_name_the_object_that_looks_alike():
+    rng = np.random.default_rng(1)
+    tracker, state = _beside(rng)
+    box_look = _look(_chord_angle(0.05))
+    # one box against the old objects: both gated, neither vetoed by its look
+    z = observe(CAMERA, T_CAM_BODY, state.current_pose, TRUE[None])
+    ratio = tracker._looks(np.array([7, 8]), box_look[None])[1][:, 0]
+    assert ratio[0] > 0 > ratio[1] > np.log1p(-0.99) - np.log(0.99)
+    assert np.all(np.isfinite(z))
+    ids = _run(tracker, state, rng, box_look)
+    # the first box was refused (two objects not seen for long in its gate), a track was
+    # confirmed, then merged into 7: from then on the boxes are 7's
+    assert ids[0] == -1 and tracker.counters["revisits_refused"] >= 1
+    assert tracker.counters["objects_merged_by_boxes"] == 1
+    ((new, old_id),) = tracker.merged.items()
+    assert old_id == 7 and new not in state.object_ids
+    merged_at = ids.index(7)
+    assert merged_at <= 5 and all(i == 7 for i in ids[merged_at:])
+    # every box of the track, the ones before the merge too, is 7's in the record
+    assert set(tracker.hypotheses().tolist()) == {7}
+
+
+def test_two_look_alikes_that_both_fit_give_no_merge():
+    rng = np.random.default_rng(2)
+    old = {7: TRUE, 9: TRUE + np.array([0.0, 0.2, 0.0])}
+    tracker, state = _tracker({7: _look(0.0), 9: _look(0.0)}), _state(old, rng)
+    ids = _run(tracker, state, rng, _look(_chord_angle(0.05)))
+    assert not tracker.merged and 7 not in ids and 9 not in ids
+
+
+def test_a_look_alike_at_a_wrong_place_is_not_merged():
+    rng = np.random.default_rng(3)
+    old = {9: TRUE + np.array([0.0, 3.0, 0.0])}  # alike, same class, ten σ away
+    tracker, state = _tracker({9: _look(0.0)}), _state(old, rng)
+    ids = _run(tracker, state, rng, _look(_chord_angle(0.05)))
+    assert not tracker.merged and 9 not in ids
+    assert ids[-1] >= 0 and ids[-1] in state.object_ids  # a new object, kept
+
+
+def test_a_merge_keeps_the_merged_object_consistent():
+    """NEES of the merged object against the truth, over the seeds whose boxes were merged (most:
+    in the others one box was alone in 7's gate, or in 8's and refused by its look), in the
+    χ²(3) band."""
+    nees = []
+    for seed in range(40):
+        rng = np.random.default_rng(100 + seed)
+        tracker, state = _beside(rng)
+        _run(tracker, state, rng, _look(_chord_angle(0.05)), frames=range(60, 66))
+        if not tracker.merged:
+            continue
+        assert list(tracker.merged.values()) == [7]
+        slot = state.object_slots(np.array([7]))
+        e = state.objects[slot[0]] - TRUE
+        cov = state.covariance(state.object_columns(slot))[0]
+        nees.append(e @ np.linalg.solve(cov, e) / 3.0)
+    assert len(nees) >= 20
+    lo, hi = chi2_band(3, len(nees), 0.99)
+    assert lo <= np.mean(nees) <= hi
+
+
+def test_difference_d2_uses_the_cross_covariance_and_the_posterior_weighs_the_runner_up():
+    # two objects sharing most of their uncertainty (through the pose): their difference is
+    # known far better than either
+    cov = np.eye(12) * 1e-6
+    shared = np.zeros((12, 6))
+    shared[6:9, :3] = shared[9:12, :3] = np.eye(3)
+    cov += shared @ shared.T
+    cov[6:, 6:] += np.eye(6) * 0.01
+    state = MsckfState.from_arrays(
+        np.eye(4)[None],
+        np.array([0]),
+        np.array([1, 2]),
+        np.array([[5.0, 0.0, 0.0], [5.0, 0.3, 0.0]]),
+        cov,
+    )
+    d2 = difference_d2(state, 1, np.array([2]))
+    np.testing.assert_allclose(d2, 0.3**2 / (0.02 + 2e-6))
+    # two equal candidates share the revisit; one decisive candidate takes it
+    p = revisit_posterior(np.array([5.0, 5.0]), 0.5)
+    assert p[0] == p[1] < 0.5
+    p = revisit_posterior(np.array([12.0, -3.0]), 0.5)
+    assert p[0] > 0.99 > p[1]
+
+
+def test_revisit_probability_must_be_a_probability():
+    with pytest.raises(InputError, match="revisit_probability"):
+        MsckfConfig.from_settings({"tracking.revisit_probability": 1.0})
+
+
+def test_a_checkpoint_mid_revisit_continues_to_the_same_merge():
+    rng = np.random.default_rng(1)
+    tracker, state = _beside(rng)
+    look = _look(_chord_angle(0.05))
+    _run(tracker, state, rng, look, frames=range(60, 62))  # a tentative track holds boxes
+    resumed = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)
+    resumed.load_state(tracker.state_dict())
+    assert resumed._boxes.keys() == tracker._boxes.keys() and resumed._boxes
+    copy_state = copy.deepcopy(state)
+    ids = _run(tracker, state, np.random.default_rng(5), look, frames=range(62, 70))
+    again = _run(resumed, copy_state, np.random.default_rng(5), look, frames=range(62, 70))
+    assert again == ids and resumed.merged == tracker.merged
+    assert list(tracker.merged.values()) == [7]
