@@ -13,7 +13,7 @@ from teamslam.gaussian import completed_geometric_average
 from teamslam.geometry import se3
 from teamslam.msckf import config_for, run_team
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.consensus.average import SharedPrior, consensus_average, shared_prior
+from teamslam.msckf.consensus.average import consensus_average
 from teamslam.msckf.consensus.checks import receive_marginal
 from teamslam.msckf.consensus.directions import (
     at_first_estimates,
@@ -160,49 +160,6 @@ def test_averaging_again_marginals_that_did_not_change_adds_no_information():
             assert gain.max() > 1.5
 
 
-def test_hybrid_new_information_enters_the_shape_average_off_the_rigid_motions():
-    """The hybrid rule adds our own new information ``Δ`` once more. In a first-estimates
-    filter's shape average it enters projected off our rigid motions, ``Πᵀ Δ Π``: the average
-    still keeps ``Ω U`` and the mean along ``U``; new information that a measurement at the first
-    estimates gives (``Δ U = 0``) enters whole; information along ``U`` (what the disagreement of
-    first estimates or a relinearisation would add) does not enter at all; none is the plain
-    shape average, bit for bit."""
-    rng = np.random.default_rng(8)
-    k = 6
-    first = rng.normal(size=(k, 3)) * 15 + [120.0, 30.0, -2.0]
-    own_info = _spd(rng, 3 * k)
-    own_mean = first.ravel() + rng.normal(size=3 * k)
-    u = rigid_directions(first, first.mean(axis=0))
-    sub = np.arange(3 * k)
-    m_info = _spd(rng, 3 * k)
-    terms = [(0.4, sub, m_info, m_info @ (own_mean + rng.normal(size=3 * k)), own_info)]
-    plain_mean, plain_cov = shape_average(own_mean, own_info, terms, first)
-    # a measurement at the first estimates: rows that annihilate U
-    rows = rng.normal(size=(10, 3 * k))
-    h = rows - rows @ u @ np.linalg.pinv(u)
-    measured = h.T @ h
-    residual = rng.normal(size=10)
-    vector = h.T @ residual + measured @ own_mean
-    mean, cov = shape_average(own_mean, own_info, terms, first, (measured, vector))
-    info = np.linalg.inv(cov)
-    scale = np.abs(own_info @ u).max()
-    np.testing.assert_allclose(info @ u, own_info @ u, rtol=1e-7, atol=1e-7 * scale)
-    np.testing.assert_allclose(u.T @ own_info @ (mean - own_mean), 0.0, atol=1e-6 * scale)
-    gained = info - np.linalg.inv(plain_cov)
-    np.testing.assert_allclose(gained, measured, atol=1e-7 * np.abs(measured).max())
-    # information about our coordinates along U only (b = G y, information Ω U A Uᵀ Ω): nothing
-    # changes
-    along = own_info @ u @ _spd(rng, 6) @ u.T @ own_info
-    mean_u, cov_u = shape_average(own_mean, own_info, terms, first, (along, along @ own_mean))
-    np.testing.assert_allclose(cov_u, plain_cov, atol=1e-9 * np.abs(plain_cov).max())
-    np.testing.assert_allclose(mean_u, plain_mean, atol=1e-8)
-    # no new information: the plain shape average
-    zero = shape_average(
-        own_mean, own_info, terms, first, (np.zeros_like(own_info), np.zeros(3 * k))
-    )
-    assert np.array_equal(zero[0], plain_mean) and np.array_equal(zero[1], plain_cov)
-
-
 @pytest.fixture(scope="module")
 def two_robots():
     """Two `fej` robots side by side on the long route, each alone so far: each first
@@ -265,39 +222,6 @@ def test_an_average_gives_no_information_along_our_rigid_motions(two_robots):
     np.testing.assert_allclose(ratio, 1.0, rtol=1e-6)
     less = scipy.linalg.eigh(c @ shape[True] @ c.T, c @ shape[False] @ c.T, eigvals_only=True)
     assert less.max() < 1 + 1e-6
-
-
-def test_the_hybrid_average_gives_no_information_along_our_rigid_motions(two_robots):
-    """Hybrid consensus (``consensus.rule=hybrid``) adds robot 0's own new information since its
-    prior once more; with the constraint that too leaves its whole state's information along its
-    rigid motions at its first estimates as it was, while its map gains shape information beyond
-    the plain average's."""
-    ours, theirs = (agent.state for agent in two_robots)
-    common = np.intersect1d(ours.object_ids, theirs.object_ids)
-    message = common_marginal_message(theirs, 1, 0, 0, common, information=True)
-    order = np.argsort(ours.object_ids)
-    # a prior that knew every object half as well as now: half of what it knows is new
-    prior = shared_prior(ours)
-    prior = SharedPrior(prior.ids, prior.mean, 2.0 * prior.cov)
-    assert np.array_equal(prior.ids, ours.object_ids[order])
-    before = _rigid_information(ours)
-    scale = np.sqrt(np.outer(np.diag(before), np.diag(before)))
-    shapes = {}
-    slots = ours.object_slots(common)
-    u = rigid_directions(ours.object_fe[slots], np.zeros(3))
-    c = np.linalg.svd(u.T)[2][6:]
-    for hybrid in (False, True):
-        state = copy.deepcopy(ours)
-        consensus_average(
-            state, 0.5, [(0.5, message)], prior=prior if hybrid else None, rigid_directions=True
-        )
-        gained = (_rigid_information(state) - before) / scale
-        assert np.abs(gained).max() < 1e-6
-        cols = state.object(state.object_slots(common)).columns.ravel()
-        info = np.linalg.inv(state.cov[np.ix_(cols, cols)])
-        shapes[hybrid] = c @ _shape_information(info, u) @ c.T
-    more = scipy.linalg.eigh(shapes[True], shapes[False], eigvals_only=True)
-    assert more.min() > 1 - 1e-6 and more.max() > 1.1
 
 
 def test_repeated_averages_with_an_unchanged_neighbour_end_with_its_knowledge_of_the_shape(

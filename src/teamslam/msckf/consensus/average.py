@@ -219,9 +219,8 @@ def consensus_average(
         Keep our information along the rigid motions of the world at our first estimates of
         the averaged objects as it was (a first-estimates filter, ``consensus.rigid_directions``):
         the plain average averages the robots' marginals of the map's shape
-        (:func:`~teamslam.msckf.consensus.directions.shape_average`) — with the hybrid rule our
-        own new information added projected off those motions — and the increments rule and
-        per-object marginals constrain their finished average
+        (:func:`~teamslam.msckf.consensus.directions.shape_average`), the hybrid and increments
+        rules and per-object marginals constrain their finished average
         (:func:`~teamslam.msckf.consensus.directions.constrained_average`).
 
     Returns
@@ -287,6 +286,15 @@ def consensus_average(
                 averaged = constrained_average(own_mean, own_info, *averaged, first)
             state.replace_marginal(cols, *averaged, info=own_info)
             return int(y_ids.size)
+        if first is not None and prior is None:
+            # the plain average of a first-estimates filter: eq. 19 on the map's shape
+            terms = [
+                (w, sub, info, vector, _own_sub_information(own_info, own_cov, sub, known))
+                for w, sub, info, vector, known in terms
+            ]
+            mean, cov = shape_average(own_mean, own_info, terms, first)
+            state.replace_marginal(cols, mean, cov, info=own_info)
+            return int(y_ids.size)
         extra = None
         if prior is not None:
             # our own new information Δ, added with the weight of the messages that hold all
@@ -296,23 +304,6 @@ def consensus_average(
                 extra = new_information(
                     own_info, own_info @ own_mean, *prior_information(prior, y_ids), full
                 )
-        if first is not None:
-            # a first-estimates filter (plain and hybrid rules): eq. 19 on the map's shape, our
-            # own new information projected off our rigid motions
-            terms = [
-                (w, sub, info, vector, _own_sub_information(own_info, own_cov, sub, known))
-                for w, sub, info, vector, known in terms
-            ]
-            try:
-                mean, cov = shape_average(own_mean, own_info, terms, first, extra)
-            except NotPositiveDefiniteError:
-                if extra is None:
-                    raise
-                if counters is not None:
-                    counters["hybrid_fallbacks"] += 1
-                mean, cov = shape_average(own_mean, own_info, terms, first)
-            state.replace_marginal(cols, mean, cov, info=own_info)
-            return int(y_ids.size)
         try:
             mean, cov = completed_geometric_average(
                 own_mean, own_cov, terms, info=own_info, extra=extra
@@ -323,6 +314,8 @@ def consensus_average(
             if counters is not None:
                 counters["hybrid_fallbacks"] += 1
             mean, cov = completed_geometric_average(own_mean, own_cov, terms, info=own_info)
+        if first is not None:
+            mean, cov = constrained_average(own_mean, own_info, mean, cov, first)
         state.replace_marginal(cols, mean, cov, info=own_info)
     return int(y_ids.size)
 

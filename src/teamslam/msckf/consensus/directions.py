@@ -3,15 +3,14 @@ and marginals moved to the receiver's first estimates.
 
 A first-estimates filter (``fej``, ``oc``) keeps the six rigid motions of the world unobservable
 at the points its Jacobians were evaluated at — for an object, the first estimate this robot
-took of it. :func:`shape_average` (the plain and hybrid averages, eq. 19) averages the robots'
-marginals of the map's *shape* (the hybrid rule adds its own new information projected off the
-rigid motions) — each completed marginal with its part along our rigid motions marginalised
+took of it. :func:`shape_average` (the plain average, eq. 19) averages the robots' marginals of
+the map's *shape* — each completed marginal with its part along our rigid motions marginalised
 out — and keeps our own information along those motions, and our mean along them, exactly as
 they were; averaging again a marginal that did not change adds nothing. Contract: ``Ω' U = Ω U``
 for the directions ``U`` at the first estimates, ``Uᵀ Ω (μ' − μ) = 0``, and on the shape
 (``cᵀ U = 0``) the eq. 19 average of the robots' shape marginals.
-:func:`constrained_average` constrains a finished average instead (the increments rule,
-per-object marginals): the shape takes the average's marginal. Derivation: the concept
+:func:`constrained_average` constrains a finished average instead (the hybrid and increments
+rules, per-object marginals): the shape takes the average's marginal. Derivation: the concept
 page *Linearisation*, section *Consensus and first estimates*.
 :func:`reexpressed_information` moves a marginal's rigid-motion directions from one set of
 points to another, its information along them — and along every direction orthogonal to them
@@ -106,7 +105,6 @@ def shape_average(
     own_info: np.ndarray,
     terms: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
     first: np.ndarray,
-    extra: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 19 on the map's shape: the robots' marginals of the quantities our rigid motions
     leave unchanged are averaged, our own marginal along the rigid motions is kept.
@@ -125,20 +123,12 @@ def shape_average(
     shape terms are a convex combination, so a marginal that equals ours adds nothing, and
     averaging again marginals that did not change does not add information (the marginal of the
     joint average, :func:`constrained_average`, gains ``S(Σ w_j Ω_j) − Σ w_j S(Ω_j)`` each time).
-
-    ``extra`` ``(Δ, δ)``, the hybrid rule's own new information (information and vector, added
-    once more), enters projected off the rigid motions in our metric: with
-    ``Π = I − U (Uᵀ Ω U)⁻¹ Uᵀ Ω`` (``Π U = 0``) ``Ω'`` gains ``Πᵀ Δ Π`` and the shift
-    ``Πᵀ (δ − Δ μ)``, so ``Ω' U = Ω U`` and ``Uᵀ Ω (μ' − μ) = 0`` still hold; no new
-    information (``Δ = 0``, ``δ = 0``) is the plain shape average. Raises
-    :class:`~teamslam.gaussian.NotPositiveDefiniteError` when ``Ω'`` is not positive definite.
     Returns ``(μ', Ω'⁻¹)``.
     """
     u = _basis(own_info, np.asarray(first, dtype=float).reshape(-1, 3))
     own_u = own_info @ u
     own_gram = u.T @ own_u
-    own_gram = 0.5 * (own_gram + own_gram.T)
-    own_rigid = own_u @ np.linalg.solve(own_gram, own_u.T)
+    own_rigid = own_u @ np.linalg.solve(0.5 * (own_gram + own_gram.T), own_u.T)
     info = own_info.copy()
     shift = np.zeros(own_mean.size)
     for weight, index, m_info, m_eta, own_sub in terms:
@@ -156,12 +146,6 @@ def shape_average(
         info[np.ix_(sub, sub)] += weight * delta
         info += weight * (own_rigid - rigid_j)
         shift += weight * (d - w_u @ solve[:, -1])
-    if extra is not None:
-        d_info, d_eta = extra
-        # Π x = x − U (Uᵀ Ω U)⁻¹ Uᵀ Ω x
-        project = np.eye(own_mean.size) - u @ np.linalg.solve(own_gram, own_u.T)
-        info += project.T @ d_info @ project
-        shift += project.T @ (d_eta - d_info @ own_mean)
     info = 0.5 * (info + info.T)
     new_cov = spd_inverse(info, "constrained average")
     return own_mean + new_cov @ shift, new_cov

@@ -427,9 +427,8 @@ class ConsensusSettings:
         With a linearisation that keeps first estimates (``fej``, ``oc``): the consensus average
         leaves the robot's information along the rigid motions of the world, taken at its
         first estimates of the averaged objects, as it was, and averages the robots' marginals
-        of the map's shape (:mod:`teamslam.msckf.consensus.directions`; the hybrid rule adds its
-        own new information projected off the rigid motions, the increments rule and
-        ``per_object`` take their finished average's marginal of it).
+        of the map's shape (:mod:`teamslam.msckf.consensus.directions`; the hybrid and
+        increments rules and ``per_object`` take their finished average's marginal of it).
         On by default. It also throws away what the team knows of a robot's drift relative to
         its neighbours (a rigid motion of its map that the common objects show): off, ``fej``
         with consensus is more accurate on every team measured (KITTI 00: 5.9 m against
