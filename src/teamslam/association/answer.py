@@ -153,6 +153,7 @@ def associate(
     second: ObjectSummary,
     settings: AssociationSettings | None = None,
     held: np.ndarray | None = None,
+    history: FrameHistory | None = None,
 ) -> AssociationResult:
     """Correspondences between two robots' objects, from their summaries alone.
 
@@ -171,6 +172,10 @@ def associate(
     held
         ``(h, 2)`` pairs ``(first's id, second's id)`` the link already holds: samples of the
         *same* appearance (read only when both summaries carry appearance).
+    history
+        The link's decisions one by one in the shared frame over its run, pairs in the order of
+        the robots' ids (:class:`FrameHistory`, updated when single pairs are tried): an answer
+        of single pairs is then held to the link's run-long bound, as its extensions'.
 
     Returns
     -------
@@ -189,8 +194,8 @@ def associate(
         held = np.asarray(held, dtype=np.int64).reshape(-1, 2)
     if _canonical_key(second) < _canonical_key(first):
         swapped = None if held is None else held[:, ::-1]
-        return _associate(second.sorted(), first.sorted(), settings, swapped).swapped()
-    return _associate(first.sorted(), second.sorted(), settings, held)
+        return _associate(second.sorted(), first.sorted(), settings, swapped, history).swapped()
+    return _associate(first.sorted(), second.sorted(), settings, held, history)
 
 
 def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> AssociationResult:
@@ -202,6 +207,7 @@ def _associate(
     b: ObjectSummary,
     settings: AssociationSettings,
     held: np.ndarray | None = None,
+    history: FrameHistory | None = None,
 ) -> AssociationResult:
     model = None
     if a.appearance is not None and b.appearance is not None:
@@ -213,7 +219,7 @@ def _associate(
         return result
     # no consistent set answers: the maps' shared frame is a known transform, and a pair it
     # allows that looks alike beyond chance among every pair it allows is the same object
-    framed = _by_frame(a, b, settings, model if model.informative else rarity(model))
+    framed = _by_frame(a, b, settings, model if model.informative else rarity(model), history)
     return result if framed is None else framed
 
 
@@ -256,12 +262,16 @@ def _by_sets(
 
 
 def _by_frame(
-    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+    a: ObjectSummary,
+    b: ObjectSummary,
+    settings: AssociationSettings,
+    model,
+    history: FrameHistory | None = None,
 ) -> AssociationResult | None:
     """The pairs the maps' shared frame and appearance identify one by one
     (:func:`identified_by_frame`) as an answer with the identity as its transform, or ``None``
     when there are none."""
-    rows, cols, hypotheses = identified_by_frame(a, b, settings, model)
+    rows, cols, hypotheses = identified_by_frame(a, b, settings, model, history=history)
     if rows.size == 0:
         return None
     pairs = np.column_stack([a.ids[rows], b.ids[cols]])

@@ -14,7 +14,9 @@ At run time a robot runs the full association when the table says it is
 :meth:`~CorrespondenceTable.due` (nothing merged yet, a map grown by a quarter since the last
 one, or — while the link has no answer — ``min_inliers`` new objects in a map) and grows the
 table in between with :meth:`~CorrespondenceTable.extend` (one gate, one assignment; between maps
-in one world frame, also the single pairs the frame and appearance identify). Both ends
+in one world frame, also the single pairs the frame and appearance identify, the link's chance
+of a wrong one spent over its whole run). An extension decides only the pairs of objects new or
+changed since the link's last one. Both ends
 of a link merge the same results in the same order and compute every decision in the canonical
 order of the two robots, so their tables stay mirror images of each
 other (own ↔ neighbour ids swapped).
@@ -143,6 +145,12 @@ class CorrespondenceTable:
         Pairs the association proposed (new ones only), pairs added, pairs revoked.
     T_own_their
         Transform of the held pairs (from the last merge that had at least three), or ``None``.
+    history
+        The link's decisions one by one in the shared frame over its run
+        (:class:`~teamslam.association.answer.FrameHistory`; pairs in the order of the robots'
+        ids): its extensions and the full associations run for it
+        (:func:`~teamslam.association.associate`'s ``history``) spend the link's one chance
+        of a wrong answer over them.
     """
 
     def __init__(
@@ -181,7 +189,7 @@ class CorrespondenceTable:
         self._models: dict | None = None
         #: the link's identifications one by one in the shared frame over its run, in the
         #: canonical order (:func:`~teamslam.association.answer.identified_by_frame`)
-        self._history = FrameHistory()
+        self.history = FrameHistory()
         #: the summaries, held pairs and frame scale at the end of the link's last extension
         #: (``None`` after a merge): what the next one needs not decide again (:meth:`_fresh`)
         self._decided: tuple | None = None
@@ -336,6 +344,14 @@ class CorrespondenceTable:
         with the standard linearisation) no longer have their right pairs refused by the frame.
         Before the link holds an answer the scale is 1.
 
+        Only pairs with an object new since the link's last extension, or whose summary changed
+        since, are decided (each still judged against every object): between whole summaries a
+        link's maps only gain objects, and the other pairs were decided on the same evidence.
+        After a merge, an extension that added pairs or learned the frame's scale, or a revoked
+        pair, every pair is decided again; with nothing new, nothing is (:meth:`_fresh`). The
+        single pairs of the frame spend the link's chance of a wrong answer over its run
+        (:attr:`history`).
+
         A pair left out waits for a full association or for covariances that tell its objects
         apart. Computed in the canonical order of the two robots, like
         :func:`~teamslam.association.associate`, so both ends add the same pairs.
@@ -469,7 +485,7 @@ class CorrespondenceTable:
         model = self._link_model(first, second, np.ascontiguousarray(held))
         model = model if model.informative else rarity(model)
         free = (~np.isin(first.ids, held[:, 0]), ~np.isin(second.ids, held[:, 1]))
-        rows, cols, _ = identified_by_frame(first, second, settings, model, free, self._history)
+        rows, cols, _ = identified_by_frame(first, second, settings, model, free, self.history)
         found = np.column_stack([first.ids[rows], second.ids[cols]])
         if not self._canonical_first():
             found = found[:, ::-1]
