@@ -558,3 +558,25 @@ def test_extensions_limited_to_new_objects_hold_what_full_extensions_hold(monkey
     assert any(link for robot in pairs[0] for link in robot.values())
     for p, q in zip(runs[0].poses, runs[1].poses, strict=True):
         assert p.tobytes() == q.tobytes()
+
+
+def test_a_map_grown_by_a_partial_summary_counts_its_descriptor_distances_as_counted_whole():
+    """The histogram of distances between a map's objects, grown by the objects of a partial
+    summary (some without a descriptor), equals the one counted on the whole map anew."""
+    from teamslam.association.appearance import _within, within_counts
+
+    rng = np.random.default_rng(5)
+    looks = unit_rows(rng.standard_normal((40, DIM)))
+    looks[[3, 31]] = 0.0  # no descriptor yet
+    means = rng.uniform(0.0, 50.0, (40, 3))
+    covs = np.tile(0.1 * np.eye(3), (40, 1, 1))
+    old = ObjectSummary(0, np.arange(30), means[:30], covs[:30], appearance=looks[:30])
+    new = ObjectSummary(0, np.arange(30, 40), means[30:], covs[30:], appearance=looks[30:])
+    within_counts(old)
+    grown = old.updated(new)
+    assert "_grown_from" in grown.__dict__  # counted from the old map's histogram
+    whole = ObjectSummary(0, np.arange(40), means, covs, appearance=looks)
+    expected = distance_counts(_within(whole.appearance))
+    assert expected.sum() == 38 * 37 // 2
+    np.testing.assert_array_equal(within_counts(grown), expected)
+    assert "_grown_from" not in grown.__dict__
