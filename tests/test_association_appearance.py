@@ -24,11 +24,13 @@ from teamslam.association import (
     ObjectSummary,
     associate,
 )
+from teamslam.association.answer import FrameHistory, identified_by_frame
 from teamslam.association.appearance import (
     AppearanceModel,
     chance_tail,
     distance_counts,
     link_model,
+    rarity,
     unit_rows,
 )
 from teamslam.association.gate import frame_allowed
@@ -356,6 +358,7 @@ def test_a_first_contact_refuses_a_chance_triangle_of_lookalikes(monkeypatch):
     assert not associate(*equal).matched
     monkeypatch.setattr("teamslam.association.answer.chance_tail", lambda *args: 0.0)
     monkeypatch.setattr("teamslam.association.appearance.chance_tail", lambda *args: 0.0)
+    monkeypatch.setattr("teamslam.association.appearance._tail", lambda *args: 0.0)
     wrong = associate(a, b)
     assert wrong.matched and len(wrong.pairs) == 3
 
@@ -423,6 +426,7 @@ def test_one_pair_of_common_lookalikes_in_the_shared_frame_is_no_answer(monkeypa
     a, b, _ = _one_shared_object(seed=12, types=3)
     assert not associate(a, b, FRAME).matched
     monkeypatch.setattr("teamslam.association.appearance.chance_tail", lambda *args: 0.0)
+    monkeypatch.setattr("teamslam.association.appearance._tail", lambda *args: 0.0)
     assert associate(a, b, FRAME).matched
 
 
@@ -445,3 +449,134 @@ def test_a_link_takes_a_new_rare_pair_the_shared_frame_admits_and_refuses_one_it
         assert added[0].size == 0
         np.testing.assert_array_equal(tables[0].pairs(), truth[:2])
     np.testing.assert_array_equal(tables[1].pairs(), tables[0].pairs()[:, ::-1])
+
+
+def _lookalike_link(seed: int, exchanges: int, history: bool, pool: int = 12) -> bool:
+    """Whether a link ever takes a pair one by one in the shared frame over ``exchanges``
+    decisions between two maps of different objects (none shared): ``pool`` places each
+    holding an object of either map half a metre apart, 50 m from the next place, each
+    object's descriptor its own (three dimensions: chance look-alikes are frequent). At the
+    first exchange every estimate is young (σ 1 m): the frame allows the ``pool`` pairs. From
+    then on the estimates are sure (σ 5 cm, the pairs beyond the frame's gate) but for one
+    place drawn at each exchange whose estimates are young again: one hypothesis per decision,
+    the same look-alikes considered again and again. ``history``: the link keeps its decisions
+    over the run (:class:`~teamslam.association.answer.FrameHistory`); else each decision is
+    held to the setting on its own."""
+    rng = np.random.default_rng(seed)
+    places = np.column_stack([50.0 * np.arange(pool), np.zeros(pool), np.zeros(pool)])
+    looks_a = unit_rows(rng.standard_normal((pool, 3)))
+    looks_b = unit_rows(rng.standard_normal((pool, 3)))
+    settings = AssociationSettings(frame_probability=0.99999, consistency_probability=0.9)
+    decided = FrameHistory() if history else None
+    for k in range(exchanges):
+        young = np.ones(pool, bool) if k == 0 else np.arange(pool) == rng.integers(pool)
+        sigma = np.where(young, 1.0, 0.05)
+        covs = sigma[:, None, None] ** 2 * np.eye(3)
+        a = ObjectSummary(0, np.arange(pool), places, covs, appearance=looks_a)
+        b = ObjectSummary(
+            1,
+            np.arange(100, 100 + pool),
+            places + np.array([0.5, 0.0, 0.0]),
+            covs,
+            appearance=looks_b,
+        )
+        rows, _, _ = identified_by_frame(a, b, settings, _DIFFERENT, history=decided)
+        if rows.size:
+            return True
+    return False
+
+
+def _different_objects_model():
+    """The rarity of a resemblance among different objects with three-dimensional descriptors
+    of their own: a link's model learned from two maps of 300 objects each."""
+    rng = np.random.default_rng(0)
+    maps = [
+        ObjectSummary(
+            r,
+            np.arange(300),
+            np.zeros((300, 3)),
+            np.tile(np.eye(3), (300, 1, 1)),
+            appearance=unit_rows(rng.standard_normal((300, 3))),
+        )
+        for r in (0, 1)
+    ]
+    return rarity(link_model(maps[0], maps[1], None, 0.9))
+
+
+_DIFFERENT = _different_objects_model()
+
+
+def test_a_link_that_decides_again_and_again_takes_a_lookalike_no_more_often_than_the_setting():
+    """Over a run of many exchanges between two maps of different objects, some of which look
+    alike by chance, the share of runs in which the link ever takes a pair one by one stays
+    under ``1 − consistency_probability`` (0.1) when the link spends that chance over its
+    decisions on pairs new to it; judged decision by decision (each at the setting, with the
+    one pair the frame then allows), the look-alikes get a new chance at every exchange and
+    the share grows with the number of exchanges, far beyond the setting."""
+    runs = 100
+    # the binomial bound: 0.1 of 100 runs exceeds 21 with probability < 0.001
+    limit = 21
+    bounded = sum(_lookalike_link(s, 40, history=True) for s in range(runs))
+    assert bounded <= limit
+    once = sum(_lookalike_link(s, 1, history=False) for s in range(runs))
+    often = sum(_lookalike_link(s, 40, history=False) for s in range(runs))
+    assert once <= limit < often
+
+
+def test_extensions_limited_to_new_objects_hold_what_full_extensions_hold(monkeypatch):
+    """Between whole summaries a link's maps only gain objects (a partial summary carries the
+    objects new to the link): an extension decides the pairs with a new object and keeps the
+    other decisions. On a team with appearance the tables hold, at the end and step by step
+    (the estimates are the same, bit for bit), what extensions deciding every pair again
+    hold; and some extensions did have old objects left out."""
+    team = strip_object_ids(
+        lissajous_team(robots=3, steps=40, seed=4, landmarks=500, appearance=8), seed=2
+    )
+    settings = {"filter.window": 6, "association.mode": "own"}
+    fresh = CorrespondenceTable._fresh
+    limited = []
+
+    def counted(self, own, their):
+        masks = fresh(self, own, their)
+        limited.append(masks is None or not (masks[0].all() and masks[1].all()))
+        return masks
+
+    monkeypatch.setattr(CorrespondenceTable, "_fresh", counted)
+    runs = [run_team(team, config_for(team, settings), ring(3), progress=False)]
+    assert any(limited)
+    monkeypatch.setattr(
+        CorrespondenceTable,
+        "_fresh",
+        lambda self, own, their: (np.ones(len(own), bool), np.ones(len(their), bool)),
+    )
+    runs.append(run_team(team, config_for(team, settings), ring(3), progress=False))
+    pairs = [
+        [{j: link["pairs"] for j, link in robot.items()} for robot in r.extra["association"]]
+        for r in runs
+    ]
+    assert pairs[0] == pairs[1]
+    assert any(link for robot in pairs[0] for link in robot.values())
+    for p, q in zip(runs[0].poses, runs[1].poses, strict=True):
+        assert p.tobytes() == q.tobytes()
+
+
+def test_a_map_grown_by_a_partial_summary_counts_its_descriptor_distances_as_counted_whole():
+    """The histogram of distances between a map's objects, grown by the objects of a partial
+    summary (some without a descriptor), equals the one counted on the whole map anew."""
+    from teamslam.association.appearance import _within, within_counts
+
+    rng = np.random.default_rng(5)
+    looks = unit_rows(rng.standard_normal((40, DIM)))
+    looks[[3, 31]] = 0.0  # no descriptor yet
+    means = rng.uniform(0.0, 50.0, (40, 3))
+    covs = np.tile(0.1 * np.eye(3), (40, 1, 1))
+    old = ObjectSummary(0, np.arange(30), means[:30], covs[:30], appearance=looks[:30])
+    new = ObjectSummary(0, np.arange(30, 40), means[30:], covs[30:], appearance=looks[30:])
+    within_counts(old)
+    grown = old.updated(new)
+    assert "_grown_from" in grown.__dict__  # counted from the old map's histogram
+    whole = ObjectSummary(0, np.arange(40), means, covs, appearance=looks)
+    expected = distance_counts(_within(whole.appearance))
+    assert expected.sum() == 38 * 37 // 2
+    np.testing.assert_array_equal(within_counts(grown), expected)
+    assert "_grown_from" not in grown.__dict__

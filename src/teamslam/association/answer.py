@@ -153,6 +153,7 @@ def associate(
     second: ObjectSummary,
     settings: AssociationSettings | None = None,
     held: np.ndarray | None = None,
+    history: FrameHistory | None = None,
 ) -> AssociationResult:
     """Correspondences between two robots' objects, from their summaries alone.
 
@@ -171,6 +172,10 @@ def associate(
     held
         ``(h, 2)`` pairs ``(first's id, second's id)`` the link already holds: samples of the
         *same* appearance (read only when both summaries carry appearance).
+    history
+        The link's decisions one by one in the shared frame over its run, pairs in the order of
+        the robots' ids (:class:`FrameHistory`, updated when single pairs are tried): an answer
+        of single pairs is then held to the link's run-long bound, as its extensions'.
 
     Returns
     -------
@@ -189,8 +194,8 @@ def associate(
         held = np.asarray(held, dtype=np.int64).reshape(-1, 2)
     if _canonical_key(second) < _canonical_key(first):
         swapped = None if held is None else held[:, ::-1]
-        return _associate(second.sorted(), first.sorted(), settings, swapped).swapped()
-    return _associate(first.sorted(), second.sorted(), settings, held)
+        return _associate(second.sorted(), first.sorted(), settings, swapped, history).swapped()
+    return _associate(first.sorted(), second.sorted(), settings, held, history)
 
 
 def _no_answer(a: ObjectSummary, b: ObjectSummary, status: str, **counts) -> AssociationResult:
@@ -202,6 +207,7 @@ def _associate(
     b: ObjectSummary,
     settings: AssociationSettings,
     held: np.ndarray | None = None,
+    history: FrameHistory | None = None,
 ) -> AssociationResult:
     model = None
     if a.appearance is not None and b.appearance is not None:
@@ -213,7 +219,7 @@ def _associate(
         return result
     # no consistent set answers: the maps' shared frame is a known transform, and a pair it
     # allows that looks alike beyond chance among every pair it allows is the same object
-    framed = _by_frame(a, b, settings, model if model.informative else rarity(model))
+    framed = _by_frame(a, b, settings, model if model.informative else rarity(model), history)
     return result if framed is None else framed
 
 
@@ -256,12 +262,16 @@ def _by_sets(
 
 
 def _by_frame(
-    a: ObjectSummary, b: ObjectSummary, settings: AssociationSettings, model
+    a: ObjectSummary,
+    b: ObjectSummary,
+    settings: AssociationSettings,
+    model,
+    history: FrameHistory | None = None,
 ) -> AssociationResult | None:
     """The pairs the maps' shared frame and appearance identify one by one
     (:func:`identified_by_frame`) as an answer with the identity as its transform, or ``None``
     when there are none."""
-    rows, cols, hypotheses = identified_by_frame(a, b, settings, model)
+    rows, cols, hypotheses = identified_by_frame(a, b, settings, model, history=history)
     if rows.size == 0:
         return None
     pairs = np.column_stack([a.ids[rows], b.ids[cols]])
@@ -271,12 +281,28 @@ def _by_frame(
     )
 
 
+@dataclass
+class FrameHistory:
+    """What one link has decided one by one in the shared frame over its run
+    (:func:`identified_by_frame`): every pair (first map's id, second's) the frame allowed at
+    any of its decisions, and how many decisions put a pair new to it to the test."""
+
+    considered: set[tuple[int, int]] = field(default_factory=set)
+    decisions: int = 0
+
+    def level(self) -> float:
+        """The share of the link's chance of a wrong answer its latest decision spends:
+        ``6 / (π² k²)`` for its ``k``-th (the shares of all its decisions sum to 1)."""
+        return 6.0 / (np.pi**2 * max(self.decisions, 1) ** 2)
+
+
 def identified_by_frame(
     a: ObjectSummary,
     b: ObjectSummary,
     settings: AssociationSettings,
     model,
     free: tuple[np.ndarray, np.ndarray] | None = None,
+    history: FrameHistory | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """The pairs the maps' shared frame and appearance identify one by one, without a
     consistent set.
@@ -291,7 +317,16 @@ def identified_by_frame(
     before it is informative) and looks alike beyond what the best of ``M`` chance look-alikes
     reaches at ``consistency_probability`` (:func:`~teamslam.association.appearance.
     chance_tail` of one pair): under the hypothesis that none of the ``M`` is the same object,
-    the probability that any is kept is at most ``1 − consistency_probability``.
+    the probability that any is kept is at most ``α = 1 − consistency_probability``.
+
+    ``history``: a link's decisions over its run (updated here). A link decides again at every
+    exchange; held to ``α`` each time, its chance of ever taking a look-alike grows with the
+    number of its decisions. With a history only the pairs the link never considered before
+    are hypotheses (``M`` of them; each is still told apart from every pair the frame allows),
+    none when there are none, and the ``k``-th decision that has some is held to
+    ``α · 6 / (π² k²)`` (:meth:`FrameHistory.level`): over the whole run the probability that
+    the link ever takes a pair of which none is the same object is at most ``α``
+    (``docs/concepts/association.md``, *A bound over the link's run*).
 
     Returns
     -------
@@ -311,7 +346,20 @@ def identified_by_frame(
         allowed &= a.classes[:, None] == b.classes[None, :]
     if free is not None:
         allowed &= free[0][:, None] & free[1][None, :]
-    hypotheses = int(np.count_nonzero(allowed))
+    tested = allowed
+    probability = settings.consistency_probability
+    if history is not None:
+        rows, cols = np.nonzero(allowed)
+        pairs = list(zip(a.ids[rows].tolist(), b.ids[cols].tolist(), strict=True))
+        new = np.array([p not in history.considered for p in pairs], dtype=bool)
+        if not new.any():
+            return none  # every pair the frame allows was decided before
+        history.considered.update(pairs)
+        history.decisions += 1
+        tested = np.zeros_like(allowed)
+        tested[rows[new], cols[new]] = True
+        probability = 1.0 - (1.0 - probability) * history.level()
+    hypotheses = int(np.count_nonzero(tested))
     if hypotheses == 0:
         return none
     score = np.where(
@@ -320,12 +368,12 @@ def identified_by_frame(
     # the one best of its row and of its column (a tie chooses neither)
     row_best = score == score.max(axis=1, keepdims=True)
     col_best = score == score.max(axis=0, keepdims=True)
-    mutual = allowed & row_best & col_best
+    mutual = tested & row_best & col_best
     mutual &= (row_best.sum(axis=1) == 1)[:, None] & (col_best.sum(axis=0) == 1)[None, :]
     rows, cols = np.nonzero(mutual)
     if rows.size == 0:
         return none
-    alike = beyond_chance(model, score[rows, cols], hypotheses, settings.consistency_probability)
+    alike = beyond_chance(model, score[rows, cols], hypotheses, probability)
     return rows[alike], cols[alike], hypotheses
 
 

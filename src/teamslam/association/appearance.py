@@ -22,6 +22,8 @@ a set of such pairs alike. The derivation: the association concept page, *Appear
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.stats import norm
 
@@ -121,7 +123,7 @@ class AppearanceModel:
         self.same += np.asarray(same, dtype=float)
         self.different += np.asarray(different, dtype=float)
         self._table = np.log(self.p_same()) - np.log(self.p_different())
-        self._informative = self.separation() > norm.ppf(self.probability)
+        self._informative = self.separation() > _z(self.probability)
 
     def p_same(self) -> np.ndarray:
         """``(BINS,)`` the *same* distribution with its prior (uniform before samples)."""
@@ -164,12 +166,47 @@ class AppearanceModel:
         return self._informative
 
 
+@functools.lru_cache(maxsize=16)
+def _z(probability: float) -> float:
+    """The standard normal quantile of ``probability`` (:attr:`AppearanceModel.informative`'s
+    test; a handful of probabilities, computed once each)."""
+    return float(norm.ppf(probability))
+
+
 def _within(appearance: np.ndarray) -> np.ndarray:
     """Cosine distances of every pair of distinct objects of one map with a descriptor."""
     known = appearance[np.any(appearance != 0, axis=1)]
     i, j = np.triu_indices(known.shape[0], 1)
     u = unit_rows(known)
     return np.clip(1.0 - np.einsum("pd,pd->p", u[i], u[j]), 0.0, 2.0)
+
+
+def _across(old: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """Cosine distances of every object of ``old`` with a descriptor to every one of ``new``
+    (as :func:`_within` computes each pair)."""
+    a = unit_rows(old[np.any(old != 0, axis=1)])
+    b = unit_rows(new[np.any(new != 0, axis=1)])
+    i, j = np.divmod(np.arange(a.shape[0] * b.shape[0]), max(b.shape[0], 1))
+    return np.clip(1.0 - np.einsum("pd,pd->p", a[i], b[j]), 0.0, 2.0)
+
+
+def within_counts(summary) -> np.ndarray:
+    """``(BINS,)`` histogram of the distances between the distinct objects of ``summary``'s
+    map (:func:`_within`), kept with the summary: a map a link holds is the same object at
+    many exchanges, and one grown by a partial summary
+    (:meth:`~teamslam.association.ObjectSummary.updated`) adds the new objects' pairs to its
+    predecessor's counts instead of counting every pair again."""
+    cached = summary.__dict__.get("_within_counts")
+    if cached is not None:
+        return cached
+    grown = summary.__dict__.pop("_grown_from", None)
+    if grown is None:
+        counts = distance_counts(_within(summary.appearance))
+    else:
+        before, old, new = grown
+        counts = before + distance_counts(_within(new)) + distance_counts(_across(old, new))
+    summary.__dict__["_within_counts"] = counts
+    return counts
 
 
 def link_model(first, second, held: np.ndarray | None, probability: float):
@@ -203,7 +240,7 @@ def link_model(first, second, held: np.ndarray | None, probability: float):
         ok = np.any(a[ia] != 0, axis=1) & np.any(b[ib] != 0, axis=1)
         ua, ub = unit_rows(a[ia[ok]]), unit_rows(b[ib[ok]])
         same += distance_counts(np.clip(1.0 - np.einsum("pd,pd->p", ua, ub), 0.0, 2.0))
-    different = distance_counts(_within(a)) + distance_counts(_within(b))
+    different = within_counts(first) + within_counts(second)
     model.add_counts(same, different)
     return model
 
@@ -220,6 +257,18 @@ def chance_tail(model: AppearanceModel, observed: float, k: int, m: int) -> floa
     """
     if k <= 0:
         return 1.0
+    low, high, step, pmf = _best_of(model, m)
+    if step is None:
+        return 1.0 if observed <= k * high else 0.0
+    total = np.array([1.0])
+    for _ in range(k):
+        total = np.convolve(total, pmf)
+    return _tail(total, observed, k, low, step)
+
+
+def _best_of(model: AppearanceModel, m: int):
+    """``(low, high, step, pmf)``: the law of the best log ratio of ``m`` different objects on
+    :func:`chance_tail`'s grid (``step`` and ``pmf`` ``None`` when the ratio is constant)."""
     values = model._table
     p = model.p_different()
     order = np.argsort(values, kind="stable")
@@ -231,13 +280,15 @@ def chance_tail(model: AppearanceModel, observed: float, k: int, m: int) -> floa
     best = np.clip(best, 0.0, None)
     low, high = float(v[0]), float(v[-1])
     if high <= low:
-        return 1.0 if observed <= k * high else 0.0
+        return low, high, None, None
     step = (high - low) / TAIL_GRID
     cells = np.ceil((v - low) / step - 1e-9).astype(np.int64)
-    pmf = np.bincount(cells, weights=best, minlength=TAIL_GRID + 1)
-    total = np.array([1.0])
-    for _ in range(k):
-        total = np.convolve(total, pmf)
+    return low, high, step, np.bincount(cells, weights=best, minlength=TAIL_GRID + 1)
+
+
+def _tail(total: np.ndarray, observed: float, k: int, low: float, step: float) -> float:
+    """The mass of ``total`` (the sum of ``k`` best-of laws on the grid) at or above
+    ``observed``."""
     # the sum's value at cell c is k·low + c·step
     first = int(np.ceil((observed - k * low) / step - 1e-9))
     if first <= 0:
@@ -250,7 +301,12 @@ def beyond_chance(model: AppearanceModel, log_ratio: np.ndarray, m: int, probabi
     gives at ``probability`` (:func:`chance_tail` of one pair), elementwise."""
     log_ratio = np.asarray(log_ratio, dtype=float)
     values, inverse = np.unique(log_ratio, return_inverse=True)
-    ok = np.array([chance_tail(model, float(v), 1, m) <= 1.0 - probability for v in values])
+    low, high, step, pmf = _best_of(model, m)  # one pair: the law itself, computed once
+    if step is None:
+        tails = [1.0 if float(v) <= high else 0.0 for v in values]
+    else:
+        tails = [_tail(pmf, float(v), 1, low, step) for v in values]
+    ok = np.array([t <= 1.0 - probability for t in tails])
     return ok[inverse].reshape(log_ratio.shape) if values.size else np.zeros(log_ratio.shape, bool)
 
 

@@ -231,7 +231,13 @@ class ObjectSummary:
             joined(kept.appearance, newer.appearance),
             newer.same_counts,
         )
-        return both.sorted()
+        both = both.sorted()
+        counted = self.__dict__.get("_within_counts")
+        if counted is not None and len(kept) == len(self) and self.appearance is not None:
+            # the within-map histogram grows by the new objects' pairs alone
+            # (:func:`~teamslam.association.appearance.within_counts`)
+            both.__dict__["_grown_from"] = (counted, self.appearance, newer.appearance)
+        return both
 
     def transformed(self, T_new_old: np.ndarray) -> ObjectSummary:
         """The summary expressed in another frame: ``p_new = T_new_old · p_old``."""

@@ -14,7 +14,9 @@ At run time a robot runs the full association when the table says it is
 :meth:`~CorrespondenceTable.due` (nothing merged yet, a map grown by a quarter since the last
 one, or — while the link has no answer — ``min_inliers`` new objects in a map) and grows the
 table in between with :meth:`~CorrespondenceTable.extend` (one gate, one assignment; between maps
-in one world frame, also the single pairs the frame and appearance identify). Both ends
+in one world frame, also the single pairs the frame and appearance identify, the link's chance
+of a wrong one spent over its whole run). An extension decides only the pairs of objects new or
+changed since the link's last one. Both ends
 of a link merge the same results in the same order and compute every decision in the canonical
 order of the two robots, so their tables stay mirror images of each
 other (own ↔ neighbour ids swapped).
@@ -26,7 +28,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from teamslam.association.answer import AssociationResult, identified_by_frame
+from teamslam.association.answer import AssociationResult, FrameHistory, identified_by_frame
 from teamslam.association.appearance import (
     beyond_chance,
     cosine_distances,
@@ -143,6 +145,12 @@ class CorrespondenceTable:
         Pairs the association proposed (new ones only), pairs added, pairs revoked.
     T_own_their
         Transform of the held pairs (from the last merge that had at least three), or ``None``.
+    history
+        The link's decisions one by one in the shared frame over its run
+        (:class:`~teamslam.association.answer.FrameHistory`; pairs in the order of the robots'
+        ids): its extensions and the full associations run for it
+        (:func:`~teamslam.association.associate`'s ``history``) spend the link's one chance
+        of a wrong answer over them.
     """
 
     def __init__(
@@ -168,8 +176,9 @@ class CorrespondenceTable:
         self._sizes: tuple[int, int] | None = None  # map sizes at the last full association
         #: whether the last summaries' appearance could answer from three pairs (an
         #: informative model, or resemblances rare enough among different objects:
-        #: :func:`~teamslam.association.associate`)
-        self._looks = False
+        #: :func:`~teamslam.association.associate`); or the summaries and held pairs to tell it
+        #: from, when :meth:`due` asks (only a link without an answer needs it)
+        self._looks: bool | tuple = False
         #: the shared frame's scale learned from :attr:`_frame_samples` (1 until then)
         self.frame_scale = 1.0
         #: (own id, neighbour id) → squared Mahalanobis distance under the identity of a pair
@@ -178,6 +187,12 @@ class CorrespondenceTable:
         #: during one :meth:`extend`: the link's appearance models computed, by held pairs (the
         #: same two summaries give the same model, computed once)
         self._models: dict | None = None
+        #: the link's identifications one by one in the shared frame over its run, in the
+        #: canonical order (:func:`~teamslam.association.answer.identified_by_frame`)
+        self.history = FrameHistory()
+        #: the summaries, held pairs and frame scale at the end of the link's last extension
+        #: (``None`` after a merge): what the next one needs not decide again (:meth:`_fresh`)
+        self._decided: tuple | None = None
 
     def __len__(self) -> int:
         return len(self._theirs)
@@ -255,13 +270,15 @@ class CorrespondenceTable:
             if self._theirs.get(int(a)) != int(b)  # not already held
         ]
         self._sizes = (len(own), len(their))
-        self._looks = self._from_three(own, their)
+        self._looks = (own, their, self.pairs())
         self.proposed += len(new)
         new = [
             p
             for p in new
             if p[0] not in self._theirs and p[1] not in self._ours and not self._blocked(p, step)
         ]
+        # a merge decides the answer's pairs alone: the next extension decides every pair
+        self._decided = None
         if not new:
             return np.zeros((0, 2), np.int64)
         held = self.pairs()
@@ -327,6 +344,14 @@ class CorrespondenceTable:
         with the standard linearisation) no longer have their right pairs refused by the frame.
         Before the link holds an answer the scale is 1.
 
+        Only pairs with an object new since the link's last extension, or whose summary changed
+        since, are decided (each still judged against every object): between whole summaries a
+        link's maps only gain objects, and the other pairs were decided on the same evidence.
+        After a merge, an extension that added pairs or learned the frame's scale, or a revoked
+        pair, every pair is decided again; with nothing new, nothing is (:meth:`_fresh`). The
+        single pairs of the frame spend the link's chance of a wrong answer over its run
+        (:attr:`history`).
+
         A pair left out waits for a full association or for covariances that tell its objects
         apart. Computed in the canonical order of the two robots, like
         :func:`~teamslam.association.associate`, so both ends add the same pairs.
@@ -367,19 +392,43 @@ class CorrespondenceTable:
             self._models[key] = link_model(first, second, held, probability)
         return self._models[key]
 
+    def _fresh(
+        self, own: ObjectSummary, their: ObjectSummary
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Which objects of ``own`` and ``their`` (masks in id order) are new since the link's
+        last extension or have a summary that changed since; all of them after a merge, an
+        extension that added pairs or learned the frame's scale, or when the held pairs changed
+        since (a revoked pair); ``None`` when none."""
+        decided = self._decided
+        if (
+            decided is None
+            or not np.array_equal(decided[2], self.pairs())
+            or decided[3] != self.frame_scale
+        ):
+            return np.ones(len(own), bool), np.ones(len(their), bool)
+        masks = (
+            _changed(own.sorted(), decided[0].sorted()),
+            _changed(their.sorted(), decided[1].sorted()),
+        )
+        return masks if masks[0].any() or masks[1].any() else None
+
     def _extend_with(
         self, own: ObjectSummary, their: ObjectSummary, step: int | None
     ) -> np.ndarray:
+        fresh = self._fresh(own, their)
+        if fresh is None:  # nothing new to decide: the last decision stands
+            return np.zeros((0, 2), np.int64)
         held = self.pairs()
+        settings_scale = self.frame_scale
         settings, model = self.current_settings(), self._model(own, their)
-        self._looks = model is not None or self._from_three(own, their)
+        self._looks = True if model is not None else (own, their, held)
         if model is not None:
             settings = replace(settings, min_inliers=3)
         if self._canonical_first():
-            found, nis, framed = _extend(own.sorted(), their.sorted(), held, settings, model)
+            found, nis, framed = _extend(own.sorted(), their.sorted(), held, settings, model, fresh)
         else:
             found, nis, framed = _extend(
-                their.sorted(), own.sorted(), held[:, ::-1], settings, model
+                their.sorted(), own.sorted(), held[:, ::-1], settings, model, fresh[::-1]
             )
             found = found[:, ::-1]
         if model is not None and len(found):
@@ -406,10 +455,17 @@ class CorrespondenceTable:
             self._ours[b] = a
         new += framed
         self.accepted += len(new)
+        # what the next extension needs not decide again: nothing, when this one added pairs
+        # (new anchors) or learned another frame scale
+        quiet = not new and self.frame_scale == settings_scale
+        self._decided = (own, their, self.pairs(), self.frame_scale) if quiet else None
         return np.array(new, dtype=np.int64).reshape(-1, 2)
 
     def _identified_by_frame(
-        self, own: ObjectSummary, their: ObjectSummary, step: int | None
+        self,
+        own: ObjectSummary,
+        their: ObjectSummary,
+        step: int | None,
     ) -> list[tuple[int, int]]:
         """New pairs of objects neither end holds yet that the maps' shared frame and appearance
         identify one by one (:func:`~teamslam.association.answer.identified_by_frame`, with the
@@ -429,7 +485,7 @@ class CorrespondenceTable:
         model = self._link_model(first, second, np.ascontiguousarray(held))
         model = model if model.informative else rarity(model)
         free = (~np.isin(first.ids, held[:, 0]), ~np.isin(second.ids, held[:, 1]))
-        rows, cols, _ = identified_by_frame(first, second, settings, model, free)
+        rows, cols, _ = identified_by_frame(first, second, settings, model, free, self.history)
         found = np.column_stack([first.ids[rows], second.ids[cols]])
         if not self._canonical_first():
             found = found[:, ::-1]
@@ -513,12 +569,12 @@ class CorrespondenceTable:
     def _canonical_first(self) -> bool:
         return self.own <= self.neighbour
 
-    def _model(self, own: ObjectSummary, their: ObjectSummary):
+    def _model(self, own: ObjectSummary, their: ObjectSummary, held: np.ndarray | None = None):
         """The link's appearance model when informative (as the association builds it, in the
-        canonical order), else ``None``."""
+        canonical order, with the ``held`` pairs: the table's by default), else ``None``."""
         if own.appearance is None or their.appearance is None:
             return None
-        held = self.pairs()
+        held = self.pairs() if held is None else held
         if self._canonical_first():
             model = self._link_model(own.sorted(), their.sorted(), held)
         else:
@@ -527,16 +583,15 @@ class CorrespondenceTable:
             )
         return model if model is not None and model.informative else None
 
-    def _from_three(self, own: ObjectSummary, their: ObjectSummary) -> bool:
-        """Whether the two summaries' appearance may give an answer of three pairs: the
-        link's model is informative, or, before it is, three resemblances can be rarer among
-        different objects than chance look-alikes (:func:`~teamslam.association.appearance.
-        rare_triples`), as the association decides."""
+    def _from_three(self, own: ObjectSummary, their: ObjectSummary, held: np.ndarray) -> bool:
+        """Whether the two summaries' appearance may give an answer of three pairs with the
+        ``held`` pairs: the link's model is informative, or, before it is, three resemblances
+        can be rarer among different objects than chance look-alikes
+        (:func:`~teamslam.association.appearance.rare_triples`), as the association decides."""
         if own.appearance is None or their.appearance is None:
             return False
-        if self._model(own, their) is not None:
+        if self._model(own, their, held) is not None:
             return True
-        held = self.pairs()
         first, second = (own, their) if self._canonical_first() else (their, own)
         held = held if self._canonical_first() else held[:, ::-1]
         model = self._link_model(first.sorted(), second.sorted(), np.ascontiguousarray(held))
@@ -584,10 +639,12 @@ class CorrespondenceTable:
         own0, their0 = self._sizes
         if own_objects >= growth * max(own0, 1) or their_objects >= growth * max(their0, 1):
             return True
+        if len(self) >= self.settings.min_inliers:
+            return False
+        if isinstance(self._looks, tuple):  # told from the last summaries when first needed
+            self._looks = self._from_three(*self._looks)
         need = 3 if self._looks else self.settings.min_inliers
-        return len(self) < self.settings.min_inliers and (
-            own_objects >= own0 + need or their_objects >= their0 + need
-        )
+        return own_objects >= own0 + need or their_objects >= their0 + need
 
     def revoke(self, own_id: int, their_id: int, step: int | None = None) -> bool:
         """Drop a held pair (its consensus innovation failed); it is not re-added.
@@ -615,6 +672,24 @@ class CorrespondenceTable:
             "revoked": self.revoked,
             "held": len(self),
         }
+
+
+def _changed(now: ObjectSummary, before: ObjectSummary) -> np.ndarray:
+    """Which objects of ``now`` (sorted by id) ``before`` (sorted) does not hold, or holds with
+    another mean, covariance, class or descriptor."""
+    k = np.minimum(np.searchsorted(before.ids, now.ids), max(len(before) - 1, 0))
+    if len(before) == 0:
+        return np.ones(len(now), bool)
+    changed = before.ids[k] != now.ids
+    changed |= np.any(before.means[k] != now.means, axis=1)
+    changed |= np.any(before.covs[k] != now.covs, axis=(1, 2))
+    for name in ("classes", "appearance"):
+        a, b = getattr(now, name), getattr(before, name)
+        if (a is None) != (b is None) or (a is not None and a.shape[1:] != b.shape[1:]):
+            return np.ones(len(now), bool)
+        if a is not None:
+            changed |= (b[k] != a) if a.ndim == 1 else np.any(b[k] != a, axis=1)
+    return changed
 
 
 def _indices(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:
@@ -649,10 +724,14 @@ def _extend(
     held: np.ndarray,
     settings: AssociationSettings,
     model=None,
+    fresh: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """New pairs of unmatched objects of ``a`` and ``b`` under the held pairs' transform (with
     an appearance ``model``, pairs assigned and told apart by Mahalanobis distance plus
-    ``−2`` times their log likelihood ratio, as in the association).
+    ``−2`` times their log likelihood ratio, as in the association). With ``fresh`` (masks
+    of the objects new or changed since the link's last decision) only pairs with at least one
+    of them are kept, each still judged against every object; none when no such pair is in
+    the gate.
 
     Returns
     -------
@@ -694,6 +773,8 @@ def _extend(
     free_b = np.ones(len(b), bool)
     free_b[ib] = False
     passed &= free_a[:, None] & free_b[None, :]
+    if fresh is not None and not (passed & (fresh[0][:, None] | fresh[1][None, :])).any():
+        return none  # no pair of a new object in the gate: nothing the last decision did not
     rows, cols = assign(cost, passed)
     if rows.size:
         # once more with the new pairs as anchors too, as in the association: a new pair must
@@ -725,6 +806,8 @@ def _extend(
     added[added] = spaced
     rows, cols = keep_rows[added], keep_cols[added]
     ok = consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
+    if fresh is not None:
+        ok &= fresh[0][rows] | fresh[1][cols]
     rows, cols = rows[ok], cols[ok]
     if rows.size == 0:
         return none

@@ -677,11 +677,11 @@ class ConsensusProtocol:
         stats = self.link_stats[j]
         if full and table.due(len(own), len(theirs)):
             held = table.pairs() if own.appearance is not None else None
-            result = associate(own, theirs, table.current_settings(), held)
+            result = associate(own, theirs, table.current_settings(), held, table.history)
             if table.learn_frame(result, own, theirs):
                 # the answer showed the maps further apart than their covariances say: once
                 # more with the shared frame's scale learned from it
-                result = associate(own, theirs, table.current_settings(), held)
+                result = associate(own, theirs, table.current_settings(), held, table.history)
                 stats["full_associations"] += 1
             table.merge(result, own, theirs, self.step)
             stats["full_associations"] += 1
