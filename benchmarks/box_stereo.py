@@ -64,16 +64,7 @@ def measure_size(name: str, sides: str, frames: int, count: int, seed: int) -> d
     """Timings and accuracy at one image size with wall boxes of ``SIDES[sides]``."""
     config = RenderConfig(robots=1, steps=frames - 1, seed=seed, **SIZES[name])
     team = render_team(config)
-    cam = config.camera()
-    rig = StereoRig(
-        config.image_size,
-        cam.intrinsics,
-        cam.intrinsics,
-        np.zeros(5),
-        np.zeros(5),
-        cam.T_left_right,
-        T_CAM_BODY,
-    )
+    rig = StereoRig.rectified(config.image_size, config.camera(), T_CAM_BODY)
     stereo = BoxStereo(rig, FrontendConfig())
     rng = np.random.default_rng(seed)
     t_stereo, t_describe, n_boxes, n_stereo, n_markers, errors = [], [], 0, 0, 0, []

@@ -55,16 +55,7 @@ def rendered_team(
     the CPU seconds of all the front-ends' frames."""
     config = RenderConfig(robots=robots, steps=steps)
     team = render_team(config)
-    camera = config.camera()
-    rig = StereoRig(
-        config.image_size,
-        camera.intrinsics,
-        camera.intrinsics,
-        np.zeros(5),
-        np.zeros(5),
-        camera.T_left_right,
-        T_CAM_BODY,
-    )
+    rig = StereoRig.rectified(config.image_size, config.camera(), T_CAM_BODY)
     stats = {
         name: {
             "counts": [],

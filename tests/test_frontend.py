@@ -366,11 +366,7 @@ def test_tracks_across_skipped_frames_are_looked_for_where_the_motion_takes_them
 
     config = RenderConfig(**{**SMALL, "steps": 8})
     team = render_team(config)
-    cam = config.camera()
-    rig = StereoRig(
-        config.image_size, cam.intrinsics, cam.intrinsics, np.zeros(5), np.zeros(5),
-        cam.T_left_right, T_CAM_BODY,
-    )  # fmt: skip
+    rig = StereoRig.rectified(config.image_size, config.camera(), T_CAM_BODY)
     rng = np.random.default_rng(3)
     gap = 6
     frames = [render_stereo(team.room, team.T_world_cam(0, k), rng) for k in (0, gap)]

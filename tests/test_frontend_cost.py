@@ -30,16 +30,7 @@ def rendered():
     team = render_team(config)
     rng = np.random.default_rng(5)
     frames = [render_stereo(team.room, team.T_world_cam(0, k), rng) for k in range(5)]
-    camera = config.camera()
-    rig = StereoRig(
-        config.image_size,
-        camera.intrinsics,
-        camera.intrinsics,
-        np.zeros(5),
-        np.zeros(5),
-        camera.T_left_right,
-        T_CAM_BODY,
-    )
+    rig = StereoRig.rectified(config.image_size, config.camera(), T_CAM_BODY)
     return rig, frames
 
 

@@ -55,6 +55,19 @@ class StereoRig:
         self._maps = None
         self._rectified = None
 
+    @classmethod
+    def rectified(
+        cls,
+        image_size: tuple[int, int],
+        camera: StereoCamera,
+        T_cam_body: np.ndarray | None = None,
+    ) -> StereoRig:
+        """The rig of an already rectified pair (no distortion, both cameras ``camera``'s
+        intrinsics), e.g. a renderer's; ``T_cam_body`` defaults to the usual optical frame."""
+        K = camera.intrinsics
+        body = DEFAULT_T_CAM_BODY.copy() if T_cam_body is None else np.asarray(T_cam_body, float)
+        return cls(image_size, K, K, np.zeros(5), np.zeros(5), camera.T_left_right, body)
+
     @property
     def already_rectified(self) -> bool:
         """No distortion, equal intrinsics, right camera along the left's x axis."""
