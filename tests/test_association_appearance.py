@@ -63,6 +63,15 @@ def _same_counts(rng: np.random.Generator, looks: np.ndarray, n: int = 60) -> np
     return distance_counts(1.0 - np.einsum("pd,pd->p", unit_rows(a), unit_rows(b)))
 
 
+def _looks(rng, n: int, types: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """Unit descriptors of two maps' ``n`` objects: each its own, or drawn from ``types``
+    look-alike types."""
+    if types is None:
+        return unit_rows(rng.standard_normal((n, DIM))), unit_rows(rng.standard_normal((n, DIM)))
+    kinds = unit_rows(rng.standard_normal((types, DIM)))
+    return kinds[rng.integers(0, types, n)], kinds[rng.integers(0, types, n)]
+
+
 def _maps(seed: int, types: int | None, shared_geometry: bool, shared_objects: bool):
     """Two maps of 30 objects each, small covariances, in the second robot's frame turned and
     shifted. The second map holds a triangle congruent to three objects of the first. With
@@ -74,13 +83,7 @@ def _maps(seed: int, types: int | None, shared_geometry: bool, shared_objects: b
     # objects spread far apart, so that only the triangle (20 m across) is a consistent set
     a_means = rng.uniform(0.0, 400.0, (n, 3)) * [1, 1, 0.01]
     a_means[:3] = rng.uniform(0.0, 20.0, (3, 3)) * [1, 1, 0.1]
-    if types is None:
-        looks_a = unit_rows(rng.standard_normal((n, DIM)))
-        looks_b = unit_rows(rng.standard_normal((n, DIM)))
-    else:
-        kinds = unit_rows(rng.standard_normal((types, DIM)))
-        looks_a = kinds[rng.integers(0, types, n)]
-        looks_b = kinds[rng.integers(0, types, n)]
+    looks_a, looks_b = _looks(rng, n, types)
     b_local = rng.uniform(0.0, 400.0, (n, 3)) * [1, 1, 0.01] + [1000.0, 0.0, 0.0]
     triangle = [0, 1, 2]
     if shared_geometry:
@@ -374,13 +377,7 @@ def _one_shared_object(seed: int, types: int | None = None, offset: float = 0.0,
     b_means = rng.uniform(0.0, 60.0, (n, 3)) * [1, 1, 0.02]
     b_means[:shared] = a_means[:shared] + np.array([0.3, -0.15, 0.0])
     b_means[shared - 1, 0] += offset
-    if types is None:
-        looks_a = unit_rows(rng.standard_normal((n, DIM)))
-        looks_b = unit_rows(rng.standard_normal((n, DIM)))
-    else:
-        kinds = unit_rows(rng.standard_normal((types, DIM)))
-        looks_a = kinds[rng.integers(0, types, n)]
-        looks_b = kinds[rng.integers(0, types, n)]
+    looks_a, looks_b = _looks(rng, n, types)
     looks_b[:shared] = looks_a[:shared]
     looks_a = looks_a + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
     looks_b = looks_b + NOISE * rng.standard_normal((n, DIM)) / np.sqrt(DIM)
