@@ -248,7 +248,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "live-robots-images": (
         "python benchmarks/live_agents.py images --robots 3 --steps 100 --width 640 "
-        f"--runs lockstep:0.25 async:1 --markdown {GENERATED}/live-robots-images.md",
+        f"--runs lockstep:0.25 async:0.25 async:1 --markdown {GENERATED}/live-robots-images.md",
         f"{GENERATED}/live-robots-images.md",
     ),
     "foxglove-view": (
