@@ -404,15 +404,20 @@ def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
         cov = state.covariance(cols)  # (k, 6, 6)
         diff = cov[:, :3, :3] + cov[:, 3:, 3:] - cov[:, :3, 3:] - cov[:, 3:, :3]
         r = state.objects[slot_n] - state.objects[slots[inside]]
-        out[inside] = np.einsum("ki,ki->k", r, np.linalg.solve(diff, r[..., None])[..., 0])
+        out[inside] = _squared_mahalanobis(r, diff)
     if (~inside).any():
         retired = state.retired.arrays()
         where = _positions(retired["ids"], old[~inside])
         own = state.covariance(cols_n)
         r = state.objects[slot_n] - retired["means"][where]
         diff = own[None] + retired["covs"][where]
-        out[~inside] = np.einsum("ki,ki->k", r, np.linalg.solve(diff, r[..., None])[..., 0])
+        out[~inside] = _squared_mahalanobis(r, diff)
     return out
+
+
+def _squared_mahalanobis(r: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``rᵀ C⁻¹ r`` per row of ``r`` ``(k, 3)`` with ``cov`` ``(k, 3, 3)``."""
+    return np.einsum("ki,ki->k", r, np.linalg.solve(cov, r[..., None])[..., 0])
 
 
 def revisit_posterior(log_ratio: np.ndarray, prior: float) -> np.ndarray:
