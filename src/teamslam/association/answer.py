@@ -337,15 +337,18 @@ def identified_by_frame(
     none = (np.zeros(0, np.int64), np.zeros(0, np.int64), 0)
     if a.appearance is None or b.appearance is None or len(a) == 0 or len(b) == 0:
         return none
-    frame = frame_allowed(a, b, settings)
-    if frame is None:
+    if settings.frame_threshold is None:
         return none
-    allowed = frame & np.any(a.appearance != 0, axis=1)[:, None]
-    allowed &= np.any(b.appearance != 0, axis=1)[None, :]
+    # the frame's test of the free objects' pairs alone (each pair's value is its own)
+    known_a = np.any(a.appearance != 0, axis=1)
+    known_b = np.any(b.appearance != 0, axis=1)
+    rows = np.flatnonzero(known_a if free is None else known_a & free[0])
+    cols = np.flatnonzero(known_b if free is None else known_b & free[1])
+    allowed = np.zeros((len(a), len(b)), dtype=bool)
+    if rows.size and cols.size:
+        allowed[np.ix_(rows, cols)] = frame_allowed(a.take(rows), b.take(cols), settings)
     if a.classes is not None and b.classes is not None:
         allowed &= a.classes[:, None] == b.classes[None, :]
-    if free is not None:
-        allowed &= free[0][:, None] & free[1][None, :]
     tested = allowed
     probability = settings.consistency_probability
     if history is not None:
@@ -427,9 +430,8 @@ def _with_appearance(
     allowed = llr >= veto if likelihood else np.ones(llr.shape, dtype=bool)
     if a.classes is not None and b.classes is not None:
         allowed &= a.classes[:, None] == b.classes[None, :]
-    geo_a = pair_distances(a.means, a.covs)
-    geo_b = pair_distances(b.means, b.covs)
-    score, mismatch, members = neighbourhood_sets(a, b, geo_a, geo_b, relaxed)
+    geo_a, geo_b = _geometry(a), _geometry(b)
+    score, mismatch, members = _neighbourhood_sets(a, b, geo_a, geo_b, relaxed)
     ia, ib = select_candidates(score, mismatch, relaxed)
     keep = np.zeros((len(a), len(b)), dtype=bool)
     keep[ia, ib] = True
@@ -492,11 +494,39 @@ def _by_position(
     need = settings.min_inliers
     if len(a) < need or len(b) < need:
         return _no_answer(a, b, "too-few")
-    geo_a = pair_distances(a.means, a.covs)
-    geo_b = pair_distances(b.means, b.covs)
-    score, mismatch, members = neighbourhood_sets(a, b, geo_a, geo_b, settings)
+    geo_a, geo_b = _geometry(a), _geometry(b)
+    score, mismatch, members = _neighbourhood_sets(a, b, geo_a, geo_b, settings)
     ia, ib = _in_frame(a, b, *select_candidates(score, mismatch, settings), settings)
     return _from_candidates(a, b, ia, ib, members, geo_a, geo_b, settings)
+
+
+def _geometry(summary: ObjectSummary) -> tuple[np.ndarray, np.ndarray]:
+    """The map's :func:`~teamslam.association.distances.pair_distances`, computed once per
+    summary (an association by appearance and its fallback by position read the same)."""
+    geo = summary.__dict__.get("_geometry")
+    if geo is None:
+        geo = pair_distances(summary.means, summary.covs)
+        summary.__dict__["_geometry"] = geo
+    return geo
+
+
+def _neighbourhood_sets(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    geo_a: tuple[np.ndarray, np.ndarray],
+    geo_b: tuple[np.ndarray, np.ndarray],
+    settings: AssociationSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`~teamslam.association.candidates.neighbourhood_sets` of the two summaries,
+    computed once per pair of summaries and the settings it reads (read only by its
+    callers)."""
+    key = (settings.neighbours, settings.drift_ratio, settings.consistency_threshold)
+    cached = a.__dict__.get("_neighbourhood_sets")
+    if cached is not None and cached[0] is b and cached[1] == key:
+        return cached[2]
+    sets = neighbourhood_sets(a, b, geo_a, geo_b, settings)
+    a.__dict__["_neighbourhood_sets"] = (b, key, sets)
+    return sets
 
 
 def _in_frame(

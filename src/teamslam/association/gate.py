@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.optimize
 
-from teamslam.association.distances import anchor_distance, nearest_distance
+from teamslam.association.distances import anchor_distance
 from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
 from teamslam.association.transform import consensus_core, fit_transform, rigid_core
@@ -55,7 +55,7 @@ def frame_allowed(
     delta = first.means[:, None, :] - second.means[None, :, :]
     sq = np.einsum("abi,abi->ab", delta, delta)
     if top is None:
-        top = (np.linalg.eigvalsh(first.covs)[:, -1], np.linalg.eigvalsh(second.covs)[:, -1])
+        top = (first.top_variances(), second.top_variances())
     top_a, top_b = top
     out = np.zeros(sq.shape, dtype=bool)
     ia, ib = np.nonzero(sq <= chi2 * (top_a[:, None] + top_b[None, :]))  # a bound first
@@ -155,7 +155,7 @@ def gate_pairs(
     chi2 = settings.gate_threshold
     delta = first.means[:, None, :] - b_in_a[None, :, :]
     sq = np.einsum("abi,abi->ab", delta, delta)
-    top_a = np.linalg.eigvalsh(first.covs)[:, -1]
+    top_a = first.top_variances()
     top_b = np.linalg.eigvalsh(covs_b)[:, -1]
     bound = top_a[:, None] + top_b[None, :] + extra  # largest eigenvalue of the sum, at most
     near = sq <= chi2 * bound
@@ -244,7 +244,7 @@ def separated(
         extent = gate_extent(
             a, b, T_first_second, anchors_first, anchors_second, rows, cols, settings
         )
-    spacing = np.minimum(nearest_distance(a.means)[rows], nearest_distance(b.means)[cols])
+    spacing = np.minimum(a.nearest_distances()[rows], b.nearest_distances()[cols])
     return settings.separation**2 * settings.gate_threshold * extent <= spacing**2
 
 

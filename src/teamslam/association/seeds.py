@@ -78,8 +78,8 @@ def seed_sets(
         np.ascontiguousarray(t[:, :3, 3]),
         a.means,
         b.means,
-        np.linalg.eigvalsh(a.covs)[:, -1],
-        np.linalg.eigvalsh(b.covs)[:, -1],
+        a.top_variances(),
+        b.top_variances(),
         settings.gate_threshold,
     )
     explained = np.zeros((len(a), len(b)), dtype=bool)

@@ -88,8 +88,9 @@ class ObjectSummary:
         if not (np.all(np.isfinite(means)) and np.all(np.isfinite(covs))):
             raise InputError(f"{where}: means or covs are not finite")
         covs = symmetrize(covs)
-        if n and np.min(np.linalg.eigvalsh(covs)[:, 0]) <= 0:
-            bad = int(np.argmin(np.linalg.eigvalsh(covs)[:, 0]))
+        eigenvalues = np.linalg.eigvalsh(covs) if n else np.zeros((0, 3))
+        if n and np.min(eigenvalues[:, 0]) <= 0:
+            bad = int(np.argmin(eigenvalues[:, 0]))
             raise InputError(f"{where}: covariance of object {ids[bad]} is not positive definite")
         classes = self.classes
         if classes is not None:
@@ -118,6 +119,8 @@ class ObjectSummary:
         object.__setattr__(self, "covs", covs)
         object.__setattr__(self, "classes", classes)
         object.__setattr__(self, "views", views)
+        # the largest eigenvalue of each covariance, which the gates bound by: known already
+        self.__dict__["_top"] = eigenvalues[:, -1]
 
     def _appearance(self, where: str, n: int) -> tuple[np.ndarray | None, np.ndarray | None]:
         appearance, counts = self.appearance, self.same_counts
@@ -156,6 +159,27 @@ class ObjectSummary:
     def __len__(self) -> int:
         return int(self.ids.size)
 
+    def top_variances(self) -> np.ndarray:
+        """``(n,)`` the largest eigenvalue of each object's covariance (computed once per
+        summary: the gates bound a pair's Mahalanobis distance by them)."""
+        top = self.__dict__.get("_top")
+        if top is None:
+            top = np.linalg.eigvalsh(self.covs)[:, -1] if len(self) else np.zeros(0)
+            self.__dict__["_top"] = top
+        return top
+
+    def nearest_distances(self) -> np.ndarray:
+        """``(n,)`` the distance from each object to its nearest other object of the map
+        (:func:`~teamslam.association.distances.nearest_distance`, computed once per
+        summary)."""
+        near = self.__dict__.get("_nearest")
+        if near is None:
+            from teamslam.association.distances import nearest_distance
+
+            near = nearest_distance(self.means)
+            self.__dict__["_nearest"] = near
+        return near
+
     @property
     def nbytes(self) -> int:
         """Size of the summary on the wire (see :data:`BYTES_PER_OBJECT`)."""
@@ -193,6 +217,9 @@ class ObjectSummary:
         }
         for name, value in fields.items():
             object.__setattr__(part, name, value)
+        top = self.__dict__.get("_top")
+        if top is not None:  # each covariance's eigenvalues are its own
+            part.__dict__["_top"] = top[index]
         return part
 
     def select(self, ids: np.ndarray) -> ObjectSummary:

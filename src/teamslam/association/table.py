@@ -484,7 +484,7 @@ class CorrespondenceTable:
         held = held if self._canonical_first() else held[:, ::-1]
         model = self._link_model(first, second, np.ascontiguousarray(held))
         model = model if model.informative else rarity(model)
-        free = (~np.isin(first.ids, held[:, 0]), ~np.isin(second.ids, held[:, 1]))
+        free = (~_held_mask(first.ids, held[:, 0]), ~_held_mask(second.ids, held[:, 1]))
         rows, cols, _ = identified_by_frame(first, second, settings, model, free, self.history)
         found = np.column_stack([first.ids[rows], second.ids[cols]])
         if not self._canonical_first():
@@ -692,6 +692,16 @@ def _changed(now: ObjectSummary, before: ObjectSummary) -> np.ndarray:
     return changed
 
 
+def _held_mask(ids: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """Which of the increasing ``ids`` are in ``held`` (``np.isin``, by a binary search)."""
+    out = np.zeros(ids.size, dtype=bool)
+    if ids.size == 0 or held.size == 0:
+        return out
+    at = np.minimum(np.searchsorted(ids, held), ids.size - 1)
+    out[at[ids[at] == held]] = True
+    return out
+
+
 def _indices(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     """Indices into ``ids`` (unique, in any order) of the ids ``wanted`` (all present)."""
     order = np.argsort(ids, kind="stable")
@@ -740,18 +750,6 @@ def _extend(
         first), their :func:`~teamslam.association.gate.frame_nis` and which the frame allows.
     """
     none = (np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0, bool))
-    looks = None
-    if model is not None:
-        known_a = np.any(a.appearance != 0, axis=1)
-        known_b = np.any(b.appearance != 0, axis=1)
-        llr = model.log_ratio(cosine_distances(a.appearance, b.appearance))
-        llr[~known_a, :] = 0.0
-        llr[:, ~known_b] = 0.0
-        looks = -2.0 * llr
-        looks -= looks.min(initial=0.0)
-        told = beyond_chance(model, llr, max(len(a), len(b)), settings.consistency_probability) & (
-            known_a[:, None] & known_b[None, :]
-        )
     ia = np.searchsorted(a.ids, held[:, 0]) if held.size else np.zeros(0, np.int64)
     ib = np.searchsorted(b.ids, held[:, 1]) if held.size else np.zeros(0, np.int64)
     ia = np.minimum(ia, max(len(a) - 1, 0))
@@ -765,16 +763,37 @@ def _extend(
     if ia.size < settings.min_inliers:
         return none
     t = fit_transform(a.means[ia], b.means[ib], a.covs[ia], b.covs[ib])
-    cost, passed = gate_pairs(a, b, t, a.means[ia], b.means[ib], settings)
-    if looks is not None:
-        cost = cost + looks
     free_a = np.ones(len(a), bool)
     free_a[ia] = False
     free_b = np.ones(len(b), bool)
     free_b[ib] = False
-    passed &= free_a[:, None] & free_b[None, :]
-    if fresh is not None and not (passed & (fresh[0][:, None] | fresh[1][None, :])).any():
+    few = fresh is not None and 2 * _fresh_cells(fresh) < len(a) * len(b)
+    if few and not _fresh_in_gate(a, b, t, ia, ib, free_a, free_b, fresh, settings):
         return none  # no pair of a new object in the gate: nothing the last decision did not
+    cost, passed = gate_pairs(a, b, t, a.means[ia], b.means[ib], settings)
+    fresh_pairs = None if fresh is None else fresh[0][:, None] | fresh[1][None, :]
+    if not few and fresh is not None:
+        gated = passed & free_a[:, None] & free_b[None, :]
+        if not (gated & fresh_pairs).any():
+            return none
+    told = None
+    if model is not None:
+        known_a = np.any(a.appearance != 0, axis=1)
+        known_b = np.any(b.appearance != 0, axis=1)
+        llr = model.log_ratio(cosine_distances(a.appearance, b.appearance))
+        llr[~known_a, :] = 0.0
+        llr[:, ~known_b] = 0.0
+        looks = -2.0 * llr
+        looks -= looks.min(initial=0.0)
+        cost = cost + looks
+        m = max(len(a), len(b))
+
+        def told(r: np.ndarray, c: np.ndarray) -> np.ndarray:
+            """Whether the pairs look alike beyond chance (of every pair's, elementwise)."""
+            alike = beyond_chance(model, llr[r, c], m, settings.consistency_probability)
+            return alike & known_a[r] & known_b[c]
+
+    passed &= free_a[:, None] & free_b[None, :]
     rows, cols = assign(cost, passed)
     if rows.size:
         # once more with the new pairs as anchors too, as in the association: a new pair must
@@ -782,15 +801,15 @@ def _extend(
         ra, rb = np.concatenate([ia, rows]), np.concatenate([ib, cols])
         t = fit_transform(a.means[ra], b.means[rb], a.covs[ra], b.covs[rb])
         cost, passed = gate_pairs(a, b, t, a.means[ra], b.means[rb], settings)
-        if looks is not None:
+        if told is not None:
             cost = cost + looks
         gated = passed.copy()
         passed &= free_a[:, None] & free_b[None, :]
         rows, cols = assign(cost, passed)
         # alone in each other's gate: no second object of either map (held or not) fits
         single = alone(gated, rows, cols)
-        if looks is not None:  # alike beyond chance: not a neighbour taken for the object
-            single |= told[rows, cols]
+        if told is not None:  # alike beyond chance: not a neighbour taken for the object
+            single |= told(rows, cols)
         rows, cols = rows[single], cols[single]
     # distinct against every object, the held pairs counting as assigned
     all_rows = np.concatenate([ia, rows])
@@ -801,8 +820,8 @@ def _extend(
     spaced = separated(
         a, b, t, a.means[ia], b.means[ib], keep_rows[added], keep_cols[added], settings
     )
-    if looks is not None:
-        spaced |= told[keep_rows[added], keep_cols[added]]
+    if told is not None:
+        spaced |= told(keep_rows[added], keep_cols[added])
     added[added] = spaced
     rows, cols = keep_rows[added], keep_cols[added]
     ok = consistent_members(a, b, ia, ib, rows, cols, cost[rows, cols], settings)
@@ -817,6 +836,41 @@ def _extend(
     pairs = np.column_stack([a.ids[rows], b.ids[cols]])
     order = np.argsort(pairs[:, 0], kind="stable")
     return pairs[order], nis[order], framed[order]
+
+
+def _fresh_cells(fresh: tuple[np.ndarray, np.ndarray]) -> int:
+    """How many pairs have a fresh object (of masks ``fresh``)."""
+    r, c = int(np.count_nonzero(fresh[0])), int(np.count_nonzero(fresh[1]))
+    return r * fresh[1].size + c * fresh[0].size - r * c
+
+
+def _fresh_in_gate(
+    a: ObjectSummary,
+    b: ObjectSummary,
+    t: np.ndarray,
+    ia: np.ndarray,
+    ib: np.ndarray,
+    free_a: np.ndarray,
+    free_b: np.ndarray,
+    fresh: tuple[np.ndarray, np.ndarray],
+    settings: AssociationSettings,
+) -> bool:
+    """Whether a pair of free objects, one of them ``fresh``, passes the gate under ``t``
+    anchored on the held pairs ``(ia, ib)``: :func:`~teamslam.association.gate.gate_pairs` of
+    the fresh rows against every column and of every row against the fresh columns (each
+    pair's value is its own: the same as in the whole gate)."""
+    anchors = (a.means[ia], b.means[ib])
+    rows = np.flatnonzero(fresh[0] & free_a)
+    if rows.size:
+        _, passed = gate_pairs(a.take(rows), b, t, *anchors, settings)
+        if (passed & free_b[None, :]).any():
+            return True
+    cols = np.flatnonzero(fresh[1] & free_b)
+    if cols.size:
+        _, passed = gate_pairs(a, b.take(cols), t, *anchors, settings)
+        if (passed & free_a[:, None]).any():
+            return True
+    return False
 
 
 def _merge_gate(
