@@ -1055,3 +1055,59 @@ def test_the_scale_is_not_learned_by_consistent_maps_nor_without_a_frame():
     _full_association(free, a, b)
     _full_association(free, a, later)
     assert free.frame_scale == 1.0 and free.current_settings() is free.settings
+
+
+def _reference_consistent_with(a, b, rows, cols, held_rows, held_cols, settings):
+    """consistent_with as the block of the distances among both sets (pair_distances)."""
+
+    def block(summary, x, y):
+        both = np.concatenate([x, y])
+        dist, var = pair_distances(summary.means[both], summary.covs[both])
+        return dist[: x.size, x.size :], var[: x.size, x.size :]
+
+    d_a, v_a = block(a, rows, held_rows)
+    d_b, v_b = block(b, cols, held_cols)
+    var = v_a + v_b + 0.25 * settings.drift_ratio**2 * (d_a + d_b) ** 2
+    distinct = (rows[:, None] != held_rows[None, :]) & (cols[:, None] != held_cols[None, :])
+    return distinct & ((d_a - d_b) ** 2 <= settings.consistency_threshold * var)
+
+
+def test_distances_computed_alone_equal_their_definitions_bit_for_bit():
+    """The nearest and anchor distances and the consistency of a few pairs with a set are
+    computed without the all-pairs temporaries, and give the very numbers of their
+    definitions (the same decisions downstream)."""
+    from teamslam.association.consistency import consistent_with
+    from teamslam.association.distances import anchor_distance, nearest_distance
+
+    rng = np.random.default_rng(21)
+    settings = AssociationSettings()
+    for trial in range(60):
+        n = 1 if trial % 10 == 0 else int(rng.integers(2, 120))
+        means = rng.normal(size=(n, 3)) * rng.uniform(0.01, 500.0)
+        anchors = rng.normal(size=(int(rng.integers(1, 40)), 3)) * 30.0
+        np.testing.assert_array_equal(
+            anchor_distance(means, anchors),
+            np.min(np.linalg.norm(means[:, None] - anchors[None], axis=2), axis=1),
+        )
+        d2 = np.einsum("abi,abi->ab", means[:, None] - means[None], means[:, None] - means[None])
+        np.fill_diagonal(d2, np.inf)
+        np.testing.assert_array_equal(nearest_distance(means), np.sqrt(d2.min(axis=1)))
+        if n < 4:
+            continue
+        m = int(rng.integers(4, 60))
+        noise = rng.normal(size=(m, 3, 3)) * 0.1
+        a = ObjectSummary(0, np.arange(n), means, np.tile(0.01 * np.eye(3), (n, 1, 1)))
+        b = ObjectSummary(
+            1,
+            np.arange(m),
+            rng.normal(size=(m, 3)) * 20.0,
+            noise @ noise.swapaxes(1, 2) + np.eye(3),
+        )
+        k, h = int(rng.integers(1, min(n, m))), int(rng.integers(1, min(n, m)))
+        rows, cols = rng.choice(n, k, replace=False), rng.choice(m, k, replace=False)
+        held_rows, held_cols = rng.choice(n, h, replace=False), rng.choice(m, h, replace=False)
+        for x, y in ((held_rows, held_cols), (rows, cols)):  # against the held, among themselves
+            np.testing.assert_array_equal(
+                consistent_with(a, b, rows, cols, x, y, settings),
+                _reference_consistent_with(a, b, rows, cols, x, y, settings),
+            )

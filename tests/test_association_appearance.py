@@ -577,3 +577,37 @@ def test_a_map_grown_by_a_partial_summary_counts_its_descriptor_distances_as_cou
     assert expected.sum() == 38 * 37 // 2
     np.testing.assert_array_equal(within_counts(grown), expected)
     assert "_grown_from" not in grown.__dict__
+
+
+def test_a_whole_summary_grows_the_within_counts_of_the_last_one():
+    """A summary that holds every object of its robot's last counted one, with the same
+    descriptors, counts the pairs within its map as counting them all would; one that lacks an
+    object, or whose descriptor changed, counts them all."""
+    from teamslam.association.appearance import _within, within_counts
+
+    rng = np.random.default_rng(22)
+    looks = rng.standard_normal((50, DIM))
+    looks[3] = 0.0  # not known: no pair
+
+    def summary(rows, appearance=looks):
+        rows = np.asarray(rows)
+        n = rows.size
+        return ObjectSummary(
+            7,
+            rows * 3,
+            np.zeros((n, 3)),
+            np.tile(np.eye(3), (n, 1, 1)),
+            appearance=appearance[rows],
+        )
+
+    first = summary(np.arange(30))
+    within_counts(first)
+    changed = looks.copy()
+    changed[5] += 1.0
+    for later in (
+        summary(np.arange(45)),
+        summary(np.arange(1, 45)),
+        summary(np.arange(45), changed),
+    ):
+        counted = within_counts(later)
+        np.testing.assert_array_equal(counted, distance_counts(_within(later.appearance)))

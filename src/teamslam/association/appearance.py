@@ -23,6 +23,7 @@ a set of such pairs alike. The derivation: the association concept page, *Appear
 from __future__ import annotations
 
 import functools
+import weakref
 
 import numpy as np
 from scipy.stats import norm
@@ -190,23 +191,55 @@ def _across(old: np.ndarray, new: np.ndarray) -> np.ndarray:
     return np.clip(1.0 - np.einsum("pd,pd->p", a[i], b[j]), 0.0, 2.0)
 
 
+#: per robot, its last summary whose within-map histogram was counted (a weak reference: a
+#: memo, used only when a later summary holds every one of its objects with the same
+#: descriptor)
+_COUNTED: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+
+
 def within_counts(summary) -> np.ndarray:
     """``(BINS,)`` histogram of the distances between the distinct objects of ``summary``'s
     map (:func:`_within`), kept with the summary: a map a link holds is the same object at
     many exchanges, and one grown by a partial summary
-    (:meth:`~teamslam.association.ObjectSummary.updated`) adds the new objects' pairs to its
-    predecessor's counts instead of counting every pair again."""
+    (:meth:`~teamslam.association.ObjectSummary.updated`) — or a whole summary that holds
+    every object of the robot's last one counted with the same descriptor — adds the new
+    objects' pairs to its predecessor's counts instead of counting every pair again."""
     cached = summary.__dict__.get("_within_counts")
     if cached is not None:
         return cached
     grown = summary.__dict__.pop("_grown_from", None)
+    if grown is None:
+        grown = _grown_from_counted(summary)
     if grown is None:
         counts = distance_counts(_within(summary.appearance))
     else:
         before, old, new = grown
         counts = before + distance_counts(_within(new)) + distance_counts(_across(old, new))
     summary.__dict__["_within_counts"] = counts
+    _COUNTED[summary.robot] = summary
     return counts
+
+
+def _grown_from_counted(summary) -> tuple | None:
+    """``(counts, old, new)`` when ``summary`` holds every object of its robot's last counted
+    summary with the same descriptor (ids increasing in both): that summary's within-map
+    counts, its descriptors and those of the objects it lacks; else ``None``."""
+    last = _COUNTED.get(summary.robot)
+    if last is None or last is summary or last.appearance is None or len(last) > len(summary):
+        return None
+    if last.appearance.shape[1] != summary.appearance.shape[1] or len(last) == 0:
+        return None
+    ids, old = summary.ids, last.ids
+    if np.any(ids[1:] <= ids[:-1]) or np.any(old[1:] <= old[:-1]):
+        return None
+    at = np.minimum(np.searchsorted(ids, old), len(ids) - 1)
+    if not np.array_equal(ids[at], old) or not np.array_equal(
+        summary.appearance[at], last.appearance
+    ):
+        return None
+    added = np.ones(len(ids), dtype=bool)
+    added[at] = False
+    return last.__dict__["_within_counts"], last.appearance, summary.appearance[added]
 
 
 def link_model(first, second, held: np.ndarray | None, probability: float):

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from teamslam.association.distances import pair_distances
 from teamslam.association.kernels import consistent_pairs
 from teamslam.association.settings import AssociationSettings
 from teamslam.association.summary import ObjectSummary
@@ -112,10 +111,15 @@ def consistent_with(
         raise InputError("consistent_with: the indices of a set of pairs differ in length")
 
     def distance(summary: ObjectSummary, x: np.ndarray, y: np.ndarray):
-        # the (x, y) block of the distances among x and y together (pair_distances)
-        both = np.concatenate([x, y])
-        dist, var = pair_distances(summary.means[both], summary.covs[both])
-        return dist[: x.size, x.size :], var[: x.size, x.size :]
+        # the (x, y) block of the distances among x and y together (pair_distances), computed
+        # alone: each entry as pair_distances computes it, both ways round
+        delta = summary.means[x][:, None, :] - summary.means[y][None, :, :]
+        dist = np.linalg.norm(delta, axis=2)
+        unit = delta / np.maximum(dist, np.finfo(float).tiny)[..., None]
+        back = np.ascontiguousarray(-unit.transpose(1, 0, 2))
+        along = np.einsum("abi,aij,abj->ab", unit, summary.covs[x], unit)
+        along_back = np.einsum("abi,aij,abj->ab", back, summary.covs[y], back)
+        return dist, along + along_back.T
 
     d_a, v_a = distance(first, rows, held_rows)
     d_b, v_b = distance(second, cols, held_cols)

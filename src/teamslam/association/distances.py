@@ -31,12 +31,24 @@ def nearest_neighbours(dist: np.ndarray, k: int) -> np.ndarray:
 
 
 def nearest_distance(means: np.ndarray) -> np.ndarray:
-    """Distance from each object to its nearest other object of the same map (``inf``: alone)."""
-    d2 = np.einsum("abi,abi->ab", means[:, None] - means[None], means[:, None] - means[None])
+    """Distance from each object to its nearest other object of the same map (``inf``: alone).
+
+    The squared differences of the three coordinates are summed as numpy's ``einsum`` sums
+    three terms (the first and third, then the second), without the ``(n, n, 3)``
+    temporaries: the same numbers as the sum of products over the differences."""
+    if means.shape[0] == 0:
+        return np.zeros(0)
+    x, y, z = (means[:, i, None] - means[None, :, i] for i in range(3))
+    d2 = (x * x + z * z) + y * y
     np.fill_diagonal(d2, np.inf)
-    return np.sqrt(d2.min(axis=1)) if means.shape[0] else np.zeros(0)
+    return np.sqrt(d2.min(axis=1))
 
 
 def anchor_distance(means: np.ndarray, anchors: np.ndarray) -> np.ndarray:
-    """Distance from each object to its nearest anchor (a matched object) of the same map."""
-    return np.min(np.linalg.norm(means[:, None] - anchors[None], axis=2), axis=1)
+    """Distance from each object to its nearest anchor (a matched object) of the same map.
+
+    The squared differences summed coordinate by coordinate in order, as the Euclidean norm
+    sums them, without the ``(n, k, 3)`` temporaries; the root of the least (the root is
+    monotone: the least of the roots)."""
+    x, y, z = (means[:, i, None] - anchors[None, :, i] for i in range(3))
+    return np.sqrt(np.min((x * x + y * y) + z * z, axis=1))

@@ -167,6 +167,7 @@ class CorrespondenceTable:
         self.settings = settings or AssociationSettings()
         self.hold_off = None if hold_off is None else int(hold_off)
         self._theirs: dict[int, int] = {}  # own id → neighbour id
+        self._pairs: np.ndarray | None = None  # the held pairs as an array (:meth:`pairs`)
         self._ours: dict[int, int] = {}  # neighbour id → own id
         self._revoked: dict[tuple[int, int], int] = {}  # pair → step it was revoked
         self.proposed = 0
@@ -202,12 +203,25 @@ class CorrespondenceTable:
         return self._theirs.get(own_id) == their_id
 
     def pairs(self) -> np.ndarray:
-        """``(k, 2)`` int64 rows ``(own id, neighbour id)``, sorted by own id."""
-        if not self._theirs:
-            return np.zeros((0, 2), np.int64)
-        own = np.fromiter(self._theirs, dtype=np.int64, count=len(self._theirs))
-        own.sort()
-        return np.column_stack([own, [self._theirs[int(i)] for i in own]]).astype(np.int64)
+        """``(k, 2)`` int64 rows ``(own id, neighbour id)``, sorted by own id (a new array
+        each call; built once per change of the pairs)."""
+        if self._pairs is None:
+            if not self._theirs:
+                self._pairs = np.zeros((0, 2), np.int64)
+            else:
+                own = np.fromiter(self._theirs, dtype=np.int64, count=len(self._theirs))
+                own.sort()
+                their = [self._theirs[int(i)] for i in own]
+                self._pairs = np.column_stack([own, their]).astype(np.int64)
+        return self._pairs.copy()
+
+    def _hold(self, pairs: list[tuple[int, int]]) -> None:
+        """Add ``pairs`` (own id, neighbour id) to the held ones."""
+        for a, b in pairs:
+            self._theirs[a] = b
+            self._ours[b] = a
+        if pairs:
+            self._pairs = None
 
     def theirs(self, own_ids: np.ndarray) -> np.ndarray:
         """The neighbour's ids of ``own_ids`` (-1 where unmatched)."""
@@ -297,9 +311,7 @@ class CorrespondenceTable:
         elif result.T_first_second is not None:
             self.T_own_their = result.T_first_second
         new = [p for p, keep in zip(new, ok, strict=True) if keep]
-        for a, b in new:
-            self._theirs[a] = b
-            self._ours[b] = a
+        self._hold(new)
         self.accepted += len(new)
         return np.array(new, dtype=np.int64).reshape(-1, 2)
 
@@ -445,14 +457,10 @@ class CorrespondenceTable:
             and int(b) not in self._ours
             and not self._blocked((int(a), int(b)), step)
         ]
-        for a, b in new:
-            self._theirs[a] = b
-            self._ours[b] = a
+        self._hold(new)
         framed = self._identified_by_frame(own, their, step)
         self.proposed += len(framed)
-        for a, b in framed:
-            self._theirs[a] = b
-            self._ours[b] = a
+        self._hold(framed)
         new += framed
         self.accepted += len(new)
         # what the next extension needs not decide again: nothing, when this one added pairs
@@ -658,6 +666,7 @@ class CorrespondenceTable:
         if self._theirs.get(own_id) != their_id:
             return False
         del self._theirs[own_id]
+        self._pairs = None
         del self._ours[their_id]
         self._frame_samples.pop((own_id, their_id), None)
         self._revoked[(own_id, their_id)] = -1 if step is None else int(step)
