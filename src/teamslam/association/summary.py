@@ -10,18 +10,55 @@ from teamslam.association.appearance import BINS
 from teamslam.errors import InputError
 from teamslam.gaussian import symmetrize
 
-__all__ = ["ObjectSummary"]
+__all__ = ["ObjectSummary", "descriptor_codes", "descriptors_from_codes", "varint_sizes"]
 
 #: Bytes per object on the wire: id (8), mean (3 × 8), upper triangle of the covariance
 #: (6 × 8), the direction to the sender's cameras (3 × 4), and a class label (8) when the map
 #: has classes.
 BYTES_PER_OBJECT = 8 + 3 * 8 + 6 * 8 + 3 * 4
 BYTES_PER_CLASS = 8
-#: Bytes per descriptor component (float16) when the map has appearance, and of the summary's
-#: dimension (2) and *same*-distance histogram (:data:`~teamslam.association.appearance.BINS`
-#: × 4) once per summary.
-BYTES_PER_APPEARANCE = 2
-BYTES_APPEARANCE_HEADER = 2 + BINS * 4
+#: Bytes per descriptor component (int8: :func:`descriptor_codes`) when the map has
+#: appearance, and of the summary's dimension (2) once per summary; its *same*-distance
+#: histogram (:data:`~teamslam.association.appearance.BINS` counts) follows as LEB128 varints
+#: (:func:`varint_sizes`).
+BYTES_PER_APPEARANCE = 1
+BYTES_APPEARANCE_HEADER = 2
+#: The largest code of a descriptor component on the wire.
+CODE_PEAK = 127
+
+
+def descriptor_codes(appearance: np.ndarray) -> np.ndarray:
+    """``(n, D)`` int8 wire codes of descriptors: each row scaled so that its largest absolute
+    component is :data:`CODE_PEAK`, then rounded (a zero row stays zero).
+
+    Descriptors are compared by direction alone (cosine distance), so no scale travels: the
+    receiver takes the codes' direction (:func:`descriptors_from_codes`). With ``p`` the row's
+    largest absolute unit component, the direction moves by at most ``√D · p / 127`` (the
+    chord between the unit rows): each code is off by at most ½ on a row of norm ``127 / p``.
+    """
+    a = np.asarray(appearance, dtype=np.float64)
+    peak = np.max(np.abs(a), axis=-1, keepdims=True, initial=0.0)
+    scaled = np.divide(CODE_PEAK * a, peak, out=np.zeros_like(a), where=peak > 0)
+    return np.clip(np.rint(scaled), -CODE_PEAK, CODE_PEAK).astype(np.int8)
+
+
+def descriptors_from_codes(codes: np.ndarray) -> np.ndarray:
+    """Unit rows (float64) of wire codes (:func:`descriptor_codes`; a zero row stays zero).
+    Coding them again gives the same codes."""
+    c = np.asarray(codes, dtype=np.float64)
+    norms = np.linalg.norm(c, axis=-1, keepdims=True)
+    return np.divide(c, norms, out=np.zeros_like(c), where=norms > 0)
+
+
+def varint_sizes(values: np.ndarray) -> np.ndarray:
+    """Bytes of each non-negative integer as an LEB128 varint (7 bits a byte, at least one)."""
+    v = np.asarray(values, dtype=np.uint64).reshape(-1)
+    bits = np.zeros(v.shape, np.int64)
+    rest = v.copy()
+    while rest.any():
+        bits += rest > 0
+        rest >>= np.uint64(1)
+    return np.maximum((bits + 6) // 7, 1)
 
 
 @dataclass(frozen=True)
@@ -51,8 +88,8 @@ class ObjectSummary:
         as the wire carries it, so that both ends of a link compute with the same numbers.
     appearance
         ``(n, D)`` each object's appearance descriptor (any scale: compared by cosine
-        distance; a zero row: not known), or ``None`` (the robot has none). Stored rounded to
-        float16, as the wire carries it.
+        distance; a zero row: not known), or ``None`` (the robot has none). Stored as the wire
+        carries it: the unit direction of its int8 codes (:func:`descriptor_codes`).
     same_counts
         ``(BINS,)`` int64 histogram of cosine distances between descriptors of one object
         that the robot has seen (its held pairs with its neighbours, its tracker's samples;
@@ -138,10 +175,8 @@ class ObjectSummary:
             )
         if not np.all(np.isfinite(appearance)):
             raise InputError(f"{where}: appearance is not finite")
-        # the wire's float16, of unit rows (any scale: only directions are compared)
-        norms = np.linalg.norm(appearance, axis=1, keepdims=True)
-        unit = np.divide(appearance, norms, out=np.zeros_like(appearance), where=norms > 0)
-        appearance = unit.astype(np.float16).astype(float)
+        # the wire's int8 codes, as unit rows (any scale: only directions are compared)
+        appearance = descriptors_from_codes(descriptor_codes(appearance))
         if counts is None:
             counts = np.zeros(BINS, np.int64)
         try:
@@ -187,7 +222,8 @@ class ObjectSummary:
         if self.appearance is None:
             return len(self) * per
         per += BYTES_PER_APPEARANCE * self.appearance.shape[1]
-        return len(self) * per + BYTES_APPEARANCE_HEADER
+        histogram = int(varint_sizes(self.same_counts).sum())
+        return len(self) * per + BYTES_APPEARANCE_HEADER + histogram
 
     def sorted(self) -> ObjectSummary:
         """The same summary with its objects in increasing id order (itself when they are)."""
@@ -201,7 +237,7 @@ class ObjectSummary:
 
         The rows are this summary's, already checked and rounded as the wire carries them, so
         they are taken as they are: checking them again would cost an eigen-decomposition per
-        object, and normalising a rounded descriptor again can move it by one float16 step.
+        object.
         """
         index = np.asarray(index, dtype=np.int64)
         part = object.__new__(ObjectSummary)

@@ -5,9 +5,10 @@ id, sender, receiver, step, sizes), the sender's frame stamp when the kind says 
 (:data:`STAMPED`: messages of robots that drop frames), then the payload: ids as LEB128 varint
 deltas, then moved flags, or a mean and the upper triangle of a covariance or information
 matrix in float64 or float32, object summaries (with class labels, with appearance descriptors
-in float16 and a histogram of same-object distances), or a prior, by kind. Older versions are
-refused by name. No pickle, no code: :func:`decode` checks every field and raises
-:class:`WireError` naming the first problem, and a transport drops and counts such a message.
+in int8 codes and a histogram of same-object distances in varints), or a prior, by kind.
+Older versions are refused by name. No pickle, no code: :func:`decode` checks every field and
+raises :class:`WireError` naming the first problem, and a transport drops and counts such a
+message.
 Byte by byte: the docs' reference page *Wire format*.
 """
 
@@ -19,7 +20,7 @@ import struct
 import numpy as np
 
 from teamslam.association.appearance import BINS
-from teamslam.association.summary import ObjectSummary
+from teamslam.association.summary import ObjectSummary, descriptor_codes
 from teamslam.errors import InputError
 from teamslam.msckf.consensus.messages import (
     CommonMarginalMessage,
@@ -32,7 +33,7 @@ from teamslam.msckf.consensus.messages import (
 __all__ = ["FORMAT_VERSION", "MAX_MESSAGE_BYTES", "WireError", "decode", "encode", "team_id"]
 
 MAGIC = b"TSLM"
-FORMAT_VERSION = 7
+FORMAT_VERSION = 8
 KIND_IDS = 1
 KIND_IDS_SUMMARY = 8  # 9: with class labels
 KIND_IDS_APPEARANCE = 12  # a summary with appearance; 13: with class labels too
@@ -45,7 +46,8 @@ _IDS_KINDS = (
 )
 #: bytes per object of a summary by kind (without its appearance)
 _PER_SUMMARY = {KIND_IDS: 0, 8: 84, 9: 92, 12: 84, 13: 92}
-#: an appearance block: its dimension (uint16), then n × D float16, then BINS uint32 counts
+#: an appearance block: its dimension (uint16), then n × D int8 codes, then BINS counts as
+#: LEB128 varints
 _APPEARANCE_HEAD = struct.Struct("<H")
 MAX_APPEARANCE = 4096
 KIND_MARGINAL = 2  # joint float64; 3 joint float32; 4 per object float64; 5 per object float32
@@ -214,30 +216,63 @@ def _encode_summary(summary: ObjectSummary, ids: np.ndarray) -> tuple[int, bytes
     dim = summary.appearance.shape[1]
     if dim > MAX_APPEARANCE:
         raise WireError(f"appearance of {dim} dimensions (at most {MAX_APPEARANCE})")
-    looks = np.ascontiguousarray(summary.appearance, "<f2").tobytes()
-    counts = np.ascontiguousarray(summary.same_counts, "<u4").tobytes()
+    looks = descriptor_codes(summary.appearance).tobytes()
+    counts = _encode_counts(summary.same_counts)
     kind += KIND_IDS_APPEARANCE - KIND_IDS_SUMMARY
     return kind, out + _APPEARANCE_HEAD.pack(dim) + looks + counts
 
 
+def _encode_counts(counts: np.ndarray) -> bytes:
+    """Non-negative counts (below 2³²) as LEB128 varints, 7 bits a byte, low bits first."""
+    out = bytearray()
+    for value in np.asarray(counts, dtype=np.int64).tolist():
+        while value >= 0x80:
+            out.append((value & 0x7F) | 0x80)
+            value >>= 7
+        out.append(value)
+    return bytes(out)
+
+
+def _counts_end(data: bytes, offset: int) -> int:
+    """Where the :data:`BINS` varint counts starting at ``offset`` end."""
+    raw = np.frombuffer(data, dtype=np.uint8, offset=min(offset, len(data)))
+    ends = np.flatnonzero(raw < 0x80)
+    if ends.size < BINS:
+        raise WireError(f"truncated appearance histogram ({len(data)} bytes)")
+    return offset + int(ends[BINS - 1]) + 1
+
+
 def _appearance_size(data: bytes, offset: int, n: int) -> int:
-    """Bytes of the appearance block at ``offset`` (its dimension read from it)."""
+    """Bytes of the appearance block at ``offset`` (its dimension and histogram read from
+    it)."""
     if len(data) < offset + _APPEARANCE_HEAD.size:
         raise WireError(f"truncated appearance ({len(data)} bytes, its header at {offset})")
     (dim,) = _APPEARANCE_HEAD.unpack_from(data, offset)
     if not 1 <= dim <= MAX_APPEARANCE:
         raise WireError(f"appearance of {dim} dimensions (1 to {MAX_APPEARANCE})")
-    return _APPEARANCE_HEAD.size + 2 * dim * n + 4 * BINS
+    counts = offset + _APPEARANCE_HEAD.size + dim * n
+    return _counts_end(data, counts) - offset
 
 
 def _decode_appearance(data: bytes, offset: int, n: int) -> tuple[np.ndarray, np.ndarray]:
     (dim,) = _APPEARANCE_HEAD.unpack_from(data, offset)
     offset += _APPEARANCE_HEAD.size
-    looks = np.frombuffer(data, dtype="<f2", count=dim * n, offset=offset).astype(float)
-    counts = np.frombuffer(data, dtype="<u4", count=BINS, offset=offset + 2 * dim * n)
-    if not np.all(np.isfinite(looks)):
-        raise WireError("non-finite appearance in an object summary")
-    return looks.reshape(n, dim), counts.astype(np.int64)
+    codes = np.frombuffer(data, dtype=np.int8, count=dim * n, offset=offset)
+    if np.any(codes == -128):
+        raise WireError("an appearance code out of range (-128) in an object summary")
+    offset += dim * n
+    end = _counts_end(data, offset)
+    raw = np.frombuffer(data, dtype=np.uint8, count=end - offset, offset=offset)
+    ends = np.flatnonzero(raw < 0x80)
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    if np.max(ends - starts + 1) > 5:
+        raise WireError("an appearance count longer than 32 bits")
+    position = np.arange(raw.size) - np.repeat(starts, ends - starts + 1)
+    parts = (raw & 0x7F).astype(np.int64) << (7 * position)
+    counts = np.add.reduceat(parts, starts)
+    if counts.max(initial=0) > np.iinfo(np.uint32).max:
+        raise WireError("an appearance count beyond 32 bits")
+    return codes.reshape(n, dim).astype(float), counts
 
 
 def _decode_summary(
