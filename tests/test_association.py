@@ -1111,3 +1111,31 @@ def test_distances_computed_alone_equal_their_definitions_bit_for_bit():
                 consistent_with(a, b, rows, cols, x, y, settings),
                 _reference_consistent_with(a, b, rows, cols, x, y, settings),
             )
+
+
+def test_an_extension_of_few_new_objects_decides_as_one_gated_whole(monkeypatch):
+    """An extension whose new objects are few first gates them alone and stops when none of
+    them has a partner in the gate; what it decides equals the decision from the whole gate,
+    pairs, distances under the identity and the frame's verdicts alike."""
+    from teamslam.association import table as table_module
+
+    a, b, _, _ = _two_maps(seed=0, yaw=30.0, shift=(20.0, 0.0, 0.0))
+    a, b = a.sorted(), b.sorted()
+    full = associate(a, b)
+    assert full.matched and full.first == a.robot
+    held = full.pairs[:8]
+    settings = AssociationSettings()
+    rng = np.random.default_rng(4)
+    found = 0
+    for trial in range(12):
+        share = 0.02 if trial % 3 == 0 else 0.12
+        fresh = (rng.random(len(a)) < share, rng.random(len(b)) < share)
+        assert 2 * table_module._fresh_cells(fresh) < len(a) * len(b)  # the few-new path
+        few = table_module._extend(a, b, held, settings, None, fresh)
+        with monkeypatch.context() as patch:
+            patch.setattr(table_module, "_fresh_cells", lambda fresh: 10**12)  # whole gate
+            whole = table_module._extend(a, b, held, settings, None, fresh)
+        for x, y in zip(few, whole, strict=True):
+            np.testing.assert_array_equal(x, y)
+        found += len(few[0])
+    assert found > 0  # some trials add pairs: the comparison is not of empty answers only
