@@ -419,6 +419,19 @@ def _oracle_team(name: str, window: int, appearance: int = 0, useless: bool = Fa
     return team, stripped, graph, loss, {"filter.window": window}
 
 
+def _warm_up(appearance: int) -> None:
+    """Run own association once on a small team, so that the compiled kernels' first call
+    (numba compiles them or loads them from its cache) is charged to no measured team."""
+    team = strip_object_ids(
+        lissajous_team(
+            robots=3, steps=30, seed=1, **({"appearance": appearance} if appearance else {})
+        ),
+        seed=0,
+    )
+    settings = build_settings(team, flags={"filter.window": 10})
+    api.run(team, settings=settings, association="own", report=False, progress=False)
+
+
 def oracle(
     teams: list[str], window: int, md: Markdown, appearance: int = 0, useless: bool = False
 ) -> None:
@@ -452,6 +465,7 @@ def oracle(
         "sent per robot per frame; time share: the association's share of the robots' step "
         "time.",
     )
+    _warm_up(appearance)
     for name in teams:
         team, stripped, graph, loss, settings = _oracle_team(name, window, appearance, useless)
         resolved = build_settings(team, flags=settings)  # calibrated once per dataset
