@@ -189,7 +189,8 @@ def _exchange(protocols, step):
         protocols[i].average(replies[i])
 
 
-def test_a_team_of_three_never_exceeds_the_centralised_information_and_beats_the_average():
+@pytest.mark.parametrize("rule", ["ci", "ici"])
+def test_a_team_of_three_never_exceeds_the_centralised_information_and_beats_the_average(rule):
     """Three robots, a common prior, a direct measurement each per step, an exchange per step:
     every robot's information stays below the centralised fusion's (nothing counted twice)
     and above the plain average's."""
@@ -198,12 +199,12 @@ def test_a_team_of_three_never_exceeds_the_centralised_information_and_beats_the
     prior_cov = np.diag(rng.uniform(0.5, 2.0, DIM))
     prior_mean = truth + rng.multivariate_normal(np.zeros(DIM), prior_cov)
     teams = {
-        rule: [_agent(i, prior_mean, prior_cov, rule) for i in range(3)]
-        for rule in ("ici", "average")
+        name: [_agent(i, prior_mean, prior_cov, name) for i in range(3)]
+        for name in (rule, "average")
     }
     protocols = {
-        rule: [ConsensusProtocol(a, [j for j in range(3) if j != a.robot]) for a in agents]
-        for rule, agents in teams.items()
+        name: [ConsensusProtocol(a, [j for j in range(3) if j != a.robot]) for a in agents]
+        for name, agents in teams.items()
     }
     central = np.linalg.inv(prior_cov)
     for step in range(1, 7):
@@ -219,10 +220,10 @@ def test_a_team_of_three_never_exceeds_the_centralised_information_and_beats_the
                 jacobian = np.zeros((rows, state.dim))
                 jacobian[:, 6:] = h
                 state.update(jacobian, z - h @ state.objects.ravel(), noise)
-        for rule in teams:
-            _exchange(protocols[rule], step)
+        for team in protocols.values():
+            _exchange(team, step)
         scale = np.abs(central).max()
-        for a, b in zip(teams["ici"], teams["average"], strict=True):
+        for a, b in zip(teams[rule], teams["average"], strict=True):
             info = np.linalg.inv(a.state.cov[6:, 6:])
             plain = np.linalg.inv(b.state.cov[6:, 6:])
             assert np.linalg.eigvalsh(central - info).min() > -1e-9 * scale
