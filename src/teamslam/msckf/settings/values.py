@@ -385,7 +385,9 @@ class ConsensusSettings:
         inverse covariance intersection, the weight minimising the fused covariance's
         determinant (:mod:`teamslam.msckf.consensus.intersection`): consistent whatever the
         robots share (``ci``) or when what they share is common information (``ici``), without
-        the fixed weights' dilution; joint marginals and lock-step exchanges.
+        the fixed weights' dilution; joint marginals and lock-step exchanges. Options: their
+        NEES is closer to 1 on the teams measured, their position error larger (concept page
+        *Consensus*, section *Intersection*).
     kl_threshold
         Consensus averages a common object with a neighbour only when its marginal has moved,
         on either robot, since the two last exchanged it, by more than this Kullback–Leibler
