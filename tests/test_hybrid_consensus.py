@@ -243,5 +243,5 @@ def test_each_rule_name_gives_its_strategy_and_an_unknown_one_is_named():
     prior = object()
     assert rules["hybrid"].message_prior(prior) is None  # hybrid messages carry no prior
     assert rules["increments"].message_prior(prior) is prior
-    with pytest.raises(InputError, match="average, hybrid or increments"):
+    with pytest.raises(InputError, match="average, hybrid, increments, ci, ici"):
         consensus_rule("median")

@@ -10,7 +10,10 @@ ConsensusProtocol` for everything that differs between them:
   and adds its own new information once more in its average;
 * :class:`IncrementsRule` (``increments``): hybrid messages that also carry the sender's
   prior, so each neighbour's marginal is completed against our prior and our own new
-  information enters exactly once on every object.
+  information enters exactly once on every object;
+* :class:`IntersectionRule` (``ci``, ``ici``): the plain marginal is sent and fused with each
+  neighbour's by (inverse) covariance intersection with the weight that minimises the fused
+  covariance's determinant (:mod:`teamslam.msckf.consensus.intersection`).
 
 The rules and their derivations: :mod:`teamslam.msckf.consensus.average`. Hybrid and increments
 hold for lock-step exchanges only; asynchronous robots use :class:`AverageRule`.
@@ -32,9 +35,17 @@ from teamslam.msckf.consensus.average import (
     shared_prior,
 )
 from teamslam.msckf.consensus.checks import ReceivedMarginal
+from teamslam.msckf.consensus.intersection import intersection_average
 from teamslam.msckf.filter.state import MsckfState
 
-__all__ = ["AverageRule", "ConsensusRule", "HybridRule", "IncrementsRule", "consensus_rule"]
+__all__ = [
+    "AverageRule",
+    "ConsensusRule",
+    "HybridRule",
+    "IncrementsRule",
+    "IntersectionRule",
+    "consensus_rule",
+]
 
 
 class ConsensusRule:
@@ -152,18 +163,45 @@ class IncrementsRule(HybridRule):
         return prior
 
 
+class IntersectionRule(ConsensusRule):
+    """Covariance intersection (``ci``) or inverse covariance intersection (``ici``) with the
+    neighbours' plain marginals, each weight chosen per fusion; no prior is kept."""
+
+    name = "ici"
+
+    def average(
+        self, state, self_weight, used, prior, counters, own_information, rigid_directions=False
+    ):
+        return intersection_average(
+            state,
+            used,
+            self.name,
+            counters=counters,
+            own_information=own_information,
+            rigid_directions=rigid_directions,
+        )
+
+
+class CovarianceIntersectionRule(IntersectionRule):
+    """Covariance intersection with the weight that minimises the fused determinant."""
+
+    name = "ci"
+
+
 _RULES: dict[str, type[ConsensusRule]] = {
     "average": AverageRule,
     "hybrid": HybridRule,
     "increments": IncrementsRule,
+    "ci": CovarianceIntersectionRule,
+    "ici": IntersectionRule,
 }
 
 
 def consensus_rule(name: str) -> ConsensusRule:
-    """The rule called ``name`` (``average``, ``hybrid`` or ``increments``)."""
+    """The rule called ``name`` (``average``, ``hybrid``, ``increments``, ``ci`` or ``ici``)."""
     try:
         return _RULES[name]()
     except KeyError:
         raise InputError(
-            f"consensus rule must be average, hybrid or increments, not {name!r}"
+            f"consensus rule must be one of {', '.join(_RULES)}, not {name!r}"
         ) from None

@@ -34,7 +34,7 @@ __all__ = [
 ]
 
 #: The consensus rules (:mod:`teamslam.msckf.consensus.rules`).
-CONSENSUS_RULES = ("average", "hybrid", "increments")
+CONSENSUS_RULES = ("average", "hybrid", "increments", "ci", "ici")
 #: The linearisation policies (:mod:`teamslam.msckf.filter.linearization`).
 LINEARIZATIONS = ("std", "fej", "ideal", "oc")
 
@@ -380,7 +380,14 @@ class ConsensusSettings:
         own new information enters its average exactly once on every object (each neighbour's
         marginal is completed against our prior rather than our current marginal), so partial
         maps and partial exchanges no longer dilute it. ``hybrid`` and ``increments`` need joint
-        marginals and lock-step exchanges (asynchronous robots average).
+        marginals and lock-step exchanges (asynchronous robots average). ``ci`` and ``ici`` —
+        each neighbour's marginal is fused with the robot's by covariance intersection or
+        inverse covariance intersection, the weight minimising the fused covariance's
+        determinant (:mod:`teamslam.msckf.consensus.intersection`): consistent whatever the
+        robots share (``ci``) or when what they share is common information (``ici``), without
+        the fixed weights' dilution; joint marginals and lock-step exchanges. Options: their
+        NEES is closer to 1 on the teams measured, their position error larger (concept page
+        *Consensus*, section *Intersection*).
     kl_threshold
         Consensus averages a common object with a neighbour only when its marginal has moved,
         on either robot, since the two last exchanged it, by more than this Kullback–Leibler
@@ -471,7 +478,7 @@ class ConsensusSettings:
     def __post_init__(self) -> None:
         if self.rule not in CONSENSUS_RULES:
             raise InputError(
-                f"consensus.rule must be average, hybrid or increments, not {self.rule!r}"
+                f"consensus.rule must be one of {', '.join(CONSENSUS_RULES)}, not {self.rule!r}"
             )
         threshold = self.kl_threshold
         if not (_is_number(threshold) and np.isfinite(threshold) and threshold >= 0):
