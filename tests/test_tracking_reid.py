@@ -204,3 +204,36 @@ def test_a_checkpoint_mid_revisit_continues_to_the_same_merge():
     again = _run(resumed, copy_state, np.random.default_rng(5), look, frames=range(62, 70))
     assert again == ids and resumed.merged == tracker.merged
     assert list(tracker.merged.values()) == [7]
+
+
+def test_a_pair_appearance_alone_names_is_a_sample_of_d2_the_gate_does_not_cut():
+    """The look-alike ten σ away: not merged, yet appearance and class alone name it, so its
+    ``d²`` — far beyond the gate — is a sample of how overconfident the objects are; two
+    look-alikes give none (appearance alone does not choose between them)."""
+    rng = np.random.default_rng(3)
+    old = {9: TRUE + np.array([0.0, 3.0, 0.0])}
+    tracker, state = _tracker({9: _look(0.0)}), _state(old, rng)
+    seen = {}
+    for frames in (range(60, 65), range(65, 70), range(70, 75)):
+        _run(tracker, state, rng, _look(_chord_angle(0.05)), frames)
+        seen.update(tracker.revisit_d2)
+    assert not tracker.merged
+    assert seen and {o for _, o in seen} == {9}
+    assert min(seen.values()) > tracker.revisit_gate
+    off = MsckfConfig.from_settings(
+        {
+            "filter.object_std": STD,
+            "filter.object_size_share": SHARE,
+            "filter.window": 10,
+            "filter.object_overconfidence": False,
+        }
+    )
+    quiet, state = _tracker({9: _look(0.0)}), _state(old, np.random.default_rng(3))
+    quiet.config = off
+    _run(quiet, state, np.random.default_rng(3), _look(_chord_angle(0.05)))
+    assert not quiet.revisit_d2
+    rng = np.random.default_rng(2)
+    twins = {7: TRUE, 9: TRUE + np.array([0.0, 0.2, 0.0])}
+    tracker, state = _tracker({7: _look(0.0), 9: _look(0.0)}), _state(twins, rng)
+    _run(tracker, state, rng, _look(_chord_angle(0.05)))
+    assert not tracker.revisit_d2

@@ -26,7 +26,13 @@ from teamslam.datasets.model import Calibration, RobotSequence
 from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry import se3
-from teamslam.msckf.filter.box_noise import box_rows, box_size2, box_variances, is_box
+from teamslam.msckf.filter.box_noise import (
+    Overconfidence,
+    box_rows,
+    box_size2,
+    box_variances,
+    is_box,
+)
 from teamslam.msckf.filter.linearization import GroundTruth, linearization_policy
 from teamslam.msckf.filter.models import observe, observe_jacobians, points_in_camera
 from teamslam.msckf.filter.state import MsckfState, RobotWindow
@@ -145,9 +151,20 @@ class MsckfAgent:
         #: frame when a summary of the map needs it (association without shared ids, loop
         #: closure in the robot's own map)
         self.views = ObjectViews()
+        #: how overconfident the objects are, learned from the pairs of the association
+        #: (:meth:`learn_overconfidence`), and the factor of new boxes' variance (``None``: 1)
+        self.overconfidence = Overconfidence()
+        self._kappa: float | None = None
+        #: the factor in force at each object's last update, where it was above 1
+        self._object_kappa: dict[int, float] = {}
         tracking = sequence.detections is not None and sequence.objects.ids.size == 0
         self._record_views = config.association.mode == "own" or (
             tracking and config.tracking.loop_closure
+        )
+        self._learns_overconfidence = (
+            tracking
+            and config.filter.object_overconfidence
+            and sequence.detections.sizes is not None
         )
         if tracking:
             self.tracker = ObjectTracker(
@@ -206,6 +223,11 @@ class MsckfAgent:
             width = len(zs[0]) if zs else 4  # box rows: filter/box_noise.py
             out[f"{name}_z"] = np.array(zs, dtype=float).reshape(-1, width)
         out.update({f"views_{k}": v for k, v in self.views.arrays().items()})
+        if len(self.overconfidence):
+            out.update({f"overconfidence_{k}": v for k, v in self.overconfidence.arrays().items()})
+        if self._object_kappa:
+            out["overconfidence_object_ids"] = np.array(list(self._object_kappa), np.int64)
+            out["overconfidence_object_kappa"] = np.array(list(self._object_kappa.values()))
         out["frame"] = np.array(self.frame, dtype=np.int64)
         out["window_objects_peak"] = np.array(self.window_objects_peak, dtype=np.int64)
         out["frame_times"] = np.array(self.frame_times, dtype=float).reshape(-1, 3)
@@ -244,6 +266,12 @@ class MsckfAgent:
             counters = dict(zip(names[0], values[0], strict=True))
             timings = dict(zip(names[1], values[1], strict=True))
             views = ObjectViews.from_arrays(snapshot["views_ids"], snapshot["views_sums"])
+            overconfidence = Overconfidence.from_arrays(
+                {
+                    "keys": snapshot.get("overconfidence_keys", np.zeros((0, 3), np.int64)),
+                    "values": snapshot.get("overconfidence_values", np.zeros(0)),
+                }
+            )
             tracker = None
             if self.tracker is not None:  # its ids continue (a copy: unchanged on failure)
                 tracker = copy.deepcopy(self.tracker)
@@ -255,6 +283,8 @@ class MsckfAgent:
                     raise KeyError(f"tracker_{exc.args[0]}") from None
         except KeyError as exc:
             raise InputError(f"robot {self.robot}: snapshot lacks {exc.args[0]!r}") from None
+        except ValueError as exc:
+            raise InputError(f"robot {self.robot}: snapshot {exc}") from None
         if not -1 <= frame < self.sequence.frames or frame_times.shape[0] != frame + 1:
             raise InputError(
                 f"robot {self.robot}: snapshot at frame {frame} with {frame_times.shape[0]} "
@@ -270,10 +300,48 @@ class MsckfAgent:
         self.counters = defaultdict(int, counters)
         self.timings = defaultdict(float, timings)
         self.views = views
+        self.overconfidence = overconfidence
+        self._kappa = self._learned_kappa()
+        self._object_kappa = dict(
+            zip(
+                np.asarray(snapshot.get("overconfidence_object_ids", [])).tolist(),
+                np.asarray(snapshot.get("overconfidence_object_kappa", []), float).tolist(),
+                strict=True,
+            )
+        )
         if tracker is not None:
             self.tracker = tracker
             if tracker.views is not None:
                 tracker.views = views.of
+
+    # ------------------------------------------------------------------ overconfidence
+    def learn_overconfidence(self, tables: dict) -> None:
+        """Learn how overconfident the objects are from the association's links ``tables``
+        (neighbour → :class:`~teamslam.association.CorrespondenceTable`): each pair a link
+        identified by its held pairs' transform before holding it, with the squared Mahalanobis
+        distance of the two robots' estimates it recorded then
+        (:class:`~teamslam.msckf.filter.box_noise.Overconfidence`). The factor applies to the
+        boxes of the frames after (``filter.object_overconfidence``; detections with a box
+        size only: other rows never use it)."""
+        if not self._learns_overconfidence:
+            return
+        for j, table in tables.items():
+            self._learn_from(j, getattr(table, "_frame_samples", {}))
+
+    def _learn_from(self, source: int, pairs: dict, factors: dict | None = None) -> None:
+        """Samples ``pairs`` (two ids → ``d²``) of ``source`` (a neighbour, or ``-1``: the
+        robot's own re-identifications) taken under ``factors`` (per pair; default the factor
+        in force now)."""
+        kappa = 1.0 if self._kappa is None else self._kappa
+        if self.overconfidence.add(source, pairs, kappa if factors is None else factors):
+            self._kappa = self._learned_kappa()
+            self.counters["overconfidence_samples"] = len(self.overconfidence)
+
+    def _learned_kappa(self) -> float | None:
+        """The factor of new boxes' variance: ``None`` while it is 1 (the calibrated noise,
+        computed exactly as without the learner)."""
+        kappa = self.overconfidence.kappa
+        return kappa if kappa > 1.0 and self.config.filter.object_overconfidence else None
 
     # ------------------------------------------------------------------ Algorithm 1, steps 2-4
     def step(self, t: int) -> None:
@@ -528,6 +596,14 @@ class MsckfAgent:
             self.config.filter.odometry_cov(),
             self.sequence.detections.appearance_of(t),
         )
+        if self.tracker.revisit_d2:  # the robot's own re-identifications by appearance
+            if self._learns_overconfidence:
+                factors = {
+                    (n, o): 0.5 * (self._object_kappa.get(n, 1.0) + self._object_kappa.get(o, 1.0))
+                    for n, o in self.tracker.revisit_d2
+                }
+                self._learn_from(-1, self.tracker.revisit_d2, factors)
+            self.tracker.revisit_d2 = {}
         for new, old in frame.merged.tolist():  # loop closure: one object seen again
             self.views.merge(new, old)
         for tid, frames, zs in frame.confirmed:
@@ -618,7 +694,11 @@ class MsckfAgent:
         f = self.config.filter
         box = is_box(zk)
         # box rows: each object's rows whitened by its own noise (unit variance after)
-        variance = box_variances(zk, f.object_std, f.object_size_share) if box else f.object_std**2
+        variance = (
+            box_variances(zk, f.object_std, f.object_size_share, self._kappa)
+            if box
+            else f.object_std**2
+        )
         s = local_h @ local_p @ np.swapaxes(local_h, 1, 2) + noise_cov
         accepted, nis = self.health.test(
             "objects",
@@ -639,6 +719,8 @@ class MsckfAgent:
             self.counters["objects_downweighted"] += int((weight < 1).sum())
             noise = noise / weight
         slots, zk, ids = slots[accepted], zk[accepted], ids[accepted]
+        if self._kappa is not None:
+            self._object_kappa.update(dict.fromkeys(ids.tolist(), self._kappa))
         rows = self._object_measurement_rows(
             slots, local_h[accepted], r[accepted], noise_cov[accepted], noise, box
         )
@@ -683,7 +765,7 @@ class MsckfAgent:
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
         f = self.config.filter
         if box:
-            variances = box_variances(z, f.object_std, f.object_size_share)
+            variances = box_variances(z, f.object_std, f.object_size_share, self._kappa)
             noise_cov = variances[:, :, None] * np.eye(4)
         else:
             noise_cov = np.broadcast_to(f.object_std**2 * np.eye(4), (k, 4, 4))
@@ -757,7 +839,7 @@ class MsckfAgent:
             ok &= (depth > cfg.objects.min_depth) & (depth < cfg.objects.max_depth)
             if is_box(zs):  # against the RMS σ of the boxes' own noise
                 f = cfg.filter
-                noise = box_variances(zs, f.object_std, f.object_size_share)
+                noise = box_variances(zs, f.object_std, f.object_size_share, self._kappa)
                 ok &= rms < 3.0 * np.sqrt(noise.mean(axis=(1, 2)))
             else:
                 ok &= rms < 3.0 * cfg.filter.object_std
@@ -812,7 +894,8 @@ class MsckfAgent:
         r = (zs[:, :4] - pred).ravel()
         if is_box(zs):
             f = self.config.filter
-            weight = 1.0 / np.sqrt(box_variances(zs, f.object_std, f.object_size_share).ravel())
+            variances = box_variances(zs, f.object_std, f.object_size_share, self._kappa)
+            weight = 1.0 / np.sqrt(variances.ravel())
             h_s, h_p, r = h_s * weight[:, None], h_p * weight[:, None], r * weight
             variance = 1.0
         upper, projected = householder_project(h_p[None], np.column_stack([r, h_s])[None])
@@ -846,6 +929,8 @@ class MsckfAgent:
             oid, position, cov_pp, cov_ps, first_estimate=linearised, from_columns=(gain, cols)
         )
         self.counters["objects_initialised"] += 1
+        if self._kappa is not None:
+            self._object_kappa[oid] = self._kappa
         # the landmark-free rows, compact over the poses of the observations
         state.update(h_s2, z2, variance * np.eye(4 * n - 3), columns=cols)
         return True

@@ -279,7 +279,11 @@ def _odometry_variances(health: SensorHealth, current: np.ndarray, per_axis: boo
 
 
 def _pass(dataset: TeamDataset, config: MsckfConfig, frames: int) -> SensorHealth:
-    """Every robot's filter alone over its first ``frames`` frames, innovations recorded."""
+    """Every robot's filter alone over its first ``frames`` frames, innovations recorded.
+
+    The noise measured is the one of a box per frame: the factor learned on top of it from
+    evidence beyond the window (``filter.object_overconfidence``) stays 1 here."""
+    config = config.with_(filter={"object_overconfidence": False})
     parts = []
     for i, robot in enumerate(dataset.robots):
         agent = MsckfAgent(

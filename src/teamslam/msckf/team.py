@@ -366,8 +366,12 @@ class RobotDriver:
 
     # ------------------------------------------------------------------ filter
     def step(self, t: int) -> None:
-        """Process frame ``t`` (Algorithm 1, steps 2–4)."""
+        """Process frame ``t`` (Algorithm 1, steps 2–4), after learning from this frame's
+        association how overconfident the objects are
+        (:meth:`~teamslam.msckf.agent.MsckfAgent.learn_overconfidence`)."""
         with self._named(t, "filter"):
+            if self.protocol is not None and self.protocol.tables:
+                self.agent.learn_overconfidence(self.protocol.tables)
             self.agent.step(t)
 
     def _room(self, t: int) -> None:

@@ -11,13 +11,33 @@ Per coordinate the variance is ``σ₀² + (α·s)² + c·s²`` (:func:`box_vari
 coordinate's axis (``w`` for ``u``, ``h`` for ``v``) and ``c`` the clipped flag (a hidden part
 up to twice the visible one, at one σ; for ``u`` plus half the disparity, squared). Plain rows
 keep ``σ₀²``. Derivation: the concept page *Boxes* (``docs/concepts/boxes.md``).
+
+A box centre's error persists from frame to frame (perspective, occlusion and the detector's
+habits shift it by a share of the box that changes slowly with the viewpoint), which a filter
+taking each box's error as new cannot see: its objects come out overconfident.
+:class:`Overconfidence` learns by how much from evidence beyond the window — two robots'
+estimates of one object, paired by the association — and :func:`box_variances` multiplies the
+box's own part ``σ₀² + (α·s)²`` of new boxes by the factor ``κ`` it gives.
 """
 
 from __future__ import annotations
 
-import numpy as np
+from collections.abc import Mapping
 
-__all__ = ["BOX_COLUMNS", "box_rows", "box_size2", "box_variances", "is_box"]
+import numpy as np
+from scipy import stats
+
+from teamslam.gaussian import chi2_quantile
+
+__all__ = [
+    "BOX_COLUMNS",
+    "OVERCONFIDENCE_PROBABILITY",
+    "Overconfidence",
+    "box_rows",
+    "box_size2",
+    "box_variances",
+    "is_box",
+]
 
 #: Width of a box row: the centre (4), the size (2), the clipped flags (4).
 BOX_COLUMNS = 10
@@ -36,10 +56,19 @@ def box_size2(rows: np.ndarray) -> np.ndarray:
     return np.concatenate([size, size], axis=-1) ** 2
 
 
-def box_variances(rows: np.ndarray, std: float, share: float) -> np.ndarray:
-    """``(..., 4)`` variance of each centre coordinate of box rows (module docstring)."""
+def box_variances(
+    rows: np.ndarray, std: float, share: float, kappa: float | None = None
+) -> np.ndarray:
+    """``(..., 4)`` variance of each centre coordinate of box rows (module docstring).
+
+    ``kappa``: the factor by which the box's own part ``σ₀² + (α·s)²`` is multiplied
+    (:class:`Overconfidence`; the clipped part is not); ``None``: 1.
+    """
     size2 = box_size2(rows)
-    out = std**2 + (share**2 + rows[..., 6:10]) * size2
+    if kappa is None:
+        out = std**2 + (share**2 + rows[..., 6:10]) * size2
+    else:
+        out = kappa * (std**2 + share**2 * size2) + rows[..., 6:10] * size2
     # the hidden extents of the two images differ by the disparity: so may their centres' bias
     half_disparity2 = 0.25 * (rows[..., 0] - rows[..., 2]) ** 2
     out[..., 0] += rows[..., 6] * half_disparity2
@@ -82,3 +111,126 @@ def box_rows(
     v_cut = np.maximum(rows[:, 7], rows[:, 9])
     rows[:, 7] = rows[:, 9] = v_cut
     return rows
+
+
+#: Probability of the one-sided, distribution-free test (the binomial test of the median) that
+#: the pairs' squared Mahalanobis distances exceed χ²(3)'s: only then is ``κ`` above 1.
+OVERCONFIDENCE_PROBABILITY = 0.99
+#: Median of χ²(3)
+_CHI2_3_MEDIAN = chi2_quantile(0.5, 3)
+
+
+class Overconfidence:
+    """How overconfident a robot's objects are, learned from two estimates of one object.
+
+    Each sample is the squared Mahalanobis distance ``d² = rᵀ D⁻¹ r`` of two estimates of one
+    object made from different views, ``χ²(3)`` when their covariances are right. A box error
+    that persists beyond the filter's window is taken for the object's position, two estimates
+    from elsewhere carry different offsets, and ``d²`` grows by the factor the covariances miss.
+    Two sources, each chosen by evidence other than ``d²`` itself:
+
+    * *the links* (source: the neighbour's id): a pair of objects the inter-robot association
+      identified as one by the transform of the pairs its link already holds, taken before the
+      pair was held (so before consensus averaged the two estimates): the two robots'
+      estimates in the shared world frame, ``D = Σₐ + Σ_b``;
+    * *the robot's own re-identifications* (source ``-1``): a long-unseen object that the
+      appearance and class of a new object's boxes alone identify, before the position gate
+      (:meth:`~teamslam.msckf.objects.tracking.ObjectTracker.reidentify`), ``D`` from the joint
+      state.
+
+    An offset the two estimates share (robots driving the same way see an object from the same
+    side) cancels in ``r``: each source measures the overconfidence at most, and ``κ`` is the
+    larger of the two.
+
+    Each sample is kept with the ``κ`` its two estimates were formed under: with the box part
+    dominating an object's covariance, covariances formed under ``κ`` are ``κ`` times those
+    under 1, so ``κ_i · d²_i ~ κ · χ²(3)`` whatever ``κ_i``. For a re-identification the old
+    object's last boxes may be older than the factor now in force: ``κ_i`` is the mean of the
+    factors in force at each object's last update (taking the one now for both would count
+    the old object's covariance ``κ_i`` times too large and let ``κ`` run away).
+
+    The estimate is robust, as the association's frame scale:
+    ``κ = median(κ_i · d²_i) / median(χ²(3))`` (a minority of wrong pairs moves it little),
+    taken only when the median of ``κ_i · d²_i`` exceeds χ²(3)'s by the one-sided
+    binomial (sign) test at :data:`OVERCONFIDENCE_PROBABILITY` — no assumption of the samples'
+    distribution, and with few samples no departure from ``κ = 1`` — and never below 1.
+
+    The links' samples pass the association's gate under its transform, whose drift allowance
+    grows with the distance from the pairs it was fitted on: a pair far from them is admitted at
+    any ``d²`` of the identity; near them the gate cuts the upper tail, so the median is, if
+    anything, low (``κ`` errs towards the calibrated noise). The re-identifications' are not
+    gated by position at all (a pair merged, which passed the ``χ²(3)`` gate, would be cut).
+    """
+
+    def __init__(self) -> None:
+        #: (source, id, other id) → ``κ_i · d²_i`` of the pair's first sample
+        self.samples: dict[tuple[int, int, int], float] = {}
+        self._kappa = 1.0
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    @property
+    def kappa(self) -> float:
+        """The factor ``κ ≥ 1`` (class docstring)."""
+        return self._kappa
+
+    def add(
+        self,
+        neighbour: int,
+        pairs: Mapping[tuple[int, int], float],
+        kappa: float | Mapping[tuple[int, int], float],
+    ) -> int:
+        """Record source ``neighbour``'s ``pairs`` (two ids) → ``d²`` taken under ``kappa``
+        (``-1``: the robot's own re-identifications); a pair already recorded keeps its first
+        sample. ``kappa``: one factor for all, or each pair's. Returns how many were new."""
+        new = 0
+        for (own, theirs), d2 in pairs.items():
+            key = (int(neighbour), int(own), int(theirs))
+            if key not in self.samples and np.isfinite(d2) and d2 >= 0:
+                factor = kappa[(own, theirs)] if isinstance(kappa, Mapping) else kappa
+                self.samples[key] = float(factor) * float(d2)
+                new += 1
+        if new:
+            self._kappa = self._factor()
+        return new
+
+    def _factor(self) -> float:
+        """The larger of the two sources' factors: the pairs of the links (pooled) and the
+        robot's own re-identifications (source ``-1``)."""
+        own = np.array([k[0] < 0 for k in self.samples], dtype=bool)
+        values = np.fromiter(self.samples.values(), float, count=own.size)
+        return max(overconfidence_factor(values[~own]), overconfidence_factor(values[own]))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """What it learned, as arrays (for a snapshot; :meth:`from_arrays`)."""
+        keys = np.array(list(self.samples), dtype=np.int64).reshape(-1, 3)
+        return {"keys": keys, "values": np.fromiter(self.samples.values(), float)}
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> Overconfidence:
+        """The learner of :meth:`arrays`."""
+        out = cls()
+        keys = np.asarray(arrays["keys"], dtype=np.int64).reshape(-1, 3)
+        values = np.asarray(arrays["values"], dtype=float).ravel()
+        if keys.shape[0] != values.size:
+            raise ValueError(f"overconfidence: {keys.shape[0]} pairs, {values.size} values")
+        out.samples = {tuple(k): float(v) for k, v in zip(keys.tolist(), values, strict=True)}
+        if values.size:
+            out._kappa = out._factor()
+        return out
+
+
+def overconfidence_factor(scaled: np.ndarray) -> float:
+    """``κ`` of samples ``κ_i · d²_i`` (:class:`Overconfidence`): ``median / median(χ²(3))`` when
+    more of them exceed χ²(3)'s median than chance allows (the one-sided sign test at
+    :data:`OVERCONFIDENCE_PROBABILITY`), else 1."""
+    scaled = np.asarray(scaled, dtype=float)
+    n = scaled.size
+    if n == 0:
+        return 1.0
+    above = int(np.count_nonzero(scaled > _CHI2_3_MEDIAN))
+    # P(at least `above` of n above the median | the covariances are right) = sf(above − 1)
+    if stats.binom.sf(above - 1, n, 0.5) > 1.0 - OVERCONFIDENCE_PROBABILITY:
+        return 1.0
+    return max(1.0, float(np.median(scaled)) / _CHI2_3_MEDIAN)

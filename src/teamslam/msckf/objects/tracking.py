@@ -181,6 +181,11 @@ class ObjectTracker:
         self._boxes: dict[int, list[np.ndarray]] = {}
         self._confirmed_at: dict[int, int] = {}
         self.revisit_gate = chi2_quantile(config.tracking.gate_probability, 3)
+        #: with ``filter.object_overconfidence``: ``(new id, old id)`` → ``d²`` of the
+        #: re-identifications that appearance and class alone would make, before the position
+        #: gate (samples of how overconfident the objects are, not cut by that gate; the agent
+        #: takes them each frame, :meth:`reidentify`)
+        self.revisit_d2: dict[tuple[int, int], float] = {}
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -586,7 +591,10 @@ class ObjectTracker:
                 old = old[(labels < 0) | (labels == label)]
             if not old.size:
                 continue
-            old = old[difference_d2(state, n, old) <= self.revisit_gate]
+            d2 = difference_d2(state, n, old)
+            if self.config.filter.object_overconfidence:
+                self._revisit_sample(n, old, d2, prior)
+            old = old[d2 <= self.revisit_gate]
             if not old.size:
                 continue
             boxes = unit_rows(np.array(self._boxes[n]))
@@ -616,6 +624,25 @@ class ObjectTracker:
             self._count("tracks_reidentified")
             self._count("objects_merged_by_boxes")
         return merged
+
+    def _revisit_sample(self, n: int, old: np.ndarray, d2: np.ndarray, prior: float) -> None:
+        """Record ``d²`` of the candidate among ``old`` that the appearance and class of
+        ``n``'s boxes alone identify (:func:`revisit_posterior` at
+        ``tracking.revisit_probability`` over every candidate, not gated by position): the
+        choice does not look at ``d²``, so its distribution is not cut by the gate
+        (:attr:`revisit_d2`)."""
+        boxes = unit_rows(np.array(self._boxes[n]))
+        looks = self.appearance.log_ratio(cosine_distances(self.memory.summaries(old), boxes))
+        ratio = np.nansum(looks, axis=1)
+        votes = self._votes.get(n, {})
+        if votes:
+            seen = np.array(sorted(votes), np.int64)
+            counts = np.array([votes[c] for c in seen.tolist()], float)
+            ratio = ratio + self.label_model.log_ratio(self.labels_of(old), seen) @ counts
+        posterior = revisit_posterior(ratio, prior)
+        best = int(np.argmax(posterior))
+        if posterior[best] >= self.config.tracking.revisit_probability:
+            self.revisit_d2.setdefault((n, int(old[best])), float(d2[best]))
 
     def _count(self, name: str) -> None:
         self.counters[name] = self.counters.get(name, 0) + 1

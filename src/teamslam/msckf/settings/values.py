@@ -95,6 +95,11 @@ class FilterSettings:
         coordinate ``σ² = object_std² + (object_size_share · s)²``, ``s`` the box's width (for
         ``u``) or height (for ``v``); ``0``: the same σ for every box
         (:mod:`teamslam.msckf.filter.box_noise`).
+    object_overconfidence
+        Detections with a box size, objects paired by the robots' own association: learn from
+        the pairs by how much the objects' covariances are too small, and multiply the box part
+        of new boxes' variance by it
+        (:class:`~teamslam.msckf.filter.box_noise.Overconfidence`).
     min_track_length
         Fewest observations of a geometric feature used in an MSCKF update.
     gate_probability
@@ -122,6 +127,7 @@ class FilterSettings:
     feature_std: float = field(default=1.0, metadata=_unit("camera units"))
     object_std: float = field(default=2.0, metadata=_unit("camera units"))
     object_size_share: float = field(default=0.0, metadata=_unit(""))
+    object_overconfidence: bool = field(default=True, metadata=_unit(""))
     min_track_length: int = field(default=3, metadata=_unit("observations"))
     gate_probability: float = field(default=0.95, metadata=_unit(""))
     use_geometric_features: bool = field(default=True, metadata=_unit(""))
@@ -156,7 +162,11 @@ class FilterSettings:
             raise InputError(
                 f"filter.linearization must be std, fej, ideal or oc, not {self.linearization!r}"
             )
-        _check_flags(self, "filter", ("use_geometric_features", "use_objects", "debug"))
+        _check_flags(
+            self,
+            "filter",
+            ("use_geometric_features", "use_objects", "object_overconfidence", "debug"),
+        )
 
     def odometry_cov(self) -> np.ndarray:
         """``W`` (6×6)."""
