@@ -123,14 +123,20 @@ def test_the_factor_multiplies_only_the_boxs_own_part():
     np.testing.assert_allclose(box_variances(rows, std, share, 1.0), plain, rtol=1e-15)
 
 
-def test_the_association_tables_keep_the_samples_the_agent_reads():
+def test_an_association_table_shows_its_frame_samples_read_only():
     table = CorrespondenceTable(0, 1)
-    assert isinstance(table._frame_samples, dict)
+    samples = table.frame_samples()
+    assert dict(samples) == {}
+    with pytest.raises(TypeError):
+        samples[(1, 2)] = 3.0  # type: ignore[index]
 
 
 class _Table:
     def __init__(self, samples):
-        self._frame_samples = samples
+        self._samples = samples
+
+    def frame_samples(self):
+        return self._samples
 
 
 def test_the_agent_learns_from_its_links_and_scales_new_boxes():

@@ -24,7 +24,9 @@ other (own ↔ neighbour ids swapped).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
+from types import MappingProxyType
 
 import numpy as np
 
@@ -201,6 +203,12 @@ class CorrespondenceTable:
     def __contains__(self, pair: tuple[int, int]) -> bool:
         own_id, their_id = (int(v) for v in pair)
         return self._theirs.get(own_id) == their_id
+
+    def frame_samples(self) -> Mapping[tuple[int, int], float]:
+        """``(own id, neighbour id) → d²`` of each pair the link identified by the transform of
+        the pairs it already held, taken while neither object was held (before consensus
+        averaged the two estimates): a read-only view, filled as the link decides."""
+        return MappingProxyType(self._frame_samples)
 
     def pairs(self) -> np.ndarray:
         """``(k, 2)`` int64 rows ``(own id, neighbour id)``, sorted by own id (a new array

@@ -326,7 +326,7 @@ class MsckfAgent:
         if not self._learns_overconfidence:
             return
         for j, table in tables.items():
-            self._learn_from(j, getattr(table, "_frame_samples", {}))
+            self._learn_from(j, table.frame_samples())
 
     def _learn_from(self, source: int, pairs: dict, factors: dict | None = None) -> None:
         """Samples ``pairs`` (two ids → ``d²``) of ``source`` (a neighbour, or ``-1``: the
