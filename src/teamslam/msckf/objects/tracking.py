@@ -597,17 +597,8 @@ class ObjectTracker:
             old = old[d2 <= self.revisit_gate]
             if not old.size:
                 continue
-            boxes = unit_rows(np.array(self._boxes[n]))
-            looks = self.appearance.log_ratio(cosine_distances(self.memory.summaries(old), boxes))
-            ratio = np.nansum(looks, axis=1)
-            votes = self._votes.get(n, {})
-            if votes:
-                seen = np.array(sorted(votes), np.int64)
-                counts = np.array([votes[c] for c in seen.tolist()], float)
-                ratio = ratio + self.label_model.log_ratio(self.labels_of(old), seen) @ counts
-            posterior = revisit_posterior(ratio, prior)
-            best = int(np.argmax(posterior))
-            if posterior[best] >= self.config.tracking.revisit_probability:
+            best = self._revisit_choice(n, old, prior)
+            if best is not None:
                 pairs.append((n, int(old[best])))
         if not pairs:
             return none
@@ -631,6 +622,13 @@ class ObjectTracker:
         ``tracking.revisit_probability`` over every candidate, not gated by position): the
         choice does not look at ``d²``, so its distribution is not cut by the gate
         (:attr:`revisit_d2`)."""
+        best = self._revisit_choice(n, old, prior)
+        if best is not None:
+            self.revisit_d2.setdefault((n, int(old[best])), float(d2[best]))
+
+    def _revisit_choice(self, n: int, old: np.ndarray, prior: float) -> int | None:
+        """Index in ``old`` of the object that the appearance and class of ``n``'s boxes name
+        (:func:`revisit_posterior` at least ``tracking.revisit_probability``), or ``None``."""
         boxes = unit_rows(np.array(self._boxes[n]))
         looks = self.appearance.log_ratio(cosine_distances(self.memory.summaries(old), boxes))
         ratio = np.nansum(looks, axis=1)
@@ -641,8 +639,7 @@ class ObjectTracker:
             ratio = ratio + self.label_model.log_ratio(self.labels_of(old), seen) @ counts
         posterior = revisit_posterior(ratio, prior)
         best = int(np.argmax(posterior))
-        if posterior[best] >= self.config.tracking.revisit_probability:
-            self.revisit_d2.setdefault((n, int(old[best])), float(d2[best]))
+        return best if posterior[best] >= self.config.tracking.revisit_probability else None
 
     def _count(self, name: str) -> None:
         self.counters[name] = self.counters.get(name, 0) + 1
