@@ -208,6 +208,13 @@ class _Detections:
         """``(D_t, 2)`` the box sizes of frame ``t`` (the box-centre noise grows with them)."""
         return self._frames[t][3]
 
+    @property
+    def sizes(self) -> np.ndarray:
+        """``(D, 2)`` the box sizes of the frames kept, in frame order: live boxes always carry
+        their size (never ``None``, as a dataset's detections without sizes would be)."""
+        kept = [self._frames[t][3] for t in sorted(self._frames)]
+        return np.concatenate(kept) if kept else np.zeros((0, 2))
+
 
 class LiveSequence:
     """A robot's sequence while it is recorded: what :class:`~teamslam.msckf.agent.MsckfAgent`
