@@ -592,14 +592,18 @@ class ObjectTracker:
             if not old.size:
                 continue
             d2 = difference_d2(state, n, old)
+            ratio = self._revisit_ratio(n, old)
             if self.config.filter.object_overconfidence:
-                self._revisit_sample(n, old, d2, prior)
-            old = old[d2 <= self.revisit_gate]
-            if not old.size:
+                # the sample: what appearance and class alone name, not cut by the gate
+                best = self._revisit_choice(ratio, prior)
+                if best is not None:
+                    self.revisit_d2.setdefault((n, int(old[best])), float(d2[best]))
+            inside = d2 <= self.revisit_gate
+            if not inside.any():
                 continue
-            best = self._revisit_choice(n, old, prior)
+            best = self._revisit_choice(ratio[inside], prior)
             if best is not None:
-                pairs.append((n, int(old[best])))
+                pairs.append((n, int(old[inside][best])))
         if not pairs:
             return none
         merged = np.array(pairs, np.int64)
@@ -616,19 +620,9 @@ class ObjectTracker:
             self._count("objects_merged_by_boxes")
         return merged
 
-    def _revisit_sample(self, n: int, old: np.ndarray, d2: np.ndarray, prior: float) -> None:
-        """Record ``d²`` of the candidate among ``old`` that the appearance and class of
-        ``n``'s boxes alone identify (:func:`revisit_posterior` at
-        ``tracking.revisit_probability`` over every candidate, not gated by position): the
-        choice does not look at ``d²``, so its distribution is not cut by the gate
-        (:attr:`revisit_d2`)."""
-        best = self._revisit_choice(n, old, prior)
-        if best is not None:
-            self.revisit_d2.setdefault((n, int(old[best])), float(d2[best]))
-
-    def _revisit_choice(self, n: int, old: np.ndarray, prior: float) -> int | None:
-        """Index in ``old`` of the object that the appearance and class of ``n``'s boxes name
-        (:func:`revisit_posterior` at least ``tracking.revisit_probability``), or ``None``."""
+    def _revisit_ratio(self, n: int, old: np.ndarray) -> np.ndarray:
+        """``(len(old),)`` log likelihood ratio of the appearance and class of every box of
+        ``n`` that it is each object of ``old`` (summed over the boxes)."""
         boxes = unit_rows(np.array(self._boxes[n]))
         looks = self.appearance.log_ratio(cosine_distances(self.memory.summaries(old), boxes))
         ratio = np.nansum(looks, axis=1)
@@ -637,6 +631,11 @@ class ObjectTracker:
             seen = np.array(sorted(votes), np.int64)
             counts = np.array([votes[c] for c in seen.tolist()], float)
             ratio = ratio + self.label_model.log_ratio(self.labels_of(old), seen) @ counts
+        return ratio
+
+    def _revisit_choice(self, ratio: np.ndarray, prior: float) -> int | None:
+        """Index of the candidate whose :func:`revisit_posterior` from ``ratio`` (its log
+        ratios) reaches ``tracking.revisit_probability``, or ``None``."""
         posterior = revisit_posterior(ratio, prior)
         best = int(np.argmax(posterior))
         return best if posterior[best] >= self.config.tracking.revisit_probability else None
