@@ -97,11 +97,21 @@ class Transport(Protocol):
 
 
 class Mailbox:
-    """Messages delivered to one robot, with the two ways of taking them out (thread-safe)."""
+    """Messages delivered to one robot, with the two ways of taking them out (thread-safe).
 
-    def __init__(self) -> None:
+    A wait's ``timeout`` counts only the time the robot itself was listening: a wait that
+    returns later than it asked (the process was suspended, or starved of the processor)
+    moves its deadline by the lateness, so a robot held up itself does not take its
+    neighbours for lost. ``clock``: the monotonic clock in seconds (replaceable in tests).
+    """
+
+    #: longest single wait (s): how soon the robot notices that it was itself held up
+    wait_slice = 0.1
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self._messages: list[Message] = []
         self._cond = threading.Condition()
+        self._clock = clock
 
     def put(self, message: Message) -> None:
         """Deliver a message."""
@@ -116,7 +126,7 @@ class Mailbox:
         for every sender in ``awaited`` (default: ``senders``); sorted by sender. Older steps'
         leftovers are discarded, later steps' messages kept."""
         awaited = senders if awaited is None else awaited
-        deadline = time.monotonic() + timeout
+        deadline = self._clock() + timeout
         with self._cond:
             while True:
                 self._messages = [m for m in self._messages if m.step >= step]
@@ -126,10 +136,15 @@ class Mailbox:
                     for m in self._messages
                     if m.step > step or (m.step == step and isinstance(m, kind))
                 }
-                remaining = deadline - time.monotonic()
+                asked_at = self._clock()
+                remaining = deadline - asked_at
                 if have >= awaited or remaining <= 0:
                     break
-                self._cond.wait(remaining)
+                asked = min(remaining, self.wait_slice)
+                self._cond.wait(asked)
+                late = self._clock() - asked_at - asked
+                if late > 0:  # this robot was held up itself: not its neighbours' silence
+                    deadline += late
             picked: dict[int, Message] = {}
             keep = []
             for m in self._messages:
