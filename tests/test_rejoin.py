@@ -4,10 +4,12 @@ Each step of the scenario waits on an event (a robot's checkpoint or progress fi
 the clock, so the machine's load cannot reorder it: robot 2 is killed after its checkpoint;
 robots 0 and 1 are paused (``SIGSTOP``) only once their progress proves they went
 ``lost_after`` frames past robot 2's last possible frame (so they reported it lost); robot 2 is
-resumed, and robots 0 and 1 continue once robot 2 has left its silent phase — it is then behind
-them and, waiting for nobody, faster than they (paced by a slow radio), so it catches up while
-they still have frames to go. The lock-step timeout is what tells a dead robot; it is long
-enough that a live robot stalled by the load is not taken for one.
+resumed and, once it has left its silent phase (waiting for nobody, it then runs faster than
+the team, which is paced by a slow radio), paused too, behind them; robots 0 and 1 continue,
+and robot 2 only once their progress shows them running again — a robot behind a running team
+catches up and meets it, while one that got ahead of a paused team would never be waited for.
+The lock-step timeout is what tells a dead robot; it is long enough that a live robot stalled
+by the load is not taken for one (and the time a robot was itself held does not count).
 
 Ports 30800–32767 as in test_security (offsets 16–31 here).
 """
@@ -55,7 +57,7 @@ def _wait_until(condition, guard: float = 600.0) -> None:
 
 
 def test_killed_robot_resumes_and_rejoins_the_running_team(tmp_path):
-    frames, lost_after, progress_every = 61, 3, 5
+    frames, lost_after, progress_every = 71, 3, 5
     dataset = lissajous_team(robots=3, steps=frames - 1, seed=1, landmarks=300)
     assert dataset.robots[0].frames == frames
     save_dataset(dataset, tmp_path / "data")
@@ -91,8 +93,9 @@ def test_killed_robot_resumes_and_rejoins_the_running_team(tmp_path):
         # the last frame robot 2 can have filtered (progress.json is written every 5 frames)
         last_alive = frames_done(out, 2) - 1 + progress_every
         # robots 0 and 1 heard nothing from it for lost_after frames: it is reported lost;
-        # and they stay far enough ahead for robot 2 to resume behind them
-        paused_at = max(last_alive + lost_after + 1, killed_at + 12)
+        # and they go far enough ahead for robot 2 to stay behind them through its silent
+        # phase (its progress file, too, is up to progress_every frames late)
+        paused_at = max(last_alive + lost_after + 1, killed_at + lost_after + 4 * progress_every)
         _wait_until(reached(survivors, paused_at))
         for r in survivors:
             procs[r].send_signal(signal.SIGSTOP)
@@ -103,11 +106,15 @@ def test_killed_robot_resumes_and_rejoins_the_running_team(tmp_path):
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
         )
-        # robot 2 has waited lost_after frames for its silent neighbours and runs on alone
+        # robot 2 has waited lost_after frames for its silent neighbours and runs on alone:
+        # hold it behind the team until the team runs again
         _wait_until(reached([2], killed_at + lost_after + 2))
-        assert frames_done(out, 2) - 1 < restarted_at, "robot 2 passed the paused team"
+        procs[2].send_signal(signal.SIGSTOP)
+        assert frames_done(out, 2) - 1 + progress_every < restarted_at, "robot 2 passed the team"
         for r in survivors:
             procs[r].send_signal(signal.SIGCONT)
+        _wait_until(lambda: min(frames_done(out, r) for r in survivors) - 1 > restarted_at)
+        procs[2].send_signal(signal.SIGCONT)
         outputs = {r: p.communicate(timeout=600)[0].decode() for r, p in procs.items()}
     finally:
         for p in procs.values():
