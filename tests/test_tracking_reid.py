@@ -237,3 +237,56 @@ def test_a_pair_appearance_alone_names_is_a_sample_of_d2_the_gate_does_not_cut()
     tracker, state = _tracker({7: _look(0.0), 9: _look(0.0)}), _state(twins, rng)
     _run(tracker, state, rng, _look(_chord_angle(0.05)))
     assert not tracker.revisit_d2
+
+
+def test_an_old_object_formed_before_the_factor_is_widened_and_merged():
+    """An old object whose covariance is ten times too small (its boxes came before the box
+    noise's overconfidence factor of 10 was learned; its error drawn from the covariance it
+    should have): as held, its estimate lies beyond the re-identification gate and the
+    revisit starts a new object; widened by the factor, it is merged — and an old object
+    whose error is beyond even the widened covariance is not."""
+    kappa, drawn = 10.0, np.array([0.0, 4.5, 0.0]) * OLD_STD  # 4.5 σ of the held covariance
+
+    def run(widening, offset=drawn):
+        state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-8)
+        state.add_object(7, TRUE + offset, np.eye(3) * OLD_STD**2, np.zeros((3, state.dim)))
+        tracker = _tracker({7: _look(0.0)})
+        tracker.widening = widening
+        rng = np.random.default_rng(4)
+        return tracker, _run(tracker, state, rng, _look(_chord_angle(0.05)), range(60, 70))
+
+    held, _ = run(None)
+    assert 7 not in held.hypotheses()
+    widened, ids = run(lambda ids: np.where(np.asarray(ids) == 7, kappa, 1.0))
+    assert ids[-1] == 7 and set(widened.hypotheses()[-5:].tolist()) == {7}
+    # the same widening does not let in an object 4.5 σ off the widened covariance
+    far, _ = run(lambda ids: np.where(np.asarray(ids) == 7, kappa, 1.0), drawn * np.sqrt(kappa))
+    assert 7 not in far.hypotheses()
+
+
+def test_difference_d2_widens_each_object_and_their_cross_term_consistently():
+    """``D P D`` with ``√r`` on each object: equal factors divide ``d²`` by the factor; unequal
+    ones give the congruence's difference covariance, which stays positive definite."""
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(12, 12))
+    cov = a @ a.T * 1e-3 + np.eye(12) * 1e-4
+    state = MsckfState.from_arrays(
+        np.eye(4)[None],
+        np.array([0]),
+        np.array([1, 2]),
+        np.array([[5.0, 0.0, 0.0], [5.0, 0.3, 0.1]]),
+        cov,
+    )
+    d2 = difference_d2(state, 1, np.array([2]))
+    widened = difference_d2(state, 1, np.array([2]), (4.0, np.array([4.0])))
+    np.testing.assert_allclose(widened, d2 / 4)
+    r_n, r_o = 2.0, 9.0
+    scale = np.sqrt(np.array([r_n] * 3 + [r_o] * 3))
+    block = cov[6:, 6:] * scale[:, None] * scale[None, :]
+    diff = block[:3, :3] + block[3:, 3:] - block[:3, 3:] - block[3:, :3]
+    r = np.array([0.0, -0.3, -0.1])
+    expected = r @ np.linalg.solve(diff, r)
+    np.testing.assert_allclose(
+        difference_d2(state, 1, np.array([2]), (r_n, np.array([r_o]))), expected, rtol=1e-10
+    )
+    assert expected < d2  # widened: nearer

@@ -371,7 +371,9 @@ def merge_objects(state, pairs: np.ndarray, frame: int) -> np.ndarray:
     return delta
 
 
-def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
+def difference_d2(
+    state, new: int, old: np.ndarray, factors: tuple[float, np.ndarray] | None = None
+) -> np.ndarray:
     """``d² = rᵀ D⁻¹ r`` of ``r = x_n − x_o`` for object ``new`` against each of ``old``.
 
     ``D = P_nn + P_oo − P_no − P_on`` from the joint state: an old object of the state shares
@@ -386,6 +388,11 @@ def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
         The new object's id.
     old
         ``(k,)`` ids, each in the state or the persistent map.
+    factors
+        ``(r_n, (k,) r_o)``: each object's covariance widened by its factor, the cross term by
+        ``√(r_n r_o)`` (:func:`~teamslam.msckf.filter.box_noise.widen_joint`: the factors by
+        which covariances formed before the box noise's overconfidence factor are too small,
+        :class:`~teamslam.msckf.filter.box_noise.FormedUnder`); ``None``: as held.
 
     Returns
     -------
@@ -402,6 +409,10 @@ def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
         cols_o = state.object_columns(slots[inside])
         cols = np.concatenate([np.broadcast_to(cols_n, cols_o.shape), cols_o], axis=1)
         cov = state.covariance(cols)  # (k, 6, 6)
+        if factors is not None:
+            b = np.asarray(factors[1], float)[inside]
+            scale = np.sqrt(np.repeat(np.column_stack([np.full(b.size, factors[0]), b]), 3, 1))
+            cov = cov * scale[:, :, None] * scale[:, None, :]  # D P D: each block widened
         diff = cov[:, :3, :3] + cov[:, 3:, 3:] - cov[:, :3, 3:] - cov[:, 3:, :3]
         r = state.objects[slot_n] - state.objects[slots[inside]]
         out[inside] = _squared_mahalanobis(r, diff)
@@ -410,7 +421,11 @@ def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
         where = _positions(retired["ids"], old[~inside])
         own = state.covariance(cols_n)
         r = state.objects[slot_n] - retired["means"][where]
-        diff = own[None] + retired["covs"][where]
+        if factors is None:
+            diff = own[None] + retired["covs"][where]
+        else:
+            b = np.asarray(factors[1], float)[~inside][:, None, None]
+            diff = float(factors[0]) * own[None] + b * retired["covs"][where]
         out[~inside] = _squared_mahalanobis(r, diff)
     return out
 

@@ -186,6 +186,12 @@ class ObjectTracker:
         #: gate (samples of how overconfident the objects are, not cut by that gate; the agent
         #: takes them each frame, :meth:`reidentify`)
         self.revisit_d2: dict[tuple[int, int], float] = {}
+        #: ``callable(ids) -> (len(ids),)`` factors ``r ≥ 1`` by which the covariances of the
+        #: state's and the persistent map's objects are too small for the box noise now in
+        #: force (:class:`~teamslam.msckf.filter.box_noise.FormedUnder`, set by the agent once
+        #: it has learned an overconfidence factor); their covariances are widened by them
+        #: in the re-identification's gate (:meth:`reidentify`; ``None``: as held)
+        self.widening: Callable[[np.ndarray], np.ndarray] | None = None
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -594,10 +600,15 @@ class ObjectTracker:
             d2 = difference_d2(state, n, old)
             ratio = self._revisit_ratio(n, old)
             if self.config.filter.object_overconfidence:
-                # the sample: what appearance and class alone name, not cut by the gate
+                # the sample: what appearance and class alone name, not cut by the gate (and
+                # under the covariances as held: the learner weighs each by its own factor)
                 best = self._revisit_choice(ratio, prior)
                 if best is not None:
                     self.revisit_d2.setdefault((n, int(old[best])), float(d2[best]))
+            if self.widening is not None:
+                r = self.widening(np.concatenate([[n], old]))
+                if (r > 1.0).any():
+                    d2 = difference_d2(state, n, old, (float(r[0]), r[1:]))
             inside = d2 <= self.revisit_gate
             if not inside.any():
                 continue
