@@ -38,7 +38,6 @@ __all__ = [
     "box_size2",
     "box_variances",
     "is_box",
-    "widen_joint",
 ]
 
 #: Width of a box row: the centre (4), the size (2), the clipped flags (4).
@@ -251,9 +250,10 @@ class FormedUnder:
         ``r = κ · mean_k(1 / κ_k)``  (``≥ 1`` while ``κ`` only grows; never taken below 1),
 
     which is 1 for an object formed under ``κ`` and ``κ`` for one formed before it
-    (:meth:`widening`). The factor is what a covariance formed under ``κ`` would be, not a
-    gate: it is used to widen an object's covariance (:func:`widen_joint`) where the robot
-    names its detections.
+    (:meth:`widening`). The tracker's re-identification widens the joint covariance of a new
+    and an old object by these factors before its gate, as a congruence ``D P D`` (``√r`` on
+    each object's coordinates: each block times its ``r``, the cross term times ``√(r_n r_o)``;
+    it stays a covariance and every correlation stays).
     """
 
     def __init__(self) -> None:
@@ -306,30 +306,3 @@ class FormedUnder:
             raise ValueError(f"formed-under: {ids.size} objects, {values.shape[0]} counts")
         out.boxes = {i: list(v) for i, v in zip(ids.tolist(), values.tolist(), strict=True)}
         return out
-
-
-def widen_joint(cov: np.ndarray, factors: np.ndarray, start: int) -> np.ndarray:
-    """Widen the objects' part of joint covariances consistently: ``D P D`` with ``D`` the
-    identity but ``√r`` on the coordinates from ``start`` on.
-
-    Parameters
-    ----------
-    cov
-        ``(k, n, n)`` covariances whose coordinates ``start:`` are one object's (or ``(k, n,
-        n)`` with one factor each).
-    factors
-        ``(k,)`` factors ``r ≥ 1`` (:meth:`FormedUnder.widening`).
-    start
-        The first coordinate of the object.
-
-    Returns
-    -------
-    numpy.ndarray
-        The widened covariances (a new array): the object's block times ``r``, its
-        cross-covariance with the rest times ``√r``, the rest unchanged — a congruence, so
-        each stays symmetric and positive (semi-)definite, and every correlation stays.
-    """
-    scale = np.ones(cov.shape[:2])
-    scale[:, start:] = np.sqrt(np.asarray(factors, float).reshape(-1, 1))
-    out = cov * scale[:, :, None] * scale[:, None, :]
-    return 0.5 * (out + np.swapaxes(out, 1, 2))

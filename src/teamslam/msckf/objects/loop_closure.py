@@ -390,8 +390,8 @@ def difference_d2(
         ``(k,)`` ids, each in the state or the persistent map.
     factors
         ``(r_n, (k,) r_o)``: each object's covariance widened by its factor, the cross term by
-        ``√(r_n r_o)`` (:func:`~teamslam.msckf.filter.box_noise.widen_joint`: the factors by
-        which covariances formed before the box noise's overconfidence factor are too small,
+        ``√(r_n r_o)`` (``D P D``, ``√r`` on each object's coordinates: the factors by which
+        covariances formed before the box noise's overconfidence factor are too small,
         :class:`~teamslam.msckf.filter.box_noise.FormedUnder`); ``None``: as held.
 
     Returns

@@ -268,6 +268,10 @@ class ObjectTracker:
                 d2 = _squared_distances(s, pred, centres)  # (T, D)
             else:  # S = H P Hᵀ + R of each detection
                 d2 = _squared_distances_each(s, pred, centres, self._noise)
+                cut = self._cut_sides(z)
+                rows = np.flatnonzero(cut.any(axis=1))
+                if rows.size:  # a cut box's centre bounds its object's from one side only
+                    d2[:, rows] = _censored_d2(s, pred, centres[rows], self._noise[rows], cut[rows])
             cost = d2 - self.gate
             if classes is None:  # no labels: every pair of a target in front agrees
                 agree = in_front[:, None]
@@ -485,6 +489,8 @@ class ObjectTracker:
         else:
             noise = np.full((z.shape[0], 2), f.object_std**2)
         r = z[None, :, :2] - pred[rows, None, :2]  # (T, M, 2)
+        if is_box(z):  # a cut box's centre bounds its object's from one side only
+            r = _censor(r, self._cut_sides(left)[None, :, :2])
         cov = s[rows, None, :2, :2] + _diagonal(noise)[None]  # (T, M, 2, 2)
         d2 = np.einsum("tmi,tmi->tm", r, np.linalg.solve(cov, r[..., None])[..., 0])
         gate = chi2_quantile(self.config.tracking.gate_probability, 2)
@@ -504,6 +510,17 @@ class ObjectTracker:
         out[hit] = target_ids[rows[assigned[hit]]]
         self.counters["detections_monocular_named"] += int(hit.sum())
         return out
+
+    def _cut_sides(self, rows: np.ndarray) -> np.ndarray:
+        """``(D, 4)`` per centre coordinate of box rows the border that cut it: ``-1`` the low
+        one (left, top), ``+1`` the high one, ``0`` not cut (the clipped flags of
+        :func:`~teamslam.msckf.filter.box_noise.box_rows`; the side: the half of the image the
+        centre lies in)."""
+        if self.image_size is None:
+            return np.zeros((rows.shape[0], 4), np.int64)
+        extent = np.array([self.image_size[0], self.image_size[1]] * 2, float)
+        side = np.where(rows[:, :4] < 0.5 * (extent - 1.0), -1, 1)
+        return np.where(rows[:, 6:10] > 0, side, 0)
 
     def hypotheses(self) -> np.ndarray:
         """The id given to every detection so far, in frame order (``-1``: none); a merged
@@ -1222,6 +1239,27 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
 
 
 @numba.njit(cache=True)
+def _censor(r: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """Residuals ``r = z − ẑ`` of box centres with the cut coordinates censored: a box cut by
+    the low border (``sides`` ``-1``) shows the visible part, whose centre lies inward of the
+    object's by half the hidden extent, unknown — an object predicted beyond the visible centre
+    towards that border fits at any distance (residual 0), one predicted inward of it does
+    not (residual as is); ``+1`` likewise for the high border."""
+    low = (sides < 0) & (r > 0)
+    high = (sides > 0) & (r < 0)
+    return np.where(low | high, 0.0, r)
+
+
+def _censored_d2(s, pred, z, noise, sides) -> np.ndarray:
+    """``(T, D)`` ``d²`` of :func:`_squared_distances_each` with the residuals of cut
+    coordinates censored (:func:`_censor`; ``sides`` ``(D, 4)``)."""
+    r = _censor(z[None, :, :4] - pred[:, None, :], sides[None])  # (T, D, 4)
+    cov = s[:, None] + _diagonal(noise)[None]  # (T, D, 4, 4)
+    factor = np.linalg.cholesky(cov)
+    y = np.linalg.solve(factor, r[..., None])[..., 0]
+    return np.einsum("tdi,tdi->td", y, y)
+
+
 def _squared_distances_each(s, pred, z, noise):
     """``d²[t, j] = (z_j − ẑ_t)ᵀ (S_t + R_j)⁻¹ (z_j − ẑ_t)``, ``R_j = diag(noise[j])``: one
     Cholesky factorisation per pair (each detection its own noise)."""
