@@ -290,3 +290,30 @@ def test_difference_d2_widens_each_object_and_their_cross_term_consistently():
         difference_d2(state, 1, np.array([2]), (r_n, np.array([r_o]))), expected, rtol=1e-10
     )
     assert expected < d2  # widened: nearer
+
+
+def test_a_revisit_refused_before_the_factor_was_learned_is_taken_once_it_is():
+    """The old object 4.5 σ off its held covariance: while no factor is known the new object
+    stays apart (appearance named the old one, the position gate refused it); once the learner
+    finds the covariances ten times too small, the pair is taken — after the new object's
+    window, its earlier boxes renamed too. A pair whose old object was seen after the new one
+    appeared lapses."""
+    state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-8)
+    offset = np.array([0.0, 4.5, 0.0]) * OLD_STD
+    state.add_object(7, TRUE + offset, np.eye(3) * OLD_STD**2, np.zeros((3, state.dim)))
+    tracker = _tracker({7: _look(0.0)})
+    rng = np.random.default_rng(4)
+    _run(tracker, state, rng, _look(_chord_angle(0.05)), range(60, 70))
+    assert not tracker.merged and 7 not in tracker.hypotheses()
+    ((new, old_id),) = tracker._pending.items()
+    assert old_id == 7
+    lapsed = copy.deepcopy((tracker, state))
+    tracker.widening = lambda ids: np.where(np.asarray(ids) == 7, 10.0, 1.0)
+    merged = tracker.reidentify(85, state)  # beyond the new object's window
+    assert merged.tolist() == [[new, 7]] and set(tracker.hypotheses().tolist()) == {7}
+    assert not tracker._pending
+    # the same pair after 7 was seen again while the new object was around: two objects
+    other, other_state = lapsed
+    other.widening = tracker.widening
+    other_state.mark_seen(other_state.object_slots(np.array([7])), 65)
+    assert other.reidentify(85, other_state).size == 0 and not other._pending

@@ -192,6 +192,9 @@ class ObjectTracker:
         #: it has learned an overconfidence factor); their covariances are widened by them
         #: in the re-identification's gate (:meth:`reidentify`; ``None``: as held)
         self.widening: Callable[[np.ndarray], np.ndarray] | None = None
+        # new object → the long-unseen one appearance and class alone named, refused by the
+        # position gate (:meth:`_pending_pairs`)
+        self._pending: dict[int, int] = {}
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -420,6 +423,7 @@ class ObjectTracker:
             out["confirmed_at"] = np.array(list(self._confirmed_at.items()), np.int64).reshape(
                 -1, 2
             )
+            out["pending"] = np.array(list(self._pending.items()), np.int64).reshape(-1, 2)
         return out
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
@@ -462,6 +466,7 @@ class ObjectTracker:
             for i, d in zip(state["boxes_ids"].tolist(), state["boxes_descriptors"], strict=True):
                 self._boxes.setdefault(i, []).append(d.copy())
             self._confirmed_at = dict(state["confirmed_at"].tolist())
+            self._pending = dict(np.asarray(state.get("pending", np.zeros((0, 2)))).tolist())
 
     def _name_monocular(self, t, z, labels, taken, targets) -> np.ndarray:
         """Ids of the boxes seen in the left image only (``z`` ``(M, ·)``, right columns NaN):
@@ -593,21 +598,20 @@ class ObjectTracker:
         keep = set(self.ids.tolist()) | set(self._confirmed_at)
         for i in [i for i in self._boxes if i not in keep]:
             del self._boxes[i]
-        if not self.appearance.informative or not self._confirmed_at:
-            return none
-        young = np.array(sorted(self._confirmed_at), np.int64)
-        young = young[state.object_slots(young) >= 0]
-        if not young.size:
+        if not self.appearance.informative:
             return none
         created = dict(zip(self._created_ids, self._created_frames, strict=True))
+        pairs = self._pending_pairs(state, created)
+        young = np.array(sorted(self._confirmed_at), np.int64)
+        young = young[state.object_slots(young) >= 0]
+        young = young[~np.isin(young, pairs)]
         retired = state.retired.arrays()["ids"] if len(state.retired) else np.zeros(0, np.int64)
         confirmed = self.counters["tracks_confirmed"]
         prior = (self.counters.get("tracks_reidentified", 0) + 1.0) / (confirmed + 2.0)
-        pairs: list[tuple[int, int]] = []
         for n in young.tolist():
             old = state.object_ids[state.object_last_seen < created[n]]
             old = np.concatenate([old, retired])
-            old = old[~np.isin(old, young) & ~np.isin(old, [o for _, o in pairs])]
+            old = old[~np.isin(old, young) & ~np.isin(old, pairs)]
             label = int(self.labels_of(np.array([n]))[0])
             if label >= 0 and old.size:
                 labels = self.labels_of(old)
@@ -622,6 +626,7 @@ class ObjectTracker:
                 best = self._revisit_choice(ratio, prior)
                 if best is not None:
                     self.revisit_d2.setdefault((n, int(old[best])), float(d2[best]))
+                    self._pending[n] = int(old[best])
             if self.widening is not None:
                 r = self.widening(np.concatenate([[n], old]))
                 if (r > 1.0).any():
@@ -634,6 +639,8 @@ class ObjectTracker:
                 pairs.append((n, int(old[inside][best])))
         if not pairs:
             return none
+        for n, _ in pairs:
+            self._pending.pop(n, None)
         merged = np.array(pairs, np.int64)
         merge_objects(state, merged, t)
         for n, o in pairs:
@@ -647,6 +654,38 @@ class ObjectTracker:
             self._count("tracks_reidentified")
             self._count("objects_merged_by_boxes")
         return merged
+
+    def _pending_pairs(self, state, created: dict[int, int]) -> list[tuple[int, int]]:
+        """The pairs ``(n, o)`` that appearance and class alone named (:meth:`reidentify`'s
+        gate-free choice) but the position gate refused, taken once the objects' covariances,
+        widened by the factor learned since (:attr:`widening`), let them in: the refusal was the
+        overconfidence the factor measures. A pair lapses when either object left the state and
+        the persistent map or was merged, or when ``o`` was seen after ``n`` appeared (two
+        objects seen apart in time only can be one)."""
+        pairs: list[tuple[int, int]] = []
+        if not self._pending or self.widening is None:
+            return pairs
+        known = np.concatenate([state.object_ids, state.retired.arrays()["ids"]])
+        for n, o in list(self._pending.items()):
+            slot_o = state.object_slots(np.array([o]))[0]
+            if (
+                n in self.merged
+                or o in self.merged
+                or state.object_slots(np.array([n]))[0] < 0
+                or not np.isin(o, known)
+                or (slot_o >= 0 and state.object_last_seen[slot_o] >= created.get(n, 0))
+            ):
+                del self._pending[n]
+                continue
+            if n in self._confirmed_at or np.isin([n, o], pairs).any():
+                continue  # a young object: chosen again below
+            r = self.widening(np.array([n, o]))
+            if r.max() <= 1.0:
+                continue
+            d2 = difference_d2(state, n, np.array([o]), (float(r[0]), r[1:]))
+            if d2[0] <= self.revisit_gate:
+                pairs.append((n, o))
+        return pairs
 
     def _revisit_ratio(self, n: int, old: np.ndarray) -> np.ndarray:
         """``(len(old),)`` log likelihood ratio of the appearance and class of every box of
