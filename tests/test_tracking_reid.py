@@ -317,3 +317,37 @@ def test_a_revisit_refused_before_the_factor_was_learned_is_taken_once_it_is():
     other.widening = tracker.widening
     other_state.mark_seen(other_state.object_slots(np.array([7])), 65)
     assert other.reidentify(85, other_state).size == 0 and not other._pending
+
+
+def test_a_widened_merge_carries_the_offset_the_held_covariances_lack_as_noise():
+    """Merging two estimates 4.5 σ apart as if exact moves the pose they share by the whole
+    offset's pull; with the factors that widened the gate, the constraint's noise is the part of
+    the widened difference covariance the held one lacks, so the update is the Kalman update
+    with ``S = D'`` — the pose moves less."""
+    from teamslam.msckf.objects.loop_closure import merge_objects
+
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(12, 12))
+    cov = a @ a.T * 1e-4 + np.eye(12) * 1e-4
+    means = np.array([[5.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
+    d = cov[6:9, 6:9] + cov[9:, 9:] - cov[6:9, 9:] - cov[9:, 6:9]
+    means[0] += np.linalg.cholesky(d) @ np.array([0.0, 4.5, 0.0])
+
+    def merged(factors):
+        state = MsckfState.from_arrays(
+            np.eye(4)[None], np.array([0]), np.array([1, 2]), means.copy(), cov.copy()
+        )
+        return merge_objects(state, np.array([[1, 2]]), 5, factors)
+
+    exact, widened = merged(None), merged(np.array([[1.0, 10.0]]))
+    scale = np.sqrt(np.r_[np.ones(9), np.full(3, 10.0)])
+    wide = (cov * scale[:, None] * scale[None, :])[6:, 6:]
+    d_wide = wide[:3, :3] + wide[3:, 3:] - wide[:3, 3:] - wide[3:, :3]
+    values, vectors = np.linalg.eigh(d_wide - d)
+    noise = (vectors * np.maximum(values, 0)) @ vectors.T
+    h = np.zeros((3, 12))
+    h[:, 6:9], h[:, 9:] = np.eye(3), -np.eye(3)
+    residual = means[1] - means[0]
+    expected = cov @ h.T @ np.linalg.solve(d + noise, residual)
+    np.testing.assert_allclose(widened, expected, rtol=1e-5, atol=1e-12)
+    assert np.linalg.norm(widened[:6]) < np.linalg.norm(exact[:6])

@@ -642,7 +642,11 @@ class ObjectTracker:
         for n, _ in pairs:
             self._pending.pop(n, None)
         merged = np.array(pairs, np.int64)
-        merge_objects(state, merged, t)
+        factors = None
+        if self.widening is not None:  # the offset the held covariances lack: constraint noise
+            factors = self.widening(merged.ravel()).reshape(-1, 2)
+            factors = factors if (factors > 1.0).any() else None
+        merge_objects(state, merged, t, factors)
         for n, o in pairs:
             self.merged[n] = o
             self.memory.merge(n, o)
