@@ -18,7 +18,8 @@ switches and false objects per 1000 frames, and the association's held and revok
 the box centres' errors against the true objects (evaluation only) by box width: their robust
 spread as a share of the box, how many lie beyond three σ of the noise model the own run
 calibrated (``filter.object_std``, ``filter.object_size_share``), and how much of an object's
-error persists from one frame to the next.
+error persists from one frame to the next; last, where the own run's IDF1 is lost, by kind of
+box (:func:`_id_losses`).
 ``--render DIR`` keeps the rendered street in ``DIR`` and renders again only when ``DIR`` does not
 hold a finished render of the same configuration (rendering is most of the benchmark's time).
 ``--markdown FILE`` writes the table headed by the commit,
@@ -46,6 +47,7 @@ from teamslam import api
 from teamslam.datasets.identity import oracle_object_ids
 from teamslam.datasets.images import dataset_from_images, rendered_team_inputs
 from teamslam.datasets.stats import robust_std
+from teamslam.eval.tracking import _identity_map, idf1_losses
 from teamslam.msckf.filter.box_noise import box_rows, box_variances
 from teamslam.msckf.filter.models import observe
 from teamslam.sim.detector import DetectorConfig
@@ -142,6 +144,60 @@ def _box_errors(boxes, std: float, share: float) -> tuple[list[list[str]], str]:
         f"{persist(0):.2f}, v_l {persist(1):.2f} ({pairs.shape[0]} pairs)."
     )
     return out, note
+
+
+def _id_losses(boxes, hypotheses, std: float, share: float) -> tuple[list[list[str]], str]:
+    """Rows of where IDF1 is lost, by kind of box, and their note (evaluation only).
+
+    Each box of a true object is of one kind, the first that applies: *left image only* (no
+    right centre), *cut* by the image border (any clipped coordinate of
+    :func:`~teamslam.msckf.filter.box_noise.box_rows` under the run's noise), *large* (uncut,
+    at least the upper quartile of the uncut stereo boxes' widths), *other*. Per kind: the
+    boxes, those named with an id other than their object's under IDF1's one-to-one map
+    (``wrong``, each costing IDF1's sum ``GT + H − 2·IDTP`` two), those left unnamed (one) and
+    the kind's share of that sum; the note splits the wrong ids into revisits and the rest
+    (:func:`~teamslam.eval.tracking.idf1_losses`)."""
+    kinds = ("left image only", "cut", "large", "other")
+    counts = np.zeros((len(kinds), 3), np.int64)
+    widths, per_robot = [], []
+    for robot, hyp in zip(boxes.robots, hypotheses, strict=True):
+        d = robot.detections
+        hyp = np.asarray(hyp, np.int64)
+        row = box_rows(d.measurements, d.sizes, boxes.calibration.image_size, std, share)
+        mono = ~np.isfinite(d.measurements[:, 2])
+        cut = row[:, 6:10].any(axis=1) & ~mono
+        widths.append(d.sizes[~mono & ~cut, 0])
+        per_robot.append((d, hyp, mono, cut))
+    large_from = float(np.quantile(np.concatenate(widths), 0.75))
+    revisit = within = 0
+    for d, hyp, mono, cut in per_robot:
+        real = d.truth >= 0
+        wrong = real & (hyp >= 0) & (_identity_map(d.truth, hyp) != hyp)
+        unnamed = real & (hyp < 0)
+        large = ~mono & ~cut & (d.sizes[:, 0] >= large_from)
+        for k, mask in enumerate((mono, cut, large, ~mono & ~cut & ~large)):
+            counts[k] += [(real & mask).sum(), (wrong & mask).sum(), (unnamed & mask).sum()]
+        losses = idf1_losses(d.offsets, d.truth, hyp, revisit_gap=10)
+        revisit += losses["wrong_revisit"]
+        within += losses["wrong_within_pass"] + losses["wrong_unmapped"]
+    total = int(2 * counts[:, 1].sum() + counts[:, 2].sum())
+    rows = [
+        [
+            name,
+            str(c[0]),
+            str(c[1]),
+            str(c[2]),
+            f"{(2 * c[1] + c[2]) / max(total, 1):.2f}",
+        ]
+        for name, c in zip(kinds, counts, strict=True)
+    ]
+    note = (
+        f"own run (tracking + association, appearance); large: uncut stereo boxes at least "
+        f"{large_from:.0f} px wide; IDF1's loss GT + H − 2·IDTP = {total} (false boxes named "
+        f"aside); of the {int(counts[:, 1].sum())} wrong ids {revisit} came after an absence of "
+        f"more than `filter.window` frames, {within} within a pass."
+    )
+    return rows, note
 
 
 def _render(config: RenderConfig, directory: Path) -> None:
@@ -251,6 +307,20 @@ def main() -> None:
         md.row(*row)
         print(" | ".join(row))
     print(error_note)
+    md.end()
+    loss_rows, loss_note = _id_losses(
+        boxes,
+        own.results["consensus"].extra["tracking_hypotheses"],
+        float(noise["object_std"]),
+        float(noise["object_size_share"]),
+    )
+    loss_header = ["boxes", "of true objects", "wrong id", "unnamed", "share of IDF1's loss"]
+    md.table("Where the own run's IDF1 is lost, by kind of box", loss_header, loss_note)
+    print(" | ".join(loss_header))
+    for row in loss_rows:
+        md.row(*row)
+        print(" | ".join(row))
+    print(loss_note)
     md.end()
     md.write()
 

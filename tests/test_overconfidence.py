@@ -18,6 +18,7 @@ from scipy import stats
 from teamslam.association import CorrespondenceTable
 from teamslam.gaussian import chi2_quantile
 from teamslam.msckf.filter.box_noise import (
+    FormedUnder,
     Overconfidence,
     box_rows,
     box_variances,
@@ -189,3 +190,19 @@ def test_the_agent_learns_from_its_links_and_scales_new_boxes():
     given = MsckfAgent(0, team.calibration, team.robots[0], config)
     given.learn_overconfidence({1: _Table(_pairs(25.0 * rng.chisquare(3, 80)))})
     assert given._kappa is None
+
+
+def test_an_objects_widening_is_kappa_times_the_mean_inverse_factor_of_its_boxes():
+    formed = FormedUnder()
+    formed.add(np.array([1, 2]), 1.0, boxes=3)  # both initialised before any factor
+    formed.add(np.array([2, 3]), 50.0, boxes=1)
+    formed.add(np.array([3]), 100.0, boxes=1)
+    r = formed.widening(np.array([1, 2, 3, 4]), 100.0)
+    # 1: all boxes under 1 → κ; 2: (3/1 + 1/50) / 4 boxes; 3: (1/50 + 1/100) / 2; 4: unknown
+    np.testing.assert_allclose(r, [100.0, 100 * (3 + 1 / 50) / 4, 100 * (1 / 50 + 1 / 100) / 2, 1])
+    # formed entirely under the factor in force: not widened; never below 1
+    assert formed.widening(np.array([3]), 50.0)[0] == 1.0
+    formed.merge(3, 1)  # 3 is 1 seen again: its boxes are 1's
+    assert 3 not in formed.boxes and formed.boxes[1] == [5.0, 3.0 + 1 / 50 + 1 / 100]
+    back = FormedUnder.from_arrays(formed.arrays())
+    assert back.boxes == formed.boxes

@@ -83,3 +83,44 @@ def test_a_box_seen_in_the_left_image_only_is_named_for_the_record():
     frame = tracker.assign(4, np.stack([za, left_only]), None, state, W)
     assert frame.ids.tolist() == [7, -1]
     assert tracker.counters["detections_monocular_named"] == 1
+
+
+def _at_pixel(u: float, v: float, depth: float) -> np.ndarray:
+    """The body-frame point (identity pose) seen at pixel ``(u, v)`` of the left image."""
+    p_cam = depth * np.linalg.solve(CAMERA.intrinsics, [u, v, 1.0])
+    return (np.linalg.inv(T_CAM_BODY) @ np.r_[p_cam, 1.0])[:3]
+
+
+def test_a_box_cut_by_the_border_bounds_its_object_from_one_side():
+    """An object 200 px wide whose centre has left the image 80 px beyond its left border shows
+    a visible part 20.5 px wide (left image only): its centre lies 90 px inward of the object's,
+    4.4 σ of the cut-box noise, beyond the gate — yet the object is predicted beyond the visible
+    centre towards the border that cut it, which is where a cut box puts it: named. The same box
+    against an object predicted 110 px inward of it is not."""
+    size = (640, 480)
+    z = np.array([[9.75, 200.0, np.nan, np.nan]])
+    row = box_rows(z, np.array([[20.5, 30.0]]), size, STD, SHARE)
+    assert row[0, 6] == 1 and row[0, 7] == 0  # cut in u, at the left border
+    noise = STD**2 + (SHARE * 20.5) ** 2 + 20.5**2  # the cut coordinate's variance
+    assert (9.75 + 80.0) ** 2 / noise > 9.21  # beyond χ²(2)'s 0.99 gate as a plain residual
+    for u, named in ((-80.0, True), (120.0, False)):
+        state = _state({7: _at_pixel(u, 200.0, 8.0)})
+        tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG, image_size=size)
+        frame = tracker.assign(1, row, None, state, W)
+        assert frame.ids.tolist() == ([7] if named else [-1])
+
+
+def test_censored_distances_equal_the_plain_ones_without_cut_coordinates():
+    from teamslam.msckf.objects.tracking import _censored_d2, _squared_distances_each
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(3, 4, 4))
+    s = a @ np.swapaxes(a, 1, 2) + np.eye(4)
+    pred, z = rng.normal(size=(3, 4)) * 5, rng.normal(size=(2, 4)) * 5
+    noise = rng.uniform(0.5, 2.0, size=(2, 4))
+    plain = _squared_distances_each(s, pred, z, noise)
+    np.testing.assert_allclose(_censored_d2(s, pred, z, noise, np.zeros((2, 4))), plain)
+    # every coordinate censored on the side each residual lies: zero distance
+    sides = np.where(z[None] - pred[:, None] > 0, -1, 1)
+    for t in range(3):
+        assert np.allclose(_censored_d2(s[t : t + 1], pred[t : t + 1], z, noise, sides[t]), 0)

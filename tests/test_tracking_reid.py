@@ -237,3 +237,117 @@ def test_a_pair_appearance_alone_names_is_a_sample_of_d2_the_gate_does_not_cut()
     tracker, state = _tracker({7: _look(0.0), 9: _look(0.0)}), _state(twins, rng)
     _run(tracker, state, rng, _look(_chord_angle(0.05)))
     assert not tracker.revisit_d2
+
+
+def test_an_old_object_formed_before_the_factor_is_widened_and_merged():
+    """An old object whose covariance is ten times too small (its boxes came before the box
+    noise's overconfidence factor of 10 was learned; its error drawn from the covariance it
+    should have): as held, its estimate lies beyond the re-identification gate and the
+    revisit starts a new object; widened by the factor, it is merged — and an old object
+    whose error is beyond even the widened covariance is not."""
+    kappa, drawn = 10.0, np.array([0.0, 4.5, 0.0]) * OLD_STD  # 4.5 σ of the held covariance
+
+    def run(widening, offset=drawn):
+        state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-8)
+        state.add_object(7, TRUE + offset, np.eye(3) * OLD_STD**2, np.zeros((3, state.dim)))
+        tracker = _tracker({7: _look(0.0)})
+        tracker.widening = widening
+        rng = np.random.default_rng(4)
+        return tracker, _run(tracker, state, rng, _look(_chord_angle(0.05)), range(60, 70))
+
+    held, _ = run(None)
+    assert 7 not in held.hypotheses()
+    widened, ids = run(lambda ids: np.where(np.asarray(ids) == 7, kappa, 1.0))
+    assert ids[-1] == 7 and set(widened.hypotheses()[-5:].tolist()) == {7}
+    # the same widening does not let in an object 4.5 σ off the widened covariance
+    far, _ = run(lambda ids: np.where(np.asarray(ids) == 7, kappa, 1.0), drawn * np.sqrt(kappa))
+    assert 7 not in far.hypotheses()
+
+
+def test_difference_d2_widens_each_object_and_their_cross_term_consistently():
+    """``D P D`` with ``√r`` on each object: equal factors divide ``d²`` by the factor; unequal
+    ones give the congruence's difference covariance, which stays positive definite."""
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(12, 12))
+    cov = a @ a.T * 1e-3 + np.eye(12) * 1e-4
+    state = MsckfState.from_arrays(
+        np.eye(4)[None],
+        np.array([0]),
+        np.array([1, 2]),
+        np.array([[5.0, 0.0, 0.0], [5.0, 0.3, 0.1]]),
+        cov,
+    )
+    d2 = difference_d2(state, 1, np.array([2]))
+    widened = difference_d2(state, 1, np.array([2]), (4.0, np.array([4.0])))
+    np.testing.assert_allclose(widened, d2 / 4)
+    r_n, r_o = 2.0, 9.0
+    scale = np.sqrt(np.array([r_n] * 3 + [r_o] * 3))
+    block = cov[6:, 6:] * scale[:, None] * scale[None, :]
+    diff = block[:3, :3] + block[3:, 3:] - block[:3, 3:] - block[3:, :3]
+    r = np.array([0.0, -0.3, -0.1])
+    expected = r @ np.linalg.solve(diff, r)
+    np.testing.assert_allclose(
+        difference_d2(state, 1, np.array([2]), (r_n, np.array([r_o]))), expected, rtol=1e-10
+    )
+    assert expected < d2  # widened: nearer
+
+
+def test_a_revisit_refused_before_the_factor_was_learned_is_taken_once_it_is():
+    """The old object 4.5 σ off its held covariance: while no factor is known the new object
+    stays apart (appearance named the old one, the position gate refused it); once the learner
+    finds the covariances ten times too small, the pair is taken — after the new object's
+    window, its earlier boxes renamed too. A pair whose old object was seen after the new one
+    appeared lapses."""
+    state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-8)
+    offset = np.array([0.0, 4.5, 0.0]) * OLD_STD
+    state.add_object(7, TRUE + offset, np.eye(3) * OLD_STD**2, np.zeros((3, state.dim)))
+    tracker = _tracker({7: _look(0.0)})
+    rng = np.random.default_rng(4)
+    _run(tracker, state, rng, _look(_chord_angle(0.05)), range(60, 70))
+    assert not tracker.merged and 7 not in tracker.hypotheses()
+    ((new, old_id),) = tracker._pending.items()
+    assert old_id == 7
+    lapsed = copy.deepcopy((tracker, state))
+    tracker.widening = lambda ids: np.where(np.asarray(ids) == 7, 10.0, 1.0)
+    merged = tracker.reidentify(85, state)  # beyond the new object's window
+    assert merged.tolist() == [[new, 7]] and set(tracker.hypotheses().tolist()) == {7}
+    assert not tracker._pending
+    # the same pair after 7 was seen again while the new object was around: two objects
+    other, other_state = lapsed
+    other.widening = tracker.widening
+    other_state.mark_seen(other_state.object_slots(np.array([7])), 65)
+    assert other.reidentify(85, other_state).size == 0 and not other._pending
+
+
+def test_a_widened_merge_carries_the_offset_the_held_covariances_lack_as_noise():
+    """Merging two estimates 4.5 σ apart as if exact moves the pose they share by the whole
+    offset's pull; with the factors that widened the gate, the constraint's noise is the part of
+    the widened difference covariance the held one lacks, so the update is the Kalman update
+    with ``S = D'`` — the pose moves less."""
+    from teamslam.msckf.objects.loop_closure import merge_objects
+
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(12, 12))
+    cov = a @ a.T * 1e-4 + np.eye(12) * 1e-4
+    means = np.array([[5.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
+    d = cov[6:9, 6:9] + cov[9:, 9:] - cov[6:9, 9:] - cov[9:, 6:9]
+    means[0] += np.linalg.cholesky(d) @ np.array([0.0, 4.5, 0.0])
+
+    def merged(factors):
+        state = MsckfState.from_arrays(
+            np.eye(4)[None], np.array([0]), np.array([1, 2]), means.copy(), cov.copy()
+        )
+        return merge_objects(state, np.array([[1, 2]]), 5, factors)
+
+    exact, widened = merged(None), merged(np.array([[1.0, 10.0]]))
+    scale = np.sqrt(np.r_[np.ones(9), np.full(3, 10.0)])
+    wide = (cov * scale[:, None] * scale[None, :])[6:, 6:]
+    d_wide = wide[:3, :3] + wide[3:, 3:] - wide[:3, 3:] - wide[3:, :3]
+    values, vectors = np.linalg.eigh(d_wide - d)
+    noise = (vectors * np.maximum(values, 0)) @ vectors.T
+    h = np.zeros((3, 12))
+    h[:, 6:9], h[:, 9:] = np.eye(3), -np.eye(3)
+    residual = means[1] - means[0]
+    expected = cov @ h.T @ np.linalg.solve(d + noise, residual)
+    np.testing.assert_allclose(widened, expected, rtol=1e-5, atol=1e-12)
+    assert np.linalg.norm(widened[:6]) < np.linalg.norm(exact[:6])

@@ -27,6 +27,7 @@ from teamslam.errors import EstimationError, InputError, InternalError
 from teamslam.gaussian import NotPositiveDefiniteError
 from teamslam.geometry import se3
 from teamslam.msckf.filter.box_noise import (
+    FormedUnder,
     Overconfidence,
     box_rows,
     box_size2,
@@ -157,6 +158,9 @@ class MsckfAgent:
         self._kappa: float | None = None
         #: the factor in force at each object's last update, where it was above 1
         self._object_kappa: dict[int, float] = {}
+        #: under which factor each object's boxes were taken: how much its covariance is
+        #: widened where the tracker gates once the factor grows
+        self._formed = FormedUnder()
         tracking = sequence.detections is not None and sequence.objects.ids.size == 0
         self._record_views = config.association.mode == "own" or (
             tracking and config.tracking.loop_closure
@@ -175,6 +179,8 @@ class MsckfAgent:
                 views=self.views.of if self._record_views else None,
                 image_size=calibration.image_size,
             )
+            if self._learns_overconfidence:
+                self.tracker.widening = self._widening
 
     # ------------------------------------------------------------------ bookkeeping
     def reject(self, what: str, count: int = 1, reason: str = "") -> None:
@@ -225,6 +231,8 @@ class MsckfAgent:
         out.update({f"views_{k}": v for k, v in self.views.arrays().items()})
         if len(self.overconfidence):
             out.update({f"overconfidence_{k}": v for k, v in self.overconfidence.arrays().items()})
+        if len(self._formed):
+            out.update({f"formed_{k}": v for k, v in self._formed.arrays().items()})
         if self._object_kappa:
             out["overconfidence_object_ids"] = np.array(list(self._object_kappa), np.int64)
             out["overconfidence_object_kappa"] = np.array(list(self._object_kappa.values()))
@@ -272,6 +280,12 @@ class MsckfAgent:
                     "values": snapshot.get("overconfidence_values", np.zeros(0)),
                 }
             )
+            formed = FormedUnder.from_arrays(
+                {
+                    "ids": snapshot.get("formed_ids", np.zeros(0, np.int64)),
+                    "values": snapshot.get("formed_values", np.zeros((0, 2))),
+                }
+            )
             tracker = None
             if self.tracker is not None:  # its ids continue (a copy: unchanged on failure)
                 tracker = copy.deepcopy(self.tracker)
@@ -301,6 +315,7 @@ class MsckfAgent:
         self.timings = defaultdict(float, timings)
         self.views = views
         self.overconfidence = overconfidence
+        self._formed = formed
         self._kappa = self._learned_kappa()
         self._object_kappa = dict(
             zip(
@@ -336,6 +351,14 @@ class MsckfAgent:
         if self.overconfidence.add(source, pairs, kappa if factors is None else factors):
             self._kappa = self._learned_kappa()
             self.counters["overconfidence_samples"] = len(self.overconfidence)
+
+    def _widening(self, ids: np.ndarray) -> np.ndarray:
+        """Per object of ``ids`` the factor by which its covariance is too small for the box
+        noise now in force (:class:`~teamslam.msckf.filter.box_noise.FormedUnder`; 1 while the
+        factor is 1)."""
+        if self._kappa is None:
+            return np.ones(np.size(ids))
+        return self._formed.widening(ids, self._kappa)
 
     def _learned_kappa(self) -> float | None:
         """The factor of new boxes' variance: ``None`` while it is 1 (the calibrated noise,
@@ -606,6 +629,7 @@ class MsckfAgent:
             self.tracker.revisit_d2 = {}
         for new, old in frame.merged.tolist():  # loop closure: one object seen again
             self.views.merge(new, old)
+            self._formed.merge(new, old)
         for tid, frames, zs in frame.confirmed:
             self.object_history[tid].extend(
                 (int(f), row) for f, row in zip(frames.tolist(), zs, strict=True)
@@ -719,6 +743,12 @@ class MsckfAgent:
             self.counters["objects_downweighted"] += int((weight < 1).sum())
             noise = noise / weight
         slots, zk, ids = slots[accepted], zk[accepted], ids[accepted]
+        if self._learns_overconfidence:
+            for i in ids.tolist():  # its first boxes: those of its initialisation
+                if i not in self._formed.boxes:
+                    initial = max(len(self.object_history[i]) - 1, 1)
+                    self._formed.add(np.array([i]), self._object_kappa.get(i, 1.0), initial)
+            self._formed.add(ids, 1.0 if self._kappa is None else self._kappa)
         if self._kappa is not None:
             self._object_kappa.update(dict.fromkeys(ids.tolist(), self._kappa))
         rows = self._object_measurement_rows(

@@ -32,6 +32,7 @@ from teamslam.gaussian import chi2_quantile
 __all__ = [
     "BOX_COLUMNS",
     "OVERCONFIDENCE_PROBABILITY",
+    "FormedUnder",
     "Overconfidence",
     "box_rows",
     "box_size2",
@@ -234,3 +235,74 @@ def overconfidence_factor(scaled: np.ndarray) -> float:
     if stats.binom.sf(above - 1, n, 0.5) > 1.0 - OVERCONFIDENCE_PROBABILITY:
         return 1.0
     return max(1.0, float(np.median(scaled)) / _CHI2_3_MEDIAN)
+
+
+class FormedUnder:
+    """Under which factor ``κ`` each object's covariance was formed, to widen it when ``κ`` grows.
+
+    New boxes get ``κ (σ₀² + (α s)²)`` (:func:`box_variances`), but an object whose boxes came
+    before ``κ`` was learned (or grew) keeps the covariance those boxes gave: too small by the
+    factor the learner now finds. With the box part dominating an object's information,
+    ``P⁻¹ ∝ Σ_k 1 / κ_k`` over its boxes (``κ_k`` the factor in force at box ``k``), against
+    ``n / κ`` had every box been taken under the factor now in force; so the object's
+    covariance is too small by
+
+        ``r = κ · mean_k(1 / κ_k)``  (``≥ 1`` while ``κ`` only grows; never taken below 1),
+
+    which is 1 for an object formed under ``κ`` and ``κ`` for one formed before it
+    (:meth:`widening`). The tracker's re-identification widens the joint covariance of a new
+    and an old object by these factors before its gate, as a congruence ``D P D`` (``√r`` on
+    each object's coordinates: each block times its ``r``, the cross term times ``√(r_n r_o)``;
+    it stays a covariance and every correlation stays).
+    """
+
+    def __init__(self) -> None:
+        #: object id → ``[boxes, Σ 1/κ_k]``
+        self.boxes: dict[int, list[float]] = {}
+
+    def __len__(self) -> int:
+        return len(self.boxes)
+
+    def add(self, ids: np.ndarray, kappa: float, boxes: float = 1.0) -> None:
+        """Count ``boxes`` boxes of each object of ``ids`` taken under ``kappa``."""
+        inverse = boxes / float(kappa)
+        for i in np.asarray(ids, np.int64).ravel().tolist():
+            entry = self.boxes.setdefault(i, [0.0, 0.0])
+            entry[0] += boxes
+            entry[1] += inverse
+
+    def merge(self, new: int, old: int) -> None:
+        """Object ``new`` is ``old`` seen again: its boxes are ``old``'s."""
+        entry = self.boxes.pop(int(new), None)
+        if entry is not None:
+            target = self.boxes.setdefault(int(old), [0.0, 0.0])
+            target[0] += entry[0]
+            target[1] += entry[1]
+
+    def widening(self, ids: np.ndarray, kappa: float) -> np.ndarray:
+        """``(len(ids),)`` factor ``r ≥ 1`` by which each object's covariance is too small under
+        ``kappa`` (class docstring); 1 for an object without boxes counted."""
+        ids = np.asarray(ids, np.int64).ravel()
+        out = np.ones(ids.size)
+        for k, i in enumerate(ids.tolist()):
+            entry = self.boxes.get(i)
+            if entry is not None and entry[0] > 0:
+                out[k] = kappa * entry[1] / entry[0]
+        return np.maximum(out, 1.0)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """What it counted, as arrays (for a snapshot; :meth:`from_arrays`)."""
+        ids = np.fromiter(self.boxes, np.int64, count=len(self.boxes))
+        values = np.array(list(self.boxes.values()), float).reshape(-1, 2)
+        return {"ids": ids, "values": values}
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> FormedUnder:
+        """The counts of :meth:`arrays`."""
+        out = cls()
+        ids = np.asarray(arrays["ids"], np.int64).ravel()
+        values = np.asarray(arrays["values"], float).reshape(-1, 2)
+        if ids.size != values.shape[0]:
+            raise ValueError(f"formed-under: {ids.size} objects, {values.shape[0]} counts")
+        out.boxes = {i: list(v) for i, v in zip(ids.tolist(), values.tolist(), strict=True)}
+        return out

@@ -313,7 +313,9 @@ def find_loop(
     return associate(recent, old, settings)
 
 
-def merge_objects(state, pairs: np.ndarray, frame: int) -> np.ndarray:
+def merge_objects(
+    state, pairs: np.ndarray, frame: int, factors: np.ndarray | None = None
+) -> np.ndarray:
     """Merge object ``n`` into object ``o`` for each row ``(n, o)`` of ``pairs``.
 
     One EKF update with the stacked constraints ``x_n − x_o = 0`` (noise ``ε`` of
@@ -330,6 +332,13 @@ def merge_objects(state, pairs: np.ndarray, frame: int) -> np.ndarray:
         persistent map; all ``2k`` ids distinct.
     frame
         The current frame (when a re-entering ``o`` counts as seen at the latest).
+    factors
+        ``(k, 2)`` per pair the factors ``(r_n, r_o)`` by which the two objects' covariances
+        are too small (:func:`difference_d2`'s); the constraint then carries the part of the
+        widened difference covariance the held one lacks, ``max(D' − D, 0)`` (its positive
+        eigenvalues), as noise: the two estimates differ by an offset the held covariances do
+        not show, and pulling them together as if exact would move the rest of the state by
+        it. ``None``: exact (as held).
 
     Returns
     -------
@@ -364,6 +373,14 @@ def merge_objects(state, pairs: np.ndarray, frame: int) -> np.ndarray:
     cov = state.covariance(np.concatenate([cols_n, cols_o], axis=1))  # (k, 6, 6)
     diff_var = np.einsum("kii->k", cov[:, :3, :3] + cov[:, 3:, 3:] - 2 * cov[:, :3, 3:]) / 3
     noise = np.diag(np.repeat(MERGE_RELATIVE_NOISE * diff_var, 3))
+    if factors is not None:
+        scale = np.sqrt(np.repeat(np.asarray(factors, float).reshape(k, 2), 3, axis=1))
+        wide = cov * scale[:, :, None] * scale[:, None, :]
+        extra = _difference_cov(wide) - _difference_cov(cov)
+        values, vectors = np.linalg.eigh(0.5 * (extra + np.swapaxes(extra, 1, 2)))
+        extra = (vectors * np.maximum(values, 0.0)[:, None, :]) @ np.swapaxes(vectors, 1, 2)
+        for i in range(k):
+            noise[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] += extra[i]
     delta = state.update(jacobian, residual, noise)
     state.object_last_seen[slots_o] = seen
     state.retire_objects(slots_n)
@@ -371,7 +388,9 @@ def merge_objects(state, pairs: np.ndarray, frame: int) -> np.ndarray:
     return delta
 
 
-def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
+def difference_d2(
+    state, new: int, old: np.ndarray, factors: tuple[float, np.ndarray] | None = None
+) -> np.ndarray:
     """``d² = rᵀ D⁻¹ r`` of ``r = x_n − x_o`` for object ``new`` against each of ``old``.
 
     ``D = P_nn + P_oo − P_no − P_on`` from the joint state: an old object of the state shares
@@ -386,6 +405,11 @@ def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
         The new object's id.
     old
         ``(k,)`` ids, each in the state or the persistent map.
+    factors
+        ``(r_n, (k,) r_o)``: each object's covariance widened by its factor, the cross term by
+        ``√(r_n r_o)`` (``D P D``, ``√r`` on each object's coordinates: the factors by which
+        covariances formed before the box noise's overconfidence factor are too small,
+        :class:`~teamslam.msckf.filter.box_noise.FormedUnder`); ``None``: as held.
 
     Returns
     -------
@@ -402,6 +426,10 @@ def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
         cols_o = state.object_columns(slots[inside])
         cols = np.concatenate([np.broadcast_to(cols_n, cols_o.shape), cols_o], axis=1)
         cov = state.covariance(cols)  # (k, 6, 6)
+        if factors is not None:
+            b = np.asarray(factors[1], float)[inside]
+            scale = np.sqrt(np.repeat(np.column_stack([np.full(b.size, factors[0]), b]), 3, 1))
+            cov = cov * scale[:, :, None] * scale[:, None, :]  # D P D: each block widened
         diff = cov[:, :3, :3] + cov[:, 3:, 3:] - cov[:, :3, 3:] - cov[:, 3:, :3]
         r = state.objects[slot_n] - state.objects[slots[inside]]
         out[inside] = _squared_mahalanobis(r, diff)
@@ -410,9 +438,18 @@ def difference_d2(state, new: int, old: np.ndarray) -> np.ndarray:
         where = _positions(retired["ids"], old[~inside])
         own = state.covariance(cols_n)
         r = state.objects[slot_n] - retired["means"][where]
-        diff = own[None] + retired["covs"][where]
+        if factors is None:
+            diff = own[None] + retired["covs"][where]
+        else:
+            b = np.asarray(factors[1], float)[~inside][:, None, None]
+            diff = float(factors[0]) * own[None] + b * retired["covs"][where]
         out[~inside] = _squared_mahalanobis(r, diff)
     return out
+
+
+def _difference_cov(cov: np.ndarray) -> np.ndarray:
+    """``(k, 3, 3)`` covariance of ``x_n − x_o`` from joint ``(k, 6, 6)`` covariances."""
+    return cov[:, :3, :3] + cov[:, 3:, 3:] - cov[:, :3, 3:] - cov[:, 3:, :3]
 
 
 def _squared_mahalanobis(r: np.ndarray, cov: np.ndarray) -> np.ndarray:

@@ -186,6 +186,15 @@ class ObjectTracker:
         #: gate (samples of how overconfident the objects are, not cut by that gate; the agent
         #: takes them each frame, :meth:`reidentify`)
         self.revisit_d2: dict[tuple[int, int], float] = {}
+        #: ``callable(ids) -> (len(ids),)`` factors ``r ≥ 1`` by which the covariances of the
+        #: state's and the persistent map's objects are too small for the box noise now in
+        #: force (:class:`~teamslam.msckf.filter.box_noise.FormedUnder`, set by the agent once
+        #: it has learned an overconfidence factor); their covariances are widened by them
+        #: in the re-identification's gate (:meth:`reidentify`; ``None``: as held)
+        self.widening: Callable[[np.ndarray], np.ndarray] | None = None
+        # new object → the long-unseen one appearance and class alone named, refused by the
+        # position gate (:meth:`_pending_pairs`)
+        self._pending: dict[int, int] = {}
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -262,6 +271,10 @@ class ObjectTracker:
                 d2 = _squared_distances(s, pred, centres)  # (T, D)
             else:  # S = H P Hᵀ + R of each detection
                 d2 = _squared_distances_each(s, pred, centres, self._noise)
+                cut = self._cut_sides(z)
+                rows = np.flatnonzero(cut.any(axis=1))
+                if rows.size:  # a cut box's centre bounds its object's from one side only
+                    d2[:, rows] = _censored_d2(s, pred, centres[rows], self._noise[rows], cut[rows])
             cost = d2 - self.gate
             if classes is None:  # no labels: every pair of a target in front agrees
                 agree = in_front[:, None]
@@ -410,6 +423,7 @@ class ObjectTracker:
             out["confirmed_at"] = np.array(list(self._confirmed_at.items()), np.int64).reshape(
                 -1, 2
             )
+            out["pending"] = np.array(list(self._pending.items()), np.int64).reshape(-1, 2)
         return out
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
@@ -452,6 +466,7 @@ class ObjectTracker:
             for i, d in zip(state["boxes_ids"].tolist(), state["boxes_descriptors"], strict=True):
                 self._boxes.setdefault(i, []).append(d.copy())
             self._confirmed_at = dict(state["confirmed_at"].tolist())
+            self._pending = dict(np.asarray(state.get("pending", np.zeros((0, 2)))).tolist())
 
     def _name_monocular(self, t, z, labels, taken, targets) -> np.ndarray:
         """Ids of the boxes seen in the left image only (``z`` ``(M, ·)``, right columns NaN):
@@ -479,6 +494,8 @@ class ObjectTracker:
         else:
             noise = np.full((z.shape[0], 2), f.object_std**2)
         r = z[None, :, :2] - pred[rows, None, :2]  # (T, M, 2)
+        if is_box(z):  # a cut box's centre bounds its object's from one side only
+            r = _censor(r, self._cut_sides(left)[None, :, :2])
         cov = s[rows, None, :2, :2] + _diagonal(noise)[None]  # (T, M, 2, 2)
         d2 = np.einsum("tmi,tmi->tm", r, np.linalg.solve(cov, r[..., None])[..., 0])
         gate = chi2_quantile(self.config.tracking.gate_probability, 2)
@@ -498,6 +515,17 @@ class ObjectTracker:
         out[hit] = target_ids[rows[assigned[hit]]]
         self.counters["detections_monocular_named"] += int(hit.sum())
         return out
+
+    def _cut_sides(self, rows: np.ndarray) -> np.ndarray:
+        """``(D, 4)`` per centre coordinate of box rows the border that cut it: ``-1`` the low
+        one (left, top), ``+1`` the high one, ``0`` not cut (the clipped flags of
+        :func:`~teamslam.msckf.filter.box_noise.box_rows`; the side: the half of the image the
+        centre lies in)."""
+        if self.image_size is None:
+            return np.zeros((rows.shape[0], 4), np.int64)
+        extent = np.array([self.image_size[0], self.image_size[1]] * 2, float)
+        side = np.where(rows[:, :4] < 0.5 * (extent - 1.0), -1, 1)
+        return np.where(rows[:, 6:10] > 0, side, 0)
 
     def hypotheses(self) -> np.ndarray:
         """The id given to every detection so far, in frame order (``-1``: none); a merged
@@ -570,21 +598,20 @@ class ObjectTracker:
         keep = set(self.ids.tolist()) | set(self._confirmed_at)
         for i in [i for i in self._boxes if i not in keep]:
             del self._boxes[i]
-        if not self.appearance.informative or not self._confirmed_at:
-            return none
-        young = np.array(sorted(self._confirmed_at), np.int64)
-        young = young[state.object_slots(young) >= 0]
-        if not young.size:
+        if not self.appearance.informative:
             return none
         created = dict(zip(self._created_ids, self._created_frames, strict=True))
+        pairs = self._pending_pairs(state, created)
+        young = np.array(sorted(self._confirmed_at), np.int64)
+        young = young[state.object_slots(young) >= 0]
+        young = young[~np.isin(young, pairs)]
         retired = state.retired.arrays()["ids"] if len(state.retired) else np.zeros(0, np.int64)
         confirmed = self.counters["tracks_confirmed"]
         prior = (self.counters.get("tracks_reidentified", 0) + 1.0) / (confirmed + 2.0)
-        pairs: list[tuple[int, int]] = []
         for n in young.tolist():
             old = state.object_ids[state.object_last_seen < created[n]]
             old = np.concatenate([old, retired])
-            old = old[~np.isin(old, young) & ~np.isin(old, [o for _, o in pairs])]
+            old = old[~np.isin(old, young) & ~np.isin(old, pairs)]
             label = int(self.labels_of(np.array([n]))[0])
             if label >= 0 and old.size:
                 labels = self.labels_of(old)
@@ -594,10 +621,16 @@ class ObjectTracker:
             d2 = difference_d2(state, n, old)
             ratio = self._revisit_ratio(n, old)
             if self.config.filter.object_overconfidence:
-                # the sample: what appearance and class alone name, not cut by the gate
+                # the sample: what appearance and class alone name, not cut by the gate (and
+                # under the covariances as held: the learner weighs each by its own factor)
                 best = self._revisit_choice(ratio, prior)
                 if best is not None:
                     self.revisit_d2.setdefault((n, int(old[best])), float(d2[best]))
+                    self._pending[n] = int(old[best])
+            if self.widening is not None:
+                r = self.widening(np.concatenate([[n], old]))
+                if (r > 1.0).any():
+                    d2 = difference_d2(state, n, old, (float(r[0]), r[1:]))
             inside = d2 <= self.revisit_gate
             if not inside.any():
                 continue
@@ -606,8 +639,14 @@ class ObjectTracker:
                 pairs.append((n, int(old[inside][best])))
         if not pairs:
             return none
+        for n, _ in pairs:
+            self._pending.pop(n, None)
         merged = np.array(pairs, np.int64)
-        merge_objects(state, merged, t)
+        factors = None
+        if self.widening is not None:  # the offset the held covariances lack: constraint noise
+            factors = self.widening(merged.ravel()).reshape(-1, 2)
+            factors = factors if (factors > 1.0).any() else None
+        merge_objects(state, merged, t, factors)
         for n, o in pairs:
             self.merged[n] = o
             self.memory.merge(n, o)
@@ -619,6 +658,38 @@ class ObjectTracker:
             self._count("tracks_reidentified")
             self._count("objects_merged_by_boxes")
         return merged
+
+    def _pending_pairs(self, state, created: dict[int, int]) -> list[tuple[int, int]]:
+        """The pairs ``(n, o)`` that appearance and class alone named (:meth:`reidentify`'s
+        gate-free choice) but the position gate refused, taken once the objects' covariances,
+        widened by the factor learned since (:attr:`widening`), let them in: the refusal was the
+        overconfidence the factor measures. A pair lapses when either object left the state and
+        the persistent map or was merged, or when ``o`` was seen after ``n`` appeared (two
+        objects seen apart in time only can be one)."""
+        pairs: list[tuple[int, int]] = []
+        if not self._pending or self.widening is None:
+            return pairs
+        known = np.concatenate([state.object_ids, state.retired.arrays()["ids"]])
+        for n, o in list(self._pending.items()):
+            slot_o = state.object_slots(np.array([o]))[0]
+            if (
+                n in self.merged
+                or o in self.merged
+                or state.object_slots(np.array([n]))[0] < 0
+                or not np.isin(o, known)
+                or (slot_o >= 0 and state.object_last_seen[slot_o] >= created.get(n, 0))
+            ):
+                del self._pending[n]
+                continue
+            if n in self._confirmed_at or np.isin([n, o], pairs).any():
+                continue  # a young object: chosen again below
+            r = self.widening(np.array([n, o]))
+            if r.max() <= 1.0:
+                continue
+            d2 = difference_d2(state, n, np.array([o]), (float(r[0]), r[1:]))
+            if d2[0] <= self.revisit_gate:
+                pairs.append((n, o))
+        return pairs
 
     def _revisit_ratio(self, n: int, old: np.ndarray) -> np.ndarray:
         """``(len(old),)`` log likelihood ratio of the appearance and class of every box of
@@ -1211,6 +1282,27 @@ def _predict_targets(pose, rig, points, p, min_depth, noise_var):
 
 
 @numba.njit(cache=True)
+def _censor(r: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """Residuals ``r = z − ẑ`` of box centres with the cut coordinates censored: a box cut by
+    the low border (``sides`` ``-1``) shows the visible part, whose centre lies inward of the
+    object's by half the hidden extent, unknown — an object predicted beyond the visible centre
+    towards that border fits at any distance (residual 0), one predicted inward of it does
+    not (residual as is); ``+1`` likewise for the high border."""
+    low = (sides < 0) & (r > 0)
+    high = (sides > 0) & (r < 0)
+    return np.where(low | high, 0.0, r)
+
+
+def _censored_d2(s, pred, z, noise, sides) -> np.ndarray:
+    """``(T, D)`` ``d²`` of :func:`_squared_distances_each` with the residuals of cut
+    coordinates censored (:func:`_censor`; ``sides`` ``(D, 4)``)."""
+    r = _censor(z[None, :, :4] - pred[:, None, :], sides[None])  # (T, D, 4)
+    cov = s[:, None] + _diagonal(noise)[None]  # (T, D, 4, 4)
+    factor = np.linalg.cholesky(cov)
+    y = np.linalg.solve(factor, r[..., None])[..., 0]
+    return np.einsum("tdi,tdi->td", y, y)
+
+
 def _squared_distances_each(s, pred, z, noise):
     """``d²[t, j] = (z_j − ẑ_t)ᵀ (S_t + R_j)⁻¹ (z_j − ẑ_t)``, ``R_j = diag(noise[j])``: one
     Cholesky factorisation per pair (each detection its own noise)."""
