@@ -34,7 +34,12 @@ from teamslam.msckf.filter.box_noise import (
     is_box,
 )
 from teamslam.msckf.filter.linearization import GroundTruth, linearization_policy
-from teamslam.msckf.filter.models import observe, observe_jacobians, points_in_camera
+from teamslam.msckf.filter.models import (
+    linearisation_reach,
+    observe,
+    observe_jacobians,
+    points_in_camera,
+)
 from teamslam.msckf.filter.state import MsckfState, RobotWindow
 from teamslam.msckf.filter.update import (
     MeasurementRows,
@@ -826,6 +831,7 @@ class MsckfAgent:
                 zs = np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k])
                 candidates.append((oid, widx[keep], zs))
         if not candidates:
+            self._use_waiting_objects()
             return
         by_length: dict[int, list] = defaultdict(list)
         for c in candidates:
@@ -856,6 +862,39 @@ class MsckfAgent:
                         continue
                     point = again[0]
                 moved |= self._add_object(members[j][0], point, widx[j], zs[j], variance, n)
+        self._use_waiting_objects()
+
+    def _use_waiting_objects(self) -> None:
+        """Objects waiting for their rows to be linear enough
+        (``objects.init_linearity_probability``) whose oldest observation leaves the window at
+        this frame: their window observations update the poses as a geometric feature's do (the
+        landmark-free rows of :meth:`_add_object`), and each starts again from its next
+        observation — no observation is used twice."""
+        cfg = self.config
+        if cfg.objects.init_linearity_probability == 0 or self.state.n_poses <= cfg.filter.window:
+            return
+        oldest = self.state.frames[0]
+        in_map = set(self.state.object_ids.tolist())
+        for oid, obs in self.object_history.items():
+            if oid in in_map or not obs or obs[0][0] != oldest:
+                continue
+            widx = self.state.window_index(np.array([f for f, _ in obs]))
+            keep = widx >= 0
+            if keep.sum() >= cfg.objects.init_observations:
+                zs = np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k])
+                points, ok, rms = self._triangulate_objects(widx[keep][None], zs[None])
+                f = cfg.filter
+                if is_box(zs):
+                    noise = box_variances(zs, f.object_std, f.object_size_share, self._kappa)
+                    ok &= rms < 3.0 * np.sqrt(noise.mean())
+                else:
+                    ok &= rms < 3.0 * f.object_std
+                if ok[0]:
+                    n = int(keep.sum())
+                    self._add_object(
+                        oid, points[0], widx[keep], zs, f.object_std**2, n, enter=False
+                    )
+            obs.clear()
 
     def _triangulate_objects(
         self, window_index: np.ndarray, zs: np.ndarray
@@ -871,12 +910,21 @@ class MsckfAgent:
         )
 
     def _add_object(
-        self, oid: int, point: np.ndarray, widx: np.ndarray, zs: np.ndarray, variance: float, n: int
+        self,
+        oid: int,
+        point: np.ndarray,
+        widx: np.ndarray,
+        zs: np.ndarray,
+        variance: float,
+        n: int,
+        enter: bool = True,
     ) -> bool:
         """QR initialisation (eqs. 29–30), then an update with the landmark-free rows.
 
         Box rows ``zs`` (each observation its own noise) are whitened first, ``variance`` then
-        being 1. Returns whether the object entered the state (and the state was updated)."""
+        being 1. Returns whether the object entered the state (and the state was updated);
+        ``enter=False``: the landmark-free rows only, as a geometric feature's (returns whether
+        they updated the state)."""
         state = self.state
         pred = observe(self.camera, self.T_cam_body, state.poses[widx], point[None])
         true_point = self.truth.objects(np.array([oid]))[0] if self.policy.needs_truth else None
@@ -912,11 +960,21 @@ class MsckfAgent:
             return False
         # the rows enter the state below: non-finite ones stop the run before any edit
         state.check_finite(f"initialisation rows of object {oid}", r_p, projected)
+        if not enter:
+            state.update(h_s2, z2, variance * np.eye(4 * n - 3), columns=cols)
+            self.counters["objects_used_as_features"] += 1
+            return True
         r_p_inv = np.linalg.inv(r_p)
         position = point + r_p_inv @ z1
         gain = -(r_p_inv @ h_s1)  # the object's error from the poses': δp = G δx[cols] + noise
         cov_ps = gain @ state.cross_covariance(cols)  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
         cov_pp = r_p_inv @ (h_s1 @ cov_cc @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
+        probability = self.config.objects.init_linearity_probability
+        if probability > 0 and self._entry_nonlinearity(linearised, widx, zs, cov_pp) > 1.0:
+            # its first estimate, which fixes its rows' directions for good, is not yet known
+            # well enough for them: wait for more observations (state untouched)
+            self.counters["object_init_deferred"] += 1
+            return False
         limit = self.config.objects.init_max_relative_std
         if limit > 0:
             # still uncertain relative to its distance: wait for more observations (the state is
@@ -934,6 +992,28 @@ class MsckfAgent:
         # the landmark-free rows, compact over the poses of the observations
         state.update(h_s2, z2, variance * np.eye(4 * n - 3), columns=cols)
         return True
+
+    def _entry_nonlinearity(
+        self, point: np.ndarray, widx: np.ndarray, zs: np.ndarray, cov: np.ndarray
+    ) -> float:
+        """:func:`linearisation_reach` of a new object's rows: linearised at ``point`` (its first
+        estimate) from the window poses ``widx`` at which the policy evaluates them, over its
+        initial covariance ``cov``, each coordinate whitened by its noise (``zs``' own for
+        boxes)."""
+        f = self.config.filter
+        if is_box(zs):
+            std = np.sqrt(box_variances(zs, f.object_std, f.object_size_share, self._kappa))
+        else:
+            std = np.full((widx.size, 4), f.object_std)
+        return linearisation_reach(
+            self.camera,
+            self.T_cam_body,
+            self._linearization_poses(widx),
+            point,
+            cov,
+            std,
+            self.config.objects.init_linearity_probability,
+        )
 
     def _prune_histories(self) -> None:
         first = self.state.frames[0]
