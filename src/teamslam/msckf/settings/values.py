@@ -258,7 +258,7 @@ class ObjectSettings:
     min_depth: float = field(default=1.0, metadata=_unit("m"))
     max_depth: float = field(default=40.0, metadata=_unit("m"))
     init_max_relative_std: float = field(default=0.0, metadata=_unit("fraction of distance"))
-    init_linearity_probability: float = field(default=0.0, metadata=_unit("probability"))
+    init_linearity_probability: float = field(default=0.95, metadata=_unit("probability"))
     loss: str = field(default="none", metadata=_unit(""))
     loss_scale: float = field(default=2.0, metadata=_unit("std"))
     update_iterations: int = field(default=1, metadata=_unit("linearisations"))
