@@ -205,11 +205,15 @@ class ObjectSettings:
         An object enters the state — and fixes its first estimate, the point at which ``fej``
         takes its rows' unobservable directions for good — only once its rows are close enough
         to linear over what its data still allow: at the edge of its confidence region of this
-        probability (initial covariance, eq. 30), the linearisation error of its stereo rows,
+        probability (its covariance given the window poses, the measurement part of eq. 30; the
+        poses' own uncertainty moves it with them), the linearisation error of its stereo rows,
         whitened by their noise, moves the least-squares point of those rows by at most one of
         its own standard deviations (:func:`~teamslam.msckf.filter.models.linearisation_reach`).
         A far object seen by stereo from a few nearby frames fails, and waits for more
-        observations inside the window (each one re-triangulated and tested again). 0: off.
+        observations inside the window (each one re-triangulated and tested again); one still
+        waiting when its oldest observation leaves the window enters then if it is still
+        observed (from the longest track the window gives), and otherwise updates the poses as
+        a geometric feature. For the policies that fix first estimates (``fej``, ``oc``). 0: off.
     loss
         Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
         ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
