@@ -165,7 +165,14 @@ def two_robots():
     """Two `fej` robots side by side on the long route, each alone so far: each first
     estimated the objects they share by itself."""
     dataset = long_route_team(robots=2, steps=40, seed=43, noise_seed=1)
-    config = config_for(dataset, {"filter.linearization": "fej", "filter.window": 10})
+    # objects enter from their first views, each robot's first estimates as far apart as a
+    # few views leave them
+    settings = {
+        "filter.linearization": "fej",
+        "filter.window": 10,
+        "objects.init_linearity_probability": 0,
+    }
+    config = config_for(dataset, settings)
     agents = [MsckfAgent(r, dataset.calibration, dataset.robots[r], config) for r in range(2)]
     for t in range(dataset.robots[0].frames):
         for agent in agents:

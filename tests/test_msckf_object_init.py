@@ -31,9 +31,9 @@ def _run(team, monkeypatch, linearization="fej", settings=None):
     original_add = MsckfAgent._add_object
     original_state_add = MsckfState.add_object
 
-    def add(self, oid, point, widx, zs, variance, n):
+    def add(self, oid, point, widx, zs, variance, n, **kwargs):
         self._pending = (self.state.poses[widx].copy(), zs.copy())
-        return original_add(self, oid, point, widx, zs, variance, n)
+        return original_add(self, oid, point, widx, zs, variance, n, **kwargs)
 
     def state_add(state, oid, position, cov_pp, cov_ps, **kwargs):
         poses, zs = agent._pending
@@ -54,7 +54,8 @@ def test_objects_enter_at_the_least_squares_point_once_certain(team, monkeypatch
     Jacobians, so there within a quarter of a standard deviation) and only with a
     position std at most ``objects.init_max_relative_std`` of its distance; less certain ones
     wait (for more observations), so without the limit less certain objects enter."""
-    agent, entered = _run(team, monkeypatch, linearization, {"objects.init_max_relative_std": 0.1})
+    only_relative = {"objects.init_max_relative_std": 0.1, "objects.init_linearity_probability": 0}
+    agent, entered = _run(team, monkeypatch, linearization, only_relative)
     limit = agent.config.objects.init_max_relative_std
     assert limit == 0.1
     assert len(entered) >= 5 and agent.counters["object_init_deferred"] > 0
@@ -72,7 +73,8 @@ def test_objects_enter_at_the_least_squares_point_once_certain(team, monkeypatch
         else:
             d = position - ref
             assert np.sqrt(d @ np.linalg.solve(cov_pp, d)) < 0.25
-    eager, entered_eager = _run(team, monkeypatch, linearization)  # default: no wait
+    no_wait = {"objects.init_linearity_probability": 0}
+    eager, entered_eager = _run(team, monkeypatch, linearization, no_wait)
     assert eager.counters["object_init_deferred"] == 0
     ratios = [
         np.sqrt(np.linalg.eigvalsh(c)[-1]) / np.linalg.norm(p - cur[:3, 3])

@@ -34,8 +34,17 @@ from teamslam.msckf.filter.box_noise import (
     box_variances,
     is_box,
 )
-from teamslam.msckf.filter.linearization import GroundTruth, linearization_policy
-from teamslam.msckf.filter.models import observe, observe_jacobians, points_in_camera
+from teamslam.msckf.filter.linearization import (
+    GroundTruth,
+    keeps_first_estimates,
+    linearization_policy,
+)
+from teamslam.msckf.filter.models import (
+    linearisation_reach,
+    observe,
+    observe_jacobians,
+    points_in_camera,
+)
 from teamslam.msckf.filter.state import MsckfState, RobotWindow
 from teamslam.msckf.filter.update import (
     MeasurementRows,
@@ -856,6 +865,7 @@ class MsckfAgent:
                 zs = np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k])
                 candidates.append((oid, widx[keep], zs))
         if not candidates:
+            self._use_waiting_objects(t)
             return
         by_length: dict[int, list] = defaultdict(list)
         for c in candidates:
@@ -886,6 +896,43 @@ class MsckfAgent:
                         continue
                     point = again[0]
                 moved |= self._add_object(members[j][0], point, widx[j], zs[j], variance, n)
+        self._use_waiting_objects(t)
+
+    def _use_waiting_objects(self, t: int) -> None:
+        """Objects waiting for their rows to be linear enough
+        (``objects.init_linearity_probability``) whose oldest observation leaves the window at
+        this frame. One still observed at ``t`` has the longest track the window can give it:
+        it enters now, from all of it (delayed initialisation). One no longer observed updates
+        the poses with its window observations as a geometric feature does (the landmark-free
+        rows of :meth:`_add_object`) and starts again from its next observation — no
+        observation is used twice."""
+        cfg = self.config
+        if not self._waits_for_linearity() or self.state.n_poses <= cfg.filter.window:
+            return
+        oldest = self.state.frames[0]
+        in_map = set(self.state.object_ids.tolist())
+        for oid, obs in self.object_history.items():
+            if oid in in_map or not obs or obs[0][0] != oldest:
+                continue
+            widx = self.state.window_index(np.array([f for f, _ in obs]))
+            keep = widx >= 0
+            if keep.sum() >= cfg.objects.init_observations:
+                zs = np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k])
+                points, ok, rms = self._triangulate_objects(widx[keep][None], zs[None])
+                f = cfg.filter
+                if is_box(zs):
+                    noise = box_variances(zs, f.object_std, f.object_size_share, self._kappa)
+                    ok &= rms < 3.0 * np.sqrt(noise.mean())
+                else:
+                    ok &= rms < 3.0 * f.object_std
+                if ok[0]:
+                    n, seen = int(keep.sum()), obs[-1][0] == t
+                    self._add_object(
+                        oid, points[0], widx[keep], zs, f.object_std**2, n, enter=seen, wait=False
+                    )
+                    if seen:
+                        continue  # in the state now: its history goes as the window slides
+            obs.clear()
 
     def _triangulate_objects(
         self, window_index: np.ndarray, zs: np.ndarray
@@ -901,12 +948,23 @@ class MsckfAgent:
         )
 
     def _add_object(
-        self, oid: int, point: np.ndarray, widx: np.ndarray, zs: np.ndarray, variance: float, n: int
+        self,
+        oid: int,
+        point: np.ndarray,
+        widx: np.ndarray,
+        zs: np.ndarray,
+        variance: float,
+        n: int,
+        enter: bool = True,
+        wait: bool = True,
     ) -> bool:
         """QR initialisation (eqs. 29–30), then an update with the landmark-free rows.
 
         Box rows ``zs`` (each observation its own noise) are whitened first, ``variance`` then
-        being 1. Returns whether the object entered the state (and the state was updated)."""
+        being 1. Returns whether the object entered the state (and the state was updated);
+        ``enter=False``: the landmark-free rows only, as a geometric feature's (returns whether
+        they updated the state); ``wait=False``: no linearity test
+        (``objects.init_linearity_probability``)."""
         state = self.state
         pred = observe(self.camera, self.T_cam_body, state.poses[widx], point[None])
         true_point = self.truth.objects(np.array([oid]))[0] if self.policy.needs_truth else None
@@ -942,11 +1000,27 @@ class MsckfAgent:
             return False
         # the rows enter the state below: non-finite ones stop the run before any edit
         state.check_finite(f"initialisation rows of object {oid}", r_p, projected)
+        if not enter:
+            state.update(h_s2, z2, variance * np.eye(4 * n - 3), columns=cols)
+            self.counters["objects_used_as_features"] += 1
+            return True
         r_p_inv = np.linalg.inv(r_p)
         position = point + r_p_inv @ z1
         gain = -(r_p_inv @ h_s1)  # the object's error from the poses': δp = G δx[cols] + noise
         cov_ps = gain @ state.cross_covariance(cols)  # Σˢᵖᵀ = −R_p⁻¹ H_s1 Σ
         cov_pp = r_p_inv @ (h_s1 @ cov_cc @ h_s1.T + variance * np.eye(3)) @ r_p_inv.T
+        # the point's covariance given the window poses (what its data allow relative to them;
+        # the poses' own uncertainty moves it with them and leaves its rows as they are)
+        relative = variance * (r_p_inv @ r_p_inv.T)
+        if (
+            wait
+            and self._waits_for_linearity()
+            and self._entry_nonlinearity(linearised, widx, zs, relative) > 1
+        ):
+            # its first estimate, which fixes its rows' directions for good, is not yet known
+            # well enough for them: wait for more observations (state untouched)
+            self.counters["object_init_deferred"] += 1
+            return False
         limit = self.config.objects.init_max_relative_std
         if limit > 0:
             # still uncertain relative to its distance: wait for more observations (the state is
@@ -964,6 +1038,37 @@ class MsckfAgent:
         # the landmark-free rows, compact over the poses of the observations
         state.update(h_s2, z2, variance * np.eye(4 * n - 3), columns=cols)
         return True
+
+    def _waits_for_linearity(self) -> bool:
+        """Whether a new object waits until its rows are near linear: with
+        ``objects.init_linearity_probability`` set, for a policy that fixes an object's
+        directions at its first estimate (``fej``, ``oc``; the others linearise its rows where
+        it is each time)."""
+        return self.config.objects.init_linearity_probability > 0 and keeps_first_estimates(
+            self.config.filter.linearization
+        )
+
+    def _entry_nonlinearity(
+        self, point: np.ndarray, widx: np.ndarray, zs: np.ndarray, cov: np.ndarray
+    ) -> float:
+        """:func:`linearisation_reach` of a new object's rows: linearised at ``point`` (its first
+        estimate) from the window poses ``widx`` at which the policy evaluates them, over its
+        covariance ``cov`` given those poses, each coordinate whitened by its noise (``zs``' own
+        for boxes)."""
+        f = self.config.filter
+        if is_box(zs):
+            std = np.sqrt(box_variances(zs, f.object_std, f.object_size_share, self._kappa))
+        else:
+            std = np.full((widx.size, 4), f.object_std)
+        return linearisation_reach(
+            self.camera,
+            self.T_cam_body,
+            self._linearization_poses(widx),
+            point,
+            cov,
+            std,
+            self.config.objects.init_linearity_probability,
+        )
 
     def _prune_histories(self) -> None:
         first = self.state.frames[0]

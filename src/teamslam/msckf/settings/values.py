@@ -201,6 +201,19 @@ class ObjectSettings:
         object waits for more observations inside the window. Far objects seen by stereo from a
         few frames are strongly nonlinear in depth, and their linearised initial covariance is
         then overconfident. 0 initialises as soon as ``init_observations`` are in the window.
+    init_linearity_probability
+        An object enters the state — and fixes its first estimate, the point at which ``fej``
+        takes its rows' unobservable directions for good — only once its rows are close enough
+        to linear over what its data still allow: at the edge of its confidence region of this
+        probability (its covariance given the window poses, the measurement part of eq. 30; the
+        poses' own uncertainty moves it with them), the linearisation error of its stereo rows,
+        whitened by their noise, moves the least-squares point of those rows by at most one of
+        its own standard deviations (:func:`~teamslam.msckf.filter.models.linearisation_reach`).
+        A far object seen by stereo from a few nearby frames fails, and waits for more
+        observations inside the window (each one re-triangulated and tested again); one still
+        waiting when its oldest observation leaves the window enters then if it is still
+        observed (from the longest track the window gives), and otherwise updates the poses as
+        a geometric feature. For the policies that fix first estimates (``fej``, ``oc``). 0: off.
     loss
         Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
         ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
@@ -249,6 +262,7 @@ class ObjectSettings:
     min_depth: float = field(default=1.0, metadata=_unit("m"))
     max_depth: float = field(default=40.0, metadata=_unit("m"))
     init_max_relative_std: float = field(default=0.0, metadata=_unit("fraction of distance"))
+    init_linearity_probability: float = field(default=0.95, metadata=_unit("probability"))
     loss: str = field(default="none", metadata=_unit(""))
     loss_scale: float = field(default=2.0, metadata=_unit("std"))
     update_iterations: int = field(default=1, metadata=_unit("linearisations"))
@@ -270,6 +284,9 @@ class ObjectSettings:
                 "objects.init_max_relative_std must be a number ≥ 0 (a fraction of the "
                 "distance; 0: no wait)"
             )
+        linearity = self.init_linearity_probability
+        if not (_is_number(linearity) and (linearity == 0 or _probability(linearity))):
+            raise InputError("objects.init_linearity_probability must lie in (0, 1), or be 0 (off)")
         if self.loss not in ("none", "huber", "cauchy"):
             raise InputError(f"objects.loss must be none, huber or cauchy, not {self.loss!r}")
         if not _positive(self.loss_scale):
