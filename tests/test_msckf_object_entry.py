@@ -147,14 +147,13 @@ def _first_estimates(team, monkeypatch, probability: float | None):
 
 
 def test_objects_enter_with_better_first_estimates(route, monkeypatch):
-    """On the long route, with the criterion (on by default, 95 %) every object enters with its
+    """On the long route, with the criterion (at 95 %) every object enters with its
     rows within one deviation of linear over its region, or from a track spanning the window;
     some wait, and the first estimates they fix are nearer the truth (relative to the robot,
     what ``fej``'s directions depend on) than when they enter from their first 3 views; some
     whose track ended while waiting updated the poses as features."""
     eager, eager_errors, _ = _first_estimates(route, monkeypatch, 0.0)
-    agent, errors, reaches = _first_estimates(route, monkeypatch, None)
-    assert agent.config.objects.init_linearity_probability == 0.95
+    agent, errors, reaches = _first_estimates(route, monkeypatch, 0.95)
     assert eager.counters["object_init_deferred"] == 0
     assert agent.counters["object_init_deferred"] > 0
     assert reaches.size == errors.size >= 20

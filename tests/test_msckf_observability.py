@@ -146,7 +146,11 @@ def test_first_estimates_keep_the_nullspace_along_the_long_route():
     route the state knows no more along them than it did at the one before (the information
     ``Nᵀ Σ⁻¹ N`` only ever loses, to round-off)."""
     dataset = long_route_team(robots=1, steps=90, seed=43, miss=0.3)
-    settings = {"filter.linearization": "fej", "objects.max_active": 12}
+    settings = {
+        "filter.linearization": "fej",
+        "objects.max_active": 12,
+        "objects.init_linearity_probability": 0.95,
+    }
     config = config_for(dataset, settings)
     assert config.filter.window == 20
     agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)

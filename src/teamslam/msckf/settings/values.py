@@ -213,7 +213,9 @@ class ObjectSettings:
         observations inside the window (each one re-triangulated and tested again); one still
         waiting when its oldest observation leaves the window enters then if it is still
         observed (from the longest track the window gives), and otherwise updates the poses as
-        a geometric feature. For the policies that fix first estimates (``fej``, ``oc``). 0: off.
+        a geometric feature. For the policies that fix first estimates (``fej``, ``oc``); 0.95
+        is the probability it was measured with. 0: off (the default while the results pages
+        measured without it stand).
     loss
         Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
         ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
@@ -262,7 +264,7 @@ class ObjectSettings:
     min_depth: float = field(default=1.0, metadata=_unit("m"))
     max_depth: float = field(default=40.0, metadata=_unit("m"))
     init_max_relative_std: float = field(default=0.0, metadata=_unit("fraction of distance"))
-    init_linearity_probability: float = field(default=0.95, metadata=_unit("probability"))
+    init_linearity_probability: float = field(default=0.0, metadata=_unit("probability"))
     loss: str = field(default="none", metadata=_unit(""))
     loss_scale: float = field(default=2.0, metadata=_unit("std"))
     update_iterations: int = field(default=1, metadata=_unit("linearisations"))
