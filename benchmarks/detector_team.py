@@ -47,7 +47,7 @@ from teamslam import api
 from teamslam.datasets.identity import oracle_object_ids
 from teamslam.datasets.images import dataset_from_images, rendered_team_inputs
 from teamslam.datasets.stats import robust_std
-from teamslam.eval.tracking import _identity_map, idf1_losses
+from teamslam.eval.tracking import identity_map, idf1_losses
 from teamslam.msckf.filter.box_noise import box_rows, box_variances
 from teamslam.msckf.filter.models import observe
 from teamslam.sim.detector import DetectorConfig
@@ -172,7 +172,7 @@ def _id_losses(boxes, hypotheses, std: float, share: float) -> tuple[list[list[s
     revisit = within = 0
     for d, hyp, mono, cut in per_robot:
         real = d.truth >= 0
-        wrong = real & (hyp >= 0) & (_identity_map(d.truth, hyp) != hyp)
+        wrong = real & (hyp >= 0) & (identity_map(d.truth, hyp) != hyp)
         unnamed = real & (hyp < 0)
         large = ~mono & ~cut & (d.sizes[:, 0] >= large_from)
         for k, mask in enumerate((mono, cut, large, ~mono & ~cut & ~large)):
@@ -198,6 +198,17 @@ def _id_losses(boxes, hypotheses, std: float, share: float) -> tuple[list[list[s
         f"more than `filter.window` frames, {within} within a pass."
     )
     return rows, note
+
+
+def _table(md: Markdown, title: str, header: list[str], rows: list[list[str]], note: str) -> None:
+    """One table, in the Markdown and printed."""
+    md.table(title, header, note)
+    print(" | ".join(header))
+    for row in rows:
+        md.row(*row)
+        print(" | ".join(row))
+    print(note)
+    md.end()
 
 
 def _render(config: RenderConfig, directory: Path) -> None:
@@ -279,15 +290,13 @@ def main() -> None:
         f"boxes, {counts['patch']} by their patch, {counts['monocular']} monocular."
     )
     md = Markdown(args.markdown)
-    md.table(
-        "Objects from a detector: a rendered street, own ids against the oracle's", header, note
+    _table(
+        md,
+        "Objects from a detector: a rendered street, own ids against the oracle's",
+        header,
+        rows,
+        note,
     )
-    print(" | ".join(header))
-    for row in rows:
-        md.row(*row)
-        print(" | ".join(row))
-    print(note)
-    md.end()
     noise = own.by_mode["consensus"]["config"]["filter"]
     error_rows, error_note = _box_errors(
         boxes, float(noise["object_std"]), float(noise["object_size_share"])
@@ -301,13 +310,13 @@ def main() -> None:
         "u_l beyond 3σ",
         "v_l beyond 3σ",
     ]
-    md.table("Box-centre errors against the true objects, by box width", error_header, error_note)
-    print(" | ".join(error_header))
-    for row in error_rows:
-        md.row(*row)
-        print(" | ".join(row))
-    print(error_note)
-    md.end()
+    _table(
+        md,
+        "Box-centre errors against the true objects, by box width",
+        error_header,
+        error_rows,
+        error_note,
+    )
     loss_rows, loss_note = _id_losses(
         boxes,
         own.results["consensus"].extra["tracking_hypotheses"],
@@ -315,13 +324,9 @@ def main() -> None:
         float(noise["object_size_share"]),
     )
     loss_header = ["boxes", "of true objects", "wrong id", "unnamed", "share of IDF1's loss"]
-    md.table("Where the own run's IDF1 is lost, by kind of box", loss_header, loss_note)
-    print(" | ".join(loss_header))
-    for row in loss_rows:
-        md.row(*row)
-        print(" | ".join(row))
-    print(loss_note)
-    md.end()
+    _table(
+        md, "Where the own run's IDF1 is lost, by kind of box", loss_header, loss_rows, loss_note
+    )
     md.write()
 
 

@@ -2,14 +2,14 @@
 
 Each step of the scenario waits on an event (a robot's checkpoint or progress file), never on
 the clock, so the machine's load cannot reorder it: robot 2 is killed after its checkpoint;
-robots 0 and 1 are paused (``SIGSTOP``) only once their progress proves they went
-``lost_after`` frames past robot 2's last possible frame (so they reported it lost); robot 2 is
-resumed and, once it has left its silent phase (waiting for nobody, it then runs faster than
-the team, which is paced by a slow radio), paused too, behind them; robots 0 and 1 continue,
-and robot 2 only once their progress shows them running again — a robot behind a running team
-catches up and meets it, while one that got ahead of a paused team would never be waited for.
-The lock-step timeout is what tells a dead robot; it is long enough that a live robot stalled
-by the load is not taken for one (and the time a robot was itself held does not count).
+it is restarted only once the progress of robots 0 and 1 proves they went ``lost_after``
+frames past robot 2's last possible frame (so they reported it lost). It resumes behind the
+running team, catches up without waiting (its neighbours have spoken in later steps) and meets
+it; the team has frames enough left for that on a loaded machine. The team is never paused: a
+process held while its links are being opened can lose them for good (the link layer's open
+and lease timeouts), which is not what this test is about. The lock-step timeout is what tells
+a dead robot; it is long enough that a live robot stalled by the load is not taken for one
+(and the time a robot was itself held does not count).
 
 Ports 30800–32767 as in test_security (offsets 16–31 here).
 """
@@ -57,7 +57,7 @@ def _wait_until(condition, guard: float = 600.0) -> None:
 
 
 def test_killed_robot_resumes_and_rejoins_the_running_team(tmp_path):
-    frames, lost_after, progress_every = 71, 3, 5
+    frames, lost_after, progress_every = 111, 3, 5
     dataset = lissajous_team(robots=3, steps=frames - 1, seed=1, landmarks=300)
     assert dataset.robots[0].frames == frames
     save_dataset(dataset, tmp_path / "data")
@@ -92,34 +92,19 @@ def test_killed_robot_resumes_and_rejoins_the_running_team(tmp_path):
         killed_at = _checkpoint(out, 2)  # where it resumes from
         # the last frame robot 2 can have filtered (progress.json is written every 5 frames)
         last_alive = frames_done(out, 2) - 1 + progress_every
-        # robots 0 and 1 heard nothing from it for lost_after frames: it is reported lost;
-        # and they go far enough ahead for robot 2 to stay behind them through its silent
-        # phase (its progress file, too, is up to progress_every frames late)
-        paused_at = max(last_alive + lost_after + 1, killed_at + lost_after + 4 * progress_every)
-        _wait_until(reached(survivors, paused_at))
-        for r in survivors:
-            procs[r].send_signal(signal.SIGSTOP)
+        # robots 0 and 1 heard nothing from it for lost_after frames: it is reported lost
+        _wait_until(reached(survivors, last_alive + lost_after + 1))
         restarted_at = min(frames_done(out, r) for r in survivors) - 1
-        assert restarted_at < frames - 15, "the team was too fast to pause in time"
+        assert restarted_at < frames - 60, "the team was too fast to restart robot 2 in time"
         procs[2] = subprocess.Popen(
             agent_command(team_path, 2, out, "--resume"),
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
         )
-        # robot 2 has waited lost_after frames for its silent neighbours and runs on alone:
-        # hold it behind the team until the team runs again
-        _wait_until(reached([2], killed_at + lost_after + 2))
-        procs[2].send_signal(signal.SIGSTOP)
-        assert frames_done(out, 2) - 1 + progress_every < restarted_at, "robot 2 passed the team"
-        for r in survivors:
-            procs[r].send_signal(signal.SIGCONT)
-        _wait_until(lambda: min(frames_done(out, r) for r in survivors) - 1 > restarted_at)
-        procs[2].send_signal(signal.SIGCONT)
         outputs = {r: p.communicate(timeout=600)[0].decode() for r, p in procs.items()}
     finally:
         for p in procs.values():
             if p.poll() is None:
-                p.send_signal(signal.SIGCONT)
                 p.kill()
     for r, p in procs.items():
         assert p.returncode == 0, outputs[r]

@@ -17,6 +17,7 @@ from teamslam.errors import InputError
 
 __all__ = [
     "hypotheses_of",
+    "identity_map",
     "idf1_losses",
     "mot_metrics",
     "object_truth",
@@ -70,7 +71,7 @@ def mot_metrics(offsets: np.ndarray, truth: np.ndarray, hypothesis: np.ndarray) 
     fragmentations = int(np.sum(np.maximum(starts_per_object - 1, 0)))
     # IDF1: the best one-to-one map of true objects to ids
     both = real & named
-    idtp = int(np.sum(_identity_map(truth, hyp) == hyp) if both.any() else 0)
+    idtp = int(np.sum(identity_map(truth, hyp) == hyp) if both.any() else 0)
     hypotheses = int(named.sum())
     true_ids = set(np.unique(hyp[both]).tolist())
     created = np.unique(hyp[named])
@@ -90,10 +91,23 @@ def mot_metrics(offsets: np.ndarray, truth: np.ndarray, hypothesis: np.ndarray) 
     }
 
 
-def _identity_map(truth: np.ndarray, hyp: np.ndarray) -> np.ndarray:
+def identity_map(truth: np.ndarray, hyp: np.ndarray) -> np.ndarray:
     """Per detection the id its true object has under the one-to-one map of true objects to
-    ids agreeing on the most detections (IDF1's map; Ristani et al. 2016); ``-2`` for a false
-    detection or an object the map leaves without an id."""
+    ids agreeing on the most detections (IDF1's map; Ristani et al. 2016).
+
+    Parameters
+    ----------
+    truth, hyp
+        ``(n,)`` per detection its true object (``-1``: false) and the id it was given
+        (``-1``: none).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n,)`` the id the map gives the detection's true object; ``-2`` for a false detection
+        or an object the map leaves without an id. A detection was named rightly where it equals
+        ``hyp``.
+    """
     both = (truth >= 0) & (hyp >= 0)
     out = np.full(truth.size, -2, np.int64)
     if not both.any():
@@ -139,7 +153,7 @@ def idf1_losses(
     hyp = np.asarray(hypothesis, dtype=np.int64)
     frame = np.repeat(np.arange(offsets.size - 1), np.diff(offsets))
     real, named = truth >= 0, hyp >= 0
-    mapped = _identity_map(truth, hyp)
+    mapped = identity_map(truth, hyp)
     wrong = np.flatnonzero(real & named & (mapped != hyp))
     revisit = within = unmapped = 0
     for k in wrong.tolist():
