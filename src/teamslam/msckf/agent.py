@@ -877,12 +877,7 @@ class MsckfAgent:
             points, ok, rms = self._triangulate_objects(widx, zs)
             depth = np.linalg.norm(points - self.state.current_pose[:3, 3], axis=1)
             ok &= (depth > cfg.objects.min_depth) & (depth < cfg.objects.max_depth)
-            if is_box(zs):  # against the RMS σ of the boxes' own noise
-                f = cfg.filter
-                noise = box_variances(zs, f.object_std, f.object_size_share, self._kappa)
-                ok &= rms < 3.0 * np.sqrt(noise.mean(axis=(1, 2)))
-            else:
-                ok &= rms < 3.0 * cfg.filter.object_std
+            ok &= self._fits_its_rows(zs, rms)
             self.counters["rejected_object_init"] += int((~ok).sum())
             moved = False
             for j in np.flatnonzero(ok):
@@ -919,20 +914,25 @@ class MsckfAgent:
             if keep.sum() >= cfg.objects.init_observations:
                 zs = np.stack([zz for (_, zz), k in zip(obs, keep, strict=True) if k])
                 points, ok, rms = self._triangulate_objects(widx[keep][None], zs[None])
-                f = cfg.filter
-                if is_box(zs):
-                    noise = box_variances(zs, f.object_std, f.object_size_share, self._kappa)
-                    ok &= rms < 3.0 * np.sqrt(noise.mean())
-                else:
-                    ok &= rms < 3.0 * f.object_std
-                if ok[0]:
+                if ok[0] and self._fits_its_rows(zs[None], rms)[0]:
                     n, seen = int(keep.sum()), obs[-1][0] == t
+                    variance = cfg.filter.object_std**2
                     self._add_object(
-                        oid, points[0], widx[keep], zs, f.object_std**2, n, enter=seen, wait=False
+                        oid, points[0], widx[keep], zs, variance, n, enter=seen, wait=False
                     )
                     if seen:
                         continue  # in the state now: its history goes as the window slides
             obs.clear()
+
+    def _fits_its_rows(self, zs: np.ndarray, rms: np.ndarray) -> np.ndarray:
+        """``(k,)`` whether each triangulated object's RMS residual ``rms`` lies within 3 σ of
+        its observations ``zs`` (``(k, n, ·)``): the RMS σ of the boxes' own noise for box rows,
+        ``filter.object_std`` otherwise."""
+        f = self.config.filter
+        if is_box(zs):
+            noise = box_variances(zs, f.object_std, f.object_size_share, self._kappa)
+            return rms < 3.0 * np.sqrt(noise.mean(axis=(1, 2)))
+        return rms < 3.0 * f.object_std
 
     def _triangulate_objects(
         self, window_index: np.ndarray, zs: np.ndarray
