@@ -44,12 +44,16 @@ def _agent(
     full[6:, 6:] = cov[np.ix_(coords, coords)]
     ids = (10 + held).astype(np.int64)
     state = MsckfState.from_arrays(np.eye(4), [0], ids, mean[coords].reshape(-1, 3), full)
+    rule = "increments" if increments else "hybrid" if hybrid else "average"
+    return consensus_agent(robot, state, rule)
+
+
+def consensus_agent(robot: int, state: MsckfState, rule: str) -> SimpleNamespace:
+    """What the consensus protocol reads of a robot: its ``state`` and a configuration with
+    ``consensus.rule = rule`` that sends every marginal in float64; the reasons of rejected
+    messages are kept in ``rejected``."""
     config = MsckfConfig.from_settings(
-        {
-            "consensus.kl_threshold": 0.0,
-            "consensus.float32": False,
-            "consensus.rule": "increments" if increments else "hybrid" if hybrid else "average",
-        }
+        {"consensus.kl_threshold": 0.0, "consensus.float32": False, "consensus.rule": rule}
     )
     rejected = []
     return SimpleNamespace(

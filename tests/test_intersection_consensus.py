@@ -12,7 +12,6 @@ draws, so the check can fail.
 from __future__ import annotations
 
 from collections import defaultdict
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -24,6 +23,7 @@ from teamslam.msckf.consensus.protocol import ConsensusProtocol
 from teamslam.msckf.consensus.rules import IntersectionRule, consensus_rule
 from teamslam.msckf.filter.state import MsckfState
 from teamslam.msckf.settings.values import MsckfConfig
+from test_hybrid_consensus import consensus_agent
 
 DIM = 6  # two objects
 
@@ -158,19 +158,7 @@ def _agent(robot, mean, cov, rule):
     full[:6, :6] = 1e-2 * np.eye(6)
     full[6:, 6:] = cov
     state = MsckfState.from_arrays(np.eye(4), [0], ids, mean.reshape(-1, 3), full)
-    config = MsckfConfig.from_settings(
-        {"consensus.kl_threshold": 0.0, "consensus.float32": False, "consensus.rule": rule}
-    )
-    rejected = []
-    return SimpleNamespace(
-        robot=robot,
-        state=state,
-        config=config,
-        counters=defaultdict(int),
-        timings=defaultdict(float),
-        rejected=rejected,
-        reject=lambda what, count=1, reason="": rejected.append(reason),
-    )
+    return consensus_agent(robot, state, rule)
 
 
 def _exchange(protocols, step):
