@@ -156,7 +156,8 @@ def _id_losses(boxes, hypotheses, std: float, share: float) -> tuple[list[list[s
     boxes, those named with an id other than their object's under IDF1's one-to-one map
     (``wrong``, each costing IDF1's sum ``GT + H − 2·IDTP`` two), those left unnamed (one) and
     the kind's share of that sum; the note splits the wrong ids into revisits and the rest
-    (:func:`~teamslam.eval.tracking.idf1_losses`)."""
+    (:func:`~teamslam.eval.tracking.idf1_losses`), and the revisits into a second id of the
+    box's own object and an id of another (:func:`_named_anew`)."""
     kinds = ("left image only", "cut", "large", "other")
     counts = np.zeros((len(kinds), 3), np.int64)
     widths, per_robot = [], []
@@ -169,7 +170,7 @@ def _id_losses(boxes, hypotheses, std: float, share: float) -> tuple[list[list[s
         widths.append(d.sizes[~mono & ~cut, 0])
         per_robot.append((d, hyp, mono, cut))
     large_from = float(np.quantile(np.concatenate(widths), 0.75))
-    revisit = within = 0
+    revisit = within = anew = 0
     for d, hyp, mono, cut in per_robot:
         real = d.truth >= 0
         wrong = real & (hyp >= 0) & (identity_map(d.truth, hyp) != hyp)
@@ -178,6 +179,7 @@ def _id_losses(boxes, hypotheses, std: float, share: float) -> tuple[list[list[s
         for k, mask in enumerate((mono, cut, large, ~mono & ~cut & ~large)):
             counts[k] += [(real & mask).sum(), (wrong & mask).sum(), (unnamed & mask).sum()]
         losses = idf1_losses(d.offsets, d.truth, hyp, revisit_gap=10)
+        anew += _named_anew(d.offsets, d.truth, hyp, revisit_gap=10)
         revisit += losses["wrong_revisit"]
         within += losses["wrong_within_pass"] + losses["wrong_unmapped"]
     total = int(2 * counts[:, 1].sum() + counts[:, 2].sum())
@@ -195,9 +197,30 @@ def _id_losses(boxes, hypotheses, std: float, share: float) -> tuple[list[list[s
         f"own run (tracking + association, appearance); large: uncut stereo boxes at least "
         f"{large_from:.0f} px wide; IDF1's loss GT + H − 2·IDTP = {total} (false boxes named "
         f"aside); of the {int(counts[:, 1].sum())} wrong ids {revisit} came after an absence of "
-        f"more than `filter.window` frames, {within} within a pass."
+        f"more than `filter.window` frames ({anew} of them under a second id of their own "
+        f"object, the revisit named anew and never merged; {revisit - anew} under an id of "
+        f"another object), {within} within a pass."
     )
     return rows, note
+
+
+def _named_anew(offsets, truth, hyp, revisit_gap: int) -> int:
+    """Of one robot's wrong ids after an absence (:func:`~teamslam.eval.tracking.idf1_losses`),
+    those under an id most of whose true boxes are of the box's own object: a second id of the
+    object, not another object's (evaluation only)."""
+    frame = np.repeat(np.arange(offsets.size - 1), np.diff(offsets))
+    real = truth >= 0
+    mapped = identity_map(truth, hyp)
+    majority = {}
+    for i in np.unique(hyp[real & (hyp >= 0)]).tolist():
+        objects, counts = np.unique(truth[real & (hyp == i)], return_counts=True)
+        majority[i] = int(objects[np.argmax(counts)])
+    out = 0
+    for k in np.flatnonzero(real & (hyp >= 0) & (mapped != hyp) & (mapped >= 0)).tolist():
+        own = frame[(hyp == mapped[k]) & (truth == truth[k])]
+        if np.min(np.abs(own - frame[k])) > revisit_gap and majority[int(hyp[k])] == truth[k]:
+            out += 1
+    return out
 
 
 def _table(md: Markdown, title: str, header: list[str], rows: list[list[str]], note: str) -> None:
