@@ -565,6 +565,29 @@ class MsckfState:
         self.object_last_seen = np.append(self.object_last_seen, int(self.frames.max()))
         self._check("object initialisation")
 
+    def marginalize_objects(self, slots: np.ndarray) -> None:
+        """Drop the objects in ``slots`` from the state: their rows and columns of the
+        covariance (exact marginalisation; what their past observations gave the poses and the
+        other objects stays), their columns of the persistent map's cross-covariance, their
+        means and first estimates. An object dropped so can enter again only from observations
+        made after it (as a new object), so that none is counted twice.
+        """
+        slots = np.unique(np.asarray(slots, dtype=np.int64))
+        if slots.size == 0:
+            return
+        cols = self.object_columns(slots).ravel()
+        keep = np.ones(self.dim, dtype=bool)
+        keep[cols] = False
+        self._cov = self._cov[np.ix_(keep, keep)]
+        self._consider_columns(lambda c: c[:, keep])
+        kept = np.ones(self.n_objects, dtype=bool)
+        kept[slots] = False
+        self.object_ids = self.object_ids[kept]
+        self.objects = self.objects[kept]
+        self.object_fe = self.object_fe[kept]
+        self.object_last_seen = self.object_last_seen[kept]
+        self._check("object marginalisation")
+
     def mark_seen(self, slots: np.ndarray, frame: int) -> None:
         """Record that the objects in ``slots`` were observed at ``frame``."""
         self.object_last_seen[np.asarray(slots, dtype=np.int64)] = int(frame)
