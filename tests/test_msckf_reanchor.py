@@ -71,6 +71,7 @@ def test_marginalising_objects_keeps_the_rest_exactly_and_the_map_whole():
     """The state without the objects is the marginal of the one with them; the map still lists
     them with their marginals as they left, until one enters again; a snapshot keeps them."""
     state = _state_with_objects()
+    assert not any(k.startswith("dropped_") for k in state.snapshot())  # as before
     cov = state.cov.copy()
     covs = state.object_covs()
     before_ids, before_means, before_covs = state.full_map()

@@ -122,9 +122,20 @@ class MsckfState:
     # ------------------------------------------------------------------ snapshot
     def snapshot(self) -> dict[str, np.ndarray]:
         """The whole state as arrays (copies): window poses, frames, robots and first estimates,
-        objects, their first estimates and the frame each was last observed, covariance, and the
-        persistent map of retired objects."""
+        objects, their first estimates and the frame each was last observed, covariance, the
+        persistent map of retired objects, and the objects marginalised out and not back
+        (:meth:`marginalize_objects`; only when there are any)."""
         retired = {**self.retired.arrays(), **self.retired.consider_arrays()}
+        # objects marginalised out by re-anchoring, if any (a snapshot without is as before)
+        dropped = (
+            {
+                "dropped_ids": self.dropped_ids.copy(),
+                "dropped_means": self.dropped_means.copy(),
+                "dropped_covs": self.dropped_covs.copy(),
+            }
+            if self.dropped_ids.size
+            else {}
+        )
         return {
             "window_poses": self.poses.copy(),
             "window_frames": self.frames.copy(),
@@ -136,9 +147,7 @@ class MsckfState:
             "cov": self._cov.copy(),
             "object_last_seen": self.object_last_seen.copy(),
             **{f"retired_{k}": v for k, v in retired.items()},
-            "dropped_ids": self.dropped_ids.copy(),
-            "dropped_means": self.dropped_means.copy(),
-            "dropped_covs": self.dropped_covs.copy(),
+            **dropped,
         }
 
     def restore(self, snapshot: dict[str, np.ndarray]) -> None:
