@@ -912,10 +912,14 @@ class MsckfAgent:
         slots = np.flatnonzero(state.object_last_seen == t)
         if slots.size == 0:
             return
-        pose_cols = np.broadcast_to(state.newest_pose().columns, (slots.size, 6))
-        local_cols = np.concatenate([pose_cols, state.object(slots).columns], axis=1)
+        # the object's marginal: its first estimate as a point of the world, whose rigid
+        # motions its rows take (conditioned on the current pose instead, re-anchoring was as
+        # consistent on the long route and less accurate, more so where objects are seen again)
         distance = first_estimate_distance(
-            state.objects[slots], state.object_fe[slots], state.covariance(local_cols)
+            state.objects[slots],
+            state.object_fe[slots],
+            state.covariance(state.object(slots).columns),
+            given=0,
         )
         moved = slots[distance > chi2_quantile(probability, 3)]
         if moved.size == 0:

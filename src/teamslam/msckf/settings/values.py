@@ -219,8 +219,8 @@ class ObjectSettings:
     reanchor_probability
         For the policies that fix an object's first estimate (``fej``, ``oc``): an object
         observed this frame whose first estimate lies outside its confidence region of this
-        probability — ``(p̂ − p̄)ᵀ C⁻¹ (p̂ − p̄)`` above the χ²(3) quantile, ``C`` its
-        covariance given the current pose, where its rows are formed — is re-anchored: its
+        probability — ``(p̂ − p̄)ᵀ Σ_pp⁻¹ (p̂ − p̄)`` above the χ²(3) quantile, ``Σ_pp`` its
+        marginal covariance — is re-anchored: its
         rows still annihilate the rigid motions at ``p̄``, a point its own data now rule out,
         and the error of those directions, the same at every row, adds up along the route. It
         is marginalised out of the state (what it gave the poses stays) and enters again as a
