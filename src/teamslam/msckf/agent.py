@@ -24,7 +24,7 @@ import numpy as np
 
 from teamslam.datasets.model import Calibration, RobotSequence
 from teamslam.errors import EstimationError, InputError, InternalError
-from teamslam.gaussian import NotPositiveDefiniteError
+from teamslam.gaussian import NotPositiveDefiniteError, chi2_quantile
 from teamslam.geometry import se3
 from teamslam.msckf.filter.box_noise import (
     FormedUnder,
@@ -36,6 +36,7 @@ from teamslam.msckf.filter.box_noise import (
 )
 from teamslam.msckf.filter.linearization import (
     GroundTruth,
+    first_estimate_distance,
     keeps_first_estimates,
     linearization_policy,
 )
@@ -853,6 +854,7 @@ class MsckfAgent:
 
     def _initialise_objects(self, t: int) -> None:
         cfg = self.config
+        self._reanchor_objects(t)
         candidates = []
         in_map = set(self.state.object_ids.tolist())
         for oid, obs in self.object_history.items():
@@ -892,6 +894,40 @@ class MsckfAgent:
                     point = again[0]
                 moved |= self._add_object(members[j][0], point, widx[j], zs[j], variance, n)
         self._use_waiting_objects(t)
+
+    def _reanchor_objects(self, t: int) -> None:
+        """Re-anchor the objects observed at ``t`` whose first estimate their data now rule out
+        (``objects.reanchor_probability``): each is marginalised out of the state and its
+        history cleared, so that it enters again, at a fresh first estimate, from observations
+        made after ``t`` only. Not for a team state, whose other robots' histories hold the
+        object's earlier observations."""
+        probability = self.config.objects.reanchor_probability
+        state = self.state
+        if (
+            probability == 0
+            or not keeps_first_estimates(self.config.filter.linearization)
+            or isinstance(state, RobotWindow)
+        ):
+            return
+        slots = np.flatnonzero(state.object_last_seen == t)
+        if slots.size == 0:
+            return
+        # the object's marginal: its first estimate as a point of the world, whose rigid
+        # motions its rows take (conditioned on the current pose instead, re-anchoring was as
+        # consistent on the long route and less accurate, more so where objects are seen again)
+        distance = first_estimate_distance(
+            state.objects[slots],
+            state.object_fe[slots],
+            state.covariance(state.object(slots).columns),
+            given=0,
+        )
+        moved = slots[distance > chi2_quantile(probability, 3)]
+        if moved.size == 0:
+            return
+        for oid in state.object_ids[moved].tolist():
+            self.object_history.pop(oid, None)
+        state.marginalize_objects(moved)
+        self.counters["objects_reanchored"] += int(moved.size)
 
     def _use_waiting_objects(self, t: int) -> None:
         """Objects waiting for their rows to be linear enough

@@ -184,6 +184,7 @@ INFORMED = {
     "marginalisation": "marginalize_oldest",
     "retirement": "retire_objects",
     "re-entry": "reenter_objects",
+    "re-anchoring": "marginalize_objects",
     "consensus": "replace_marginal",
 }
 

@@ -112,6 +112,7 @@ class MsckfState:
         self.object_fe = np.zeros((0, 3))
         self.object_last_seen = np.zeros(0, dtype=np.int64)
         self.retired = PersistentMap(dim=6)
+        self._init_dropped()
         # every edit below keeps the covariance exactly symmetric; it starts so
         pose_cov = np.asarray(pose_cov, dtype=float).reshape(6, 6)
         self._cov = 0.5 * (pose_cov + pose_cov.T)
@@ -121,9 +122,20 @@ class MsckfState:
     # ------------------------------------------------------------------ snapshot
     def snapshot(self) -> dict[str, np.ndarray]:
         """The whole state as arrays (copies): window poses, frames, robots and first estimates,
-        objects, their first estimates and the frame each was last observed, covariance, and the
-        persistent map of retired objects."""
+        objects, their first estimates and the frame each was last observed, covariance, the
+        persistent map of retired objects, and the objects marginalised out and not back
+        (:meth:`marginalize_objects`; only when there are any)."""
         retired = {**self.retired.arrays(), **self.retired.consider_arrays()}
+        # objects marginalised out by re-anchoring, if any (a snapshot without is as before)
+        dropped = (
+            {
+                "dropped_ids": self.dropped_ids.copy(),
+                "dropped_means": self.dropped_means.copy(),
+                "dropped_covs": self.dropped_covs.copy(),
+            }
+            if self.dropped_ids.size
+            else {}
+        )
         return {
             "window_poses": self.poses.copy(),
             "window_frames": self.frames.copy(),
@@ -135,6 +147,7 @@ class MsckfState:
             "cov": self._cov.copy(),
             "object_last_seen": self.object_last_seen.copy(),
             **{f"retired_{k}": v for k, v in retired.items()},
+            **dropped,
         }
 
     def restore(self, snapshot: dict[str, np.ndarray]) -> None:
@@ -197,8 +210,31 @@ class MsckfState:
             ) from None
         self.poses, self.frames, self.object_ids, self.objects = poses, frames, ids, objects
         self.robots, self.pose_fe, self.object_fe = robots, pose_fe, object_fe
+        # snapshots written before re-anchoring: nothing dropped
+        dropped = [
+            np.asarray(snapshot.get(f"dropped_{k}", np.zeros((0, *shape))), dtype=kind)
+            for k, shape, kind in (
+                ("ids", (), np.int64),
+                ("means", (3,), float),
+                ("covs", (3, 3), float),
+            )
+        ]
+        d = dropped[0].size
+        if dropped[1].shape != (d, 3) or dropped[2].shape != (d, 3, 3):
+            raise InputError("state snapshot: dropped objects' means or covariances do not match")
+        if not all(np.all(np.isfinite(a)) for a in dropped[1:]):
+            raise InputError("state snapshot: non-finite values")
+        self.poses, self.frames, self.object_ids, self.objects = poses, frames, ids, objects
+        self.robots, self.pose_fe, self.object_fe = robots, pose_fe, object_fe
         self.object_last_seen, self.retired = last_seen, retired
+        self.dropped_ids, self.dropped_means, self.dropped_covs = dropped
         self._cov = 0.5 * (cov + cov.T)
+
+    def _init_dropped(self) -> None:
+        """No object marginalised out yet (:meth:`marginalize_objects`)."""
+        self.dropped_ids = np.zeros(0, dtype=np.int64)
+        self.dropped_means = np.zeros((0, 3))
+        self.dropped_covs = np.zeros((0, 3, 3))
 
     @classmethod
     def team(
@@ -385,12 +421,13 @@ class MsckfState:
         return self._cov[cols[:, :, None], cols[:, None, :]]
 
     def full_map(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Every object the robot has mapped — in the state and retired — sorted by id: ids,
-        ``(m, 3)`` means and ``(m, 3, 3)`` marginal covariances."""
+        """Every object the robot has mapped — in the state, retired, and marginalised out
+        (:meth:`marginalize_objects`) and not back yet, with its marginal when it left — sorted
+        by id: ids, ``(m, 3)`` means and ``(m, 3, 3)`` marginal covariances."""
         retired = self.retired.arrays()
-        ids = np.concatenate([self.object_ids, retired["ids"]])
-        means = np.concatenate([self.objects, retired["means"]])
-        covs = np.concatenate([self.object_covs(), retired["covs"]])
+        ids = np.concatenate([self.object_ids, retired["ids"], self.dropped_ids])
+        means = np.concatenate([self.objects, retired["means"], self.dropped_means])
+        covs = np.concatenate([self.object_covs(), retired["covs"], self.dropped_covs])
         order = np.argsort(ids)
         return ids[order], means[order], covs[order]
 
@@ -559,11 +596,45 @@ class MsckfState:
             )
         else:
             self._consider_columns(None)
+        back = self.dropped_ids != int(object_id)  # a re-anchored object entering again
+        if not back.all():
+            self.dropped_ids = self.dropped_ids[back]
+            self.dropped_means = self.dropped_means[back]
+            self.dropped_covs = self.dropped_covs[back]
         self.object_ids = np.append(self.object_ids, int(object_id))
         self.objects = np.vstack([self.objects, np.asarray(position, dtype=float)])
         self.object_fe = np.vstack([self.object_fe, np.asarray(first, dtype=float)])
         self.object_last_seen = np.append(self.object_last_seen, int(self.frames.max()))
         self._check("object initialisation")
+
+    def marginalize_objects(self, slots: np.ndarray) -> None:
+        """Drop the objects in ``slots`` from the state: their rows and columns of the
+        covariance (exact marginalisation; what their past observations gave the poses and the
+        other objects stays), their columns of the persistent map's cross-covariance, their
+        means and first estimates. An object dropped so can enter again only from observations
+        made after it (as a new object), so that none is counted twice; until it does, the map
+        (:meth:`full_map`) reports it with its mean and marginal covariance as it left.
+        """
+        slots = np.unique(np.asarray(slots, dtype=np.int64))
+        if slots.size == 0:
+            return
+        ids = self.object_ids[slots]
+        stay = ~np.isin(self.dropped_ids, ids)
+        self.dropped_ids = np.concatenate([self.dropped_ids[stay], ids])
+        self.dropped_means = np.concatenate([self.dropped_means[stay], self.objects[slots]])
+        self.dropped_covs = np.concatenate([self.dropped_covs[stay], self.object_covs()[slots]])
+        cols = self.object_columns(slots).ravel()
+        keep = np.ones(self.dim, dtype=bool)
+        keep[cols] = False
+        self._cov = self._cov[np.ix_(keep, keep)]
+        self._consider_columns(lambda c: c[:, keep])
+        kept = np.ones(self.n_objects, dtype=bool)
+        kept[slots] = False
+        self.object_ids = self.object_ids[kept]
+        self.objects = self.objects[kept]
+        self.object_fe = self.object_fe[kept]
+        self.object_last_seen = self.object_last_seen[kept]
+        self._check("object marginalisation")
 
     def mark_seen(self, slots: np.ndarray, frame: int) -> None:
         """Record that the objects in ``slots`` were observed at ``frame``."""

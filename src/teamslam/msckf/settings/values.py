@@ -216,6 +216,18 @@ class ObjectSettings:
         a geometric feature. For the policies that fix first estimates (``fej``, ``oc``); 0.95
         is the probability it was measured with. 0: off (the default while the results pages
         measured without it stand).
+    reanchor_probability
+        For the policies that fix an object's first estimate (``fej``, ``oc``): an object
+        observed this frame whose first estimate lies outside its confidence region of this
+        probability — ``(p̂ − p̄)ᵀ Σ_pp⁻¹ (p̂ − p̄)`` above the χ²(3) quantile, ``Σ_pp`` its
+        marginal covariance — is re-anchored: its rows still annihilate the rigid motions at
+        ``p̄``, a point its own data now rule out, and the error of those directions, the same
+        at every row, adds up along the route. It is marginalised out of the state (what it
+        gave the poses stays) and enters again as a new object from its next observations, at
+        a fresh first estimate: no observation is used twice, and every row keeps annihilating
+        the rigid motions at one point per object. It discards what the object knew, which
+        costs accuracy where objects are seen again and again. 0.99 is the probability it was
+        measured with (0.95 and 0.999 gave the same within the runs' spread). 0: off.
     loss
         Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
         ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
@@ -265,6 +277,7 @@ class ObjectSettings:
     max_depth: float = field(default=40.0, metadata=_unit("m"))
     init_max_relative_std: float = field(default=0.0, metadata=_unit("fraction of distance"))
     init_linearity_probability: float = field(default=0.0, metadata=_unit("probability"))
+    reanchor_probability: float = field(default=0.0, metadata=_unit("probability"))
     loss: str = field(default="none", metadata=_unit(""))
     loss_scale: float = field(default=2.0, metadata=_unit("std"))
     update_iterations: int = field(default=1, metadata=_unit("linearisations"))
@@ -289,6 +302,9 @@ class ObjectSettings:
         linearity = self.init_linearity_probability
         if not (_is_number(linearity) and (linearity == 0 or _probability(linearity))):
             raise InputError("objects.init_linearity_probability must lie in (0, 1), or be 0 (off)")
+        reanchor = self.reanchor_probability
+        if not (_is_number(reanchor) and (reanchor == 0 or _probability(reanchor))):
+            raise InputError("objects.reanchor_probability must lie in (0, 1), or be 0 (off)")
         if self.loss not in ("none", "huber", "cauchy"):
             raise InputError(f"objects.loss must be none, huber or cauchy, not {self.loss!r}")
         if not _positive(self.loss_scale):
