@@ -91,6 +91,12 @@ def test_marginalising_objects_keeps_the_rest_exactly_and_the_map_whole():
     old = {k: v for k, v in state.snapshot().items() if not k.startswith("dropped_")}
     copy.restore(old)
     assert copy.full_map()[0].tolist() == [40, 42]
+    # a snapshot whose dropped objects do not match is refused, and the state left as it was
+    bad = state.snapshot()
+    bad["dropped_means"] = bad["dropped_means"][:, :2]
+    with pytest.raises(InputError, match="dropped objects"):
+        copy.restore(bad)
+    assert copy.full_map()[0].tolist() == [40, 42] and copy.dropped_ids.size == 0
     # entering again: listed once, with its new estimate
     state.add_object(41, np.array([5.0, 5.0, 5.0]), np.eye(3), np.zeros((3, state.dim)))
     ids, means, _ = state.full_map()

@@ -208,8 +208,6 @@ class MsckfState:
             raise InputError(
                 "state snapshot: covariance (with the persistent map's) is not positive definite"
             ) from None
-        self.poses, self.frames, self.object_ids, self.objects = poses, frames, ids, objects
-        self.robots, self.pose_fe, self.object_fe = robots, pose_fe, object_fe
         # snapshots written before re-anchoring: nothing dropped
         dropped = [
             np.asarray(snapshot.get(f"dropped_{k}", np.zeros((0, *shape))), dtype=kind)
@@ -220,7 +218,7 @@ class MsckfState:
             )
         ]
         d = dropped[0].size
-        if dropped[1].shape != (d, 3) or dropped[2].shape != (d, 3, 3):
+        if dropped[0].shape != (d,) or dropped[1].shape != (d, 3) or dropped[2].shape != (d, 3, 3):
             raise InputError("state snapshot: dropped objects' means or covariances do not match")
         if not all(np.all(np.isfinite(a)) for a in dropped[1:]):
             raise InputError("state snapshot: non-finite values")
