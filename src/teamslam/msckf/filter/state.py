@@ -626,13 +626,18 @@ class MsckfState:
         keep[cols] = False
         self._cov = self._cov[np.ix_(keep, keep)]
         self._consider_columns(lambda c: c[:, keep])
+        self._remove_object_entries(slots)
+        self._check("object marginalisation")
+
+    def _remove_object_entries(self, slots: np.ndarray) -> None:
+        """Remove the objects in ``slots`` from the per-object arrays (ids, means, first
+        estimates, last seen); their covariance columns are the caller's."""
         kept = np.ones(self.n_objects, dtype=bool)
         kept[slots] = False
         self.object_ids = self.object_ids[kept]
         self.objects = self.objects[kept]
         self.object_fe = self.object_fe[kept]
         self.object_last_seen = self.object_last_seen[kept]
-        self._check("object marginalisation")
 
     def mark_seen(self, slots: np.ndarray, frame: int) -> None:
         """Record that the objects in ``slots`` were observed at ``frame``."""
@@ -672,12 +677,7 @@ class MsckfState:
             cross,
         )
         self._cov = self._cov[np.ix_(keep, keep)]
-        kept = np.ones(self.n_objects, dtype=bool)
-        kept[slots] = False
-        self.object_ids = self.object_ids[kept]
-        self.objects = self.objects[kept]
-        self.object_fe = self.object_fe[kept]
-        self.object_last_seen = self.object_last_seen[kept]
+        self._remove_object_entries(slots)
         loosened = self.retired.loosen(max_consider)
         self._check("object retirement")
         return loosened
