@@ -913,14 +913,9 @@ class MsckfAgent:
         if slots.size == 0:
             return
         # the object's marginal: its first estimate as a point of the world, whose rigid
-        # motions its rows take (conditioned on the current pose instead, re-anchoring was as
-        # consistent on the long route and less accurate, more so where objects are seen again)
-        distance = first_estimate_distance(
-            state.objects[slots],
-            state.object_fe[slots],
-            state.covariance(state.object(slots).columns),
-            given=0,
-        )
+        # motions its rows take
+        marginals = state.covariance(state.object(slots).columns)
+        distance = first_estimate_distance(state.objects[slots], state.object_fe[slots], marginals)
         moved = slots[distance > chi2_quantile(probability, 3)]
         if moved.size == 0:
             return

@@ -252,34 +252,23 @@ def annihilate(h: np.ndarray, u: np.ndarray, cov: np.ndarray | None = None) -> n
     return h - (h @ u) @ np.linalg.solve(gram, np.swapaxes(p_inv_u, -1, -2))
 
 
-def first_estimate_distance(
-    current: np.ndarray, first: np.ndarray, cov: np.ndarray, given: int = 6
-) -> np.ndarray:
+def first_estimate_distance(current: np.ndarray, first: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Squared Mahalanobis distance of objects' first estimates from their current estimates,
-    in their covariance given the pose their rows are formed at.
+    in their marginal covariances.
 
     Parameters
     ----------
     current, first
         ``(k, 3)`` current and first estimates of the objects.
     cov
-        ``(k, given + 3, given + 3)`` joint covariance of the pose (first ``given`` columns) and
-        each object.
-    given
-        Columns of ``cov`` conditioned on (the pose's 6; 0: the objects' marginals).
+        ``(k, 3, 3)`` marginal covariances of the objects.
 
     Returns
     -------
-    ``(k,)`` ``(p̂ − p̄)ᵀ C⁻¹ (p̂ − p̄)`` with ``C = Σ_pp − Σ_px Σ_xx⁻¹ Σ_xp`` (Cholesky solves):
-    χ²(3)-distributed when ``p̄`` is a value of the object its estimate still allows.
+    ``(k,)`` ``(p̂ − p̄)ᵀ Σ⁻¹ (p̂ − p̄)`` (Cholesky solves): χ²(3)-distributed when ``p̄`` is a
+    value of the object its estimate still allows.
     """
-    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
-    conditional = cov[:, given:, given:]
-    if given:
-        chol = np.linalg.cholesky(cov[:, :given, :given])
-        w = np.linalg.solve(chol, cov[:, :given, given:])  # L⁻¹ Σ_xp
-        conditional = conditional - np.swapaxes(w, -1, -2) @ w
-    chol = np.linalg.cholesky(0.5 * (conditional + np.swapaxes(conditional, -1, -2)))
+    chol = np.linalg.cholesky(0.5 * (cov + np.swapaxes(cov, -1, -2)))
     white = np.linalg.solve(chol, (current - first)[..., None])[..., 0]
     return (white**2).sum(axis=-1)
 
