@@ -594,11 +594,7 @@ class MsckfState:
             )
         else:
             self._consider_columns(None)
-        back = self.dropped_ids != int(object_id)  # a re-anchored object entering again
-        if not back.all():
-            self.dropped_ids = self.dropped_ids[back]
-            self.dropped_means = self.dropped_means[back]
-            self.dropped_covs = self.dropped_covs[back]
+        self._forget_dropped(np.array([int(object_id)]))  # a re-anchored object entering again
         self.object_ids = np.append(self.object_ids, int(object_id))
         self.objects = np.vstack([self.objects, np.asarray(position, dtype=float)])
         self.object_fe = np.vstack([self.object_fe, np.asarray(first, dtype=float)])
@@ -617,17 +613,27 @@ class MsckfState:
         if slots.size == 0:
             return
         ids = self.object_ids[slots]
-        stay = ~np.isin(self.dropped_ids, ids)
-        self.dropped_ids = np.concatenate([self.dropped_ids[stay], ids])
-        self.dropped_means = np.concatenate([self.dropped_means[stay], self.objects[slots]])
-        self.dropped_covs = np.concatenate([self.dropped_covs[stay], self.object_covs()[slots]])
-        cols = self.object_columns(slots).ravel()
+        cols = self.object_columns(slots)
+        self._forget_dropped(ids)
+        self.dropped_ids = np.concatenate([self.dropped_ids, ids])
+        self.dropped_means = np.concatenate([self.dropped_means, self.objects[slots]])
+        marginals = self._cov[cols[:, :, None], cols[:, None, :]]
+        self.dropped_covs = np.concatenate([self.dropped_covs, marginals])
+        cols = cols.ravel()
         keep = np.ones(self.dim, dtype=bool)
         keep[cols] = False
         self._cov = self._cov[np.ix_(keep, keep)]
         self._consider_columns(lambda c: c[:, keep])
         self._remove_object_entries(slots)
         self._check("object marginalisation")
+
+    def _forget_dropped(self, ids: np.ndarray) -> None:
+        """Remove objects ``ids`` from those marginalised out and not back."""
+        stay = ~np.isin(self.dropped_ids, ids)
+        if not stay.all():
+            self.dropped_ids = self.dropped_ids[stay]
+            self.dropped_means = self.dropped_means[stay]
+            self.dropped_covs = self.dropped_covs[stay]
 
     def _remove_object_entries(self, slots: np.ndarray) -> None:
         """Remove the objects in ``slots`` from the per-object arrays (ids, means, first

@@ -299,12 +299,10 @@ class ObjectSettings:
                 "objects.init_max_relative_std must be a number ≥ 0 (a fraction of the "
                 "distance; 0: no wait)"
             )
-        linearity = self.init_linearity_probability
-        if not (_is_number(linearity) and (linearity == 0 or _probability(linearity))):
-            raise InputError("objects.init_linearity_probability must lie in (0, 1), or be 0 (off)")
-        reanchor = self.reanchor_probability
-        if not (_is_number(reanchor) and (reanchor == 0 or _probability(reanchor))):
-            raise InputError("objects.reanchor_probability must lie in (0, 1), or be 0 (off)")
+        for name in ("init_linearity_probability", "reanchor_probability"):
+            value = getattr(self, name)
+            if not (_is_number(value) and (value == 0 or _probability(value))):
+                raise InputError(f"objects.{name} must lie in (0, 1), or be 0 (off)")
         if self.loss not in ("none", "huber", "cauchy"):
             raise InputError(f"objects.loss must be none, huber or cauchy, not {self.loss!r}")
         if not _positive(self.loss_scale):
