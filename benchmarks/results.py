@@ -184,7 +184,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"{GENERATED}/consistency-long-route-600-active.md",
     ),
     "consistency-long-route-600-separate": (
-        "python benchmarks/long_route.py --seeds 43 37 0 --runs 2 --robots 3 --steps 600 "
+        "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
         "--filters fej --modes separate --workers 2 "
         f"--markdown {GENERATED}/consistency-long-route-600-separate.md",
         f"{GENERATED}/consistency-long-route-600-separate.md",
