@@ -189,6 +189,19 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/consistency-long-route-600-separate.md",
         f"{GENERATED}/consistency-long-route-600-separate.md",
     ),
+    "consistency-long-route-600-features": (
+        "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
+        "--filters ideal fej --modes separate --set filter.use_objects=false --workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route-600-features.md",
+        f"{GENERATED}/consistency-long-route-600-features.md",
+    ),
+    "consistency-long-route-600-objects": (
+        "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
+        "--filters ideal fej --modes separate --set filter.use_geometric_features=false "
+        "--workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route-600-objects.md",
+        f"{GENERATED}/consistency-long-route-600-objects.md",
+    ),
     "consistency-long-route-600-reanchor": (
         "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
         "--filters fej --modes separate --set objects.reanchor_probability=0.99 --workers 2 "
