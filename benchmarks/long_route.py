@@ -103,6 +103,7 @@ def main() -> None:
                     f"{r['position_rmse_m']:7.3f} {r['heading_rmse_rad']:8.4f} {took:6.0f}",
                     flush=True,
                 )
+                objects = bool(np.isfinite(r["anees_object"]))  # none with features only
                 md.row(
                     str(seed),
                     f"`{filt}`",
@@ -111,8 +112,8 @@ def main() -> None:
                     by_third,
                     band,
                     f"{r['runs_above_band']} of {args.runs}",
-                    f"{r['anees_object']:.2f}",
-                    band_object,
+                    f"{r['anees_object']:.2f}" if objects else "—",
+                    band_object if objects else "—",
                     f"{r['position_rmse_m']:.3f}",
                     f"{r['heading_rmse_rad']:.4f}",
                 )
