@@ -19,6 +19,7 @@ from teamslam.msckf.filter.linearization import first_estimate_distance
 from teamslam.msckf.filter.observability import NullspaceAudit
 from teamslam.msckf.filter.state import MsckfState
 from teamslam.msckf.settings.values import MsckfConfig
+from teamslam.msckf.team import run_team
 from teamslam.sim import long_route_team
 
 
@@ -165,7 +166,7 @@ def test_a_reanchored_object_enters_again_from_later_observations_only():
             assert not any(out - 1 < f < out + need for f in entries), (oid, out, entries)
             checked += bool(after)
     assert checked > 3
-    off, _, _, left_off, _ = _reanchoring_run(40, {})
+    off, _, _, left_off, _ = _reanchoring_run(40, {"objects.reanchor_probability": 0})
     assert off.counters["objects_reanchored"] == 0 and not left_off
     dataset = long_route_team(robots=1, steps=20, seed=43, miss=0.3)
     config = config_for(dataset, {"filter.linearization": "std", **settings})
@@ -179,3 +180,32 @@ def test_a_reanchored_object_enters_again_from_later_observations_only():
 def test_reanchor_probability_is_validated(value):
     with pytest.raises(InputError, match=r"objects\.reanchor_probability"):
         MsckfConfig.from_settings({"objects.reanchor_probability": value})
+
+
+def _team_counters(robots: int, settings: dict, consensus: bool) -> list[dict[str, int]]:
+    dataset = long_route_team(robots=robots, steps=30, seed=43, miss=0.3)
+    config = config_for(dataset, {"filter.linearization": "fej", **settings})
+    return run_team(dataset, config, consensus=consensus, progress=False).counters
+
+
+def test_a_lone_robot_reanchors_by_default_and_a_team_only_when_asked():
+    """The default re-anchors a robot running alone (the separate filters), as 0.99 does; a
+    robot that averages with neighbours keeps its objects unless
+    ``objects.reanchor_with_consensus`` is set, and then re-anchors as often as when alone or
+    more (its objects' marginals shrink with the team's averages)."""
+    alone = _team_counters(2, {}, consensus=False)
+    assert all(c.get("objects_reanchored", 0) > 0 for c in alone)
+    explicit = _team_counters(2, {"objects.reanchor_probability": 0.99}, consensus=False)
+    assert [c.get("objects_reanchored") for c in explicit] == [
+        c.get("objects_reanchored") for c in alone
+    ]
+    team = _team_counters(2, {}, consensus=True)
+    assert all(c.get("objects_reanchored", 0) == 0 for c in team)
+    asked = _team_counters(2, {"objects.reanchor_with_consensus": True}, consensus=True)
+    assert all(c.get("objects_reanchored", 0) > 0 for c in asked)
+
+
+@pytest.mark.parametrize("value", [1, "yes", None])
+def test_reanchor_with_consensus_is_validated(value):
+    with pytest.raises(InputError, match=r"objects\.reanchor_with_consensus"):
+        MsckfConfig.from_settings({"objects.reanchor_with_consensus": value})

@@ -142,6 +142,9 @@ class MsckfAgent:
         self.tracks: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
         self.object_history: dict[int, list[tuple[int, np.ndarray]]] = defaultdict(list)
         self.counters: dict[str, int] = defaultdict(int)
+        #: whether the robot averages with neighbours (set by its driver): it then re-anchors
+        #: objects only with ``objects.reanchor_with_consensus``
+        self.with_consensus = False
         self.timings: dict[str, float] = defaultdict(float)
         self._warned: set[str] = set()
         self.health = SensorHealth(record=record_innovations)
@@ -900,11 +903,13 @@ class MsckfAgent:
         (``objects.reanchor_probability``): each is marginalised out of the state and its
         history cleared, so that it enters again, at a fresh first estimate, from observations
         made after ``t`` only. Not for a team state, whose other robots' histories hold the
-        object's earlier observations."""
+        object's earlier observations, nor for a robot that averages with neighbours unless
+        ``objects.reanchor_with_consensus`` is set."""
         probability = self.config.objects.reanchor_probability
         state = self.state
         if (
             probability == 0
+            or (self.with_consensus and not self.config.objects.reanchor_with_consensus)
             or not keeps_first_estimates(self.config.filter.linearization)
             or isinstance(state, RobotWindow)
         ):

@@ -211,6 +211,7 @@ class RobotDriver:
             if consensus and transport is not None
             else None
         )
+        agent.with_consensus = self.protocol is not None and bool(self.neighbours)
         self.by_stamp = isinstance(wait, Asynchronous) and wait.by_stamp
         #: asynchronous: the neighbours' messages seen, their lags and the age limits learned
         #: from them (aged by stamp without a fixed ``max_age_s``), those found too old

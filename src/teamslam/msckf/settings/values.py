@@ -226,8 +226,15 @@ class ObjectSettings:
         gave the poses stays) and enters again as a new object from its next observations, at
         a fresh first estimate: no observation is used twice, and every row keeps annihilating
         the rigid motions at one point per object. It discards what the object knew, which
-        costs accuracy where objects are seen again and again. 0.99 is the probability it was
-        measured with (0.95 and 0.999 gave the same within the runs' spread). 0: off.
+        costs accuracy where objects are seen again and again. 0.99 (the default) is the
+        probability it was measured with (0.95 and 0.999 gave the same within the runs'
+        spread). 0: off. A robot that averages with neighbours re-anchors only with
+        ``reanchor_with_consensus``.
+    reanchor_with_consensus
+        Whether a robot running with consensus (at least one neighbour) re-anchors too. Off by
+        default: dropping an object drops what the team's averages gave it, which costs a team
+        far more accuracy than a lone robot (the consistency results page), and the average
+        keeps a team's estimate from the lone robot's overconfidence on the routes measured.
     loss
         Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
         ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
@@ -277,7 +284,8 @@ class ObjectSettings:
     max_depth: float = field(default=40.0, metadata=_unit("m"))
     init_max_relative_std: float = field(default=0.0, metadata=_unit("fraction of distance"))
     init_linearity_probability: float = field(default=0.0, metadata=_unit("probability"))
-    reanchor_probability: float = field(default=0.0, metadata=_unit("probability"))
+    reanchor_probability: float = field(default=0.99, metadata=_unit("probability"))
+    reanchor_with_consensus: bool = field(default=False, metadata=_unit(""))
     loss: str = field(default="none", metadata=_unit(""))
     loss_scale: float = field(default=2.0, metadata=_unit("std"))
     update_iterations: int = field(default=1, metadata=_unit("linearisations"))
@@ -303,6 +311,7 @@ class ObjectSettings:
             value = getattr(self, name)
             if not (_is_number(value) and (value == 0 or _probability(value))):
                 raise InputError(f"objects.{name} must lie in (0, 1), or be 0 (off)")
+        _check_flags(self, "objects", ("reanchor_with_consensus",))
         if self.loss not in ("none", "huber", "cauchy"):
             raise InputError(f"objects.loss must be none, huber or cauchy, not {self.loss!r}")
         if not _positive(self.loss_scale):
