@@ -166,11 +166,12 @@ def two_robots():
     estimated the objects they share by itself."""
     dataset = long_route_team(robots=2, steps=40, seed=43, noise_seed=1)
     # objects enter from their first views, each robot's first estimates as far apart as a
-    # few views leave them
+    # few views leave them, and keep them (not re-anchored, as a robot in a team does)
     settings = {
         "filter.linearization": "fej",
         "filter.window": 10,
         "objects.init_linearity_probability": 0,
+        "objects.reanchor_probability": 0,
     }
     config = config_for(dataset, settings)
     agents = [MsckfAgent(r, dataset.calibration, dataset.robots[r], config) for r in range(2)]

@@ -100,11 +100,13 @@ def _audited_run(linearization: str, information: bool = False):
     frame) and re-enter when seen again, and window poses are marginalised."""
     dataset = long_route_team(robots=1, steps=30, seed=1, miss=0.3)
     # objects enter from their first views (a window of 6 is too short for many far objects
-    # to pass the linearity test; the long-route audit below runs with it)
+    # to pass the linearity test; the long-route audit below runs with it) and keep their
+    # first estimates, so that many retire and re-enter (re-anchoring: test_msckf_reanchor.py)
     settings = {
         "filter.linearization": linearization,
         "filter.window": 6,
         "objects.init_linearity_probability": 0,
+        "objects.reanchor_probability": 0,
     }
     config = config_for(dataset, {**settings, "objects.max_active": 8})
     agent = MsckfAgent(0, dataset.calibration, dataset.robots[0], config)
@@ -146,10 +148,13 @@ def test_first_estimates_keep_the_nullspace_along_the_long_route():
     route the state knows no more along them than it did at the one before (the information
     ``Nᵀ Σ⁻¹ N`` only ever loses, to round-off)."""
     dataset = long_route_team(robots=1, steps=90, seed=43, miss=0.3)
+    # objects keep their first estimates, so that many retire and re-enter (re-anchoring along
+    # the same route: test_msckf_reanchor.py)
     settings = {
         "filter.linearization": "fej",
         "objects.max_active": 12,
         "objects.init_linearity_probability": 0.95,
+        "objects.reanchor_probability": 0,
     }
     config = config_for(dataset, settings)
     assert config.filter.window == 20
