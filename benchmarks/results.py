@@ -198,9 +198,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "consistency-long-route-600-objects": (
         "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
         "--filters ideal fej --modes separate --set filter.use_geometric_features=false "
-        "--workers 2 "
+        "--set objects.reanchor_probability=0 --workers 2 "
         f"--markdown {GENERATED}/consistency-long-route-600-objects.md",
         f"{GENERATED}/consistency-long-route-600-objects.md",
+    ),
+    "consistency-long-route-600-objects-reanchored": (
+        "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
+        "--filters fej --modes separate --set filter.use_geometric_features=false --workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route-600-objects-reanchored.md",
+        f"{GENERATED}/consistency-long-route-600-objects-reanchored.md",
     ),
     "consistency-long-route-600-reanchor": (
         "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
