@@ -208,12 +208,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/consistency-long-route-600-objects-reanchored.md",
         f"{GENERATED}/consistency-long-route-600-objects-reanchored.md",
     ),
-    "consistency-long-route-600-reanchor": (
-        "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
-        "--filters fej --modes separate --set objects.reanchor_probability=0.99 --workers 2 "
-        f"--markdown {GENERATED}/consistency-long-route-600-reanchor.md",
-        f"{GENERATED}/consistency-long-route-600-reanchor.md",
-    ),
     "consistency-rigid-directions-off": (
         "python benchmarks/consistency.py --teams make-run kitti --variants fej "
         "--modes consensus --set consensus.rigid_directions=false "
