@@ -233,8 +233,7 @@ class ObjectSettings:
     reanchor_with_consensus
         Whether a robot running with consensus (at least one neighbour) re-anchors too. Off by
         default: dropping an object drops what the team's averages gave it, which costs a team
-        far more accuracy than a lone robot (the consistency results page), and the average
-        keeps a team's estimate from the lone robot's overconfidence on the routes measured.
+        far more accuracy than a lone robot (the consistency results page).
     loss
         Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
         ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
