@@ -191,8 +191,7 @@ def _team_counters(robots: int, settings: dict, consensus: bool) -> list[dict[st
 def test_a_lone_robot_reanchors_by_default_and_a_team_only_when_asked():
     """The default re-anchors a robot running alone (the separate filters), as 0.99 does; a
     robot that averages with neighbours keeps its objects unless
-    ``objects.reanchor_with_consensus`` is set, and then re-anchors as often as when alone or
-    more (its objects' marginals shrink with the team's averages)."""
+    ``objects.reanchor_with_consensus`` is set, and then re-anchors too."""
     alone = _team_counters(2, {}, consensus=False)
     assert all(c.get("objects_reanchored", 0) > 0 for c in alone)
     explicit = _team_counters(2, {"objects.reanchor_probability": 0.99}, consensus=False)
