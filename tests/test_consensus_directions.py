@@ -166,7 +166,7 @@ def two_robots():
     estimated the objects they share by itself."""
     dataset = long_route_team(robots=2, steps=40, seed=43, noise_seed=1)
     # objects enter from their first views, each robot's first estimates as far apart as a
-    # few views leave them, and keep them (not re-anchored, as a robot in a team does)
+    # few views leave them, and keep them (not re-anchored: a robot in a team keeps them too)
     settings = {
         "filter.linearization": "fej",
         "filter.window": 10,

@@ -182,8 +182,8 @@ def test_reanchor_probability_is_validated(value):
         MsckfConfig.from_settings({"objects.reanchor_probability": value})
 
 
-def _team_counters(robots: int, settings: dict, consensus: bool) -> list[dict[str, int]]:
-    dataset = long_route_team(robots=robots, steps=30, seed=43, miss=0.3)
+def _team_counters(settings: dict, consensus: bool) -> list[dict[str, int]]:
+    dataset = long_route_team(robots=2, steps=30, seed=43, miss=0.3)
     config = config_for(dataset, {"filter.linearization": "fej", **settings})
     return run_team(dataset, config, consensus=consensus, progress=False).counters
 
@@ -192,15 +192,15 @@ def test_a_lone_robot_reanchors_by_default_and_a_team_only_when_asked():
     """The default re-anchors a robot running alone (the separate filters), as 0.99 does; a
     robot that averages with neighbours keeps its objects unless
     ``objects.reanchor_with_consensus`` is set, and then re-anchors too."""
-    alone = _team_counters(2, {}, consensus=False)
+    alone = _team_counters({}, consensus=False)
     assert all(c.get("objects_reanchored", 0) > 0 for c in alone)
-    explicit = _team_counters(2, {"objects.reanchor_probability": 0.99}, consensus=False)
+    explicit = _team_counters({"objects.reanchor_probability": 0.99}, consensus=False)
     assert [c.get("objects_reanchored") for c in explicit] == [
         c.get("objects_reanchored") for c in alone
     ]
-    team = _team_counters(2, {}, consensus=True)
+    team = _team_counters({}, consensus=True)
     assert all(c.get("objects_reanchored", 0) == 0 for c in team)
-    asked = _team_counters(2, {"objects.reanchor_with_consensus": True}, consensus=True)
+    asked = _team_counters({"objects.reanchor_with_consensus": True}, consensus=True)
     assert all(c.get("objects_reanchored", 0) > 0 for c in asked)
 
 
