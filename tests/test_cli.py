@@ -63,6 +63,8 @@ def test_dvi_demo_writes_metrics(tmp_path, capsys):
         ["dvi-demo", "--steps", "-3"],
         ["no-such-command"],
         ["dvi-demo", "--unknown-flag"],
+        ["fej", "table", "--layout", "-1"],
+        ["fej", "table", "--layout", "1", "--environment", "a.mat", "b.mat"],
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(argv):

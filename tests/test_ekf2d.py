@@ -451,3 +451,38 @@ def test_generated_environment_1_starts_like_the_published_one():
         offset = first[1] - first[0]
         assert abs(along[0] * offset[1] - along[1] * offset[0]) < 1e-9  # on the line between
     assert E.environment(1, 100).features[:60].tolist() == E.environment(1, 60).features.tolist()
+
+
+@pytest.mark.parametrize("number", [1, 2])
+def test_generated_layouts_are_new_environments_of_the_same_kind(number):
+    """Each layout is another environment of the kind: its own loops and features, the larger
+    feature sets extending the smaller, the same noise levels, and the robots sharing at least
+    two features at step 0 (exactly the first two in environment 1, 18.8 m apart); layout 0 is
+    the default."""
+    from teamslam.ekf2d.simulate import truth_of
+
+    base = E.environment(number, 100)
+    assert E.environment(number, 100, 0).features.tolist() == base.features.tolist()
+    seen = {base.features.tobytes()}
+    for layout in (1, 2, 3):
+        env = E.environment(number, 100, layout)
+        assert env.features.tobytes() not in seen
+        seen.add(env.features.tobytes())
+        assert env.odometry_std == base.odometry_std
+        assert env.observation_std == base.observation_std
+        assert [len(w) for w in env.waypoints] == [len(w) for w in base.waypoints]
+        for count in (20, 60):
+            smaller = E.environment(number, count, layout)
+            assert smaller.features.tolist() == env.features[:count].tolist()
+            truth = truth_of(smaller)
+            a, b = truth.obs_offsets[0], truth.obs_offsets[1]
+            robot, feature = truth.obs_robot[a:b], truth.obs_feature[a:b]
+            shared = set(feature[robot == 0]) & set(feature[robot == 1])
+            if number == 1:
+                assert shared == {0, 1}
+                gap = np.linalg.norm(env.waypoints[0][0] - env.waypoints[1][0])
+                assert gap == pytest.approx(E.START_SEPARATION, abs=0.5)
+            else:
+                assert len(shared) >= 2
+    with pytest.raises(E.PlanarEnvironmentError, match="layout"):
+        E.environment(number, 20, -1)

@@ -910,14 +910,19 @@ def export(result_dir: str | Path, out: str | Path, path_messages: int = 100) ->
 
 
 # ---------------------------------------------------------------------- planar FEJ-EKF
-def fej_environment(env: int = 1, features: int = 20, files: Sequence[str | Path] = ()):
-    """The planar environment of ``teamslam fej table``: generated (``env``, ``features``),
-    or from files — one teamslam JSON file, or the published MATLAB pair (waypoints file and
-    features file; the noise levels of environment ``env``)."""
+def fej_environment(
+    env: int = 1, features: int = 20, files: Sequence[str | Path] = (), layout: int = 0
+):
+    """The planar environment of ``teamslam fej table``: generated (``env``, ``features``,
+    ``layout``: 0 is the tables' layout, others new environments of the same kind), or from
+    files — one teamslam JSON file, or the published MATLAB pair (waypoints file and features
+    file; the noise levels of environment ``env``)."""
     from teamslam.ekf2d.environments import environment, load_environment, load_matlab_environment
 
     if not files:
-        return environment(env, features)
+        return environment(env, features, layout)
+    if layout:
+        raise InputError("a layout applies to generated environments only, not to files")
     paths = [Path(f) for f in files]
     for f in paths:
         if not f.is_file():

@@ -15,7 +15,7 @@ def _cmd_fej_table(args: argparse.Namespace) -> int:
     from teamslam import api
     from teamslam.ekf2d.experiments import format_table
 
-    env = api.fej_environment(args.env, args.features, args.environment or ())
+    env = api.fej_environment(args.env, args.features, args.environment or (), args.layout)
     result = api.fej_table(
         env, args.runs, args.seed, args.workers, args.out, scheduler=args.scheduler
     )
@@ -46,6 +46,13 @@ def register(sub) -> None:
     table = fej_sub.add_parser("table", help="Monte Carlo NEES/RMSE table (paper Tables 1–2)")
     table.add_argument("--env", type=int, choices=(1, 2), default=1, help="environment")
     table.add_argument("--features", type=int, choices=(20, 60, 100), default=20)
+    table.add_argument(
+        "--layout",
+        type=non_negative_int,
+        default=0,
+        help="generated environment's layout: 0 is the tables' one, others draw the loops' "
+        "shape and the features anew (same kind, same noise levels)",
+    )
     table.add_argument("--runs", type=positive_int, default=100, help="Monte Carlo runs")
     table.add_argument("--seed", type=non_negative_int, default=0, help="base seed")
     table.add_argument(

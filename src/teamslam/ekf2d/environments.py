@@ -168,11 +168,25 @@ def _lens_starts(wp1, circle2, wp2, circle1, separation: float) -> tuple[int, in
     return int(i), int(j)
 
 
-def environment(number: int, features: int = 20) -> PlanarEnvironment:
-    """Environment 1 or 2 of the paper with 20, 60 or 100 features (generated, deterministic)."""
+def environment(number: int, features: int = 20, layout: int = 0) -> PlanarEnvironment:
+    """Environment 1 or 2 of the paper with 20, 60 or 100 features (generated, deterministic).
+
+    Parameters
+    ----------
+    number
+        1 or 2: the paper's two kinds of environment.
+    features
+        20, 60 or 100; the larger sets extend the smaller ones of the same layout.
+    layout
+        Which layout of that kind: the loops' wobble and the features' places are drawn from
+        this seed. Layout 0 is the one the tables use; others are new environments of the same
+        kind.
+    """
     if features not in (20, 60, 100):
         raise PlanarEnvironmentError(f"feature count must be 20, 60 or 100, got {features}")
-    rng = np.random.default_rng(1000 + number)
+    if layout < 0:
+        raise PlanarEnvironmentError(f"layout must be non-negative, got {layout}")
+    rng = np.random.default_rng(1000 + number if layout == 0 else [1000 + number, layout])
     if number == 1:
         # two hand-drawn-like circles (radii 23.5 m and 22 m, centres 16 m apart); as in the
         # published environment, the robots start on either side of the loops' overlap
