@@ -139,9 +139,13 @@ def test_ideal_ekf_nees_is_consistent():
 
     The per-step NEES of both robots is averaged over steps 1–20; the band is that of a single
     robot at a single step (χ²(3 · runs)), which averaging over steps and robots only narrows,
-    so the check is conservative but still fails for a filter that is off by 15% or more.
+    so the check is conservative but still fails for a filter that is off by 15% or more. The
+    run is a well-observed one (environment 2 with 100 features: over ten shared at step 0),
+    where Jacobians at the truth leave only small linearisation errors; with the paper's two
+    shared features (environment 1) robot 2's start heading is uncertain by about 15°, and
+    even the ideal filter's first steps are not linear enough to be consistent.
     """
-    env = E.environment(1, 20)
+    env = E.environment(2, 100)
     env.loops = 1
     truth = S.truth_of(env)
     runs, steps = 200, 20
@@ -453,12 +457,18 @@ def test_generated_environment_1_starts_like_the_published_one():
     assert E.environment(1, 100).features[:60].tolist() == E.environment(1, 60).features.tolist()
 
 
+def _densify(loop: np.ndarray, per_segment: int = 50) -> np.ndarray:
+    """Points along a closed loop of waypoints, ``per_segment`` per segment."""
+    nxt = np.roll(loop, -1, axis=0)
+    t = np.linspace(0.0, 1.0, per_segment, endpoint=False)[:, None, None]
+    return (loop + t * (nxt - loop)).reshape(-1, 2)
+
+
 @pytest.mark.parametrize("number", [1, 2])
 def test_generated_layouts_are_new_environments_of_the_same_kind(number):
     """Each layout is another environment of the kind: its own loops and features, the larger
     feature sets extending the smaller, the same noise levels, and the robots sharing at least
-    two features at step 0 (exactly the first two in environment 1, 18.8 m apart); layout 0 is
-    the default."""
+    two features at step 0 (exactly the first two in environment 1); layout 0 is the default."""
     from teamslam.ekf2d.simulate import truth_of
 
     base = E.environment(number, 100)
@@ -480,9 +490,20 @@ def test_generated_layouts_are_new_environments_of_the_same_kind(number):
             shared = set(feature[robot == 0]) & set(feature[robot == 1])
             if number == 1:
                 assert shared == {0, 1}
-                gap = np.linalg.norm(env.waypoints[0][0] - env.waypoints[1][0])
-                assert gap == pytest.approx(E.START_SEPARATION, abs=0.5)
             else:
                 assert len(shared) >= 2
+        # as in the published files: the robots start a fixed distance apart, heading the
+        # same way, and the features lie beside the paths, not on them
+        gap = np.linalg.norm(env.waypoints[0][0] - env.waypoints[1][0])
+        separation = E.START_SEPARATION if number == 1 else E.START_SEPARATION_2
+        assert gap == pytest.approx(separation, abs=1e-9)
+        first_steps = [w[1] - w[0] for w in env.waypoints]
+        assert first_steps[0] @ first_steps[1] > 0
+        path = np.concatenate([_densify(w) for w in env.waypoints])
+        nearest = np.linalg.norm(env.features[2:, None] - path[None], axis=-1).min(axis=1)
+        low, high = E.FEATURE_BAND[number]
+        assert low < np.median(nearest) < high
+        # drawn beside one path, a feature can come near another where the paths cross
+        assert np.mean(nearest < low) < 0.25
     with pytest.raises(E.PlanarEnvironmentError, match="layout"):
         E.environment(number, 20, -1)

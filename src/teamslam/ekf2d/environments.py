@@ -2,10 +2,13 @@
 
 An environment is, per robot, a closed loop of waypoints (one per step), the true features
 (20, 60 or 100; the larger sets extend the smaller), the number of loops, the sensing range and
-the noise levels (:func:`environment`): **1**, two intersecting near-circular loops,
+the noise levels (:func:`environment`): **1**, two wide loops overlapping in a lens,
 σ_u = 0.3 m, σ_φ = 2°; **2**, an outer loop with an 8 inside it, σ_u = 0.2 m, σ_φ = 3°; both
-σ_obs = 0.5 m / 0.6 m, 5 loops, 15 m range. Files: teamslam's JSON (:func:`save_environment`,
-:func:`load_environment`) and the published MATLAB pairs (:func:`load_matlab_environment`).
+σ_obs = 0.5 m / 0.6 m, 5 loops, 15 m range. Each has many layouts (the loops' wobble and the
+features' places drawn anew), shaped as the published files are: where the robots start, how
+far the features lie from the paths, how evenly they cover them. Files: teamslam's JSON
+(:func:`save_environment`, :func:`load_environment`) and the published MATLAB pairs
+(:func:`load_matlab_environment`).
 """
 
 from __future__ import annotations
@@ -106,66 +109,75 @@ class PlanarEnvironment:
         return np.array([s**2 * np.eye(2) for s in self.observation_std])
 
 
-def _loop(centre, radius, count, start_angle, direction=1.0, wobble=0.0, rng=None) -> np.ndarray:
-    angle = start_angle + direction * 2.0 * np.pi * np.arange(count) / count
-    r = radius + (wobble * rng.standard_normal(count) if rng is not None and wobble else 0.0)
-    return np.column_stack([centre[0] + r * np.cos(angle), centre[1] + r * np.sin(angle)])
+#: Distance between the robots' first waypoints in environment 1 (the published file's)
+START_SEPARATION = 18.8
+#: Distance between the robots' first waypoints in environment 2 (the published file's)
+START_SEPARATION_2 = 4.8
+#: Range of the features' distances from the paths, per environment (the published files':
+#: none on the path itself; environment 1 from about 0.6 m, environment 2 about 2.5–4.5 m)
+FEATURE_BAND = {1: (0.6, 2.5), 2: (2.5, 4.5)}
+#: Radial wobble of the loops (m, per waypoint): drawn by hand, not by compass
+WOBBLE = 0.3
 
 
-def _features_along(
-    paths: list[np.ndarray],
+def _ellipse(
+    axes: tuple[float, float],
     count: int,
-    spread: float,
+    start_angle: float,
+    direction: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """``count`` waypoints of an ellipse about the origin, from ``start_angle`` in
+    ``direction`` (+1 counter-clockwise), each but the first moved radially by
+    ``WOBBLE`` · N(0, 1) metres."""
+    a, b = axes
+    angle = start_angle + direction * 2.0 * np.pi * np.arange(count) / count
+    scale = 1.0 + WOBBLE * rng.standard_normal(count) / (0.5 * (a + b))
+    scale[0] = 1.0
+    return np.column_stack([a * scale * np.cos(angle), b * scale * np.sin(angle)])
+
+
+def _along(paths: list[np.ndarray], count: int, band, rng: np.random.Generator) -> np.ndarray:
+    """``count`` features spread evenly along the closed ``paths``' total length (one in each
+    of ``count`` equal stretches, at a random place in it), each beside the path at a distance
+    drawn uniformly from ``band``, on a random side."""
+    a = np.concatenate(paths)
+    b = np.concatenate([np.roll(p, -1, axis=0) for p in paths])
+    lengths = np.linalg.norm(b - a, axis=1)
+    cumulative = np.concatenate([[0.0], np.cumsum(lengths)])
+    where = (np.arange(count) + rng.uniform(size=count)) * cumulative[-1] / count
+    k = np.clip(np.searchsorted(cumulative, where, side="right") - 1, 0, len(a) - 1)
+    tangent = (b[k] - a[k]) / lengths[k, None]
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    offset = rng.choice([-1.0, 1.0], size=count) * rng.uniform(*band, size=count)
+    point = a[k] + ((where - cumulative[k]) / lengths[k])[:, None] * (b[k] - a[k])
+    return point + offset[:, None] * normal
+
+
+def _features(
+    paths: list[np.ndarray],
     first: np.ndarray,
+    band: tuple[float, float],
     rng: np.random.Generator,
     private_start: float | None = None,
 ) -> np.ndarray:
-    """``count`` features near the paths.
-
-    ``first`` are the first features (those both robots see at step 0); the next 18 are spread
-    evenly along the loops, so every step of every robot sees some feature; the rest are
-    scattered at random along the paths. Larger sets therefore extend smaller ones. With
-    ``private_start`` (a sensing range), no feature after ``first`` lies within that range of
-    both robots' first waypoints (those are left out and others drawn along the paths): at step
-    0 the robots share exactly ``first``.
-    """
-    even = []
-    per_path = 9
-    for path in paths:
-        idx = (np.arange(per_path) * len(path)) // per_path + len(path) // (2 * per_path)
-        even.append(path[idx] + rng.uniform(-spread, spread, (per_path, 2)))
-    even = np.concatenate(even)[:18]
-    pts = np.concatenate(paths)
-    extra = pts[rng.integers(0, len(pts), 80)] + rng.uniform(-spread, spread, (80, 2))
-    rest = np.vstack([even, extra])
-    if private_start is not None:
-        starts = np.array([path[0] for path in paths])
-
-        def private(points: np.ndarray) -> np.ndarray:
-            near = np.linalg.norm(points[:, None] - starts[None], axis=-1) < private_start
-            return points[~np.all(near, axis=1)]
-
-        rest = private(rest)
-        while len(first) + len(rest) < count:  # refill what step 0 left out, along the paths
-            more = pts[rng.integers(0, len(pts), 20)] + rng.uniform(-spread, spread, (20, 2))
-            rest = np.vstack([rest, private(more)])
-    return np.vstack([first, rest])[:count]
-
-
-#: Distance between the robots' first waypoints in environment 1 (the published file's)
-START_SEPARATION = 18.8
-
-
-def _lens_starts(wp1, circle2, wp2, circle1, separation: float) -> tuple[int, int]:
-    """Indices of a waypoint of loop 1 inside circle 2 and one of loop 2 inside circle 1 whose
-    distance is closest to ``separation`` (the robots start inside the loops' overlap)."""
-    inside1 = np.linalg.norm(wp1 - circle2[0], axis=1) < circle2[1]
-    inside2 = np.linalg.norm(wp2 - circle1[0], axis=1) < circle1[1]
-    gap = np.abs(np.linalg.norm(wp1[:, None] - wp2[None], axis=-1) - separation)
-    gap[~inside1] = np.inf
-    gap[:, ~inside2] = np.inf
-    i, j = np.unravel_index(np.argmin(gap), gap.shape)
-    return int(i), int(j)
+    """100 features: ``first`` (those both robots see at step 0), then layers of 18, 40 and 40
+    spread along the paths (:func:`_along`), so the 20-, 60- and 100-feature sets each cover
+    the loops evenly and the larger extend the smaller. With ``private_start`` (a sensing
+    range) no feature after ``first`` lies within that range of both robots' first waypoints
+    (those are drawn again): at step 0 the robots share exactly ``first``."""
+    starts = np.array([p[0] for p in paths])
+    layers = [np.asarray(first, dtype=float)]
+    for count in (20 - len(first), 40, 40):
+        layer = _along(paths, count, band, rng)
+        while private_start is not None:
+            near = np.linalg.norm(layer[:, None] - starts[None], axis=-1) < private_start
+            shared = np.all(near, axis=1)
+            if not shared.any():
+                break
+            layer[shared] = _along(paths, count, band, rng)[shared]
+        layers.append(layer)
+    return np.vstack(layers)
 
 
 def environment(number: int, features: int = 20, layout: int = 0) -> PlanarEnvironment:
@@ -188,21 +200,19 @@ def environment(number: int, features: int = 20, layout: int = 0) -> PlanarEnvir
         raise PlanarEnvironmentError(f"layout must be non-negative, got {layout}")
     rng = np.random.default_rng(1000 + number if layout == 0 else [1000 + number, layout])
     if number == 1:
-        # two hand-drawn-like circles (radii 23.5 m and 22 m, centres 16 m apart); as in the
-        # published environment, the robots start on either side of the loops' overlap
-        # START_SEPARATION apart and share exactly two features at step 0, 3.8 m apart on the
-        # line between them: robot 2's heading relative to robot 1 is then poorly known at the
-        # start, which is what makes the standard EKF's inconsistency show
-        r1, r2, d = 23.5, 22.0, 8.0
-        c1, c2 = np.array([0.0, -d]), np.array([0.0, d])
-        wp1 = _loop(c1, r1, 63, 0.0, +1.0, 0.3, rng)
-        wp2 = _loop(c2, r2, 63, 0.0, -1.0, 0.3, rng)
-        i, j = _lens_starts(wp1, (c2, r2), wp2, (c1, r1), START_SEPARATION)
-        wp1, wp2 = np.roll(wp1, -i, axis=0), np.roll(wp2, -j, axis=0)
+        # two wide loops drawn by hand (ellipses of the published file's extent, 27.9 × 18.5 m
+        # and 25.8 × 18.7 m) overlapping in a lens; as in the published environment the robots
+        # start at the loops' innermost points, START_SEPARATION apart, heading the same way,
+        # and share exactly two features at step 0, 3.8 m apart on the line between them:
+        # robot 2's heading relative to robot 1 is then poorly known at the start, which is
+        # what makes the standard EKF's inconsistency show
+        wp1 = _ellipse((27.9, 18.5), 63, np.pi / 2, -1.0, rng)  # top of loop 1, clockwise
+        wp2 = _ellipse((25.8, 18.7), 63, -np.pi / 2, +1.0, rng)  # bottom of loop 2
+        wp2 = wp2 + np.array([0.0, wp1[0, 1] - START_SEPARATION - wp2[0, 1]])
         along = (wp2[0] - wp1[0]) / np.linalg.norm(wp2[0] - wp1[0])
         middle = 0.5 * (wp1[0] + wp2[0])
         first = np.array([middle - 1.9 * along, middle + 1.9 * along])
-        feats = _features_along([wp1, wp2], 100, 2.5, first, rng, private_start=15.0)
+        feats = _features([wp1, wp2], first, FEATURE_BAND[1], rng, private_start=15.0)
         return PlanarEnvironment(
             "env1",
             [wp1, wp2],
@@ -213,12 +223,16 @@ def environment(number: int, features: int = 20, layout: int = 0) -> PlanarEnvir
             [0.5, 0.6],
         )
     if number == 2:
-        # an outer loop (radius 39 m, 40 waypoints) and an 8 inside it (40 waypoints)
-        outer = _loop((0.0, 0.0), 39.0, 40, -np.pi / 2, +1.0, 0.0, None)
-        t = -np.pi / 2 + 2.0 * np.pi * np.arange(40) / 40
-        eight = np.column_stack([16.0 * np.sin(2.0 * t), 31.0 * np.sin(t)])
+        # an outer loop (radius 39 m, 40 waypoints) and an 8 inside it (17 m wide, 40
+        # waypoints); both robots start at the top, START_SEPARATION_2 apart, heading east
+        outer = _ellipse((39.0, 39.0), 40, np.pi / 2, -1.0, rng)
+        height = outer[0, 1] - START_SEPARATION_2
+        t = 2.0 * np.pi * np.arange(40) / 40
+        eight = np.column_stack([17.0 * np.sin(2.0 * t), height * np.cos(t)])
+        eight[1:] *= 1.0 + WOBBLE * rng.standard_normal((39, 1)) / height
         start = 0.5 * (outer[0] + eight[0])
-        feats = _features_along([outer, eight], 100, 2.5, start + rng.uniform(-4, 4, (2, 2)), rng)
+        first = start + rng.uniform(-4, 4, (2, 2))  # at least two shared at step 0
+        feats = _features([outer, eight], first, FEATURE_BAND[2], rng)
         return PlanarEnvironment(
             "env2",
             [outer, eight],

@@ -55,7 +55,9 @@ class MonteCarloResult:
 
     ``curves[filter][metric]`` holds per-step values over runs (``pose_nees`` ``(K+1, N)``,
     ``position_rmse``, ``heading_rmse`` ``(K+1, N)``, ``feature_nees``, ``feature_rmse``
-    ``(K+1,)``); ``table[filter]`` the averages; ``example[filter]`` the first run's metrics.
+    ``(K+1,)``); ``table[filter]`` the averages; ``example[filter]`` the first run's metrics;
+    ``run_pose_nees[filter]`` each run's pose NEES averaged over its steps ``(runs, N)`` (what
+    the table's medians and counts above the χ² bound are taken over).
     """
 
     environment: str
@@ -65,9 +67,10 @@ class MonteCarloResult:
     curves: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     table: dict[str, dict[str, float]] = field(default_factory=dict)
     example: dict[str, RunMetrics] = field(default_factory=dict)
+    run_pose_nees: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def _summarise(metrics: list[RunMetrics], n_robots: int) -> tuple[dict, dict]:
+def _summarise(metrics: list[RunMetrics], n_robots: int) -> tuple[dict, dict, np.ndarray]:
     pose_nees = np.stack([m.pose_nees for m in metrics])[:, 1:]  # (R, K, N); step 0 anchored
     position_sq = np.stack([m.position_sq for m in metrics])
     heading_sq = np.stack([m.heading_sq for m in metrics])
@@ -102,7 +105,7 @@ def _summarise(metrics: list[RunMetrics], n_robots: int) -> tuple[dict, dict]:
     table["feature_rmse"] = float(np.nanmean(curves["feature_rmse"]))
     table["feature_nees_median"] = float(np.median(per_run_feat))
     table["feature_runs_above_bound"] = int(np.sum(per_run_feat > bound2))
-    return curves, table
+    return curves, table, per_run_pose
 
 
 def monte_carlo(
@@ -160,7 +163,9 @@ def summarise_runs(
     out = MonteCarloResult(env.name, len(results), steps, env.n_robots)
     for name in filters:
         metrics = [r[name] for r in results]
-        out.curves[name], out.table[name] = _summarise(metrics, env.n_robots)
+        out.curves[name], out.table[name], out.run_pose_nees[name] = _summarise(
+            metrics, env.n_robots
+        )
         out.example[name] = metrics[0]
     return out
 
