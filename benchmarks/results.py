@@ -44,7 +44,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"{GENERATED}/paper-sim",
     ),
     "fej-environments": (
-        "python benchmarks/fej_environments.py --data ../shared/data --runs 100 --workers 1 "
+        "python benchmarks/fej_environments.py --data ../shared/data --runs 100 --layouts 10 "
+        "--workers 2 "
         f"--markdown {GENERATED}/fej-environments.md",
         f"{GENERATED}/fej-environments.md",
     ),
