@@ -184,6 +184,19 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/consistency-long-route-600-active.md",
         f"{GENERATED}/consistency-long-route-600-active.md",
     ),
+    "consistency-long-route-600-active-reanchored": (
+        "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
+        "--filters fej --modes consensus --set consensus.set=active "
+        "--set objects.reanchor_with_consensus=true --workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route-600-active-reanchored.md",
+        f"{GENERATED}/consistency-long-route-600-active-reanchored.md",
+    ),
+    "consistency-long-route-600-linearisations": (
+        "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
+        "--filters std oc ideal --modes separate --workers 2 "
+        f"--markdown {GENERATED}/consistency-long-route-600-linearisations.md",
+        f"{GENERATED}/consistency-long-route-600-linearisations.md",
+    ),
     "consistency-long-route-600-separate": (
         "python benchmarks/long_route.py --seeds 43 37 0 --runs 10 --robots 3 --steps 600 "
         "--filters fej --modes separate --workers 2 "
