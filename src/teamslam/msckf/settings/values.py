@@ -233,7 +233,8 @@ class ObjectSettings:
     reanchor_with_consensus
         Whether a robot running with consensus (at least one neighbour) re-anchors too. Off by
         default: dropping an object drops what the team's averages gave it, which costs a team
-        far more accuracy than a lone robot (the consistency results page).
+        far more accuracy than a lone robot (the consistency results page). On long routes,
+        with ``consensus.set=active``, it keeps a ``fej`` team inside its NEES bands (same page).
     loss
         Robust object updates for heavy-tailed detections: ``none`` (Gaussian), ``huber`` or
         ``cauchy``. An accepted object whose innovation has Mahalanobis distance ``d`` (in
