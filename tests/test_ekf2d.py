@@ -434,21 +434,25 @@ def test_filter_matches_a_plain_dense_reference(
     assert ekf.n_features >= 20  # the run really grew the state
 
 
+def _shared_at_step_0(env) -> set[int]:
+    """Ids of the features both robots observe at step 0."""
+    truth = S.truth_of(env)
+    a, b = truth.obs_offsets[0], truth.obs_offsets[1]
+    robot, feature = truth.obs_robot[a:b], truth.obs_feature[a:b]
+    return set(feature[robot == 0]) & set(feature[robot == 1])
+
+
 def test_generated_environment_1_starts_like_the_published_one():
     """The robots start 18.8 m apart inside the loops' overlap and share exactly the first two
     features at step 0, 3.8 m apart on the line between them (what leaves robot 2's relative
     heading poorly known and lets the standard EKF's inconsistency show)."""
-    from teamslam.ekf2d.simulate import truth_of
 
     for count in (20, 60, 100):
         env = E.environment(1, count)
         assert env.features.shape == (count, 2)
         start1, start2 = (w[0] for w in env.waypoints)
         assert np.linalg.norm(start1 - start2) == pytest.approx(E.START_SEPARATION, abs=0.5)
-        truth = truth_of(env)
-        a, b = truth.obs_offsets[0], truth.obs_offsets[1]
-        robot, feature = truth.obs_robot[a:b], truth.obs_feature[a:b]
-        assert set(feature[robot == 0]) & set(feature[robot == 1]) == {0, 1}
+        assert _shared_at_step_0(env) == {0, 1}
         first = env.features[:2]
         assert np.linalg.norm(first[0] - first[1]) == pytest.approx(3.8)
         along = (start2 - start1) / np.linalg.norm(start2 - start1)
@@ -469,7 +473,6 @@ def test_generated_layouts_are_new_environments_of_the_same_kind(number):
     """Each layout is another environment of the kind: its own loops and features, the larger
     feature sets extending the smaller, the same noise levels, and the robots sharing at least
     two features at step 0 (exactly the first two in environment 1); layout 0 is the default."""
-    from teamslam.ekf2d.simulate import truth_of
 
     base = E.environment(number, 100)
     assert E.environment(number, 100, 0).features.tolist() == base.features.tolist()
@@ -484,10 +487,7 @@ def test_generated_layouts_are_new_environments_of_the_same_kind(number):
         for count in (20, 60):
             smaller = E.environment(number, count, layout)
             assert smaller.features.tolist() == env.features[:count].tolist()
-            truth = truth_of(smaller)
-            a, b = truth.obs_offsets[0], truth.obs_offsets[1]
-            robot, feature = truth.obs_robot[a:b], truth.obs_feature[a:b]
-            shared = set(feature[robot == 0]) & set(feature[robot == 1])
+            shared = _shared_at_step_0(smaller)
             if number == 1:
                 assert shared == {0, 1}
             else:

@@ -137,7 +137,9 @@ def _ellipse(
     return np.column_stack([a * scale * np.cos(angle), b * scale * np.sin(angle)])
 
 
-def _along(paths: list[np.ndarray], count: int, band, rng: np.random.Generator) -> np.ndarray:
+def _along(
+    paths: list[np.ndarray], count: int, band: tuple[float, float], rng: np.random.Generator
+) -> np.ndarray:
     """``count`` features spread evenly along the closed ``paths``' total length (one in each
     of ``count`` equal stretches, at a random place in it), each beside the path at a distance
     drawn uniformly from ``band``, on a random side."""
