@@ -18,8 +18,9 @@ switches and false objects per 1000 frames, and the association's held and revok
 the box centres' errors against the true objects (evaluation only) by box width: their robust
 spread as a share of the box, how many lie beyond three σ of the noise model the own run
 calibrated (``filter.object_std``, ``filter.object_size_share``), and how much of an object's
-error persists from one frame to the next; last, where the own run's IDF1 is lost, by kind of
-box (:func:`_id_losses`).
+error persists from one frame to the next; where the own run's IDF1 is lost, by kind of box
+(:func:`_id_losses`); last, each tracker's merges judged by the truth of the boxes, and the
+box noise's overconfidence factor it learned (:func:`_merge_rows`).
 ``--render DIR`` keeps the rendered street in ``DIR`` and renders again only when ``DIR`` does not
 hold a finished render of the same configuration (rendering is most of the benchmark's time).
 ``--markdown FILE`` writes the table headed by the commit,
@@ -223,6 +224,31 @@ def _named_anew(offsets, truth, hyp, revisit_gap: int) -> int:
     return out
 
 
+def _merge_rows(runs: list[tuple[str, api.Run]]) -> list[list[str]]:
+    """Per own run, filter and robot its tracker's merges judged by the truth of the boxes
+    (:func:`~teamslam.eval.tracking.merge_audit`) and the box noise's overconfidence factor."""
+    rows = []
+    for (name, run), mode in itertools.product(runs, ("separate", "consensus")):
+        robots = (run.by_mode[mode].get("tracking") or {}).get("robots", [])
+        for k, entry in enumerate(robots):
+            if not entry or "merges" not in entry:
+                continue
+            a = entry["merges"]
+            rows.append(
+                [
+                    f"{name}, {mode}, robot {k}",
+                    str(a["merges"]),
+                    str(a["right"]),
+                    str(a["wrong"]),
+                    f"{a['passes']} | {a['passes_wrong']}",
+                    str(a["largest_pass"]),
+                    f"{entry['object_overconfidence']:.0f}",
+                    f"{entry['idf1']:.3f}",
+                ]
+            )
+    return rows
+
+
 def _table(md: Markdown, title: str, header: list[str], rows: list[list[str]], note: str) -> None:
     """One table, in the Markdown and printed."""
     md.table(title, header, note)
@@ -349,6 +375,27 @@ def main() -> None:
     loss_header = ["boxes", "of true objects", "wrong id", "unnamed", "share of IDF1's loss"]
     _table(
         md, "Where the own run's IDF1 is lost, by kind of box", loss_header, loss_rows, loss_note
+    )
+    merge_header = [
+        "run, filter, robot",
+        "merges",
+        "right",
+        "wrong",
+        "passes | wrong",
+        "largest pass",
+        "κ at the end",
+        "IDF1",
+    ]
+    _table(
+        md,
+        "The trackers' merges, judged by the truth of the boxes",
+        merge_header,
+        _merge_rows([("own", own), ("own, no appearance", plain)]),
+        "merges: loop closures and re-identifications, each judged by the boxes the two objects "
+        "took under their own ids (the old one's up to the new one's first; unjudged ones "
+        "counted in merges only); a pass: the merges into one old object of boxes of one true "
+        "object (a revisit named anew and merged again and again); κ: the factor by which the "
+        "run found the calibrated box noise too small (`filter.object_overconfidence`).",
     )
     md.write()
 

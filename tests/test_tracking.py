@@ -13,6 +13,7 @@ from teamslam.errors import InputError
 from teamslam.eval.tracking import (
     hypotheses_of,
     idf1_losses,
+    merge_audit,
     mot_metrics,
     object_truth,
     revisit_precision,
@@ -397,6 +398,20 @@ def test_revisit_precision_by_hand():
     assert revisit_precision(offsets, truth, hyp, [(2, 0, 1), (3, 0, 1), (0, 0, 1)]) == (1, 2)
 
 
+def test_merge_audit_by_hand():
+    first = np.array([10, 10, 20, 20, 30, 30, 40, 10, 50, 10, 10, 10, 10])
+    truth = np.array([1, 1, 2, 2, 1, 1, 2, 1, 2, 2, 2, 2, 2])
+    merges = [(30, 10), (40, 10), (20, 99), (50, 10)]
+    audit = merge_audit(truth, first, merges)
+    # 30 → 10 right, 40 → 10 and 50 → 10 wrong (one pass of object 2 into 10, twice), 99 never
+    # named: unjudged. Object 10 took more of object 2's detections after the merges than it
+    # had of object 1's before them: each merge is judged by what 10 was before the new one
+    assert (audit["merges"], audit["right"], audit["wrong"], audit["unjudged"]) == (4, 1, 2, 1)
+    assert (audit["passes"], audit["passes_wrong"], audit["largest_pass"]) == (2, 1, 2)
+    with pytest.raises(InputError, match="13 detections but 12 ids"):
+        merge_audit(truth, first[:-1], merges)
+
+
 def test_a_long_unseen_object_that_cannot_be_detected_takes_no_detection():
     """Re-identification asks for targets a detector could report: one predicted beside the
     camera, outside the image, takes no detection, however alone it is in that detection's
@@ -440,6 +455,14 @@ def test_association_of_tracked_objects_is_scored_by_their_detections_truth():
     assert team.object_identity.size == 0
     result = run_team(team, config_for(team, {"filter.window": 6}), progress=False)
     metrics = team_metrics(team, result)
+    # each robot's merges judged from what its driver recorded of its tracker
+    for entry, record in zip(
+        metrics["tracking"]["robots"], result.extra["tracking_records"], strict=True
+    ):
+        audit = entry["merges"]
+        assert audit["merges"] == len(record["tracking_merges"])
+        assert audit["right"] + audit["wrong"] + audit["unjudged"] == audit["merges"]
+        assert entry["object_overconfidence"] >= 1.0
     links = metrics["association"]["links"]
     scored = [link for link in links.values() if link.get("precision") is not None]
     assert scored, links

@@ -210,7 +210,14 @@ def _tracking(dataset: TeamDataset, result: TeamResult) -> dict:
     hypotheses = _hypotheses(result)
     if not any(len(h) for h in hypotheses) or len(hypotheses) != dataset.n_robots:
         return {}
-    tracking = tracking_metrics(dataset, [np.asarray(h, dtype=np.int64) for h in hypotheses])
+    records = result.extra.get("tracking_records")
+    if records is None:  # robot processes: in each robot's summary
+        records = result.extra.get("per_robot", [])
+    tracking = tracking_metrics(
+        dataset,
+        [np.asarray(h, dtype=np.int64) for h in hypotheses],
+        records if len(records) == len(hypotheses) else None,
+    )
     return {} if tracking is None else {"tracking": tracking}
 
 

@@ -19,6 +19,7 @@ __all__ = [
     "hypotheses_of",
     "identity_map",
     "idf1_losses",
+    "merge_audit",
     "mot_metrics",
     "object_truth",
     "revisit_precision",
@@ -216,6 +217,70 @@ def revisit_precision(
     return right, judged
 
 
+def merge_audit(truth: np.ndarray, first_ids: np.ndarray, merges: np.ndarray) -> dict:
+    """How many of a robot's object merges (loop closure, re-identification) were right.
+
+    A merge ``(new, old)`` joins two objects the tracker had named apart; it is judged by the
+    detections each took under its own id (``first_ids``, before any merge renamed them), the
+    old one's up to the new one's first: right when most of both are of one true object,
+    wrong when of two (unjudged when either took only false detections). Merges of new
+    objects into one old object whose detections are of one true object form a *pass*: a
+    revisit that the tracker named anew several times and merged each time (``largest_pass``
+    counts the merges of the largest one).
+
+    Parameters
+    ----------
+    truth
+        ``(D,)`` team object id of each detection, ``-1`` for a false one.
+    first_ids
+        ``(D,)`` the id the tracker gave each detection when it named it (``-1``: none):
+        :attr:`ObjectTracker.log <teamslam.msckf.objects.tracking.ObjectTracker.log>`, not
+        :meth:`~teamslam.msckf.objects.tracking.ObjectTracker.hypotheses`.
+    merges
+        ``(k, 2)`` ``(new id, old id)`` of each merge, in the order made.
+
+    Returns
+    -------
+    dict
+        ``merges``, ``right``, ``wrong``, ``unjudged``; ``passes`` and ``passes_wrong`` (the
+        distinct ``(old id, true object of new)`` of the judged merges, and of the wrong ones);
+        ``largest_pass``.
+    """
+    truth = np.asarray(truth, dtype=np.int64)
+    first = np.asarray(first_ids, dtype=np.int64)
+    if truth.shape != first.shape:
+        raise InputError(f"{truth.size} detections but {first.size} ids")
+    merges = np.asarray(merges, dtype=np.int64).reshape(-1, 2)
+    ids, true_ids = object_truth(truth, first)
+    of = dict(zip(ids.tolist(), true_ids.tolist(), strict=True))
+    right = wrong = 0
+    passes: dict[tuple[int, int], list[bool]] = {}
+    for new, old in merges.tolist():
+        a = of.get(new, -1)
+        # the old object as it was: its detections before the new one's first
+        before = np.flatnonzero(first == new)
+        mine = truth[: before[0] if before.size else truth.size][
+            first[: before[0] if before.size else truth.size] == old
+        ]
+        mine = mine[mine >= 0]
+        if a < 0 or not mine.size:
+            continue
+        values, counts = np.unique(mine, return_counts=True)
+        b = int(values[np.argmax(counts)])
+        right += int(a == b)
+        wrong += int(a != b)
+        passes.setdefault((old, a), []).append(a == b)
+    return {
+        "merges": int(merges.shape[0]),
+        "right": right,
+        "wrong": wrong,
+        "unjudged": int(merges.shape[0]) - right - wrong,
+        "passes": len(passes),
+        "passes_wrong": sum(1 for v in passes.values() if not v[0]),
+        "largest_pass": max((len(v) for v in passes.values()), default=0),
+    }
+
+
 def object_truth(truth: np.ndarray, hypothesis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which true object each object a robot's tracker named is: the one most of its
     detections are (``-1`` when most are false detections).
@@ -249,7 +314,9 @@ def object_truth(truth: np.ndarray, hypothesis: np.ndarray) -> tuple[np.ndarray,
     return best[:, 0].copy(), best[:, 1].copy()
 
 
-def tracking_metrics(dataset, hypotheses: list[np.ndarray]) -> dict | None:
+def tracking_metrics(
+    dataset, hypotheses: list[np.ndarray], records: list[dict] | None = None
+) -> dict | None:
     """``metrics.json["tracking"]``: :func:`mot_metrics` per robot and over the team.
 
     Parameters
@@ -259,24 +326,44 @@ def tracking_metrics(dataset, hypotheses: list[np.ndarray]) -> dict | None:
     hypotheses
         Per robot the ids its tracker gave its detections (``(D_i,)``, ``-1`` for none; an
         empty array for a robot that did not track), e.g. :func:`hypotheses_of` of the agents.
+    records
+        Per robot what its driver recorded of its tracker
+        (:meth:`~teamslam.msckf.team.RobotDriver.tracking_record`: the ids as first given,
+        the merges, the overconfidence factor), or ``None``: then no merge audit.
 
     Returns
     -------
     dict or None
         ``{"robots": [...], "team": {...}, "false_objects_per_1000_frames": x}``; ``None``
-        when no robot tracked detections with ground truth.
+        when no robot tracked detections with ground truth. With ``records`` each robot's
+        entry also holds ``merges`` (:func:`merge_audit`) and ``object_overconfidence``, and
+        the team's the merge counts summed.
     """
-    robots, parts = [], []
-    for robot, hyp in zip(dataset.robots, hypotheses, strict=True):
+    robots, parts, audits = [], [], []
+    for k, (robot, hyp) in enumerate(zip(dataset.robots, hypotheses, strict=True)):
         det = robot.detections
         if det is None or det.truth is None or hyp is None or hyp.size != det.truth.size:
             robots.append(None)
             continue
         robots.append(mot_metrics(det.offsets, det.truth, hyp))
         parts.append(robots[-1])
+        record = records[k] if records is not None else {}
+        first = np.asarray(record.get("tracking_first_ids", []), np.int64)
+        if first.size == det.truth.size and "tracking_merges" in record:
+            robots[-1]["merges"] = merge_audit(det.truth, first, record["tracking_merges"])
+            robots[-1]["object_overconfidence"] = float(record.get("object_overconfidence", 1.0))
+            audits.append(robots[-1]["merges"])
     if not parts:
         return None
-    team = {k: sum(p[k] for p in parts) for k in parts[0] if k not in ("mota", "idf1")}
+    team = {
+        k: sum(p[k] for p in parts)
+        for k in parts[0]
+        if k not in ("mota", "idf1", "merges", "object_overconfidence")
+    }
+    if audits and len(audits) == len(parts):
+        team["merges"] = {
+            k: (max if k == "largest_pass" else sum)(a[k] for a in audits) for k in audits[0]
+        }
     team["mota"] = float(1 - (team["fn"] + team["fp"] + team["id_switches"]) / team["gt"])
     team["idf1"] = float(2 * team["idtp"] / (team["gt"] + team["gt"] - team["fn"] + team["fp"]))
     return {

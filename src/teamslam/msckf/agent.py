@@ -356,6 +356,13 @@ class MsckfAgent:
         for j, table in tables.items():
             self._learn_from(j, table.frame_samples())
 
+    @property
+    def overconfidence_factor(self) -> float:
+        """``κ``: the factor by which the calibrated box noise was found too small so far (new
+        boxes' variance is multiplied by it; 1.0 while none is learned,
+        :meth:`learn_overconfidence`)."""
+        return 1.0 if self._kappa is None else float(self._kappa)
+
     def _learn_from(self, source: int, pairs: dict, factors: dict | None = None) -> None:
         """Samples ``pairs`` (two ids → ``d²``) of ``source`` (a neighbour, or ``-1``: the
         robot's own re-identifications) taken under ``factors`` (per pair; default the factor

@@ -424,12 +424,26 @@ class RobotDriver:
         tracking = self.tracking()
         if tracking is not None:
             out["tracking_hypotheses"] = tracking
+            out.update(self.tracking_record())
         return out
 
     def tracking(self) -> list[int] | None:
         """The id the robot's tracker gave each of its detections (``None`` without one)."""
         tracker = self.agent.tracker
         return None if tracker is None else tracker.hypotheses().tolist()
+
+    def tracking_record(self) -> dict:
+        """With a tracker: the ids as first given (``tracking_first_ids``), its merges
+        (``tracking_merges``) and the box noise's overconfidence factor
+        (``object_overconfidence``), for :func:`~teamslam.eval.tracking.merge_audit`."""
+        tracker = self.agent.tracker
+        if tracker is None:
+            return {}
+        return {
+            "tracking_first_ids": tracker.first_ids().tolist(),
+            "tracking_merges": tracker.merges().tolist(),
+            "object_overconfidence": self.agent.overconfidence_factor,
+        }
 
     def association(self) -> dict:
         """:meth:`~teamslam.msckf.consensus.protocol.ConsensusProtocol.association_summary` (empty
@@ -535,6 +549,7 @@ def assemble_result(
     tracking = [d.tracking() for d in drivers]
     if any(t is not None for t in tracking):
         extra["tracking_hypotheses"] = [[] if t is None else t for t in tracking]
+        extra["tracking_records"] = [d.tracking_record() for d in drivers]
     counters = []
     for d in drivers:
         c = dict(d.agent.counters)

@@ -527,6 +527,19 @@ class ObjectTracker:
         side = np.where(rows[:, :4] < 0.5 * (extent - 1.0), -1, 1)
         return np.where(rows[:, 6:10] > 0, side, 0)
 
+    def first_ids(self) -> np.ndarray:
+        """The id given to every detection so far when it was named, in frame order (``-1``:
+        none): :meth:`hypotheses` before any merge renamed them (what
+        :func:`~teamslam.eval.tracking.merge_audit` judges merges by)."""
+        if not self.log:
+            return np.zeros(0, np.int64)
+        return np.concatenate(self.log).astype(np.int64)
+
+    def merges(self) -> np.ndarray:
+        """``(k, 2)`` ``(new id, old id)`` of every merge so far (loop closure,
+        re-identification), in the order made."""
+        return np.array(list(self.merged.items()), np.int64).reshape(-1, 2)
+
     def hypotheses(self) -> np.ndarray:
         """The id given to every detection so far, in frame order (``-1``: none); a merged
         object's detections carry the id of the object it continues (loop closure)."""
