@@ -111,9 +111,15 @@ def test_a_run_on_detections_reports_its_tracking(tmp_path, capsys):
     args = ["simulate", "--robots", "2", "--steps", "30", "--seed", "5", "--out", str(data)]
     assert main([*args, "--object-ids", "none", "--clutter", "0.1", "--miss", "0.05"]) == 0
     assert main(["run", str(data), "--separate", "--out", str(out), "--no-report"]) == 0
-    assert "tracking IDF1 | MOTA" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "tracking IDF1 | MOTA" in printed
     tracking = json.loads((out / "metrics.json").read_text())["tracking"]
     team = tracking["team"]
+    # the trackers' merges, judged by the truth, in metrics.json and in the table
+    merges = team["merges"]
+    assert merges["right"] + merges["wrong"] + merges["unjudged"] == merges["merges"]
+    assert f"{merges['right']} | {merges['wrong']}" in printed.split("object merges right")[1]
+    assert all(r["object_overconfidence"] >= 1.0 for r in tracking["robots"])
     dataset = load_dataset(data)
     truth = np.concatenate([r.detections.truth for r in dataset.robots])
     assert team["gt"] == int(np.sum(truth >= 0))  # every true detection is scored

@@ -121,7 +121,14 @@ _TRACKING_ROWS = (
         "objects created | true | false",
         lambda t: f"{t['objects_created']} | {t['objects_true']} | {t['false_objects']}",
     ),
+    ("object merges right | wrong", lambda t: _merges(t.get("merges"))),
 )
+
+
+def _merges(audit: dict | None) -> str:
+    """The tracker's merges judged by the truth (:func:`~teamslam.eval.tracking.merge_audit`),
+    ``—`` where the run recorded none."""
+    return "—" if audit is None else f"{audit['right']} | {audit['wrong']}"
 
 
 def _health_cell(run: dict, sensor: str, width: int) -> str:
