@@ -390,12 +390,13 @@ def main() -> None:
         md,
         "The trackers' merges, judged by the truth of the boxes",
         merge_header,
-        _merge_rows([("own", own), ("own, no appearance", plain)]),
+        _merge_rows([("own", own)]),
         "merges: loop closures and re-identifications, each judged by the boxes the two objects "
         "took under their own ids (the old one's up to the new one's first; unjudged ones "
         "counted in merges only); a pass: the merges into one old object of boxes of one true "
         "object (a revisit named anew and merged again and again); κ: the factor by which the "
-        "run found the calibrated box noise too small (`filter.object_overconfidence`).",
+        "run found the calibrated box noise too small (`filter.object_overconfidence`). "
+        "Without appearance nothing is re-identified by boxes: no merges.",
     )
     md.write()
 
