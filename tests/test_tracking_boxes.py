@@ -124,30 +124,3 @@ def test_censored_distances_equal_the_plain_ones_without_cut_coordinates():
     sides = np.where(z[None] - pred[:, None] > 0, -1, 1)
     for t in range(3):
         assert np.allclose(_censored_d2(s[t : t + 1], pred[t : t + 1], z, noise, sides[t]), 0)
-
-
-def test_a_box_cut_at_a_side_border_starts_no_track_but_continues_its_object():
-    """A box the left or right border cut carries a centre disparity that is not its object's:
-    it starts no track (counted); an uncut box, or one cut at the top or bottom only, does; a cut
-    box still continues an object the tracker follows."""
-    size = (640, 480)
-    state = _state({})
-    z = observe(CAMERA, T_CAM_BODY, state.current_pose, np.array([A]))
-    cases = {  # box (width, height) at A's centre, and where it is cut
-        "side": (2.0 * (z[0, 0] + 0.5), 30.0),  # its left edge on the left border
-        "top": (20.0, 2.0 * (z[0, 1] + 0.5)),  # its top edge on the top border
-        "none": (20.0, 30.0),
-    }
-    started = {}
-    for name, box in cases.items():
-        row = box_rows(z, np.array([box]), size, STD, SHARE)
-        tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG, image_size=size)
-        tracker.assign(0, row, None, state, W)
-        started[name] = (tracker.n_tracks, tracker.counters.get("detections_cut_no_track", 0))
-        if name == "side":
-            assert row[0, 6] == 1 and row[0, 8] == 1  # u cut in both images
-    assert started == {"side": (0, 1), "top": (1, 0), "none": (1, 0)}
-    # the same cut box continues an object of the state
-    tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG, image_size=size)
-    row = box_rows(z, np.array([cases["side"]]), size, STD, SHARE)
-    assert tracker.assign(0, row, None, _state({7: A}), W).ids.tolist() == [7]

@@ -1003,23 +1003,8 @@ class ObjectTracker:
         state,
         lone_stale: np.ndarray,
     ) -> None:
-        """Tentative tracks from unassigned detections, stereo-triangulated at the current pose.
-
-        A box cut by the image's left or right border starts none: the border hides a different
-        part of the object in each image, so its centres' disparity is not its object's (on the
-        rendered street 75–86 % of such boxes within 5 m are more than 3 px off, most placing
-        the object too far) and a track started on it places a new object where there is none.
-        It may still continue an object or a track (its cut side only bounds the gate)."""
+        """Tentative tracks from unassigned detections, stereo-triangulated at the current pose."""
         cfg = self.config
-        if is_box(z) and self.image_size is not None:
-            uncut = ~self._cut_sides(z)[:, [0, 2]].any(axis=1)
-            if not uncut.all():
-                self.counters["detections_cut_no_track"] = self.counters.get(
-                    "detections_cut_no_track", 0
-                ) + int((~uncut).sum())
-            z, index, labels, lone_stale = z[uncut], index[uncut], labels[uncut], lone_stale[uncut]
-            if not z.shape[0]:
-                return
         pose = state.current_pose
         points, ok = stereo_point(self.camera, self.T_cam_body, pose, z[:, :4])
         depth = np.linalg.norm(points - pose[:3, 3], axis=1)
