@@ -258,10 +258,9 @@ def merge_audit(truth: np.ndarray, first_ids: np.ndarray, merges: np.ndarray) ->
     for new, old in merges.tolist():
         a = of.get(new, -1)
         # the old object as it was: its detections before the new one's first
-        before = np.flatnonzero(first == new)
-        mine = truth[: before[0] if before.size else truth.size][
-            first[: before[0] if before.size else truth.size] == old
-        ]
+        seen = np.flatnonzero(first == new)
+        end = seen[0] if seen.size else truth.size
+        mine = truth[:end][first[:end] == old]
         mine = mine[mine >= 0]
         if a < 0 or not mine.size:
             continue

@@ -402,7 +402,7 @@ class ObjectTracker:
         out["log"] = np.concatenate([np.zeros(0, np.int64), *self.log]).astype(np.int64)
         out["revisits"] = np.array(self.revisits, np.int64).reshape(-1, 3)
         out["created"] = np.array([self._created_ids, self._created_frames], np.int64)
-        out["merged"] = np.array(list(self.merged.items()), np.int64).reshape(-1, 2)
+        out["merged"] = self.merges()
         votes = [(o, c, n) for o, counts in self._votes.items() for c, n in counts.items()]
         out["votes"] = np.array(votes, np.int64).reshape(-1, 3)
         out["label_counts"] = np.array(
@@ -543,9 +543,7 @@ class ObjectTracker:
     def hypotheses(self) -> np.ndarray:
         """The id given to every detection so far, in frame order (``-1``: none); a merged
         object's detections carry the id of the object it continues (loop closure)."""
-        if not self.log:
-            return np.zeros(0, np.int64)
-        out = np.concatenate(self.log).astype(np.int64)
+        out = self.first_ids()
         if self.merged:
             new = np.fromiter(self.merged, np.int64)
             old = np.array([self._continued(i) for i in new.tolist()], np.int64)
