@@ -64,6 +64,20 @@ class Markdown:
         ]
         self._columns = columns
 
+    def table_of(
+        self, title: str, columns: list[str], rows: list[list[str]], note: str | None = None
+    ) -> None:
+        """A whole table (:meth:`table`, each row, :meth:`end`), printed to the terminal too:
+        the column heads, the rows, then the note."""
+        self.table(title, columns, note)
+        print(" | ".join(columns))
+        for row in rows:
+            self.row(*row)
+            print(" | ".join(row))
+        if note:
+            print(note)
+        self.end()
+
     def row(self, *cells) -> None:
         """One row of the current table (cells already formatted, or numbers as ``str``)."""
         if self._columns is None or len(cells) != len(self._columns):

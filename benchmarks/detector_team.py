@@ -249,17 +249,6 @@ def _merge_rows(runs: list[tuple[str, api.Run]]) -> list[list[str]]:
     return rows
 
 
-def _table(md: Markdown, title: str, header: list[str], rows: list[list[str]], note: str) -> None:
-    """One table, in the Markdown and printed."""
-    md.table(title, header, note)
-    print(" | ".join(header))
-    for row in rows:
-        md.row(*row)
-        print(" | ".join(row))
-    print(note)
-    md.end()
-
-
 def _render(config: RenderConfig, directory: Path) -> None:
     """Render the street into ``directory`` unless it holds a finished render of ``config``
     (its ``render.json`` equal to ``config``'s, and a ``done`` mark written after rendering)."""
@@ -339,8 +328,7 @@ def main() -> None:
         f"boxes, {counts['patch']} by their patch, {counts['monocular']} monocular."
     )
     md = Markdown(args.markdown)
-    _table(
-        md,
+    md.table_of(
         "Objects from a detector: a rendered street, own ids against the oracle's",
         header,
         rows,
@@ -359,8 +347,7 @@ def main() -> None:
         "u_l beyond 3σ",
         "v_l beyond 3σ",
     ]
-    _table(
-        md,
+    md.table_of(
         "Box-centre errors against the true objects, by box width",
         error_header,
         error_rows,
@@ -373,8 +360,8 @@ def main() -> None:
         float(noise["object_size_share"]),
     )
     loss_header = ["boxes", "of true objects", "wrong id", "unnamed", "share of IDF1's loss"]
-    _table(
-        md, "Where the own run's IDF1 is lost, by kind of box", loss_header, loss_rows, loss_note
+    md.table_of(
+        "Where the own run's IDF1 is lost, by kind of box", loss_header, loss_rows, loss_note
     )
     merge_header = [
         "run, filter, robot",
@@ -386,8 +373,7 @@ def main() -> None:
         "κ at the end",
         "IDF1",
     ]
-    _table(
-        md,
+    md.table_of(
         "The trackers' merges, judged by the truth of the boxes",
         merge_header,
         _merge_rows([("own", own)]),

@@ -131,16 +131,6 @@ def measure(
     return rows, spread
 
 
-def _table(md: Markdown, title: str, head: list[str], rows: list[list[str]]) -> None:
-    """One table, to the Markdown file and to the terminal."""
-    md.table(title, head)
-    print(" | ".join(head))
-    for row in rows:
-        md.row(*row)
-        print(" | ".join(row))
-    md.end()
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=Path("../shared/data"))
@@ -155,16 +145,14 @@ def main() -> None:
         parser.error(f"{args.data / 'fej-environments'} does not exist")
     md = Markdown(args.markdown)
     rows, spread = measure(args.data, args.runs, args.workers, args.layouts)
-    _table(
-        md,
+    md.table_of(
         f"Robot-1 pose NEES, {args.runs} Monte Carlo runs: mean ± 2 SE (median, runs above the "
         "97.5% χ² bound)",
         ["env", "features", "EKF", "paper", *VARIANTS],
         rows,
     )
     if spread:
-        _table(
-            md,
+        md.table_of(
             f"Robot-1 pose NEES, published file against {args.layouts} generated layouts, "
             f"{args.runs} runs each: mean (median, share of runs above the 97.5% χ² bound); "
             "pooled: mean ± 2 SE over layouts (median, share above); layouts: median (range)",
