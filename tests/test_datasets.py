@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import ast
 import json
 import pickle
 import shutil
+import threading
 
 import numpy as np
 import pytest
@@ -30,6 +32,47 @@ from teamslam.sim import lissajous_team
 @pytest.fixture(scope="module")
 def small_team():
     return lissajous_team(robots=3, steps=40, objects=30, seed=4, landmarks=300)
+
+
+def test_threads_loading_datasets_at_once_parse_no_two_array_headers_together(
+    small_team, tmp_path, monkeypatch
+):
+    """numpy parses each array's header with ``ast``, whose depth counter threads share.
+
+    The first header parse waits (bounded) for a second thread to parse too: it cannot while
+    the first holds the archive, so no two parses overlap and both threads load the dataset.
+    """
+    save_dataset(small_team, tmp_path / "d")
+    parse, guard, first = ast.parse, threading.Lock(), threading.Lock()
+    waiting, second, active, overlaps = threading.Event(), threading.Event(), [0], []
+
+    def watched(*args, **kwargs):
+        with guard:
+            active[0] += 1
+            overlaps.append(active[0] > 1)
+        try:
+            if first.acquire(blocking=False):
+                waiting.set()
+                second.wait(timeout=1.0)
+            else:
+                second.set()
+            return parse(*args, **kwargs)
+        finally:
+            with guard:
+                active[0] -= 1
+
+    monkeypatch.setattr(ast, "parse", watched)
+    loaded = []
+    threads = [threading.Thread(target=lambda: loaded.append(load_dataset(tmp_path / "d")))]
+    threads[0].start()
+    assert waiting.wait(timeout=60)
+    threads.append(threading.Thread(target=lambda: loaded.append(load_dataset(tmp_path / "d"))))
+    threads[1].start()
+    for t in threads:
+        t.join(timeout=60)
+    assert len(loaded) == 2 and second.is_set()
+    assert len(overlaps) > 2 and not any(overlaps)
+    _assert_same(*loaded)
 
 
 def _assert_same(a, b):

@@ -44,6 +44,7 @@ from teamslam.runtime.agent_process import (
     _save_checkpoint,
 )
 from teamslam.runtime.team_file import TeamFile
+from teamslam.textio import read_npz
 
 __all__ = [
     "STAGES",
@@ -1051,8 +1052,7 @@ class LiveRobot:
         path = self.out / "checkpoint.npz"
         if not path.exists():
             return 0
-        with np.load(path, allow_pickle=False) as c:
-            snapshot = {k: c[k] for k in c.files}
+        snapshot = read_npz(path)
         if "live_start" not in snapshot:
             raise InputError(f"{path}: not the checkpoint of a live robot")
         if self.inputs.images and self.rig is None:

@@ -2,13 +2,45 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
-__all__ = ["format_value", "read_yaml", "yaml_problem"]
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = ["format_value", "open_npz", "read_npz", "read_yaml", "yaml_problem"]
+
+# numpy parses each array's header with ast.literal_eval, and CPython (3.11 at least) counts the
+# AST constructor's recursion depth in state its threads share: two threads parsing at once
+# (robots' drivers in threads of one process, each loading its data) can fail with
+# "SystemError: AST constructor recursion depth mismatch". Archives are read one at a time.
+_NPZ_READ = threading.RLock()
+
+
+@contextmanager
+def open_npz(path: str | Path) -> Iterator[Any]:
+    """An ``.npz`` archive opened with pickle disabled, read inside the block by one thread.
+
+    Every archive of the library is read through here (or :func:`read_npz`), under one
+    process-wide lock, so threads of one process may load datasets, checkpoints and results at
+    once. Errors are numpy's (``OSError``, ``ValueError``, ``zipfile.BadZipFile``); the caller
+    names the file.
+    """
+    import numpy as np
+
+    with _NPZ_READ, np.load(path, allow_pickle=False) as npz:
+        yield npz
+
+
+def read_npz(path: str | Path) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` archive by name, read as :func:`open_npz` reads."""
+    with open_npz(path) as npz:
+        return {name: npz[name] for name in npz.files}
 
 
 def read_yaml(path: str | Path, error: type[Exception]) -> Any:

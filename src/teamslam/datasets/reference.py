@@ -31,7 +31,7 @@ from teamslam.datasets.model import (
 from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.geometry import se3
 from teamslam.geometry.camera import StereoCamera
-from teamslam.textio import read_yaml
+from teamslam.textio import open_npz, read_yaml
 
 __all__ = [
     "RestrictedUnpickler",
@@ -98,7 +98,7 @@ def _load_npz_list(path: Path) -> list[np.ndarray]:
     if not path.is_file():
         raise DatasetError(f"{path}: file is missing")
     try:
-        with np.load(path, allow_pickle=False) as npz:
+        with open_npz(path) as npz:
             names = sorted(npz.files, key=lambda s: int(s.split("_")[-1]))
             return [np.asarray(npz[n], dtype=float) for n in names]
     except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:

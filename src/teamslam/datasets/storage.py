@@ -31,6 +31,7 @@ from teamslam.datasets.model import (
 )
 from teamslam.datasets.sensor_model import SensorModel, SensorNoise
 from teamslam.geometry.camera import StereoCamera
+from teamslam.textio import open_npz
 
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "load_dataset", "save_dataset"]
 
@@ -168,7 +169,7 @@ def _load_npz(path: Path, fields: dict[str, str], optional: tuple[str, ...] = ()
     if not path.is_file():
         raise DatasetError(f"{path}: file is missing")
     try:
-        with np.load(path, allow_pickle=False) as npz:
+        with open_npz(path) as npz:
             present = set(npz.files)
             out = {}
             for name, kind in fields.items():

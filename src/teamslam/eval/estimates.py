@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from teamslam.errors import InputError
+from teamslam.textio import read_npz
 
 __all__ = ["RobotEstimates", "load_estimates", "robot_estimates", "save_estimates", "stamps_ns"]
 
@@ -99,8 +100,7 @@ def load_estimates(path: str | Path) -> tuple[dict, list[RobotEstimates]]:
     """``(meta, robots)`` from an ``estimates.npz``; a malformed file raises InputError."""
     path = Path(path)
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
+        arrays = read_npz(path)
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a readable estimates file ({exc})") from None
     if "meta" not in arrays:

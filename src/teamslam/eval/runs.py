@@ -23,6 +23,7 @@ import numpy as np
 from teamslam.errors import InputError
 from teamslam.eval.outputs import RUN_FILE
 from teamslam.eval.trajectory import Trajectory
+from teamslam.textio import read_npz
 
 __all__ = [
     "STAGES",
@@ -164,8 +165,7 @@ def read_series(directory: str | Path) -> dict | None:
     if not path.is_file():
         return None
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
+        arrays = read_npz(path)
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
     out: dict[str, list[np.ndarray]] = {"nees": [], "frame_times": []}

@@ -25,6 +25,7 @@ import numpy as np
 from teamslam.errors import InputError
 from teamslam.eval.outputs import json_safe, write_json, writing
 from teamslam.msckf.team import write_atomic
+from teamslam.textio import open_npz
 
 __all__ = [
     "STUDY_FILE",
@@ -49,7 +50,7 @@ def save_arrays(path: Path, result: dict[str, dict[str, np.ndarray]]) -> None:
 def load_arrays(path: Path) -> dict[str, dict[str, np.ndarray]]:
     """What :func:`save_arrays` wrote."""
     out: dict[str, dict[str, np.ndarray]] = {}
-    with np.load(path, allow_pickle=False) as npz:
+    with open_npz(path) as npz:
         for key in npz.files:
             group, _, name = key.rpartition("/")
             out.setdefault(group, {})[name] = npz[key]

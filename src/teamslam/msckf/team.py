@@ -36,6 +36,7 @@ from teamslam.msckf.consensus.transport import MemoryNetwork, Transport
 from teamslam.msckf.filter.linearization import GroundTruth
 from teamslam.msckf.settings.health import SensorHealth
 from teamslam.msckf.settings.values import MsckfConfig
+from teamslam.textio import read_npz
 
 __all__ = [
     "Asynchronous",
@@ -664,8 +665,7 @@ def load_result(directory: str | Path) -> TeamResult:
     directory = Path(directory)
     try:
         payload = json.loads((directory / RESULT_JSON).read_text())
-        with np.load(directory / RESULT_ARRAYS, allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
+        arrays = read_npz(directory / RESULT_ARRAYS)
     except (OSError, ValueError) as exc:
         raise InputError(f"{directory}: no readable result ({exc})") from None
     n = len(payload["robots"])

@@ -247,10 +247,10 @@ def _team_cost(robots: int, frames: int, mode: str) -> float:
 
 def _reference_frames(directory: Path, frames: int | None) -> tuple[int, int]:
     """Robots and frames per robot of a published team directory (for the cost estimates)."""
-    import numpy as np
+    from teamslam.textio import open_npz
 
     try:
-        with np.load(directory / "poses.npz") as poses:
+        with open_npz(directory / "poses.npz") as poses:
             lengths = [poses[k].shape[0] for k in poses.files]
     except (OSError, ValueError):
         lengths = [1]  # the import will say what is wrong

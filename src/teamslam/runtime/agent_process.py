@@ -39,6 +39,7 @@ from teamslam.msckf.team import (
     write_atomic,
 )
 from teamslam.runtime.team_file import TeamFile
+from teamslam.textio import read_npz
 
 __all__ = ["load_robot_result", "robot_setup", "run_agent"]
 
@@ -70,8 +71,7 @@ def _restore_lags(driver: RobotDriver, snapshot: dict) -> None:
 
 
 def _load_checkpoint(path: Path, driver: RobotDriver) -> int:
-    with np.load(path / "checkpoint.npz", allow_pickle=False) as c:
-        snapshot = {k: c[k] for k in c.files}
+    snapshot = read_npz(path / "checkpoint.npz")
     driver.agent.restore(snapshot)
     try:
         _restore_lags(driver, snapshot)
