@@ -108,6 +108,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/tracking-sim.md",
         f"{GENERATED}/tracking-sim.md",
     ),
+    "tracking-normalised": (
+        "python benchmarks/tracking.py --no-sim --scenarios normalised-0.005-objects "
+        "--robots 15 --steps 150 --seeds 0 --loop-closure off "
+        f"--markdown {GENERATED}/tracking-normalised.md",
+        f"{GENERATED}/tracking-normalised.md",
+    ),
     "appearance-roc": (
         "python benchmarks/appearance_roc.py --robots 3 --steps 120 --every 6 --seed 1 "
         f"--markdown {GENERATED}/appearance-roc.md",

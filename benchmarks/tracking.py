@@ -20,12 +20,16 @@ detections mostly of the same true object, :func:`closure_precision`).
 Usage::
 
     python benchmarks/tracking.py [--kitti DATASET_DIR] [--robots 5 --steps 300] [--seeds 0 1]
-                                  [--watch-revisits] [--loop-closure both] [--set KEY=VALUE …]
+                                  [--scenarios NAME …] [--no-sim] [--watch-revisits]
+                                  [--loop-closure both] [--set KEY=VALUE …]
 
 ``DATASET_DIR`` is a dataset with ids (e.g. ``teamslam data import-reference … K``); its
 settings are resolved (calibrated when it has no sensor model) on the oracle dataset and used
-for both runs. ``--markdown FILE`` writes the final table as Markdown headed by the commit, date,
-command and machine (``benchmarks/_markdown.py``).
+for both runs. ``--scenarios`` adds sensor scenarios (:mod:`teamslam.sim.scenarios`, e.g.
+``normalised-0.005-objects``: ``K = I``) of ``--robots`` and ``--steps`` for each seed, given
+without their sensor model, so calibrated from the data as a user's team with no noise given.
+``--markdown FILE`` writes the final table as Markdown headed by the commit, date, command and
+machine (``benchmarks/_markdown.py``).
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.configure import config_for
 from teamslam.msckf.settings.sources import ConfigError, parse_assignments
 from teamslam.sim.lissajous import lissajous_team
+from teamslam.sim.scenarios import SENSOR_SCENARIOS, scenario_team
 
 
 def run_separate(dataset, config, revisit_d2: list | None = None) -> tuple[float, list, float]:
@@ -208,6 +213,13 @@ def main() -> None:
     parser.add_argument("--classes", type=int, default=0)
     parser.add_argument("--no-sim", action="store_true")
     parser.add_argument(
+        "--scenarios",
+        nargs="*",
+        default=[],
+        choices=sorted(SENSOR_SCENARIOS),
+        help="sensor scenarios of --robots and --steps per seed, calibrated from the data",
+    )
+    parser.add_argument(
         "--loop-closure",
         choices=("on", "off", "both"),
         default="both",
@@ -243,6 +255,16 @@ def main() -> None:
             name = f"{dataset.name} closure {'on' if on else 'off'}"
             rows.append(compare(name, dataset, config, args.watch_revisits))
             print_table(rows[-1:])
+    for name in args.scenarios:
+        for seed in args.seeds:
+            team = scenario_team(
+                name, robots=args.robots, steps=args.steps, seed=seed, sensor_model=False
+            )
+            for on in closure:
+                config = config_for(team, settings).with_({"tracking.loop_closure": on})
+                case = f"{name} {args.robots}r {args.steps}s s{seed} {'loop' if on else 'main'}"
+                rows.append(compare(case, team, config, args.watch_revisits))
+                print_table(rows[-1:])
     if not args.no_sim:
         for seed in args.seeds:
             team = lissajous_team(
@@ -287,9 +309,8 @@ def markdown_table(md: Markdown, rows: list[dict], args) -> None:
             "re-identifications right / judged",
             "loop-closure merges right / judged",
         ],
-        note=f"Simulated cases: {args.robots} robots, {args.steps} steps, clutter {args.clutter}, "
-        f"miss rate {args.miss}, seed `sN`; `main`: without loop closure in each robot's own "
-        "map, `loop`: with it.",
+        note=" ".join(_case_notes(args))
+        + " `main`: without loop closure in each robot's own map, `loop`: with it.",
     )
     for r in rows:
         _, judged, right = r["revisits"]
@@ -309,6 +330,24 @@ def markdown_table(md: Markdown, rows: list[dict], args) -> None:
             f"{m_right} / {m_judged}" if merged else "—",
         )
     md.end()
+
+
+def _case_notes(args) -> list[str]:
+    """What the table's cases are, one sentence per kind that ran."""
+    notes = []
+    if args.kitti:
+        notes.append("Dataset cases: the data's ids are the oracle.")
+    if args.scenarios:
+        notes.append(
+            f"Scenario cases (`teamslam.sim.scenarios`): {args.robots} robots, {args.steps} "
+            "steps, seed `sN`, no sensor model given (the noise calibrated from the data)."
+        )
+    if not args.no_sim:
+        notes.append(
+            f"Simulated cases: {args.robots} robots, {args.steps} steps, clutter "
+            f"{args.clutter}, miss rate {args.miss}, seed `sN`."
+        )
+    return notes
 
 
 def print_table(rows: list[dict]) -> None:
