@@ -399,7 +399,7 @@ class ObjectTracker:
         width = rows[0][2].size if rows else self._row_width
         out["history_z"] = np.array([r[2] for r in rows], float).reshape(len(rows), width)
         out["log_sizes"] = np.array([a.size for a in self.log], np.int64)
-        out["log"] = np.concatenate([np.zeros(0, np.int64), *self.log]).astype(np.int64)
+        out["log"] = self.first_ids()
         out["revisits"] = np.array(self.revisits, np.int64).reshape(-1, 3)
         out["created"] = np.array([self._created_ids, self._created_frames], np.int64)
         out["merged"] = self.merges()
