@@ -195,6 +195,13 @@ class ObjectTracker:
         # new object → the long-unseen one appearance and class alone named, refused by the
         # position gate (:meth:`_pending_pairs`)
         self._pending: dict[int, int] = {}
+        # the boxes seen in the left image only that no target took, of the last
+        # ``filter.window`` frames, for a track confirmed later to name in hindsight
+        # (:meth:`_name_in_hindsight`): per box ``(frame, row)`` and
+        # ``(u_l, v_l, σ²_u, σ²_v, cut side u, cut side v, label)``
+        self._unnamed_keys = np.zeros((0, 2), np.int64)
+        self._unnamed = np.zeros((0, 7))
+        self._odometry_cov = np.zeros((6, 6))
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -226,6 +233,7 @@ class ObjectTracker:
             ``tracking.appearance`` (:mod:`~teamslam.msckf.objects.appearance`).
         """
         self._descriptors = None
+        self._odometry_cov = odometry_cov
         if appearance is not None and self.config.tracking.appearance:
             if self.appearance is None:
                 self.appearance = AppearanceModel(self.config.tracking.gate_probability)
@@ -364,20 +372,30 @@ class ObjectTracker:
         on_track = np.flatnonzero(hit & ~mapped)
         if on_track.size:
             self._update_tracks(
-                t, z, index, on_track, assigned_target, kinds, pred, s, h_point, frame, lone_stale
+                t,
+                z,
+                index,
+                on_track,
+                assigned_target,
+                (kinds, pred, s, h_point),
+                frame,
+                lone_stale,
+                state,
             )
         self.counters["detections_near_object"] += int((~hit & near_target).sum())
         new = np.flatnonzero(~hit & ~near_target)
         if new.size:
             self._start_tracks(t, z[new], index[new], labels[new], state, lone_stale[new])
+        mono_labels = None if classes is None else np.asarray(classes, np.int64)[monocular]
         if monocular.size and n_targets:
             every[monocular] = self._name_monocular(
                 t,
                 z_monocular,
-                None if classes is None else np.asarray(classes, np.int64)[monocular],
+                mono_labels,
                 frame.ids,
                 (kinds, target_ids, seen, pred, s, in_front, target_labels),
             )
+        self._keep_unnamed(t, monocular, z_monocular, mono_labels, every[monocular])
         self._drop_stale(t)
         every[index] = frame.ids
         frame.ids = every
@@ -424,6 +442,8 @@ class ObjectTracker:
                 -1, 2
             )
             out["pending"] = np.array(list(self._pending.items()), np.int64).reshape(-1, 2)
+        out["unnamed_keys"] = self._unnamed_keys.copy()
+        out["unnamed"] = self._unnamed.copy()
         return out
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
@@ -455,6 +475,8 @@ class ObjectTracker:
         self.label_model = LabelModel()
         self.label_model.pairs, self.label_model.disagreeing = state["label_counts"].tolist()
         self.label_model.frequency = np.array(state["label_frequency"], float)
+        self._unnamed_keys = np.array(state.get("unnamed_keys", np.zeros((0, 2))), np.int64)
+        self._unnamed = np.array(state.get("unnamed", np.zeros((0, 7))), float)
         if self.loop is not None:
             self.loop.load_state({k[5:]: v for k, v in state.items() if k.startswith("loop_")})
         if "appearance_counts" in state:
@@ -910,11 +932,14 @@ class ObjectTracker:
         return pose[:3, :3] @ self.T_cam_body[2, :3]
 
     def _update_tracks(
-        self, t, z, index, detections, assigned, kinds, pred, s, h_point, frame, lone_stale
+        self, t, z, index, detections, assigned, predicted, frame, lone_stale, state
     ) -> None:
         """Kalman update of each assigned track's point; confirm the tracks with enough hits
         (their earlier detections named in the log as the filter then uses them), or continue
-        the long-unseen object a track revisits (:meth:`_note_revisit`)."""
+        the long-unseen object a track revisits (:meth:`_note_revisit`; its earlier detections
+        named so in the log, for the record); either names the boxes of the window's earlier
+        frames seen in the left image only that are the track's (:meth:`_name_in_hindsight`)."""
+        kinds, pred, s, h_point = predicted
         targets = assigned[detections]
         rows = targets - int(np.flatnonzero(kinds == 2)[0])  # tracks come last
         hp = h_point[targets]  # (k, 4, 3)
@@ -950,6 +975,9 @@ class ObjectTracker:
             if self.memory is not None:
                 self.memory.merge(int(self.ids[row]), oid)
                 self._count("tracks_reidentified")
+            for f, _, j in self.history.get(int(self.ids[row]), []):
+                self._name_in_log(f, j, oid)
+            self._name_in_hindsight(t, row, oid, state)
             frame.ids[det] = oid
             self.revisits.append((t, int(index[det]), oid))
             self.counters["revisits_taken"] += 1
@@ -966,6 +994,7 @@ class ObjectTracker:
                 zs = np.array([zz for _, zz, _ in past]).reshape(-1, self._row_width)
                 for f, _, j in past:
                     self.log[f - self._first_logged][j] = tid
+                self._name_in_hindsight(t, row, tid, state)
                 frame.confirmed.append((tid, frames, zs))
                 self.counters["tracks_confirmed"] += 1
                 self._created_ids.append(tid)
@@ -980,6 +1009,88 @@ class ObjectTracker:
             for i in self.ids[gone].tolist():
                 self.history.pop(i, None)
             self._keep(~gone)
+
+    def _keep_unnamed(self, t, rows, z, labels, named) -> None:
+        """Keep frame ``t``'s boxes seen in the left image only (``rows`` of the frame's
+        detections, box rows ``z``) that got no id (``named``), for :meth:`_name_in_hindsight`;
+        forget those older than ``filter.window`` frames (their poses have left the window)."""
+        old = self._unnamed_keys[:, 0] <= t - self.config.filter.window
+        if old.any():
+            self._unnamed_keys, self._unnamed = self._unnamed_keys[~old], self._unnamed[~old]
+        left = named < 0
+        if not left.any() or not is_box(z):
+            return
+        z = z[left].copy()  # no right box: no disparity in a clipped box's variance
+        z[:, 2:4] = z[:, :2]
+        f = self.config.filter
+        kept = np.empty((z.shape[0], 7))
+        kept[:, :2] = z[:, :2]
+        kept[:, 2:4] = box_variances(z, f.object_std, f.object_size_share)[:, :2]
+        kept[:, 4:6] = self._cut_sides(z)[:, :2]
+        kept[:, 6] = -1 if labels is None else labels[left]
+        keys = np.stack([np.full(z.shape[0], t), rows[left]], axis=1)
+        self._unnamed_keys = np.concatenate([self._unnamed_keys, keys.astype(np.int64)])
+        self._unnamed = np.concatenate([self._unnamed, kept])
+
+    def _name_in_hindsight(self, t: int, row: int, object_id: int, state) -> None:
+        """Name in the log the boxes of earlier frames still in the window, seen in the left
+        image only and left unnamed (:meth:`_keep_unnamed`), that are track ``row``'s (now
+        ``object_id``'s): its point projected into each frame's left image from that frame's
+        pose, gated as :meth:`_name_monocular` gates (``d²`` over ``(u_l, v_l)`` under the
+        point's covariance, the relative pose's odometry noise and the box's own, cut sides
+        censored, the label's ratio at the gate's odds), the nearest box of a frame in which
+        the object has no box yet. For the record, as every box seen in one image: the filter
+        never gets them."""
+        if not self._unnamed_keys.size or not hasattr(state, "window_index"):
+            return
+        frames = self._unnamed_keys[:, 0]
+        at = state.window_index(frames)
+        candidate = (at >= 0) & (frames < t)
+        for k in np.flatnonzero(candidate).tolist():
+            f = int(frames[k])
+            if np.any(self.log[f - self._first_logged] == object_id):
+                candidate[frames == f] = False
+        if not candidate.any():
+            return
+        rows = np.flatnonzero(candidate)
+        pose = state.poses[at[rows]]
+        point = np.broadcast_to(self.points[row], (rows.size, 3))
+        pred, d_pose, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, point)
+        gap = np.abs(self.last[row] - frames[rows]).astype(float)
+        s = d_point[:, :2] @ self.covs[row] @ np.swapaxes(d_point[:, :2], 1, 2)
+        s += gap[:, None, None] * (
+            d_pose[:, :2] @ self._odometry_cov @ np.swapaxes(d_pose[:, :2], 1, 2)
+        )
+        kept = self._unnamed[rows]
+        s += _diagonal(kept[:, 2:4])
+        r = _censor(kept[:, :2] - pred[:, :2], kept[:, 4:6])
+        d2 = np.einsum("ki,ki->k", r, np.linalg.solve(s, r[..., None])[..., 0])
+        ratio = self.label_model.log_ratio(self.classes[row : row + 1], kept[:, 6].astype(int))[0]
+        cost = d2 - 2.0 * ratio
+        _, p_cam = points_in_camera(pose, point, self.T_cam_body)
+        allowed = (d2 <= chi2_quantile(self.config.tracking.gate_probability, 2)) & (
+            ratio >= self._veto
+        )
+        allowed &= p_cam[:, 2] > self._min_depth
+        named = np.zeros(rows.size, bool)
+        for f in np.unique(frames[rows]).tolist():
+            mine = np.flatnonzero((frames[rows] == f) & allowed)
+            if mine.size:
+                best = mine[np.argmin(cost[mine])]
+                self._name_in_log(f, int(self._unnamed_keys[rows[best], 1]), object_id)
+                named[best] = True
+        if named.any():
+            self.counters["detections_monocular_named"] += int(named.sum())
+            keep = np.ones(frames.size, bool)
+            keep[rows[named]] = False
+            self._unnamed_keys, self._unnamed = self._unnamed_keys[keep], self._unnamed[keep]
+
+    def _name_in_log(self, f: int, j: int, object_id: int) -> None:
+        """Name detection ``j`` of frame ``f`` ``object_id`` in the log, unless it has an id or
+        the object has a box in that frame already (one box per object and frame)."""
+        logged = self.log[f - self._first_logged]
+        if logged[j] < 0 and not np.any(logged == object_id):
+            logged[j] = object_id
 
     def _note_revisit(self, rows: np.ndarray, lone_stale: np.ndarray) -> None:
         """Tracks ``rows`` took detections alone in the gate of long-unseen objects
