@@ -173,7 +173,7 @@ def test_a_confirmed_track_names_its_earlier_left_image_only_boxes_from_their_ow
     # box has left it, frame 2's is another object's
     assert named[:4] == [-1, tid, -1, tid]
     assert named[4:] == [tid] * 5
-    assert tracker.counters["detections_monocular_named"] == 2
+    assert tracker.counters["detections_named_in_hindsight"] == 2
     # the boxes used the pose of their own frame: from the newest pose, frame 3's box is
     # outside the gate (the track's point projects ~17 px away)
     z_now = observe(CAMERA, T_CAM_BODY, poses[-1], c[None])[0]

@@ -395,10 +395,10 @@ class ObjectTracker:
                 frame.ids,
                 (kinds, target_ids, seen, pred, s, in_front, target_labels),
             )
-        self._keep_unnamed(t, monocular, z_monocular, mono_labels, every[monocular])
         self._drop_stale(t)
         every[index] = frame.ids
         frame.ids = every
+        self._keep_unnamed(t, monocular, z_monocular, mono_labels, every[monocular])
         return frame
 
     # ------------------------------------------------------------------ checkpoints
@@ -744,8 +744,8 @@ class ObjectTracker:
         best = int(np.argmax(posterior))
         return best if posterior[best] >= self.config.tracking.revisit_probability else None
 
-    def _count(self, name: str) -> None:
-        self.counters[name] = self.counters.get(name, 0) + 1
+    def _count(self, name: str, n: int = 1) -> None:
+        self.counters[name] = self.counters.get(name, 0) + n
 
     def _looks(self, target_ids: np.ndarray, descriptors: np.ndarray):
         """``(distance, log ratio)``, each ``(T, D)``, between the targets' appearance summaries
@@ -1080,7 +1080,7 @@ class ObjectTracker:
                 self._name_in_log(f, int(self._unnamed_keys[rows[best], 1]), object_id)
                 named[best] = True
         if named.any():
-            self.counters["detections_monocular_named"] += int(named.sum())
+            self._count("detections_named_in_hindsight", int(named.sum()))
             keep = np.ones(frames.size, bool)
             keep[rows[named]] = False
             self._unnamed_keys, self._unnamed = self._unnamed_keys[keep], self._unnamed[keep]
