@@ -220,6 +220,36 @@ def test_right_image_boxes_are_paired_by_class_row_and_disparity(rendered):
     np.testing.assert_allclose(m.z[1, 2:], (right_boxes[1, :2] + right_boxes[1, 2:]) / 2)
 
 
+def test_a_right_box_cut_by_an_occluder_is_not_paired_and_its_patch_gives_the_disparity():
+    """Eight boxes at one depth (disparity 20 px), the detector's right boxes jittered by 1 % of
+    their size, and one right box cut to 40 % of its width (an occluder the detector saw in
+    front of it; the scene behind it is in the right image here): that box's centre is 12 px
+    off the object's and the pair is refused by the learned width ratio, its right centre
+    searched by the patch instead, to within a pixel. The others stay paired with the
+    detector's right boxes."""
+    rng = np.random.default_rng(3)
+    rig = _synthetic_rig((480, 200))
+    left = _texture(rng, 200, 480)
+    d = 20.0
+    right = np.zeros_like(left)
+    right[:, : 480 - int(d)] = left[:, int(d) :]
+    x0 = np.arange(8) * 50.0 + 60.0
+    y0 = np.where(np.arange(8) % 2 == 0, 30.0, 110.0)
+    boxes = np.stack([x0, y0, x0 + 40.0, y0 + 50.0], axis=1)
+    given = boxes - [d, 0.0, d, 0.0]
+    given += rng.normal(0.0, 0.01, given.shape) * 40.0
+    cut = 5
+    given[cut, 2] = given[cut, 0] + 0.4 * 40.0
+    stereo = BoxStereo(rig)
+    m = stereo.measure(_u8(left), _u8(right), _detections(boxes), _detections(given))
+    assert list(np.flatnonzero(m.source != "right box")) == [cut]
+    assert m.source[cut] == "patch"
+    assert abs(m.z[cut, 0] - m.z[cut, 2] - d) < 1.0
+    # without the width test the cut box's centre would have given a disparity 12 px off
+    assert abs((boxes[cut, 0] + boxes[cut, 2] - given[cut, 0] - given[cut, 2]) / 2 - d) > 10.0
+    assert stereo.width_ratios.size == 8
+
+
 def test_rectify_points_agrees_with_the_rectified_camera():
     K = np.array([[300.0, 0, 160], [0, 310.0, 120], [0, 0, 1]])
     rot = cv2.Rodrigues(np.array([0.01, np.radians(3.0), np.radians(1.5)]))[0]
@@ -244,7 +274,12 @@ def test_rectify_points_agrees_with_the_rectified_camera():
 
 
 def test_box_settings_are_checked():
-    for bad in ({"box_ncc_min": 1.0}, {"box_uniqueness": 1.5}, {"box_patch_samples": 4}):
+    for bad in (
+        {"box_ncc_min": 1.0},
+        {"box_uniqueness": 1.5},
+        {"box_patch_samples": 4},
+        {"box_width_probability": 1.0},
+    ):
         with pytest.raises(InputError, match="box_"):
             FrontendConfig(**bad)
 

@@ -7,7 +7,9 @@ box size ``(w, h)`` in rectified pixels. The right centre is, in this order:
 
 - the centre of a right-image box, when the detector gave boxes in the right image too: paired
   one to one by class, row overlap (``box_row_overlap``) and a disparity inside the depth
-  range, by the largest row overlap;
+  range, by the largest row overlap, and kept when the two widths agree
+  (``box_width_probability`` of the width ratio learned from the pairs seen so far: a box cut
+  in one image by an occluder or the border has a centre that is not its object's);
 - otherwise the box's patch searched along the rectified row over the depth range's
   disparities by zero-mean normalised cross-correlation, at the level of an image pyramid
   (each level the 2 × 2 means of the one below) where the patch has at most
@@ -35,6 +37,7 @@ from teamslam.frontend.camera import StereoRig
 from teamslam.frontend.config import FrontendConfig
 from teamslam.frontend.detections import ImageDetections
 from teamslam.frontend.stereo import _best
+from teamslam.gaussian import chi2_quantile
 
 __all__ = ["MONOCULAR_REASONS", "BoxMeasurements", "BoxStereo"]
 
@@ -45,6 +48,10 @@ MONOCULAR_REASONS = ("off image", "flat", "weak", "not unique", "left-right")
 
 # a patch whose grey levels vary less than this (standard deviation) has nothing to correlate
 _FLAT_STD = 0.5
+# the width ratios of this many pairs (the latest) give the ratio's distribution
+_WIDTH_SAMPLES = 1000
+# a box edge is known to half a pixel at best
+_HALF_PIXEL = 0.5
 # the finest refinement level correlates a patch of at most this many times the coarse samples
 # (full resolution for boxes up to 80 × 80 pixels at the default 400 samples)
 _REFINE_SAMPLES = 16
@@ -115,6 +122,9 @@ class BoxStereo:
         self.config = config or FrontendConfig()
         self.pixels = self.config.pixels(rig.image_size)
         self.disparity_range = self.config.disparity_range(rig.camera.fx_baseline)
+        #: ``log(w_r / w_l)`` of the last :data:`_WIDTH_SAMPLES` pairs of left and right boxes
+        #: (their distribution decides which pairs agree in width)
+        self.width_ratios = np.zeros(0)
 
     def rectify_boxes(self, boxes: np.ndarray, side: str = "left") -> np.ndarray:
         """Raw ``(M, 4)`` boxes → the axis-aligned boxes around their corners and edge
@@ -190,7 +200,8 @@ class BoxStereo:
     def _pair(
         self, detections: ImageDetections, boxes: np.ndarray, right: ImageDetections
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Left and right indices of the paired boxes (one to one, largest row overlap)."""
+        """Left and right indices of the paired boxes (one to one, largest row overlap, widths
+        agreeing)."""
         from scipy.optimize import linear_sum_assignment
 
         rboxes = self.rectify_boxes(right.boxes, "right")
@@ -208,7 +219,21 @@ class BoxStereo:
         )
         li, ri = linear_sum_assignment(np.where(ok, -overlap, 1.0))
         keep = ok[li, ri]
-        return li[keep], ri[keep]
+        li, ri = li[keep], ri[keep]
+        w_l = np.maximum(boxes[li, 2] - boxes[li, 0], _HALF_PIXEL)
+        w_r = np.maximum(rboxes[ri, 2] - rboxes[ri, 0], _HALF_PIXEL)
+        ratio = np.log(w_r / w_l)
+        self.width_ratios = np.concatenate([self.width_ratios, ratio])[-_WIDTH_SAMPLES:]
+        if self.width_ratios.size < 3:
+            return li, ri
+        centre = np.median(self.width_ratios)
+        spread = 1.4826 * np.median(np.abs(self.width_ratios - centre))
+        # each edge known to half a pixel at best: the ratio's own quantisation
+        variance = spread**2 + (_HALF_PIXEL / w_l) ** 2 + (_HALF_PIXEL / w_r) ** 2
+        agree = (ratio - centre) ** 2 <= chi2_quantile(self.config.box_width_probability, 1) * (
+            variance
+        )
+        return li[agree], ri[agree]
 
     def _search(self, cv2, left: _Pyramid, right: _Pyramid, box: np.ndarray) -> tuple[float, str]:
         """Disparity of one rectified box's patch along its row, or NaN and why not."""

@@ -114,6 +114,12 @@ class FrontendConfig:
     box_row_overlap
         Least overlap of the row spans of a left and a right box (intersection over union) for
         the detector's right-image box to be paired with the left one.
+    box_width_probability
+        A left and a right box of one object show the same width unless one image sees it cut
+        (by an occluder or the border), and then their centres' difference is not its
+        disparity: a pair is kept when ``log(w_r / w_l)`` lies within this probability of its
+        distribution, learned from the pairs seen so far (median, 1.4826 × median absolute
+        deviation); the others' right centres are searched by the patch.
     marker_dictionary
         ArUco / AprilTag family of the fiducial markers (``None``: no markers).
     marker_row_share
@@ -164,6 +170,7 @@ class FrontendConfig:
     box_ncc_min: float = 0.7
     box_uniqueness: float = 0.95
     box_row_overlap: float = 0.5
+    box_width_probability: float = 0.99
     marker_dictionary: str | None = "4x4_250"
     marker_row_share: float = 0.003
     marker_min_perimeter_share: float = 0.08
@@ -200,6 +207,8 @@ class FrontendConfig:
             raise InputError("corner_quality and ncc_min must be < 1, uniqueness ≤ 1")
         if self.box_ncc_min >= 1 or self.box_uniqueness > 1 or self.box_row_overlap > 1:
             raise InputError("box_ncc_min < 1, box_uniqueness ≤ 1 and box_row_overlap ≤ 1 needed")
+        if self.box_width_probability >= 1:
+            raise InputError("box_width_probability must be below 1")
         if self.box_patch_samples < 9:
             raise InputError("box_patch_samples ≥ 9 needed (a patch of 3 × 3 samples)")
         if self.marker_dictionary is not None and self.marker_dictionary not in _DICTIONARIES:

@@ -93,11 +93,13 @@ class StereoFrontend:
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """What the front-end carries to the next frame: the tracker's state
-        (:meth:`~teamslam.frontend.tracking.FeatureTracker.state_dict`, keys ``tracker_*``) and
-        the last frame's stereo-matched track ids and disparities."""
+        (:meth:`~teamslam.frontend.tracking.FeatureTracker.state_dict`, keys ``tracker_*``),
+        the last frame's stereo-matched track ids and disparities, and the box pairs' width
+        ratios (:attr:`BoxStereo.width_ratios <teamslam.frontend.boxes.BoxStereo.width_ratios>`)."""
         out = {f"tracker_{k}": v for k, v in self.tracker.state_dict().items()}
         out["last_ids"] = self._last_ids.copy()
         out["last_disparity"] = self._last_disparity.copy()
+        out["box_width_ratios"] = self.boxes.width_ratios.copy()
         return out
 
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
@@ -122,6 +124,10 @@ class StereoFrontend:
             {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
         )
         self._last_ids, self._last_disparity = last_ids.copy(), disparity.copy()
+        ratios = np.asarray(state.get("box_width_ratios", np.zeros(0)), float).reshape(-1)
+        if not np.all(np.isfinite(ratios)):
+            raise ValueError("front-end state: box width ratios not finite")
+        self.boxes.width_ratios = ratios.copy()
 
     def predicted(self, ids: np.ndarray, uv: np.ndarray, T_prev_cur: np.ndarray) -> np.ndarray:
         """``(N, 2)``: where the tracks ``ids`` at ``uv`` in the previous rectified left image
