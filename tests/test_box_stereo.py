@@ -11,7 +11,7 @@ cv2 = pytest.importorskip("cv2", reason="the images extra (OpenCV) is not instal
 from teamslam.errors import InputError  # noqa: E402
 from teamslam.frontend import FrontendConfig, StereoRig  # noqa: E402
 from teamslam.frontend.appearance import DESCRIPTORS, describe, dimension  # noqa: E402
-from teamslam.frontend.boxes import BoxStereo  # noqa: E402
+from teamslam.frontend.boxes import BoxStereo, _Pyramid  # noqa: E402
 from teamslam.frontend.detections import ImageDetections  # noqa: E402
 from teamslam.sim.render import (  # noqa: E402
     T_CAM_BODY,
@@ -222,11 +222,11 @@ def test_right_image_boxes_are_paired_by_class_row_and_disparity(rendered):
 
 def test_a_right_box_cut_by_an_occluder_is_not_paired_and_its_patch_gives_the_disparity():
     """Eight boxes at one depth (disparity 20 px), the detector's right boxes jittered by 1 % of
-    their size, and one right box cut to 40 % of its width (an occluder the detector saw in
-    front of it; the scene behind it is in the right image here): that box's centre is 12 px
-    off the object's and the pair is refused by the learned width ratio, its right centre
-    searched by the patch instead, to within a pixel. The others stay paired with the
-    detector's right boxes."""
+    their size, and one object whose right 60 % an occluder hides in the right image (its right
+    box cut to the visible 40 %): that box's centre is 12 px off the object's and the pair is
+    refused by the learned width ratio; its whole patch finds no match, the part of the left box
+    the right image shows does, to within a pixel. The others stay paired with the detector's
+    right boxes."""
     rng = np.random.default_rng(3)
     rig = _synthetic_rig((480, 200))
     left = _texture(rng, 200, 480)
@@ -239,8 +239,13 @@ def test_a_right_box_cut_by_an_occluder_is_not_paired_and_its_patch_gives_the_di
     given = boxes - [d, 0.0, d, 0.0]
     given += rng.normal(0.0, 0.01, given.shape) * 40.0
     cut = 5
-    given[cut, 2] = given[cut, 0] + 0.4 * 40.0
+    given[cut, 2] = given[cut, 0] + 0.4 * 40.0  # the occluder hides its right 60 %
+    x, y = int(boxes[cut, 0] - d + 16), int(boxes[cut, 1])
+    right[y - 5 : y + 55, x : x + 40] = _texture(rng, 60, 40)  # the occluder
     stereo = BoxStereo(rig)
+    pyramids = _Pyramid(cv2, _u8(left)), _Pyramid(cv2, _u8(right))
+    d_whole, reason = stereo._search(cv2, *pyramids, boxes[cut])
+    assert reason or abs(d_whole - d) > 1.0  # the whole patch: no match, or not the object's
     m = stereo.measure(_u8(left), _u8(right), _detections(boxes), _detections(given))
     assert list(np.flatnonzero(m.source != "right box")) == [cut]
     assert m.source[cut] == "patch"

@@ -173,16 +173,19 @@ class BoxStereo:
         z[:, :2] = self._centres(np.asarray(detections.boxes, float).reshape(-1, 4), "left")
         source = np.full(n, "monocular", dtype=object)
         reasons = np.full(n, "", dtype=object)
+        # per left box the width its right box shows, where the pair was refused as cut
+        visible = np.full(n, np.nan)
         if right_detections is not None and len(right_detections) and n:
-            li, ri = self._pair(detections, boxes, right_detections)
+            li, ri, cut_li, cut_w = self._pair(detections, boxes, right_detections)
             raw_right = np.asarray(right_detections.boxes, float).reshape(-1, 4)
             z[li, 2:] = self._centres(raw_right[ri], "right")
             source[li] = "right box"
+            visible[cut_li] = cut_w
         if n:
             cv2 = require_cv2()
             pyramids = _Pyramid(cv2, left), _Pyramid(cv2, right)
             for k in np.flatnonzero(source == "monocular"):
-                d, reason = self._search(cv2, *pyramids, boxes[k])
+                d, reason = self._search_visible(cv2, pyramids, boxes[k], visible[k])
                 if reason:
                     reasons[k] = reason
                     continue
@@ -197,11 +200,30 @@ class BoxStereo:
             reasons=reasons.astype(str),
         )
 
+    def _search_visible(self, cv2, pyramids, box: np.ndarray, visible: float) -> tuple[float, str]:
+        """Disparity of a box's patch (:meth:`_search`); for a box whose right box was cut to
+        ``visible`` pixels wide (an occluder or the border hides a side of it there), first of
+        the two parts of the box that wide at its sides, one of which is what the right image
+        shows: the one part matched (both passing every check and agreeing within the
+        left–right tolerance: their mean), else the whole patch."""
+        if np.isfinite(visible) and visible < box[2] - box[0]:
+            found = []
+            for side in (box[0], box[2] - visible):
+                part = np.array([side, box[1], side + visible, box[3]])
+                d, reason = self._search(cv2, *pyramids, part)
+                if not reason:
+                    found.append(d)
+            agree = len(found) == 2 and abs(found[0] - found[1]) <= self.pixels.left_right
+            if len(found) == 1 or agree:
+                return float(np.mean(found)), ""
+        return self._search(cv2, *pyramids, box)
+
     def _pair(
         self, detections: ImageDetections, boxes: np.ndarray, right: ImageDetections
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Left and right indices of the paired boxes (one to one, largest row overlap, widths
-        agreeing)."""
+        agreeing), then the left indices of the pairs refused as cut in one image and the
+        width of their right boxes."""
         from scipy.optimize import linear_sum_assignment
 
         rboxes = self.rectify_boxes(right.boxes, "right")
@@ -225,7 +247,7 @@ class BoxStereo:
         ratio = np.log(w_r / w_l)
         self.width_ratios = np.concatenate([self.width_ratios, ratio])[-_WIDTH_SAMPLES:]
         if self.width_ratios.size < 3:
-            return li, ri
+            return li, ri, li[:0], w_r[:0]
         centre = np.median(self.width_ratios)
         spread = 1.4826 * np.median(np.abs(self.width_ratios - centre))
         # each edge known to half a pixel at best: the ratio's own quantisation
@@ -233,7 +255,7 @@ class BoxStereo:
         agree = (ratio - centre) ** 2 <= chi2_quantile(self.config.box_width_probability, 1) * (
             variance
         )
-        return li[agree], ri[agree]
+        return li[agree], ri[agree], li[~agree], w_r[~agree]
 
     def _search(self, cv2, left: _Pyramid, right: _Pyramid, box: np.ndarray) -> tuple[float, str]:
         """Disparity of one rectified box's patch along its row, or NaN and why not."""
