@@ -508,16 +508,13 @@ class ObjectTracker:
         if not known.any():
             return out
         rows = np.flatnonzero(known)
-        f = self.config.filter
         if is_box(z):
-            left = z.copy()  # no right box: no disparity in a clipped box's variance
-            left[:, 2:4] = z[:, :2]
-            noise = box_variances(left, f.object_std, f.object_size_share)[:, :2]
+            noise, cut = self._left_image_noise(z)
         else:
-            noise = np.full((z.shape[0], 2), f.object_std**2)
+            noise = np.full((z.shape[0], 2), self.config.filter.object_std**2)
         r = z[None, :, :2] - pred[rows, None, :2]  # (T, M, 2)
         if is_box(z):  # a cut box's centre bounds its object's from one side only
-            r = _censor(r, self._cut_sides(left)[None, :, :2])
+            r = _censor(r, cut[None])
         cov = s[rows, None, :2, :2] + _diagonal(noise)[None]  # (T, M, 2, 2)
         d2 = np.einsum("tmi,tmi->tm", r, np.linalg.solve(cov, r[..., None])[..., 0])
         gate = chi2_quantile(self.config.tracking.gate_probability, 2)
@@ -537,6 +534,16 @@ class ObjectTracker:
         out[hit] = target_ids[rows[assigned[hit]]]
         self.counters["detections_monocular_named"] += int(hit.sum())
         return out
+
+    def _left_image_noise(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(M, 2)`` variances of ``(u_l, v_l)`` of box rows seen in the left image only, and
+        ``(M, 2)`` the border that cut each (:meth:`_cut_sides`): no right box, so no disparity
+        in a clipped box's variance."""
+        left = z.copy()
+        left[:, 2:4] = z[:, :2]
+        f = self.config.filter
+        noise = box_variances(left, f.object_std, f.object_size_share)[:, :2]
+        return noise, self._cut_sides(left)[:, :2]
 
     def _cut_sides(self, rows: np.ndarray) -> np.ndarray:
         """``(D, 4)`` per centre coordinate of box rows the border that cut it: ``-1`` the low
@@ -1020,13 +1027,10 @@ class ObjectTracker:
         left = named < 0
         if not left.any() or not is_box(z):
             return
-        z = z[left].copy()  # no right box: no disparity in a clipped box's variance
-        z[:, 2:4] = z[:, :2]
-        f = self.config.filter
+        z = z[left]
         kept = np.empty((z.shape[0], 7))
         kept[:, :2] = z[:, :2]
-        kept[:, 2:4] = box_variances(z, f.object_std, f.object_size_share)[:, :2]
-        kept[:, 4:6] = self._cut_sides(z)[:, :2]
+        kept[:, 2:4], kept[:, 4:6] = self._left_image_noise(z)
         kept[:, 6] = -1 if labels is None else labels[left]
         keys = np.stack([np.full(z.shape[0], t), rows[left]], axis=1)
         self._unnamed_keys = np.concatenate([self._unnamed_keys, keys.astype(np.int64)])
