@@ -201,7 +201,6 @@ class ObjectTracker:
         # ``(u_l, v_l, σ²_u, σ²_v, cut side u, cut side v, label)``
         self._unnamed_keys = np.zeros((0, 2), np.int64)
         self._unnamed = np.zeros((0, 7))
-        self._odometry_cov = np.zeros((6, 6))
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -233,7 +232,6 @@ class ObjectTracker:
             ``tracking.appearance`` (:mod:`~teamslam.msckf.objects.appearance`).
         """
         self._descriptors = None
-        self._odometry_cov = odometry_cov
         if appearance is not None and self.config.tracking.appearance:
             if self.appearance is None:
                 self.appearance = AppearanceModel(self.config.tracking.gate_probability)
@@ -380,7 +378,7 @@ class ObjectTracker:
                 (kinds, pred, s, h_point),
                 frame,
                 lone_stale,
-                state,
+                (state, odometry_cov),
             )
         self.counters["detections_near_object"] += int((~hit & near_target).sum())
         new = np.flatnonzero(~hit & ~near_target)
@@ -939,7 +937,7 @@ class ObjectTracker:
         return pose[:3, :3] @ self.T_cam_body[2, :3]
 
     def _update_tracks(
-        self, t, z, index, detections, assigned, predicted, frame, lone_stale, state
+        self, t, z, index, detections, assigned, predicted, frame, lone_stale, window
     ) -> None:
         """Kalman update of each assigned track's point; confirm the tracks with enough hits
         (their earlier detections named in the log as the filter then uses them), or continue
@@ -984,7 +982,7 @@ class ObjectTracker:
                 self._count("tracks_reidentified")
             for f, _, j in self.history.get(int(self.ids[row]), []):
                 self._name_in_log(f, j, oid)
-            self._name_in_hindsight(t, row, oid, state)
+            self._name_in_hindsight(t, row, oid, *window)
             frame.ids[det] = oid
             self.revisits.append((t, int(index[det]), oid))
             self.counters["revisits_taken"] += 1
@@ -1001,7 +999,7 @@ class ObjectTracker:
                 zs = np.array([zz for _, zz, _ in past]).reshape(-1, self._row_width)
                 for f, _, j in past:
                     self.log[f - self._first_logged][j] = tid
-                self._name_in_hindsight(t, row, tid, state)
+                self._name_in_hindsight(t, row, tid, *window)
                 frame.confirmed.append((tid, frames, zs))
                 self.counters["tracks_confirmed"] += 1
                 self._created_ids.append(tid)
@@ -1036,7 +1034,9 @@ class ObjectTracker:
         self._unnamed_keys = np.concatenate([self._unnamed_keys, keys.astype(np.int64)])
         self._unnamed = np.concatenate([self._unnamed, kept])
 
-    def _name_in_hindsight(self, t: int, row: int, object_id: int, state) -> None:
+    def _name_in_hindsight(
+        self, t: int, row: int, object_id: int, state, odometry_cov: np.ndarray
+    ) -> None:
         """Name in the log the boxes of earlier frames still in the window, seen in the left
         image only and left unnamed (:meth:`_keep_unnamed`), that are track ``row``'s (now
         ``object_id``'s): its point projected into each frame's left image from that frame's
@@ -1050,10 +1050,6 @@ class ObjectTracker:
         frames = self._unnamed_keys[:, 0]
         at = state.window_index(frames)
         candidate = (at >= 0) & (frames < t)
-        for k in np.flatnonzero(candidate).tolist():
-            f = int(frames[k])
-            if np.any(self.log[f - self._first_logged] == object_id):
-                candidate[frames == f] = False
         if not candidate.any():
             return
         rows = np.flatnonzero(candidate)
@@ -1062,9 +1058,7 @@ class ObjectTracker:
         pred, d_pose, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, point)
         gap = np.abs(self.last[row] - frames[rows]).astype(float)
         s = d_point[:, :2] @ self.covs[row] @ np.swapaxes(d_point[:, :2], 1, 2)
-        s += gap[:, None, None] * (
-            d_pose[:, :2] @ self._odometry_cov @ np.swapaxes(d_pose[:, :2], 1, 2)
-        )
+        s += gap[:, None, None] * (d_pose[:, :2] @ odometry_cov @ np.swapaxes(d_pose[:, :2], 1, 2))
         kept = self._unnamed[rows]
         s += _diagonal(kept[:, 2:4])
         r = _censor(kept[:, :2] - pred[:, :2], kept[:, 4:6])
@@ -1081,20 +1075,24 @@ class ObjectTracker:
             mine = np.flatnonzero((frames[rows] == f) & allowed)
             if mine.size:
                 best = mine[np.argmin(cost[mine])]
-                self._name_in_log(f, int(self._unnamed_keys[rows[best], 1]), object_id)
-                named[best] = True
+                named[best] = self._name_in_log(
+                    f, int(self._unnamed_keys[rows[best], 1]), object_id
+                )
         if named.any():
             self._count("detections_named_in_hindsight", int(named.sum()))
             keep = np.ones(frames.size, bool)
             keep[rows[named]] = False
             self._unnamed_keys, self._unnamed = self._unnamed_keys[keep], self._unnamed[keep]
 
-    def _name_in_log(self, f: int, j: int, object_id: int) -> None:
+    def _name_in_log(self, f: int, j: int, object_id: int) -> bool:
         """Name detection ``j`` of frame ``f`` ``object_id`` in the log, unless it has an id or
-        the object has a box in that frame already (one box per object and frame)."""
+        the object has a box in that frame already (one box per object and frame); whether it
+        was named."""
         logged = self.log[f - self._first_logged]
-        if logged[j] < 0 and not np.any(logged == object_id):
-            logged[j] = object_id
+        if logged[j] >= 0 or np.any(logged == object_id):
+            return False
+        logged[j] = object_id
+        return True
 
     def _note_revisit(self, rows: np.ndarray, lone_stale: np.ndarray) -> None:
         """Tracks ``rows`` took detections alone in the gate of long-unseen objects
