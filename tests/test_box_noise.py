@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from teamslam.datasets.identity import strip_object_ids
 from teamslam.datasets.model import (
@@ -21,10 +22,16 @@ from teamslam.datasets.model import (
 )
 from teamslam.gaussian import chi2_quantile
 from teamslam.msckf.agent import MsckfAgent
-from teamslam.msckf.calibration import calibrate
+from teamslam.msckf.calibration import (
+    BOX_QUANTIZATION_STD,
+    box_noise_fit,
+    box_quantization_std,
+    calibrate,
+)
 from teamslam.msckf.configure import build_settings
 from teamslam.msckf.filter.box_noise import box_rows, box_variances
 from teamslam.msckf.filter.models import observe
+from teamslam.msckf.settings.health import InnovationRecord
 from teamslam.msckf.settings.sources import calibration_start
 from teamslam.msckf.settings.values import MsckfConfig
 from teamslam.sim.lissajous import T_CAM_BODY, SimulationConfig, lissajous_team
@@ -73,8 +80,10 @@ def _boxed_team(floor: float, share: float, seed: int = 3):
     return replace(team, robots=robots, sensor_model=None)
 
 
-def test_calibration_recovers_a_size_proportional_noise():
-    floor, share = 0.5, 0.04
+@pytest.mark.parametrize("floor", [0.5, 0.0])
+def test_calibration_recovers_a_size_proportional_noise(floor):
+    # no floor in the noise: the calibration keeps the pixel grid's own (the boxes are pixels)
+    share = 0.04
     team = _boxed_team(floor, share)
     boxes = sum(r.detections.measurements.shape[0] for r in team.robots)
     start = calibration_start(team, build_settings(team, calibrate="never").config)
@@ -86,7 +95,47 @@ def test_calibration_recovers_a_size_proportional_noise():
     # variances, halved for σ, and the filter's share of each innovation
     tolerance = 3 * np.sqrt(2 / (boxes / 8)) / 2
     assert abs(noise.object_size_share / share - 1) < max(tolerance, 0.1)
-    assert abs(noise.object_std / floor - 1) < max(2 * tolerance, 0.25)
+    if floor > 0:
+        assert abs(noise.object_std / floor - 1) < max(2 * tolerance, 0.25)
+    else:
+        assert noise.object_std == pytest.approx(BOX_QUANTIZATION_STD)
+
+
+def _innovations(floor: float, share: float, seed: int = 5) -> InnovationRecord:
+    """Box innovations of objects the state knows exactly (``λ = 0``), their true variance
+    ``floor² + (share · size)²``, whitened by a model's ``0.5² + (0.04 · size)²`` (a
+    calibration pass's)."""
+    rng = np.random.default_rng(seed)
+    record = InnovationRecord()
+    for width in rng.uniform(4.0, 200.0, 4000):
+        size2 = np.full(4, width**2)
+        model = 0.5**2 + 0.04**2 * size2
+        variance = floor**2 + share**2 * size2
+        record.c2.append(variance / model * rng.standard_normal(4) ** 2)
+        record.lam.append(np.zeros(4))
+        record.size2.append(size2)
+        record.variance.append(model)
+    return record
+
+
+def test_the_box_noise_floor_is_kept_at_the_pixel_grid_s_own_error():
+    # boxes whose noise has no floor: the innovations show none, and the fit keeps a floor of
+    # zero unless told the least one (a box drawn on pixels: each edge anywhere in its pixel)
+    record = _innovations(floor=0.0, share=0.03)
+    free = box_noise_fit(record)
+    assert free is not None and free[0] < 0.05 and abs(free[1] / 0.03 - 1) < 0.05
+    floor, share = box_noise_fit(record, BOX_QUANTIZATION_STD)
+    assert floor == pytest.approx(np.sqrt(1 / 24))
+    assert abs(share / 0.03 - 1) < 0.05  # the share refitted to what the floor leaves
+    # a floor the data show above the least one is the data's
+    floor, share = box_noise_fit(_innovations(floor=0.8, share=0.03), BOX_QUANTIZATION_STD)
+    assert abs(floor / 0.8 - 1) < 0.1 and abs(share / 0.03 - 1) < 0.05
+    # only boxes on a known image are on its pixels
+    team = _boxed_team(0.5, 0.04)
+    assert team.calibration.image_size is not None
+    assert box_quantization_std(team) == BOX_QUANTIZATION_STD
+    unknown = replace(team, calibration=replace(team.calibration, image_size=None))
+    assert box_quantization_std(unknown) == 0.0
 
 
 def _clipped_sequence(seed: int, objects: int = 10):

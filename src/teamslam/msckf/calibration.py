@@ -32,7 +32,9 @@ from teamslam.msckf.settings.values import MsckfConfig
 
 __all__ = [
     "CalibrationResult",
+    "BOX_QUANTIZATION_STD",
     "box_noise_fit",
+    "box_quantization_std",
     "calibrate",
     "calibration_json",
     "calibration_table",
@@ -86,15 +88,34 @@ def _box_detections(dataset: TeamDataset) -> bool:
 BOX_BINS = 8
 
 
-def _fit_floor_share(size2: np.ndarray, variance: np.ndarray, count: np.ndarray):
+def _fit_floor_share(
+    size2: np.ndarray, variance: np.ndarray, count: np.ndarray, least2: float = 0.0
+):
     """``(σ₀², α²)`` of ``variance ≈ σ₀² + α² · size2`` over bins, non-negative, each bin
-    weighted by its count over its variance² (relative errors)."""
+    weighted by its count over its variance² (relative errors); ``σ₀² ≥ least2`` (the rest
+    fitted to what the floor leaves)."""
     weight = np.sqrt(count) / np.maximum(variance, 1e-300)
     design = np.column_stack([np.ones_like(size2), size2]) * weight[:, None]
-    solution, _ = optimize.nnls(design, variance * weight)
+    solution, _ = optimize.nnls(design, (variance - least2) * weight)
+    solution[0] += least2
     if solution[0] <= 0.0:  # a floor of zero: keep a thousandth of the smallest bin's σ²
         solution[0] = 1e-3 * float(variance.min())
     return float(solution[0]), float(solution[1])
+
+
+#: Std of a box centre coordinate that the pixel grid alone gives, in pixels: each edge of a
+#: box drawn on the image's pixels lies anywhere within its pixel (uniform, variance 1/12), the
+#: centre is the mean of two edges (variance 1/24). An error that stays while the object's
+#: image moves by less than a pixel a frame: the innovations cannot show it (the estimate
+#: follows it), so :func:`calibrate` keeps the fitted floor ``σ₀`` at least this.
+BOX_QUANTIZATION_STD = float(np.sqrt(1.0 / 24.0))
+
+
+def box_quantization_std(dataset: TeamDataset) -> float:
+    """The least box-centre σ of the team's boxes in the units of ``K``
+    (:data:`BOX_QUANTIZATION_STD` where the images' size is known, their boxes then in
+    pixels as :func:`~teamslam.msckf.filter.box_noise.box_rows` takes them; else 0)."""
+    return BOX_QUANTIZATION_STD if dataset.calibration.image_size is not None else 0.0
 
 
 def _bins(x: np.ndarray) -> list[np.ndarray]:
@@ -133,7 +154,7 @@ def epipolar_box_noise(dataset: TeamDataset) -> tuple[float, float] | None:
     return float(np.sqrt(floor2)), float(np.sqrt(share2))
 
 
-def box_noise_fit(record: InnovationRecord) -> tuple[float, float] | None:
+def box_noise_fit(record: InnovationRecord, least_std: float = 0.0) -> tuple[float, float] | None:
     """``(σ₀, α)`` that the recorded box innovations show (covariance matching by box size).
 
     The innovations (whitened by the variance the filter used, :class:`InnovationRecord`) are
@@ -141,8 +162,9 @@ def box_noise_fit(record: InnovationRecord) -> tuple[float, float] | None:
     exceeds the model solves ``Σ min(NIS, g) = Σ_i (λ_i + ρ)/(λ_i + 1)`` over the
     innovations' directions (``λ`` the state's share, ``g`` the χ² winsorising quantile of
     :func:`nis_ratio`), so ``ρ`` times the bin's mean model variance is the variance the data
-    show there; ``σ₀² + α² s²`` is fitted to those (non-negative least squares). ``None`` with
-    fewer than 20 innovations."""
+    show there; ``σ₀² + α² s²`` is fitted to those (non-negative least squares), ``σ₀`` at
+    least ``least_std`` (:func:`box_quantization_std`). ``None`` with fewer than 20
+    innovations."""
     if len(record.c2) < _MIN_INNOVATIONS:
         return None
     c2, lam = np.array(record.c2), np.array(record.lam)
@@ -157,7 +179,9 @@ def box_noise_fit(record: InnovationRecord) -> tuple[float, float] | None:
         shown.append(max(rho, 1e-3) * variance[b].mean())
         sizes.append(size2[b].mean())
         counts.append(b.size)
-    floor2, share2 = _fit_floor_share(np.array(sizes), np.array(shown), np.array(counts, float))
+    floor2, share2 = _fit_floor_share(
+        np.array(sizes), np.array(shown), np.array(counts, float), least_std**2
+    )
     return float(np.sqrt(floor2)), float(np.sqrt(share2))
 
 
@@ -385,7 +409,7 @@ def calibrate(
             if not use[sensor]:
                 continue
             if sensor == "objects" and boxes:
-                found = box_noise_fit(health.records[sensor])
+                found = box_noise_fit(health.records[sensor], box_quantization_std(dataset))
                 if found is not None:
                     old = np.log([searches[sensor].value, max(share, 1e-12)])
                     searches[sensor] = _Secant(found[0])
