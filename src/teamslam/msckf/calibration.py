@@ -31,8 +31,8 @@ from teamslam.msckf.settings.health import SENSORS, InnovationRecord, SensorHeal
 from teamslam.msckf.settings.values import MsckfConfig
 
 __all__ = [
-    "CalibrationResult",
     "BOX_QUANTIZATION_STD",
+    "CalibrationResult",
     "box_noise_fit",
     "box_quantization_std",
     "calibrate",
