@@ -158,6 +158,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--markdown {GENERATED}/detector-team.md",
         f"{GENERATED}/detector-team.md",
     ),
+    "detector-team-seed-18": (
+        "python benchmarks/detector_team.py --robots 3 --steps 420 --seed 18 "
+        f"--render results/street-render-18 --markdown {GENERATED}/detector-team-seed-18.md",
+        f"{GENERATED}/detector-team-seed-18.md",
+    ),
     "render-objects": (
         f"python benchmarks/render_objects.py --markdown {GENERATED}/render-objects.md",
         f"{GENERATED}/render-objects.md",
