@@ -7,8 +7,9 @@ features and object box centres: a filter-free start above the epipolar lower bo
 odometry σ by expectation–maximisation over the smoothed window (every lag, non-negative least
 squares). Object detections with a box size get a σ that grows with the box
 (:mod:`teamslam.msckf.filter.box_noise`): its floor and share are fitted to the noise the
-innovations show at each box size (:func:`box_noise_fit`), from a filter-free start of the same
-form (:func:`epipolar_box_noise`). The object depth range is not estimated. Derivation and
+innovations show at each box size (:func:`box_noise_fit`; the floor at least the pixel grid's,
+:data:`BOX_QUANTIZATION_STD`, for boxes on images of known size), from a filter-free start of
+the same form (:func:`epipolar_box_noise`). The object depth range is not estimated. Derivation and
 references: the concept page *Calibration* (``docs/concepts/calibration.md``).
 """
 
