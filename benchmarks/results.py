@@ -163,6 +163,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         f"--render results/street-render-18 --markdown {GENERATED}/detector-team-seed-18.md",
         f"{GENERATED}/detector-team-seed-18.md",
     ),
+    "detector-team-seed-19": (
+        "python benchmarks/detector_team.py --robots 3 --steps 420 --seed 19 "
+        f"--render results/street-render-19 --markdown {GENERATED}/detector-team-seed-19.md",
+        f"{GENERATED}/detector-team-seed-19.md",
+    ),
     "render-objects": (
         f"python benchmarks/render_objects.py --markdown {GENERATED}/render-objects.md",
         f"{GENERATED}/render-objects.md",
