@@ -1,6 +1,7 @@
 """A detector box centre's noise as a share of the box (``filter.object_size_share``).
 
-The calibration recovers a known size-proportional noise from a team's detections alone; an
+The calibration recovers a known size-proportional noise from a team's detections alone, its
+floor never below the pixel grid's own for boxes on images; an
 object seen only through boxes cut by the image border is estimated without bias (its error
 consistent with its covariance), which it is not when the cut goes unnoticed; data without box
 sizes keep the plain σ.
