@@ -37,6 +37,7 @@ __all__ = [
     "replace_marginal",
     "replace_marginal_arrays",
     "replace_marginal_shift",
+    "robust_std",
     "spd_inverse",
     "symmetrize",
 ]
@@ -51,6 +52,12 @@ def chi2_quantile(probability: float, dof: int) -> float:
     from scipy import stats
 
     return float(stats.chi2.ppf(probability, dof))
+
+
+def robust_std(x: np.ndarray, axis: int = 0) -> np.ndarray:
+    """1.4826 × median absolute deviation (the std of a Gaussian), robust to outliers."""
+    med = np.median(x, axis=axis, keepdims=True)
+    return 1.4826 * np.median(np.abs(x - med), axis=axis)
 
 
 def chi2_band(dof: int, samples: int, probability: float = 0.95) -> tuple[float, float]:

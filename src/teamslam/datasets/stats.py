@@ -6,16 +6,11 @@ from __future__ import annotations
 import numpy as np
 
 from teamslam.datasets.model import FrameObservations, TeamDataset
+from teamslam.gaussian import robust_std
 from teamslam.geometry import se3
 from teamslam.textio import format_value
 
 __all__ = ["dataset_info", "format_info", "ground_truth_noise", "robust_std", "seen_once"]
-
-
-def robust_std(x: np.ndarray, axis: int = 0) -> np.ndarray:
-    """1.4826 × median absolute deviation (the std of a Gaussian), robust to outliers."""
-    med = np.median(x, axis=axis, keepdims=True)
-    return 1.4826 * np.median(np.abs(x - med), axis=axis)
 
 
 def _measurement_errors(dataset: TeamDataset, kind: str) -> np.ndarray:

@@ -37,7 +37,7 @@ from teamslam.frontend.camera import StereoRig
 from teamslam.frontend.config import FrontendConfig
 from teamslam.frontend.detections import ImageDetections
 from teamslam.frontend.stereo import _best
-from teamslam.gaussian import chi2_quantile
+from teamslam.gaussian import chi2_quantile, robust_std
 
 __all__ = ["MONOCULAR_REASONS", "BoxMeasurements", "BoxStereo"]
 
@@ -249,7 +249,7 @@ class BoxStereo:
         if self.width_ratios.size < 3:
             return li, ri, li[:0], w_r[:0]
         centre = np.median(self.width_ratios)
-        spread = 1.4826 * np.median(np.abs(self.width_ratios - centre))
+        spread = robust_std(self.width_ratios)
         # each edge known to half a pixel at best: the ratio's own quantisation
         variance = spread**2 + (_HALF_PIXEL / w_l) ** 2 + (_HALF_PIXEL / w_r) ** 2
         agree = (ratio - centre) ** 2 <= chi2_quantile(self.config.box_width_probability, 1) * (
