@@ -297,7 +297,8 @@ def test_a_revisit_refused_before_the_factor_was_learned_is_taken_once_it_is():
     stays apart (appearance named the old one, the position gate refused it); once the learner
     finds the covariances ten times too small, the pair is taken — after the new object's
     window, its earlier boxes renamed too. A pair whose old object was seen after the new one
-    appeared lapses."""
+    appeared, never in one frame with it, is still one object and taken; a pair the tracker
+    named in one frame lapses (one detection per object and frame: two objects)."""
     state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-8)
     offset = np.array([0.0, 4.5, 0.0]) * OLD_STD
     state.add_object(7, TRUE + offset, np.eye(3) * OLD_STD**2, np.zeros((3, state.dim)))
@@ -308,14 +309,19 @@ def test_a_revisit_refused_before_the_factor_was_learned_is_taken_once_it_is():
     ((new, old_id),) = tracker._pending.items()
     assert old_id == 7
     lapsed = copy.deepcopy((tracker, state))
+    # 7 seen again while the new object was around, in a frame the new one was not: the new
+    # object's track broke and 7's continued, one object under two ids
+    state.mark_seen(state.object_slots(np.array([7])), 65)
+    tracker._note_together(np.array([7]))
     tracker.widening = lambda ids: np.where(np.asarray(ids) == 7, 10.0, 1.0)
     merged = tracker.reidentify(85, state)  # beyond the new object's window
     assert merged.tolist() == [[new, 7]] and set(tracker.hypotheses().tolist()) == {7}
     assert not tracker._pending
-    # the same pair after 7 was seen again while the new object was around: two objects
+    # the same pair after the tracker named 7 and the new object in one frame: two objects
     other, other_state = lapsed
     other.widening = tracker.widening
     other_state.mark_seen(other_state.object_slots(np.array([7])), 65)
+    other._note_together(np.array([new, 7, -1]))
     assert other.reidentify(85, other_state).size == 0 and not other._pending
 
 

@@ -195,6 +195,10 @@ class ObjectTracker:
         # new object → the long-unseen one appearance and class alone named, refused by the
         # position gate (:meth:`_pending_pairs`)
         self._pending: dict[int, int] = {}
+        # per object confirmed within the last ``filter.window`` frames or pending, the ids
+        # named in a frame where it was named too since its first box: two objects at once,
+        # never one (one detection per object and frame; :meth:`_seen_together`)
+        self._together: dict[int, set[int]] = {}
         # the boxes seen in the left image only that no target took, of the last
         # ``filter.window`` frames, for a track confirmed later to name in hindsight
         # (:meth:`_name_in_hindsight`): per box ``(frame, row)`` and
@@ -396,6 +400,7 @@ class ObjectTracker:
         self._drop_stale(t)
         every[index] = frame.ids
         frame.ids = every
+        self._note_together(every)
         self._keep_unnamed(t, monocular, z_monocular, mono_labels, every[monocular])
         return frame
 
@@ -440,6 +445,9 @@ class ObjectTracker:
                 -1, 2
             )
             out["pending"] = np.array(list(self._pending.items()), np.int64).reshape(-1, 2)
+            out["together_ids"] = np.array(list(self._together), np.int64)
+            pairs = [(n, i) for n, ids in self._together.items() for i in sorted(ids)]
+            out["together"] = np.array(pairs, np.int64).reshape(-1, 2)
         out["unnamed_keys"] = self._unnamed_keys.copy()
         out["unnamed"] = self._unnamed.copy()
         return out
@@ -487,6 +495,9 @@ class ObjectTracker:
                 self._boxes.setdefault(i, []).append(d.copy())
             self._confirmed_at = dict(state["confirmed_at"].tolist())
             self._pending = dict(np.asarray(state.get("pending", np.zeros((0, 2)))).tolist())
+            self._together = {int(n): set() for n in state.get("together_ids", [])}
+            for n, i in np.asarray(state.get("together", np.zeros((0, 2)))).tolist():
+                self._together[int(n)].add(int(i))
 
     def _name_monocular(self, t, z, labels, taken, targets) -> np.ndarray:
         """Ids of the boxes seen in the left image only (``z`` ``(M, ·)``, right columns NaN):
@@ -617,8 +628,10 @@ class ObjectTracker:
         """Merge each object confirmed within the last ``filter.window`` frames into the
         long-unseen object its boxes show it to be; the pairs ``(new id, old id)`` merged.
 
-        Candidates: the objects of the state last seen before the new object's first box and
-        those of the persistent map, of its class where both have one. Each is gated by the
+        Candidates: the objects of the state never named in one frame with the new object since
+        its first box (last seen before it, or since only in frames the new one was not: its
+        track broke while the old one's continued) and those of the persistent map, of its
+        class where both have one. Each is gated by the
         squared Mahalanobis distance of ``x_n − x_o`` under its covariance from the joint state
         (:func:`~teamslam.msckf.objects.loop_closure.difference_d2`, the
         ``tracking.gate_probability`` quantile of χ²(3)); the gated ones are weighed by the
@@ -636,10 +649,15 @@ class ObjectTracker:
         keep = set(self.ids.tolist()) | set(self._confirmed_at)
         for i in [i for i in self._boxes if i not in keep]:
             del self._boxes[i]
+        self._together = {
+            i: ids
+            for i, ids in self._together.items()
+            if i in self._confirmed_at or i in self._pending
+        }
         if not self.appearance.informative:
             return none
         created = dict(zip(self._created_ids, self._created_frames, strict=True))
-        pairs = self._pending_pairs(state, created)
+        pairs = self._pending_pairs(state)
         young = np.array(sorted(self._confirmed_at), np.int64)
         young = young[state.object_slots(young) >= 0]
         young = young[~np.isin(young, pairs)]
@@ -647,7 +665,8 @@ class ObjectTracker:
         confirmed = self.counters["tracks_confirmed"]
         prior = (self.counters.get("tracks_reidentified", 0) + 1.0) / (confirmed + 2.0)
         for n in young.tolist():
-            old = state.object_ids[state.object_last_seen < created[n]]
+            seen_apart = ~self._seen_together(n, state.object_ids)
+            old = state.object_ids[(state.object_last_seen < created[n]) | seen_apart]
             old = np.concatenate([old, retired])
             old = old[~np.isin(old, young) & ~np.isin(old, pairs)]
             label = int(self.labels_of(np.array([n]))[0])
@@ -697,25 +716,24 @@ class ObjectTracker:
             self._count("objects_merged_by_boxes")
         return merged
 
-    def _pending_pairs(self, state, created: dict[int, int]) -> list[tuple[int, int]]:
+    def _pending_pairs(self, state) -> list[tuple[int, int]]:
         """The pairs ``(n, o)`` that appearance and class alone named (:meth:`reidentify`'s
         gate-free choice) but the position gate refused, taken once the objects' covariances,
         widened by the factor learned since (:attr:`widening`), let them in: the refusal was the
         overconfidence the factor measures. A pair lapses when either object left the state and
-        the persistent map or was merged, or when ``o`` was seen after ``n`` appeared (two
-        objects seen apart in time only can be one)."""
+        the persistent map or was merged, or when the tracker named ``o`` and ``n`` in one
+        frame (one detection per object and frame: two objects)."""
         pairs: list[tuple[int, int]] = []
         if not self._pending or self.widening is None:
             return pairs
         known = np.concatenate([state.object_ids, state.retired.arrays()["ids"]])
         for n, o in list(self._pending.items()):
-            slot_o = state.object_slots(np.array([o]))[0]
             if (
                 n in self.merged
                 or o in self.merged
                 or state.object_slots(np.array([n]))[0] < 0
                 or not np.isin(o, known)
-                or (slot_o >= 0 and state.object_last_seen[slot_o] >= created.get(n, 0))
+                or self._seen_together(n, np.array([o]))[0]
             ):
                 del self._pending[n]
                 continue
@@ -728,6 +746,20 @@ class ObjectTracker:
             if d2[0] <= self.revisit_gate:
                 pairs.append((n, o))
         return pairs
+
+    def _note_together(self, named: np.ndarray) -> None:
+        """Record the ids ``named`` in this frame with each object :attr:`_together` follows."""
+        if not self._together:
+            return
+        names = set(named[named >= 0].tolist())
+        for n in names & self._together.keys():
+            self._together[n] |= names - {n}
+
+    def _seen_together(self, n: int, ids: np.ndarray) -> np.ndarray:
+        """``(len(ids),)`` whether each of ``ids`` (or an object merged into it since) was
+        named in a frame where ``n`` was named too, since ``n``'s first box."""
+        together = {self._continued(i) for i in self._together.get(n, ())}
+        return np.array([i in together for i in np.asarray(ids).tolist()], bool)
 
     def _revisit_ratio(self, n: int, old: np.ndarray) -> np.ndarray:
         """``(len(old),)`` log likelihood ratio of the appearance and class of every box of
@@ -1006,6 +1038,9 @@ class ObjectTracker:
                 self._created_frames.append(int(frames[0]) if frames.size else t)
                 if tid in self._boxes:
                     self._confirmed_at[tid] = t
+                    self._together[tid] = {
+                        int(i) for f, _, _ in past for i in self.log[f - self._first_logged]
+                    } - {-1, tid}
                 self._add_labels(np.array([tid]), self.classes[row : row + 1])
             if self.confirmed[row]:
                 frame.ids[det] = tid
