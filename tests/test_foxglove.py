@@ -353,7 +353,7 @@ def one_robot(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("offline")
     dataset = save_dataset(lissajous_team(robots=1, steps=30, seed=2), tmp / "team1")
-    port = 33400 + (os.getpid() % 100) * 4  # loopback, distinct per test process
+    port = 13200 + (os.getpid() % 100) * 4  # loopback below the ephemeral range, per process
     path = write_team_file(tmp / "team.yaml", "view", dataset, np.zeros((1, 1), bool), port)
     return path, load_team_file(path)
 
@@ -452,7 +452,7 @@ def test_team_launch_foxglove_puts_robot_i_on_base_port_plus_i(tmp_path):
     from teamslam.sim import lissajous_team
 
     dataset = save_dataset(lissajous_team(robots=2, steps=20, seed=3), tmp_path / "team2")
-    port = 33800 + (os.getpid() % 100) * 4  # the robots' Zenoh ports, distinct per process
+    port = 13600 + (os.getpid() % 100) * 4  # the robots' Zenoh ports (as above)
     team = write_team_file(tmp_path / "team.yaml", "views", dataset, ~np.eye(2, dtype=bool), port)
     argv = [sys.executable, "-m", "teamslam", "team", "launch", str(team)]
     base = _free_ports(2)

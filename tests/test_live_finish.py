@@ -25,8 +25,9 @@ pytestmark = pytest.mark.network
 
 
 def _port(offset: int) -> int:
-    """Loopback ports 33400–33799, distinct per test process (offsets 0–3)."""
-    return 33400 + (os.getpid() % 100) * 4 + offset
+    """Loopback ports 12800–13199, distinct per test process (offsets 0–3), below the
+    ephemeral range."""
+    return 12800 + (os.getpid() % 100) * 4 + offset
 
 
 class _Finishing:

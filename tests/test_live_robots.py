@@ -29,8 +29,10 @@ DOMAIN = 23
 
 
 def _port(offset: int) -> int:
-    """Loopback ports 32400–33199, distinct per test process (offsets 0–7)."""
-    return 32400 + (os.getpid() % 100) * 8 + offset
+    """Loopback ports 12000–12799, distinct per test process (offsets 0–7), below the
+    ephemeral range (32768–60999 on Linux) where a listener on port 0 or an outgoing
+    connection may hold one of them."""
+    return 12000 + (os.getpid() % 100) * 8 + offset
 
 
 def _teamslam(*args: str) -> list[str]:
