@@ -457,6 +457,32 @@ def test_classes_forbid_matching_objects_of_different_kinds():
     assert score.correct == 0
 
 
+def test_a_held_pair_whose_classes_came_to_differ_is_revoked():
+    """An object's class is the majority of its boxes' labels: a pair held while the two agreed
+    is revoked once one object's class changes (the association pairs equal classes only); the
+    pairs whose classes still agree, and those with an object outside a summary, are kept."""
+    table, result, a, b, *_ = _table_with_result()
+    classes_a = np.zeros(len(a), np.int64)
+    classes_b = np.zeros(len(b), np.int64)
+    ca = ObjectSummary(a.robot, a.ids, a.means, a.covs, classes_a)
+    cb = ObjectSummary(b.robot, b.ids, b.means, b.covs, classes_b)
+    assert table.revoke_other_classes(ca, cb, step=1) == 0 and len(table) == 40
+    assert table.revoke_other_classes(a, b, step=1) == 0  # no classes: nothing to compare
+    own, their = result.pairs[3]
+    changed = classes_a.copy()
+    changed[np.flatnonzero(a.ids == own)] = 1
+    # a second held pair, its own object missing from the summary, keeps its pair
+    gone = result.pairs[5, 0]
+    keep = a.ids != gone
+    ca = ObjectSummary(a.robot, a.ids[keep], a.means[keep], a.covs[keep], changed[keep])
+    assert table.revoke_other_classes(ca, cb, step=2) == 1
+    assert (own, their) not in table and len(table) == 39 and table.counts()["revoked"] == 1
+    assert tuple(result.pairs[5]) in table
+    # revoked for good: the same answer again does not bring it back
+    table.merge(result, a, b, step=3)
+    assert (own, their) not in table
+
+
 def test_summary_errors_name_the_field():
     with pytest.raises(InputError, match="duplicates"):
         ObjectSummary(0, [1, 1], np.zeros((2, 3)), np.repeat(np.eye(3)[None], 2, axis=0))

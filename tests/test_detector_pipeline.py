@@ -97,6 +97,30 @@ def test_own_tracking_names_the_boxes(boxes_dataset):
         assert agent.tracker.appearance.auc() > 0.95 and agent.tracker.appearance.informative
 
 
+def test_the_association_summaries_carry_the_classes_the_boxes_voted_for(boxes_dataset):
+    """Each robot's summaries to its neighbours carry, per object, the class its tracker's
+    detections voted for (the association pairs objects of one class only, and revokes a held
+    pair whose classes came to differ)."""
+    from teamslam.graph import complete
+    from teamslam.msckf import config_for
+    from teamslam.msckf.consensus.transport import MemoryNetwork
+    from teamslam.msckf.team import lockstep_drivers, run_drivers
+
+    config = config_for(boxes_dataset, {"filter.window": 8}).with_({"association.mode": "own"})
+    n = boxes_dataset.n_robots
+    drivers = lockstep_drivers(boxes_dataset, [config] * n, MemoryNetwork(n), complete(n))
+    run_drivers(drivers, "complete", 0.0, None, progress=False)
+    for driver in drivers:
+        protocol = driver.protocol
+        state = protocol.agent.state
+        ids = np.sort(state.object_ids)
+        covs = np.repeat(np.eye(3)[None], ids.size, axis=0)
+        summary = protocol._object_summary(ids, state.objects[state.object_slots(ids)], covs)
+        labels = protocol.agent.tracker.labels_of(ids)
+        assert ids.size and (labels >= 0).all()
+        np.testing.assert_array_equal(summary.classes, labels)
+
+
 def test_user_folders_with_yolo_files(tmp_path, street):
     """The user's way: folders of images and of YOLO files, from the command line."""
     inputs = rendered_team_inputs(street)

@@ -681,6 +681,28 @@ class CorrespondenceTable:
         self.revoked += 1
         return True
 
+    def revoke_other_classes(
+        self, own: ObjectSummary, theirs: ObjectSummary, step: int | None = None
+    ) -> int:
+        """Revoke the held pairs whose two objects' classes now differ in ``own`` and
+        ``theirs`` (an object's class is the majority of its boxes' labels and may change after
+        its pair was held; the association pairs equal classes only); the number revoked.
+        Pairs with an object outside either summary are kept."""
+        if own.classes is None or theirs.classes is None or not len(self):
+            return 0
+        pairs = self.pairs()
+        own_in = np.isin(pairs[:, 0], own.ids)
+        their_in = np.isin(pairs[:, 1], theirs.ids)
+        pairs = pairs[own_in & their_in]
+        if not pairs.size:
+            return 0
+        own_class = own.classes[_indices(own.ids, pairs[:, 0])]
+        their_class = theirs.classes[_indices(theirs.ids, pairs[:, 1])]
+        other = pairs[own_class != their_class]
+        for own_id, their_id in other.tolist():
+            self.revoke(own_id, their_id, step)
+        return int(other.shape[0])
+
     def counts(self) -> dict[str, int]:
         """``proposed``, ``accepted``, ``revoked`` and ``held`` pairs."""
         return {

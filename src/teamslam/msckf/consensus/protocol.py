@@ -393,9 +393,20 @@ class ConsensusProtocol:
             ids,
             means,
             covs,
+            classes=self._classes(ids),
             views=self.agent.views.of(ids),
             appearance=self._appearance(ids),
         )
+
+    def _classes(self, ids: np.ndarray) -> np.ndarray | None:
+        """``(n,)`` the class of each of our objects ``ids`` — the label its detections voted
+        for (``-1``: none yet) — where the robot tracks detections that carry classes, else
+        ``None`` (the association then matches without classes)."""
+        tracker = self.agent.tracker
+        detections = getattr(self.agent.sequence, "detections", None)
+        if tracker is None or detections is None or detections.classes is None:
+            return None
+        return tracker.labels_of(ids)
 
     def _summary_now(self, j: int) -> ObjectSummary:
         """Our summary of this step for link ``j``, made now: robots aged by stamp drop frames,
@@ -675,6 +686,7 @@ class ConsensusProtocol:
         begin = time.perf_counter()
         table = self.tables[j]
         stats = self.link_stats[j]
+        table.revoke_other_classes(own, theirs, self.step)
         if full and table.due(len(own), len(theirs)):
             held = table.pairs() if own.appearance is not None else None
             result = associate(own, theirs, table.current_settings(), held, table.history)
