@@ -543,3 +543,20 @@ def test_live_class_labels_are_those_of_a_whole_topic_or_refused():
         LiveClassTable.from_state({"names": np.array(["car", "person"])}).state_dict()
     )
     assert again.label("bike", "here") == 2 and again.label("car", "here") == 0
+
+
+def test_a_live_robot_s_detections_read_as_a_dataset_s_do():
+    """The tracker and the association read a live robot's detections as a dataset's: per
+    frame its boxes, and the classes and sizes of the frames kept (the association's summaries
+    carry each object's class where the detections have classes; live boxes always do)."""
+    from teamslam.live import LiveSequence
+
+    sequence = LiveSequence(np.eye(4), detections=True)
+    boxes = sequence.detections
+    assert boxes.classes.size == 0 and boxes.sizes.shape == (0, 2)
+    z = np.array([[300.0, 200.0, 280.0, 200.0], [100.0, 50.0, 90.0, 50.0]])
+    boxes.add(0, z, np.array([2, 0]), np.ones((2, 3)), np.array([[20.0, 30.0], [8.0, 9.0]]))
+    boxes.add(1, z[:1], np.array([2]), np.ones((1, 3)), np.array([[21.0, 31.0]]))
+    np.testing.assert_array_equal(boxes.frame(1)[1], [2])
+    np.testing.assert_array_equal(boxes.classes, [2, 0, 2])
+    assert boxes.classes.dtype == np.int64 and boxes.sizes.shape == (3, 2)

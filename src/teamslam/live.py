@@ -216,6 +216,14 @@ class _Detections:
         kept = [self._frames[t][3] for t in sorted(self._frames)]
         return np.concatenate(kept) if kept else np.zeros((0, 2))
 
+    @property
+    def classes(self) -> np.ndarray:
+        """``(D,)`` the class labels of the frames kept, in frame order: live boxes always carry
+        one (the detection topic's class table; never ``None``, as a dataset's detections
+        without classes would be)."""
+        kept = [self._frames[t][1] for t in sorted(self._frames)]
+        return np.concatenate(kept) if kept else np.zeros(0, np.int64)
+
 
 class LiveSequence:
     """A robot's sequence while it is recorded: what :class:`~teamslam.msckf.agent.MsckfAgent`

@@ -403,7 +403,7 @@ class ConsensusProtocol:
         for (``-1``: none yet) — where the robot tracks detections that carry classes, else
         ``None`` (the association then matches without classes)."""
         tracker = self.agent.tracker
-        detections = getattr(self.agent.sequence, "detections", None)
+        detections = self.agent.sequence.detections
         if tracker is None or detections is None or detections.classes is None:
             return None
         return tracker.labels_of(ids)
