@@ -3,8 +3,9 @@
 The calibration recovers a known size-proportional noise from a team's detections alone, its
 floor never below the pixel grid's own for boxes on images; an
 object seen only through boxes cut by the image border is estimated without bias (its error
-consistent with its covariance), which it is not when the cut goes unnoticed; data without box
-sizes keep the plain σ.
+consistent with its covariance), which it is not when the cut goes unnoticed; an object leaving
+the view through the right border keeps its id and a consistent estimate, which it loses when
+the right centre of its cut boxes is taken as uncut; data without box sizes keep the plain σ.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from teamslam.datasets.model import (
     FrameObservations,
     RobotSequence,
 )
+from teamslam.eval.tracking import mot_metrics
 from teamslam.gaussian import chi2_quantile
 from teamslam.msckf.agent import MsckfAgent
 from teamslam.msckf.calibration import (
@@ -32,6 +34,7 @@ from teamslam.msckf.calibration import (
 from teamslam.msckf.configure import build_settings
 from teamslam.msckf.filter.box_noise import box_rows, box_variances
 from teamslam.msckf.filter.models import observe
+from teamslam.msckf.objects.tracking import ObjectTracker
 from teamslam.msckf.settings.health import InnovationRecord
 from teamslam.msckf.settings.sources import calibration_start
 from teamslam.msckf.settings.values import MsckfConfig
@@ -235,6 +238,117 @@ def test_an_object_seen_only_through_cut_boxes_is_estimated_without_bias():
     # the same boxes with the cut unnoticed (no image size): the inward bias shows
     without, _ = _nees(None)
     assert without > 3 * with_cut
+
+
+def test_a_box_the_right_border_cut_has_both_centres_cut():
+    # the left box cut at the right border; its right centre the visible part's, 30 px of
+    # disparity to the left, where the right image's box (as wide) is clear of its border
+    z = np.array([[600.0, 240.0, 570.0, 240.0], [600.0, 240.0, np.nan, np.nan]])
+    sizes = np.array([[79.0, 60.0], [79.0, 60.0]])
+    rows = box_rows(z, sizes, IMAGE, 0.5, 0.03)
+    assert rows[0, 6:].tolist() == [1, 0, 1, 0]
+    assert rows[1, 6:].tolist() == [1, 0, 0, 0]  # no right centre: nothing of it to cut
+    clear = box_rows(z[:1] - [20.0, 0.0, 20.0, 0.0], sizes[:1], IMAGE, 0.5, 0.03)
+    assert not clear[:, 6:].any()  # the same box clear of the border by some σ
+    # the tracker bounds both centres from the right, also a wide near box's right centre in
+    # the image's left half
+    tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, MsckfConfig(), image_size=IMAGE)
+    wide = box_rows(np.array([[420.0, 240.0, 300.0, 240.0]]), [[439.0, 60.0]], IMAGE, 0.5, 0.03)
+    assert tracker._cut_sides(rows[:1]).tolist() == [[1, 0, 1, 0]]
+    assert tracker._cut_sides(wide).tolist() == [[1, 0, 1, 0]]
+
+
+def _leaving_sequence(seed: int, objects: int = 8):
+    """One robot driving straight past objects on its right, each detected whole and then while
+    the left image's right border cuts it, until less than 0.4 of it shows: the visible part's
+    box, its centre and size, and the right centre the visible part's at the object's disparity
+    (as the front-end finds it by the part's patch), plus noise."""
+    rng = np.random.default_rng(seed)
+    step = 0.1
+    steps = int((8.0 + 5.0 * objects) / step)
+    poses = np.tile(np.eye(4), (steps + 1, 1, 1))
+    poses[:, 0, 3] = step * np.arange(steps + 1)
+    odometry = np.linalg.inv(poses[:-1]) @ poses[1:]
+    fx = CAMERA.intrinsics[0, 0]
+    points = np.column_stack(
+        [
+            10.0 + 5.0 * np.arange(objects),
+            -rng.uniform(2.0, 4.0, objects),
+            rng.uniform(-0.5, 0.5, objects),
+        ]
+    )
+    half = rng.uniform(0.3, 0.6, objects)  # half-widths in metres
+    floor, share = 0.3, 0.03
+    border = IMAGE[0] - 0.5
+    offsets, rows, sizes, truth = [0], [], [], []
+    for t in range(steps + 1):
+        depth = points[:, 0] - poses[t, 0, 3]
+        count = 0
+        for j in np.flatnonzero((depth > 1.0) & (depth < 15.0)).tolist():
+            z_true = observe(CAMERA, T_CAM_BODY, poses[t], points[j][None])[0]
+            width, height = 2 * fx * half[j] / depth[j], fx / depth[j]
+            left, right = z_true[0] - width / 2, z_true[0] + width / 2
+            if left < -0.5 or border - left < 0.4 * width:
+                continue
+            if right <= border:
+                centre_l, w_vis = z_true[0], width
+            else:
+                centre_l, w_vis = (left + border) / 2, border - left
+            centre_r = centre_l - (z_true[0] - z_true[2])
+            std = np.sqrt(floor**2 + (share * np.array([w_vis, height])) ** 2)
+            noise = std[[0, 1, 0, 1]] * rng.standard_normal(4)
+            rows.append(np.array([centre_l, z_true[1], centre_r, z_true[3]]) + noise)
+            sizes.append([w_vis, height])
+            truth.append(j)
+            count += 1
+        offsets.append(offsets[-1] + count)
+    detections = FrameDetections(
+        np.array(offsets), np.array(rows), truth=np.array(truth), sizes=np.array(sizes)
+    )
+    empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
+    sequence = RobotSequence(
+        T_world_body=poses,
+        odometry=odometry,
+        features=FrameObservations.from_frames([empty] * (steps + 1)),
+        objects=FrameObservations.from_frames([empty] * (steps + 1)),
+        detections=detections,
+    )
+    config = MsckfConfig.from_settings(
+        {
+            "filter.object_std": floor,
+            "filter.object_size_share": share,
+            "filter.odometry_std": (1e-3,) * 3 + (1e-4,) * 3,
+            "filter.window": 10,
+        }
+    )
+    return sequence, points, config
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_an_object_leaving_through_the_right_border_keeps_its_id_and_its_estimate(seed):
+    sequence, points, config = _leaving_sequence(seed)
+    agent = MsckfAgent(0, Calibration(CAMERA, T_CAM_BODY, IMAGE), sequence, config)
+    for t in range(sequence.frames):
+        agent.step(t)
+    detections = sequence.detections
+    cut = box_rows(detections.measurements, detections.sizes, IMAGE, 0.3, 0.03)[:, 6]
+    assert cut.sum() >= 5 * points.shape[0]  # every object leaves through the border
+    hyp = agent.tracker.hypotheses()
+    # one id per object over its whole pass, the cut boxes' included (the right centre taken
+    # as uncut puts the cut boxes outside their object's gate: a second track, a second id)
+    metrics = mot_metrics(detections.offsets, detections.truth, hyp)
+    assert metrics["fn"] == 0 and metrics["id_switches"] == 0
+    assert metrics["objects_created"] == points.shape[0]
+    ids, means, covs = agent.state.full_map()
+    nees = []
+    for oid, mean, cov in zip(ids.tolist(), means, covs, strict=True):
+        named = detections.truth[hyp == oid]
+        if named.size:
+            error = mean - points[np.bincount(named).argmax()]
+            nees.append(error @ np.linalg.solve(cov, error))
+    assert len(nees) == points.shape[0]
+    # each object's error consistent with its covariance: inside χ²(3)'s 99.9% quantile
+    assert max(nees) < chi2_quantile(0.999, 3)
 
 
 def test_data_without_box_sizes_keeps_one_sigma():

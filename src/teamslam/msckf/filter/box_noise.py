@@ -89,8 +89,12 @@ def box_rows(
     A coordinate is clipped when an edge of its box lies within :data:`CLIP_EDGE_SIGMAS` edge
     σ (``√2`` times the centre's unclipped σ, one pixel at least) of the image's border
     ``[-0.5, W - 0.5] × [-0.5, H - 0.5]``: the border cut the box there, or the detector's
-    noise moved its edge just inside. The right image's box is taken as wide as the left one's.
-    Without ``image_size`` no box counts as clipped.
+    noise moved its edge just inside. The right image's box is taken as wide as the left one's,
+    and ``u_r`` counts as clipped wherever the left box is clipped at the right border: the
+    right centre was found for the visible part (its patch, or a right box cut as well), so it
+    lies as far inward of the object's as the left one, though the right image — a point at
+    ``u_l`` is seen at ``u_l − d`` — shows that box clear of its border. Without ``image_size``
+    no box counts as clipped.
     """
     z = np.asarray(z, dtype=float)
     sizes = np.asarray(sizes, dtype=float)
@@ -108,6 +112,11 @@ def box_rows(
         low = centre - half[:, axis] <= margin[:, axis]
         high = centre + half[:, axis] >= extent - 1.0 - margin[:, axis]
         rows[:, 6 + column] = low | high
+    # a box the left image's right border cut: its right centre is that of the visible part
+    # (the part's patch, or a right box cut as well), inward of the object's as the left one,
+    # though the right image, which sees further right, shows it clear of its border
+    cut_right = z[:, 0] + half[:, 0] >= width - 1.0 - margin[:, 0]
+    rows[:, 8] = np.maximum(rows[:, 8], cut_right & np.isfinite(z[:, 2]))
     # a box cut at the top or bottom is cut in both images (the same rows after rectification)
     v_cut = np.maximum(rows[:, 7], rows[:, 9])
     rows[:, 7] = rows[:, 9] = v_cut

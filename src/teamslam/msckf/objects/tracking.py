@@ -558,11 +558,14 @@ class ObjectTracker:
         """``(D, 4)`` per centre coordinate of box rows the border that cut it: ``-1`` the low
         one (left, top), ``+1`` the high one, ``0`` not cut (the clipped flags of
         :func:`~teamslam.msckf.filter.box_noise.box_rows`; the side: the half of the image the
-        centre lies in)."""
+        centre lies in, and for ``u_r`` of a box whose ``u_l`` is cut that of ``u_l`` — both
+        images cut it on one side, and the right centre lies up to the disparity left of the
+        left one)."""
         if self.image_size is None:
             return np.zeros((rows.shape[0], 4), np.int64)
         extent = np.array([self.image_size[0], self.image_size[1]] * 2, float)
         side = np.where(rows[:, :4] < 0.5 * (extent - 1.0), -1, 1)
+        side[:, 2] = np.where(rows[:, 6] > 0, side[:, 0], side[:, 2])
         return np.where(rows[:, 6:10] > 0, side, 0)
 
     def first_ids(self) -> np.ndarray:
