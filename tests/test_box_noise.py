@@ -142,6 +142,34 @@ def test_the_box_noise_floor_is_kept_at_the_pixel_grid_s_own_error():
     assert box_quantization_std(unknown) == 0.0
 
 
+def _one_robot(poses, boxes, floor: float, share: float, settings: dict | None = None):
+    """A robot driving ``poses`` with exact odometry (the filter's σ a millimetre), its only
+    observations the boxes ``(offsets, rows, sizes, truth)``, and its filter's settings."""
+    offsets, rows, sizes, truth = boxes
+    detections = FrameDetections(
+        np.array(offsets), np.array(rows), truth=np.array(truth), sizes=np.array(sizes)
+    )
+    frames = poses.shape[0]
+    empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
+    sequence = RobotSequence(
+        T_world_body=poses,
+        odometry=np.linalg.inv(poses[:-1]) @ poses[1:],
+        features=FrameObservations.from_frames([empty] * frames),
+        objects=FrameObservations.from_frames([empty] * frames),
+        detections=detections,
+    )
+    config = MsckfConfig.from_settings(
+        {
+            "filter.object_std": floor,
+            "filter.object_size_share": share,
+            "filter.odometry_std": (1e-3,) * 3 + (1e-4,) * 3,
+            "filter.window": 10,
+            **(settings or {}),
+        }
+    )
+    return sequence, config
+
+
 def _clipped_sequence(seed: int, objects: int = 10):
     """One robot driving straight past objects on its left, each detected only while the left
     image border cuts its box (the visible part's box, its centre and size, plus noise)."""
@@ -150,7 +178,6 @@ def _clipped_sequence(seed: int, objects: int = 10):
     steps = int((12.0 + 4.0 * objects) / step)
     poses = np.tile(np.eye(4), (steps + 1, 1, 1))
     poses[:, 0, 3] = step * np.arange(steps + 1)
-    odometry = np.linalg.inv(poses[:-1]) @ poses[1:]
     k = CAMERA.intrinsics
     fx, cx = k[0, 0], k[0, 2]
     # one after another along the way, each reaching the left border of the view at a depth
@@ -186,26 +213,8 @@ def _clipped_sequence(seed: int, objects: int = 10):
             truth.append(j)
             count += 1
         offsets.append(offsets[-1] + count)
-    detections = FrameDetections(
-        np.array(offsets), np.array(rows), truth=np.array(truth), sizes=np.array(sizes)
-    )
-    empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
-    sequence = RobotSequence(
-        T_world_body=poses,
-        odometry=odometry,
-        features=FrameObservations.from_frames([empty] * (steps + 1)),
-        objects=FrameObservations.from_frames([empty] * (steps + 1)),
-        detections=detections,
-    )
-    config = MsckfConfig.from_settings(
-        {
-            "filter.object_std": floor,
-            "filter.object_size_share": share,
-            "filter.odometry_std": (1e-3,) * 3 + (1e-4,) * 3,
-            "filter.window": 10,
-            "objects.retire_after": 0,
-        }
-    )
+    boxes = (offsets, rows, sizes, truth)
+    sequence, config = _one_robot(poses, boxes, floor, share, {"objects.retire_after": 0})
     return sequence, points, config
 
 
@@ -268,7 +277,6 @@ def _leaving_sequence(seed: int, objects: int = 8):
     steps = int((8.0 + 5.0 * objects) / step)
     poses = np.tile(np.eye(4), (steps + 1, 1, 1))
     poses[:, 0, 3] = step * np.arange(steps + 1)
-    odometry = np.linalg.inv(poses[:-1]) @ poses[1:]
     fx = CAMERA.intrinsics[0, 0]
     points = np.column_stack(
         [
@@ -302,25 +310,7 @@ def _leaving_sequence(seed: int, objects: int = 8):
             truth.append(j)
             count += 1
         offsets.append(offsets[-1] + count)
-    detections = FrameDetections(
-        np.array(offsets), np.array(rows), truth=np.array(truth), sizes=np.array(sizes)
-    )
-    empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
-    sequence = RobotSequence(
-        T_world_body=poses,
-        odometry=odometry,
-        features=FrameObservations.from_frames([empty] * (steps + 1)),
-        objects=FrameObservations.from_frames([empty] * (steps + 1)),
-        detections=detections,
-    )
-    config = MsckfConfig.from_settings(
-        {
-            "filter.object_std": floor,
-            "filter.object_size_share": share,
-            "filter.odometry_std": (1e-3,) * 3 + (1e-4,) * 3,
-            "filter.window": 10,
-        }
-    )
+    sequence, config = _one_robot(poses, (offsets, rows, sizes, truth), floor, share)
     return sequence, points, config
 
 
