@@ -106,17 +106,16 @@ def box_rows(
     width, height = image_size
     sigma = np.sqrt(std**2 + (share * sizes) ** 2)  # (D, 2): u, v
     margin = -0.5 + np.maximum(CLIP_EDGE_SIGMAS * np.sqrt(2.0) * sigma, 1.0)
-    half = 0.5 * sizes
-    for column, axis, extent in ((0, 0, width), (1, 1, height), (2, 0, width), (3, 1, height)):
-        centre = z[:, column]
-        low = centre - half[:, axis] <= margin[:, axis]
-        high = centre + half[:, axis] >= extent - 1.0 - margin[:, axis]
-        rows[:, 6 + column] = low | high
+    axis = [0, 1, 0, 1]  # u_l, v_l, u_r, v_r: each coordinate's box side and image extent
+    half, margin = 0.5 * sizes[:, axis], margin[:, axis]
+    extent = np.array([width, height, width, height], float)
+    low = z - half <= margin
+    high = z + half >= extent - 1.0 - margin
+    rows[:, 6:10] = low | high
     # a box the left image's right border cut: its right centre is that of the visible part
     # (the part's patch, or a right box cut as well), inward of the object's as the left one,
     # though the right image, which sees further right, shows it clear of its border
-    cut_right = z[:, 0] + half[:, 0] >= width - 1.0 - margin[:, 0]
-    rows[:, 8] = np.maximum(rows[:, 8], cut_right & np.isfinite(z[:, 2]))
+    rows[:, 8] = np.maximum(rows[:, 8], high[:, 0] & np.isfinite(z[:, 2]))
     # a box cut at the top or bottom is cut in both images (the same rows after rectification)
     v_cut = np.maximum(rows[:, 7], rows[:, 9])
     rows[:, 7] = rows[:, 9] = v_cut
