@@ -110,20 +110,24 @@ def test_a_box_cut_by_the_border_bounds_its_object_from_one_side():
         assert frame.ids.tolist() == ([7] if named else [-1])
 
 
-def test_censored_distances_equal_the_plain_ones_without_cut_coordinates():
-    from teamslam.msckf.objects.tracking import _censored_d2, _squared_distances_each
+def test_pair_distances_equal_each_pairs_own_and_vanish_when_censored():
+    from teamslam.msckf.objects.tracking import _censor, _pair_d2
 
     rng = np.random.default_rng(0)
     a = rng.normal(size=(3, 4, 4))
     s = a @ np.swapaxes(a, 1, 2) + np.eye(4)
     pred, z = rng.normal(size=(3, 4)) * 5, rng.normal(size=(2, 4)) * 5
-    noise = rng.uniform(0.5, 2.0, size=(2, 4))
-    plain = _squared_distances_each(s, pred, z, noise)
-    np.testing.assert_allclose(_censored_d2(s, pred, z, noise, np.zeros((2, 4))), plain)
-    # every coordinate censored on the side each residual lies: zero distance
-    sides = np.where(z[None] - pred[:, None] > 0, -1, 1)
+    noise = rng.uniform(0.5, 2.0, size=(3, 2, 4))
+    r = z[None] - pred[:, None]
+    d2 = _pair_d2(s, r, noise)
     for t in range(3):
-        assert np.allclose(_censored_d2(s[t : t + 1], pred[t : t + 1], z, noise, sides[t]), 0)
+        for j in range(2):
+            cov = s[t] + np.diag(noise[t, j])
+            assert np.isclose(d2[t, j], r[t, j] @ np.linalg.solve(cov, r[t, j]))
+    np.testing.assert_allclose(_pair_d2(s, _censor(r, np.zeros((1, 2, 4))), noise), d2)
+    # every coordinate censored on the side each residual lies: zero distance
+    sides = np.where(r > 0, -1, 1)
+    assert np.allclose(_pair_d2(s, _censor(r, sides), noise), 0)
 
 
 def _moving_state(steps: int, step: np.ndarray) -> MsckfState:
@@ -179,3 +183,30 @@ def test_a_confirmed_track_names_its_earlier_left_image_only_boxes_from_their_ow
     z_now = observe(CAMERA, T_CAM_BODY, poses[-1], c[None])[0]
     z_then = observe(CAMERA, T_CAM_BODY, poses[3], c[None])[0]
     assert abs(z_now[0] - z_then[0]) > 10.0
+
+
+def test_a_box_an_occluder_cut_short_keeps_its_object_and_a_smaller_box_inside_does_not():
+    """An object seen whole as a 60 × 40 px box, then with its right 40 % hidden (a 36 px box
+    whose centre lies 12 px left of the object's, 10 σ of the box noise): its left edge is the
+    object's, so it stays the object's. A 20 px box of another object inside the first one's,
+    8 px left of its centre, reaches neither of its edges: not taken, though an occluder could
+    have hidden 40 px of a box around it."""
+    state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-8)
+    state.add_object(7, A, np.eye(3) * 0.005**2, np.zeros((3, state.dim)))  # known: ~0.2 px
+    tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)
+    whole = _boxes(state, [A], size=(60.0, 40.0))
+    for t in range(5):
+        assert tracker.assign(t, whole, None, state, W).ids.tolist() == [7]
+    extent = tracker._extent_of(np.array([7]))[0]
+    disparity = whole[0, 0] - whole[0, 2]
+    np.testing.assert_allclose(extent * disparity, [60.0, 40.0])
+    hidden = whole.copy()
+    hidden[0, 4] = 36.0
+    hidden[0, [0, 2]] -= 12.0
+    plain = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)  # no size learned: the centre as is
+    assert plain.assign(0, hidden, None, state, W).ids.tolist() == [-1]
+    assert tracker.assign(5, hidden, None, state, W).ids.tolist() == [7]
+    inside = whole.copy()
+    inside[0, 4] = 20.0
+    inside[0, [0, 2]] -= 8.0
+    assert tracker.assign(6, inside, None, state, W).ids.tolist() == [-1]

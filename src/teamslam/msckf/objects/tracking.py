@@ -205,6 +205,10 @@ class ObjectTracker:
         # ``(u_l, v_l, σ²_u, σ²_v, cut side u, cut side v, label)``
         self._unnamed_keys = np.zeros((0, 2), np.int64)
         self._unnamed = np.zeros((0, 7))
+        # per target, the size ``(w, h)`` over the disparity of every uncut stereo box it took:
+        # the object's width and height over the baseline (times ``f_y / f_x`` for the
+        # height), whatever the depth (:meth:`_occlusion`)
+        self._extents: dict[int, list[tuple[float, float]]] = {}
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -279,12 +283,11 @@ class ObjectTracker:
             centres = np.ascontiguousarray(z[:, :4], dtype=float)
             if self._noise is None:
                 d2 = _squared_distances(s, pred, centres)  # (T, D)
-            else:  # S = H P Hᵀ + R of each detection
-                d2 = _squared_distances_each(s, pred, centres, self._noise)
-                cut = self._cut_sides(z)
-                rows = np.flatnonzero(cut.any(axis=1))
-                if rows.size:  # a cut box's centre bounds its object's from one side only
-                    d2[:, rows] = _censored_d2(s, pred, centres[rows], self._noise[rows], cut[rows])
+            else:  # S = H P Hᵀ + R of each detection; a box short of its target: its edge
+                shift, noise = self._occlusion(target_ids, pred, z, self._noise)
+                r = centres[None] + shift - pred[:, None]  # (T, D, 4)
+                # a cut box's centre bounds its object's from one side only
+                d2 = _pair_d2(s, _censor(r, self._cut_sides(z)[None]), noise)
             cost = d2 - self.gate
             if classes is None:  # no labels: every pair of a target in front agrees
                 agree = in_front[:, None]
@@ -363,6 +366,10 @@ class ObjectTracker:
             near_target = np.any(inside_birth & blocking[:, None], axis=0)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
+        if self._noise is not None and hit.any():
+            self._learn_extents(
+                target_ids[assigned_target[hit]], pred[assigned_target[hit]], z[hit]
+            )
         if classes is not None and self._noise is not None and hit.any():
             self._learn_labels(hit, assigned_target, kinds, target_ids, target_labels, labels)
         if self._descriptors is not None and hit.any():
@@ -450,6 +457,8 @@ class ObjectTracker:
             out["together"] = np.array(pairs, np.int64).reshape(-1, 2)
         out["unnamed_keys"] = self._unnamed_keys.copy()
         out["unnamed"] = self._unnamed.copy()
+        extents = [(i, *size) for i, sizes in self._extents.items() for size in sizes]
+        out["extents"] = np.array(extents, float).reshape(-1, 3)
         return out
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
@@ -483,6 +492,9 @@ class ObjectTracker:
         self.label_model.frequency = np.array(state["label_frequency"], float)
         self._unnamed_keys = np.array(state.get("unnamed_keys", np.zeros((0, 2))), np.int64)
         self._unnamed = np.array(state.get("unnamed", np.zeros((0, 7))), float)
+        self._extents = {}
+        for i, w, h in np.asarray(state.get("extents", np.zeros((0, 3))), float).tolist():
+            self._extents.setdefault(int(i), []).append((w, h))
         if self.loop is not None:
             self.loop.load_state({k[5:]: v for k, v in state.items() if k.startswith("loop_")})
         if "appearance_counts" in state:
@@ -522,9 +534,12 @@ class ObjectTracker:
         else:
             noise = np.full((z.shape[0], 2), self.config.filter.object_std**2)
         r = z[None, :, :2] - pred[rows, None, :2]  # (T, M, 2)
-        if is_box(z):  # a cut box's centre bounds its object's from one side only
-            r = _censor(r, cut[None])
-        cov = s[rows, None, :2, :2] + _diagonal(noise)[None]  # (T, M, 2, 2)
+        if is_box(z):  # a box short of its target: its edge; a cut one bounds it from a side
+            shift, noise = self._occlusion(target_ids[rows], pred[rows], z, noise, left_only=True)
+            r = _censor(r + shift, cut[None])
+        else:
+            noise = np.broadcast_to(noise, r.shape)
+        cov = s[rows, None, :2, :2] + _diagonal(noise)  # (T, M, 2, 2)
         d2 = np.einsum("tmi,tmi->tm", r, np.linalg.solve(cov, r[..., None])[..., 0])
         gate = chi2_quantile(self.config.tracking.gate_probability, 2)
         cost = d2 - gate
@@ -553,6 +568,81 @@ class ObjectTracker:
         f = self.config.filter
         noise = box_variances(left, f.object_std, f.object_size_share)[:, :2]
         return noise, self._cut_sides(left)[:, :2]
+
+    def _extent_of(self, ids: np.ndarray) -> np.ndarray:
+        """``(len(ids), 2)`` each target's size over the disparity (:attr:`_extents`): the
+        median of its boxes' (an occluder or a cut hides part of a few; NaN: none yet)."""
+        out = np.full((ids.size, 2), np.nan)
+        for k, i in enumerate(ids.tolist()):
+            sizes = self._extents.get(i)
+            if sizes:
+                out[k] = np.median(np.asarray(sizes), axis=0)
+        return out
+
+    def _occlusion(
+        self,
+        ids: np.ndarray,
+        pred: np.ndarray,
+        z: np.ndarray,
+        noise: np.ndarray,
+        paired: bool = False,
+        left_only: bool = False,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A box as a measurement of a target it falls short of: an occluder (or the detector)
+        hid part of the object on one side, so the box's other edge is the object's and the
+        object's centre lies half the missing extent ``m`` beyond the box's, on the side not
+        known. Per axis (``u`` by the width, ``v`` by the height) the centre is taken as the
+        box's, or shifted by ``± m / 2`` towards the target's prediction, whichever lies
+        nearest it; a shifted centre is an edge plus half a size, with twice the centre's
+        variance (the edge's). A box inside a larger target that reaches neither of its edges
+        stays as far from it as it is. Not for a coordinate the image border cut (censored
+        already), nor for a target of no size yet (:attr:`_extents`).
+
+        ``ids``, ``pred``: the targets and their predicted centres ``(T, 4)``; ``z``: box rows
+        ``(D, BOX_COLUMNS)`` with their centres' variances ``noise`` ``(D, 4)``. Returns the
+        shifts to add to the box centres and their variances, ``(T, D, 4)`` each, or with
+        ``paired`` ``(T, 4)`` for the pairs ``(ids[k], z[k])``; with ``left_only`` (boxes seen
+        in the left image only, ``noise`` ``(D, 2)``) ``(T, D, 2)`` for ``(u_l, v_l)``."""
+        extent = self._extent_of(ids)  # (T, 2)
+        disparity = pred[:, 0] - pred[:, 2]
+        expected = extent * np.where(disparity > 0, disparity, np.nan)[:, None]  # (T, 2)
+        if paired:
+            short, r = expected - z[:, 4:6], z[:, :4] - pred  # (T, 2), (T, 4)
+            cut, var = z[:, 6:10], noise
+        else:
+            short = expected[:, None, :] - z[None, :, 4:6]  # (T, D, 2)
+            r = z[None, :, :4] - pred[:, None, :]  # (T, D, 4)
+            cut, var = z[None, :, 6:10], noise[None]
+        # per axis the mean residual of its coordinates decides the side (one occluder)
+        if left_only:
+            mean, cut = r[..., :2], cut[..., :2]
+        else:
+            mean = 0.5 * (r[..., [0, 1]] + r[..., [2, 3]])
+        half = 0.5 * np.where(np.isfinite(short), np.maximum(short, 0.0), 0.0)
+        if not left_only:
+            half, mean = half[..., [0, 1, 0, 1]], mean[..., [0, 1, 0, 1]]
+        half = half * (1.0 - cut)
+        shifted = (half > 0) & (half < 2.0 * np.abs(mean))  # nearer than the box's own
+        shift = np.where(shifted, -np.sign(mean) * half, 0.0)
+        out_var = np.where(shifted, 2.0 * var, var)
+        return shift, np.broadcast_to(out_var, shift.shape).copy()
+
+    def _learn_extents(self, ids: np.ndarray, pred: np.ndarray, z: np.ndarray) -> None:
+        """Add the size over the disparity of each uncut box ``z`` taken by target ``ids``
+        (predicted at ``pred``) to the target's (:attr:`_extents`): the disparity its own
+        prediction gives, less noisy than the box's."""
+        disparity = pred[:, 0] - pred[:, 2]
+        ok = (disparity > 0) & ~z[:, 6:10].any(axis=1)
+        for i, size in zip(
+            ids[ok].tolist(), (z[ok, 4:6] / disparity[ok, None]).tolist(), strict=True
+        ):
+            self._extents.setdefault(i, []).append((size[0], size[1]))
+
+    def _merge_extents(self, new: int, old: int) -> None:
+        """The sizes of ``new``, merged into ``old`` (one object)."""
+        sizes = self._extents.pop(new, None)
+        if sizes:
+            self._extents.setdefault(old, []).extend(sizes)
 
     def _cut_sides(self, rows: np.ndarray) -> np.ndarray:
         """``(D, 4)`` per centre coordinate of box rows the border that cut it: ``-1`` the low
@@ -622,6 +712,7 @@ class ObjectTracker:
         )
         for n, o in pairs.tolist():
             self.merged[n] = o
+            self._merge_extents(n, o)
             if self.memory is not None:
                 self.memory.merge(n, o)
         self.counters["loop_closures"] = len(self.loop.closures)
@@ -709,6 +800,7 @@ class ObjectTracker:
         merge_objects(state, merged, t, factors)
         for n, o in pairs:
             self.merged[n] = o
+            self._merge_extents(n, o)
             self.memory.merge(n, o)
             for label, count in self._votes.pop(n, {}).items():
                 votes = self._votes.setdefault(o, {})
@@ -986,10 +1078,14 @@ class ObjectTracker:
         cov = self.covs[rows]
         cross = hp @ cov  # (k, 4, 3) = H C
         s_pair = s[targets]
-        if self._noise is not None:
-            s_pair = s_pair + _diagonal(self._noise[detections])
-        gain_t = np.linalg.solve(s_pair, cross)  # (k, 4, 3) = S⁻¹ H C = Kᵀ
         r = z[detections, :4] - pred[targets]
+        if self._noise is not None:
+            shift, noise = self._occlusion(
+                self.ids[rows], pred[targets], z[detections], self._noise[detections], True
+            )
+            r = r + shift
+            s_pair = s_pair + _diagonal(noise)
+        gain_t = np.linalg.solve(s_pair, cross)  # (k, 4, 3) = S⁻¹ H C = Kᵀ
         self.points[rows] += np.einsum("kij,ki->kj", gain_t, r)
         cov = cov - np.swapaxes(cross, 1, 2) @ gain_t
         self.covs[rows] = 0.5 * (cov + np.swapaxes(cov, 1, 2))
@@ -1012,6 +1108,7 @@ class ObjectTracker:
             if oid in taken:
                 continue
             taken.add(oid)
+            self._merge_extents(int(self.ids[row]), oid)
             if self.memory is not None:
                 self.memory.merge(int(self.ids[row]), oid)
                 self._count("tracks_reidentified")
@@ -1185,6 +1282,8 @@ class ObjectTracker:
         self.confirmed = np.concatenate([self.confirmed, np.zeros(k, bool)])
         self.revisit_of = np.concatenate([self.revisit_of, lone_stale])
         self.revisit_hits = np.concatenate([self.revisit_hits, (lone_stale >= 0).astype(np.int64)])
+        if self._noise is not None:  # the first box's size, over its own disparity
+            self._learn_extents(ids, z[:, :4], z)
         for tid, row, j in zip(ids.tolist(), z, index.tolist(), strict=True):
             self.history[tid] = [(t, row.copy(), j)]
             if self._descriptors is not None:
@@ -1455,47 +1554,13 @@ def _censor(r: np.ndarray, sides: np.ndarray) -> np.ndarray:
     return np.where(low | high, 0.0, r)
 
 
-def _censored_d2(s, pred, z, noise, sides) -> np.ndarray:
-    """``(T, D)`` ``d²`` of :func:`_squared_distances_each` with the residuals of cut
-    coordinates censored (:func:`_censor`; ``sides`` ``(D, 4)``)."""
-    r = _censor(z[None, :, :4] - pred[:, None, :], sides[None])  # (T, D, 4)
-    cov = s[:, None] + _diagonal(noise)[None]  # (T, D, 4, 4)
+def _pair_d2(s: np.ndarray, r: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """``d²[t, j] = r_tjᵀ (S_t + R_tj)⁻¹ r_tj`` with ``R_tj = diag(noise[t, j])``: residuals
+    ``r`` ``(T, D, 4)``, one Cholesky factorisation per pair."""
+    cov = s[:, None] + _diagonal(noise)  # (T, D, 4, 4)
     factor = np.linalg.cholesky(cov)
     y = np.linalg.solve(factor, r[..., None])[..., 0]
     return np.einsum("tdi,tdi->td", y, y)
-
-
-def _squared_distances_each(s, pred, z, noise):
-    """``d²[t, j] = (z_j − ẑ_t)ᵀ (S_t + R_j)⁻¹ (z_j − ẑ_t)``, ``R_j = diag(noise[j])``: one
-    Cholesky factorisation per pair (each detection its own noise)."""
-    n, d = pred.shape[0], z.shape[0]
-    out = np.empty((n, d))
-    chol = np.zeros((4, 4))
-    y = np.empty(4)
-    for t in range(n):
-        for j in range(d):
-            for a in range(4):
-                for b in range(a + 1):
-                    acc = s[t, a, b] + (noise[j, a] if a == b else 0.0)
-                    for k in range(b):
-                        acc -= chol[a, k] * chol[b, k]
-                    if a == b:
-                        if not acc > 0.0:
-                            raise np.linalg.LinAlgError(
-                                "innovation covariance not positive definite"
-                            )
-                        chol[a, a] = np.sqrt(acc)
-                    else:
-                        chol[a, b] = acc / chol[b, b]
-            total = 0.0
-            for a in range(4):
-                acc = z[j, a] - pred[t, a]
-                for k in range(a):
-                    acc -= chol[a, k] * y[k]
-                y[a] = acc / chol[a, a]
-                total += y[a] * y[a]
-            out[t, j] = total
-    return out
 
 
 @numba.njit(cache=True)
