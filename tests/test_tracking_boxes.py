@@ -197,7 +197,7 @@ def test_a_box_an_occluder_cut_short_keeps_its_object_and_a_smaller_box_inside_d
     whole = _boxes(state, [A], size=(60.0, 40.0))
     for t in range(5):
         assert tracker.assign(t, whole, None, state, W).ids.tolist() == [7]
-    extent = tracker._extent_of(np.array([7]))[0]
+    extent = tracker.extents.of(np.array([7]))[0]
     disparity = whole[0, 0] - whole[0, 2]
     np.testing.assert_allclose(extent * disparity, [60.0, 40.0])
     hidden = whole.copy()

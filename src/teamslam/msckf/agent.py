@@ -28,11 +28,14 @@ from teamslam.gaussian import NotPositiveDefiniteError, chi2_quantile
 from teamslam.geometry import se3
 from teamslam.msckf.filter.box_noise import (
     FormedUnder,
+    ObjectExtents,
     Overconfidence,
     box_rows,
     box_size2,
     box_variances,
     is_box,
+    occlusion_shift,
+    occlusion_sigmas,
 )
 from teamslam.msckf.filter.linearization import (
     GroundTruth,
@@ -174,6 +177,9 @@ class MsckfAgent:
         #: under which factor each object's boxes were taken: how much its covariance is
         #: widened where the tracker gates once the factor grows
         self._formed = FormedUnder()
+        # each object's size over its disparity, where no tracker learns it (ids given)
+        self._extents = ObjectExtents()
+        self._occlusion_sigmas = occlusion_sigmas(config.tracking.gate_probability)
         tracking = sequence.detections is not None and sequence.objects.ids.size == 0
         self._record_views = config.association.mode == "own" or (
             tracking and config.tracking.loop_closure
@@ -194,6 +200,13 @@ class MsckfAgent:
             )
             if self._learns_overconfidence:
                 self.tracker.widening = self._widening
+
+    @property
+    def extents(self) -> ObjectExtents:
+        """Each object's size over its disparity (box rows): the tracker's, which learns it
+        from every box it names, or with ids given the robot's own, from the boxes its filter
+        takes (:func:`~teamslam.msckf.filter.box_noise.occlusion_shift`)."""
+        return self._extents if self.tracker is None else self.tracker.extents
 
     # ------------------------------------------------------------------ bookkeeping
     def reject(self, what: str, count: int = 1, reason: str = "") -> None:
@@ -258,6 +271,8 @@ class MsckfAgent:
         out["timing_values"] = np.array([self.timings[k] for k in sorted(self.timings)], float)
         if self.tracker is not None:
             out.update({f"tracker_{k}": v for k, v in self.tracker.state_dict().items()})
+        elif len(self._extents):
+            out["extents"] = self._extents.arrays()
         return out
 
     def restore(self, snapshot: dict[str, np.ndarray]) -> None:
@@ -299,6 +314,7 @@ class MsckfAgent:
                     "values": snapshot.get("formed_values", np.zeros((0, 2))),
                 }
             )
+            extents = ObjectExtents.from_arrays(snapshot.get("extents", np.zeros((0, 3))))
             tracker = None
             if self.tracker is not None:  # its ids continue (a copy: unchanged on failure)
                 tracker = copy.deepcopy(self.tracker)
@@ -329,6 +345,7 @@ class MsckfAgent:
         self.views = views
         self.overconfidence = overconfidence
         self._formed = formed
+        self._extents = extents
         self._kappa = self._learned_kappa()
         self._object_kappa = dict(
             zip(
@@ -734,7 +751,7 @@ class MsckfAgent:
             slots, zk, ids = slots[in_front], zk[in_front], ids[in_front]
         if slots.size == 0:
             return empty
-        r, local_h, local_p, noise_cov = self._object_linearization(slots, zk, ids)
+        r, local_h, local_p, noise_cov, occluded = self._object_linearization(slots, zk, ids)
         f = self.config.filter
         box = is_box(zk)
         # box rows: each object's rows whitened by its own noise (unit variance after)
@@ -751,7 +768,7 @@ class MsckfAgent:
             variance,
             float(f.gate(4)),
             size2=box_size2(zk) if box else None,
-            clipped=zk[:, 6:10].any(axis=1) if box else None,
+            clipped=(zk[:, 6:10].any(axis=1) | occluded) if box else None,
         )
         self.counters["rejected_objects_gate"] += int((~accepted).sum())
         self.counters["object_updates"] += int(accepted.sum())
@@ -771,25 +788,35 @@ class MsckfAgent:
             self._formed.add(ids, 1.0 if self._kappa is None else self._kappa)
         if self._kappa is not None:
             self._object_kappa.update(dict.fromkeys(ids.tolist(), self._kappa))
+        if box and self.tracker is None:  # with ids given the robot learns the sizes itself
+            whole = ~occluded[accepted]  # of whole boxes (not cut short)
+            pred = observe(
+                self.camera,
+                self.T_cam_body,
+                self.state.current_pose,
+                self.state.objects[slots[whole]],
+            )
+            self._extents.add(ids[whole], pred[:, 0] - pred[:, 2], zk[whole])
         rows = self._object_measurement_rows(
             slots, local_h[accepted], r[accepted], noise_cov[accepted], noise, box
         )
 
         def rows_at() -> MeasurementRows:
-            r, local_h, _, noise_cov = self._object_linearization(slots, zk, ids)
+            r, local_h, _, noise_cov, _ = self._object_linearization(slots, zk, ids)
             return self._object_measurement_rows(slots, local_h, r, noise_cov, noise, box)
 
         return rows, rows_at
 
     def _object_linearization(
         self, slots: np.ndarray, z: np.ndarray, ids: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Rows of the objects ``slots`` observed as ``z``, at the state's current mean.
 
         Returns the residuals ``(k, 4)``, each object's local Jacobian ``(k, 4, 9)`` over the
-        current pose and the object and the covariance of those columns ``(k, 9, 9)``, and each
+        current pose and the object and the covariance of those columns ``(k, 9, 9)``, each
         object's ``(k, 4, 4)`` measurement noise (with the policy's linearisation noise when it
-        compensates).
+        compensates), and ``(k,)`` which boxes fell short of their object and were taken at the
+        edge an occluder left (:func:`~teamslam.msckf.filter.box_noise.occlusion_shift`).
         """
         state = self.state
         k = slots.size
@@ -814,8 +841,21 @@ class MsckfAgent:
         )
         local_h = np.concatenate([d_pose, d_point], axis=2)  # (k, 4, 9)
         f = self.config.filter
+        r = z[:, :4] - pred
+        occluded = np.zeros(k, bool)
         if box:
             variances = box_variances(z, f.object_std, f.object_size_share, self._kappa)
+            # a box short of its object: at the edge an occluder left (box_noise.py)
+            own = box_variances(z, f.object_std, f.object_size_share)
+            # the predicted size's variance: the current pose's and the object's, projected
+            expected = self.extents.expected(
+                ids, pred, local_h @ local_p @ np.swapaxes(local_h, 1, 2)
+            )
+            shift, variances = occlusion_shift(
+                expected, z, r, variances, own, self._occlusion_sigmas
+            )
+            r = r + shift
+            occluded = (shift != 0).any(axis=1)
             noise_cov = variances[:, :, None] * np.eye(4)
         else:
             noise_cov = np.broadcast_to(f.object_std**2 * np.eye(4), (k, 4, 4))
@@ -827,7 +867,7 @@ class MsckfAgent:
             )
             current_h = np.concatenate([c_pose, c_point], axis=2)
             noise_cov = noise_cov + self.policy.linearization_noise(local_h, current_h, local_p)
-        return z[:, :4] - pred, local_h, local_p, noise_cov
+        return r, local_h, local_p, noise_cov, occluded
 
     def _object_measurement_rows(
         self,

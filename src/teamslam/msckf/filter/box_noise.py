@@ -33,11 +33,14 @@ __all__ = [
     "BOX_COLUMNS",
     "OVERCONFIDENCE_PROBABILITY",
     "FormedUnder",
+    "ObjectExtents",
     "Overconfidence",
     "box_rows",
     "box_size2",
     "box_variances",
     "is_box",
+    "occlusion_shift",
+    "occlusion_sigmas",
 ]
 
 #: Width of a box row: the centre (4), the size (2), the clipped flags (4).
@@ -314,3 +317,124 @@ class FormedUnder:
             raise ValueError(f"formed-under: {ids.size} objects, {values.shape[0]} counts")
         out.boxes = {i: list(v) for i, v in zip(ids.tolist(), values.tolist(), strict=True)}
         return out
+
+
+class ObjectExtents:
+    """Each object's size over its disparity, whatever its depth (the occlusion model of
+    :func:`occlusion_shift`).
+
+    A box ``w × h`` pixels of an object at disparity ``d`` gives ``(w, h) / d``: the object's
+    width over the stereo baseline and its height over it (times ``f_y / f_x``), the same at
+    every depth. An object's is the median of its uncut stereo boxes' — an occluder hides part
+    of a few, the detector moves each edge a little.
+    """
+
+    def __init__(self) -> None:
+        #: object id → ``[(w / d, h / d), …]`` of its boxes
+        self.sizes: dict[int, list[tuple[float, float]]] = {}
+
+    def __len__(self) -> int:
+        return len(self.sizes)
+
+    def add(self, ids: np.ndarray, disparity: np.ndarray, rows: np.ndarray) -> None:
+        """Count box rows ``rows`` of objects ``ids`` seen at ``disparity`` (a prediction's,
+        less noisy than a box's own); cut boxes and non-positive disparities are left out."""
+        ok = (disparity > 0) & ~rows[:, 6:10].any(axis=1)
+        per = rows[ok, 4:6] / disparity[ok, None]
+        for i, (w, h) in zip(ids[ok].tolist(), per.tolist(), strict=True):
+            self.sizes.setdefault(i, []).append((w, h))
+
+    def of(self, ids: np.ndarray) -> np.ndarray:
+        """``(len(ids), 2)`` each object's size over its disparity (NaN: no box yet)."""
+        out = np.full((np.size(ids), 2), np.nan)
+        for k, i in enumerate(np.asarray(ids).tolist()):
+            sizes = self.sizes.get(i)
+            if sizes:
+                out[k] = np.median(np.asarray(sizes), axis=0)
+        return out
+
+    def expected(
+        self, ids: np.ndarray, pred: np.ndarray, cov: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(len(ids), 2)`` the box size of each object at its predicted stereo centre
+        ``pred`` ``(…, 4)`` (NaN: no size yet, or no positive disparity), and its variance from
+        the prediction's covariance ``cov`` ``(…, 4, 4)`` (the disparity's, scaled)."""
+        disparity = pred[:, 0] - pred[:, 2]
+        per = self.of(ids)
+        size = per * np.where(disparity > 0, disparity, np.nan)[:, None]
+        var_d = cov[:, 0, 0] + cov[:, 2, 2] - 2.0 * cov[:, 0, 2]
+        return size, per**2 * var_d[:, None]
+
+    def merge(self, new: int, old: int) -> None:
+        """The sizes of ``new``, merged into ``old`` (one object)."""
+        sizes = self.sizes.pop(new, None)
+        if sizes:
+            self.sizes.setdefault(old, []).extend(sizes)
+
+    def arrays(self) -> np.ndarray:
+        """``(n, 3)`` rows ``(id, w / d, h / d)`` (for a snapshot; :meth:`from_arrays`)."""
+        rows = [(i, *size) for i, sizes in self.sizes.items() for size in sizes]
+        return np.array(rows, float).reshape(-1, 3)
+
+    @classmethod
+    def from_arrays(cls, rows: np.ndarray) -> ObjectExtents:
+        """The sizes of :meth:`arrays`."""
+        out = cls()
+        for i, w, h in np.asarray(rows, float).reshape(-1, 3).tolist():
+            out.sizes.setdefault(int(i), []).append((w, h))
+        return out
+
+
+def occlusion_sigmas(probability: float) -> float:
+    """How many σ of its own noise a box must fall short of its object's size by to count as
+    cut short (:func:`occlusion_shift`): the one-sided normal quantile of ``probability``."""
+    return float(stats.norm.ppf(probability))
+
+
+def occlusion_shift(
+    expected: tuple[np.ndarray, np.ndarray],
+    rows: np.ndarray,
+    r: np.ndarray,
+    variances: np.ndarray,
+    own: np.ndarray,
+    sigmas: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A box as a measurement of an object it falls short of: an occluder (or the detector)
+    hid part of the object on one side, so the box's other edge is the object's, and the
+    object's centre lies half the missing extent ``m`` beyond the box's, on a side not known.
+
+    A box falls short along an axis (``u`` by the width, ``v`` by the height) when its size
+    lies more than ``sigmas`` σ below the object's at its predicted disparity, σ that of the
+    difference: the size's own noise (two edges: twice the centre's σ of ``own``, the box's
+    noise without the overconfidence factor) and the predicted size's (an uncertain disparity
+    predicts an uncertain size). Its centre is then taken as the box's, or shifted by ``± m / 2``
+    towards the prediction, whichever lies nearer it (the side decided by the mean residual of
+    the axis' coordinates: one occluder hides the same side in both images); a shifted centre
+    is an edge plus half a size, with twice the centre's variance (an edge's). A box inside a
+    larger object that reaches neither of its edges stays as far from it as it is. Not for a
+    coordinate the image border cut (censored or widened already), nor for an object of no
+    size yet (``expected`` NaN).
+
+    Broadcasting arrays: ``expected`` the object's box size at its predicted disparity and
+    its variance, ``(…, 2)`` each (:meth:`ObjectExtents.expected`); ``rows``
+    ``(…, BOX_COLUMNS)`` the boxes; ``r`` ``(…, k)`` the residuals box − prediction of their
+    first ``k`` centre coordinates (``k = 4``; ``k = 2``: the left image's only) and
+    ``variances`` ``(…, k)`` theirs in the measurement; ``own`` ``(…, ≥ 2)`` the box's own
+    noise of ``(u, v)``. Returns the shifts to add to the residuals and the variances, both of
+    ``r``'s broadcast shape.
+    """
+    k = r.shape[-1]
+    size, size_var = expected
+    short = size - rows[..., 4:6]
+    noise = np.sqrt(4.0 * own[..., :2] + size_var)  # the box's size's (two edges), the object's
+    short = np.where(np.isfinite(short) & (short > sigmas * noise), short, 0.0)
+    half = 0.5 * short
+    if k == 4:
+        mean = 0.5 * (r[..., [0, 1]] + r[..., [2, 3]])
+        half, mean = half[..., [0, 1, 0, 1]], mean[..., [0, 1, 0, 1]]
+    else:
+        mean = r
+    half = half * (1.0 - rows[..., 6 : 6 + k])
+    shifted = (half > 0) & (half < 2.0 * np.abs(mean))  # nearer than the box's own centre
+    shift = np.where(shifted, -np.sign(mean) * half, 0.0)
+    return shift, np.where(shifted, 2.0 * variances, variances)

@@ -22,7 +22,13 @@ from scipy.optimize import linear_sum_assignment
 
 from teamslam.gaussian import chi2_quantile
 from teamslam.geometry.camera import StereoCamera, in_image
-from teamslam.msckf.filter.box_noise import box_variances, is_box
+from teamslam.msckf.filter.box_noise import (
+    ObjectExtents,
+    box_variances,
+    is_box,
+    occlusion_shift,
+    occlusion_sigmas,
+)
 from teamslam.msckf.filter.models import observe_jacobians, points_in_camera
 from teamslam.msckf.filter.update import stereo_point
 from teamslam.msckf.objects.appearance import (
@@ -205,10 +211,11 @@ class ObjectTracker:
         # ``(u_l, v_l, σ²_u, σ²_v, cut side u, cut side v, label)``
         self._unnamed_keys = np.zeros((0, 2), np.int64)
         self._unnamed = np.zeros((0, 7))
-        # per target, the size ``(w, h)`` over the disparity of every uncut stereo box it took:
-        # the object's width and height over the baseline (times ``f_y / f_x`` for the
-        # height), whatever the depth (:meth:`_occlusion`)
-        self._extents: dict[int, list[tuple[float, float]]] = {}
+        #: every target's size over its disparity, from the uncut stereo boxes it took (a box
+        #: short of it is taken at the edge an occluder left,
+        #: :func:`~teamslam.msckf.filter.box_noise.occlusion_shift`)
+        self.extents = ObjectExtents()
+        self._occlusion_sigmas = occlusion_sigmas(config.tracking.gate_probability)
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -284,8 +291,18 @@ class ObjectTracker:
             if self._noise is None:
                 d2 = _squared_distances(s, pred, centres)  # (T, D)
             else:  # S = H P Hᵀ + R of each detection; a box short of its target: its edge
-                shift, noise = self._occlusion(target_ids, pred, z, self._noise)
-                r = centres[None] + shift - pred[:, None]  # (T, D, 4)
+                r = centres[None] - pred[:, None]  # (T, D, 4)
+                expected = [e[:, None] for e in self.extents.expected(target_ids, pred, s)]
+                shift, noise = occlusion_shift(
+                    expected,
+                    z[None],
+                    r,
+                    self._noise[None],
+                    self._noise[None],
+                    self._occlusion_sigmas,
+                )
+                occluded = (shift != 0).any(axis=2)  # (T, D)
+                r = r + shift
                 # a cut box's centre bounds its object's from one side only
                 d2 = _pair_d2(s, _censor(r, self._cut_sides(z)[None]), noise)
             cost = d2 - self.gate
@@ -366,10 +383,11 @@ class ObjectTracker:
             near_target = np.any(inside_birth & blocking[:, None], axis=0)
         hit = assigned_target >= 0
         self.counters["detections_assigned"] += int(hit.sum())
-        if self._noise is not None and hit.any():
-            self._learn_extents(
-                target_ids[assigned_target[hit]], pred[assigned_target[hit]], z[hit]
-            )
+        if self._noise is not None and hit.any():  # sizes of whole boxes (not cut short)
+            whole = hit.copy()
+            whole[hit] = ~occluded[assigned_target[hit], np.flatnonzero(hit)]
+            taken = assigned_target[whole]
+            self.extents.add(target_ids[taken], pred[taken, 0] - pred[taken, 2], z[whole])
         if classes is not None and self._noise is not None and hit.any():
             self._learn_labels(hit, assigned_target, kinds, target_ids, target_labels, labels)
         if self._descriptors is not None and hit.any():
@@ -457,8 +475,7 @@ class ObjectTracker:
             out["together"] = np.array(pairs, np.int64).reshape(-1, 2)
         out["unnamed_keys"] = self._unnamed_keys.copy()
         out["unnamed"] = self._unnamed.copy()
-        extents = [(i, *size) for i, sizes in self._extents.items() for size in sizes]
-        out["extents"] = np.array(extents, float).reshape(-1, 3)
+        out["extents"] = self.extents.arrays()
         return out
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
@@ -492,9 +509,7 @@ class ObjectTracker:
         self.label_model.frequency = np.array(state["label_frequency"], float)
         self._unnamed_keys = np.array(state.get("unnamed_keys", np.zeros((0, 2))), np.int64)
         self._unnamed = np.array(state.get("unnamed", np.zeros((0, 7))), float)
-        self._extents = {}
-        for i, w, h in np.asarray(state.get("extents", np.zeros((0, 3))), float).tolist():
-            self._extents.setdefault(int(i), []).append((w, h))
+        self.extents = ObjectExtents.from_arrays(state.get("extents", np.zeros((0, 3))))
         if self.loop is not None:
             self.loop.load_state({k[5:]: v for k, v in state.items() if k.startswith("loop_")})
         if "appearance_counts" in state:
@@ -535,7 +550,11 @@ class ObjectTracker:
             noise = np.full((z.shape[0], 2), self.config.filter.object_std**2)
         r = z[None, :, :2] - pred[rows, None, :2]  # (T, M, 2)
         if is_box(z):  # a box short of its target: its edge; a cut one bounds it from a side
-            shift, noise = self._occlusion(target_ids[rows], pred[rows], z, noise, left_only=True)
+            predicted = self.extents.expected(target_ids[rows], pred[rows], s[rows])
+            expected = [e[:, None] for e in predicted]
+            shift, noise = occlusion_shift(
+                expected, z[None], r, noise[None], noise[None], self._occlusion_sigmas
+            )
             r = _censor(r + shift, cut[None])
         else:
             noise = np.broadcast_to(noise, r.shape)
@@ -568,81 +587,6 @@ class ObjectTracker:
         f = self.config.filter
         noise = box_variances(left, f.object_std, f.object_size_share)[:, :2]
         return noise, self._cut_sides(left)[:, :2]
-
-    def _extent_of(self, ids: np.ndarray) -> np.ndarray:
-        """``(len(ids), 2)`` each target's size over the disparity (:attr:`_extents`): the
-        median of its boxes' (an occluder or a cut hides part of a few; NaN: none yet)."""
-        out = np.full((ids.size, 2), np.nan)
-        for k, i in enumerate(ids.tolist()):
-            sizes = self._extents.get(i)
-            if sizes:
-                out[k] = np.median(np.asarray(sizes), axis=0)
-        return out
-
-    def _occlusion(
-        self,
-        ids: np.ndarray,
-        pred: np.ndarray,
-        z: np.ndarray,
-        noise: np.ndarray,
-        paired: bool = False,
-        left_only: bool = False,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """A box as a measurement of a target it falls short of: an occluder (or the detector)
-        hid part of the object on one side, so the box's other edge is the object's and the
-        object's centre lies half the missing extent ``m`` beyond the box's, on the side not
-        known. Per axis (``u`` by the width, ``v`` by the height) the centre is taken as the
-        box's, or shifted by ``± m / 2`` towards the target's prediction, whichever lies
-        nearest it; a shifted centre is an edge plus half a size, with twice the centre's
-        variance (the edge's). A box inside a larger target that reaches neither of its edges
-        stays as far from it as it is. Not for a coordinate the image border cut (censored
-        already), nor for a target of no size yet (:attr:`_extents`).
-
-        ``ids``, ``pred``: the targets and their predicted centres ``(T, 4)``; ``z``: box rows
-        ``(D, BOX_COLUMNS)`` with their centres' variances ``noise`` ``(D, 4)``. Returns the
-        shifts to add to the box centres and their variances, ``(T, D, 4)`` each, or with
-        ``paired`` ``(T, 4)`` for the pairs ``(ids[k], z[k])``; with ``left_only`` (boxes seen
-        in the left image only, ``noise`` ``(D, 2)``) ``(T, D, 2)`` for ``(u_l, v_l)``."""
-        extent = self._extent_of(ids)  # (T, 2)
-        disparity = pred[:, 0] - pred[:, 2]
-        expected = extent * np.where(disparity > 0, disparity, np.nan)[:, None]  # (T, 2)
-        if paired:
-            short, r = expected - z[:, 4:6], z[:, :4] - pred  # (T, 2), (T, 4)
-            cut, var = z[:, 6:10], noise
-        else:
-            short = expected[:, None, :] - z[None, :, 4:6]  # (T, D, 2)
-            r = z[None, :, :4] - pred[:, None, :]  # (T, D, 4)
-            cut, var = z[None, :, 6:10], noise[None]
-        # per axis the mean residual of its coordinates decides the side (one occluder)
-        if left_only:
-            mean, cut = r[..., :2], cut[..., :2]
-        else:
-            mean = 0.5 * (r[..., [0, 1]] + r[..., [2, 3]])
-        half = 0.5 * np.where(np.isfinite(short), np.maximum(short, 0.0), 0.0)
-        if not left_only:
-            half, mean = half[..., [0, 1, 0, 1]], mean[..., [0, 1, 0, 1]]
-        half = half * (1.0 - cut)
-        shifted = (half > 0) & (half < 2.0 * np.abs(mean))  # nearer than the box's own
-        shift = np.where(shifted, -np.sign(mean) * half, 0.0)
-        out_var = np.where(shifted, 2.0 * var, var)
-        return shift, np.broadcast_to(out_var, shift.shape).copy()
-
-    def _learn_extents(self, ids: np.ndarray, pred: np.ndarray, z: np.ndarray) -> None:
-        """Add the size over the disparity of each uncut box ``z`` taken by target ``ids``
-        (predicted at ``pred``) to the target's (:attr:`_extents`): the disparity its own
-        prediction gives, less noisy than the box's."""
-        disparity = pred[:, 0] - pred[:, 2]
-        ok = (disparity > 0) & ~z[:, 6:10].any(axis=1)
-        for i, size in zip(
-            ids[ok].tolist(), (z[ok, 4:6] / disparity[ok, None]).tolist(), strict=True
-        ):
-            self._extents.setdefault(i, []).append((size[0], size[1]))
-
-    def _merge_extents(self, new: int, old: int) -> None:
-        """The sizes of ``new``, merged into ``old`` (one object)."""
-        sizes = self._extents.pop(new, None)
-        if sizes:
-            self._extents.setdefault(old, []).extend(sizes)
 
     def _cut_sides(self, rows: np.ndarray) -> np.ndarray:
         """``(D, 4)`` per centre coordinate of box rows the border that cut it: ``-1`` the low
@@ -712,7 +656,7 @@ class ObjectTracker:
         )
         for n, o in pairs.tolist():
             self.merged[n] = o
-            self._merge_extents(n, o)
+            self.extents.merge(n, o)
             if self.memory is not None:
                 self.memory.merge(n, o)
         self.counters["loop_closures"] = len(self.loop.closures)
@@ -800,7 +744,7 @@ class ObjectTracker:
         merge_objects(state, merged, t, factors)
         for n, o in pairs:
             self.merged[n] = o
-            self._merge_extents(n, o)
+            self.extents.merge(n, o)
             self.memory.merge(n, o)
             for label, count in self._votes.pop(n, {}).items():
                 votes = self._votes.setdefault(o, {})
@@ -1080,8 +1024,10 @@ class ObjectTracker:
         s_pair = s[targets]
         r = z[detections, :4] - pred[targets]
         if self._noise is not None:
-            shift, noise = self._occlusion(
-                self.ids[rows], pred[targets], z[detections], self._noise[detections], True
+            expected = self.extents.expected(self.ids[rows], pred[targets], s_pair)
+            own = self._noise[detections]
+            shift, noise = occlusion_shift(
+                expected, z[detections], r, own, own, self._occlusion_sigmas
             )
             r = r + shift
             s_pair = s_pair + _diagonal(noise)
@@ -1108,7 +1054,7 @@ class ObjectTracker:
             if oid in taken:
                 continue
             taken.add(oid)
-            self._merge_extents(int(self.ids[row]), oid)
+            self.extents.merge(int(self.ids[row]), oid)
             if self.memory is not None:
                 self.memory.merge(int(self.ids[row]), oid)
                 self._count("tracks_reidentified")
@@ -1283,7 +1229,7 @@ class ObjectTracker:
         self.revisit_of = np.concatenate([self.revisit_of, lone_stale])
         self.revisit_hits = np.concatenate([self.revisit_hits, (lone_stale >= 0).astype(np.int64)])
         if self._noise is not None:  # the first box's size, over its own disparity
-            self._learn_extents(ids, z[:, :4], z)
+            self.extents.add(ids, z[:, 0] - z[:, 2], z)
         for tid, row, j in zip(ids.tolist(), z, index.tolist(), strict=True):
             self.history[tid] = [(t, row.copy(), j)]
             if self._descriptors is not None:
