@@ -289,41 +289,42 @@ def test_a_box_the_right_border_cut_has_both_centres_cut():
     assert tracker._cut_sides(wide).tolist() == [[1, 0, 1, 0]]
 
 
-def _leaving_sequence(seed: int, objects: int = 8):
-    """One robot driving straight past objects on its right, each detected whole and then while
-    the left image's right border cuts it, until less than 0.4 of it shows: the visible part's
-    box, its centre and size, and the right centre the visible part's at the object's disparity
-    (as the front-end finds it by the part's patch), plus noise."""
+def _passing_sequence(seed: int, first: float, lateral: tuple, least_depth: float, visible):
+    """One robot driving straight past eight objects on its right (one every 5 m from ``first``
+    m ahead, ``lateral`` m to the side), each detected between ``least_depth`` and 15 m:
+    ``visible(j, z_true, width)`` the part of object ``j`` its box shows — the left centre and
+    the visible width, or ``None`` — at its true stereo centre ``z_true`` and width ``width``
+    px; the right centre the visible part's at the object's disparity (as the front-end finds
+    it by the part's patch), plus noise. ``visible`` is made by ``visible(rng, depth)`` once
+    the objects are drawn, ``depth`` the current depths (``(objects,)``, updated each frame)."""
     rng = np.random.default_rng(seed)
-    step = 0.1
-    steps = int((8.0 + 5.0 * objects) / step)
+    objects, step = 8, 0.1
+    steps = int((first - 2.0 + 5.0 * objects) / step)
     poses = np.tile(np.eye(4), (steps + 1, 1, 1))
     poses[:, 0, 3] = step * np.arange(steps + 1)
     fx = CAMERA.intrinsics[0, 0]
     points = np.column_stack(
         [
-            10.0 + 5.0 * np.arange(objects),
-            -rng.uniform(2.0, 4.0, objects),
+            first + 5.0 * np.arange(objects),
+            -rng.uniform(*lateral, objects),
             rng.uniform(-0.5, 0.5, objects),
         ]
     )
     half = rng.uniform(0.3, 0.6, objects)  # half-widths in metres
+    depth = np.zeros(objects)
+    part = visible(rng, depth)
     floor, share = 0.3, 0.03
-    border = IMAGE[0] - 0.5
     offsets, rows, sizes, truth = [0], [], [], []
     for t in range(steps + 1):
-        depth = points[:, 0] - poses[t, 0, 3]
+        depth[:] = points[:, 0] - poses[t, 0, 3]
         count = 0
-        for j in np.flatnonzero((depth > 1.0) & (depth < 15.0)).tolist():
+        for j in np.flatnonzero((depth > least_depth) & (depth < 15.0)).tolist():
             z_true = observe(CAMERA, T_CAM_BODY, poses[t], points[j][None])[0]
             width, height = 2 * fx * half[j] / depth[j], fx / depth[j]
-            left, right = z_true[0] - width / 2, z_true[0] + width / 2
-            if left < -0.5 or border - left < 0.4 * width:
+            shown = part(j, z_true, width)
+            if shown is None:
                 continue
-            if right <= border:
-                centre_l, w_vis = z_true[0], width
-            else:
-                centre_l, w_vis = (left + border) / 2, border - left
+            centre_l, w_vis = shown
             centre_r = centre_l - (z_true[0] - z_true[2])
             std = np.sqrt(floor**2 + (share * np.array([w_vis, height])) ** 2)
             noise = std[[0, 1, 0, 1]] * rng.standard_normal(4)
@@ -336,18 +337,45 @@ def _leaving_sequence(seed: int, objects: int = 8):
     return sequence, points, config
 
 
+def _leaving_sequence(seed: int):
+    """Objects detected whole and then while the left image's right border cuts them, until
+    less than 0.4 of each shows (:func:`_passing_sequence`)."""
+    border = IMAGE[0] - 0.5
+
+    def cut(rng, depth):
+        def part(j, z_true, width):
+            left, right = z_true[0] - width / 2, z_true[0] + width / 2
+            if left < -0.5 or border - left < 0.4 * width:
+                return None
+            if right <= border:
+                return z_true[0], width
+            return (left + border) / 2, border - left
+
+        return part
+
+    return _passing_sequence(seed, 10.0, (2.0, 4.0), 1.0, cut)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_an_object_leaving_through_the_right_border_keeps_its_id_and_its_estimate(seed):
     sequence, points, config = _leaving_sequence(seed)
+    detections = sequence.detections
+    cut = box_rows(detections.measurements, detections.sizes, IMAGE, 0.3, 0.03)[:, 6]
+    assert cut.sum() >= 5 * points.shape[0]  # every object leaves through the border
+    # one id per object over its whole pass, the cut boxes' included (the right centre taken
+    # as uncut puts the cut boxes outside their object's gate: a second track, a second id)
+    _assert_one_id_and_a_consistent_estimate_each(sequence, points, config)
+
+
+def _assert_one_id_and_a_consistent_estimate_each(sequence, points, config) -> None:
+    """One robot runs ``sequence``: every box of each object of ``points`` gets that object's
+    one id, and each object's final error lies inside χ²(3)'s 99.9 % quantile of its
+    covariance."""
     agent = MsckfAgent(0, Calibration(CAMERA, T_CAM_BODY, IMAGE), sequence, config)
     for t in range(sequence.frames):
         agent.step(t)
     detections = sequence.detections
-    cut = box_rows(detections.measurements, detections.sizes, IMAGE, 0.3, 0.03)[:, 6]
-    assert cut.sum() >= 5 * points.shape[0]  # every object leaves through the border
     hyp = agent.tracker.hypotheses()
-    # one id per object over its whole pass, the cut boxes' included (the right centre taken
-    # as uncut puts the cut boxes outside their object's gate: a second track, a second id)
     metrics = mot_metrics(detections.offsets, detections.truth, hyp)
     assert metrics["fn"] == 0 and metrics["id_switches"] == 0
     assert metrics["objects_created"] == points.shape[0]
@@ -359,7 +387,6 @@ def test_an_object_leaving_through_the_right_border_keeps_its_id_and_its_estimat
             error = mean - points[np.bincount(named).argmax()]
             nees.append(error @ np.linalg.solve(cov, error))
     assert len(nees) == points.shape[0]
-    # each object's error consistent with its covariance: inside χ²(3)'s 99.9% quantile
     assert max(nees) < chi2_quantile(0.999, 3)
 
 
@@ -374,51 +401,27 @@ def test_data_without_box_sizes_keeps_one_sigma():
     }
 
 
-def _occluded_sequence(seed: int, objects: int = 8):
-    """One robot driving straight past objects on its right, each box whole but for a stretch
-    of its pass in which an occluder hides the same side of it (45 to 60 % of the width): the
-    visible part's box, its centre and size, the right centre the visible part's at the
-    object's disparity, plus noise."""
-    rng = np.random.default_rng(seed)
-    step = 0.1
-    steps = int((14.0 + 5.0 * objects) / step)
-    poses = np.tile(np.eye(4), (steps + 1, 1, 1))
-    poses[:, 0, 3] = step * np.arange(steps + 1)
-    fx = CAMERA.intrinsics[0, 0]
-    points = np.column_stack(
-        [
-            16.0 + 5.0 * np.arange(objects),  # each seen whole first
-            -rng.uniform(1.0, 2.0, objects),
-            rng.uniform(-0.5, 0.5, objects),
-        ]
-    )
-    half = rng.uniform(0.3, 0.6, objects)  # half-widths in metres
-    hidden = rng.uniform(0.45, 0.6, objects) * rng.choice([-1.0, 1.0], objects)  # side, share
-    # the stretch of depths over which the occluder hides part of the object
-    near, far = rng.uniform(5.0, 7.0, objects), rng.uniform(9.0, 11.0, objects)
-    floor, share = 0.3, 0.03
-    offsets, rows, sizes, truth = [0], [], [], []
-    for t in range(steps + 1):
-        depth = points[:, 0] - poses[t, 0, 3]
-        count = 0
-        for j in np.flatnonzero((depth > 2.0) & (depth < 15.0)).tolist():
-            z_true = observe(CAMERA, T_CAM_BODY, poses[t], points[j][None])[0]
-            width, height = 2 * fx * half[j] / depth[j], fx / depth[j]
+def _occluded_sequence(seed: int):
+    """Objects seen whole first (:func:`_passing_sequence`), then for a stretch of their pass
+    with an occluder hiding the same side of each (45 to 60 % of its width), then whole again;
+    none while leaving the view."""
+
+    def occluded(rng, depth):
+        n = depth.size
+        hidden = rng.uniform(0.45, 0.6, n) * rng.choice([-1.0, 1.0], n)  # side and share
+        near, far = rng.uniform(5.0, 7.0, n), rng.uniform(9.0, 11.0, n)  # the stretch hidden
+
+        def part(j, z_true, width):
             if z_true[0] + width / 2 > IMAGE[0] - 0.5:
-                continue  # leaving the view: only whole boxes or occluded ones here
-            w_vis, offset = width, 0.0
-            if near[j] < depth[j] < far[j]:  # the visible part: one side hidden
-                w_vis = (1.0 - abs(hidden[j])) * width
-                offset = np.sign(hidden[j]) * (width - w_vis) / 2
-            std = np.sqrt(floor**2 + (share * np.array([w_vis, height])) ** 2)
-            noise = std[[0, 1, 0, 1]] * rng.standard_normal(4)
-            rows.append(z_true + np.array([offset, 0.0, offset, 0.0]) + noise)
-            sizes.append([w_vis, height])
-            truth.append(j)
-            count += 1
-        offsets.append(offsets[-1] + count)
-    sequence, config = _one_robot(poses, (offsets, rows, sizes, truth), floor, share)
-    return sequence, points, config
+                return None
+            if not near[j] < depth[j] < far[j]:
+                return z_true[0], width
+            w_vis = (1.0 - abs(hidden[j])) * width
+            return z_true[0] + np.sign(hidden[j]) * (width - w_vis) / 2, w_vis
+
+        return part
+
+    return _passing_sequence(seed, 16.0, (1.0, 2.0), 2.0, occluded)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -428,20 +431,4 @@ def test_an_object_an_occluder_hides_in_part_keeps_its_id_and_its_estimate(seed)
     object's estimate; taken at the edge the occluder left, the object keeps one id and an
     estimate its covariance covers."""
     sequence, points, config = _occluded_sequence(seed)
-    agent = MsckfAgent(0, Calibration(CAMERA, T_CAM_BODY, IMAGE), sequence, config)
-    for t in range(sequence.frames):
-        agent.step(t)
-    detections = sequence.detections
-    hyp = agent.tracker.hypotheses()
-    metrics = mot_metrics(detections.offsets, detections.truth, hyp)
-    assert metrics["fn"] == 0 and metrics["id_switches"] == 0
-    assert metrics["objects_created"] == points.shape[0]
-    ids, means, covs = agent.state.full_map()
-    nees = []
-    for oid, mean, cov in zip(ids.tolist(), means, covs, strict=True):
-        named = detections.truth[hyp == oid]
-        if named.size:
-            error = mean - points[np.bincount(named).argmax()]
-            nees.append(error @ np.linalg.solve(cov, error))
-    assert len(nees) == points.shape[0]
-    assert max(nees) < chi2_quantile(0.999, 3)
+    _assert_one_id_and_a_consistent_estimate_each(sequence, points, config)
