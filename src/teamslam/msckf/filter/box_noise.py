@@ -18,6 +18,10 @@ taking each box's error as new cannot see: its objects come out overconfident.
 :class:`Overconfidence` learns by how much from evidence beyond the window — two robots'
 estimates of one object, paired by the association — and :func:`box_variances` multiplies the
 box's own part ``σ₀² + (α·s)²`` of new boxes by the factor ``κ`` it gives.
+
+A box an occluder cut short shows part of its object: :class:`ObjectExtents` keeps each
+object's size over its disparity, and :func:`occlusion_shift` takes a box short of it at the
+edge the occluder left (the tracker's gates and the filter's update alike).
 """
 
 from __future__ import annotations
