@@ -789,13 +789,8 @@ class MsckfAgent:
         if self._kappa is not None:
             self._object_kappa.update(dict.fromkeys(ids.tolist(), self._kappa))
         if box and self.tracker is None:  # with ids given the robot learns the sizes itself
-            whole = ~occluded[accepted]  # of whole boxes (not cut short)
-            pred = observe(
-                self.camera,
-                self.T_cam_body,
-                self.state.current_pose,
-                self.state.objects[slots[whole]],
-            )
+            whole = ~occluded[accepted]  # of whole boxes (not cut short): z − r is predicted
+            pred = zk[whole, :4] - r[accepted][whole]
             self._extents.add(ids[whole], pred[:, 0] - pred[:, 2], zk[whole])
         rows = self._object_measurement_rows(
             slots, local_h[accepted], r[accepted], noise_cov[accepted], noise, box

@@ -336,6 +336,7 @@ class ObjectExtents:
     def __init__(self) -> None:
         #: object id → ``[(w / d, h / d), …]`` of its boxes
         self.sizes: dict[int, list[tuple[float, float]]] = {}
+        self._median: dict[int, np.ndarray] = {}  # of the objects whose sizes did not change
 
     def __len__(self) -> int:
         return len(self.sizes)
@@ -347,14 +348,17 @@ class ObjectExtents:
         per = rows[ok, 4:6] / disparity[ok, None]
         for i, (w, h) in zip(ids[ok].tolist(), per.tolist(), strict=True):
             self.sizes.setdefault(i, []).append((w, h))
+            self._median.pop(i, None)
 
     def of(self, ids: np.ndarray) -> np.ndarray:
         """``(len(ids), 2)`` each object's size over its disparity (NaN: no box yet)."""
         out = np.full((np.size(ids), 2), np.nan)
         for k, i in enumerate(np.asarray(ids).tolist()):
-            sizes = self.sizes.get(i)
-            if sizes:
-                out[k] = np.median(np.asarray(sizes), axis=0)
+            median = self._median.get(i)
+            if median is None and self.sizes.get(i):
+                median = self._median[i] = np.median(np.asarray(self.sizes[i]), axis=0)
+            if median is not None:
+                out[k] = median
         return out
 
     def expected(
@@ -372,8 +376,10 @@ class ObjectExtents:
     def merge(self, new: int, old: int) -> None:
         """The sizes of ``new``, merged into ``old`` (one object)."""
         sizes = self.sizes.pop(new, None)
+        self._median.pop(new, None)
         if sizes:
             self.sizes.setdefault(old, []).extend(sizes)
+            self._median.pop(old, None)
 
     def arrays(self) -> np.ndarray:
         """``(n, 3)`` rows ``(id, w / d, h / d)`` (for a snapshot; :meth:`from_arrays`)."""
