@@ -37,6 +37,7 @@ from teamslam.msckf.objects.appearance import (
     cosine_distances,
     unit_rows,
 )
+from teamslam.msckf.objects.hindsight import UnnamedBoxes, chance_in_gate, hindsight_horizon
 from teamslam.msckf.objects.loop_closure import (
     LoopClosure,
     difference_d2,
@@ -205,12 +206,9 @@ class ObjectTracker:
         # named in a frame where it was named too since its first box: two objects at once,
         # never one (one detection per object and frame; :meth:`_seen_together`)
         self._together: dict[int, set[int]] = {}
-        # the boxes seen in the left image only that no target took, of the last
-        # ``filter.window`` frames, for a track confirmed later to name in hindsight
-        # (:meth:`_name_in_hindsight`): per box ``(frame, row)`` and
-        # ``(u_l, v_l, σ²_u, σ²_v, cut side u, cut side v, label)``
-        self._unnamed_keys = np.zeros((0, 2), np.int64)
-        self._unnamed = np.zeros((0, 7))
+        # the boxes seen in the left image only that no target took, for a track confirmed
+        # later to name in hindsight (:meth:`_name_in_hindsight`)
+        self.unnamed = UnnamedBoxes()
         #: every target's size over its disparity, from the uncut stereo boxes it took (a box
         #: short of it is taken at the edge an occluder left,
         #: :func:`~teamslam.msckf.filter.box_noise.occlusion_shift`)
@@ -426,7 +424,9 @@ class ObjectTracker:
         every[index] = frame.ids
         frame.ids = every
         self._note_together(every)
-        self._keep_unnamed(t, monocular, z_monocular, mono_labels, every[monocular])
+        self._keep_unnamed(
+            t, monocular, z_monocular, mono_labels, every[monocular], state, odometry_cov
+        )
         return frame
 
     # ------------------------------------------------------------------ checkpoints
@@ -473,8 +473,7 @@ class ObjectTracker:
             out["together_ids"] = np.array(list(self._together), np.int64)
             pairs = [(n, i) for n, ids in self._together.items() for i in sorted(ids)]
             out["together"] = np.array(pairs, np.int64).reshape(-1, 2)
-        out["unnamed_keys"] = self._unnamed_keys.copy()
-        out["unnamed"] = self._unnamed.copy()
+        out.update(self.unnamed.arrays())
         out["extents"] = self.extents.arrays()
         return out
 
@@ -507,8 +506,7 @@ class ObjectTracker:
         self.label_model = LabelModel()
         self.label_model.pairs, self.label_model.disagreeing = state["label_counts"].tolist()
         self.label_model.frequency = np.array(state["label_frequency"], float)
-        self._unnamed_keys = np.array(state.get("unnamed_keys", np.zeros((0, 2))), np.int64)
-        self._unnamed = np.array(state.get("unnamed", np.zeros((0, 7))), float)
+        self.unnamed = UnnamedBoxes.from_arrays(state, self.config.filter.window)
         self.extents = ObjectExtents.from_arrays(state.get("extents", np.zeros((0, 3))))
         if self.loop is not None:
             self.loop.load_state({k[5:]: v for k, v in state.items() if k.startswith("loop_")})
@@ -1096,74 +1094,86 @@ class ObjectTracker:
                 self.history.pop(i, None)
             self._keep(~gone)
 
-    def _keep_unnamed(self, t, rows, z, labels, named) -> None:
+    def _keep_unnamed(self, t, rows, z, labels, named, state, odometry_cov) -> None:
         """Keep frame ``t``'s boxes seen in the left image only (``rows`` of the frame's
-        detections, box rows ``z``) that got no id (``named``), for :meth:`_name_in_hindsight`;
-        forget those older than ``filter.window`` frames (their poses have left the window)."""
-        old = self._unnamed_keys[:, 0] <= t - self.config.filter.window
-        if old.any():
-            self._unnamed_keys, self._unnamed = self._unnamed_keys[~old], self._unnamed[~old]
+        detections, box rows ``z``) that got no id (``named``), with the frame's pose, for
+        :meth:`_name_in_hindsight`: as long as an object could tell them from chance
+        (:func:`~teamslam.msckf.objects.hindsight.hindsight_horizon`), or while their frame is
+        in the window where the images' size is not known."""
+        self.unnamed.update_poses(t, state)
         left = named < 0
-        if not left.any() or not is_box(z):
+        if not left.any() or not is_box(z) or not hasattr(state, "window_index"):
             return
         z = z[left]
         kept = np.empty((z.shape[0], 7))
         kept[:, :2] = z[:, :2]
         kept[:, 2:4], kept[:, 4:6] = self._left_image_noise(z)
         kept[:, 6] = -1 if labels is None else labels[left]
-        keys = np.stack([np.full(z.shape[0], t), rows[left]], axis=1)
-        self._unnamed_keys = np.concatenate([self._unnamed_keys, keys.astype(np.int64)])
-        self._unnamed = np.concatenate([self._unnamed, kept])
+        if self.image_size is None:
+            horizon = np.full(z.shape[0], self.config.filter.window - 1.0)
+        else:
+            horizon = hindsight_horizon(
+                self.camera,
+                self.T_cam_body,
+                z[:, :2],
+                odometry_cov,
+                z.shape[0],
+                self.image_size,
+                self.config.tracking.gate_probability,
+            )
+        self.unnamed.keep(t, rows[left], kept, t + np.floor(horizon), state.current_pose)
 
     def _name_in_hindsight(
         self, t: int, row: int, object_id: int, state, odometry_cov: np.ndarray
     ) -> None:
-        """Name in the log the boxes of earlier frames still in the window, seen in the left
-        image only and left unnamed (:meth:`_keep_unnamed`), that are track ``row``'s (now
-        ``object_id``'s): its point projected into each frame's left image from that frame's
-        pose, gated as :meth:`_name_monocular` gates (``d²`` over ``(u_l, v_l)`` under the
-        point's covariance, the relative pose's odometry noise and the box's own, cut sides
-        censored, the label's ratio at the gate's odds), the nearest box of a frame in which
-        the object has no box yet. For the record, as every box seen in one image: the filter
-        never gets them."""
-        if not self._unnamed_keys.size or not hasattr(state, "window_index"):
+        """Name in the log the boxes of earlier frames seen in the left image only and left
+        unnamed (:meth:`_keep_unnamed`) that are track ``row``'s (now ``object_id``'s): its point
+        projected into each frame's left image from that frame's pose estimate, gated as
+        :meth:`_name_monocular` gates (``d²`` over ``(u_l, v_l)`` under the point's covariance,
+        the relative pose's odometry noise and the box's own, cut sides censored, the label's
+        ratio at the gate's odds), where the gate would hold fewer of the frame's boxes by chance
+        than it misses; the nearest box of a frame in which the object has no box yet. For the
+        record, as every box seen in one image: the filter never gets them."""
+        kept = self.unnamed
+        kept.update_poses(t, state)
+        if not len(kept):
             return
-        frames = self._unnamed_keys[:, 0]
-        at = state.window_index(frames)
-        candidate = (at >= 0) & (frames < t)
-        if not candidate.any():
+        frames = kept.keys[:, 0]
+        at = kept.frame_of(np.arange(len(kept)))
+        posed = np.isfinite(kept.poses[at, 0, 0])
+        rows = np.flatnonzero(posed & (frames < t))
+        if not rows.size:
             return
-        rows = np.flatnonzero(candidate)
-        pose = state.poses[at[rows]]
+        pose = kept.poses[at[rows]]
         point = np.broadcast_to(self.points[row], (rows.size, 3))
         pred, d_pose, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, point)
         gap = np.abs(self.last[row] - frames[rows]).astype(float)
         s = d_point[:, :2] @ self.covs[row] @ np.swapaxes(d_point[:, :2], 1, 2)
         s += gap[:, None, None] * (d_pose[:, :2] @ odometry_cov @ np.swapaxes(d_pose[:, :2], 1, 2))
-        kept = self._unnamed[rows]
-        s += _diagonal(kept[:, 2:4])
-        r = _censor(kept[:, :2] - pred[:, :2], kept[:, 4:6])
+        boxes = kept.boxes[rows]
+        s += _diagonal(boxes[:, 2:4])
+        r = _censor(boxes[:, :2] - pred[:, :2], boxes[:, 4:6])
         d2 = np.einsum("ki,ki->k", r, np.linalg.solve(s, r[..., None])[..., 0])
-        ratio = self.label_model.log_ratio(self.classes[row : row + 1], kept[:, 6].astype(int))[0]
+        ratio = self.label_model.log_ratio(self.classes[row : row + 1], boxes[:, 6].astype(int))[0]
         cost = d2 - 2.0 * ratio
         _, p_cam = points_in_camera(pose, point, self.T_cam_body)
-        allowed = (d2 <= chi2_quantile(self.config.tracking.gate_probability, 2)) & (
-            ratio >= self._veto
-        )
+        probability = self.config.tracking.gate_probability
+        allowed = (d2 <= chi2_quantile(probability, 2)) & (ratio >= self._veto)
         allowed &= p_cam[:, 2] > self._min_depth
+        if self.image_size is not None:
+            chance = chance_in_gate(kept.counts[at[rows]], s, self.image_size, probability)
+            allowed &= chance < 1.0 - probability
         named = np.zeros(rows.size, bool)
         for f in np.unique(frames[rows]).tolist():
             mine = np.flatnonzero((frames[rows] == f) & allowed)
             if mine.size:
                 best = mine[np.argmin(cost[mine])]
-                named[best] = self._name_in_log(
-                    f, int(self._unnamed_keys[rows[best], 1]), object_id
-                )
+                named[best] = self._name_in_log(f, int(kept.keys[rows[best], 1]), object_id)
         if named.any():
             self._count("detections_named_in_hindsight", int(named.sum()))
-            keep = np.ones(frames.size, bool)
-            keep[rows[named]] = False
-            self._unnamed_keys, self._unnamed = self._unnamed_keys[keep], self._unnamed[keep]
+            gone = np.zeros(len(kept), bool)
+            gone[rows[named]] = True
+            kept.drop(gone)
 
     def _name_in_log(self, f: int, j: int, object_id: int) -> bool:
         """Name detection ``j`` of frame ``f`` ``object_id`` in the log, unless it has an id or
