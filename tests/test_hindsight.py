@@ -91,9 +91,10 @@ def _window(poses: np.ndarray, frames: np.ndarray, cov: np.ndarray, t: int, size
     return view
 
 
-def _drive(tracker: ObjectTracker, w: np.ndarray, window: int) -> list[int]:
+def _drive(tracker: ObjectTracker, w: np.ndarray, window: int, crowd: int = 0) -> list[int]:
     """A robot driving 0.5 m a frame towards an object seen in the left image only for frames
-    0–3 (frame 2's box 40 px off: another object's), then in both images; the first ids."""
+    0–3 (frame 2's box 40 px off: another object's), then in both images; the first ids.
+    ``crowd``: after frame 3, say each kept frame held that many boxes."""
     c = np.array([10.0, 1.0, 0.3])
     frames = 8
     state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-6)
@@ -110,6 +111,8 @@ def _drive(tracker: ObjectTracker, w: np.ndarray, window: int) -> list[int]:
         if t == 2:
             box[:, 0] += 40.0
         tracker.assign(t, box, None, view, w)
+        if t == 3 and crowd:
+            tracker.unnamed.counts[:] = crowd
     return tracker.first_ids().tolist()
 
 
@@ -142,6 +145,22 @@ def test_boxes_past_the_window_are_named_from_their_frames_poses_within_the_hori
 
     tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, config)
     assert _drive(tracker, w, window)[:4] == [-1] * 4
+
+
+def test_a_name_in_hindsight_is_refused_where_the_objects_gate_holds_chance_boxes():
+    """The same drive, the kept frames said to hold a thousand boxes each after they were kept
+    (their horizon already set): the object's own gate around each box — the point's
+    covariance, the gap's odometry noise and the box's — would hold more than the gate's miss
+    probability of them by chance, so none is named; said to hold one each, all three are."""
+    config = MsckfConfig.from_settings(
+        {"filter.object_std": STD, "filter.object_size_share": SHARE, "filter.window": 3}
+    )
+    w = config.filter.odometry_cov()
+    tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, config, image_size=SIM.image_size)
+    assert _drive(tracker, w, 3, crowd=1000)[:4] == [-1] * 4
+    tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, config, image_size=SIM.image_size)
+    named = _drive(tracker, w, 3, crowd=1)
+    assert named[:4] == [named[-1], named[-1], -1, named[-1]]
 
 
 def test_kept_boxes_survive_a_checkpoint_and_an_old_checkpoint_keeps_the_window_rule():
