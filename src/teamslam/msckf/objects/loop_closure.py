@@ -314,7 +314,11 @@ def find_loop(
 
 
 def merge_objects(
-    state, pairs: np.ndarray, frame: int, factors: np.ndarray | None = None
+    state,
+    pairs: np.ndarray,
+    frame: int,
+    factors: np.ndarray | None = None,
+    offsets: np.ndarray | None = None,
 ) -> np.ndarray:
     """Merge object ``n`` into object ``o`` for each row ``(n, o)`` of ``pairs``.
 
@@ -339,6 +343,13 @@ def merge_objects(
         eigenvalues), as noise: the two estimates differ by an offset the held covariances do
         not show, and pulling them together as if exact would move the rest of the state by
         it. ``None``: exact (as held).
+    offsets
+        ``(k,)`` per pair the largest variance on every axis by which the two estimates may
+        differ beyond their covariances (the views' offsets, :func:`difference_d2`'s
+        ``offset``). The constraint carries as noise the part of the pair's difference ``r``
+        its covariance ``D`` (widened, with ``factors``) does not explain, the moment estimate
+        ``(|r|² − tr D) / 3`` taken within ``[0, offset]``: two estimates that agree merge as
+        before, two a view's offset apart do not pull the state by it. ``None``: none.
 
     Returns
     -------
@@ -373,14 +384,21 @@ def merge_objects(
     cov = state.covariance(np.concatenate([cols_n, cols_o], axis=1))  # (k, 6, 6)
     diff_var = np.einsum("kii->k", cov[:, :3, :3] + cov[:, 3:, 3:] - 2 * cov[:, :3, 3:]) / 3
     noise = np.diag(np.repeat(MERGE_RELATIVE_NOISE * diff_var, 3))
+    explained = _difference_cov(cov)
     if factors is not None:
         scale = np.sqrt(np.repeat(np.asarray(factors, float).reshape(k, 2), 3, axis=1))
         wide = cov * scale[:, :, None] * scale[:, None, :]
-        extra = _difference_cov(wide) - _difference_cov(cov)
+        extra = _difference_cov(wide) - explained
         values, vectors = np.linalg.eigh(0.5 * (extra + np.swapaxes(extra, 1, 2)))
         extra = (vectors * np.maximum(values, 0.0)[:, None, :]) @ np.swapaxes(vectors, 1, 2)
         for i in range(k):
             noise[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] += extra[i]
+        explained = explained + extra
+    if offsets is not None:
+        r = residual.reshape(k, 3)
+        unexplained = (np.einsum("ki,ki->k", r, r) - np.einsum("kii->k", explained)) / 3.0
+        offset = np.clip(unexplained, 0.0, np.asarray(offsets, float).reshape(k))
+        noise += np.diag(np.repeat(offset, 3))
     delta = state.update(jacobian, residual, noise)
     state.object_last_seen[slots_o] = seen
     state.retire_objects(slots_n)
@@ -389,7 +407,11 @@ def merge_objects(
 
 
 def difference_d2(
-    state, new: int, old: np.ndarray, factors: tuple[float, np.ndarray] | None = None
+    state,
+    new: int,
+    old: np.ndarray,
+    factors: tuple[float, np.ndarray] | None = None,
+    offset: np.ndarray | None = None,
 ) -> np.ndarray:
     """``d² = rᵀ D⁻¹ r`` of ``r = x_n − x_o`` for object ``new`` against each of ``old``.
 
@@ -410,6 +432,10 @@ def difference_d2(
         ``√(r_n r_o)`` (``D P D``, ``√r`` on each object's coordinates: the factors by which
         covariances formed before the box noise's overconfidence factor are too small,
         :class:`~teamslam.msckf.filter.box_noise.FormedUnder`); ``None``: as held.
+    offset
+        ``(k,)`` a variance added to ``D`` on every axis per pair: what the two estimates may
+        differ by beyond their covariances (the views' offsets of the point boxes show,
+        :func:`view_offset_variance`); ``None``: nothing.
 
     Returns
     -------
@@ -431,6 +457,8 @@ def difference_d2(
             scale = np.sqrt(np.repeat(np.column_stack([np.full(b.size, factors[0]), b]), 3, 1))
             cov = cov * scale[:, :, None] * scale[:, None, :]  # D P D: each block widened
         diff = cov[:, :3, :3] + cov[:, 3:, 3:] - cov[:, :3, 3:] - cov[:, 3:, :3]
+        if offset is not None:
+            diff = diff + np.asarray(offset, float)[inside, None, None] * np.eye(3)
         r = state.objects[slot_n] - state.objects[slots[inside]]
         out[inside] = _squared_mahalanobis(r, diff)
     if (~inside).any():
@@ -443,6 +471,8 @@ def difference_d2(
         else:
             b = np.asarray(factors[1], float)[~inside][:, None, None]
             diff = float(factors[0]) * own[None] + b * retired["covs"][where]
+        if offset is not None:
+            diff = diff + np.asarray(offset, float)[~inside, None, None] * np.eye(3)
         out[~inside] = _squared_mahalanobis(r, diff)
     return out
 

@@ -669,7 +669,8 @@ class ObjectTracker:
         track broke while the old one's continued) and those of the persistent map, of its
         class where both have one. Each is gated by the
         squared Mahalanobis distance of ``x_n − x_o`` under its covariance from the joint state
-        (:func:`~teamslam.msckf.objects.loop_closure.difference_d2`, the
+        and the offset two views of the objects allow (:meth:`_view_offset`;
+        :func:`~teamslam.msckf.objects.loop_closure.difference_d2`, the
         ``tracking.gate_probability`` quantile of χ²(3)); the gated ones are weighed by the
         log likelihood ratios of the appearance and the class of every box of the new object,
         summed, against a new object whose prior is the share of confirmed tracks found to be
@@ -711,19 +712,21 @@ class ObjectTracker:
                 old = old[(labels < 0) | (labels == label)]
             if not old.size:
                 continue
-            d2 = difference_d2(state, n, old)
+            held = difference_d2(state, n, old)
+            offset = self._view_offset(n, old)
+            d2 = difference_d2(state, n, old, offset=offset)
             ratio = self._revisit_ratio(n, old)
             if self.config.filter.object_overconfidence:
                 # the sample: what appearance and class alone name, not cut by the gate (and
                 # under the covariances as held: the learner weighs each by its own factor)
                 best = self._revisit_choice(ratio, prior)
                 if best is not None:
-                    self.revisit_d2.setdefault((n, int(old[best])), float(d2[best]))
+                    self.revisit_d2.setdefault((n, int(old[best])), float(held[best]))
                     self._pending[n] = int(old[best])
             if self.widening is not None:
                 r = self.widening(np.concatenate([[n], old]))
                 if (r > 1.0).any():
-                    d2 = difference_d2(state, n, old, (float(r[0]), r[1:]))
+                    d2 = difference_d2(state, n, old, (float(r[0]), r[1:]), offset)
             inside = d2 <= self.revisit_gate
             if not inside.any():
                 continue
@@ -739,7 +742,8 @@ class ObjectTracker:
         if self.widening is not None:  # the offset the held covariances lack: constraint noise
             factors = self.widening(merged.ravel()).reshape(-1, 2)
             factors = factors if (factors > 1.0).any() else None
-        merge_objects(state, merged, t, factors)
+        offsets = np.array([self._view_offset(n, np.array([o]))[0] for n, o in pairs])
+        merge_objects(state, merged, t, factors, offsets)
         for n, o in pairs:
             self.merged[n] = o
             self.extents.merge(n, o)
@@ -779,7 +783,9 @@ class ObjectTracker:
             r = self.widening(np.array([n, o]))
             if r.max() <= 1.0:
                 continue
-            d2 = difference_d2(state, n, np.array([o]), (float(r[0]), r[1:]))
+            d2 = difference_d2(
+                state, n, np.array([o]), (float(r[0]), r[1:]), self._view_offset(n, np.array([o]))
+            )
             if d2[0] <= self.revisit_gate:
                 pairs.append((n, o))
         return pairs
@@ -797,6 +803,19 @@ class ObjectTracker:
         named in a frame where ``n`` was named too, since ``n``'s first box."""
         together = {self._continued(i) for i in self._together.get(n, ())}
         return np.array([i in together for i in np.asarray(ids).tolist()], bool)
+
+    def _view_offset(self, n: int, old: np.ndarray) -> np.ndarray:
+        """``(len(old),)`` the variance per axis by which object ``n``'s and each old object's
+        estimates may differ beyond their covariances: a box's centre shows the visible part of
+        its object, and each estimate converged on the point its own views showed — anywhere on
+        the object, taken uniform over its size ``s`` (the larger of its width and height over
+        the disparity, times the baseline), ``s² / 12`` each: ``(s_n² + s_o²) / 12``; 0
+        for an object without a size yet."""
+        ratio = self.extents.of(np.concatenate([[n], np.asarray(old, np.int64)]))
+        k = self.camera.intrinsics
+        ratio[:, 1] *= k[0, 0] / k[1, 1]  # a height over the baseline in the width's pixels
+        size = self.camera.baseline * np.nan_to_num(np.max(ratio, axis=1), nan=0.0)
+        return (size[0] ** 2 + size[1:] ** 2) / 12.0
 
     def _revisit_ratio(self, n: int, old: np.ndarray) -> np.ndarray:
         """``(len(old),)`` log likelihood ratio of the appearance and class of every box of
