@@ -21,7 +21,7 @@ from teamslam.gaussian import chi2_quantile
 from teamslam.geometry import so3
 from teamslam.geometry.camera import StereoCamera
 
-__all__ = ["UnnamedBoxes", "chance_in_gate", "hindsight_horizon"]
+__all__ = ["UnnamedBoxes", "chance_in_gate", "hindsight_horizon", "rotation_given_translation"]
 
 
 def chance_in_gate(

@@ -434,8 +434,8 @@ def difference_d2(
         :class:`~teamslam.msckf.filter.box_noise.FormedUnder`); ``None``: as held.
     offset
         ``(k,)`` a variance added to ``D`` on every axis per pair: what the two estimates may
-        differ by beyond their covariances (the views' offsets of the point boxes show,
-        :func:`view_offset_variance`); ``None``: nothing.
+        differ by beyond their covariances (the offset of the points their boxes showed from
+        different views, the tracker's ``_view_offset``); ``None``: nothing.
 
     Returns
     -------
