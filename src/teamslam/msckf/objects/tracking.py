@@ -260,6 +260,8 @@ class ObjectTracker:
                 merged = self._close_loops(t, state)
         if self._descriptors is not None and is_box(z) and hasattr(state, "retire_objects"):
             merged = np.concatenate([merged, self.reidentify(t, state)])
+        # the kept boxes' poses as the state holds them now (merges above may have moved them)
+        self.unnamed.update_poses(t, state)
         every = np.full(z.shape[0], -1, np.int64)
         finite = np.all(np.isfinite(z), axis=1)
         index = np.flatnonzero(finite)
@@ -1119,7 +1121,6 @@ class ObjectTracker:
         :meth:`_name_in_hindsight`: as long as an object could tell them from chance
         (:func:`~teamslam.msckf.objects.hindsight.hindsight_horizon`), or while their frame is
         in the window where the images' size is not known."""
-        self.unnamed.update_poses(t, state)
         left = named < 0
         if not left.any() or not is_box(z) or not hasattr(state, "window_index"):
             return
@@ -1154,7 +1155,6 @@ class ObjectTracker:
         than it misses; the nearest box of a frame in which the object has no box yet. For the
         record, as every box seen in one image: the filter never gets them."""
         kept = self.unnamed
-        kept.update_poses(t, state)
         if not len(kept):
             return
         frames = kept.keys[:, 0]
