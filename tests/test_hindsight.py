@@ -91,10 +91,17 @@ def _window(poses: np.ndarray, frames: np.ndarray, cov: np.ndarray, t: int, size
     return view
 
 
-def _drive(tracker: ObjectTracker, w: np.ndarray, window: int, crowd: int = 0) -> list[int]:
+def _drive(
+    tracker: ObjectTracker,
+    w: np.ndarray,
+    window: int,
+    crowd: int = 0,
+    live: list[int] | None = None,
+) -> list[int]:
     """A robot driving 0.5 m a frame towards an object seen in the left image only for frames
     0–3 (frame 2's box 40 px off: another object's), then in both images; the first ids.
-    ``crowd``: after frame 3, say each kept frame held that many boxes."""
+    ``crowd``: after frame 3, say each kept frame held that many boxes; ``live``: a list to
+    collect the id each frame's box got when it came."""
     c = np.array([10.0, 1.0, 0.3])
     frames = 8
     state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-6)
@@ -110,10 +117,44 @@ def _drive(tracker: ObjectTracker, w: np.ndarray, window: int, crowd: int = 0) -
             box[:, 2:4] = np.nan
         if t == 2:
             box[:, 0] += 40.0
-        tracker.assign(t, box, None, view, w)
+        frame = tracker.assign(t, box, None, view, w)
+        if live is not None:
+            live.append(int(frame.ids[0]))
         if t == 3 and crowd:
             tracker.unnamed.counts[:] = crowd
     return tracker.first_ids().tolist()
+
+
+def test_a_confirmed_track_names_its_earlier_left_image_only_boxes_from_their_own_poses():
+    """An object seen in the left image only for its first frames, then in both; the images'
+    size unknown, so the window's rule: once its track is confirmed, the boxes of frames still
+    in the window are named too — each where the track's point falls from the pose of its own
+    frame (the robot drove 0.5 m a frame towards it, the box moved ~5 px), a box 40 px off is
+    not; a box older than the window is not."""
+    window = 6
+    config = MsckfConfig.from_settings(
+        {"filter.object_std": STD, "filter.object_size_share": SHARE, "filter.window": window}
+    )
+    w = config.filter.odometry_cov()
+    tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, config)
+    ids: list[int] = []
+    named = _drive(tracker, w, window, live=ids)
+    assert ids[:4] == [-1, -1, -1, -1]  # no track yet: nothing to name them
+    tid = ids[-1]
+    assert tid >= 0
+    # confirmed at frame 6 (three stereo boxes), when the window holds frames 1..6: frame 0's
+    # box has left it, frame 2's is another object's
+    assert named[:4] == [-1, tid, -1, tid]
+    assert named[4:] == [tid] * 5
+    assert tracker.counters["detections_named_in_hindsight"] == 2
+    # the boxes used the pose of their own frame: from the newest pose, frame 3's box is
+    # outside the gate (the track's point projects ~17 px away)
+    c = np.array([10.0, 1.0, 0.3])
+    pose_then, pose_now = np.eye(4), np.eye(4)
+    pose_then[0, 3], pose_now[0, 3] = 1.5, 4.0
+    z_now = observe(CAMERA, T_CAM_BODY, pose_now, c[None])[0]
+    z_then = observe(CAMERA, T_CAM_BODY, pose_then, c[None])[0]
+    assert abs(z_now[0] - z_then[0]) > 10.0
 
 
 def test_boxes_past_the_window_are_named_from_their_frames_poses_within_the_horizon():

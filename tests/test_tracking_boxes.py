@@ -130,61 +130,6 @@ def test_pair_distances_equal_each_pairs_own_and_vanish_when_censored():
     assert np.allclose(_pair_d2(s, _censor(r, sides), noise), 0)
 
 
-def _moving_state(steps: int, step: np.ndarray) -> MsckfState:
-    """A window of ``steps + 1`` poses, each ``step`` (metres, body frame) ahead of the last."""
-    state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-6)
-    move = np.eye(4)
-    move[:3, 3] = step
-    for t in range(1, steps + 1):
-        state.augment(move, t, W)
-    return state
-
-
-def test_a_confirmed_track_names_its_earlier_left_image_only_boxes_from_their_own_poses():
-    """An object seen in the left image only for its first two frames, then in both: once its
-    track is confirmed, those two boxes are named too — each where the track's point falls from
-    the pose of its own frame (the robot drove 0.5 m a frame towards it, the box moved ~5 px), a
-    box 40 px off is not; a box older than the window is not."""
-    window = 6
-    config = MsckfConfig.from_settings(
-        {"filter.object_std": STD, "filter.object_size_share": SHARE, "filter.window": window}
-    )
-    c = np.array([10.0, 1.0, 0.3])
-    frames = 8
-    state = _moving_state(frames, np.array([0.5, 0.0, 0.0]))
-    poses = state.poses.copy()
-    tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, config)
-    ids = []
-    for t in range(frames + 1):
-        view = _moving_state(0, np.zeros(3))  # the window's last `window` poses up to t
-        first = max(0, t - window + 1)
-        view.poses, view.frames = poses[first : t + 1], state.frames[first : t + 1]
-        view.robots = np.zeros(view.frames.size, np.int64)
-        view.pose_fe = view.poses.copy()
-        view._cov = state.cov[6 * first : 6 * (t + 1), 6 * first : 6 * (t + 1)].copy()
-        z = observe(CAMERA, T_CAM_BODY, poses[t], c[None])
-        box = box_rows(z, np.array([[20.0, 30.0]]), None, STD, SHARE)
-        if t <= 3:  # left image only
-            box[:, 2:4] = np.nan
-        if t == 2:  # 40 px off: another object's box, not this one's
-            box[:, 0] += 40.0
-        ids.append(tracker.assign(t, box, None, view, W).ids[0])
-    assert ids[:4] == [-1, -1, -1, -1]  # no track yet: nothing to name them
-    tid = ids[-1]
-    assert tid >= 0
-    named = tracker.first_ids().tolist()
-    # confirmed at frame 6 (three stereo boxes), when the window holds frames 1..6: frame 0's
-    # box has left it, frame 2's is another object's
-    assert named[:4] == [-1, tid, -1, tid]
-    assert named[4:] == [tid] * 5
-    assert tracker.counters["detections_named_in_hindsight"] == 2
-    # the boxes used the pose of their own frame: from the newest pose, frame 3's box is
-    # outside the gate (the track's point projects ~17 px away)
-    z_now = observe(CAMERA, T_CAM_BODY, poses[-1], c[None])[0]
-    z_then = observe(CAMERA, T_CAM_BODY, poses[3], c[None])[0]
-    assert abs(z_now[0] - z_then[0]) > 10.0
-
-
 def test_a_box_an_occluder_cut_short_keeps_its_object_and_a_smaller_box_inside_does_not():
     """An object seen whole as a 60 × 40 px box, then with its right 40 % hidden (a 36 px box
     whose centre lies 12 px left of the object's, 10 σ of the box noise): its left edge is the
