@@ -421,3 +421,31 @@ def test_an_estimate_off_by_part_of_its_objects_size_is_merged_and_one_beyond_it
     assert (set(tracker.merged.values()) == {7}) is merged
     assert (7 in tracker.hypotheses().tolist()) is merged
     assert ids[-1] >= 0  # the boxes named all along
+
+
+def test_a_pass_goes_on_under_the_old_id_from_the_point_its_own_boxes_show():
+    """The old estimate is 0.3 m off the object's centre (its views showed another part), with
+    a 2 cm covariance. Once the new object's boxes name it, the boxes still to come show the
+    point the new object had (where the filter's old estimate would put them 15 σ off): they
+    keep the old id, and no track starts again. A checkpoint taken mid-pass goes on alike."""
+    rng = np.random.default_rng(6)
+    tracker = _tracker({7: _look(0.0)})
+    row = box_rows(
+        observe(CAMERA, T_CAM_BODY, np.eye(4), TRUE[None]), np.array([SIZE]), None, STD, SHARE
+    )
+    tracker.extents.add(np.array([7]), row[:, 0] - row[:, 2], row)
+    state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-8)
+    state.add_object(7, TRUE + np.array([0.0, 0.3, 0.0]), np.eye(3) * 0.02**2, np.zeros((3, 6)))
+    look = _look(_chord_angle(0.05))
+    ids = _run(tracker, state, rng, look, frames=range(60, 75))
+    merged_at = ids.index(7)
+    assert set(tracker.merged.values()) == {7} and 7 in tracker.passes
+    resumed = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)
+    resumed.load_state(tracker.state_dict())
+    copy_state = copy.deepcopy(state)
+    ids += _run(tracker, state, np.random.default_rng(7), look, frames=range(75, 90))
+    again = _run(resumed, copy_state, np.random.default_rng(7), look, frames=range(75, 90))
+    assert ids[merged_at:] == [7] * (len(ids) - merged_at)
+    assert tracker.counters["tracks_started"] == 1
+    assert again == ids[15:] and tracker.passes[7][2] == 89
+    np.testing.assert_array_equal(resumed.passes[7][0], tracker.passes[7][0])

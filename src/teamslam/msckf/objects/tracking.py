@@ -214,6 +214,9 @@ class ObjectTracker:
         #: :func:`~teamslam.msckf.filter.box_noise.occlusion_shift`)
         self.extents = ObjectExtents()
         self._occlusion_sigmas = occlusion_sigmas(config.tracking.gate_probability)
+        #: per object re-identified in its current pass: the point that pass's boxes show, its
+        #: covariance and the frame it last took a box (:meth:`_follow_passes`)
+        self.passes: dict[int, tuple[np.ndarray, np.ndarray, int]] = {}
 
     # ------------------------------------------------------------------ public
     def assign(
@@ -394,6 +397,10 @@ class ObjectTracker:
             self._learn(looks, assigned_target, kinds, target_ids, index)
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
         out[mapped] = target_ids[assigned_target[mapped]]
+        if self.passes and mapped.any():
+            self._follow_passes(
+                t, z, np.flatnonzero(mapped), assigned_target, target_ids, kinds, (pred, s, h_point)
+            )
         frame = TrackerFrame(out, merged=merged)
         self.log.append(every)
         on_track = np.flatnonzero(hit & ~mapped)
@@ -435,8 +442,9 @@ class ObjectTracker:
     def state_dict(self) -> dict[str, np.ndarray]:
         """What the tracker learned so far, as arrays (for a checkpoint): its tracks and their
         detections, the next id, the log of ids given, the ids it created, merges and loop
-        closure, the class labels' votes and model, the appearance ratio's samples and the
-        objects' appearance summaries. :meth:`load_state` continues from it exactly."""
+        closure, the class labels' votes and model, the appearance ratio's samples, the
+        objects' appearance summaries and the points their passes show. :meth:`load_state`
+        continues from it exactly."""
         out = {name: getattr(self, name).copy() for name in _TRACK_ARRAYS}
         out["next_id"] = np.array(self.next_id, np.int64)
         out["first_logged"] = np.array(-1 if self._first_logged is None else self._first_logged)
@@ -477,6 +485,10 @@ class ObjectTracker:
             out["together"] = np.array(pairs, np.int64).reshape(-1, 2)
         out.update(self.unnamed.arrays())
         out["extents"] = self.extents.arrays()
+        passes = list(self.passes.items())
+        out["passes_ids"] = np.array([[o, v[2]] for o, v in passes], np.int64).reshape(-1, 2)
+        out["passes_points"] = np.array([v[0] for _, v in passes], float).reshape(-1, 3)
+        out["passes_covs"] = np.array([v[1] for _, v in passes], float).reshape(-1, 3, 3)
         return out
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
@@ -510,6 +522,15 @@ class ObjectTracker:
         self.label_model.frequency = np.array(state["label_frequency"], float)
         self.unnamed = UnnamedBoxes.from_arrays(state, self.config.filter.window)
         self.extents = ObjectExtents.from_arrays(state.get("extents", np.zeros((0, 3))))
+        self.passes = {
+            int(o): (point.copy(), cov.copy(), int(last))
+            for (o, last), point, cov in zip(
+                np.asarray(state.get("passes_ids", np.zeros((0, 2))), np.int64).tolist(),
+                np.asarray(state.get("passes_points", np.zeros((0, 3))), float),
+                np.asarray(state.get("passes_covs", np.zeros((0, 3, 3))), float),
+                strict=True,
+            )
+        }
         if self.loop is not None:
             self.loop.load_state({k[5:]: v for k, v in state.items() if k.startswith("loop_")})
         if "appearance_counts" in state:
@@ -745,6 +766,11 @@ class ObjectTracker:
             factors = self.widening(merged.ravel()).reshape(-1, 2)
             factors = factors if (factors > 1.0).any() else None
         offsets = np.array([self._view_offset(n, np.array([o]))[0] for n, o in pairs])
+        for n, o in pairs:  # the pass goes on from the point its own boxes showed
+            columns = state.object(state.object_slots(np.array([n]))).columns[0]
+            point = state.objects[state.object_slots(np.array([n]))[0]].copy()
+            self.passes[o] = (point, state.covariance(columns).copy(), t)
+            self.passes.pop(n, None)
         merge_objects(state, merged, t, factors, offsets)
         for n, o in pairs:
             self.merged[n] = o
@@ -1003,6 +1029,11 @@ class ObjectTracker:
         points = np.concatenate(parts_points)
         p = np.concatenate(parts_p)
         kind = np.concatenate(kinds)
+        self.passes = {o: v for o, v in self.passes.items() if t - v[2] <= self.frames_allowed}
+        for o, (point, cov, _) in self.passes.items():  # the point the object's pass shows
+            at = np.flatnonzero((ids == o) & (kind == 0))
+            points[at], p[at, 6:, 6:] = point, cov
+            p[at, :6, 6:], p[at, 6:, :6] = 0.0, 0.0
         # a point behind the camera has no projection: evaluate it anywhere harmless
         pred, s, d_point, in_front = _predict_targets(
             np.ascontiguousarray(pose, dtype=float),
@@ -1037,23 +1068,14 @@ class ObjectTracker:
         kinds, pred, s, h_point = predicted
         targets = assigned[detections]
         rows = targets - int(np.flatnonzero(kinds == 2)[0])  # tracks come last
-        hp = h_point[targets]  # (k, 4, 3)
-        cov = self.covs[rows]
-        cross = hp @ cov  # (k, 4, 3) = H C
-        s_pair = s[targets]
-        r = z[detections, :4] - pred[targets]
-        if self._noise is not None:
-            expected = self.extents.expected(self.ids[rows], pred[targets], s_pair)
-            own = self._noise[detections]
-            shift, noise = occlusion_shift(
-                expected, z[detections], r, own, own, self._occlusion_sigmas
-            )
-            r = r + shift
-            s_pair = s_pair + _diagonal(noise)
-        gain_t = np.linalg.solve(s_pair, cross)  # (k, 4, 3) = S⁻¹ H C = Kᵀ
-        self.points[rows] += np.einsum("kij,ki->kj", gain_t, r)
-        cov = cov - np.swapaxes(cross, 1, 2) @ gain_t
-        self.covs[rows] = 0.5 * (cov + np.swapaxes(cov, 1, 2))
+        self.points[rows], self.covs[rows] = self._point_update(
+            self.ids[rows],
+            self.points[rows],
+            self.covs[rows],
+            z[detections],
+            self._noise[detections] if self._noise is not None else None,
+            (pred[targets], s[targets], h_point[targets]),
+        )
         self.last[rows] = t
         self.hits[rows] += 1
         self._note_revisit(rows, lone_stale[detections])
@@ -1114,6 +1136,47 @@ class ObjectTracker:
             for i in self.ids[gone].tolist():
                 self.history.pop(i, None)
             self._keep(~gone)
+
+    def _follow_passes(self, t, z, detections, assigned, target_ids, kinds, predicted) -> None:
+        """Kalman update of the point each re-identified object's pass shows (:attr:`passes`)
+        with the box it took, as a track's (:meth:`_update_tracks`): the boxes of the pass go on
+        showing the part of the object its views see, which the filter's estimate (formed from
+        other views) may miss by a share of the object's size."""
+        pred, s, h_point = predicted
+        targets = assigned[detections]
+        follow = (kinds[targets] == 0) & np.isin(target_ids[targets], list(self.passes))
+        if not follow.any():
+            return
+        detections, targets = detections[follow], targets[follow]
+        ids = target_ids[targets]
+        points, cov = self._point_update(
+            ids,
+            np.array([self.passes[o][0] for o in ids.tolist()]),
+            np.array([self.passes[o][1] for o in ids.tolist()]),
+            z[detections],
+            self._noise[detections] if self._noise is not None else None,
+            (pred[targets], s[targets], h_point[targets]),
+        )
+        for k, o in enumerate(ids.tolist()):
+            self.passes[o] = (points[k], cov[k], t)
+
+    def _point_update(self, ids, points, cov, z, own, predicted):
+        """Kalman update of points ``(k, 3)`` with covariances ``cov`` by one box each (rows
+        ``z``, their variances ``own`` or ``None``; the points' predictions, ``S`` and ``∂z/∂p``
+        in ``predicted``); a box short of its object's size taken at the edge an occluder left.
+        Returns the points and covariances."""
+        pred, s_pair, hp = predicted
+        cross = hp @ cov  # (k, 4, 3) = H C
+        r = z[:, :4] - pred
+        if own is not None:
+            expected = self.extents.expected(ids, pred, s_pair)
+            shift, noise = occlusion_shift(expected, z, r, own, own, self._occlusion_sigmas)
+            r = r + shift
+            s_pair = s_pair + _diagonal(noise)
+        gain_t = np.linalg.solve(s_pair, cross)  # (k, 4, 3) = S⁻¹ H C = Kᵀ
+        points = points + np.einsum("kij,ki->kj", gain_t, r)
+        cov = cov - np.swapaxes(cross, 1, 2) @ gain_t
+        return points, 0.5 * (cov + np.swapaxes(cov, 1, 2))
 
     def _keep_unnamed(self, t, rows, z, labels, named, state, odometry_cov) -> None:
         """Keep frame ``t``'s boxes seen in the left image only (``rows`` of the frame's
