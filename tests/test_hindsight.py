@@ -97,11 +97,13 @@ def _drive(
     window: int,
     crowd: int = 0,
     live: list[int] | None = None,
+    old: bool = False,
 ) -> list[int]:
     """A robot driving 0.5 m a frame towards an object seen in the left image only for frames
     0–3 (frame 2's box 40 px off: another object's), then in both images; the first ids.
     ``crowd``: after frame 3, say each kept frame held that many boxes; ``live``: a list to
-    collect the id each frame's box got when it came."""
+    collect the id each frame's box got when it came; ``old``: the object is object 7 of the map,
+    last seen long before (2 cm off, a covariance of 5 cm)."""
     c = np.array([10.0, 1.0, 0.3])
     frames = 8
     state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-6)
@@ -111,6 +113,9 @@ def _drive(
         state.augment(move, t, w)
     for t in range(frames + 1):
         view = _window(state.poses, state.frames, state.cov, t, window)
+        if old:
+            view.add_object(7, c + 0.02, np.eye(3) * 0.05**2, np.zeros((3, view.dim)))
+            view.object_last_seen[:] = -100
         z = observe(CAMERA, T_CAM_BODY, state.poses[t], c[None])
         box = box_rows(z, np.array([[20.0, 30.0]]), SIM.image_size, STD, SHARE)
         if t <= 3:
@@ -217,3 +222,21 @@ def test_kept_boxes_survive_a_checkpoint_and_an_old_checkpoint_keeps_the_window_
     assert kept.pose_frames.tolist() == [5] and kept.counts.tolist() == [2]
     old = UnnamedBoxes.from_arrays({"unnamed_keys": kept.keys, "unnamed": kept.boxes}, window=10)
     assert old.until.tolist() == [14.0, 14.0] and np.isnan(old.poses).all()
+
+
+def test_an_object_of_the_map_seen_again_names_its_earlier_left_image_only_boxes():
+    """The same drive towards an object of the map last seen long before: its boxes seen in the
+    left image only are not named as they come (the object is not followed), and the first box
+    seen in both images takes it again; then the kept boxes of frames 0, 1 and 3 are named too,
+    from their own poses held against the map's point — not frame 2's, 40 px off."""
+    window = 3
+    config = MsckfConfig.from_settings(
+        {"filter.object_std": STD, "filter.object_size_share": SHARE, "filter.window": window}
+    )
+    w = config.filter.odometry_cov()
+    tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, config, image_size=SIM.image_size)
+    live: list[int] = []
+    named = _drive(tracker, w, window, live=live, old=True)
+    assert live[:4] == [-1] * 4 and live[4:] == [7] * 5
+    assert named == [7, 7, -1, 7] + [7] * 5
+    assert tracker.counters["detections_named_in_hindsight"] == 3

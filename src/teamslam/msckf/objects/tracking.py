@@ -363,7 +363,15 @@ class ObjectTracker:
                 lone = _alone(stale_pairs, allowed) & left[None, :]
                 stale_hits = _take_unambiguous(lone, assigned_target)
                 for j in np.flatnonzero(stale_hits).tolist():
-                    self.revisits.append((t, int(index[j]), int(target_ids[assigned_target[j]])))
+                    oid = int(target_ids[assigned_target[j]])
+                    self.revisits.append((t, int(index[j]), oid))
+                    self._name_in_hindsight(
+                        t,
+                        self._map_target(t, state, oid, target_labels[assigned_target[j]]),
+                        oid,
+                        state,
+                        odometry_cov,
+                    )
                 self.counters["revisits_taken"] += int(stale_hits.sum())
                 # objects not seen for N frames that had a detection in their gate and took none
                 wanted = (stale_pairs & left[None, :]).any(axis=1)
@@ -1101,7 +1109,7 @@ class ObjectTracker:
                 self._count("tracks_reidentified")
             for f, _, j in self.history.get(int(self.ids[row]), []):
                 self._name_in_log(f, j, oid)
-            self._name_in_hindsight(t, row, oid, *window)
+            self._name_in_hindsight(t, self._track_target(row), oid, *window)
             frame.ids[det] = oid
             self.revisits.append((t, int(index[det]), oid))
             self.counters["revisits_taken"] += 1
@@ -1118,7 +1126,7 @@ class ObjectTracker:
                 zs = np.array([zz for _, zz, _ in past]).reshape(-1, self._row_width)
                 for f, _, j in past:
                     self.log[f - self._first_logged][j] = tid
-                self._name_in_hindsight(t, row, tid, *window)
+                self._name_in_hindsight(t, self._track_target(row), tid, *window)
                 frame.confirmed.append((tid, frames, zs))
                 self.counters["tracks_confirmed"] += 1
                 self._created_ids.append(tid)
@@ -1206,17 +1214,37 @@ class ObjectTracker:
             )
         self.unnamed.keep(t, rows[left], kept, t + np.floor(horizon), state.current_pose)
 
+    def _map_target(self, t: int, state, object_id: int, label: int) -> tuple:
+        """Object ``object_id`` of the state or the persistent map, seen again at the current
+        frame, as :meth:`_name_in_hindsight` takes a target: held against the current pose."""
+        slot = state.object_slots(np.array([object_id]))[0]
+        if slot >= 0:
+            point = state.objects[slot]
+            cov = state.covariance(state.object(np.array([slot])).columns[0])
+        else:
+            point, cov, _ = state.retired.get(np.array([object_id]))
+            point, cov = point[0], cov[0]
+        return point, cov, t, int(label), state.current_pose_cov()
+
+    def _track_target(self, row: int) -> tuple:
+        """Track ``row`` as :meth:`_name_in_hindsight` takes a target."""
+        return self.points[row], self.covs[row], int(self.last[row]), int(self.classes[row]), None
+
     def _name_in_hindsight(
-        self, t: int, row: int, object_id: int, state, odometry_cov: np.ndarray
+        self, t: int, target: tuple, object_id: int, state, odometry_cov: np.ndarray
     ) -> None:
         """Name in the log the boxes of earlier frames seen in the left image only and left
-        unnamed (:meth:`_keep_unnamed`) that are track ``row``'s (now ``object_id``'s): its point
+        unnamed (:meth:`_keep_unnamed`) that are ``target``'s (now ``object_id``'s): its point
         projected into each frame's left image from that frame's pose estimate, gated as
         :meth:`_name_monocular` gates (``d²`` over ``(u_l, v_l)`` under the point's covariance,
-        the relative pose's odometry noise and the box's own, cut sides censored, the label's
-        ratio at the gate's odds), where the gate would hold fewer of the frame's boxes by chance
-        than it misses; the nearest box of a frame in which the object has no box yet. For the
-        record, as every box seen in one image: the filter never gets them."""
+        the relative pose's odometry noise since the frame the point was last seen in and the
+        box's own, cut sides censored, the label's ratio at the gate's odds), where the gate would
+        hold fewer of the frame's boxes by chance than it misses; the nearest box of a frame in
+        which the object has no box yet. ``target``: the point, its covariance, the frame it was
+        last seen in, its label and the covariance of the pose it is held against (``None``: its
+        own track's, in the point's). For the record, as every box seen in one image: the filter
+        never gets them."""
+        point, point_cov, last, label, pose_cov = target
         kept = self.unnamed
         if not len(kept):
             return
@@ -1227,16 +1255,19 @@ class ObjectTracker:
         if not rows.size:
             return
         pose = kept.poses[at[rows]]
-        point = np.broadcast_to(self.points[row], (rows.size, 3))
+        point = np.broadcast_to(point, (rows.size, 3))
         pred, d_pose, d_point = observe_jacobians(self.camera, self.T_cam_body, pose, point)
-        gap = np.abs(self.last[row] - frames[rows]).astype(float)
-        s = d_point[:, :2] @ self.covs[row] @ np.swapaxes(d_point[:, :2], 1, 2)
-        s += gap[:, None, None] * (d_pose[:, :2] @ odometry_cov @ np.swapaxes(d_pose[:, :2], 1, 2))
+        gap = np.abs(last - frames[rows]).astype(float)
+        s = d_point[:, :2] @ point_cov @ np.swapaxes(d_point[:, :2], 1, 2)
+        pose_noise = gap[:, None, None] * odometry_cov
+        if pose_cov is not None:  # a map's point: the pose it is held against is uncertain too
+            pose_noise = pose_noise + pose_cov
+        s += d_pose[:, :2] @ pose_noise @ np.swapaxes(d_pose[:, :2], 1, 2)
         boxes = kept.boxes[rows]
         s += _diagonal(boxes[:, 2:4])
         r = _censor(boxes[:, :2] - pred[:, :2], boxes[:, 4:6])
         d2 = np.einsum("ki,ki->k", r, np.linalg.solve(s, r[..., None])[..., 0])
-        ratio = self.label_model.log_ratio(self.classes[row : row + 1], boxes[:, 6].astype(int))[0]
+        ratio = self.label_model.log_ratio(np.array([label]), boxes[:, 6].astype(int))[0]
         cost = d2 - 2.0 * ratio
         _, p_cam = points_in_camera(pose, point, self.T_cam_body)
         probability = self.config.tracking.gate_probability
