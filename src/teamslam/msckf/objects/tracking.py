@@ -20,7 +20,7 @@ import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from teamslam.gaussian import chi2_quantile
+from teamslam.gaussian import Gaussian, chi2_quantile
 from teamslam.geometry.camera import StereoCamera, in_image
 from teamslam.msckf.filter.box_noise import (
     ObjectExtents,
@@ -775,9 +775,14 @@ class ObjectTracker:
             factors = factors if (factors > 1.0).any() else None
         offsets = np.array([self._view_offset(n, np.array([o]))[0] for n, o in pairs])
         for n, o in pairs:  # the pass goes on from the point its own boxes showed
-            columns = state.object(state.object_slots(np.array([n]))).columns[0]
-            point = state.objects[state.object_slots(np.array([n]))[0]].copy()
-            self.passes[o] = (point, state.covariance(columns).copy(), t)
+            slot = state.object_slots(np.array([n]))[0]
+            columns = np.concatenate(
+                [state.newest_pose().columns, state.object(np.array([slot])).columns[0]]
+            )
+            joint = Gaussian(np.zeros(9), state.covariance(columns))
+            # held against the current pose, as a track's point: its covariance given the pose
+            given_pose = joint.conditional(np.arange(6), np.zeros(6)).cov
+            self.passes[o] = (state.objects[slot].copy(), 0.5 * (given_pose + given_pose.T), t)
             self.passes.pop(n, None)
         merge_objects(state, merged, t, factors, offsets)
         for n, o in pairs:
@@ -1038,9 +1043,10 @@ class ObjectTracker:
         p = np.concatenate(parts_p)
         kind = np.concatenate(kinds)
         self.passes = {o: v for o, v in self.passes.items() if t - v[2] <= self.frames_allowed}
-        for o, (point, cov, _) in self.passes.items():  # the point the object's pass shows
-            at = np.flatnonzero((ids == o) & (kind == 0))
+        for o, (point, cov, last) in self.passes.items():  # the point the object's pass shows
+            at = np.flatnonzero((ids == o) & (kind == 0))  # held as a track's
             points[at], p[at, 6:, 6:] = point, cov
+            p[at, :6, :6] = max(t - last, 1) * odometry_cov
             p[at, :6, 6:], p[at, 6:, :6] = 0.0, 0.0
         # a point behind the camera has no projection: evaluate it anywhere harmless
         pred, s, d_point, in_front = _predict_targets(
