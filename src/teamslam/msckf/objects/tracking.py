@@ -7,8 +7,9 @@ by global nearest neighbour with miss and birth costs, and names the detections:
 or a tentative track confirmed after ``M`` detections within ``N`` frames. A false detection no
 other confirms never reaches the filter. With ``tracking.loop_closure`` revisits are merged first
 (:mod:`teamslam.msckf.objects.loop_closure`); with boxes and appearance, a new object whose boxes
-show it to be a long-unseen one is merged into it (:meth:`ObjectTracker.reidentify`). The rules
-and why: the concept page *Tracking* (``docs/concepts/tracking.md``).
+show it to be a long-unseen one is merged into it (:meth:`ObjectTracker.reidentify`), and the
+rest of that pass is predicted from the point its own boxes showed (:attr:`ObjectTracker.passes`).
+The rules and why: the concept page *Tracking* (``docs/concepts/tracking.md``).
 """
 
 from __future__ import annotations
@@ -215,7 +216,8 @@ class ObjectTracker:
         self.extents = ObjectExtents()
         self._occlusion_sigmas = occlusion_sigmas(config.tracking.gate_probability)
         #: per object re-identified in its current pass: the point that pass's boxes show, its
-        #: covariance and the frame it last took a box (:meth:`_follow_passes`)
+        #: covariance given the pose then and the frame it last took a box (the tracker's
+        #: prediction of the object while the pass lasts; :meth:`_follow_passes`)
         self.passes: dict[int, tuple[np.ndarray, np.ndarray, int]] = {}
 
     # ------------------------------------------------------------------ public
@@ -976,7 +978,8 @@ class ObjectTracker:
         """Every target's predicted measurement, innovation covariance and point Jacobian.
 
         ``S = H P Hᵀ + σ² I`` with ``filter.object_std`` (``with_noise``), else ``H P Hᵀ`` (box
-        rows: each detection adds its own noise).
+        rows: each detection adds its own noise). An object in a pass (:attr:`passes`) is
+        predicted from the pass's point, held as a track's.
 
         Only targets in front of the camera and nearer than twice ``objects.max_depth``.
         Returns kinds (0 state, 1 persistent map, 2 track), ids, frame last seen, predictions
