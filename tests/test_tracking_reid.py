@@ -449,22 +449,3 @@ def test_a_pass_goes_on_under_the_old_id_from_the_point_its_own_boxes_show():
     assert tracker.counters["tracks_started"] == 1
     assert again == ids[15:] and tracker.passes[7][2] == 89
     np.testing.assert_array_equal(resumed.passes[7][0], tracker.passes[7][0])
-
-
-def test_an_object_in_a_pass_is_predicted_where_the_pass_shows_it():
-    """The filter's estimate of object 7 lies behind the camera (its earlier views, from the
-    other side of a large object), while its current pass shows it ahead: the pass's box is the
-    object's, which the estimate alone would not even predict."""
-    rng = np.random.default_rng(8)
-    state = MsckfState(np.eye(4), 0, np.eye(6) * 1e-8)
-    state.add_object(7, np.array([-2.0, 1.0, 0.0]), np.eye(3) * 0.02**2, np.zeros((3, 6)))
-    row = box_rows(
-        observe(CAMERA, T_CAM_BODY, np.eye(4), TRUE[None]), np.array([SIZE]), None, STD, SHARE
-    )
-    row[:, :4] += rng.normal(size=4) * np.sqrt(box_variances(row, STD, SHARE))
-    ids = []
-    for passes in ({}, {7: (TRUE.copy(), np.eye(3) * 0.02**2, 0)}):
-        tracker = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)
-        tracker.passes = passes
-        ids.append(int(tracker.assign(1, row, np.array([2]), state, W).ids[0]))
-    assert ids == [-1, 7]

@@ -992,19 +992,15 @@ class ObjectTracker:
         parts_ids, parts_points, parts_p, kinds = [], [], [], []
         seen = []
         reach = 2.0 * cfg.objects.max_depth  # farther or behind: no detection can be theirs
-        self.passes = {o: v for o, v in self.passes.items() if t - v[2] <= self.frames_allowed}
         if state.n_objects:
-            objects = state.objects.copy()  # an object in a pass: where the pass shows it
-            for o, (point, _, _) in self.passes.items():
-                objects[state.object_ids == o] = point
-            depth = (objects - pose[:3, 3]) @ self._depth_axis(pose) + self.T_cam_body[2, 3]
+            depth = (state.objects - pose[:3, 3]) @ self._depth_axis(pose) + self.T_cam_body[2, 3]
             slots = np.flatnonzero((depth > 0) & (depth < reach))
             k = slots.size
             cols = np.empty((k, 9), np.int64)
             cols[:, :6] = state.newest_pose().columns
             cols[:, 6:] = state.object(slots).columns
             parts_ids.append(state.object_ids[slots])
-            parts_points.append(objects[slots])
+            parts_points.append(state.objects[slots])
             parts_p.append(state.covariance(cols))
             kinds.append(np.zeros(k, np.int64))
             seen.append(state.object_last_seen[slots])
@@ -1049,9 +1045,10 @@ class ObjectTracker:
         points = np.concatenate(parts_points)
         p = np.concatenate(parts_p)
         kind = np.concatenate(kinds)
-        for o, (_, cov, last) in self.passes.items():  # an object in a pass: held as a track
-            at = np.flatnonzero((ids == o) & (kind == 0))
-            p[at, 6:, 6:] = cov
+        self.passes = {o: v for o, v in self.passes.items() if t - v[2] <= self.frames_allowed}
+        for o, (point, cov, last) in self.passes.items():  # the point the object's pass shows
+            at = np.flatnonzero((ids == o) & (kind == 0))  # held as a track's
+            points[at], p[at, 6:, 6:] = point, cov
             p[at, :6, :6] = max(t - last, 1) * odometry_cov
             p[at, :6, 6:], p[at, 6:, :6] = 0.0, 0.0
         # a point behind the camera has no projection: evaluate it anywhere harmless
