@@ -9,6 +9,7 @@ other confirms never reaches the filter. With ``tracking.loop_closure`` revisits
 (:mod:`teamslam.msckf.objects.loop_closure`); with boxes and appearance, a new object whose boxes
 show it to be a long-unseen one is merged into it (:meth:`ObjectTracker.reidentify`), and the
 rest of that pass is predicted from the point its own boxes showed (:attr:`ObjectTracker.passes`).
+A box's shape (its width to its height) is a cue as its appearance is, its ratio learned alike.
 The rules and why: the concept page *Tracking* (``docs/concepts/tracking.md``).
 """
 
@@ -181,6 +182,11 @@ class ObjectTracker:
         p = config.tracking.gate_probability
         self._veto = float(np.log((1.0 - p) / p))
         self._descriptors: np.ndarray | None = None  # this frame's, unit rows
+        #: box rows with ``tracking.appearance``: the boxes' shape, as appearance is learned
+        #: and used — the unit vector ``(w, h)`` of each box and each object's mean of them
+        self.shape = AppearanceModel(config.tracking.gate_probability)
+        self.shape_memory = AppearanceMemory(2)
+        self._shapes: np.ndarray | None = None  # this frame's, unit rows (a cut box's: zero)
         self._noise: np.ndarray | None = None  # this frame's detections' variances (box rows)
         self._row_width = 4
         # re-identification by several boxes (boxes with appearance): the unit descriptors of
@@ -255,6 +261,10 @@ class ObjectTracker:
                 self.appearance = AppearanceModel(self.config.tracking.gate_probability)
                 self.memory = AppearanceMemory(np.shape(appearance)[1])
             self._descriptors = unit_rows(appearance)
+        self._shapes = None
+        if is_box(z) and self.config.tracking.appearance:
+            # a box the left image's border cut has the shape of its visible part only
+            self._shapes = unit_rows(z[:, 4:6]) * ~z[:, 6:8].any(axis=1)[:, None]
         if self._first_logged is None:
             self._first_logged = t
         self._forget_mapped(state)  # before a loop closure takes a mapped object out
@@ -334,6 +344,17 @@ class ObjectTracker:
                 if self.appearance.informative:  # else position alone, as without descriptors
                     agree = agree & (looks[1] >= self._veto)
                     cost = cost - 2.0 * looks[1]
+            shapes = None  # the boxes' shapes, as their appearance (SORT keeps w / h too)
+            if self._shapes is not None:
+                pairs = cosine_distances(self._shapes[index], self._shapes[index])
+                self.shape.add(np.zeros(0), pairs[np.triu_indices(d, 1)])
+                dist = cosine_distances(
+                    self.shape_memory.summaries(target_ids), self._shapes[index]
+                )
+                shapes = (dist, self.shape.log_ratio(dist))
+                if self.shape.informative:
+                    agree = agree & (shapes[1] >= self._veto)
+                    cost = cost - 2.0 * shapes[1]
             allowed = (d2 <= self.gate) & agree
             inside_birth = d2 <= self.birth_gate
             # pass 1: the targets seen within the last N frames (tracks, and objects followed
@@ -405,6 +426,9 @@ class ObjectTracker:
             self._learn_labels(hit, assigned_target, kinds, target_ids, target_labels, labels)
         if self._descriptors is not None and hit.any():
             self._learn(looks, assigned_target, kinds, target_ids, index)
+        if self._shapes is not None and hit.any():
+            samples = (self.shape, self.shape_memory, self._shapes)
+            self._learn_cue(samples, shapes, assigned_target, kinds, target_ids, index)
         mapped = hit & (kinds[np.maximum(assigned_target, 0)] < 2) if n_targets else hit
         out[mapped] = target_ids[assigned_target[mapped]]
         if self.passes and mapped.any():
@@ -452,9 +476,9 @@ class ObjectTracker:
     def state_dict(self) -> dict[str, np.ndarray]:
         """What the tracker learned so far, as arrays (for a checkpoint): its tracks and their
         detections, the next id, the log of ids given, the ids it created, merges and loop
-        closure, the class labels' votes and model, the appearance ratio's samples, the
-        objects' appearance summaries and the points their passes show. :meth:`load_state`
-        continues from it exactly."""
+        closure, the class labels' votes and model, the appearance and shape ratios' samples,
+        the objects' appearance and shape summaries and the points their passes show.
+        :meth:`load_state` continues from it exactly."""
         out = {name: getattr(self, name).copy() for name in _TRACK_ARRAYS}
         out["next_id"] = np.array(self.next_id, np.int64)
         out["first_logged"] = np.array(-1 if self._first_logged is None else self._first_logged)
@@ -495,6 +519,8 @@ class ObjectTracker:
             out["together"] = np.array(pairs, np.int64).reshape(-1, 2)
         out.update(self.unnamed.arrays())
         out["extents"] = self.extents.arrays()
+        out["shape_counts"] = np.stack([self.shape.same, self.shape.different])
+        out["shape_ids"], out["shape_sums"] = self.shape_memory.arrays()
         passes = list(self.passes.items())
         out["passes_ids"] = np.array([[o, v[2]] for o, v in passes], np.int64).reshape(-1, 2)
         out["passes_points"] = np.array([v[0] for _, v in passes], float).reshape(-1, 3)
@@ -532,6 +558,13 @@ class ObjectTracker:
         self.label_model.frequency = np.array(state["label_frequency"], float)
         self.unnamed = UnnamedBoxes.from_arrays(state, self.config.filter.window)
         self.extents = ObjectExtents.from_arrays(state.get("extents", np.zeros((0, 3))))
+        self.shape = AppearanceModel(self.config.tracking.gate_probability)
+        self.shape_memory = AppearanceMemory(2)
+        if "shape_counts" in state:  # a checkpoint from before shapes has none
+            self.shape.add_counts(*np.asarray(state["shape_counts"], float))
+            self.shape_memory = AppearanceMemory.from_arrays(
+                state["shape_ids"], state["shape_sums"]
+            )
         self.passes = {
             int(o): (point.copy(), cov.copy(), int(last))
             for (o, last), point, cov in zip(
@@ -690,6 +723,7 @@ class ObjectTracker:
             self.extents.merge(n, o)
             if self.memory is not None:
                 self.memory.merge(n, o)
+            self.shape_memory.merge(n, o)
         self.counters["loop_closures"] = len(self.loop.closures)
         return pairs
 
@@ -791,6 +825,7 @@ class ObjectTracker:
             self.merged[n] = o
             self.extents.merge(n, o)
             self.memory.merge(n, o)
+            self.shape_memory.merge(n, o)
             for label, count in self._votes.pop(n, {}).items():
                 votes = self._votes.setdefault(o, {})
                 votes[label] = votes.get(label, 0) + count
@@ -891,9 +926,26 @@ class ObjectTracker:
         return dist, self.appearance.log_ratio(dist)
 
     def _learn(self, looks, assigned_target, kinds, target_ids, index) -> None:
-        """Samples for the appearance ratio, then the summaries: a detection against the
-        confirmed target that took it (*same*) and against the other confirmed targets that took
-        one this frame (*different*: one detection per object and frame)."""
+        """Samples for the appearance ratio and the summaries (:meth:`_learn_cue`), and the
+        descriptors of the young objects' boxes (re-identification)."""
+        samples = (self.appearance, self.memory, self._descriptors)
+        self._learn_cue(samples, looks, assigned_target, kinds, target_ids, index)
+        for j, target in zip(
+            index[assigned_target >= 0].tolist(),
+            assigned_target[assigned_target >= 0].tolist(),
+            strict=True,
+        ):
+            boxes = self._boxes.get(int(target_ids[target]))
+            if boxes is not None:
+                boxes.append(self._descriptors[j])
+
+    def _learn_cue(self, samples, looks, assigned_target, kinds, target_ids, index) -> None:
+        """Samples for a cue's ratio (``samples``: its model, its summaries and this frame's
+        unit rows; ``looks`` the distances and ratios of :meth:`_looks`, ``None``: no target),
+        then the summaries: a detection against the confirmed target that took it (*same*) and
+        against the other confirmed targets that took one this frame (*different*: one
+        detection per object and frame)."""
+        model, memory, rows = samples
         hit = np.flatnonzero(assigned_target >= 0)
         targets = assigned_target[hit]
         if looks is not None:
@@ -904,12 +956,9 @@ class ObjectTracker:
             block = looks[0][np.ix_(targets[sure], hit[sure])]
             off = ~np.eye(block.shape[0], dtype=bool) & np.isfinite(block)
             if same.size:
-                self.appearance.add(same, block[off])
+                model.add(same, block[off])
         for j, target in zip(index[hit].tolist(), targets.tolist(), strict=True):
-            self.memory.add(int(target_ids[target]), self._descriptors[j])
-            boxes = self._boxes.get(int(target_ids[target]))
-            if boxes is not None:
-                boxes.append(self._descriptors[j])
+            memory.add(int(target_ids[target]), rows[j])
 
     def _learn_labels(self, hit, assigned_target, kinds, target_ids, target_labels, labels):
         """Box rows with labels: count each assigned detection's label against its confirmed
@@ -1116,6 +1165,7 @@ class ObjectTracker:
             if self.memory is not None:
                 self.memory.merge(int(self.ids[row]), oid)
                 self._count("tracks_reidentified")
+            self.shape_memory.merge(int(self.ids[row]), oid)
             for f, _, j in self.history.get(int(self.ids[row]), []):
                 self._name_in_log(f, j, oid)
             self._name_in_hindsight(t, self._track_target(row), oid, *window)
@@ -1367,6 +1417,8 @@ class ObjectTracker:
             if self._descriptors is not None:
                 self.memory.add(tid, self._descriptors[j])
                 self._boxes[tid] = [self._descriptors[j]]
+            if self._shapes is not None:
+                self.shape_memory.add(tid, self._shapes[j])
         self.counters["tracks_started"] += k
         if self.hits_needed <= 1:  # confirmed by its first detection
             self.confirmed[-k:] = True
@@ -1383,8 +1435,9 @@ class ObjectTracker:
             self.counters["tracks_dropped"] += int(drop.sum())
             for i in self.ids[drop].tolist():
                 self.history.pop(i, None)
-            if self.memory is not None:  # a tentative track's id never reached the filter
-                for i in self.ids[expired].tolist():
+            for i in self.ids[expired].tolist():  # a tentative track's id never reached the filter
+                self.shape_memory.forget(i)
+                if self.memory is not None:
                     self.memory.forget(i)
             self._keep(~drop)
 
