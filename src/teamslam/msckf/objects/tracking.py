@@ -344,6 +344,8 @@ class ObjectTracker:
                 if self.appearance.informative:  # else position alone, as without descriptors
                     agree = agree & (looks[1] >= self._veto)
                     cost = cost - 2.0 * looks[1]
+            # the targets seen within the last N frames: tracks, and objects followed frame to frame
+            fresh = (kinds == 2) | ((kinds == 0) & (t - seen <= self.frames_allowed))
             shapes = None  # the boxes' shapes, as their appearance (SORT keeps w / h too)
             if self._shapes is not None:
                 pairs = cosine_distances(self._shapes[index], self._shapes[index])
@@ -352,16 +354,16 @@ class ObjectTracker:
                     self.shape_memory.summaries(target_ids), self._shapes[index]
                 )
                 shapes = (dist, self.shape.log_ratio(dist))
-                if self.shape.informative:
-                    agree = agree & (shapes[1] >= self._veto)
-                    cost = cost - 2.0 * shapes[1]
+                if self.shape.informative:  # frame to frame only: seen again from elsewhere,
+                    # a box-shaped object has another width
+                    agree = agree & ((shapes[1] >= self._veto) | ~fresh[:, None])
+                    cost = cost - 2.0 * np.where(fresh[:, None], shapes[1], 0.0)
             allowed = (d2 <= self.gate) & agree
             inside_birth = d2 <= self.birth_gate
             # pass 1: the targets seen within the last N frames (tracks, and objects followed
             # frame to frame) by global nearest neighbour, a pair kept only when it costs less
             # than leaving the detection to a new track and the target missed (appearance
             # adds −2 log of its likelihood ratio to the cost)
-            fresh = (kinds == 2) | ((kinds == 0) & (t - seen <= self.frames_allowed))
             _nearest_neighbour(allowed & fresh[:, None], cost, assigned_target)
             # pass 1b: a fresh target left without a detection and a detection left outside
             # every gate, inside each other's outer gate (a heavy-tailed detector error) and
