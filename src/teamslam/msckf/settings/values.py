@@ -387,8 +387,9 @@ class TrackingSettings:
         chance (at ``gate_probability``), the assignment cost adds ``−2 log`` of the likelihood
         ratio learned in the run, a pair whose ratio falls below
         ``(1 − gate_probability) / gate_probability`` is refused (a long-unseen object's
-        too). Without descriptors nothing changes. Box sizes are used alike: each box's shape
-        (width to height) against its target's, its ratio learned on its own.
+        too). Box sizes are used alike: each box's shape (width to height) against that of a
+        target seen within the last ``N`` (``confirm_frames``) frames, its ratio learned on its
+        own. Without descriptors and box sizes nothing changes.
     revisit_probability
         Re-identification of a long-unseen object by the boxes of a new one
         (:meth:`~teamslam.msckf.objects.tracking.ObjectTracker.reidentify`): a new object of the
