@@ -442,6 +442,12 @@ def test_a_pass_goes_on_under_the_old_id_from_the_point_its_own_boxes_show():
     assert set(tracker.merged.values()) == {7} and 7 in tracker.passes
     resumed = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)
     resumed.load_state(tracker.state_dict())
+    assert tracker.shape.same.sum() > 0  # the boxes' shapes: their samples and summaries too
+    np.testing.assert_array_equal(resumed.shape.same, tracker.shape.same)
+    known = np.array(list(tracker.shape_memory._sums), np.int64)
+    np.testing.assert_array_equal(
+        resumed.shape_memory.summaries(known), tracker.shape_memory.summaries(known)
+    )
     copy_state = copy.deepcopy(state)
     ids += _run(tracker, state, np.random.default_rng(7), look, frames=range(75, 90))
     again = _run(resumed, copy_state, np.random.default_rng(7), look, frames=range(75, 90))
