@@ -103,18 +103,22 @@ def test_without_descriptors_tracking_is_unchanged(described):
     assert a.tracker.appearance is None and b.tracker.appearance is None
 
 
-def _two_lookalike_objects(appearance: bool, seed: int = 0) -> TeamDataset:
-    """One robot driving towards two objects 0.15 m apart side by side, boxed with 3 px of
-    noise (their predictions overlap every frame); each object's descriptor distinct."""
+def _two_lookalike_objects(
+    appearance: bool, seed: int = 0, extent: np.ndarray | None = None, path=(0.0, 6.0)
+) -> TeamDataset:
+    """One robot driving from ``x = path[0]`` to ``path[1]`` (towards, or back from) two
+    objects at ``x = 20`` m 0.15 m apart side by side, boxed with 3 px of noise (from 14 m
+    away their predictions overlap every frame); each object's descriptor distinct. With
+    ``extent`` (``(2, 2)`` width and height, m) the boxes have sizes, a tenth of noise each."""
     rng = np.random.default_rng(seed)
     frames = 60
     camera = StereoCamera.from_baseline(400.0, 400.0, 320.0, 240.0, 0.5)
     poses = np.tile(np.eye(4), (frames, 1, 1))
-    poses[:, 0, 3] = np.linspace(0.0, 6.0, frames)
+    poses[:, 0, 3] = np.linspace(*path, frames)
     objects = np.array([[20.0, 0.075, 0.0], [20.0, -0.075, 0.0]])
     odometry = se3.inverse(poses[:-1]) @ poses[1:]
     looks = rng.standard_normal((2, 8))
-    rows, truth, desc = [], [], []
+    rows, truth, desc, sizes = [], [], [], []
     for k in range(frames):
         T_cam_world = T_CAM_BODY @ se3.inverse(poses[k])
         p_cam = objects @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
@@ -123,10 +127,14 @@ def _two_lookalike_objects(appearance: bool, seed: int = 0) -> TeamDataset:
         rows.append(z[order])
         truth.append(order)
         desc.append(looks[order] + rng.normal(0.0, 0.1, (2, 8)))
+        if extent is not None:
+            size = extent[order] * camera.intrinsics[0, 0] / p_cam[order, 2:3]
+            sizes.append(size * (1.0 + rng.normal(0.0, 0.1, (2, 2))))
     detections = FrameDetections(
         np.arange(0, 2 * frames + 1, 2),
         np.concatenate(rows),
         truth=np.concatenate(truth),
+        sizes=np.concatenate(sizes) if extent is not None else None,
         appearance=np.concatenate(desc) if appearance else None,
     )
     robot = RobotSequence(
@@ -173,61 +181,16 @@ def test_tracker_chooses_by_appearance_between_lookalike_positions():
     assert all(m["objects_created"] == 2 for m in with_looks)
 
 
-def _two_shapes_side_by_side(seed: int = 0) -> TeamDataset:
-    """As :func:`_two_lookalike_objects`, without descriptors: one object tall and narrow
-    (0.2 × 0.8 m), the other wide and low (0.6 × 0.3 m), boxed with a tenth of their size of
-    noise on each side."""
-    rng = np.random.default_rng(seed)
-    frames = 60
-    camera = StereoCamera.from_baseline(400.0, 400.0, 320.0, 240.0, 0.5)
-    poses = np.tile(np.eye(4), (frames, 1, 1))
-    poses[:, 0, 3] = np.linspace(0.0, 6.0, frames)
-    objects = np.array([[20.0, 0.075, 0.0], [20.0, -0.075, 0.0]])
-    extent = np.array([[0.2, 0.8], [0.6, 0.3]])  # width, height (m)
-    odometry = se3.inverse(poses[:-1]) @ poses[1:]
-    rows, truth, sizes = [], [], []
-    for k in range(frames):
-        T_cam_world = T_CAM_BODY @ se3.inverse(poses[k])
-        p_cam = objects @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-        z = camera.project(p_cam) + rng.normal(0.0, 3.0, (2, 4))
-        size = extent * 400.0 / p_cam[:, 2:3]
-        order = rng.permutation(2)
-        rows.append(z[order])
-        truth.append(order)
-        sizes.append(size[order] * (1.0 + rng.normal(0.0, 0.1, (2, 2))))
-    detections = FrameDetections(
-        np.arange(0, 2 * frames + 1, 2),
-        np.concatenate(rows),
-        truth=np.concatenate(truth),
-        sizes=np.concatenate(sizes),
-    )
-    robot = RobotSequence(
-        T_world_body=poses,
-        odometry=odometry,
-        features=FrameObservations.empty(frames),
-        objects=FrameObservations.empty(frames),
-        detections=detections,
-    )
-    return TeamDataset(
-        name="shapes",
-        calibration=Calibration(camera, T_CAM_BODY, (640, 480)),
-        robots=[robot],
-        object_ids=np.arange(2),
-        object_positions=objects,
-        object_id_scope="none",
-    )
-
-
 def test_tracker_chooses_by_box_shape_between_lookalike_positions():
-    """Boxes without descriptors: their shapes (width to height) tell the two objects apart
-    once the learned ratio is informative; with ``tracking.appearance`` off, position alone
-    swaps them often."""
+    """Boxes without descriptors, the robot backing away from the two objects: their shapes
+    (width to height), learned while the two stood apart in the image, keep them apart once
+    their predictions overlap; with ``tracking.appearance`` off, position alone swaps them
+    often."""
     settings = {"filter.object_std": 3.0, "filter.odometry_std": [0.001] * 6}
-    runs = [_track(_two_shapes_side_by_side(s), **settings) for s in range(3)]
-    positions = [
-        _track(_two_shapes_side_by_side(s), **settings, **{"tracking.appearance": False})[1]
-        for s in range(3)
-    ]
+    extent = np.array([[0.2, 0.8], [0.6, 0.3]])  # tall and narrow, wide and low (m)
+    data = [_two_lookalike_objects(False, s, extent, path=(14.0, 6.0)) for s in range(3)]
+    runs = [_track(team, **settings) for team in data]
+    positions = [_track(team, **settings, **{"tracking.appearance": False})[1] for team in data]
     switches = sum(m["id_switches"] for m in positions)
     assert switches >= 20
     assert all(agent.tracker.shape.informative for agent, _ in runs)
