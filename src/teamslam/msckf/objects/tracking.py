@@ -301,6 +301,7 @@ class ObjectTracker:
         near_target = np.zeros(d, bool)
         lone_stale = np.full(d, -1, np.int64)  # the long-unseen object a detection is alone for
         looks = None  # (T, D) appearance distances and log-ratios, where both have descriptors
+        shapes = None  # the same of the boxes' shapes (SORT keeps a box's w / h too)
         if n_targets and d:
             centres = np.ascontiguousarray(z[:, :4], dtype=float)
             if self._noise is None:
@@ -346,7 +347,6 @@ class ObjectTracker:
                     cost = cost - 2.0 * looks[1]
             # the targets seen within the last N frames: tracks, and objects followed frame to frame
             fresh = (kinds == 2) | ((kinds == 0) & (t - seen <= self.frames_allowed))
-            shapes = None  # the boxes' shapes, as their appearance (SORT keeps w / h too)
             if self._shapes is not None:
                 pairs = cosine_distances(self._shapes[index], self._shapes[index])
                 self.shape.add(np.zeros(0), pairs[np.triu_indices(d, 1)])
