@@ -722,12 +722,17 @@ class ObjectTracker:
         )
         for n, o in pairs.tolist():
             self.merged[n] = o
-            self.extents.merge(n, o)
-            if self.memory is not None:
-                self.memory.merge(n, o)
-            self.shape_memory.merge(n, o)
+            self._merge_summaries(n, o)
         self.counters["loop_closures"] = len(self.loop.closures)
         return pairs
+
+    def _merge_summaries(self, new: int, old: int) -> None:
+        """Object ``new`` is ``old`` seen again: its sizes, appearance and shape summaries
+        join ``old``'s."""
+        self.extents.merge(new, old)
+        if self.memory is not None:
+            self.memory.merge(new, old)
+        self.shape_memory.merge(new, old)
 
     def reidentify(self, t: int, state) -> np.ndarray:
         """Merge each object confirmed within the last ``filter.window`` frames into the
@@ -825,9 +830,7 @@ class ObjectTracker:
         merge_objects(state, merged, t, factors, offsets)
         for n, o in pairs:
             self.merged[n] = o
-            self.extents.merge(n, o)
-            self.memory.merge(n, o)
-            self.shape_memory.merge(n, o)
+            self._merge_summaries(n, o)
             for label, count in self._votes.pop(n, {}).items():
                 votes = self._votes.setdefault(o, {})
                 votes[label] = votes.get(label, 0) + count
@@ -932,11 +935,8 @@ class ObjectTracker:
         descriptors of the young objects' boxes (re-identification)."""
         samples = (self.appearance, self.memory, self._descriptors)
         self._learn_cue(samples, looks, assigned_target, kinds, target_ids, index)
-        for j, target in zip(
-            index[assigned_target >= 0].tolist(),
-            assigned_target[assigned_target >= 0].tolist(),
-            strict=True,
-        ):
+        hit = assigned_target >= 0
+        for j, target in zip(index[hit].tolist(), assigned_target[hit].tolist(), strict=True):
             boxes = self._boxes.get(int(target_ids[target]))
             if boxes is not None:
                 boxes.append(self._descriptors[j])
@@ -1163,11 +1163,9 @@ class ObjectTracker:
             if oid in taken:
                 continue
             taken.add(oid)
-            self.extents.merge(int(self.ids[row]), oid)
+            self._merge_summaries(int(self.ids[row]), oid)
             if self.memory is not None:
-                self.memory.merge(int(self.ids[row]), oid)
                 self._count("tracks_reidentified")
-            self.shape_memory.merge(int(self.ids[row]), oid)
             for f, _, j in self.history.get(int(self.ids[row]), []):
                 self._name_in_log(f, j, oid)
             self._name_in_hindsight(t, self._track_target(row), oid, *window)
