@@ -19,8 +19,10 @@ the box centres' errors against the true objects (evaluation only) by box width:
 spread as a share of the box, how many lie beyond three σ of the noise model the own run
 calibrated (``filter.object_std``, ``filter.object_size_share``), and how much of an object's
 error persists from one frame to the next; where the own run's IDF1 is lost, by kind of box
-(:func:`_id_losses`); last, each tracker's merges judged by the truth of the boxes, and the
-box noise's overconfidence factor it learned (:func:`_merge_rows`).
+(:func:`_id_losses`); how far a box's appearance lies from its own object's summary within
+a pass and after an absence, and how often it is the nearest of its class's after one
+(:func:`_appearance_across`); last, each tracker's merges judged by the truth of the boxes, and
+the box noise's overconfidence factor it learned (:func:`_merge_rows`).
 ``--render DIR`` keeps the rendered street in ``DIR`` and renders again only when ``DIR`` does not
 hold a finished render of the same configuration (rendering is most of the benchmark's time).
 ``--markdown FILE`` writes the table headed by the commit,
@@ -45,6 +47,7 @@ import numpy as np
 
 from _markdown import Markdown, add_option
 from teamslam import api
+from teamslam.association.appearance import AppearanceModel, unit_rows
 from teamslam.datasets.identity import oracle_object_ids
 from teamslam.datasets.images import dataset_from_images, rendered_team_inputs
 from teamslam.datasets.stats import robust_std
@@ -224,6 +227,87 @@ def _named_anew(offsets, truth, hyp, revisit_gap: int) -> int:
     return out
 
 
+def _appearance_across(boxes, gap: int, first: int = 6) -> tuple[list[list[str]], str]:
+    """Rows of how far a box's descriptor lies from its own object's summary within a pass and
+    after an absence, against other objects', and their note (evaluation only: the truth of
+    every box).
+
+    Per robot, frame by frame, each box of a true object against: the mean of the unit
+    descriptors of its object's earlier boxes in the current pass (*same, within a pass*);
+    the mean of its object's boxes before the last absence of more than ``gap`` frames (*same,
+    after an absence*: what re-identification compares); the mean of every other object's boxes
+    so far (*different*). Cosine distances and the ROC AUC of each *same* against *different*
+    (:class:`~teamslam.association.appearance.AppearanceModel`, the tracker's binning). The
+    note: of the passes after an absence with at least ``first`` boxes, in how many the mean
+    distance of those boxes to their object's earlier summary is the least among the objects
+    of its class seen before (appearance alone naming the revisit among its look-alikes)."""
+    within, across, different = [], [], []
+    passes = nearest = 0
+    for robot in boxes.robots:
+        d = robot.detections
+        unit = unit_rows(d.appearance)
+        sums: dict[int, np.ndarray] = {}  # every box so far
+        current: dict[int, np.ndarray] = {}  # the current pass's boxes
+        before: dict[int, np.ndarray] = {}  # the boxes before the last absence
+        last: dict[int, int] = {}
+        label: dict[int, int] = {}
+        # per pass after an absence: its class's objects seen before, their means, its boxes
+        pending: dict[int, tuple[list[int], np.ndarray, list[np.ndarray]]] = {}
+        for f in range(d.offsets.size - 1):
+            rows = np.arange(d.offsets[f], d.offsets[f + 1])
+            rows = rows[(d.truth[rows] >= 0) & unit[rows].any(axis=1)]
+            for j in rows.tolist():
+                t = int(d.truth[j])
+                if t in last and f - last[t] > gap:
+                    before[t] = sums[t].copy()
+                    del current[t]
+                    candidates = [o for o in sums if o == t or label[o] == d.classes[j]]
+                    means = unit_rows(np.array([sums[o] for o in candidates]))
+                    pending[t] = (candidates, means, [])
+                if t in current:
+                    within.append(1.0 - unit[j] @ unit_rows(current[t]))
+                if t in before:
+                    across.append(1.0 - unit[j] @ unit_rows(before[t]))
+                others = [o for o in sums if o != t]
+                if others:
+                    means = unit_rows(np.array([sums[o] for o in others]))
+                    different.extend((1.0 - means @ unit[j]).tolist())
+                if t in pending:
+                    candidates, means, views = pending[t]
+                    views.append(unit[j])
+                    if len(views) == first:
+                        del pending[t]
+                        passes += 1
+                        mean_distance = (1.0 - means @ np.array(views).T).mean(axis=1)
+                        nearest += int(candidates[int(np.argmin(mean_distance))] == t)
+            for j in rows.tolist():
+                t = int(d.truth[j])
+                sums[t] = sums.get(t, 0.0) + unit[j]
+                current[t] = current.get(t, 0.0) + unit[j]
+                last[t] = f
+                label[t] = int(d.classes[j])
+    rows = []
+    for name, same in (("within a pass", within), (f"after an absence (> {gap} frames)", across)):
+        model = AppearanceModel(0.99)
+        model.add(np.array(same), np.array(different))
+        rows.append(
+            [
+                name,
+                str(len(same)),
+                f"{np.median(same):.3f}",
+                f"{np.median(different):.3f}",
+                f"{model.auc():.3f}",
+            ]
+        )
+    note = (
+        f"{len(different)} *different* samples, median cosine distance {np.median(different):.3f}; "
+        f"of {passes} passes after an absence with at least {first} boxes, in {nearest} "
+        f"({nearest / max(passes, 1):.2f}) their first {first} boxes lie nearest, on average, "
+        "to their own object's earlier summary among the objects of its class seen before."
+    )
+    return rows, note
+
+
 def _merge_rows(runs: list[tuple[str, api.Run]]) -> list[list[str]]:
     """Per own run, filter and robot its tracker's merges judged by the truth of the boxes
     (:func:`~teamslam.eval.tracking.merge_audit`) and the box noise's overconfidence factor."""
@@ -362,6 +446,13 @@ def main() -> None:
     loss_header = ["boxes", "of true objects", "wrong id", "unnamed", "share of IDF1's loss"]
     md.table_of(
         "Where the own run's IDF1 is lost, by kind of box", loss_header, loss_rows, loss_note
+    )
+    across_rows, across_note = _appearance_across(boxes, settings["filter.window"])
+    md.table_of(
+        "A box against its own object's appearance summary, within a pass and after an absence",
+        ["same object", "boxes", "median distance", "different: median", "ROC AUC"],
+        across_rows,
+        across_note,
     )
     merge_header = [
         "run, filter, robot",
