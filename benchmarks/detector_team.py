@@ -47,7 +47,7 @@ import numpy as np
 
 from _markdown import Markdown, add_option
 from teamslam import api
-from teamslam.association.appearance import AppearanceModel, unit_rows
+from teamslam.association.appearance import AppearanceModel, cosine_distances, unit_rows
 from teamslam.datasets.identity import oracle_object_ids
 from teamslam.datasets.images import dataset_from_images, rendered_team_inputs
 from teamslam.datasets.stats import robust_std
@@ -256,29 +256,29 @@ def _appearance_across(boxes, gap: int, first: int = 6) -> tuple[list[list[str]]
         for f in range(d.offsets.size - 1):
             rows = np.arange(d.offsets[f], d.offsets[f + 1])
             rows = rows[(d.truth[rows] >= 0) & unit[rows].any(axis=1)]
+            # every object seen before this frame, its summary and its class
+            seen = np.array(list(sums), np.int64)
+            means = unit_rows(np.array([sums[o] for o in seen.tolist()]).reshape(-1, unit.shape[1]))
+            classes = np.array([label[o] for o in seen.tolist()], np.int64)
             for j in rows.tolist():
                 t = int(d.truth[j])
                 if t in last and f - last[t] > gap:
                     before[t] = sums[t].copy()
                     del current[t]
-                    candidates = [o for o in sums if o == t or label[o] == d.classes[j]]
-                    means = unit_rows(np.array([sums[o] for o in candidates]))
-                    pending[t] = (candidates, means, [])
+                    of_class = (seen == t) | (classes == d.classes[j])
+                    pending[t] = (seen[of_class].tolist(), means[of_class], [])
                 if t in current:
-                    within.append(1.0 - unit[j] @ unit_rows(current[t]))
+                    within.append(cosine_distances(current[t][None], unit[j][None])[0, 0])
                 if t in before:
-                    across.append(1.0 - unit[j] @ unit_rows(before[t]))
-                others = [o for o in sums if o != t]
-                if others:
-                    means = unit_rows(np.array([sums[o] for o in others]))
-                    different.extend((1.0 - means @ unit[j]).tolist())
+                    across.append(cosine_distances(before[t][None], unit[j][None])[0, 0])
+                different.extend(cosine_distances(means[seen != t], unit[j][None])[:, 0].tolist())
                 if t in pending:
-                    candidates, means, views = pending[t]
+                    candidates, held, views = pending[t]
                     views.append(unit[j])
                     if len(views) == first:
                         del pending[t]
                         passes += 1
-                        mean_distance = (1.0 - means @ np.array(views).T).mean(axis=1)
+                        mean_distance = cosine_distances(held, np.array(views)).mean(axis=1)
                         nearest += int(candidates[int(np.argmin(mean_distance))] == t)
             for j in rows.tolist():
                 t = int(d.truth[j])
