@@ -338,9 +338,7 @@ class ObjectTracker:
                     | (target_labels[:, None] == labels[None, :])
                 )
             if self._descriptors is not None:
-                # detections of one frame are different objects (one box per object and frame)
-                pairs = cosine_distances(self._descriptors[index], self._descriptors[index])
-                self.appearance.add(np.zeros(0), pairs[np.triu_indices(d, 1)])
+                _add_frame_pairs(self.appearance, self._descriptors[index])
                 looks = self._looks(target_ids, self._descriptors[index])
                 if self.appearance.informative:  # else position alone, as without descriptors
                     agree = agree & (looks[1] >= self._veto)
@@ -348,12 +346,8 @@ class ObjectTracker:
             # the targets seen within the last N frames: tracks, and objects followed frame to frame
             fresh = (kinds == 2) | ((kinds == 0) & (t - seen <= self.frames_allowed))
             if self._shapes is not None:
-                pairs = cosine_distances(self._shapes[index], self._shapes[index])
-                self.shape.add(np.zeros(0), pairs[np.triu_indices(d, 1)])
-                dist = cosine_distances(
-                    self.shape_memory.summaries(target_ids), self._shapes[index]
-                )
-                shapes = (dist, self.shape.log_ratio(dist))
+                _add_frame_pairs(self.shape, self._shapes[index])
+                shapes = _compare(self.shape, self.shape_memory, target_ids, self._shapes[index])
                 if self.shape.informative:  # frame to frame only: seen again from elsewhere,
                     # a box-shaped object has another width
                     agree = agree & ((shapes[1] >= self._veto) | ~fresh[:, None])
@@ -925,10 +919,8 @@ class ObjectTracker:
 
     def _looks(self, target_ids: np.ndarray, descriptors: np.ndarray):
         """``(distance, log ratio)``, each ``(T, D)``, between the targets' appearance summaries
-        and the detections' descriptors (ratio 0 for a target without a summary)."""
-        # NaN where either has none
-        dist = cosine_distances(self.memory.summaries(target_ids), descriptors)
-        return dist, self.appearance.log_ratio(dist)
+        and the detections' descriptors (:func:`_compare`)."""
+        return _compare(self.appearance, self.memory, target_ids, descriptors)
 
     def _learn(self, looks, assigned_target, kinds, target_ids, index) -> None:
         """Samples for the appearance ratio and the summaries (:meth:`_learn_cue`), and the
@@ -1509,6 +1501,20 @@ class LabelModel:
         same = np.where(a == b, 1.0 - c, c / (k - 1))
         ratio = np.log(same) - np.log(other[np.maximum(b, 0)])
         return np.where(known, ratio, 0.0)
+
+
+def _add_frame_pairs(model: AppearanceModel, rows: np.ndarray) -> None:
+    """Count a cue's *different* samples of one frame: its detections (``rows``) two by two
+    (one box per object and frame)."""
+    pairs = cosine_distances(rows, rows)
+    model.add(np.zeros(0), pairs[np.triu_indices(rows.shape[0], 1)])
+
+
+def _compare(model: AppearanceModel, memory: AppearanceMemory, target_ids, rows):
+    """``(distance, log ratio)``, each ``(T, D)``, between the targets' summaries of a cue
+    and the detections' unit ``rows`` (distance NaN and ratio 0 where either has none)."""
+    dist = cosine_distances(memory.summaries(target_ids), rows)
+    return dist, model.log_ratio(dist)
 
 
 def _nearest_neighbour(allowed: np.ndarray, cost: np.ndarray, assigned: np.ndarray) -> None:
