@@ -3,7 +3,8 @@
 Run on demand::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/appearance_roc.py [--robots 3] [--steps 120]
-        [--every 6] [--jitter 0.1] [--markdown FILE]
+        [--every 6] [--jitter 0.1] [--street-render DIR [--street-seed 17]
+        [--street-every 2] [--absence 10]] [--markdown FILE]
 
 Crops come from a function returning :class:`Crops` (images, boxes, truth ids);
 :func:`marker_crops` takes them from a rendered team: around every marker wholly visible in a
@@ -13,12 +14,22 @@ look-alikes boxes of the same sizes on the textured walls away from every marker
 object. Every pair of crops from different images is scored by the descriptors' cosine: a pair
 of one marker is *same object*, any other pair *different objects*. The AUC is the chance that
 a same-object pair scores above a different-objects pair (0.5: no better than chance).
+
+With ``--street-render DIR``, a second table: the detector team's colour street
+(``benchmarks/detector_team.py``'s render, made in ``DIR`` unless it is there), every box the
+simulated detector found on a true object in every ``--street-every``-th left image, described
+as the tracker receives it. A robot's boxes of one object form a *pass* until the object goes
+unboxed for more than ``--absence`` frames (the detector team's ``filter.window``); pairs of one
+object from one robot are *one pass* or *across an absence* (another pass: another side of the
+object, what re-identification faces), from two robots *another robot*; the negatives are pairs
+of two objects of one class (the look-alikes the class leaves to appearance).
 """
 
 from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.stats import rankdata
@@ -145,6 +156,133 @@ def pair_scores(crops: Crops, vectors: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return np.einsum("ij,ij->i", vectors[i], vectors[j]), crops.ids[i] == crops.ids[j]
 
 
+@dataclass
+class StreetBoxes:
+    """The simulated detector's boxes on true objects of a rendered street, with their truth.
+
+    Attributes
+    ----------
+    vectors
+        Descriptor kind → ``(N, D)`` descriptors of every box.
+    objects, classes, robots, passes
+        ``(N,)`` each box's true object, its class, the robot that saw it, and the pass of that
+        robot's boxes of the object it belongs to (numbered per robot and object).
+    """
+
+    vectors: dict[str, np.ndarray]
+    objects: np.ndarray
+    classes: np.ndarray
+    robots: np.ndarray
+    passes: np.ndarray
+
+
+def street_boxes(directory, every: int, absence: int) -> StreetBoxes:
+    """Describe every box on a true object in every ``every``-th colour left image of a rendered
+    street (``directory``, written by :func:`teamslam.sim.render.render_team`); a pass ends when
+    its object goes unboxed, in every frame, for more than ``absence`` frames."""
+    from teamslam.datasets.images import read_detection_truth, read_objects
+    from teamslam.frontend.detections import read_detections
+
+    cv2 = require_cv2("the appearance benchmark")
+    directory = Path(directory)
+    ids, classes, _ = read_objects(directory / "objects.txt")
+    class_of = dict(zip(ids.tolist(), classes.tolist(), strict=True))
+    vectors: dict[str, list[np.ndarray]] = {kind: [] for kind in DESCRIPTORS}
+    objects, robots, passes = [], [], []
+    for robot, folder in enumerate(
+        sorted(directory.glob("robot_*"), key=lambda p: int(p.name[6:]))
+    ):
+        names = sorted(p.name for p in (folder / "left").iterdir())
+        first = cv2.imread(str(folder / "left" / names[0]), cv2.IMREAD_COLOR)
+        size = (first.shape[1], first.shape[0])
+        read = read_detections(folder / "detections", names, size)
+        truth = read_detection_truth(folder / "detections_truth", names, read)
+        last: dict[int, int] = {}
+        count: dict[int, int] = {}
+        for frame, (name, boxes, found) in enumerate(zip(names, read.images, truth, strict=True)):
+            for object_id in np.unique(found[found >= 0]).tolist():
+                if object_id in last and frame - last[object_id] > absence:
+                    count[object_id] += 1
+                count.setdefault(object_id, 0)
+                last[object_id] = frame
+            keep = found >= 0
+            if frame % every or not keep.any():
+                continue
+            image = cv2.imread(str(folder / "left" / name), cv2.IMREAD_COLOR)
+            for kind in DESCRIPTORS:
+                vectors[kind].append(describe(image, boxes.boxes[keep], kind))
+            objects.append(found[keep])
+            robots.append(np.full(int(keep.sum()), robot))
+            passes.append(np.array([count[i] for i in found[keep].tolist()]))
+    objects_all = np.concatenate(objects)
+    return StreetBoxes(
+        {kind: np.concatenate(v) for kind, v in vectors.items()},
+        objects_all,
+        np.array([class_of[i] for i in objects_all.tolist()], np.int64),
+        np.concatenate(robots),
+        np.concatenate(passes),
+    )
+
+
+def street_pairs(boxes: StreetBoxes) -> dict[str, np.ndarray]:
+    """``(N, N)`` masks of the pairs (``i < j``): ``one pass``, ``across an absence``,
+    ``another robot`` (one object), ``look-alikes`` (two objects of one class)."""
+    n = boxes.objects.size
+    upper = np.triu(np.ones((n, n), bool), 1)
+    same = boxes.objects[:, None] == boxes.objects[None, :]
+    robot = boxes.robots[:, None] == boxes.robots[None, :]
+    one_pass = same & robot & (boxes.passes[:, None] == boxes.passes[None, :])
+    return {
+        "one pass": upper & one_pass,
+        "across an absence": upper & same & robot & ~one_pass,
+        "another robot": upper & same & ~robot,
+        "look-alikes": upper & ~same & (boxes.classes[:, None] == boxes.classes[None, :]),
+    }
+
+
+def _street_table(md: Markdown, args) -> None:
+    from detector_team import render_street, street_config
+
+    config = street_config(args.robots_street, args.street_steps, args.street_seed)
+    render_street(config, args.street_render)
+    boxes = street_boxes(args.street_render, args.street_every, args.absence)
+    pairs = street_pairs(boxes)
+    kinds = ["one pass", "across an absence", "another robot"]
+    counts = {k: int(pairs[k].sum()) for k in pairs}
+    title = (
+        f"Appearance descriptors, rendered street ({config.image_size[0]}×"
+        f"{config.image_size[1]}, colour): one object against look-alikes of its class"
+    )
+    note = (
+        f"{boxes.objects.size} detector boxes on {np.unique(boxes.objects).size} objects from "
+        f"{config.robots} robots, one frame in {args.street_every} of {config.steps + 1} "
+        f"(street seed {config.seed}); a pass ends after more than {args.absence} frames "
+        f"without a box. Pairs of one object: {counts['one pass']} in one pass, "
+        f"{counts['across an absence']} across an absence, {counts['another robot']} from "
+        f"two robots; against {counts['look-alikes']} pairs of two objects of one class. "
+        "AUC of each kind of same-object pair against the look-alike pairs; medians of the "
+        "cosine."
+    )
+    columns = ["descriptor", "dimension", *(f"AUC {k}" for k in kinds)]
+    columns += [f"median cos {k}" for k in ("one pass", "across an absence", "look-alikes")]
+    rows = []
+    for kind in DESCRIPTORS:
+        v = boxes.vectors[kind]
+        cos = v @ v.T
+        negative = cos[pairs["look-alikes"]]
+        aucs = []
+        for k in kinds:
+            positive = cos[pairs[k]]
+            scores = np.concatenate([positive, negative])
+            truth = np.arange(scores.size) < positive.size
+            aucs.append(f"{roc_auc(scores, truth):.3f}")
+        medians = [f"{np.median(cos[pairs[k]]):.3f}" for k in ("one pass", "across an absence")] + [
+            f"{np.median(negative):.3f}"
+        ]
+        rows.append([kind, str(dimension(kind)), *aucs, *medians])
+    md.table_of(title, columns, rows, note)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", type=int, default=3)
@@ -152,6 +290,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every", type=int, default=6, help="use every N-th frame")
     parser.add_argument("--jitter", type=float, default=0.1)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--street-render",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also measure on the detector team's colour street, rendered into (or reused "
+        "from) DIR",
+    )
+    parser.add_argument("--street-seed", type=int, default=17)
+    parser.add_argument("--street-steps", type=int, default=420)
+    parser.add_argument("--robots-street", type=int, default=3)
+    parser.add_argument("--street-every", type=int, default=2, help="use every N-th frame")
+    parser.add_argument(
+        "--absence", type=int, default=10, help="frames without a box that end a pass"
+    )
     add_option(parser)
     args = parser.parse_args(argv)
     md = Markdown(args.markdown)
@@ -189,8 +342,11 @@ def main(argv: list[str] | None = None) -> int:
     md.end()
     md.note(
         "On grey images hue-saturation is zero (no colour): every pair ties, AUC 0.5; "
-        "thumbnail+hue-saturation then ranks pairs as thumbnail does."
+        "thumbnail+hue-saturation and hue-saturation-or-thumbnail then rank pairs as "
+        "thumbnail does."
     )
+    if args.street_render is not None:
+        _street_table(md, args)
     md.write()
     return 0
 

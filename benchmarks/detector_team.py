@@ -333,7 +333,19 @@ def _merge_rows(runs: list[tuple[str, api.Run]]) -> list[list[str]]:
     return rows
 
 
-def _render(config: RenderConfig, directory: Path) -> None:
+def street_config(robots: int, steps: int, seed: int) -> RenderConfig:
+    """The street this benchmark renders (``--objects shapes --layout street --no-markers``)."""
+    return RenderConfig(
+        robots=robots,
+        steps=steps,
+        seed=seed,
+        layout="street",
+        objects="shapes",
+        markers_per_wall=0,
+    )
+
+
+def render_street(config: RenderConfig, directory: Path) -> None:
     """Render the street into ``directory`` unless it holds a finished render of ``config``
     (its ``render.json`` equal to ``config``'s, and a ``done`` mark written after rendering)."""
     stored = directory / "render.json"
@@ -361,15 +373,8 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         render = args.render if args.render is not None else Path(tmp) / "street"
-        config = RenderConfig(
-            robots=args.robots,
-            steps=args.steps,
-            seed=args.seed,
-            layout="street",
-            objects="shapes",
-            markers_per_wall=0,
-        )
-        _render(config, render)
+        config = street_config(args.robots, args.steps, args.seed)
+        render_street(config, render)
         boxes = dataset_from_images(**rendered_team_inputs(render), progress=False)
     settings = {"filter.window": 10}
     oracle = api.run(oracle_object_ids(boxes), mode="compare", settings=settings, report=False)

@@ -337,6 +337,15 @@ def test_descriptors_are_unit_vectors_of_fixed_size_on_grey_and_colour():
     # grey images: the default's colour half is zero
     g = describe(grey, boxes)
     assert not np.any(g[:, dimension("thumbnail") :])
+    # the default: a colour image by its hue alone (the thumbnail block zero), a grey one by
+    # its thumbnail alone, to the bit as thumbnail+hue-saturation gives it
+    c = describe(colour, boxes)
+    assert not np.any(c[:, : dimension("thumbnail")])
+    np.testing.assert_allclose(
+        c[:, dimension("thumbnail") :], describe(colour, boxes, "hue-saturation"), atol=1e-6
+    )
+    np.testing.assert_array_equal(g, describe(grey, boxes, "thumbnail+hue-saturation"))
+    np.testing.assert_allclose(g[:, : dimension("thumbnail")], describe(grey, boxes, "thumbnail"))
     with pytest.raises(InputError, match="appearance"):
         describe(grey.astype(np.float32), boxes)
     with pytest.raises(InputError, match="unknown"):

@@ -754,7 +754,9 @@ dataset's metadata; without ground truth the poses stored as truth are dead-reck
         default=None,
         metavar="KIND",
         help="appearance descriptor of boxes without an embedding: "
-        "thumbnail, hog, intensity, hue-saturation or thumbnail+hue-saturation (the default)",
+        "thumbnail, hog, intensity, hue-saturation, thumbnail+hue-saturation or "
+        "hue-saturation-or-thumbnail (the default: colour images by their hue, grey ones by "
+        "their thumbnail)",
     )
     fi.add_argument(
         "--markers-only",

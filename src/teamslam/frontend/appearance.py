@@ -30,9 +30,17 @@ tenth of its size) and a camera's gain and offset:
     the colour half is zero and the grey half is the ``thumbnail`` vector itself (the cosine
     is the thumbnails'). Compare grey with grey only: a grey and a colour view of one object
     score at most ``1/√2``.
+``hue-saturation-or-thumbnail``
+    The same two blocks (136 numbers), one of them zero: on colour images the
+    ``hue-saturation`` histogram alone, on grey images the ``thumbnail`` alone (as
+    ``thumbnail+hue-saturation`` gives there, to the bit). A colour histogram keeps an
+    object's identity from any side; a thumbnail's layout is the view's, and from another
+    side it tells nothing. A grey and a colour view score 0.
 
 ``benchmarks/appearance_roc.py`` measures how well each separates one object from another
-(ROC AUC); :data:`DEFAULT_DESCRIPTOR` is chosen by it.
+(ROC AUC): on a grey room of markers (planar, their layout is their identity) and on a colour
+street of objects seen from several sides, pairs of one pass and pairs across an absence;
+:data:`DEFAULT_DESCRIPTOR` is chosen by it.
 """
 
 from __future__ import annotations
@@ -44,11 +52,19 @@ from teamslam.frontend._cv import require_cv2
 
 __all__ = ["DEFAULT_DESCRIPTOR", "DESCRIPTORS", "describe", "dimension"]
 
-DESCRIPTORS = ("thumbnail", "hog", "intensity", "hue-saturation", "thumbnail+hue-saturation")
-#: ``thumbnail`` separates markers from each other and from wall look-alikes best on grey
-#: renders (``benchmarks/appearance_roc.py``); its colour companion adds the hue where there
-#: is one and ranks grey pairs as ``thumbnail`` alone
-DEFAULT_DESCRIPTOR = "thumbnail+hue-saturation"
+DESCRIPTORS = (
+    "thumbnail",
+    "hog",
+    "intensity",
+    "hue-saturation",
+    "thumbnail+hue-saturation",
+    "hue-saturation-or-thumbnail",
+)
+#: ``benchmarks/appearance_roc.py``: ``thumbnail`` separates markers from each other and from
+#: wall look-alikes best on grey renders; on colour renders of objects seen from several sides
+#: ``hue-saturation`` separates them best, within a pass and across an absence, where a
+#: thumbnail's layout changes with the view and adding it only dilutes the colour's evidence
+DEFAULT_DESCRIPTOR = "hue-saturation-or-thumbnail"
 
 _THUMBNAIL = 8
 _THUMBNAIL_BLUR = 1.0
@@ -66,6 +82,7 @@ _DIMENSIONS = {
     "hue-saturation": _HUE_BINS * _SATURATION_BINS,
 }
 _DIMENSIONS["thumbnail+hue-saturation"] = _DIMENSIONS["thumbnail"] + _DIMENSIONS["hue-saturation"]
+_DIMENSIONS["hue-saturation-or-thumbnail"] = _DIMENSIONS["thumbnail+hue-saturation"]
 
 
 def dimension(kind: str = DEFAULT_DESCRIPTOR) -> int:
@@ -167,7 +184,8 @@ def describe(image: np.ndarray, boxes: np.ndarray, kind: str = DEFAULT_DESCRIPTO
     -------
     np.ndarray
         ``(M, dimension(kind))`` float32, each row of unit length (or zero: a patch without
-        texture for ``thumbnail`` and ``intensity``, a grey image's ``hue-saturation``).
+        texture for ``thumbnail`` and ``intensity``, a grey image's ``hue-saturation``, a
+        colour box without a hue for ``hue-saturation-or-thumbnail``).
     """
     _check(kind)
     cv2 = require_cv2("appearance descriptors")
@@ -193,6 +211,11 @@ def describe(image: np.ndarray, boxes: np.ndarray, kind: str = DEFAULT_DESCRIPTO
             out[k] = _intensity_vector(g)
         elif kind == "hue-saturation":
             out[k] = _hue_saturation_vector(cv2, c)
+        elif kind == "hue-saturation-or-thumbnail":
+            if c is None:
+                out[k, : _DIMENSIONS["thumbnail"]] = _normalised(_thumbnail_vector(cv2, g))
+            else:
+                out[k, _DIMENSIONS["thumbnail"] :] = _hue_saturation_vector(cv2, c)
         else:
             grey_part = _normalised(_thumbnail_vector(cv2, g))
             hue = _normalised(_hue_saturation_vector(cv2, c))
