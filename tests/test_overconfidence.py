@@ -101,6 +101,54 @@ def test_a_pair_keeps_its_first_sample_and_a_minority_of_wrong_pairs_moves_littl
     assert learner.add(3, _pairs(d2[:5]), 1.0) == 5
 
 
+def _own_samples(rng, kappa, n_right, n_wrong, n_others=12):
+    """A robot's own re-identifications: ``n_right`` pairs of one object (``κ χ²(3)``) and
+    ``n_wrong`` look-alikes far from it, each with its call's other candidates (objects
+    elsewhere, ``d²`` spread over two orders of magnitude around 10⁵)."""
+
+    def elsewhere(size):
+        return np.exp(rng.normal(np.log(1e5), 1.2, size))
+
+    d2 = np.concatenate([kappa * rng.chisquare(3, n_right), elsewhere(n_wrong)])
+    others = [elsewhere(n_others) for _ in range(d2.size)]
+    pairs = _pairs(d2)
+    return pairs, dict(zip(pairs, others, strict=True))
+
+
+@pytest.mark.parametrize("kappa", [1.0, 30.0, 300.0])
+def test_own_reidentifications_learn_the_factor_when_most_pair_two_objects(kappa):
+    """Two in three samples pair look-alikes: the median is theirs, the mixture finds the
+    right pairs' factor (and 1 when they are consistent)."""
+    learned = []
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        pairs, others = _own_samples(rng, kappa, 15, 30)
+        learner = Overconfidence()
+        assert learner.add(-1, pairs, 1.0, others) == 45
+        learned.append(learner.kappa)
+        assert overconfidence_factor(np.array(list(pairs.values()))) > 10.0 * kappa
+    learned = np.array(learned)
+    if kappa == 1.0:
+        assert np.mean(learned > 1.0) <= 0.2
+        assert np.all(learned < 5.0)
+    else:
+        # 15 right samples: the scale of χ²(3) within a factor of two, every seed
+        assert np.all((learned > kappa / 2.0) & (learned < 2.0 * kappa)), learned
+        assert abs(np.log(np.median(learned) / kappa)) < np.log(1.3)
+
+
+def test_own_samples_without_alternatives_must_be_right_and_links_keep_the_median():
+    rng = np.random.default_rng(9)
+    d2 = 40.0 * rng.chisquare(3, 60)
+    learner = Overconfidence()
+    learner.add(-1, _pairs(d2), 1.0, {})  # no call had another candidate
+    assert abs(learner.kappa - 40.0) < 4.0 * _median_sd(40.0, 60) + 10.0
+    links = Overconfidence()
+    links.add(2, _pairs(d2), 1.0, _own_samples(rng, 1.0, 60, 0)[1])  # ignored for links
+    assert not links.alternatives
+    assert links.kappa == overconfidence_factor(d2)
+
+
 def test_arrays_round_trip():
     learner = Overconfidence()
     learner.add(1, _pairs(np.arange(1.0, 30.0) * 10.0), 2.0)
@@ -109,6 +157,18 @@ def test_arrays_round_trip():
     assert again.kappa == learner.kappa > 1.0
     with pytest.raises(ValueError, match="pairs"):
         Overconfidence.from_arrays({"keys": np.zeros((2, 3)), "values": np.zeros(1)})
+    own = Overconfidence()
+    pairs, others = _own_samples(np.random.default_rng(4), 30.0, 15, 30)
+    own.add(-1, pairs, 2.0, others)
+    again = Overconfidence.from_arrays(own.arrays())
+    assert again.kappa == own.kappa > 1.0
+    assert again.alternatives.keys() == own.alternatives.keys()
+    for key, values in own.alternatives.items():
+        np.testing.assert_array_equal(again.alternatives[key], values)
+    broken = own.arrays()
+    broken["alternative_counts"] = broken["alternative_counts"][1:]
+    with pytest.raises(ValueError, match="alternative"):
+        Overconfidence.from_arrays(broken)
 
 
 def test_the_factor_multiplies_only_the_boxs_own_part():

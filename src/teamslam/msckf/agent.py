@@ -306,6 +306,10 @@ class MsckfAgent:
                 {
                     "keys": snapshot.get("overconfidence_keys", np.zeros((0, 3), np.int64)),
                     "values": snapshot.get("overconfidence_values", np.zeros(0)),
+                    "alternative_counts": snapshot.get(
+                        "overconfidence_alternative_counts", np.zeros(0, np.int64)
+                    ),
+                    "alternatives": snapshot.get("overconfidence_alternatives", np.zeros(0)),
                 }
             )
             formed = FormedUnder.from_arrays(
@@ -380,12 +384,15 @@ class MsckfAgent:
         :meth:`learn_overconfidence`)."""
         return 1.0 if self._kappa is None else float(self._kappa)
 
-    def _learn_from(self, source: int, pairs: dict, factors: dict | None = None) -> None:
+    def _learn_from(
+        self, source: int, pairs: dict, factors: dict | None = None, alternatives=None
+    ) -> None:
         """Samples ``pairs`` (two ids → ``d²``) of ``source`` (a neighbour, or ``-1``: the
-        robot's own re-identifications) taken under ``factors`` (per pair; default the factor
-        in force now)."""
+        robot's own re-identifications, with the ``d²`` of each one's ``alternatives``) taken
+        under ``factors`` (per pair; default the factor in force now)."""
         kappa = 1.0 if self._kappa is None else self._kappa
-        if self.overconfidence.add(source, pairs, kappa if factors is None else factors):
+        factors = kappa if factors is None else factors
+        if self.overconfidence.add(source, pairs, factors, alternatives):
             self._kappa = self._learned_kappa()
             self.counters["overconfidence_samples"] = len(self.overconfidence)
 
@@ -662,8 +669,11 @@ class MsckfAgent:
                     (n, o): 0.5 * (self._object_kappa.get(n, 1.0) + self._object_kappa.get(o, 1.0))
                     for n, o in self.tracker.revisit_d2
                 }
-                self._learn_from(-1, self.tracker.revisit_d2, factors)
+                self._learn_from(
+                    -1, self.tracker.revisit_d2, factors, self.tracker.revisit_alternatives
+                )
             self.tracker.revisit_d2 = {}
+            self.tracker.revisit_alternatives = {}
         for new, old in frame.merged.tolist():  # loop closure: one object seen again
             self.views.merge(new, old)
             self._formed.merge(new, old)

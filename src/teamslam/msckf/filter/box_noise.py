@@ -165,11 +165,20 @@ class Overconfidence:
     factors in force at each object's last update (taking the one now for both would count
     the old object's covariance ``κ_i`` times too large and let ``κ`` run away).
 
-    The estimate is robust, as the association's frame scale:
+    The links' estimate is robust, as the association's frame scale:
     ``κ = median(κ_i · d²_i) / median(χ²(3))`` (a minority of wrong pairs moves it little),
     taken only when the median of ``κ_i · d²_i`` exceeds χ²(3)'s by the one-sided
     binomial (sign) test at :data:`OVERCONFIDENCE_PROBABILITY` — no assumption of the samples'
     distribution, and with few samples no departure from ``κ = 1`` — and never below 1.
+
+    Appearance alone may name a look-alike, and among a robot's own re-identifications such
+    pairs can be the majority, which no median survives. Each of those samples comes with
+    the ``d²`` of the other old objects of its call (of every class; appearance may name any
+    of them): what a sample's ``d²`` looks like when the named object is another one. Their
+    estimate is a mixture's (:func:`mixture_factor`): each sample right (``κ χ²(3)``) or a
+    pair of two objects (distributed as the calls' other candidates, pooled), ``κ`` and the
+    share of right pairs by maximum likelihood, taken when it beats ``κ = 1`` by the
+    likelihood-ratio test at :data:`OVERCONFIDENCE_PROBABILITY`.
 
     The links' samples pass the association's gate under its transform, whose drift allowance
     grows with the distance from the pairs it was fitted on: a pair far from them is admitted at
@@ -181,6 +190,9 @@ class Overconfidence:
     def __init__(self) -> None:
         #: (source, id, other id) → ``κ_i · d²_i`` of the pair's first sample
         self.samples: dict[tuple[int, int, int], float] = {}
+        #: (-1, id, other id) → ``κ_i · d²`` of the other candidates of the re-identification
+        #: the pair's first sample came from
+        self.alternatives: dict[tuple[int, int, int], np.ndarray] = {}
         self._kappa = 1.0
 
     def __len__(self) -> int:
@@ -196,16 +208,24 @@ class Overconfidence:
         neighbour: int,
         pairs: Mapping[tuple[int, int], float],
         kappa: float | Mapping[tuple[int, int], float],
+        alternatives: Mapping[tuple[int, int], np.ndarray] | None = None,
     ) -> int:
         """Record source ``neighbour``'s ``pairs`` (two ids) → ``d²`` taken under ``kappa``
         (``-1``: the robot's own re-identifications); a pair already recorded keeps its first
-        sample. ``kappa``: one factor for all, or each pair's. Returns how many were new."""
+        sample. ``kappa``: one factor for all, or each pair's. ``alternatives``: per pair of the
+        robot's own, the ``d²`` of its call's other candidates (class docstring). Returns how
+        many were new."""
         new = 0
         for (own, theirs), d2 in pairs.items():
             key = (int(neighbour), int(own), int(theirs))
             if key not in self.samples and np.isfinite(d2) and d2 >= 0:
                 factor = kappa[(own, theirs)] if isinstance(kappa, Mapping) else kappa
                 self.samples[key] = float(factor) * float(d2)
+                others = None if alternatives is None else alternatives.get((own, theirs))
+                if others is not None and neighbour < 0:
+                    others = np.asarray(others, float).ravel()
+                    others = others[np.isfinite(others) & (others >= 0)]
+                    self.alternatives[key] = float(factor) * others
                 new += 1
         if new:
             self._kappa = self._factor()
@@ -216,12 +236,21 @@ class Overconfidence:
         robot's own re-identifications (source ``-1``)."""
         own = np.array([k[0] < 0 for k in self.samples], dtype=bool)
         values = np.fromiter(self.samples.values(), float, count=own.size)
-        return max(overconfidence_factor(values[~own]), overconfidence_factor(values[own]))
+        links = overconfidence_factor(values[~own])
+        if not self.alternatives:
+            return max(links, overconfidence_factor(values[own]))
+        return max(links, mixture_factor(values[own], list(self.alternatives.values())))
 
     def arrays(self) -> dict[str, np.ndarray]:
         """What it learned, as arrays (for a snapshot; :meth:`from_arrays`)."""
         keys = np.array(list(self.samples), dtype=np.int64).reshape(-1, 3)
-        return {"keys": keys, "values": np.fromiter(self.samples.values(), float)}
+        others = [self.alternatives.get(tuple(k), np.zeros(0)) for k in keys.tolist()]
+        return {
+            "keys": keys,
+            "values": np.fromiter(self.samples.values(), float),
+            "alternative_counts": np.array([o.size for o in others], np.int64),
+            "alternatives": np.concatenate([np.zeros(0), *others]),
+        }
 
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> Overconfidence:
@@ -232,6 +261,17 @@ class Overconfidence:
         if keys.shape[0] != values.size:
             raise ValueError(f"overconfidence: {keys.shape[0]} pairs, {values.size} values")
         out.samples = {tuple(k): float(v) for k, v in zip(keys.tolist(), values, strict=True)}
+        counts = np.asarray(arrays.get("alternative_counts", np.zeros(0)), np.int64).ravel()
+        flat = np.asarray(arrays.get("alternatives", np.zeros(0)), float).ravel()
+        if counts.size:  # a snapshot from before has none
+            if counts.size != keys.shape[0] or counts.sum() != flat.size or (counts < 0).any():
+                raise ValueError(
+                    f"overconfidence: {counts.size} alternative counts summing to "
+                    f"{counts.sum()} for {keys.shape[0]} pairs and {flat.size} alternatives"
+                )
+            for k, part in zip(keys.tolist(), np.split(flat, np.cumsum(counts)[:-1]), strict=True):
+                if k[0] < 0 and part.size:
+                    out.alternatives[tuple(k)] = part.copy()
         if values.size:
             out._kappa = out._factor()
         return out
@@ -250,6 +290,48 @@ def overconfidence_factor(scaled: np.ndarray) -> float:
     if stats.binom.sf(above - 1, n, 0.5) > 1.0 - OVERCONFIDENCE_PROBABILITY:
         return 1.0
     return max(1.0, float(np.median(scaled)) / _CHI2_3_MEDIAN)
+
+
+#: The spread of ``log χ²(3)``: how far a pair's ``d²`` lies from another pair's of the same
+#: kind, in the logarithm (the bandwidth of :func:`mixture_factor`'s density of wrong pairs)
+_LOG_CHI2_3_STD = float(
+    np.sqrt(
+        stats.chi2.expect(lambda x: np.log(x) ** 2, args=(3,))
+        - stats.chi2.expect(np.log, args=(3,)) ** 2
+    )
+)
+
+
+def mixture_factor(scaled: np.ndarray, alternatives: list[np.ndarray]) -> float:
+    """``κ`` of samples ``s_i = κ_i · d²_i``, some of which pair two objects (a robot's own
+    re-identifications, :class:`Overconfidence`).
+
+    Each sample is right with probability ``w``, density ``χ²₃(s / κ) / κ``, or pairs two
+    objects, with the density of the ``d²`` of the old objects appearance did not name
+    (``alternatives``: one array per call, scaled alike, pooled): a kernel density in
+    ``log d²`` of bandwidth the spread of ``log χ²(3)``. ``κ`` and ``w`` maximise the likelihood
+    (over a grid, ``κ`` from 1 to beyond the largest sample); ``κ > 1`` only when it beats
+    ``κ = 1`` (its own best ``w``) by the likelihood-ratio test (χ²(1)) at
+    :data:`OVERCONFIDENCE_PROBABILITY`. Without any alternative, :func:`overconfidence_factor`.
+    """
+    scaled = np.asarray(scaled, dtype=float).ravel()
+    others = np.concatenate([np.zeros(0), *(np.asarray(a, float).ravel() for a in alternatives)])
+    others = np.log(others[others > 0])
+    if scaled.size == 0 or others.size == 0:
+        return overconfidence_factor(scaled)
+    s = np.maximum(scaled, 1e-12)
+    h = _LOG_CHI2_3_STD
+    z = (np.log(s)[:, None] - others[None, :]) / h
+    wrong = np.exp(-0.5 * z * z).mean(axis=1) / (h * np.sqrt(2.0 * np.pi) * s)
+    kappas = np.geomspace(1.0, max(10.0, 100.0 * float(s.max())), 400)
+    right = stats.chi2.pdf(s[None, :] / kappas[:, None], 3) / kappas[:, None]  # (K, n)
+    shares = np.linspace(0.01, 1.0, 100)
+    mixed = shares[None, :, None] * right[:, None, :] + (1.0 - shares)[None, :, None] * wrong
+    loglik = np.log(np.maximum(mixed, 1e-300)).sum(axis=2).max(axis=1)  # (K,): best w each
+    best = int(np.argmax(loglik))
+    if 2.0 * (loglik[best] - loglik[0]) <= chi2_quantile(OVERCONFIDENCE_PROBABILITY, 1):
+        return 1.0
+    return float(kappas[best])
 
 
 class FormedUnder:

@@ -200,6 +200,9 @@ class ObjectTracker:
         #: gate (samples of how overconfident the objects are, not cut by that gate; the agent
         #: takes them each frame, :meth:`reidentify`)
         self.revisit_d2: dict[tuple[int, int], float] = {}
+        #: per pair of :attr:`revisit_d2`, the ``d²`` of the other old objects of its call, of
+        #: every class (what the pair's looks like when appearance named another object)
+        self.revisit_alternatives: dict[tuple[int, int], np.ndarray] = {}
         #: ``callable(ids) -> (len(ids),)`` factors ``r ≥ 1`` by which the covariances of the
         #: state's and the persistent map's objects are too small for the box noise now in
         #: force (:class:`~teamslam.msckf.filter.box_noise.FormedUnder`, set by the agent once
@@ -774,6 +777,7 @@ class ObjectTracker:
             old = state.object_ids[(state.object_last_seen < created[n]) | seen_apart]
             old = np.concatenate([old, retired])
             old = old[~np.isin(old, young) & ~np.isin(old, pairs)]
+            everyone = old  # of every class: where a look-alike appearance named may lie
             label = int(self.labels_of(np.array([n]))[0])
             if label >= 0 and old.size:
                 labels = self.labels_of(old)
@@ -789,8 +793,12 @@ class ObjectTracker:
                 # under the covariances as held: the learner weighs each by its own factor)
                 best = self._revisit_choice(ratio, prior)
                 if best is not None:
-                    self.revisit_d2.setdefault((n, int(old[best])), float(held[best]))
-                    self._pending[n] = int(old[best])
+                    key = (n, int(old[best]))
+                    if key not in self.revisit_d2:
+                        self.revisit_d2[key] = float(held[best])
+                        others = everyone[everyone != key[1]]
+                        self.revisit_alternatives[key] = difference_d2(state, n, others)
+                    self._pending[n] = key[1]
             if self.widening is not None:
                 r = self.widening(np.concatenate([[n], old]))
                 if (r > 1.0).any():
