@@ -116,7 +116,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "appearance-roc": (
         "python benchmarks/appearance_roc.py --robots 3 --steps 120 --every 6 --seed 1 "
-        f"--markdown {GENERATED}/appearance-roc.md",
+        f"--street-render results/street-render --markdown {GENERATED}/appearance-roc.md",
         f"{GENERATED}/appearance-roc.md",
     ),
     "box-stereo": (
