@@ -190,8 +190,8 @@ class Overconfidence:
     def __init__(self) -> None:
         #: (source, id, other id) → ``κ_i · d²_i`` of the pair's first sample
         self.samples: dict[tuple[int, int, int], float] = {}
-        #: (-1, id, other id) → ``κ_i · d²`` of the other candidates of the re-identification
-        #: the pair's first sample came from
+        #: (-1, id, other id) → ``κ_i · d²`` of the other old objects of the
+        #: re-identification call the pair's first sample came from
         self.alternatives: dict[tuple[int, int, int], np.ndarray] = {}
         self._kappa = 1.0
 
@@ -213,7 +213,7 @@ class Overconfidence:
         """Record source ``neighbour``'s ``pairs`` (two ids) → ``d²`` taken under ``kappa``
         (``-1``: the robot's own re-identifications); a pair already recorded keeps its first
         sample. ``kappa``: one factor for all, or each pair's. ``alternatives``: per pair of the
-        robot's own, the ``d²`` of its call's other candidates (class docstring). Returns how
+        robot's own, the ``d²`` of its call's other old objects (class docstring). Returns how
         many were new."""
         new = 0
         for (own, theirs), d2 in pairs.items():
@@ -302,6 +302,10 @@ _LOG_CHI2_3_STD = float(
 )
 
 
+#: Most kernel evaluations :func:`mixture_factor` holds at once (samples × alternatives)
+_MIXTURE_CHUNK = 1 << 20
+
+
 def mixture_factor(scaled: np.ndarray, alternatives: list[np.ndarray]) -> float:
     """``κ`` of samples ``s_i = κ_i · d²_i``, some of which pair two objects (a robot's own
     re-identifications, :class:`Overconfidence`).
@@ -321,13 +325,20 @@ def mixture_factor(scaled: np.ndarray, alternatives: list[np.ndarray]) -> float:
         return overconfidence_factor(scaled)
     s = np.maximum(scaled, 1e-12)
     h = _LOG_CHI2_3_STD
-    z = (np.log(s)[:, None] - others[None, :]) / h
-    wrong = np.exp(-0.5 * z * z).mean(axis=1) / (h * np.sqrt(2.0 * np.pi) * s)
+    log_s = np.log(s)
+    wrong = np.empty(s.size)
+    rows = max(1, _MIXTURE_CHUNK // others.size)  # bounded memory: samples × alternatives
+    for start in range(0, s.size, rows):
+        z = (log_s[start : start + rows, None] - others[None, :]) / h
+        wrong[start : start + rows] = np.exp(-0.5 * z * z).mean(axis=1)
+    wrong /= h * np.sqrt(2.0 * np.pi) * s
     kappas = np.geomspace(1.0, max(10.0, 100.0 * float(s.max())), 400)
-    right = stats.chi2.pdf(s[None, :] / kappas[:, None], 3) / kappas[:, None]  # (K, n)
     shares = np.linspace(0.01, 1.0, 100)
-    mixed = shares[None, :, None] * right[:, None, :] + (1.0 - shares)[None, :, None] * wrong
-    loglik = np.log(np.maximum(mixed, 1e-300)).sum(axis=2).max(axis=1)  # (K,): best w each
+    loglik = np.empty(kappas.size)  # each κ at its best share w
+    for k, kappa in enumerate(kappas):
+        right = stats.chi2.pdf(s / kappa, 3) / kappa
+        mixed = shares[:, None] * right[None, :] + (1.0 - shares)[:, None] * wrong
+        loglik[k] = np.log(np.maximum(mixed, 1e-300)).sum(axis=1).max()
     best = int(np.argmax(loglik))
     if 2.0 * (loglik[best] - loglik[0]) <= chi2_quantile(OVERCONFIDENCE_PROBABILITY, 1):
         return 1.0
