@@ -3,8 +3,9 @@
 Run on demand::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/appearance_roc.py [--robots 3] [--steps 120]
-        [--every 6] [--jitter 0.1] [--street-render DIR [--street-seed 17]
-        [--street-every 2] [--absence 10]] [--markdown FILE]
+        [--every 6] [--jitter 0.1] [--street-render DIR [--street-robots 3]
+        [--street-steps 420] [--street-seed 17] [--street-every 2] [--absence 10]]
+        [--markdown FILE]
 
 Crops come from a function returning :class:`Crops` (images, boxes, truth ids);
 :func:`marker_crops` takes them from a rendered team: around every marker wholly visible in a
@@ -243,7 +244,7 @@ def street_pairs(boxes: StreetBoxes) -> dict[str, np.ndarray]:
 def _street_table(md: Markdown, args) -> None:
     from detector_team import render_street, street_config
 
-    config = street_config(args.robots_street, args.street_steps, args.street_seed)
+    config = street_config(args.street_robots, args.street_steps, args.street_seed)
     render_street(config, args.street_render)
     boxes = street_boxes(args.street_render, args.street_every, args.absence)
     pairs = street_pairs(boxes)
@@ -300,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--street-seed", type=int, default=17)
     parser.add_argument("--street-steps", type=int, default=420)
-    parser.add_argument("--robots-street", type=int, default=3)
+    parser.add_argument("--street-robots", type=int, default=3)
     parser.add_argument("--street-every", type=int, default=2, help="use every N-th frame")
     parser.add_argument(
         "--absence", type=int, default=10, help="frames without a box that end a pass"
