@@ -1,7 +1,8 @@
 """Re-identification of a long-unseen object from several boxes of a new one: where one box is
 ambiguous, the boxes together name the object that looks alike and fits; a look-alike at a
 wrong place, or two equally likely candidates, give no merge; a merge keeps the estimate
-consistent."""
+consistent; the position's likelihood ratio is learned from the pairs of two objects every call
+shows."""
 
 from __future__ import annotations
 
@@ -11,12 +12,12 @@ import numpy as np
 import pytest
 
 from teamslam.errors import InputError
-from teamslam.gaussian import chi2_band
+from teamslam.gaussian import chi2_band, chi2_quantile
 from teamslam.msckf.filter.box_noise import box_rows, box_variances
 from teamslam.msckf.filter.models import observe
 from teamslam.msckf.filter.state import MsckfState
 from teamslam.msckf.objects.appearance import AppearanceMemory, AppearanceModel
-from teamslam.msckf.objects.loop_closure import difference_d2, revisit_posterior
+from teamslam.msckf.objects.loop_closure import PositionRatio, difference_d2, revisit_posterior
 from teamslam.msckf.objects.tracking import ObjectTracker
 from teamslam.msckf.settings.values import MsckfConfig
 from teamslam.sim.lissajous import T_CAM_BODY, SimulationConfig
@@ -455,3 +456,52 @@ def test_a_pass_goes_on_under_the_old_id_from_the_point_its_own_boxes_show():
     assert tracker.counters["tracks_started"] == 1
     assert again == ids[15:] and tracker.passes[7][2] == 89
     np.testing.assert_array_equal(resumed.passes[7][0], tracker.passes[7][0])
+
+
+def _two_objects(rng, size=4000):
+    """``d²`` of pairs of two objects: log-uniform from 30 to 10⁵ (objects metres apart)."""
+    return np.exp(rng.uniform(np.log(30.0), np.log(1e5), size))
+
+
+def test_the_position_ratio_favours_a_near_pair_when_two_objects_lie_far_apart():
+    ratio = PositionRatio()
+    assert np.all(ratio.log_ratio([0.5, 3.0, 50.0]) == 0.0)  # nothing learned: no evidence
+    ratio.add(_two_objects(np.random.default_rng(4)))
+    near, edge, far = ratio.log_ratio([1.0, chi2_quantile(0.99, 3), 200.0])
+    assert near > 5.0 and near > edge and far < -10.0
+    # N pairs of two objects testify at most N + 1 to one object
+    few = PositionRatio()
+    few.add(_two_objects(np.random.default_rng(5), size=3))
+    assert np.all(few.log_ratio(np.linspace(0.1, 10.0, 50)) <= np.log(4.0) + 1e-12)
+
+
+def test_the_position_ratio_is_near_zero_when_two_objects_look_like_one():
+    ratio = PositionRatio()
+    ratio.add(np.random.default_rng(6).chisquare(3, 20000))
+    assert np.all(np.abs(ratio.log_ratio([0.5, 1.0, 3.0, 8.0])) < 0.7)
+
+
+def test_the_position_ratio_round_trips_and_refuses_malformed_counts():
+    ratio = PositionRatio()
+    ratio.add(_two_objects(np.random.default_rng(7), size=500))
+    ratio.add(np.array([np.nan, -1.0, 0.0, np.inf]))  # not pairs: not counted
+    assert len(ratio) == 500
+    back = PositionRatio.from_arrays(ratio.arrays())
+    d2 = np.array([0.3, 2.0, 9.0, 40.0])
+    assert np.array_equal(back.log_ratio(d2), ratio.log_ratio(d2))
+    for bad in (ratio.arrays()[:-1], np.where(ratio.arrays() > 0, -1.0, 0.0)):
+        with pytest.raises(ValueError, match="position ratio"):
+            PositionRatio.from_arrays(bad)
+
+
+def test_the_tracker_learns_the_position_ratio_from_every_calls_old_objects():
+    """Each re-identification call counts the gate's d² of the new object against every old
+    object (7 and 8 here), and a checkpoint keeps the counts."""
+    rng = np.random.default_rng(1)
+    tracker, state = _beside(rng)
+    _run(tracker, state, rng, _look(_chord_angle(0.05)))
+    calls = len(tracker.position)
+    assert calls >= 2 and calls % 2 == 0
+    restored = ObjectTracker(0, CAMERA, T_CAM_BODY, CONFIG)
+    restored.load_state(tracker.state_dict())
+    assert np.array_equal(restored.position.arrays(), tracker.position.arrays())

@@ -33,6 +33,7 @@ __all__ = [
     "geometric_average",
     "geometric_average_arrays",
     "kl_divergence",
+    "log_chi2_std",
     "nees",
     "replace_marginal",
     "replace_marginal_arrays",
@@ -52,6 +53,16 @@ def chi2_quantile(probability: float, dof: int) -> float:
     from scipy import stats
 
     return float(stats.chi2.ppf(probability, dof))
+
+
+@lru_cache(maxsize=64)
+def log_chi2_std(dof: int) -> float:
+    """The standard deviation of ``log`` of a χ²(``dof``) variable, ``√ψ′(dof / 2)`` (the
+    logarithm of a Gamma variable): how far one ``d²`` lies from another of the same kind, in
+    the logarithm."""
+    from scipy import special
+
+    return float(np.sqrt(special.polygamma(1, 0.5 * dof)))
 
 
 def robust_std(x: np.ndarray, axis: int = 0) -> np.ndarray:

@@ -31,7 +31,7 @@ from collections.abc import Mapping
 import numpy as np
 from scipy import stats
 
-from teamslam.gaussian import chi2_quantile
+from teamslam.gaussian import chi2_quantile, log_chi2_std
 
 __all__ = [
     "BOX_COLUMNS",
@@ -292,16 +292,6 @@ def overconfidence_factor(scaled: np.ndarray) -> float:
     return max(1.0, float(np.median(scaled)) / _CHI2_3_MEDIAN)
 
 
-#: The spread of ``log χ²(3)``: how far a pair's ``d²`` lies from another pair's of the same
-#: kind, in the logarithm (the bandwidth of :func:`mixture_factor`'s density of wrong pairs)
-_LOG_CHI2_3_STD = float(
-    np.sqrt(
-        stats.chi2.expect(lambda x: np.log(x) ** 2, args=(3,))
-        - stats.chi2.expect(np.log, args=(3,)) ** 2
-    )
-)
-
-
 #: Most kernel evaluations :func:`mixture_factor` holds at once (samples × alternatives)
 _MIXTURE_CHUNK = 1 << 20
 
@@ -324,7 +314,7 @@ def mixture_factor(scaled: np.ndarray, alternatives: list[np.ndarray]) -> float:
     if scaled.size == 0 or others.size == 0:
         return overconfidence_factor(scaled)
     s = np.maximum(scaled, 1e-12)
-    h = _LOG_CHI2_3_STD
+    h = log_chi2_std(3)  # how far one pair's d² lies from another's of its kind
     log_s = np.log(s)
     wrong = np.empty(s.size)
     rows = max(1, _MIXTURE_CHUNK // others.size)  # bounded memory: samples × alternatives

@@ -5,8 +5,10 @@ between its *recent* objects and its *old* ones (unseen for longer than the wind
 of the persistent map), with its views so that a mirror image is refused and a turn beyond the
 drift (:func:`turn_within_drift`) too; it never guesses (too few pairs or a rival set gives
 nothing). A single new object is re-identified by its own boxes instead: :func:`difference_d2`
-gates ``x_n − x_o`` with its covariance from the joint state, :func:`revisit_posterior` weighs the
-gated candidates' evidence against a new object and against each other.
+gates ``x_n − x_o`` with its covariance from the joint state, :class:`PositionRatio` gives the
+difference's likelihood ratio (one object against two, learned in the run), and
+:func:`revisit_posterior` weighs the gated candidates' evidence against a new object and against
+each other.
 :func:`merge_objects` closes the loop: one EKF update with ``x_n − x_o = 0`` for every accepted
 pair, then ``x_n`` leaves the state. Derivation: the concept page *Tracking*
 (``docs/concepts/tracking.md``).
@@ -17,12 +19,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from teamslam.association import AssociationResult, AssociationSettings, ObjectSummary, associate
+from teamslam.gaussian import log_chi2_std
 
 __all__ = [
     "LoopClosure",
+    "PositionRatio",
     "difference_d2",
     "find_loop",
     "merge_objects",
@@ -485,6 +490,76 @@ def _difference_cov(cov: np.ndarray) -> np.ndarray:
 def _squared_mahalanobis(r: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """``rᵀ C⁻¹ r`` per row of ``r`` ``(k, 3)`` with ``cov`` ``(k, 3, 3)``."""
     return np.einsum("ki,ki->k", r, np.linalg.solve(cov, r[..., None])[..., 0])
+
+
+class PositionRatio:
+    """The likelihood ratio of a position difference for re-identification: one object seen
+    twice against two objects.
+
+    One object: the difference's ``d²`` (under the re-identification gate's covariance) is
+    ``χ²(3)``. Two objects: learned in the run, from the ``d²`` of every new object against
+    every old object of each re-identification call (of every class: the pairs are nearly all
+    of two objects), kept as counts in ``log d²`` (bins a quarter of the kernel's width) and
+    smoothed by a kernel as wide as the spread of ``log χ²(3)``. The two objects' density is
+    shrunk towards one object's by one pseudo-pair, so ``N`` pairs counted can testify at most
+    ``N + 1`` to one object: no evidence before any is counted, and a few far pairs cannot
+    make a near one certain. Unit-free, whatever the camera or the scene.
+    """
+
+    #: ``log d²`` of the first bin's lower edge and of the last bin's upper edge (beyond: the
+    #: end bins)
+    LOG_RANGE = (-16.0, 32.0)
+
+    def __init__(self) -> None:
+        self.width = log_chi2_std(3)
+        low, high = self.LOG_RANGE
+        bins = int(np.ceil((high - low) / (0.25 * self.width)))
+        self.edges = np.linspace(low, high, bins + 1)
+        #: pairs of two objects counted per bin of ``log d²``
+        self.counts = np.zeros(bins)
+
+    def __len__(self) -> int:
+        return int(self.counts.sum())
+
+    def add(self, d2: np.ndarray) -> None:
+        """Count the ``d²`` of pairs of (nearly always) two objects."""
+        d2 = np.asarray(d2, float).ravel()
+        d2 = d2[np.isfinite(d2) & (d2 > 0)]
+        if d2.size:
+            index = np.searchsorted(self.edges, np.log(d2), side="right") - 1
+            np.add.at(self.counts, np.clip(index, 0, self.counts.size - 1), 1.0)
+
+    def log_ratio(self, d2: np.ndarray) -> np.ndarray:
+        """``log`` of the density of ``d²`` for one object over that for two (class
+        docstring); 0 for every pair before any is counted."""
+        d2 = np.maximum(np.asarray(d2, float).ravel(), 1e-300)
+        n = self.counts.sum()
+        if n == 0:
+            return np.zeros(d2.size)
+        centres = 0.5 * (self.edges[1:] + self.edges[:-1])
+        used = self.counts > 0
+        z = (np.log(d2)[:, None] - centres[used][None, :]) / self.width
+        kernel = np.exp(-0.5 * z * z) @ self.counts[used] / (n * self.width * np.sqrt(2 * np.pi))
+        one = stats.chi2.pdf(d2, 3)
+        two = (n * kernel / d2 + one) / (n + 1.0)  # in d², one pseudo-pair of one object
+        return np.log(np.maximum(one, 1e-300)) - np.log(np.maximum(two, 1e-300))
+
+    def arrays(self) -> np.ndarray:
+        """The counts (for a snapshot; :meth:`from_arrays`)."""
+        return self.counts.copy()
+
+    @classmethod
+    def from_arrays(cls, counts: np.ndarray) -> PositionRatio:
+        """The ratio of :meth:`arrays`' counts."""
+        out = cls()
+        counts = np.asarray(counts, float).ravel()
+        if counts.size != out.counts.size or not np.isfinite(counts).all() or (counts < 0).any():
+            raise ValueError(
+                f"position ratio: {counts.size} counts where {out.counts.size} finite, "
+                "non-negative ones belong"
+            )
+        out.counts = counts.copy()
+        return out
 
 
 def revisit_posterior(log_ratio: np.ndarray, prior: float) -> np.ndarray:

@@ -42,6 +42,7 @@ from teamslam.msckf.objects.appearance import (
 from teamslam.msckf.objects.hindsight import UnnamedBoxes, chance_in_gate, hindsight_horizon
 from teamslam.msckf.objects.loop_closure import (
     LoopClosure,
+    PositionRatio,
     difference_d2,
     merge_objects,
     revisit_posterior,
@@ -195,6 +196,9 @@ class ObjectTracker:
         self._boxes: dict[int, list[np.ndarray]] = {}
         self._confirmed_at: dict[int, int] = {}
         self.revisit_gate = chi2_quantile(config.tracking.gate_probability, 3)
+        #: the position difference's likelihood ratio in a re-identification's posterior, its
+        #: density for two objects learned from every call's pairs (:meth:`reidentify`)
+        self.position = PositionRatio()
         #: with ``filter.object_overconfidence``: ``(new id, old id)`` → ``d²`` of the
         #: re-identifications that appearance and class alone would make, before the position
         #: gate (samples of how overconfident the objects are, not cut by that gate; the agent
@@ -513,6 +517,7 @@ class ObjectTracker:
                 -1, 2
             )
             out["pending"] = np.array(list(self._pending.items()), np.int64).reshape(-1, 2)
+            out["position_counts"] = self.position.arrays()
             out["together_ids"] = np.array(list(self._together), np.int64)
             pairs = [(n, i) for n, ids in self._together.items() for i in sorted(ids)]
             out["together"] = np.array(pairs, np.int64).reshape(-1, 2)
@@ -585,6 +590,9 @@ class ObjectTracker:
                 self._boxes.setdefault(i, []).append(d.copy())
             self._confirmed_at = dict(state["confirmed_at"].tolist())
             self._pending = dict(np.asarray(state.get("pending", np.zeros((0, 2)))).tolist())
+            self.position = PositionRatio()
+            if "position_counts" in state:  # a checkpoint from before has none
+                self.position = PositionRatio.from_arrays(state["position_counts"])
             self._together = {int(n): set() for n in state.get("together_ids", [])}
             for n, i in np.asarray(state.get("together", np.zeros((0, 2)))).tolist():
                 self._together[int(n)].add(int(i))
@@ -744,7 +752,9 @@ class ObjectTracker:
         :func:`~teamslam.msckf.objects.loop_closure.difference_d2`, the
         ``tracking.gate_probability`` quantile of χ²(3)); the gated ones are weighed by the
         log likelihood ratios of the appearance and the class of every box of the new object,
-        summed, against a new object whose prior is the share of confirmed tracks found to be
+        summed, and of the position difference's ``d²`` (:class:`~teamslam.msckf.objects.
+        loop_closure.PositionRatio`, learned from the ``d²`` of every old object of every
+        call), against a new object whose prior is the share of confirmed tracks found to be
         revisits so far (Beta(1, 1)), and against each other
         (:func:`~teamslam.msckf.objects.loop_closure.revisit_posterior`). The best is merged
         (:func:`~teamslam.msckf.objects.loop_closure.merge_objects`) when its posterior reaches
@@ -777,16 +787,27 @@ class ObjectTracker:
             old = state.object_ids[(state.object_last_seen < created[n]) | seen_apart]
             old = np.concatenate([old, retired])
             old = old[~np.isin(old, young) & ~np.isin(old, pairs)]
+            if not old.size:
+                continue
             everyone = old  # of every class: where a look-alike appearance named may lie
             label = int(self.labels_of(np.array([n]))[0])
-            if label >= 0 and old.size:
+            of_class = np.ones(old.size, bool)
+            if label >= 0:
                 labels = self.labels_of(old)
-                old = old[(labels < 0) | (labels == label)]
+                of_class = (labels < 0) | (labels == label)
+            # the gate's d² of every old object: pairs of two objects but for one at most, what
+            # the position ratio learns a pair of two objects from
+            offset = self._view_offset(n, everyone)
+            d2 = difference_d2(state, n, everyone, offset=offset)
+            if self.widening is not None:
+                r = self.widening(np.concatenate([[n], everyone]))
+                if (r > 1.0).any():
+                    d2 = difference_d2(state, n, everyone, (float(r[0]), r[1:]), offset)
+            self.position.add(d2)
+            old, d2 = old[of_class], d2[of_class]
             if not old.size:
                 continue
             held = difference_d2(state, n, old)
-            offset = self._view_offset(n, old)
-            d2 = difference_d2(state, n, old, offset=offset)
             ratio = self._revisit_ratio(n, old)
             if self.config.filter.object_overconfidence:
                 # the sample: what appearance and class alone name, not cut by the gate (and
@@ -799,14 +820,11 @@ class ObjectTracker:
                         others = everyone[everyone != key[1]]
                         self.revisit_alternatives[key] = difference_d2(state, n, others)
                     self._pending[n] = key[1]
-            if self.widening is not None:
-                r = self.widening(np.concatenate([[n], old]))
-                if (r > 1.0).any():
-                    d2 = difference_d2(state, n, old, (float(r[0]), r[1:]), offset)
             inside = d2 <= self.revisit_gate
             if not inside.any():
                 continue
-            best = self._revisit_choice(ratio[inside], prior)
+            evidence = ratio[inside] + self.position.log_ratio(d2[inside])
+            best = self._revisit_choice(evidence, prior)
             if best is not None:
                 pairs.append((n, int(old[inside][best])))
         if not pairs:

@@ -395,9 +395,9 @@ class TrackingSettings:
         (:meth:`~teamslam.msckf.objects.tracking.ObjectTracker.reidentify`): a new object of the
         tracker is merged into an object last seen before its first box when the posterior
         probability that it is that object (its position difference inside the
-        ``gate_probability`` gate of χ²(3), appearance and class of all its boxes, against a new
-        object and every other candidate) reaches this. Boxes with sizes and appearance only
-        (otherwise nothing changes).
+        ``gate_probability`` gate of χ²(3) and its likelihood ratio, appearance and class of all
+        its boxes, against a new object and every other candidate) reaches this. Boxes with
+        sizes and appearance only (otherwise nothing changes).
     """
 
     gate_probability: float = field(default=0.99, metadata=_unit(""))
