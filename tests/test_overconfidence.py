@@ -22,6 +22,7 @@ from teamslam.msckf.filter.box_noise import (
     Overconfidence,
     box_rows,
     box_variances,
+    mixture_factor,
     overconfidence_factor,
 )
 
@@ -147,6 +148,31 @@ def test_own_samples_without_alternatives_must_be_right_and_links_keep_the_media
     links.add(2, _pairs(d2), 1.0, _own_samples(rng, 1.0, 60, 0)[1])  # ignored for links
     assert not links.alternatives
     assert links.kappa == overconfidence_factor(d2)
+
+
+def test_samples_added_one_by_one_give_the_mixture_of_all_of_them():
+    """The learner keeps each own sample's kernel sum as samples come: after every addition,
+    one pair at a time (some without alternatives, some from the links, each under its own
+    factor), and after a snapshot, its factor is the one :func:`mixture_factor` finds from all
+    the samples at once."""
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        learner = Overconfidence()
+        for i in range(25):
+            key = (i, 1000 + i)
+            if rng.random() < 0.2:
+                learner.add(1, {key: float(rng.chisquare(3))}, 1.0)
+                continue
+            d2 = 30.0 * rng.chisquare(3) if rng.random() < 0.5 else np.exp(rng.uniform(2, 11))
+            others = np.exp(rng.uniform(2.0, 11.0, rng.integers(0, 30)))
+            given = None if rng.random() < 0.1 else {key: others}
+            learner.add(-1, {key: float(d2)}, float(rng.uniform(1.0, 3.0)), given)
+            own = np.array([v for k, v in learner.samples.items() if k[0] < 0])
+            links = np.array([v for k, v in learner.samples.items() if k[0] >= 0])
+            alternatives = list(learner.alternatives.values())
+            expected = max(overconfidence_factor(links), mixture_factor(own, alternatives))
+            assert learner.kappa == expected
+        assert Overconfidence.from_arrays(learner.arrays()).kappa == learner.kappa
 
 
 def test_arrays_round_trip():

@@ -193,6 +193,12 @@ class Overconfidence:
         #: (-1, id, other id) → ``κ_i · d²`` of the other old objects of the
         #: re-identification call the pair's first sample came from
         self.alternatives: dict[tuple[int, int, int], np.ndarray] = {}
+        # per own sample, its kernel sum over every positive alternative pooled so far, and
+        # their count: kept as samples come (each new sample adds its alternatives to every
+        # earlier sum), so a sample costs what its own alternatives and the pool cost, not
+        # every sample times the pool (:func:`mixture_factor`)
+        self._kernel: dict[tuple[int, int, int], float] = {}
+        self._pooled: list[np.ndarray] = []
         self._kappa = 1.0
 
     def __len__(self) -> int:
@@ -226,20 +232,42 @@ class Overconfidence:
                     others = np.asarray(others, float).ravel()
                     others = others[np.isfinite(others) & (others >= 0)]
                     self.alternatives[key] = float(factor) * others
+                if neighbour < 0:
+                    self._count_own(key)
                 new += 1
         if new:
             self._kappa = self._factor()
         return new
 
+    def _count_own(self, key: tuple[int, int, int]) -> None:
+        """Add own sample ``key``'s alternatives to the kernel sums of the earlier own samples,
+        and its own sum over the whole pool (:attr:`_kernel`)."""
+        part = self.alternatives.get(key, np.zeros(0))
+        part = np.log(part[part > 0])
+        if part.size and self._kernel:
+            earlier = list(self._kernel)
+            log_s = np.log(np.maximum([self.samples[k] for k in earlier], 1e-12))
+            for k, extra in zip(earlier, _kernel_sums(log_s, part), strict=True):
+                self._kernel[k] += float(extra)
+        if part.size:
+            self._pooled.append(part)
+        pool = np.concatenate([np.zeros(0), *self._pooled])
+        log_key = np.log(np.array([max(self.samples[key], 1e-12)]))
+        self._kernel[key] = float(_kernel_sums(log_key, pool)[0])
+
     def _factor(self) -> float:
         """The larger of the two sources' factors: the pairs of the links (pooled) and the
-        robot's own re-identifications (source ``-1``)."""
+        robot's own re-identifications (source ``-1``, :func:`mixture_factor` from the kernel
+        sums kept as samples came)."""
         own = np.array([k[0] < 0 for k in self.samples], dtype=bool)
         values = np.fromiter(self.samples.values(), float, count=own.size)
         links = overconfidence_factor(values[~own])
-        if not self.alternatives:
+        count = sum(p.size for p in self._pooled)
+        if not self.alternatives or count == 0:
             return max(links, overconfidence_factor(values[own]))
-        return max(links, mixture_factor(values[own], list(self.alternatives.values())))
+        s = np.maximum(values[own], 1e-12)
+        sums = np.array([self._kernel[k] for k in self.samples if k[0] < 0])
+        return max(links, _mixture_kappa(s, _wrong_density(s, sums, count)))
 
     def arrays(self) -> dict[str, np.ndarray]:
         """What it learned, as arrays (for a snapshot; :meth:`from_arrays`)."""
@@ -272,6 +300,11 @@ class Overconfidence:
             for k, part in zip(keys.tolist(), np.split(flat, np.cumsum(counts)[:-1]), strict=True):
                 if k[0] < 0 and part.size:
                     out.alternatives[tuple(k)] = part.copy()
+        own = [k for k in out.samples if k[0] < 0]
+        out._pooled = [np.log(a[a > 0]) for a in out.alternatives.values() if (a > 0).any()]
+        pool = np.concatenate([np.zeros(0), *out._pooled])
+        log_s = np.log(np.maximum([out.samples[k] for k in own], 1e-12))
+        out._kernel = dict(zip(own, _kernel_sums(log_s, pool).tolist(), strict=True))
         if values.size:
             out._kappa = out._factor()
         return out
@@ -314,14 +347,32 @@ def mixture_factor(scaled: np.ndarray, alternatives: list[np.ndarray]) -> float:
     if scaled.size == 0 or others.size == 0:
         return overconfidence_factor(scaled)
     s = np.maximum(scaled, 1e-12)
+    return _mixture_kappa(s, _wrong_density(s, _kernel_sums(np.log(s), others), others.size))
+
+
+def _kernel_sums(log_s: np.ndarray, log_others: np.ndarray) -> np.ndarray:
+    """``(len(log_s),)`` sums over ``log_others`` of the unnormalised kernel of
+    :func:`mixture_factor` at each ``log_s`` (in chunks: memory bounded)."""
     h = log_chi2_std(3)  # how far one pair's d² lies from another's of its kind
-    log_s = np.log(s)
-    wrong = np.empty(s.size)
-    rows = max(1, _MIXTURE_CHUNK // others.size)  # bounded memory: samples × alternatives
-    for start in range(0, s.size, rows):
-        z = (log_s[start : start + rows, None] - others[None, :]) / h
-        wrong[start : start + rows] = np.exp(-0.5 * z * z).mean(axis=1)
-    wrong /= h * np.sqrt(2.0 * np.pi) * s
+    out = np.zeros(log_s.size)
+    if not log_others.size:
+        return out
+    rows = max(1, _MIXTURE_CHUNK // log_others.size)
+    for start in range(0, log_s.size, rows):
+        z = (log_s[start : start + rows, None] - log_others[None, :]) / h
+        out[start : start + rows] = np.exp(-0.5 * z * z).sum(axis=1)
+    return out
+
+
+def _wrong_density(s: np.ndarray, sums: np.ndarray, count: int) -> np.ndarray:
+    """The density in ``d²`` at each sample ``s`` of the pairs of two objects, from its kernel
+    sums over ``count`` alternatives (:func:`_kernel_sums`)."""
+    return sums / (count * log_chi2_std(3) * np.sqrt(2.0 * np.pi) * s)
+
+
+def _mixture_kappa(s: np.ndarray, wrong: np.ndarray) -> float:
+    """:func:`mixture_factor`'s ``κ`` of samples ``s`` given each one's density as a pair of two
+    objects."""
     kappas = np.geomspace(1.0, max(10.0, 100.0 * float(s.max())), 400)
     shares = np.linspace(0.01, 1.0, 100)
     loglik = np.empty(kappas.size)  # each κ at its best share w
