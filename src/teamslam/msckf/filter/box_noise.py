@@ -193,10 +193,11 @@ class Overconfidence:
         #: (-1, id, other id) → ``κ_i · d²`` of the other old objects of the
         #: re-identification call the pair's first sample came from
         self.alternatives: dict[tuple[int, int, int], np.ndarray] = {}
-        # per own sample, its kernel sum over every positive alternative pooled so far, and
-        # their count: kept as samples come (each new sample adds its alternatives to every
-        # earlier sum), so a sample costs what its own alternatives and the pool cost, not
-        # every sample times the pool (:func:`mixture_factor`)
+        # per own sample, its kernel sum over every positive alternative pooled so far, and the
+        # pooled alternatives' logarithms (one array per sample that had any): kept as samples
+        # come (each new sample adds its alternatives to every earlier sum), so a sample costs
+        # what its own alternatives and the pool cost, not every sample times the pool
+        # (:func:`mixture_factor`)
         self._kernel: dict[tuple[int, int, int], float] = {}
         self._pooled: list[np.ndarray] = []
         self._kappa = 1.0
