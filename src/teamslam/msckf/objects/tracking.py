@@ -797,12 +797,11 @@ class ObjectTracker:
                 of_class = (labels < 0) | (labels == label)
             # the gate's d² of every old object: pairs of two objects but for one at most, what
             # the position ratio learns a pair of two objects from
-            offset = self._view_offset(n, everyone)
-            d2 = difference_d2(state, n, everyone, offset=offset)
+            factors = None
             if self.widening is not None:
                 r = self.widening(np.concatenate([[n], everyone]))
-                if (r > 1.0).any():
-                    d2 = difference_d2(state, n, everyone, (float(r[0]), r[1:]), offset)
+                factors = (float(r[0]), r[1:]) if (r > 1.0).any() else None
+            d2 = difference_d2(state, n, everyone, factors, self._view_offset(n, everyone))
             self.position.add(d2)
             old, d2 = old[of_class], d2[of_class]
             if not old.size:
