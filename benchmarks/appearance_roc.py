@@ -211,7 +211,8 @@ def street_boxes(directory, every: int, absence: int) -> StreetBoxes:
                 continue
             image = cv2.imread(str(folder / "left" / name), cv2.IMREAD_COLOR)
             for kind in DESCRIPTORS:
-                vectors[kind].append(describe(image, boxes.boxes[keep], kind))
+                # every box of the image, as the tracker receives them (false ones too)
+                vectors[kind].append(describe(image, boxes.boxes, kind)[keep])
             objects.append(found[keep])
             robots.append(np.full(int(keep.sum()), robot))
             passes.append(np.array([count[i] for i in found[keep].tolist()]))

@@ -350,3 +350,31 @@ def test_descriptors_are_unit_vectors_of_fixed_size_on_grey_and_colour():
         describe(grey.astype(np.float32), boxes)
     with pytest.raises(InputError, match="unknown"):
         describe(grey, boxes, "sift")
+
+
+def test_colour_histograms_leave_out_what_another_box_covers():
+    """Two objects side by side, the left one's box reaching into the right one: its colour is
+    counted only where no other box lies (the neighbour's colour stays out); a box the others
+    cover wholly keeps all its pixels; the layouts take the whole box."""
+    image = np.zeros((100, 200, 3), np.uint8)
+    image[:, :100] = (0, 0, 200)  # red (BGR)
+    image[:, 100:] = (200, 60, 0)  # blue
+    rng = np.random.default_rng(7)
+    image = _u8(image + rng.normal(0.0, 8.0, image.shape))  # some spread inside each colour
+    reaching, right = [10.0, 10, 129, 90], [100.0, 10, 190, 90]
+    red_only, blue_only = [10.0, 10, 99, 90], [130.0, 10, 190, 90]
+    for kind in ("hue-saturation", "hue-saturation-or-thumbnail", "intensity"):
+        both = describe(image, np.array([reaching, right]), kind)
+        np.testing.assert_allclose(both[0], describe(image, np.array([red_only]), kind)[0])
+        np.testing.assert_allclose(both[1], describe(image, np.array([blue_only]), kind)[0])
+        alone = describe(image, np.array([reaching]), kind)[0]
+        assert float(alone @ both[0]) < 0.99  # alone, its box counts the neighbour's colour too
+    # a box inside another: all of its pixels (the outer box leaves them out)
+    inner = [140.0, 30, 160, 60]
+    nested = describe(image, np.array([right, inner]))
+    np.testing.assert_allclose(nested[1], describe(image, np.array([inner]))[0])
+    for kind in ("thumbnail", "hog"):
+        np.testing.assert_allclose(
+            describe(image, np.array([reaching, right]), kind)[0],
+            describe(image, np.array([reaching]), kind)[0],
+        )

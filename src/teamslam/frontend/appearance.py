@@ -37,6 +37,13 @@ tenth of its size) and a camera's gain and offset:
     object's identity from any side; a thumbnail's layout is the view's, and from another
     side it tells nothing. A grey and a colour view score 0.
 
+The histograms (``intensity``, ``hue-saturation`` and the colour half of the joined kinds)
+count only the pixels of a box that no other box of the image covers: where two boxes overlap,
+which object a pixel shows is unknown without a segmentation, and in a cluster of objects the
+neighbour's colour would otherwise enter every box (a box wholly covered by others counts all
+its pixels). The layouts (``thumbnail``, ``hog``) take the whole box: a hole would move with
+the neighbour.
+
 ``benchmarks/appearance_roc.py`` measures how well each separates one object from another
 (ROC AUC): on a grey room of markers (planar, their layout is their identity) and on a colour
 street of objects seen from several sides, pairs of one pass and pairs across an absence;
@@ -104,14 +111,36 @@ def _normalised(v: np.ndarray) -> np.ndarray:
     return (v / np.where(norm > 0, norm, 1.0)).astype(np.float32)
 
 
-def _crop(image: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """The pixels of ``image`` whose centres lie in ``box`` (at least one pixel)."""
-    h, w = image.shape[:2]
-    x0 = int(np.clip(np.ceil(box[0]), 0, w - 1))
-    y0 = int(np.clip(np.ceil(box[1]), 0, h - 1))
-    x1 = int(np.clip(np.floor(box[2]), x0, w - 1))
-    y1 = int(np.clip(np.floor(box[3]), y0, h - 1))
+def _pixel_bounds(shape: tuple[int, ...], boxes: np.ndarray) -> np.ndarray:
+    """``(M, 4)`` ``(x0, y0, x1, y1)``, inclusive: the pixels of an image of ``shape`` whose
+    centres lie in each box (at least one pixel)."""
+    h, w = shape[:2]
+    x0 = np.clip(np.ceil(boxes[:, 0]), 0, w - 1)
+    y0 = np.clip(np.ceil(boxes[:, 1]), 0, h - 1)
+    x1 = np.clip(np.floor(boxes[:, 2]), x0, w - 1)
+    y1 = np.clip(np.floor(boxes[:, 3]), y0, h - 1)
+    return np.stack([x0, y0, x1, y1], axis=1).astype(np.int64)
+
+
+def _crop(image: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    x0, y0, x1, y1 = bounds.tolist()
     return image[y0 : y1 + 1, x0 : x1 + 1]
+
+
+def _uncovered(bounds: np.ndarray, k: int) -> np.ndarray | None:
+    """8-bit mask over box ``k``'s crop of the pixels no other box covers; ``None`` (every
+    pixel) when no other box overlaps it or the others cover all of it."""
+    x0, y0, x1, y1 = bounds[k].tolist()
+    lo = np.maximum(bounds[:, :2], bounds[k, :2])
+    hi = np.minimum(bounds[:, 2:], bounds[k, 2:])
+    overlapping = np.flatnonzero(np.all(lo <= hi, axis=1))
+    overlapping = overlapping[overlapping != k]
+    if not overlapping.size:
+        return None
+    mask = np.full((y1 - y0 + 1, x1 - x0 + 1), 255, np.uint8)
+    for j in overlapping.tolist():
+        mask[lo[j, 1] - y0 : hi[j, 1] - y0 + 1, lo[j, 0] - x0 : hi[j, 0] - x0 + 1] = 0
+    return mask if mask.any() else None
 
 
 def _thumbnail_vector(cv2, grey: np.ndarray) -> np.ndarray:
@@ -148,8 +177,8 @@ def _hog_vector(cv2, grey: np.ndarray) -> np.ndarray:
     return _normalised(np.minimum(hist, 0.2))
 
 
-def _intensity_vector(grey: np.ndarray) -> np.ndarray:
-    g = grey.astype(np.float32)
+def _intensity_vector(grey: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    g = (grey if mask is None else grey[mask > 0]).astype(np.float32)
     std = float(g.std())
     if std < 1e-6:
         return np.zeros(_INTENSITY_BINS, np.float32)
@@ -159,12 +188,12 @@ def _intensity_vector(grey: np.ndarray) -> np.ndarray:
     return np.sqrt(hist.astype(np.float32))
 
 
-def _hue_saturation_vector(cv2, colour: np.ndarray | None) -> np.ndarray:
+def _hue_saturation_vector(cv2, colour: np.ndarray | None, mask: np.ndarray | None) -> np.ndarray:
     if colour is None:
         return np.zeros(_DIMENSIONS["hue-saturation"], np.float32)
     hsv = cv2.cvtColor(colour, cv2.COLOR_BGR2HSV)
     least = int(np.ceil(_MIN_SATURATION * 255))
-    hist = cv2.calcHist([hsv], [0, 1], None, [_HUE_BINS, _SATURATION_BINS], [0, 180, least, 256])
+    hist = cv2.calcHist([hsv], [0, 1], mask, [_HUE_BINS, _SATURATION_BINS], [0, 180, least, 256])
     return np.sqrt(hist.ravel())
 
 
@@ -176,7 +205,8 @@ def describe(image: np.ndarray, boxes: np.ndarray, kind: str = DEFAULT_DESCRIPTO
     image
         ``(H, W)`` 8-bit grey or ``(H, W, 3)`` 8-bit BGR image the boxes are in.
     boxes
-        ``(M, 4)`` ``(x_min, y_min, x_max, y_max)`` in pixels of ``image``.
+        ``(M, 4)`` ``(x_min, y_min, x_max, y_max)`` in pixels of ``image``: every box of
+        the image (the histograms leave out what another box covers).
     kind
         One of :data:`DESCRIPTORS`.
 
@@ -200,24 +230,27 @@ def describe(image: np.ndarray, boxes: np.ndarray, kind: str = DEFAULT_DESCRIPTO
     colour = image if image.ndim == 3 else None
     grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if colour is not None else image
     out = np.zeros((len(boxes), _DIMENSIONS[kind]), np.float32)
-    for k, box in enumerate(boxes):
-        g = _crop(grey, box)
-        c = None if colour is None else _crop(colour, box)
+    bounds = _pixel_bounds(image.shape, boxes)
+    histogram = kind not in ("thumbnail", "hog") and (colour is not None or kind == "intensity")
+    for k in range(len(boxes)):
+        g = _crop(grey, bounds[k])
+        c = None if colour is None else _crop(colour, bounds[k])
+        mask = _uncovered(bounds, k) if histogram else None
         if kind == "thumbnail":
             out[k] = _thumbnail_vector(cv2, g)
         elif kind == "hog":
             out[k] = _hog_vector(cv2, g)
         elif kind == "intensity":
-            out[k] = _intensity_vector(g)
+            out[k] = _intensity_vector(g, mask)
         elif kind == "hue-saturation":
-            out[k] = _hue_saturation_vector(cv2, c)
+            out[k] = _hue_saturation_vector(cv2, c, mask)
         elif kind == "hue-saturation-or-thumbnail":
             if c is None:
                 out[k, : _DIMENSIONS["thumbnail"]] = _normalised(_thumbnail_vector(cv2, g))
             else:
-                out[k, _DIMENSIONS["thumbnail"] :] = _hue_saturation_vector(cv2, c)
+                out[k, _DIMENSIONS["thumbnail"] :] = _hue_saturation_vector(cv2, c, mask)
         else:
             grey_part = _normalised(_thumbnail_vector(cv2, g))
-            hue = _normalised(_hue_saturation_vector(cv2, c))
+            hue = _normalised(_hue_saturation_vector(cv2, c, mask))
             out[k] = np.concatenate([grey_part, hue])
     return _normalised(out)
